@@ -1,0 +1,32 @@
+# The two commands of the README: `make demo` and `make test`.
+# Both set up .venv (machine python3, 3.11) when it is missing or stale.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test setup colcon clean
+
+setup: $(STAMP)
+
+$(STAMP): requirements.txt setup.py package.xml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python -m tank_control.demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q test
+
+# A colcon workspace build of this package (ament_python), into build/colcon/.
+colcon: $(STAMP)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements-colcon.txt
+	cd build/colcon 2>/dev/null || mkdir -p build/colcon
+	$(BIN)/colcon --log-base build/colcon/log build --base-paths . \
+	  --build-base build/colcon/build --install-base build/colcon/install
+
+clean:
+	rm -rf $(VENV) build/ install/ log/ *.egg-info

@@ -1,0 +1,31 @@
+"""ament_python build of tank_control (also installable with pip)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'tank_control'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='tank_control team',
+    maintainer_email='team@tank-control.invalid',
+    description='Process-control runtime for dead-time processes on ROS 2',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'plant_node = tank_control.nodes.plant_node:main',
+            'controller_node = tank_control.nodes.controller_node:main',
+            'reference_node = tank_control.nodes.reference_node:main',
+        ],
+    },
+)

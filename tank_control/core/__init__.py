@@ -1,0 +1,1 @@
+"""Pure numpy/scipy core: plants, controllers, tuning, analysis. Never imports rclpy."""

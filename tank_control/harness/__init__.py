@@ -1,0 +1,1 @@
+"""Launch-free scenario harness: processes, recording, metrics, plots, CLI."""

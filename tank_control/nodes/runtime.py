@@ -1,0 +1,28 @@
+"""Start-up and clean shutdown shared by every node's ``main()``."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+
+def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """Init rclpy, build the node, spin until SIGINT/SIGTERM, shut down; return 0.
+
+    rclpy's default signal handlers cover SIGINT and SIGTERM: spinning ends with
+    ``KeyboardInterrupt`` or ``ExternalShutdownException``, both a clean stop.
+    """
+    rclpy.init(args=args)
+    node: Node | None = None
+    try:
+        node = factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
