@@ -14,7 +14,8 @@ same dotted names)::
 
     reference:
       ros__parameters:
-        sample_time: 1.0               # publishing period without use_sim_time [s]
+        sample_time: 1.0               # publishing period in wall mode [s]
+        clock_mode: wall               # sim/lockstep: answer every /clock tick instead
         setpoint.channels: [y]          # setpoint channels (= controlled outputs)
         setpoint.y.times: [0.0, 10.0]   # [s] instants of scheduled changes (non-decreasing)
         setpoint.y.values: [0.0, 1.0]   # target from times[i] on [channel units]
@@ -257,9 +258,11 @@ def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
     runtime override (layout and semantics: module doc).
     """
     specs = [
-        ParamSpec('sample_time', 1.0, 'publishing period without use_sim_time [s]; with '
-                  'use_sim_time (sim/lockstep) the reference answers every /clock tick',
-                  min=1e-6, max=3600.0),
+        ParamSpec('sample_time', 1.0, 'publishing period in wall mode [s]; in sim/lockstep '
+                  'the reference answers every /clock tick instead', min=1e-6, max=3600.0),
+        ParamSpec('clock_mode', 'wall', 'wall: publish every sample_time on a wall timer; '
+                  'sim/lockstep (also implied by use_sim_time): answer every /clock tick, '
+                  'stamped t_k', choices=('wall', 'sim', 'lockstep'), read_only=True),
         # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)
         ParamSpec('setpoint.channels', list(reference.setpoint_names) or [''],
                   'setpoint channel names (= controlled outputs)', read_only=True),

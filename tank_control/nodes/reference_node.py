@@ -6,9 +6,9 @@ Topics (``sensor_msgs/JointState``, see ``nodes/messages.py``):
 * ``disturbance`` — the disturbance channels (may be empty; in lockstep it is
   the reference's answer for the tick and the plant waits for it).
 
-Timing: without ``use_sim_time`` (clock mode ``wall``) on a wall timer every
-``sample_time`` (schedule time = seconds since start, stamp = now);
-with ``use_sim_time`` (``sim``/``lockstep``, the harness passes it) on every
+Timing: with ``clock_mode: wall`` (default) and without ``use_sim_time`` on a
+wall timer every ``sample_time`` (schedule time = seconds since start, stamp =
+now); with ``clock_mode`` ``sim``/``lockstep`` or ``use_sim_time`` on every
 ``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
 re-sent tick gets the same messages again, nothing is recomputed).
 
@@ -40,7 +40,7 @@ def _file_values(node: Node) -> dict[str, Any]:
     """The node's start-up values from the params file / command line (flat)."""
     overrides = getattr(node, '_parameter_overrides', {})   # rclpy has no public getter
     return {name: param.value for name, param in overrides.items()
-            if name.split('.')[0] in KINDS + ('sample_time',)}
+            if name.split('.')[0] in KINDS}
 
 
 class ReferenceNode(Node):
@@ -63,7 +63,8 @@ class ReferenceNode(Node):
                                                      TOPIC_DISTURBANCE, SIGNAL_QOS)
         self.answers = Answers()
         self.published = 0
-        self.use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
+                             or self.params.values['clock_mode'] != 'wall')
         if self.use_sim_time:
             self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS)
         else:
