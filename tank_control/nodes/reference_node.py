@@ -24,6 +24,7 @@ from typing import Any
 
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.reference import (FIELDS, KINDS, Reference, channel_lists,
@@ -31,7 +32,8 @@ from tank_control.core.reference import (FIELDS, KINDS, Reference, channel_lists
                                          schedule_from_fields, split_param_name)
 from tank_control.nodes.clock import Answers, steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
-                                         TOPIC_SETPOINT, stamp_to_ns, to_joint_state)
+                                         TOPIC_SETPOINT, quiet_publisher_events,
+                                         quiet_subscription_events, stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
 
@@ -57,16 +59,17 @@ class ReferenceNode(Node):
         self.reference: Reference = reference
         self.params = ParameterBinding(self, reference_params(reference),
                                        cross_check=self._cross_check)
-        self.setpoint_pub = self.create_publisher(type(to_joint_state(0, [], [])),
-                                                  TOPIC_SETPOINT, SIGNAL_QOS)
-        self.disturbance_pub = self.create_publisher(type(to_joint_state(0, [], [])),
-                                                     TOPIC_DISTURBANCE, SIGNAL_QOS)
+        self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, SIGNAL_QOS,
+                                                  event_callbacks=quiet_publisher_events())
+        self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
+                                                     event_callbacks=quiet_publisher_events())
         self.answers = Answers()
         self.published = 0
         self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
                              or self.params.values['clock_mode'] != 'wall')
         if self.use_sim_time:
-            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS)
+            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
+                                     event_callbacks=quiet_subscription_events())
         else:
             period = float(self.params.values['sample_time'])
             self._start_ns = self.get_clock().now().nanoseconds
