@@ -155,7 +155,7 @@ def config_reason(cfg: TwoLoopPiConfig) -> str | None:
     if cfg.v_limit is not None and (not _finite(cfg.v_limit) or cfg.v_limit <= 0):
         return f'v_limit: {cfg.v_limit!r} is out of range; allowed (0, inf) or None'
     if cfg.decoupling != 'none' and abs(1.0 - cfg.d12 * _d21_gain(cfg)) < 1e-9:
-        return f'd12, d21: 1 − d12·d21 = 0 makes the decoupler singular'
+        return 'd12, d21: 1 − d12·d21 = 0 makes the decoupler singular'
     if cfg.anti_windup not in ANTI_WINDUP_CHOICES:
         return f'anti_windup: {cfg.anti_windup!r} is not one of ' + ', '.join(ANTI_WINDUP_CHOICES)
     g = cfg.guard
