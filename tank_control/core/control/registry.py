@@ -138,6 +138,49 @@ def _pid_kind() -> ControllerKind:
         description='SISO 2-DOF PID (000 eq. 19) with filter, limits, anti-windup, tuning rules')
 
 
+# ---------------------------------------------------------- two_loop_pi
+def _two_loop_check(values: Values) -> str | None:
+    from tank_control.core.control.multiloop import check_two_loop_relations
+    reason = check_two_loop_relations(values)
+    if reason:
+        return reason
+    for name in ('output_names', 'input_names'):
+        if len(values[name]) != 2:
+            return f'{name}: {list(values[name])} must name 2 channels (h and T_out loops)'
+    safe = list(values['fail_safe_output'])
+    lo, hi = values['u_min'], values['u_max']
+    if len(safe) != 2 or not all(lo <= v <= hi for v in safe):
+        return (f'fail_safe_output: {safe} must be 2 flows (F_H, F_Cin) within the limits '
+                f'[{lo:g}, {hi:g}]')
+    return None
+
+
+def _two_loop_build(values: Values) -> Controller:
+    from tank_control.core.control.multiloop import TwoLoopPi, two_loop_config_from_params
+    controller = TwoLoopPi(two_loop_config_from_params(values))
+    controller.output_names = tuple(values['output_names'])
+    controller.input_names = tuple(values['input_names'])
+    return controller
+
+
+def _two_loop_kind() -> ControllerKind:
+    """Two-loop PI of 003 §2–3; changes rebuild it, re-initialised from the last (y, u)."""
+    from tank_control.core.control.multiloop import two_loop_pi_params
+    fail_safe = (
+        ParamSpec('fail_safe', 'hold', 'on stale or non-finite measurement: hold the last flows '
+                  'or send fail_safe_output', choices=('hold', 'output')),
+        ParamSpec('fail_safe_output', [14.0, 37.0], 'flows [F_H, F_Cin] sent on a measurement '
+                  "fault when fail_safe = 'output' [cm³/s] (default: 003 operating point)",
+                  min=0.0, max=1e4),
+    )
+    return ControllerKind(
+        name='two_loop_pi',
+        params=lambda: two_loop_pi_params() + fail_safe
+        + _channel_specs(('h', 'T_out'), ('F_H', 'F_Cin')),
+        check=_two_loop_check, build=_two_loop_build, update=None,
+        description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)')
+
+
 def _single(values: Values, name: str) -> str:
     names = list(values[name])
     if len(names) != 1:
@@ -149,7 +192,7 @@ def _single(values: Values, name: str) -> str:
 _KIND_FACTORIES: dict[str, tuple[str, str]] = {
     # name: (module, function returning a ControllerKind)
     'pid': (__name__, '_pid_kind'),
-    'two_loop_pi': ('tank_control.core.control.multiloop', 'controller_kind'),
+    'two_loop_pi': (__name__, '_two_loop_kind'),
     'smith_pi': ('tank_control.core.control.smith', 'controller_kind'),
 }
 
@@ -184,20 +227,48 @@ def _channel_specs(outputs: tuple[str, ...], inputs: tuple[str, ...]) -> tuple[P
     )
 
 
-def specs_for(name: str) -> tuple[ParamSpec, ...]:
-    """All parameters of kind ``name``: ``controller`` (read-only) + the kind's own."""
+#: Parameters of the runtime around any controller (controller_node); the
+#: in-process loop accepts and ignores them, so one params file serves both.
+RUNTIME_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec('clock_mode', 'auto', 'auto: lockstep answering with use_sim_time, else wall; '
+              'wall: wall timer every sample_time; sim: timer on /clock; lockstep: answer each '
+              'plant tick stamped t_k once measurement and setpoint of t_k are in',
+              choices=('auto', 'wall', 'sim', 'lockstep'), read_only=True),
+    ParamSpec('stale_samples', 3, 'wall/sim: samples without a measurement after which it is '
+              'stale (hold or fail-safe output)', min=1, max=1000),
+    ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [s, wall clock]',
+              min=0.05, max=60.0, read_only=True),
+)
+_IGNORED = frozenset({'use_sim_time'})   # ROS's own parameter, present in every node section
+
+
+def controller_specs(name: str) -> tuple[ParamSpec, ...]:
+    """The parameters that describe the controller: ``controller`` (read-only) + the kind's own."""
     kind = get_kind(name)
     common = ParamSpec('controller', name, 'controller kind (set at start-up)',
                        choices=kind_names(), read_only=True)
     own = kind.params()
-    return (common,) + tuple(s for s in own if s.name != 'controller')
+    runtime = {spec.name for spec in RUNTIME_SPECS}
+    return (common,) + tuple(s for s in own if s.name != 'controller' and s.name not in runtime)
+
+
+def specs_for(name: str) -> tuple[ParamSpec, ...]:
+    """Every parameter of a controller_node running kind ``name`` (controller + runtime)."""
+    return controller_specs(name) + RUNTIME_SPECS
+
+
+def controller_values(values: Values) -> dict[str, Any]:
+    """The controller's own entries of ``values`` (runtime parameters and use_sim_time dropped)."""
+    skip = {spec.name for spec in RUNTIME_SPECS} | _IGNORED
+    return {k: v for k, v in values.items() if k not in skip}
 
 
 def complete_values(values: Values) -> dict[str, Any]:
-    """``values`` with the defaults of the selected kind filled in (``controller`` defaults to pid)."""
+    """The controller's ``values`` with the defaults of the selected kind filled in
+    (``controller`` defaults to pid; runtime parameters dropped)."""
     name = str(values.get('controller', 'pid'))
-    merged = {spec.name: spec.default for spec in specs_for(name)}
-    merged.update(values)
+    merged = {spec.name: spec.default for spec in controller_specs(name)}
+    merged.update(controller_values(values))
     return merged
 
 
@@ -208,10 +279,10 @@ def check(values: Values) -> str | None:
         specs = specs_for(name)
     except (ValueError, ImportError, AttributeError) as exc:
         return str(exc)
-    reasons = check_all(specs, values)
+    reasons = check_all(specs, {k: v for k, v in values.items() if k not in _IGNORED})
     if reasons:
         return '; '.join(reasons)
-    return get_kind(name).check(values)
+    return get_kind(name).check(controller_values(values))
 
 
 def derive(values: Values, changed: frozenset[str] = frozenset()) -> dict[str, Any]:
@@ -227,25 +298,33 @@ def make_controller(values: Values) -> Controller:
     """
     merged = complete_values(values)
     merged.update(derive(merged, frozenset(values)))
-    reason = check(merged)
+    reason = check({**values, **merged})
     if reason:
         raise ValueError(reason)
     return get_kind(merged['controller']).build(merged)
 
 
-def apply_changes(controller: Controller, values: Values, changed: frozenset[str],
-                  y: np.ndarray | None = None, u: np.ndarray | None = None) -> Controller:
-    """Apply accepted parameter changes to a running controller, bumplessly.
+def step_with_changes(controller: Controller, values: Values, changed: frozenset[str],
+                      t: float, y: np.ndarray, r: np.ndarray,
+                      d: np.ndarray) -> tuple[Controller, np.ndarray]:
+    """The sample at which accepted parameter changes take effect, bumplessly.
 
-    Returns the controller to use from now on: the same object when the kind
-    updates in place, else a new one built from ``values`` and ``reset(y, u)``
-    with the last measurement ``y`` and output ``u`` (both needed then).
+    Returns ``(controller to use from now on, output of this sample)``. A kind
+    with an in-place ``update`` changes the running object, then steps (the
+    update keeps the output continuous, e.g. the PID's integral absorbs a gain
+    change). Any other kind computes this sample with the old object, then a
+    new object built from ``values`` is ``reset(y, u)`` to that output and
+    stepped once on the same sample (which returns ``u`` by the Controller
+    contract and initialises it), so the output is exactly continuous and the
+    new settings act from the next sample.
     """
     kind = get_kind(str(values.get('controller', 'pid')))
+    values = controller_values(values)
     if kind.update is not None:
         kind.update(controller, values, changed)
-        return controller
+        return controller, np.asarray(controller.step(t, y, r, d), dtype=float)
+    u = np.asarray(controller.step(t, y, r, d), dtype=float)
     new = kind.build(complete_values(values))
-    if y is not None and u is not None:
-        new.reset(np.asarray(y, dtype=float), np.asarray(u, dtype=float))
-    return new
+    new.reset(y, u)
+    new.step(t, y, r, d)
+    return new, u
