@@ -97,7 +97,7 @@ def _start(procs, node_cmd, ros_env, *params: str):
 def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
     ts = 0.2
     # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
-    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}', 'diagnostics_period:=0.1',
            'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
     loop = Loop(probe)
 
@@ -148,6 +148,10 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
     assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
     assert int(loop.diag['rejected_parameters']) >= 4
+    for key in ('mode', 'saturated', 'anti_windup_active', 'stale_inputs', 'rejected_inputs',
+                'last_computation_time_us'):
+        assert key in loop.diag
+    assert float(loop.diag['last_computation_time_us']) > 0.0
     assert loop.tick(14 * tick, 1.1, 1.0) == pytest.approx(2.0, abs=1e-12)   # resumes from 2.0
 
     # manual mode: switching keeps the current output (manual_output follows it), then

@@ -142,7 +142,7 @@ class ControllerNode(Node):
 
     def _step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One controller step; accepted parameter changes take effect at it, bumplessly."""
-        changed = self._params.take_pending()
+        changed = [name for name in self._params.take_pending() if name in self._kind_names]
         if changed:
             try:
                 self._controller, u = registry.step_with_changes(
