@@ -97,12 +97,14 @@ def _start(procs, node_cmd, ros_env, *params: str):
 def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
     ts = 0.2
     # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
-    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}', 'diagnostics_period:=0.1',
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
+           'diagnostics_period:=0.1',
            'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
     loop = Loop(probe)
 
     # declared with descriptors: range, read-only, description
-    kp_desc, ctrl_desc = loop.call(loop.params.describe_parameters(['kp', 'controller'])).descriptors
+    described = loop.call(loop.params.describe_parameters(['kp', 'controller']))
+    kp_desc, ctrl_desc = described.descriptors
     assert kp_desc.floating_point_range and kp_desc.floating_point_range[0].from_value == 0.0
     assert 'gain' in kp_desc.description
     assert ctrl_desc.read_only

@@ -54,7 +54,8 @@ def test_declared_with_descriptors_ranges_and_read_only(make_node):
     node, _ = make_node()
     kp = node.describe_parameter('kp')
     assert kp.description == 'proportional gain [-]'
-    assert (kp.floating_point_range[0].from_value, kp.floating_point_range[0].to_value) == (0.0, 100.0)
+    span = kp.floating_point_range[0]
+    assert (span.from_value, span.to_value) == (0.0, 100.0)
     order = node.describe_parameter('order')
     assert (order.integer_range[0].from_value, order.integer_range[0].to_value) == (1, 2)
     assert node.describe_parameter('mode_name').read_only

@@ -182,7 +182,8 @@ class ControllerNode(Node):
             if math.isfinite(values[name]):
                 out[name] = last[name] = values[name]
             else:
-                self._reject_input(f'{topic}: non-finite value for {name!r} ignored; last valid kept')
+                self._reject_input(f'{topic}: non-finite value for {name!r} ignored; '
+                                   'last valid kept')
                 if name in last:
                     out[name] = last[name]
         return out

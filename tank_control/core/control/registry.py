@@ -100,7 +100,8 @@ def _pid_check(values: Values) -> str | None:
     if tuned is not None:
         for name in _GAINS:
             if not math.isclose(float(values[name]), tuned[name], rel_tol=1e-12, abs_tol=1e-15):
-                return (f"{name}: {values[name]:g} conflicts with tuning.rule {values['tuning.rule']!r}, "
+                rule = values['tuning.rule']
+                return (f"{name}: {values[name]:g} conflicts with tuning.rule {rule!r}, "
                         f"which gives {tuned[name]:g}; set tuning.rule to none to tune by hand")
     return None
 
@@ -218,7 +219,8 @@ def _smith_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
 
 def _smith_build(values: Values) -> Controller:
     from tank_control.core.control.smith import SmithPredictor, smith_config_from_params
-    return SmithPredictor(smith_config_from_params(values), output_name=_single(values, 'output_names'),
+    return SmithPredictor(smith_config_from_params(values),
+                          output_name=_single(values, 'output_names'),
                           input_name=_single(values, 'input_names'))
 
 
