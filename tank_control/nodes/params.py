@@ -242,6 +242,29 @@ class ParameterBinding:
                 self._values[param.name] = value
                 self._pending[param.name] = value
 
+    # ------------------------------------------------------- node's writes
+    def write(self, values: Mapping[str, Any]) -> SetParametersResult:
+        """Set parameters from the node itself (results it computed, e.g. tuned gains or
+        an identified ``ku``), so ``ros2 param get`` shows them.
+
+        The values are validated like any change (atomically), read-only ones
+        included — read-only means "not settable by users". They reflect the
+        node's state already, so they are not handed back through ``take_pending``.
+        """
+        params = [Parameter(name, value=coerce(self._specs[name], value))
+                  for name, value in values.items()]
+        locked = [p.name for p in params if self._node.describe_parameter(p.name).read_only]
+        pending_before = dict(self._pending)
+        for name in locked:
+            self._node.describe_parameter(name).read_only = False
+        try:
+            result = self._node.set_parameters_atomically(params)
+        finally:
+            for name in locked:
+                self._node.describe_parameter(name).read_only = True
+        self._pending = pending_before
+        return result
+
     # -------------------------------------------------------------- access
     @property
     def values(self) -> dict[str, ParamValue]:

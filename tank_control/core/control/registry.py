@@ -16,7 +16,11 @@ A kind (:class:`ControllerKind`) supplies
   and initialises it with ``reset(y, u)`` at that sample's output, which is
   bumpless by the Controller contract;
 * ``derive(values, changed)`` — parameter values that follow from others
-  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them.
+  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them;
+* optionally ``results(controller)`` — values the controller produced at run
+  time (written back to parameters by the node) and ``commands`` — operator
+  commands the node offers as ``std_srvs/Trigger`` services ``~/<name>``
+  (e.g. ``start_autotune``, ``abort_autotune`` of issue 6).
 
 Adding a kind (e.g. ``relay_autotune``, ``mpcs``) is local: write a function
 returning a ``ControllerKind`` (usually in the controller's own module) and add
@@ -58,6 +62,13 @@ class ControllerKind:
     update: Callable[[Controller, Values, frozenset[str]], bool] | None
     derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
     description: str = ''
+    results: Callable[[Controller], Mapping[str, Any]] | None = None
+    """Parameter values the running controller produced (an identified ``ku``, the gains
+    it switched to, a state name); controller_node writes changed ones back to its
+    parameters after each sample (read-only ones included), so ``ros2 param get`` shows them."""
+    commands: tuple[str, ...] = ()
+    """Operator commands; controller_node offers each as a ``std_srvs/Trigger`` service
+    ``~/<name>`` that calls ``controller.command(name) -> (success, message)``."""
 
 
 # ------------------------------------------------------------------ pid
