@@ -17,6 +17,14 @@ One ``ParameterBinding`` per node does the whole parameter user interface:
 * **post-set** callback: records accepted changes; the node takes them with
   ``take_pending()`` and applies them at its next sample.
 
+Why validation sits in the on-set callback: Jazzy's pre-set callback can only
+rewrite the list of parameters (an emptied list fails with a generic message),
+so a reason naming the parameter can only come from the on-set callback. Both
+run before anything is stored, so a rejected request changes nothing. Range
+and read-only violations are refused by rclpy itself from the descriptor,
+before the on-set callback, with its own one-line reason ("Parameter kp out of
+range Min: 0.0, Max: ..., value: -1.0"); they are counted in ``rejected`` too.
+
 Typing. Jazzy's rclpy does not coerce: a statically typed ``double`` parameter
 rejects an ``integer`` value ("Wrong parameter type"), both from a params file
 (``kp: 2`` raises at declaration) and from ``ros2 param set /controller kp 2``
