@@ -10,11 +10,11 @@ A kind (:class:`ControllerKind`) supplies
 * ``params()`` — its ``ParamSpec`` tuple (gains, limits, mode, tuning, ...);
 * ``check(values)`` — relations between parameters (one-line reason or None);
 * ``build(values)`` — the :class:`~tank_control.core.interfaces.Controller`;
-* ``update(controller, values, changed) -> bool`` — apply accepted changes
-  to a running controller in place, bumplessly, and return True; False (or
-  ``update=None``) means "rebuild": ``step_with_changes`` builds a new object
-  and initialises it with ``reset(y, u)`` at that sample's output, which is
-  bumpless by the Controller contract;
+* ``update(controller, values, changed)`` — apply accepted changes to a
+  running controller in place, bumplessly (returning None or True); returning
+  False (or ``update=None``) asks for a rebuild: ``step_with_changes`` builds a
+  new object and initialises it with ``reset(y, u)`` at that sample's output,
+  which is bumpless by the Controller contract;
 * ``derive(values, changed)`` — parameter values that follow from others
   (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them;
 * optionally ``results(controller)`` — values the controller produced at run
@@ -59,7 +59,7 @@ class ControllerKind:
     params: Callable[[], tuple[ParamSpec, ...]]
     check: Callable[[Values], str | None]
     build: Callable[[Values], Controller]
-    update: Callable[[Controller, Values, frozenset[str]], bool] | None
+    update: Callable[[Controller, Values, frozenset[str]], bool | None] | None
     derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
     description: str = ''
     results: Callable[[Controller], Mapping[str, Any]] | None = None
@@ -401,7 +401,7 @@ def step_with_changes(controller: Controller, values: Values, changed: frozenset
     """
     kind = get_kind(str(values.get('controller', 'pid')))
     values = controller_values(values)
-    if kind.update is not None and kind.update(controller, values, changed):
+    if kind.update is not None and kind.update(controller, values, changed) is not False:
         return controller, np.asarray(controller.step(t, y, r, d), dtype=float)
     u = np.asarray(controller.step(t, y, r, d), dtype=float)
     new = kind.build(complete_values(values))
