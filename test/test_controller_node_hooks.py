@@ -32,11 +32,11 @@ class _Counting:
             self.count += 1
         return np.array([float(self.count)])
 
-    def command(self, name):
-        if name == 'start' and not self.running:
-            self.running = True
-            return True, 'started'
-        return False, f'{name}: already running'
+    def start(self):
+        if self.running:
+            return False, 'already running'
+        self.running = True
+        return True, 'started'
 
     @property
     def status(self):
@@ -51,7 +51,7 @@ def counting_kind():
             ParamSpec('counting.state', 'idle', 'state (result)', read_only=True)),
         check=lambda values: None, build=_Counting, update=None,
         results=lambda c: {'counting.count': c.count, 'counting.state': c.status['state']},
-        commands=('start',))
+        commands={'start': lambda c: c.start()})
 
 
 @pytest.fixture

@@ -305,7 +305,7 @@ class ControllerNode(Node):
     def _on_command(self, command: str, response: Trigger.Response) -> Trigger.Response:
         """An operator command (std_srvs/Trigger ``~/<command>``) for the running controller."""
         try:
-            response.success, response.message = self._controller.command(command)
+            response.success, response.message = self._kind.commands[command](self._controller)
         except ValueError as exc:
             response.success, response.message = False, f'{command}: {exc}'
         self.get_logger().info(f'{command}: {response.message}')

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from importlib import import_module
 from typing import Any
 
@@ -66,9 +66,10 @@ class ControllerKind:
     """Parameter values the running controller produced (an identified ``ku``, the gains
     it switched to, a state name); controller_node writes changed ones back to its
     parameters after each sample (read-only ones included), so ``ros2 param get`` shows them."""
-    commands: tuple[str, ...] = ()
-    """Operator commands; controller_node offers each as a ``std_srvs/Trigger`` service
-    ``~/<name>`` that calls ``controller.command(name) -> (success, message)``."""
+    commands: Mapping[str, Callable[[Controller], tuple[bool, str]]] = field(default_factory=dict)
+    """Operator commands by name; controller_node offers each as a ``std_srvs/Trigger``
+    service ``~/<name>`` that calls ``commands[name](controller) -> (success, message)``,
+    e.g. ``{'start_autotune': lambda c: c.start(), 'abort_autotune': lambda c: c.abort()}``."""
 
 
 # ------------------------------------------------------------------ pid
