@@ -195,21 +195,27 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
     assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
 
-    # stale: no measurement for 3 samples → last output held, reported
+    u_running = loop.answers[-1][2][0]
+    # stale: no measurement for 3 samples → fail_safe_output sent (configured), reported
+    assert loop.set('fail_safe_output', 5.0).successful
+    assert loop.set('fail_safe', 'output').successful
     sending['y'] = False
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 5.0)
     assert loop.diag['stale_inputs'] == 'True'
     n = len(loop.answers)
     assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 5.0)
-    held = [a[2][0] for a in loop.answers[n:]]
-    assert len(set(held)) == 1
+    assert [a[2][0] for a in loop.answers[n:]] == [5.0] * len(loop.answers[n:])
+    assert u_running != 5.0
 
-    # recovery: control resumes from the held output (no jump at the first sample)
+    # recovery: control resumes from the output the plant got (5.0), no jump; with
+    # y = r the error is zero, so it stays there
     sending['y'] = True
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
-    after = [a[2][0] for a in loop.answers[n:]]
-    assert after[-1] == pytest.approx(held[0], abs=1e-9)   # y = r = 1 and e = 0: steady
-    assert int(loop.diag['stale_samples']) >= 1
+    m = len(loop.answers)
+    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 5.0)
+    assert [a[2][0] for a in loop.answers[m:]] == pytest.approx([5.0] * len(loop.answers[m:]),
+                                                                abs=1e-9)
+    assert int(loop.diag['stale_samples']) >= 3
 
 
 def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, probe):
