@@ -95,3 +95,57 @@ def test_commands_are_services_and_results_become_parameters(probe, node):
     assert not node.set_parameters([Parameter('counting.count', value=0)])[0].successful
     again = client.call_async(Trigger.Request())
     assert probe.wait_for(again.done, 10.0) and not again.result().success
+
+
+class _FeedForward:
+    """u = −v: uses the measured disturbance v (feed-forward), as MPCS uses F_D."""
+
+    output_names, input_names, disturbance_names = ('y',), ('u',), ('v',)
+    sample_time = 1.0
+    status = {'mode': 'auto'}
+
+    def __init__(self, values):
+        pass
+
+    def reset(self, y, u):
+        pass
+
+    def step(self, t, y, r, d):
+        return np.array([-float(d[0])])
+
+
+def feedforward_kind():
+    return registry.ControllerKind(
+        name='feedforward',
+        params=lambda: (ParamSpec('sample_time', 1.0, 'sample time [s]', min=0.1, max=10.0),),
+        check=lambda values: None, build=_FeedForward, update=None)
+
+
+def test_lockstep_waits_for_the_disturbance_of_the_tick(probe, monkeypatch):
+    from tank_control.nodes.controller_node import ControllerNode
+    monkeypatch.setitem(registry._KIND_FACTORIES, 'feedforward', (__name__, 'feedforward_kind'))
+    ctrl = ControllerNode(parameter_overrides=[Parameter('controller', value='feedforward'),
+                                               Parameter('clock_mode', value='lockstep')])
+    probe.executor.add_node(ctrl)
+    try:
+        pubs = {topic: probe.node.create_publisher(JointState, topic, SIGNAL_QOS)
+                for topic in ('measurement', 'setpoint', 'disturbance')}
+        answers = {}
+        probe.node.create_subscription(
+            JointState, 'manipulated',
+            lambda m: answers.__setitem__(stamp_to_ns(m.header.stamp), m.position[0]), SIGNAL_QOS)
+        assert probe.wait_for(lambda: all(p.get_subscription_count() for p in pubs.values()), 10)
+        pubs['measurement'].publish(to_joint_state(0, ['y'], [0.0]))
+        pubs['setpoint'].publish(to_joint_state(0, ['y'], [0.0]))
+        assert not probe.wait_for(lambda: 0 in answers, 0.3)      # disturbance of t=0 missing
+        pubs['disturbance'].publish(to_joint_state(0, ['v'], [0.25]))
+        assert probe.wait_for(lambda: 0 in answers, 5.0) and answers[0] == -0.25
+        # a disturbance message without the channel still answers the tick (last value kept)
+        t1 = 1_000_000_000
+        for topic, names, values in (('measurement', ['y'], [0.0]), ('setpoint', ['y'], [0.0]),
+                                     ('disturbance', [], [])):
+            pubs[topic].publish(to_joint_state(t1, names, values))
+        assert probe.wait_for(lambda: t1 in answers, 5.0) and answers[t1] == -0.25
+    finally:
+        probe.executor.remove_node(ctrl)
+        ctrl.destroy_node()
