@@ -61,6 +61,7 @@ from tank_control.nodes.runtime import run_node
 
 _KIND_SPEC: ParamSpec = PLANT_NODE_SPECS[0]
 _NODE_ONLY = {s.name for s in PLANT_NODE_SPECS}
+_LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
 
 
 class PlantNode(Node):
@@ -249,14 +250,16 @@ class PlantNode(Node):
         if self.mode != 'lockstep':
             (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
             return
-        if t_ns is None or t_ns != self.k * self.ts_ns or not self._awaiting:
-            return                      # malformed, a stale duplicate, or not asked for
+        current = self.k * self.ts_ns
+        if t_ns is None or not current <= t_ns <= current + _LOOKAHEAD * self.ts_ns:
+            return                      # malformed, a stale duplicate, or far ahead
         held = self.u if topic == TOPIC_MANIPULATED else self.d
         # A known channel with an ignored (non-finite) value still answers the
         # tick: its last valid value is kept.
         answered = {n: accepted.get(n, held[n]) for n in msg.name if n in flt.known}
+        # Answers for a later tick (the reference may answer ahead) wait in the inbox.
         self.inbox.put(topic, t_ns, answered)
-        if self.inbox.complete(t_ns):
+        if t_ns == current and self._awaiting and self.inbox.complete(t_ns):
             self._advance(t_ns)
 
     def _advance(self, t_ns: int) -> None:
