@@ -158,3 +158,19 @@ def test_sim_mode_publishes_clock_at_the_real_time_factor(procs, ros_env, node_c
     assert all(b - a == 100_000_000 for a, b in zip(rec.clock, rec.clock[1:]))
     stamps = [s for s, _, _ in rec.measurements]
     assert stamps and all(s % 100_000_000 == 0 for s in stamps)   # on the k·ts grid
+
+
+def test_unanswered_lockstep_tick_is_resent_unchanged_with_the_same_noise(procs, ros_env,
+                                                                         node_cmd, probe,
+                                                                         tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.1,
+                       clock_mode='lockstep', noise_std=[0.5], seed=3, diagnostics_period=0.1,
+                       **{'lockstep.resend_period': 0.1})
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: len(rec.measurements) >= 4, 20), proc.tail()
+    # Nobody answers: tick 0 again and again, the very same message (one noise draw).
+    assert {m for m in rec.measurements} == {rec.measurements[0]}
+    assert rec.measurements[0][0] == 0 and rec.measurements[0][2] != (0.0,)
+    assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['resent_ticks']) >= 3
+                          and rec.diagnostics[-1]['waiting_for'] == 'manipulated, disturbance'
+                          if rec.diagnostics else False, 5), rec.diagnostics[-1:]

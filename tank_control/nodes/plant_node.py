@@ -91,7 +91,8 @@ class PlantNode(Node):
         self.clock_pub = (self.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS,
                                                 event_callbacks=quiet_publisher_events())
                           if self.mode in ('sim', 'lockstep') else None)
-        self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10,
+                                               event_callbacks=quiet_publisher_events())
         self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names),
                         TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names)}
         self.create_subscription(JointState, TOPIC_MANIPULATED,
