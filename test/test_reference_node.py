@@ -60,6 +60,11 @@ def test_wall_mode_publishes_the_schedule_and_applies_runtime_changes(procs, ros
     # The change is in force at the next published instant (at most one message later).
     assert setpoints[n + 1][2] == (7.5,)
     assert all(v[0] in (2.0, 7.5) for _, _, v in setpoints[n - 1:])
+    # Limits are checked against the running schedule (with the override) before acceptance.
+    result = set_param(probe, 'setpoint.y.min', 8.0)
+    assert not result.successful
+    assert result.reason == 'setpoint.y.values: 7.5 is out of range; allowed [8, 10]'
+    assert set_param(probe, 'setpoint.y.min', 5.0).successful
     # Stamps increase by about the sample time (wall clock).
     stamps = [s for s, _, _ in setpoints[-5:]]
     assert all(0.02e9 < b - a < 0.2e9 for a, b in zip(stamps, stamps[1:]))

@@ -24,6 +24,7 @@ effect at the next published instant.
 """
 from __future__ import annotations
 
+import copy
 import sys
 from typing import Any
 
@@ -32,9 +33,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import seconds, to_ns
-from tank_control.core.reference import (FIELDS, KINDS, Reference, channel_lists,
+from tank_control.core.reference import (KINDS, Reference, channel_lists,
                                          reference_from_params, reference_params,
-                                         schedule_from_fields, split_param_name)
+                                         split_param_name)
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
                                          TOPIC_SETPOINT, quiet_publisher_events,
@@ -68,6 +69,7 @@ class ReferenceNode(Node):
                                                   event_callbacks=quiet_publisher_events())
         self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
+        self._last_t = 0.0
         self._answered: dict[int, tuple[JointState, JointState]] = {}
         self._last_clock: int | None = None
         self._anticipate = bool(self.params.values['lockstep.anticipate'])
@@ -89,20 +91,23 @@ class ReferenceNode(Node):
 
     # ------------------------------------------------------------- parameters
     def _cross_check(self, values: dict[str, Any]) -> str | None:
-        """The candidate schedules must be valid; an override value must be within limits."""
-        for kind in KINDS:
-            names = channel_lists(values)[0 if kind == 'setpoint' else 1]
-            for ch in names:
-                fields = {f: values[f'{kind}.{ch}.{f}'] for f in FIELDS
-                          if f != 'value' and f'{kind}.{ch}.{f}' in values}
-                try:
-                    schedule = schedule_from_fields(f'{kind}.{ch}', fields)
-                except ValueError as exc:
-                    return str(exc)
-                value = values.get(f'{kind}.{ch}.value')
-                if value is not None and not schedule.min <= value <= schedule.max:
-                    return (f'{kind}.{ch}.value: {value:g} is out of range; allowed '
-                            f'[{schedule.min:g}, {schedule.max:g}]')
+        """The change must leave every schedule valid: it is tried on a copy of the
+        running reference (which includes earlier overrides), so nothing accepted
+        here can be refused when it is applied."""
+        params = getattr(self, 'params', None)
+        if params is None:
+            return None          # start-up: reference_from_params has checked the file
+        current = params.values
+        trial = copy.deepcopy(self.reference)
+        by_channel: dict[tuple[str, str], dict[str, Any]] = {}
+        for name, value in values.items():
+            parts = split_param_name(name)
+            if parts and current.get(name) != value:
+                by_channel.setdefault(parts[:2], {})[parts[2]] = value
+        for (kind, ch), changes in by_channel.items():
+            reason = trial.update(kind, ch, changes, self._last_t)
+            if reason:
+                return reason
         return None
 
     def _apply_pending(self, t: float) -> None:
@@ -124,6 +129,7 @@ class ReferenceNode(Node):
 
     # ---------------------------------------------------------------- publish
     def _publish(self, stamp_ns: int, t: float) -> None:
+        self._last_t = max(self._last_t, t)
         self._apply_pending(t)
         ref = self.reference
         sp = to_joint_state(stamp_ns, ref.setpoint_names, ref.setpoints(t))
