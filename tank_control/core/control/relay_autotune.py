@@ -1,0 +1,454 @@
+"""Relay auto-tuner: a PID that identifies its process with a relay test and tunes itself.
+
+The "push a button and it tunes itself" controller of 001 §1.3 (Fig. 6.16: a PID
+and an on-off controller in parallel, "Tuning" → "Automat") and 004 §3.2–3.3,
+made safe to run on a live loop (SPEC §2.5, issue 6).
+
+States (``status['state']``)::
+
+    idle ──start()──► settling ──► relay ──► measuring ──► tuned ──► running
+      ▲                  │            │           │                     │
+      └──── failed / aborted ◄────────┴───────────┘        start() again┘
+
+* ``idle`` / ``running`` / ``failed`` / ``aborted``: normal PID operation
+  (:class:`~tank_control.core.control.pid.Pid2Dof`); ``running`` with the tuned
+  gains, ``failed``/``aborted`` with the gains from before the test (restored,
+  bumpless from the bias ``u0``).
+* ``settling``: the PID keeps control until the output has stayed within
+  ``autotune.settle_band`` of the setpoint for ``autotune.settle_time`` (or
+  ``autotune.settle_timeout`` passed); ``u0`` = mean PID output over that window
+  (the bias of the relay), noise σ estimated from the sample-to-sample
+  differences of ``y`` (σ ≈ std(Δy)/√2).
+* ``relay``: ``u = u0 ± d`` (``d`` = ``autotune.relay_amplitude``) switched by the
+  error with hysteresis ``ε = max(autotune.hysteresis, autotune.noise_band·σ)``,
+  clipped to the PID's output limits, until the first whole cycle is complete.
+* ``measuring``: whole cycles are collected until the last ``autotune.min_cycles``
+  are stationary (periods and first-harmonic amplitudes within
+  ``autotune.stationarity_tol``). When a cycle's half-periods are asymmetric
+  (``|Tu1 − Tu2|/P`` above ``autotune.asymmetry_tol``) and bias correction is on,
+  ``u0`` becomes the cycle's mean input and counting starts again.
+* ``tuned``: :func:`~tank_control.core.tuning.identification.identify_relay` gives
+  ku, tu (first harmonic corrected to −180°, or the describing function if
+  ``autotune.method`` says so) and an FOPDT/IPDT model; the gains come from
+  ``tune(autotune.rule, autotune.kind, ...)``, are set bumplessly and the PID
+  takes over from ``u0`` in the same sample; the next sample is ``running``.
+
+Faults end the test in ``failed`` with ``status['reason']``: no oscillation within
+``autotune.timeout`` (counted from the relay start), output deviation above
+``autotune.max_amplitude``, setpoint changed during the test, a non-finite
+measurement or setpoint, an identification or tuning rule that cannot be applied.
+``abort()`` ends it in ``aborted``.
+
+Designed to be driven by a node: ``start()``/``abort()`` return ``(accepted,
+message)`` (a std_srvs/Trigger answer), ``state``/``status`` are plain values.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.control.pid import PidConfig, Pid2Dof
+from tank_control.core.params import ParamSpec, check_all
+from tank_control.core.tuning import identification as ident
+
+STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'failed', 'aborted')
+TESTING = ('settling', 'relay', 'measuring')
+RULES_ULTIMATE = ('zn_001', 'zn_004_q0', 'zn_004_q1')
+RULES_IPDT = ('mdp', 'experimental')
+RULES_FOPDT = ('oppelt', 'cohen_coon')
+RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT
+
+
+@dataclass(frozen=True)
+class AutotuneConfig:
+    """Settings of the relay test; the ``autotune.*`` parameters without the prefix (see :func:`autotune_params`)."""
+
+    relay_amplitude: float = 1.0
+    hysteresis: float = 0.0
+    noise_band: float = 4.0
+    bias_correction: bool = True
+    asymmetry_tol: float = 0.1
+    min_cycles: int = 4
+    stationarity_tol: float = 0.05
+    timeout: float = 600.0
+    settle_time: float = 10.0
+    settle_band: float = 1.0
+    settle_timeout: float = 300.0
+    max_amplitude: float = 0.0
+    method: str = 'first_harmonic'
+    model: str = 'auto'
+    process_gain: float = 0.0
+    rule: str = 'zn_001'
+    kind: str = 'pid'
+
+    @classmethod
+    def from_params(cls, values: Mapping[str, Any]) -> AutotuneConfig:
+        """From ``autotune.*`` parameter values (missing ones take their defaults); ValueError with the reasons."""
+        specs = autotune_params()
+        reasons = check_all(specs, values)
+        if reasons:
+            raise ValueError('; '.join(reasons))
+        merged = {s.name: s.default for s in specs}
+        merged.update(values)
+        names = {f.name for f in fields(cls)}
+        return cls(**{k.split('.', 1)[1]: v for k, v in merged.items()
+                      if k.split('.', 1)[1] in names})
+
+    def params(self) -> dict[str, Any]:
+        """The ``autotune.*`` parameter values of this configuration."""
+        return {'autotune.' + f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def autotune_params() -> tuple[ParamSpec, ...]:
+    """ParamSpecs of every ``autotune.*`` parameter (units in the descriptions; SPEC §2.5, issue 6)."""
+    big = 1e12
+    return (
+        ParamSpec('autotune.start', False, 'set true to start a relay test (the node resets it to '
+                  'false; same as the ~/start_autotune service)'),
+        ParamSpec('autotune.relay_amplitude', 1.0, 'relay amplitude d around the bias u0 '
+                  '[u units], 001 eq. 6.22 / 004 eq. 3.2.1', min=1e-9, max=big),
+        ParamSpec('autotune.hysteresis', 0.0, 'relay hysteresis ε [y units] (noise band, 004 '
+                  'Fig. 3.3); the larger of this and noise_band·σ is used', min=0.0, max=big),
+        ParamSpec('autotune.noise_band', 4.0, 'automatic hysteresis in units of the noise '
+                  'standard deviation σ estimated while settling [-]; 0 = off', min=0.0, max=100.0),
+        ParamSpec('autotune.bias_correction', True, 'move the relay bias u0 to the mean input '
+                  'of a cycle whose half-periods are asymmetric'),
+        ParamSpec('autotune.asymmetry_tol', 0.1, '|Tu1 − Tu2|/period above which the bias is '
+                  'corrected [-]', min=0.0, max=1.0),
+        ParamSpec('autotune.min_cycles', 4, 'stationary relay periods used for identification '
+                  '[-] (004 §3.3: at least four)', min=2, max=100),
+        ParamSpec('autotune.stationarity_tol', 0.05, 'relative spread of periods and '
+                  'first-harmonic amplitudes allowed among the measured cycles [-]',
+                  min=1e-4, max=1.0),
+        ParamSpec('autotune.timeout', 600.0, 'longest relay + measuring time before the test '
+                  'fails [s]', min=1e-3, max=big),
+        ParamSpec('autotune.settle_time', 10.0, 'the output must stay within settle_band of the '
+                  'setpoint this long before the relay starts [s]', min=0.0, max=big),
+        ParamSpec('autotune.settle_band', 1.0, 'steady band around the setpoint for settling '
+                  '[y units]', min=0.0, max=big),
+        ParamSpec('autotune.settle_timeout', 300.0, 'after this long in settling the relay '
+                  'starts anyway [s]', min=0.0, max=big),
+        ParamSpec('autotune.max_amplitude', 0.0, 'largest |y − setpoint| allowed during the test '
+                  '[y units]; exceeding it fails the test; 0 = no limit', min=0.0, max=big),
+        ParamSpec('autotune.method', 'first_harmonic', 'ultimate point used for tuning: '
+                  'first_harmonic (004 eqs. 3.3.19–3.3.21, corrected to −180°) or '
+                  'describing_function (001 eq. 6.22)',
+                  choices=('first_harmonic', 'describing_function')),
+        ParamSpec('autotune.model', 'auto', 'model identified from the relay data (004 §3.3, '
+                  '3.6.2)', choices=('auto', 'fopdt', 'ipdt')),
+        ParamSpec('autotune.process_gain', 0.0, 'known static gain kP for the FOPDT model '
+                  '(004 eq. 3.6.2) [y units per u unit]; 0 = identify', min=0.0, max=big),
+        ParamSpec('autotune.rule', 'zn_001', 'tuning rule: zn_001 / zn_004_q0 / zn_004_q1 from '
+                  'ku, tu; mdp / experimental from the IPDT model; oppelt / cohen_coon from the '
+                  'FOPDT model', choices=RULES),
+        ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
+                  choices=('p', 'pi', 'pid')),
+    )
+
+
+class RelayAutotuner:
+    """SISO Controller (core/interfaces.py): a :class:`Pid2Dof` with a relay auto-tuning test.
+
+    ``pid_config``: the PID in normal operation (its limits bound the relay too);
+    ``autotune``: the test settings. Channels: reads ``output_name``, writes ``input_name``.
+    """
+
+    disturbance_names: tuple[str, ...] = ()
+
+    def __init__(self, pid_config: PidConfig, autotune: AutotuneConfig | None = None,
+                 output_name: str = 'y', input_name: str = 'u') -> None:
+        self.pid = Pid2Dof(pid_config)
+        self.output_names = (output_name,)
+        self.input_names = (input_name,)
+        self._cfg = autotune or AutotuneConfig()
+        self._check_config(self._cfg)
+        self._state = 'idle'
+        self._reason = ''
+        self._pending: float | None = None      # bumpless PID (re)start from this u
+        self._saved_gains: dict[str, Any] | None = None
+        self._result: ident.RelayIdentification | None = None
+        self._gains: dict[str, float | None] | None = None
+        self._cycles = 0
+        self._clear_test()
+
+    # ------------------------------------------------------------------ API
+    @property
+    def sample_time(self) -> float:
+        return self.pid.config.sample_time
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    @property
+    def config(self) -> AutotuneConfig:
+        return self._cfg
+
+    @property
+    def result(self) -> ident.RelayIdentification | None:
+        """The identification of the last successful test."""
+        return self._result
+
+    def configure(self, autotune: AutotuneConfig) -> None:
+        """Replace the test settings (not while a test runs: ValueError)."""
+        if self._state in TESTING:
+            raise ValueError('autotune: settings cannot change while a test is running; abort it first')
+        self._check_config(autotune)
+        self._cfg = autotune
+
+    def start(self) -> tuple[bool, str]:
+        """Begin a test (from idle, running, tuned, failed or aborted). Returns ``(accepted, message)``."""
+        if self._state in TESTING:
+            return False, f'autotune: a test is already running (state {self._state})'
+        self._saved_gains = _gain_fields(self.pid.config)
+        self._clear_test()
+        self._state = 'settling'
+        self._reason = ''
+        return True, 'autotune: test started (settling)'
+
+    def abort(self) -> tuple[bool, str]:
+        """End a running test now: previous gains restored, the PID resumes from u0 at the next sample."""
+        if self._state not in TESTING:
+            return False, f'autotune: no test is running (state {self._state})'
+        self._end('aborted', 'abort requested')
+        return True, 'autotune: test aborted, previous gains restored'
+
+    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
+        """Bumpless (re)start of normal PID operation from ``u``; a running test is abandoned (aborted)."""
+        u0 = _scalar(u, 'u')
+        if not math.isfinite(u0):
+            raise ValueError(f'reset: u = {u0!r} is not finite')
+        if self._state in TESTING:
+            self._end('aborted', 'reset during the test')
+        self._pending = u0
+
+    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """One sample: time [s], measurement, setpoint → manipulated input (1 value)."""
+        yv, rv = _scalar(y, 'y'), _scalar(r, 'r')
+        if self._state in TESTING:
+            u = self._test_step(float(t), yv, rv)
+            if u is not None:
+                return np.array([u])
+        elif self._state == 'tuned':
+            self._state = 'running'
+        return np.array([self._pid_step(yv, rv)])
+
+    @property
+    def status(self) -> Mapping[str, Any]:
+        """state, reason, cycles, ku, tu, ku_df, tu_df, model, gains, u0, hysteresis and the PID status."""
+        res = self._result
+        status: dict[str, Any] = {
+            'state': self._state,
+            'reason': self._reason,
+            'cycles': self._cycles,
+            'u0': self._u0 if self._u0 is not None else math.nan,
+            'hysteresis': self._eps,
+            'noise_std': self._sigma,
+            'ku': res.ku if res else math.nan,
+            'tu': res.tu if res else math.nan,
+            'ku_df': res.ku_df if res else math.nan,
+            'tu_df': res.tu_df if res else math.nan,
+            'amplitude': res.amplitude if res else math.nan,
+            'model': dict(res.model.as_dict()) if res else {},
+            'gains': dict(self._gains) if self._gains else {},
+        }
+        status['pid'] = dict(self.pid.status)
+        return status
+
+    # ------------------------------------------------------------ internals
+    @staticmethod
+    def _check_config(cfg: AutotuneConfig) -> None:
+        reasons = check_all(autotune_params(), cfg.params())
+        if reasons:
+            raise ValueError('; '.join(reasons))
+
+    def _clear_test(self) -> None:
+        self._t_start = math.nan       # start of the current phase [s]
+        self._r_test = math.nan
+        self._win_t: list[float] = []
+        self._win_y: list[float] = []
+        self._win_u: list[float] = []
+        self._u0: float | None = None
+        self._u0_start: float | None = None
+        self._sigma = math.nan
+        self._eps = math.nan
+        self._relay_high = True
+        self._rec_t: list[float] = []
+        self._rec_u: list[float] = []
+        self._rec_y: list[float] = []
+        self._first_cycle = 0
+        self._cycles = 0
+
+    def _pid_step(self, y: float, r: float) -> float:
+        if self._pending is not None:
+            if not (math.isfinite(y) and math.isfinite(r)):
+                return self.pid._clip(self._pending)
+            self.pid.reset(r, y, self._pending)
+            self._pending = None
+        return self.pid.update(r, y)
+
+    def _direction(self) -> float:
+        cfg = self.pid.config
+        return -1.0 if (cfg.direct_action != (cfg.kp < 0)) else 1.0
+
+    def _end(self, state: str, reason: str) -> None:
+        """Leave the test: restore the gains from before it, PID resumes bumplessly from u0."""
+        if self._saved_gains is not None:
+            self.pid.set_gains(**self._saved_gains)
+        self._pending = self._u0 if self._u0 is not None else self.pid.output
+        if self._pending is None:
+            self._pending = 0.0
+        self._state = state
+        self._reason = reason
+
+    def _test_step(self, t: float, y: float, r: float) -> float | None:
+        """One sample of settling/relay/measuring; None = let the PID act (settling, or the test ended)."""
+        if not (math.isfinite(y) and math.isfinite(r)):
+            self._end('failed', 'non-finite measurement or setpoint during the test')
+            return None
+        if math.isnan(self._t_start):
+            self._t_start, self._r_test = t, r
+        if r != self._r_test:
+            self._end('failed', 'setpoint changed during the test')
+            return None
+        if self._state == 'settling':
+            return self._settle(t, y, r)
+        return self._relay(t, y, r)
+
+    def _settle(self, t: float, y: float, r: float) -> float | None:
+        cfg = self._cfg
+        u = self._pid_step(y, r)
+        self._win_t.append(t)
+        self._win_y.append(y)
+        self._win_u.append(u)
+        while self._win_t and self._win_t[0] < t - cfg.settle_time - 1e-9:
+            for lst in (self._win_t, self._win_y, self._win_u):
+                lst.pop(0)
+        elapsed = t - self._t_start
+        full = elapsed >= cfg.settle_time - 1e-9
+        steady = full and all(abs(v - r) <= cfg.settle_band for v in self._win_y)
+        if steady or elapsed >= cfg.settle_timeout:
+            wy = np.array(self._win_y)
+            self._u0 = float(np.mean(self._win_u))
+            self._u0_start = self._u0
+            self._sigma = float(np.std(np.diff(wy)) / math.sqrt(2.0)) if len(wy) > 2 else 0.0
+            self._eps = max(cfg.hysteresis, cfg.noise_band * self._sigma)
+            self._state = 'relay'
+            self._t_start = t
+            self._relay_high = (r - y) * self._direction() >= 0.0
+            return self._relay(t, y, r)
+        return u
+
+    def _relay(self, t: float, y: float, r: float) -> float | None:
+        cfg = self._cfg
+        if cfg.max_amplitude > 0 and abs(y - r) > cfg.max_amplitude:
+            self._end('failed', f'output amplitude |y − r| = {abs(y - r):g} above '
+                                f'autotune.max_amplitude = {cfg.max_amplitude:g}')
+            return None
+        e = (r - y) * self._direction()
+        if e > self._eps:
+            self._relay_high = True
+        elif e < -self._eps:
+            self._relay_high = False
+        sign = 1.0 if self._relay_high else -1.0
+        u = self.pid._clip(self._u0 + self._direction() * sign * cfg.relay_amplitude)
+        switched = bool(self._rec_u) and (u != self._rec_u[-1])
+        self._rec_t.append(t)
+        self._rec_u.append(u)
+        self._rec_y.append(y)
+        if switched:
+            self._analyse(r)
+            if self._state not in TESTING:
+                return None       # tuned (PID takes over from u0) or failed
+        if t - self._t_start > cfg.timeout:
+            what = 'no oscillation' if self._state == 'relay' else 'no stationary oscillation'
+            self._end('failed', f'{what} within autotune.timeout = {cfg.timeout:g} s')
+            return None
+        return u
+
+    def _analyse(self, r: float) -> bool:
+        """At a relay switch: count cycles, correct the bias, identify and tune when enough are stationary."""
+        cfg = self._cfg
+        tt = np.array(self._rec_t)
+        uu, ref = self._identification_input()
+        yy = np.array(self._rec_y)
+        cycles = [c for c in ident.relay_cycles(tt, uu, yy, ref) if c.start >= self._first_cycle]
+        if not cycles:
+            return False
+        self._state = 'measuring'
+        last = cycles[-1]
+        if last.end != len(tt) - 1:
+            return False      # this switch closed a half cycle only
+        asym = (last.high_time - last.low_time) / last.period
+        if cfg.bias_correction and abs(asym) > cfg.asymmetry_tol:
+            seg = slice(last.start, last.end)
+            self._u0 = float(np.mean(np.array(self._rec_u)[seg]))
+            self._first_cycle = last.end
+            self._cycles = 0
+            return False
+        self._cycles = len(cycles)
+        slack = 2.0 * self.sample_time
+        tail = ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack)
+        if tail is None:
+            return False
+        try:
+            res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
+                                       gain=cfg.process_gain or None, kind=cfg.model)
+            gains = self._tune(res)
+            new = {'kp': gains['kp'],
+                   'ti': gains['ti'] if gains.get('ti') else math.inf,
+                   'td': gains['td'] if gains.get('td') else 0.0,
+                   'b': gains['b'] if gains.get('b') is not None else 1.0,
+                   'c': gains['c'] if gains.get('c') is not None else 1.0}
+            self.pid.set_gains(**new)
+        except (ValueError, ArithmeticError) as exc:
+            self._end('failed', f'identification/tuning failed: {exc}')
+            return True
+        self._result, self._gains = res, gains
+        self._pending = self._u0
+        self._state = 'tuned'
+        self._reason = ''
+        return True
+
+    def _identification_input(self) -> tuple[np.ndarray, float]:
+        """Recorded u as seen by a positive-gain plant and the current relay centre.
+
+        Reverse-acting loops (negative plant gain) are mirrored around the initial bias.
+        """
+        uu = np.array(self._rec_u)
+        if self._direction() < 0:
+            return 2.0 * self._u0_start - uu, 2.0 * self._u0_start - self._u0
+        return uu, self._u0
+
+    def _tune(self, res: ident.RelayIdentification) -> dict[str, float | None]:
+        from tank_control.core.tuning.rules import tune   # sibling package, imported when needed
+        cfg = self._cfg
+        if cfg.rule in RULES_ULTIMATE:
+            ku, tu = (res.ku, res.tu) if cfg.method == 'first_harmonic' else (res.ku_df, res.tu_df)
+            return dict(tune(cfg.rule, cfg.kind, ku=ku, tu=tu))
+        model = res.model
+        if cfg.rule in RULES_IPDT:
+            if not isinstance(model, ident.IpdtModel):
+                raise ValueError(f'autotune.rule: {cfg.rule} needs an integrating (IPDT) model, '
+                                 f'the relay data gave {model.kind}')
+            return dict(tune(cfg.rule, cfg.kind, gain=model.gain, dead_time=model.dead_time))
+        if not isinstance(model, ident.FopdtModel):
+            raise ValueError(f'autotune.rule: {cfg.rule} needs an FOPDT model, the relay data gave '
+                             f'{model.kind}')
+        return dict(tune(cfg.rule, cfg.kind, gain=model.gain, time_constant=model.time_constant,
+                         dead_time=model.dead_time))
+
+
+def _gain_fields(cfg: PidConfig) -> dict[str, Any]:
+    return {'kp': cfg.kp, 'ti': cfg.ti, 'td': cfg.td, 'n': cfg.n, 'b': cfg.b, 'c': cfg.c}
+
+
+def _scalar(value: Any, name: str) -> float:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.size != 1:
+        raise ValueError(f'{name}: expected 1 value for the SISO relay auto-tuner, got {arr.size}')
+    return float(arr[0])
