@@ -286,10 +286,14 @@ class RelayAutotuner:
     def _pid_step(self, y: float, r: float) -> float:
         if self._pending is not None:
             if not (math.isfinite(y) and math.isfinite(r)):
-                return self.pid._clip(self._pending)
+                return self._clip(self._pending)
             self.pid.reset(r, y, self._pending)
             self._pending = None
         return self.pid.update(r, y)
+
+    def _clip(self, u: float) -> float:
+        cfg = self.pid.config
+        return min(max(u, cfg.u_min), cfg.u_max)
 
     def _direction(self) -> float:
         cfg = self.pid.config
@@ -355,7 +359,7 @@ class RelayAutotuner:
         elif e < -self._eps:
             self._relay_high = False
         sign = 1.0 if self._relay_high else -1.0
-        u = self.pid._clip(self._u0 + self._direction() * sign * cfg.relay_amplitude)
+        u = self._clip(self._u0 + self._direction() * sign * cfg.relay_amplitude)
         switched = bool(self._rec_u) and (u != self._rec_u[-1])
         self._rec_t.append(t)
         self._rec_u.append(u)
