@@ -201,3 +201,20 @@ def test_params_describe_every_setting_and_reject_bad_values():
     tuner.start()
     with pytest.raises(ValueError, match='while a test is running'):
         tuner.configure(AutotuneConfig())
+
+
+def test_reverse_acting_loop_is_tuned_with_positive_gains_and_direct_action_kept():
+    """A plant with negative gain (−K) under a direct-acting PID: the relay acts in the same
+    direction as the PID and the identified ultimate point is that of |K|."""
+    ku_exact, tu_exact = exact_fopdt_ultimate(K, T, L)
+    plant = ExactDelayPlant(-K, T, L, y0=R, u0=U0)
+    cfg = AutotuneConfig(relay_amplitude=D, settle_time=5.0, settle_band=0.5)
+    tuner = RelayAutotuner(PidConfig(sample_time=0.1, kp=20.0, ti=12.0, direct_action=True), cfg)
+    tuner.reset(np.array([R]), np.array([U0]))
+    log = closed_loop(tuner, plant, R, 2000, 0.01 * AMP, seed=3,
+                      before_step=lambda k, t: tuner.start() if k == 10 else None)
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    assert tuner.status['ku'] == pytest.approx(ku_exact, rel=0.03)
+    assert tuner.status['tu'] == pytest.approx(tu_exact, rel=0.02)
+    assert tuner.pid.config.direct_action and tuner.pid.config.kp > 0
+    assert abs(np.mean(log['y'][-200:]) - R) < 0.05

@@ -343,7 +343,7 @@ class RelayAutotuner:
             self._eps = max(cfg.hysteresis, cfg.noise_band * self._sigma)
             self._state = 'relay'
             self._t_start = t
-            self._relay_high = (r - y) * self._direction() >= 0.0
+            self._relay_high = r - y >= 0.0
             return self._relay(t, y, r)
         return u
 
@@ -353,7 +353,7 @@ class RelayAutotuner:
             self._end('failed', f'output amplitude |y − r| = {abs(y - r):g} above '
                                 f'autotune.max_amplitude = {cfg.max_amplitude:g}')
             return None
-        e = (r - y) * self._direction()
+        e = r - y      # relay in the frame of a positive-gain plant; the sign goes on u
         if e > self._eps:
             self._relay_high = True
         elif e < -self._eps:
