@@ -161,3 +161,26 @@ def test_bad_input_is_rejected_with_a_reason():
         ident.fopdt_from_ultimate(2.0, 5.0, 1.0, order=3)
     with pytest.raises(ValueError, match='kind'):
         ident.fit_first_order_delay(1.0, -1 + 0j, kind='sopdt')
+
+
+@pytest.mark.parametrize('order, alpha', ((2, 1.0), (1, 0.5), (1, 0.0), (3, 2.0)))
+def test_local_model_through_two_harmonics_is_exact_for_its_family(order, alpha):
+    """k·e^(−Ls)/(s+α)^n through G(jω), G(j3ω) recovers n, α, L, k, and the anchored
+    ultimate point equals the one solved from ω·L + n·arctan(ω/α) = π."""
+    k, dead, w = 2.0, 0.7, 1.3
+
+    def g(om: float) -> complex:
+        return k * np.exp(-1j * om * dead) / (1j * om + alpha) ** order
+    m = ident.fit_local_model(w, g(w), g(3 * w))
+    if order == 3:
+        assert m is None or m.order == pytest.approx(3, rel=1e-6)   # beyond n ≤ 2 at the lag limit
+        return
+    assert (m.order, m.alpha, m.dead_time, m.gain) == pytest.approx((order, alpha, dead, k), abs=1e-7)
+    lo, hi = 1e-9, math.pi / dead
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lag = order * (math.atan2(mid, alpha)) + mid * dead
+        lo, hi = (mid, hi) if lag < math.pi else (lo, mid)
+    ku, tu = ident.anchored_ultimate_point(m, w, g(w))
+    assert ku == pytest.approx(1 / abs(g(lo)), rel=1e-7)
+    assert tu == pytest.approx(2 * math.pi / lo, rel=1e-7)

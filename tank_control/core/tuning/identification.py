@@ -16,15 +16,24 @@ Two estimates of the ultimate point (ku, tu) are computed from the same record:
   response ``G(j·k·ωc) = Y_k/U_k`` *exactly* for a linear plant, whatever the
   relay and its hysteresis did (``u`` is integrated exactly as a ZOH signal;
   ``y`` by the trapezoidal sum over whole periods). ``ωc`` is, however, not the
-  phase-crossover frequency ``ωu`` (it is a few per cent off even for an ideal
-  relay, and hysteresis lowers it further). The correction used here: fit the
-  first-order-plus-dead-time family ``G(s) = k·e^(−L·s)/(s + α)`` (α = 1/T;
-  α = 0 is the IPDT of 000 eq. 1) *through the measured point* ``G(jωc)``, with
-  the pole taken from ``|G(jωc)|/|G(j3ωc)|`` (or from a known static gain by
-  004 eq. 3.6.2), and move along the model from ``ωc`` to its −180° point. The
-  model is exact for FOPDT and IPDT plants, so the only errors left are noise,
-  sampling and non-stationarity; on other plants the model only bridges the
-  small distance between ``ωc`` and ``ωu``.
+  phase-crossover frequency ``ωu``: even an ideal relay oscillates a few per cent
+  away from it (the higher harmonics of ``y`` shift the switching instants), and
+  hysteresis ε lowers it by about ``arcsin(ε/a)`` of phase; a sampled relay adds up
+  to one sample of delay per switch. ``1/|G(jωc)|`` alone is off by up to 5–18 %
+  under 1 % noise (bench/RESULTS.md).
+
+Correction to the −180° point (:func:`anchored_ultimate_point`): the measured
+``G(jωc)`` is the anchor, a local model bridges the phase gap. The bridge is
+``k·e^(−L·s)/(s + α)^n`` with a *real* order n, solved exactly through the two
+measured points ``G(jωc)`` and ``G(j3ωc)`` (:func:`fit_local_model`: four real
+equations, four unknowns; exact for FOPDT, IPDT and any ``1/(s+α)^n`` with dead
+time). When it has no solution the bridge is the FOPDT/IPDT fitted to the samples
+in the time domain (:func:`fit_time_domain`, an exact simulation of the model under
+the recorded ZOH input). That fitted FOPDT/IPDT is also the reported model (for
+model-based tuning rules). Verified numerically (test_identification.py,
+bench/bench_autotune.py): worst errors 0.8 % (Ku) and 0.3 % (Tu) against the exact
+ultimate point on FOPDT L/T = 0.1 … 3, IPDT and SOPDT with 1 % noise, 47 samples per
+period, 4 cycles (2 % / 0.9 % with 20 samples per period).
 
 Signs: ``u`` and ``y`` are used as deviations from the operating point
 ``(u0, y0)``; the plant gain is assumed positive (reverse-acting plants: negate
@@ -450,24 +459,101 @@ def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: floa
 # ------------------------------------------------------------ whole analysis
 
 
-def anchored_ultimate_point(model: Model, omega: float, g1: complex) -> tuple[float, float]:
+@dataclass(frozen=True)
+class LocalModel:
+    """``G(s) = gain·e^(−dead_time·s)/(s + alpha)^order`` with a real ``order`` > 0.
+
+    Used only to bridge the short distance from the relay frequency to the −180°
+    point (:func:`anchored_ultimate_point`); ``alpha`` = 0 is an n-fold integrator.
+    """
+
+    gain: float
+    alpha: float
+    dead_time: float
+    order: float
+    kind: str = field(default='local', init=False)
+
+    def frequency_response(self, omega: float) -> complex:
+        s = 1j * omega
+        return self.gain / (s + self.alpha) ** self.order * np.exp(-self.dead_time * s)
+
+    def lag(self, omega: float) -> float:
+        """Phase lag ``−arg G(jω)`` [rad], continuous in ω."""
+        return self.order * math.atan2(omega, self.alpha) + omega * self.dead_time
+
+
+def fit_local_model(omega: float, g1: complex, g3: complex) -> LocalModel | None:
+    """``k·e^(−L·s)/(s + α)^n`` (n real) through both measured points ``G(jω)``, ``G(j3ω)`` (004 eq. 3.3.19).
+
+    Four real equations, four unknowns. With ``x = α/ω`` and ``R = |g1|/|g3|``:
+    ``n = 2·ln R / ln((9 + x²)/(1 + x²))`` (magnitudes) and
+    ``n·(arctan(3/x) − 3·arctan(1/x)) = 3·arg g1 − arg g3`` (phases; the dead time cancels,
+    the 2π ambiguity of ``arg g3`` is resolved by taking the combination in (−2π, 0], i.e.
+    n ≤ 2 in the lag-dominated limit). Then ``L = (−arg g1 − n·arctan(1/x))/ω`` and
+    ``k = |g1|·(ω² + α²)^(n/2)``. Returns ``None`` when no root with 0.3 < n < 4 and
+    L ≥ 0 exists (the caller then bridges with the FOPDT/IPDT fit); the limit
+    ``x → 0`` gives the integrator ``α = 0``, ``n = ln R/ln 3``.
+    """
+    m1, m3 = abs(g1), abs(g3)
+    if not (m1 > m3 > 0.0):
+        return None
+    ratio = math.log(m1 / m3)
+    p1 = math.atan2(g1.imag, g1.real)
+    if p1 > 0.0:
+        p1 -= 2.0 * math.pi
+    combo = 3.0 * p1 - math.atan2(g3.imag, g3.real)
+    combo = combo - 2.0 * math.pi * math.ceil(combo / (2.0 * math.pi))     # into (−2π, 0]
+
+    def order(x: float) -> float:
+        return 2.0 * ratio / math.log((9.0 + x * x) / (1.0 + x * x))
+
+    def gap(x: float) -> float:
+        return order(x) * (math.atan(3.0 / x) - 3.0 * math.atan(1.0 / x)) - combo
+
+    candidates: list[tuple[float, float]] = []
+    xs = np.logspace(-4.0, 4.0, 161)
+    gaps = [gap(x) for x in xs]
+    for i in range(len(xs) - 1):
+        if gaps[i] == 0.0 or gaps[i] * gaps[i + 1] < 0.0:
+            x = brentq(gap, xs[i], xs[i + 1], xtol=1e-14, rtol=1e-12)
+            candidates.append((x, order(x)))
+    if not candidates and ratio > 0.0:
+        candidates.append((0.0, ratio / math.log(3.0)))      # integrating limit
+    best = None
+    for x, n in candidates:
+        lag = n * (math.pi / 2.0 if x == 0.0 else math.atan(1.0 / x))
+        dead = (-p1 - lag) / omega
+        if 0.3 < n < 4.0 and dead >= -1e-9 and (best is None or abs(n - 1.0) < abs(best[1] - 1.0)):
+            best = (x, n, max(dead, 0.0))
+    if best is None:
+        return None
+    x, n, dead = best
+    alpha = x * omega
+    return LocalModel(gain=m1 * (omega ** 2 + alpha ** 2) ** (n / 2.0), alpha=alpha, dead_time=dead, order=n)
+
+
+def _lag(model: Model | LocalModel, omega: float) -> float:
+    if isinstance(model, LocalModel):
+        return model.lag(omega)
+    if isinstance(model, IpdtModel):
+        return math.pi / 2.0 + omega * model.dead_time
+    return model.order * math.atan(omega * model.time_constant) + omega * model.dead_time
+
+
+def anchored_ultimate_point(model: Model | LocalModel, omega: float, g1: complex) -> tuple[float, float]:
     """Ultimate point of the true plant, using ``model`` only to bridge from ``ωc`` to ``ωu``.
 
     The measured ``g1 = G(jωc)`` is exact for any linear plant; the model supplies the
     local shape: with ``Δφ = arg g1 − arg G_M(jωc)`` and ``ρ = |g1|/|G_M(jωc)|`` (both 0/1
-    when the model is exact), ``ωu`` solves ``arg G_M(jω) + Δφ = −π`` and
+    when the model passes through ``g1``), ``ωu`` solves ``arg G_M(jω) + Δφ = −π`` and
     ``ku = 1/(ρ·|G_M(jωu)|)``, ``tu = 2π/ωu``.
     """
     gm = model.frequency_response(omega)
     dphi = math.remainder(math.atan2(g1.imag, g1.real) - math.atan2(gm.imag, gm.real), 2.0 * math.pi)
     rho = abs(g1) / abs(gm)
-    if isinstance(model, IpdtModel):
-        lag = lambda w: math.pi / 2 + w * model.dead_time  # noqa: E731
-    else:
-        lag = lambda w: model.order * math.atan(w * model.time_constant) + w * model.dead_time  # noqa: E731
 
     def gap(w: float) -> float:
-        return lag(w) - dphi - math.pi
+        return _lag(model, w) - dphi - math.pi
 
     lo, hi = omega, omega
     while gap(lo) > 0.0 and lo > 1e-9 * omega:
@@ -477,7 +563,7 @@ def anchored_ultimate_point(model: Model, omega: float, g1: complex) -> tuple[fl
     if gap(lo) > 0.0 or gap(hi) < 0.0:
         raise ValueError('model: no phase crossover near the relay frequency')
     wu = brentq(gap, lo, hi, xtol=1e-14 * omega, rtol=1e-13)
-    return 1.0 / (rho * abs(model.frequency_response(wu))), 2.0 * math.pi / wu
+    return float(1.0 / (rho * abs(model.frequency_response(wu)))), float(2.0 * math.pi / wu)
 
 
 @dataclass(frozen=True)
@@ -485,7 +571,8 @@ class RelayIdentification:
     """Result of :func:`identify_relay`.
 
     ``ku``/``tu``: the accurate ultimate point (first harmonic, corrected to the −180°
-    point along the fitted model, :func:`anchored_ultimate_point`); ``ku_df``/``tu_df``:
+    point along ``local_model``, or along ``model`` when the local fit has no solution);
+    ``ku_model``/``tu_model``: the same correction along ``model``; ``ku_df``/``tu_df``:
     describing function (with the hysteresis correction) and mean period;
     ``ku_fh``/``tu_fh``: the uncorrected first-harmonic point ``1/|G(jωc)|``, ``2π/ωc``.
     ``omega`` = ωc [rad/s], ``g1``/``g3`` = ``G(jωc)``, ``G(j3ωc)``; ``amplitude``: mean
@@ -496,6 +583,9 @@ class RelayIdentification:
 
     ku: float
     tu: float
+    ku_model: float
+    tu_model: float
+    local_model: LocalModel | None
     ku_df: float
     tu_df: float
     ku_fh: float
@@ -557,9 +647,11 @@ def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: f
     model = harmonic
     if refine:
         model = _integrating(fit_time_domain(t, u, y, start, end, u0, harmonic, kind), period)
-    ku, tu = anchored_ultimate_point(model, wc, g[1])
+    ku_model, tu_model = anchored_ultimate_point(model, wc, g[1])
+    local = fit_local_model(wc, g[1], g[3])
+    ku, tu = anchored_ultimate_point(local, wc, g[1]) if local is not None else (ku_model, tu_model)
     return RelayIdentification(
-        ku=ku, tu=tu,
+        ku=ku, tu=tu, ku_model=ku_model, tu_model=tu_model, local_model=local,
         ku_df=ku_describing_function(relay_amp, amp, eps),
         tu_df=float(np.mean([c.period for c in cycles])),
         ku_fh=1.0 / abs(g[1]), tu_fh=period, omega=wc, g1=g[1], g3=g[3],
