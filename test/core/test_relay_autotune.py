@@ -218,3 +218,45 @@ def test_reverse_acting_loop_is_tuned_with_positive_gains_and_direct_action_kept
     assert tuner.status['tu'] == pytest.approx(tu_exact, rel=0.02)
     assert tuner.pid.config.direct_action and tuner.pid.config.kp > 0
     assert abs(np.mean(log['y'][-200:]) - R) < 0.05
+
+
+def _tune_with(pid_changes: dict, samples: int = 2500, plant=None):
+    cfg = AutotuneConfig(relay_amplitude=D, settle_time=5.0, settle_band=0.5)
+    tuner = RelayAutotuner(PidConfig(sample_time=0.1, **{**PID_BEFORE, 'u_min': 0.0, 'u_max': 1e4,
+                                                         **pid_changes}), cfg)
+    tuner.reset(np.array([R]), np.array([U0]))
+    log = closed_loop(tuner, plant or _plant(), R, samples, 0.01 * AMP, seed=3,
+                      before_step=lambda k, t: tuner.start() if k == 10 else None)
+    return tuner, log
+
+
+def test_output_limits_shrink_the_relay_symmetrically_and_the_test_still_succeeds():
+    ku, tu = exact_fopdt_ultimate(K, T, L)
+    tuner, log = _tune_with({'u_max': U0 + 0.5 * D})
+    assert log['u'].max() <= U0 + 0.5 * D
+    relay = np.isin(log['state'], ('relay', 'measuring'))
+    assert log['u'][relay].max() - log['u'][relay].min() == pytest.approx(D, rel=0.02)   # ±D/2
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    assert tuner.status['ku'] == pytest.approx(ku, rel=0.03)
+    assert tuner.status['tu'] == pytest.approx(tu, rel=0.02)
+
+
+def test_rate_limit_is_respected_by_the_relay():
+    tuner, log = _tune_with({'du_max': 1000.0})          # 100 per 0.1 s sample, the relay steps 400
+    assert np.max(np.abs(np.diff(log['u']))) <= 100.0 + 1e-9
+    assert log['state'][-1] == 'running', tuner.status['reason']
+
+
+def test_bias_at_an_output_limit_fails_and_restores():
+    tuner, log = _tune_with({'u_max': U0}, samples=600)
+    assert tuner.state == 'failed' and 'no amplitude' in tuner.status['reason']
+    assert dict(kp=tuner.pid.config.kp, ti=tuner.pid.config.ti, td=tuner.pid.config.td) == PID_BEFORE
+    assert abs(np.mean(log['y'][-100:]) - R) < 0.1
+
+
+def test_reverse_action_by_negative_kp_is_kept():
+    ku, _ = exact_fopdt_ultimate(K, T, L)
+    tuner, log = _tune_with({'kp': -20.0}, plant=ExactDelayPlant(-K, T, L, y0=R, u0=U0))
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    assert tuner.pid.config.kp == pytest.approx(-0.6 * ku, rel=0.03)
+    assert abs(np.mean(log['y'][-200:]) - R) < 0.05

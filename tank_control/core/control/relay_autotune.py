@@ -21,7 +21,8 @@ States (``status['state']``)::
   differences of ``y`` (σ ≈ std(Δy)/√2).
 * ``relay``: ``u = u0 ± d`` (``d`` = ``autotune.relay_amplitude``) switched by the
   error with hysteresis ``ε = max(autotune.hysteresis, autotune.noise_band·σ)``,
-  clipped to the PID's output limits, until the first whole cycle is complete.
+  within the PID's output limits (d shrinks so that the relay stays symmetric about
+  u0) and rate limit, until the first whole cycle is complete.
 * ``measuring``: whole cycles are collected until the last ``autotune.min_cycles``
   are stationary (periods and first-harmonic amplitudes within
   ``autotune.stationarity_tol``). When a cycle's half-periods are asymmetric
@@ -31,7 +32,9 @@ States (``status['state']``)::
   ku, tu (first harmonic corrected to −180°, or the describing function if
   ``autotune.method`` says so) and an FOPDT/IPDT model; the gains come from
   ``tune(autotune.rule, autotune.kind, ...)``, are set bumplessly and the PID
-  takes over from ``u0`` in the same sample; the next sample is ``running``.
+  takes over in the same sample (a relay switch, so y is near the setpoint) with
+  its integral at the bias ``u0`` — the equilibrium input, not the last relay value
+  ``u0 ± d``, which would disturb the loop by d; the next sample is ``running``.
 
 Faults end the test in ``failed`` with ``status['reason']``: no oscillation within
 ``autotune.timeout`` (counted from the relay start), output deviation above
@@ -45,6 +48,7 @@ message)`` (a std_srvs/Trigger answer), ``state``/``status`` are plain values.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -169,6 +173,7 @@ class RelayAutotuner:
         self._state = 'idle'
         self._reason = ''
         self._pending: float | None = None      # bumpless PID (re)start from this u
+        self._last_out: float | None = None     # last output sent [u units]
         self._saved_gains: dict[str, Any] | None = None
         self._result: ident.RelayIdentification | None = None
         self._gains: dict[str, float | None] | None = None
@@ -225,17 +230,23 @@ class RelayAutotuner:
         if self._state in TESTING:
             self._end('aborted', 'reset during the test')
         self._pending = u0
+        self._last_out = u0
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """One sample: time [s], measurement, setpoint → manipulated input (1 value)."""
+        """One sample: time [s], measurement, setpoint → manipulated input (1 value).
+
+        The PID's rate limit also holds across the hand-overs PID → relay → PID.
+        """
         yv, rv = _scalar(y, 'y'), _scalar(r, 'r')
+        u = None
         if self._state in TESTING:
             u = self._test_step(float(t), yv, rv)
-            if u is not None:
-                return np.array([u])
         elif self._state == 'tuned':
             self._state = 'running'
-        return np.array([self._pid_step(yv, rv)])
+        if u is None:
+            u = self._limit(self._pid_step(yv, rv))
+        self._last_out = u
+        return np.array([u])
 
     @property
     def status(self) -> Mapping[str, Any]:
@@ -269,9 +280,9 @@ class RelayAutotuner:
     def _clear_test(self) -> None:
         self._t_start = math.nan       # start of the current phase [s]
         self._r_test = math.nan
-        self._win_t: list[float] = []
-        self._win_y: list[float] = []
-        self._win_u: list[float] = []
+        self._win_t: deque[float] = deque()
+        self._win_y: deque[float] = deque()
+        self._win_u: deque[float] = deque()
         self._u0: float | None = None
         self._u0_start: float | None = None
         self._sigma = math.nan
@@ -294,6 +305,20 @@ class RelayAutotuner:
     def _clip(self, u: float) -> float:
         cfg = self.pid.config
         return min(max(u, cfg.u_min), cfg.u_max)
+
+    def _amplitude(self) -> float:
+        """``autotune.relay_amplitude``, reduced so that ``u0 ± d`` stays within the output limits
+        (a clipped, asymmetric relay would defeat the bias correction)."""
+        cfg = self.pid.config
+        return min(self._cfg.relay_amplitude, cfg.u_max - self._u0, self._u0 - cfg.u_min)
+
+    def _limit(self, u: float) -> float:
+        """The PID's output limits and rate limit (du_max per second) applied to the relay output."""
+        cfg = self.pid.config
+        if self._last_out is not None and math.isfinite(cfg.du_max):
+            step = cfg.du_max * cfg.sample_time
+            u = min(max(u, self._last_out - step), self._last_out + step)
+        return self._clip(u)
 
     def _direction(self) -> float:
         cfg = self.pid.config
@@ -330,8 +355,8 @@ class RelayAutotuner:
         self._win_y.append(y)
         self._win_u.append(u)
         while self._win_t and self._win_t[0] < t - cfg.settle_time - 1e-9:
-            for lst in (self._win_t, self._win_y, self._win_u):
-                lst.pop(0)
+            for window in (self._win_t, self._win_y, self._win_u):
+                window.popleft()
         elapsed = t - self._t_start
         full = elapsed >= cfg.settle_time - 1e-9
         steady = full and all(abs(v - r) <= cfg.settle_band for v in self._win_y)
@@ -344,6 +369,10 @@ class RelayAutotuner:
             self._state = 'relay'
             self._t_start = t
             self._relay_high = r - y >= 0.0
+            if self._amplitude() < 0.1 * self._cfg.relay_amplitude:
+                self._end('failed', f'relay has no amplitude: the bias u0 = {self._u0:g} is within '
+                                    f'10 % of autotune.relay_amplitude from an output limit')
+                return None
             return self._relay(t, y, r)
         return u
 
@@ -359,7 +388,7 @@ class RelayAutotuner:
         elif e < -self._eps:
             self._relay_high = False
         sign = 1.0 if self._relay_high else -1.0
-        u = self._clip(self._u0 + self._direction() * sign * cfg.relay_amplitude)
+        u = self._limit(self._u0 + self._direction() * sign * self._amplitude())
         switched = bool(self._rec_u) and (u != self._rec_u[-1])
         self._rec_t.append(t)
         self._rec_u.append(u)
@@ -403,7 +432,8 @@ class RelayAutotuner:
             res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
                                        gain=cfg.process_gain or None, kind=cfg.model)
             gains = self._tune(res)
-            new = {'kp': gains['kp'],
+            sign = -1.0 if self.pid.config.kp < 0 else 1.0   # keep a reverse action by negative kp
+            new = {'kp': sign * gains['kp'],
                    'ti': gains['ti'] if gains.get('ti') else math.inf,
                    'td': gains['td'] if gains.get('td') else 0.0,
                    'b': gains['b'] if gains.get('b') is not None else 1.0,
