@@ -260,3 +260,29 @@ def test_reverse_action_by_negative_kp_is_kept():
     assert log['state'][-1] == 'running', tuner.status['reason']
     assert tuner.pid.config.kp == pytest.approx(-0.6 * ku, rel=0.03)
     assert abs(np.mean(log['y'][-200:]) - R) < 0.05
+
+
+@pytest.mark.parametrize('plant_kind', ('fopdt', 'ipdt'))
+def test_pressing_start_from_rest_on_the_plants_module(plant_kind):
+    """core/plants Fopdt (001 example) / Ipdt (000 example) from y = 0 with the setpoint at 100
+    (FOPDT) or 10 (IPDT): start is pressed at once, settling waits for the PID to bring y to
+    the setpoint, then relay, identification and the tuned PID; 1 % noise."""
+    from tank_control.core.plants.fopdt import Fopdt, FopdtConfig
+    from tank_control.core.plants.ipdt import Ipdt, IpdtConfig
+    if plant_kind == 'fopdt':
+        plant, r, d = Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L)), R, D
+        (ku, tu), amp = exact_fopdt_ultimate(K, T, L), AMP
+        pid = PidConfig(sample_time=0.1, kp=20.0, ti=12.0, u_min=0.0, u_max=1e4)
+    else:
+        plant, r, d = Ipdt(IpdtConfig(gain=0.05, dead_time=5.0)), 10.0, 1.0
+        (ku, tu), amp = exact_ipdt_ultimate(0.05, 5.0), 0.05 * 1.0 * 5.0
+        pid = PidConfig(sample_time=0.2, kp=1.0, ti=60.0)
+    tuner = RelayAutotuner(pid, AutotuneConfig(relay_amplitude=d, settle_time=20.0,
+                                               settle_band=0.3 * amp, settle_timeout=400.0))
+    log = closed_loop(tuner, plant, r, int(400 / pid.sample_time), 0.01 * amp, seed=9,
+                      before_step=lambda k, t: tuner.start() if k == 0 else None)
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    states = list(log['state'])
+    assert abs(log['y'][states.index('relay')] - r) < 0.3 * amp + 0.05 * amp   # settled first
+    assert tuner.status['ku'] == pytest.approx(ku, rel=0.03)
+    assert tuner.status['tu'] == pytest.approx(tu, rel=0.02)
