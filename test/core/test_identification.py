@@ -184,3 +184,15 @@ def test_local_model_through_two_harmonics_is_exact_for_its_family(order, alpha)
     ku, tu = ident.anchored_ultimate_point(m, w, g(w))
     assert ku == pytest.approx(1 / abs(g(lo)), rel=1e-7)
     assert tu == pytest.approx(2 * math.pi / lo, rel=1e-7)
+
+
+def test_known_static_gain_gives_the_fopdt_by_eq_3_6_2():
+    """001 example with kP = 0.05 supplied: T and L from 004 eq. 3.6.2 through the measured ku, tu."""
+    ts = 0.05
+    plant = ExactDelayPlant(0.05, 10.0, 3.0)
+    amp = 0.05 * 200 * (1 - math.exp(-0.3))
+    t, u, y = relay_record(plant, 200.0, 4 * 0.01 * amp, 0.01 * amp, ts, int(70 / ts), seed=4)
+    res = ident.identify_relay(t, u, y, 0.0, 0.0, 4 * 0.01 * amp, gain=0.05)
+    assert res.model_method == 'eq_3_6_2'
+    assert res.model.time_constant == pytest.approx(10.0, rel=0.03)
+    assert res.model.dead_time == pytest.approx(3.0, rel=0.03)

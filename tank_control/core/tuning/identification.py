@@ -246,7 +246,7 @@ def _fourier_samples(t: np.ndarray, x: np.ndarray, omega: float) -> complex:
 
 
 def _fourier_zoh(t: np.ndarray, x: np.ndarray, omega: float) -> complex:
-    """Exact ``∫ x(t)·e^(−jωt) dt`` of a ZOH signal (``x[k]`` held on ``[t[k], t[k+1])``) over ``t[0] … t[-1]``."""
+    """Exact ``∫ x(t)·e^(−jωt) dt`` over ``t[0] … t[-1]`` of a ZOH signal (``x[k]`` held on ``[t[k], t[k+1])``)."""
     e = np.exp(-1j * omega * t)
     return complex(np.sum(x[:-1] * (e[:-1] - e[1:])) / (1j * omega))
 
@@ -277,7 +277,7 @@ def harmonic_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, e
 
 def static_gain(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end: int,
                 u0: float, y0: float) -> float | None:
-    """Static gain from a biased relay: ``kP = ∫(y − y0) dt / ∫(u − u0) dt`` over whole periods (004 eq. 3.3.13).
+    """Static gain from a biased relay, ``kP = ∫(y − y0) dt / ∫(u − u0) dt`` over whole periods (004 3.3.13).
 
     ``None`` when the relay is (nearly) symmetric, i.e. ``|∫(u − u0)|`` is below 2 % of
     ``∫|u − u0|`` and the ratio would be noise.
@@ -577,7 +577,9 @@ class RelayIdentification:
     ``ku_fh``/``tu_fh``: the uncorrected first-harmonic point ``1/|G(jωc)|``, ``2π/ωc``.
     ``omega`` = ωc [rad/s], ``g1``/``g3`` = ``G(jωc)``, ``G(j3ωc)``; ``amplitude``: mean
     half peak-to-peak of ``y``; ``relay_amplitude``: half the span of ``u``; ``model``:
-    FOPDT/IPDT fitted in the time domain (``model_harmonic``: from ``g1``, ``g3``/kP only);
+    the FOPDT/IPDT for model-based tuning, by ``model_method``: ``'eq_3_6_2'`` (a static
+    gain is known: 004 eq. 3.6.2 through ``ku``, ``tu``) or ``'time_domain'``
+    (:func:`fit_time_domain`); ``model_harmonic``: from ``g1``, ``g3``/kP only (its start);
     ``static_gain``: kP supplied or from 004 eq. 3.3.13 (biased relay), else ``None``.
     """
 
@@ -599,6 +601,7 @@ class RelayIdentification:
     cycles: int
     model: Model
     model_harmonic: Model
+    model_method: str
     static_gain: float | None
 
 
@@ -615,12 +618,17 @@ def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: f
                    refine: bool = True) -> RelayIdentification:
     """Ultimate point and model from a relay record (001 §1.3; 004 §3.2–3.3, 3.6).
 
+    Steps: ``G(jωc)``, ``G(j3ωc)`` by Fourier over the cycles; FOPDT/IPDT through them
+    (:func:`fit_first_order_delay`), refined on the samples (:func:`fit_time_domain`);
+    ``ku``, ``tu`` by :func:`anchored_ultimate_point` along :func:`fit_local_model`
+    (or the refined model when the local one has no solution); with a static gain the
+    reported FOPDT is 004 eq. 3.6.2 through ``ku``, ``tu``.
+
     ``t, u, y``: the record from the relay start (loop at rest at ``u0``, ``y0``),
     uniformly sampled. ``cycles``: the stationary cycles to use (consecutive, from
     :func:`relay_cycles`); default: all complete cycles after the first one. ``gain``:
-    known static gain kP (else 004 eq. 3.3.13 if the relay is biased, else the 3rd
-    harmonic sets the pole). ``kind``: 'auto', 'fopdt' or 'ipdt'. ``refine``: refine
-    the harmonic model by the time-domain fit (:func:`fit_time_domain`).
+    known static gain kP (else 004 eq. 3.3.13 if the relay is biased). ``kind``:
+    'auto', 'fopdt' or 'ipdt'. ``refine``: run the time-domain fit.
     Raises ``ValueError`` with a reason when the record cannot be analysed.
     """
     t = np.asarray(t, float)
@@ -643,17 +651,20 @@ def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: f
     if kp is not None and kp <= 0:
         kp = None
     period = 2.0 * math.pi / wc
-    harmonic = _integrating(fit_first_order_delay(wc, g[1], g[3], kp, kind), period)
-    model = harmonic
+    keep = (lambda m: m) if kind == 'fopdt' else (lambda m: _integrating(m, period))  # noqa: E731
+    harmonic = keep(fit_first_order_delay(wc, g[1], g[3], kp, kind))
+    model, method = harmonic, 'harmonic'
     if refine:
-        model = _integrating(fit_time_domain(t, u, y, start, end, u0, harmonic, kind), period)
+        model, method = keep(fit_time_domain(t, u, y, start, end, u0, harmonic, kind)), 'time_domain'
     ku_model, tu_model = anchored_ultimate_point(model, wc, g[1])
     local = fit_local_model(wc, g[1], g[3])
     ku, tu = anchored_ultimate_point(local, wc, g[1]) if local is not None else (ku_model, tu_model)
+    if kp is not None and kind != 'ipdt' and kp * ku > 1.0:
+        model, method = fopdt_from_ultimate(ku, tu, kp, order=1), 'eq_3_6_2'
     return RelayIdentification(
         ku=ku, tu=tu, ku_model=ku_model, tu_model=tu_model, local_model=local,
         ku_df=ku_describing_function(relay_amp, amp, eps),
         tu_df=float(np.mean([c.period for c in cycles])),
         ku_fh=1.0 / abs(g[1]), tu_fh=period, omega=wc, g1=g[1], g3=g[3],
         amplitude=amp, relay_amplitude=relay_amp, hysteresis=hysteresis, cycles=n,
-        model=model, model_harmonic=harmonic, static_gain=kp)
+        model=model, model_harmonic=harmonic, model_method=method, static_gain=kp)
