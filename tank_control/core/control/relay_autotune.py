@@ -250,7 +250,10 @@ class RelayAutotuner:
 
     @property
     def status(self) -> Mapping[str, Any]:
-        """state, reason, cycles, ku, tu, ku_df, tu_df, model, gains, u0, hysteresis and the PID status."""
+        """state, reason, cycles (stationary cycles counted), u0 (relay bias), hysteresis ε,
+        noise_std σ, ku, tu (first harmonic, corrected), ku_df, tu_df (describing function),
+        amplitude, model (dict), model_method, gains (dict from the rule) and the PID status
+        under 'pid'. Results are those of the last successful test (NaN/empty before one)."""
         res = self._result
         status: dict[str, Any] = {
             'state': self._state,
@@ -265,6 +268,7 @@ class RelayAutotuner:
             'tu_df': res.tu_df if res else math.nan,
             'amplitude': res.amplitude if res else math.nan,
             'model': dict(res.model.as_dict()) if res else {},
+            'model_method': res.model_method if res else '',
             'gains': dict(self._gains) if self._gains else {},
         }
         status['pid'] = dict(self.pid.status)
