@@ -286,3 +286,15 @@ def test_pressing_start_from_rest_on_the_plants_module(plant_kind):
     assert abs(log['y'][states.index('relay')] - r) < 0.3 * amp + 0.05 * amp   # settled first
     assert tuner.status['ku'] == pytest.approx(ku, rel=0.03)
     assert tuner.status['tu'] == pytest.approx(tu, rel=0.02)
+
+
+def test_describing_function_method_tunes_from_the_classical_estimate():
+    """autotune.method = describing_function: ZN from 4d/(πa) (001 eq. 6.22), which on 001's
+    example is ~19 % below the exact Ku (SPEC §2.5) — the reason the first harmonic is the default."""
+    tuner = _tuner(method='describing_function')
+    log = _run(tuner, 2500)
+    st = tuner.status
+    assert log['state'][-1] == 'running'
+    assert tuner.pid.config.kp == pytest.approx(0.6 * st['ku_df'], rel=1e-9)
+    assert st['ku_df'] / 117.80 - 1 == pytest.approx(-0.19, abs=0.03)
+    assert st['ku'] == pytest.approx(117.8, rel=0.03)
