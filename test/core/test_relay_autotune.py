@@ -298,3 +298,61 @@ def test_describing_function_method_tunes_from_the_classical_estimate():
     assert tuner.pid.config.kp == pytest.approx(0.6 * st['ku_df'], rel=1e-9)
     assert st['ku_df'] / 117.80 - 1 == pytest.approx(-0.19, abs=0.03)
     assert st['ku'] == pytest.approx(117.8, rel=0.03)
+
+
+# ------------------------------------------------------ node plumbing (no ROS)
+def _param_values(**changes):
+    from tank_control.core.control.pid import pid_params
+    values = defaults(pid_params() + autotune_params())
+    values.update({'kp': 20.0, 'ti': 12.0, 'sample_time': 0.1, 'u_min': 0.0, 'u_max': 1e4,
+                   'autotune.relay_amplitude': D, 'autotune.settle_time': 5.0,
+                   'autotune.settle_band': 0.5, 'output_names': ['y'], 'input_names': ['u']})
+    values.update(changes)
+    return values
+
+
+def test_kind_for_the_registry_builds_commands_and_reports_valid_parameters():
+    from tank_control.core.control.relay_autotune import autotune_result_params, relay_autotune_kind
+    kind = relay_autotune_kind()
+    assert kind.name == 'relay_autotune'
+    values = _param_values()
+    assert kind.check(values) is None
+    assert 'tuning.rule' in kind.check({**values, 'tuning.rule': 'mdp'})
+    tuner = kind.build(values)
+    tuner.reset(np.array([R]), np.array([U0]))
+    assert tuner.command('start_autotune')[0] and tuner.state == 'settling'
+    assert tuner.command('abort_autotune')[0] and tuner.state == 'aborted'
+    with pytest.raises(ValueError, match='allowed start_autotune, abort_autotune'):
+        tuner.command('tune_harder')
+    tuner.command('start_autotune')
+    closed_loop(tuner, _plant(), R, 800, 0.01 * AMP, seed=1)
+    results = tuner.results()
+    assert results['autotune.state'] == 'running' and results['autotune.start'] is False
+    specs = {s.name: s for s in autotune_params() + autotune_result_params()}
+    from tank_control.core.control.pid import pid_params
+    specs.update({s.name: s for s in pid_params()})
+    assert not [specs[k].check(v) for k, v in results.items() if specs[k].check(v)]
+    assert results['autotune.ku'] == pytest.approx(117.8, rel=0.03)
+    assert results['kp'] == pytest.approx(tuner.pid.config.kp)
+
+
+def test_update_starts_aborts_on_changed_settings_and_keeps_tuned_gains():
+    from tank_control.core.control.relay_autotune import build_relay_autotuner, update_relay_autotuner
+    values = _param_values()
+    tuner = build_relay_autotuner(values)
+    tuner.reset(np.array([R]), np.array([U0]))
+    update_relay_autotuner(tuner, {**values, 'autotune.start': True}, frozenset({'autotune.start'}))
+    assert tuner.state == 'settling'
+    update_relay_autotuner(tuner, {**values, 'autotune.relay_amplitude': 100.0},
+                           frozenset({'autotune.relay_amplitude'}))
+    assert tuner.state == 'aborted' and 'parameters changed' in tuner.status['reason']
+    assert tuner.config.relay_amplitude == 100.0
+    tuner.start()
+    closed_loop(tuner, _plant(), R, 1000, 0.01 * AMP, seed=2)
+    assert tuner.state == 'running'
+    tuned_kp = tuner.pid.config.kp
+    update_relay_autotuner(tuner, {**values, 'autotune.relay_amplitude': 150.0},
+                           frozenset({'autotune.relay_amplitude'}))   # kp=20 still in values
+    assert tuner.pid.config.kp == tuned_kp
+    update_relay_autotuner(tuner, {**values, 'kp': 30.0}, frozenset({'kp'}))
+    assert tuner.pid.config.kp == 30.0

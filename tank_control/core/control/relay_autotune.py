@@ -151,6 +151,36 @@ def autotune_params() -> tuple[ParamSpec, ...]:
                   'FOPDT model', choices=RULES),
         ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
                   choices=('p', 'pi', 'pid')),
+    ) + autotune_result_params()
+
+
+def autotune_result_params() -> tuple[ParamSpec, ...]:
+    """Read-only ``autotune.*`` parameters that report the test (written by the node from
+    :meth:`RelayAutotuner.results`); 0 means "no successful test yet"."""
+    big = 1e12
+    return (
+        ParamSpec('autotune.state', 'idle', 'state of the auto-tuner (read-only)', choices=STATES,
+                  read_only=True),
+        ParamSpec('autotune.reason', '', 'why the last test failed or was aborted (read-only)',
+                  read_only=True),
+        ParamSpec('autotune.cycles', 0, 'stationary relay cycles counted (read-only)', min=0,
+                  max=1_000_000, read_only=True),
+        ParamSpec('autotune.ku', 0.0, 'identified ultimate gain Ku, first harmonic corrected to '
+                  '−180° [u units per y unit] (read-only)', min=0.0, max=big, read_only=True),
+        ParamSpec('autotune.tu', 0.0, 'identified ultimate period Tu [s] (read-only)', min=0.0,
+                  max=big, read_only=True),
+        ParamSpec('autotune.ku_df', 0.0, 'describing-function Ku = 4d/(πa), 001 eq. 6.22 '
+                  '(read-only)', min=0.0, max=big, read_only=True),
+        ParamSpec('autotune.tu_df', 0.0, 'mean relay period [s] (read-only)', min=0.0, max=big,
+                  read_only=True),
+        ParamSpec('autotune.model_kind', 'none', 'identified model (read-only)',
+                  choices=('none', 'fopdt', 'ipdt'), read_only=True),
+        ParamSpec('autotune.model_gain', 0.0, 'model gain K (FOPDT) or k1 (IPDT, per s) '
+                  '(read-only)', min=-big, max=big, read_only=True),
+        ParamSpec('autotune.model_time_constant', 0.0, 'model time constant T [s] (read-only)',
+                  min=0.0, max=big, read_only=True),
+        ParamSpec('autotune.model_dead_time', 0.0, 'model dead time L or To [s] (read-only)',
+                  min=0.0, max=big, read_only=True),
     )
 
 
@@ -215,12 +245,44 @@ class RelayAutotuner:
         self._reason = ''
         return True, 'autotune: test started (settling)'
 
-    def abort(self) -> tuple[bool, str]:
+    def abort(self, reason: str = 'abort requested') -> tuple[bool, str]:
         """End a running test now: previous gains restored, the PID resumes from u0 at the next sample."""
         if self._state not in TESTING:
             return False, f'autotune: no test is running (state {self._state})'
-        self._end('aborted', 'abort requested')
+        self._end('aborted', reason)
         return True, 'autotune: test aborted, previous gains restored'
+
+    def command(self, name: str) -> tuple[bool, str]:
+        """Operator commands for a node's std_srvs/Trigger services: ``start_autotune``, ``abort_autotune``."""
+        if name == 'start_autotune':
+            return self.start()
+        if name == 'abort_autotune':
+            return self.abort()
+        raise ValueError(f'command: {name!r} is unknown; allowed start_autotune, abort_autotune')
+
+    def results(self) -> dict[str, Any]:
+        """Parameter values the tuner produced (see :func:`autotune_result_params`), the PID's
+        gains in parameter convention (ti = 0: no integral action) and ``autotune.start`` = False
+        (so a node re-arms its start parameter)."""
+        res = self._result
+        model = res.model if res else None
+        cfg = self.pid.config
+        return {
+            'autotune.start': False,
+            'autotune.state': self._state,
+            'autotune.reason': self._reason,
+            'autotune.cycles': int(self._cycles),
+            'autotune.ku': float(res.ku) if res else 0.0,
+            'autotune.tu': float(res.tu) if res else 0.0,
+            'autotune.ku_df': float(res.ku_df) if res else 0.0,
+            'autotune.tu_df': float(res.tu_df) if res else 0.0,
+            'autotune.model_kind': model.kind if model else 'none',
+            'autotune.model_gain': float(model.gain) if model else 0.0,
+            'autotune.model_time_constant': float(getattr(model, 'time_constant', 0.0)) if model else 0.0,
+            'autotune.model_dead_time': float(model.dead_time) if model else 0.0,
+            'kp': abs(cfg.kp), 'ti': cfg.ti if math.isfinite(cfg.ti) else 0.0, 'td': cfg.td,
+            'b': cfg.b, 'c': cfg.c,
+        }
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
         """Bumpless (re)start of normal PID operation from ``u``; a running test is abandoned (aborted)."""
@@ -332,9 +394,11 @@ class RelayAutotuner:
         """Leave the test: restore the gains from before it, PID resumes bumplessly from u0."""
         if self._saved_gains is not None:
             self.pid.set_gains(**self._saved_gains)
-        self._pending = self._u0 if self._u0 is not None else self.pid.output
-        if self._pending is None:
-            self._pending = 0.0
+        if self._u0 is not None:
+            self._pending = self._u0              # the bias: equilibrium input of the test
+        elif self._pending is None:               # ended while settling: continue the last output
+            last = self._last_out if self._last_out is not None else self.pid.output
+            self._pending = 0.0 if last is None else last
         self._state = state
         self._reason = reason
 
@@ -490,3 +554,100 @@ def _scalar(value: Any, name: str) -> float:
     if arr.size != 1:
         raise ValueError(f'{name}: expected 1 value for the SISO relay auto-tuner, got {arr.size}')
     return float(arr[0])
+
+
+# ------------------------------------------------- controller_node plumbing
+AUTOTUNE_COMMANDS = ('start_autotune', 'abort_autotune')
+_RESULT_NAMES = frozenset(s.name for s in autotune_result_params())
+
+
+def _autotune_values(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The settable ``autotune.*`` values (results and the start trigger left out)."""
+    return {k: v for k, v in values.items()
+            if k.startswith('autotune.') and k not in _RESULT_NAMES and k != 'autotune.start'}
+
+
+def build_relay_autotuner(values: Mapping[str, Any], output_name: str = 'y',
+                          input_name: str = 'u') -> RelayAutotuner:
+    """A :class:`RelayAutotuner` from flat parameter values: the PID's (``pid_params()``:
+    kp, ti, ..., limits, tuning.*) and ``autotune.*``. ValueError with the reasons."""
+    from tank_control.core.control.pid import pid_config_from_params
+    tuner = RelayAutotuner(pid_config_from_params(values),
+                           AutotuneConfig.from_params(_autotune_values(values)),
+                           output_name=output_name, input_name=input_name)
+    if values.get('mode') == 'manual':
+        tuner.pid.set_manual(float(values['manual_output']))
+    if values.get('autotune.start'):
+        tuner.start()
+    return tuner
+
+
+def update_relay_autotuner(tuner: RelayAutotuner, values: Mapping[str, Any],
+                           changed: frozenset[str]) -> bool:
+    """Apply accepted parameter changes in place, bumplessly; always True (never rebuild).
+
+    A change of a PID or test setting while a test runs aborts the test first (reason
+    'parameters changed during the test') — the settings are never accepted and ignored.
+    ``autotune.start`` = True starts a test. Only PID settings named in ``changed`` are
+    applied (so tuned gains are not reverted by an unrelated change before the node has
+    written them back); result parameters (``autotune.state`` …) change nothing.
+    """
+    from dataclasses import asdict
+
+    from tank_control.core.control.pid import pid_config_from_params
+    config = asdict(pid_config_from_params(values))
+    # only PID settings named in `changed`: the running gains may be tuned ones that the
+    # parameters show only once the node has written the results back
+    pid_changes = {k: v for k, v in config.items()
+                   if k in changed and getattr(tuner.pid.config, k) != v}
+    new_cfg = AutotuneConfig.from_params(_autotune_values(values))
+    if (pid_changes or new_cfg != tuner.config) and tuner.state in TESTING:
+        tuner.abort('parameters changed during the test')
+    if pid_changes:
+        tuner.pid.set_gains(**pid_changes)
+    if new_cfg != tuner.config:
+        tuner.configure(new_cfg)
+    if values.get('mode') == 'manual' and tuner.pid.mode != 'manual':
+        tuner.pid.set_manual(float(values['manual_output']))
+    elif values.get('mode', 'auto') == 'auto' and tuner.pid.mode != 'auto':
+        tuner.pid.set_auto()
+    if 'autotune.start' in changed and values.get('autotune.start'):
+        tuner.start()
+    return True
+
+
+def relay_autotune_kind():
+    """The ``relay_autotune`` controller kind for ``core/control/registry.py``
+    (one line there: ``'relay_autotune': ('tank_control.core.control.relay_autotune',
+    'relay_autotune_kind')``). Operator commands ``~/start_autotune``, ``~/abort_autotune``;
+    results written back to the read-only ``autotune.*`` parameters and the gains."""
+    from dataclasses import fields as dc_fields
+
+    from tank_control.core.control import registry
+    from tank_control.core.control.pid import check_pid_relations, pid_params
+
+    def build(values: Mapping[str, Any]) -> RelayAutotuner:
+        return build_relay_autotuner(values, output_name=str(list(values['output_names'])[0]),
+                                     input_name=str(list(values['input_names'])[0]))
+
+    def check(values: Mapping[str, Any]) -> str | None:
+        if values.get('tuning.rule', 'none') != 'none':
+            return ("tuning.rule: must be 'none' for relay_autotune (the test sets the gains); "
+                    'allowed none')
+        return check_pid_relations(values)
+
+    def channels() -> tuple[ParamSpec, ...]:
+        return (ParamSpec('output_names', ['y'], 'measured channel read (and its setpoint)',
+                          read_only=True),
+                ParamSpec('input_names', ['u'], 'manipulated channel written', read_only=True))
+
+    kwargs: dict[str, Any] = dict(
+        name='relay_autotune', params=lambda: pid_params() + autotune_params() + channels(),
+        check=check, build=build, update=update_relay_autotuner,
+        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)')
+    available = {f.name for f in dc_fields(registry.ControllerKind)}
+    if 'results' in available:
+        kwargs['results'] = lambda tuner: tuner.results()
+    if 'commands' in available:
+        kwargs['commands'] = AUTOTUNE_COMMANDS
+    return registry.ControllerKind(**kwargs)
