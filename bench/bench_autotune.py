@@ -16,7 +16,7 @@ value over ``--seeds`` noise seeds, in per cent:
 * FH+L — first harmonic corrected along the local model k·e^(−Ls)/(s+α)^n through G(jωc)
          and G(j3ωc) (n real; falls back to FH+M when it has no solution): used by the tuner
 
-Usage: .venv/bin/python bench/bench_autotune.py [--seeds 10] [--spp 47.3]
+Usage: .venv/bin/python bench/bench_autotune.py [--seeds 10] [--spp 47.3] [--closed-loop]
 """
 from __future__ import annotations
 
@@ -103,10 +103,70 @@ def relay_run(case: float | str, noise: float, seed: int, spp: float, periods: i
     return t, u, y, eps
 
 
+def closed_loop_run(case: float | str, seed: int) -> tuple[float, float, float, str]:
+    """The whole RelayAutotuner (settling, auto hysteresis, relay, fit, ZN PI) on core/plants
+    Fopdt (K = 2, T = 5, L = ratio·T; '001': K = 0.05, T = 10, L = 3) or Ipdt (k1 = 0.05,
+    To = 5) at rest, noise 1 % of the relay output amplitude, 50 samples per Tu.
+    Returns (Ku error %, Tu error %, relay start → tuned in periods Tu, final state)."""
+    from tank_control.core.control.pid import PidConfig
+    from tank_control.core.control.relay_autotune import AutotuneConfig, RelayAutotuner
+    from tank_control.core.plants.fopdt import Fopdt, FopdtConfig
+    from tank_control.core.plants.ipdt import Ipdt, IpdtConfig
+    if case == 'ipdt':
+        k1, dead = 0.05, 5.0
+        plant = Ipdt(IpdtConfig(gain=k1, dead_time=dead, initial_output=10.0))
+        ku, tu = math.pi / (2 * k1 * dead), 4 * dead
+        d, amp, pid = 1.0, k1 * dead, dict(kp=0.2 / (k1 * dead), ti=40.0)
+    else:
+        gain, tc, dead = (0.05, 10.0, 3.0) if case == '001' else (2.0, 5.0, 5.0 * float(case))
+        plant = Fopdt(FopdtConfig(gain=gain, time_constant=tc, dead_time=dead, initial_output=10.0))
+        lo, hi = 0.0, math.pi / dead
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if mid * dead + math.atan(mid * tc) < math.pi else (lo, mid)
+        ku, tu = math.sqrt(1 + (lo * tc) ** 2) / gain, 2 * math.pi / lo
+        d = 200.0 if case == '001' else 1.0
+        amp, pid = gain * d * (1 - math.exp(-dead / tc)), dict(kp=0.2 * ku, ti=tc + dead)
+    ts = tu / 50
+    tuner = RelayAutotuner(PidConfig(sample_time=ts, **pid),
+                           AutotuneConfig(relay_amplitude=d, settle_time=10 * ts, settle_band=0.2 * amp,
+                                          timeout=20 * tu, rule='zn_001', kind='pi'))
+    tuner.reset(np.array([10.0]), np.array([0.0]))
+    rng = np.random.default_rng(seed)
+    t_relay = t_tuned = math.nan
+    for k in range(int(14 * tu / ts)):
+        t = k * ts
+        if k == 5:
+            tuner.start()
+        y = plant.outputs() + 0.01 * amp * rng.standard_normal(1)
+        u = tuner.step(t, y, np.array([10.0]), np.zeros(0))
+        if tuner.state == 'relay' and math.isnan(t_relay):
+            t_relay = t
+        if tuner.state == 'tuned':
+            t_tuned = t
+        plant.step(u, np.zeros(1), ts)
+    st = tuner.status
+    return 100 * (st['ku'] / ku - 1), 100 * (st['tu'] / tu - 1), (t_tuned - t_relay) / tu, st['state']
+
+
+def closed_loop_table(seeds: int) -> None:
+    print(f'\nRelayAutotuner closed loop on core/plants, 1 % noise, 50 samples per Tu, {seeds} seeds: '
+          'worst |error| in %, experiment length (relay start → tuned PID) in Tu')
+    print(f"{'plant':>12} | {'Ku':>6} {'Tu':>6} | {'periods':>7} | all running")
+    for case in (0.1, 0.3, 1.0, 3.0, 'ipdt', '001'):
+        runs = [closed_loop_run(case, seed) for seed in range(seeds)]
+        e = np.array([r[:3] for r in runs])
+        name = {'ipdt': 'IPDT', '001': '001 example'}.get(case, f'FOPDT L/T={case}')
+        print(f'{name:>12} | {np.abs(e[:, 0]).max():6.2f} {np.abs(e[:, 1]).max():6.2f} | '
+              f'{e[:, 2].max():7.2f} | {all(r[3] == "running" for r in runs)}')
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--seeds', type=int, default=10)
     parser.add_argument('--spp', type=float, default=47.3)
+    parser.add_argument('--closed-loop', action='store_true',
+                        help='also run the whole RelayAutotuner on core/plants over the seeds')
     args = parser.parse_args()
     cases = list(PLANTS)
     print(f'samples per period {args.spp:g}, seeds {args.seeds}, 4 stationary cycles; '
@@ -135,6 +195,8 @@ def main() -> None:
             kind, *_, dead = PLANTS[case]
             name = f'{kind} L={dead:g}' if kind != 'IPDT' else 'IPDT'
             print(f'{name:>12} {noise * 100:5.0f}% | {cells} | {np.median(times):8.1f}')
+    if args.closed_loop:
+        closed_loop_table(args.seeds)
 
 
 if __name__ == '__main__':

@@ -26,8 +26,9 @@ States (``status['state']``)::
 * ``measuring``: whole cycles are collected until the last ``autotune.min_cycles``
   are stationary (periods and first-harmonic amplitudes within
   ``autotune.stationarity_tol``). When a cycle's half-periods are asymmetric
-  (``|Tu1 − Tu2|/P`` above ``autotune.asymmetry_tol``) and bias correction is on,
-  ``u0`` becomes the cycle's mean input and counting starts again.
+  (``|Tu1 − Tu2|/P`` above ``autotune.asymmetry_tol`` in two consecutive cycles, on the
+  same side) and bias correction is on, ``u0`` becomes the last cycle's mean input
+  and counting starts again.
 * ``tuned``: :func:`~tank_control.core.tuning.identification.identify_relay` gives
   ku, tu (first harmonic corrected to −180°, or the describing function if
   ``autotune.method`` says so) and an FOPDT/IPDT model; the gains come from
@@ -484,8 +485,9 @@ class RelayAutotuner:
         last = cycles[-1]
         if last.end != len(tt) - 1:
             return False      # this switch closed a half cycle only
-        asym = (last.high_time - last.low_time) / last.period
-        if cfg.bias_correction and abs(asym) > cfg.asymmetry_tol:
+        asym = [(c.high_time - c.low_time) / c.period for c in cycles[-2:]]
+        if (cfg.bias_correction and len(asym) == 2 and min(abs(a) for a in asym) > cfg.asymmetry_tol
+                and asym[0] * asym[1] > 0.0):     # two cycles in a row, same side: not noise
             seg = slice(last.start, last.end)
             self._u0 = float(np.mean(np.array(self._rec_u)[seg]))
             self._first_cycle = last.end
