@@ -164,8 +164,9 @@ def autotune_result_params() -> tuple[ParamSpec, ...]:
                   read_only=True),
         ParamSpec('autotune.reason', '', 'why the last test failed or was aborted (read-only)',
                   read_only=True),
-        ParamSpec('autotune.cycles', 0, 'stationary relay cycles counted (read-only)', min=0,
-                  max=1_000_000, read_only=True),
+        ParamSpec('autotune.cycles', 0, 'complete relay cycles counted since the relay started '
+                  'or the bias was last corrected (read-only)', min=0, max=1_000_000,
+                  read_only=True),
         ParamSpec('autotune.ku', 0.0, 'identified ultimate gain Ku, first harmonic corrected to '
                   '−180° [u units per y unit] (read-only)', min=0.0, max=big, read_only=True),
         ParamSpec('autotune.tu', 0.0, 'identified ultimate period Tu [s] (read-only)', min=0.0,
@@ -313,7 +314,7 @@ class RelayAutotuner:
 
     @property
     def status(self) -> Mapping[str, Any]:
-        """state, reason, cycles (stationary cycles counted), u0 (relay bias), hysteresis ε,
+        """state, reason, cycles (complete relay cycles counted), u0 (relay bias), hysteresis ε,
         noise_std σ, ku, tu (first harmonic, corrected), ku_df, tu_df (describing function),
         amplitude, model (dict), model_method, gains (dict from the rule) and the PID status
         under 'pid'. Results are those of the last successful test (NaN/empty before one)."""
