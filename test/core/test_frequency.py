@@ -60,6 +60,16 @@ def test_no_ultimate_point_without_dead_time():
         fr.ultimate_point(fr.fopdt(1.0, 10.0, 0.0))
 
 
+def test_reverse_acting_plant_ultimate_point_via_negated_response():
+    """A negative gain starts the phase at −180°: rejected with a hint; −G gives the
+    same |ku| as the positive plant (reverse action = negative kp)."""
+    g = fr.fopdt(-0.05, 10.0, 3.0)
+    with pytest.raises(ValueError, match='negative gain'):
+        fr.ultimate_point(g)
+    assert (-1.0 * g).unstable_poles == 0
+    assert fr.ultimate_point(-1.0 * g).ku == pytest.approx(117.8033, rel=1e-5)
+
+
 def test_discrete_ipdt_ultimate_point_closed_form():
     """Sampled IPDT with ZOH, To = d·h: k1·h·z^(−d)/(z − 1) (001 eq. 6.7); its phase
     is −90° − ω·h/2 − ω·To, so ωu = π/(2·(To + h/2)), Ku = 2·sin(ωu·h/2)/(k1·h)."""

@@ -528,8 +528,12 @@ def ultimate_point(g: FrequencyResponse) -> UltimatePoint:
     crossing, bracketed on a refined grid then solved with brentq. SPEC §1.2:
     FOPDT 0.05/(10s+1)·e^(−3s) → ku = 117.80, tu = 10.824 s; IPDT k1/s·e^(−To·s)
     → ωu = π/(2·To), ku = π/(2·k1·To), tu = 4·To. Raises ``ValueError`` when the
-    phase never reaches −180° (e.g. FOPDT without dead time)."""
+    phase never reaches −180° (e.g. FOPDT without dead time) or starts there
+    (negative static gain: use ``-1 * g``)."""
     w, _, ph = _refined(g)
+    if ph[0] <= -math.pi + 1e-9:
+        raise ValueError('g: the phase starts at or below -180 deg (negative gain or two '
+                         'integrators); analyse -g (reverse action, negative kp) instead')
     crossings = [x for x in _phase_crossings(g, w, ph)
                  if math.isclose(_phase_scalar(g, x, float(np.interp(x, w, ph))), -math.pi,
                                  abs_tol=1e-6)]
