@@ -265,3 +265,45 @@ def test_gang_of_four_identities():
 def test_bad_input_rejected_with_reason(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+# ------------------------------------------------------------ discrete models
+def test_rational_discrete_equals_fopdt_zoh_for_whole_sample_delay():
+    """001 eq. 6.7: with L = d·h, the ZOH FOPDT is K·(1 − a)·z^(−d)/(z − a), a = e^(−h/T)."""
+    k, t, h, d = 0.05, 10.0, 0.5, 6
+    a = math.exp(-h / t)
+    general = fr.rational_discrete([k * (1 - a)], [1.0, -a], h, delay_samples=d)
+    w = np.linspace(0.01, math.pi / h, 40)
+    assert np.allclose(general(w), fr.fopdt_zoh(k, t, d * h, h)(w), atol=1e-14)
+    assert fr.ultimate_point(general).ku == pytest.approx(fr.ultimate_point(fr.fopdt_zoh(k, t, d * h, h)).ku)
+
+
+@pytest.mark.parametrize('kp,stable', [(0.4, False), (0.6, True), (2.4, True), (2.6, False)])
+def test_discrete_nyquist_count_with_unstable_pole(kp, stable):
+    """G = 1/(z − 1.5): the closed-loop pole is 1.5 − kp, inside the unit circle
+    for 0.5 < kp < 2.5 (P = 1 open-loop pole outside)."""
+    g = fr.rational_discrete([1.0], [1.0, -1.5], 1.0)
+    assert g.unstable_poles == 1
+    assert fr.closed_loop_stable(p_control_discrete(kp) * g) is stable
+
+
+def test_discrete_integrator_loop():
+    """k·h/(z − 1) (forward-Euler I control of a unit plant): closed-loop pole
+    1 − k·h, stable for 0 < k·h < 2; phase starts at −90°; GM = 2/(k·h) at π/h."""
+    h, k = 0.1, 5.0
+    loop = fr.rational_discrete([k * h], [1.0, -1.0], h)
+    assert loop.integrators == 1
+    _, _, ph = fr.bode(loop, np.array([1e-4]))
+    assert ph[0] == pytest.approx(-90.0, abs=1e-2)
+    m = fr.margins(loop)
+    assert m.gain_margin == pytest.approx(2.0 / (k * h), rel=1e-6)
+    assert m.w180 == pytest.approx(math.pi / h, rel=1e-6)
+    assert fr.closed_loop_stable(loop)
+    assert not fr.closed_loop_stable(fr.rational_discrete([2.1], [1.0, -1.0], h))
+    # the ultimate point of a phase crossing exactly at the Nyquist frequency
+    up = fr.ultimate_point(fr.rational_discrete([h], [1.0, -1.0], h))
+    assert up.ku == pytest.approx(2.0 / h) and up.tu == pytest.approx(2 * h)
+
+
+def p_control_discrete(kp: float, h: float = 1.0) -> fr.FrequencyResponse:
+    return fr.rational_discrete([kp], [1.0], h)

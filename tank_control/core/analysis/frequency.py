@@ -507,6 +507,11 @@ def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> lis
             out.append(float(w[i]))
         elif fa * fb < 0:
             out.append(brentq(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13))
+    if g.discrete and w[-1] >= g.nyquist_frequency * (1 - 1e-12):
+        # at π/Ts the response is real: a negative value is a crossing at the grid end
+        off = (ph[-1] + math.pi) % (2 * math.pi)
+        if min(off, 2 * math.pi - off) < 1e-7 and (not out or out[-1] < w[-1] * (1 - 1e-9)):
+            out.append(float(w[-1]))
     return out
 
 
