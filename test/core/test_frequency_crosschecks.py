@@ -12,6 +12,7 @@ from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.plants import make_plant
 from tank_control.core.plants.fopdt import FopdtConfig
 from tank_control.core.plants.ipdt import IpdtConfig
+from tank_control.core.tuning.identification import FopdtModel, IpdtModel
 from tank_control.tuning import tune
 
 # 002's process, reconstructed from the garbled text: the P gain 9.5 meets the 5 %
@@ -245,3 +246,16 @@ def test_plant_response_from_core_plant_configs():
     assert np.allclose(fr.plant_response(make_plant('ipdt', {'dead_time': 2.0}))(w), fr.ipdt(0.05, 2.0)(w))
     with pytest.raises(ValueError, match='config'):
         fr.plant_response(object())
+
+
+@pytest.mark.parametrize('order', [1, 2])
+def test_ultimate_point_agrees_with_identification_models(order):
+    """core/tuning/identification solves ω·L + n·atan(ω·T) = π on its own; the
+    general bracketing here must give the same (ku, tu) for its identified models."""
+    model = FopdtModel(gain=1.7, time_constant=8.0, dead_time=2.5, order=order)
+    ku, tu = model.ultimate_point()
+    up = fr.ultimate_point(fr.plant_response(model))
+    assert up.ku == pytest.approx(ku, rel=1e-9) and up.tu == pytest.approx(tu, rel=1e-9)
+    ku_i, tu_i = IpdtModel(gain=0.3, dead_time=4.0).ultimate_point()
+    up_i = fr.ultimate_point(fr.plant_response(IpdtModel(gain=0.3, dead_time=4.0)))
+    assert up_i.ku == pytest.approx(ku_i, rel=1e-9) and up_i.tu == pytest.approx(tu_i, rel=1e-9)

@@ -225,9 +225,20 @@ def fopdt(gain: float, time_constant: float, dead_time: float) -> FrequencyRespo
 
 def plant_response(config: Any) -> FrequencyResponse:
     """The response of a plant configuration of ``core.plants`` (``IpdtConfig``:
-    gain, dead_time; ``FopdtConfig``: gain, time_constant, dead_time), or of a
-    plant object with such a ``config``."""
+    gain, dead_time; ``FopdtConfig``: gain, time_constant, dead_time), of a plant
+    object with such a ``config``, or of an identified model of
+    ``core.tuning.identification`` (``FopdtModel`` with ``order`` 1 or 2:
+    ``K/(T·s + 1)^n·e^(−L·s)``, 004 eq. 3.6.1; ``IpdtModel``)."""
     config = getattr(config, 'config', config)
+    order = getattr(config, 'order', 1)
+    if hasattr(config, 'time_constant') and order != 1:
+        if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order < 1:
+            raise ValueError(f'order = {order!r} must be an integer >= 1')
+        t = _positive('time_constant', config.time_constant)
+        den = np.array([1.0])
+        for _ in range(int(order)):
+            den = np.convolve(den, [t, 1.0])
+        return rational([_nonzero('gain', config.gain)], den, config.dead_time)
     if hasattr(config, 'time_constant'):
         return fopdt(config.gain, config.time_constant, config.dead_time)
     if hasattr(config, 'gain') and hasattr(config, 'dead_time'):
@@ -614,7 +625,10 @@ def margins(loop: FrequencyResponse) -> Margins:
     eq. 6.4–6.5); for pure I control of a pure delay ωc = 1/Ti and
     PM = 90° − L/Ti rad (001 eq. 6.13). Ms is the inverse of the shortest
     distance from L(jω) to −1 (002: stabiilisuusmarginaali)."""
-    w, val, ph = _refined(loop)
+    return _margins_on(loop, *_refined(loop))
+
+
+def _margins_on(loop: FrequencyResponse, w: np.ndarray, val: np.ndarray, ph: np.ndarray) -> Margins:
     wcs = _gain_crossovers(loop, w, val)
     pms = []
     for x in wcs:
@@ -646,8 +660,12 @@ def closed_loop_poles_unstable(loop: FrequencyResponse) -> int:
     Nyquist criterion with the exact dead time: ``Z = P − Δarg(1 + L)/2π`` along
     the Nyquist contour (indented at s = 0 / z = 1 around the integrators),
     ``P`` = ``loop.unstable_poles``. Continuous loops must be strictly proper
-    enough that |L| < 1 at the top of the grid (else ``ValueError``)."""
+    enough that |L| < 0.5 at the top of the grid (else ``ValueError``)."""
     w, val, _ = _refined(loop)
+    return _nyquist_count_on(loop, w, val)
+
+
+def _nyquist_count_on(loop: FrequencyResponse, w: np.ndarray, val: np.ndarray) -> int:
     theta = np.linspace(-math.pi / 2, math.pi / 2, 401)
     eps = w[0] * 1e-2
     if loop.discrete:
@@ -719,11 +737,10 @@ def tuning_report(plant: FrequencyResponse, kp: float, ti: float | None = math.i
         ctrl = pid_feedback(kp, ti, td, n)
         ref = pid_setpoint(kp, ti, td, n, b, c)
     loop = ctrl * plant
-    m = margins(loop)
-    w = _refined(loop)[0]
+    w, val, ph = _refined(loop)
     peak, _ = _peak(lambda x: ref(x) * plant(x) / (1.0 + loop(x)), w)
-    out: dict[str, float | bool] = dict(m.as_dict())
-    out['stable'] = closed_loop_stable(loop)
+    out: dict[str, float | bool] = dict(_margins_on(loop, w, val, ph).as_dict())
+    out['stable'] = _nyquist_count_on(loop, w, val) == 0
     out['setpoint_peak'] = peak
     return out
 
