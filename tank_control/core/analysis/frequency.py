@@ -147,7 +147,7 @@ class FrequencyResponse:
 
     def __mul__(self, other: FrequencyResponse | float) -> FrequencyResponse:
         if not isinstance(other, FrequencyResponse):
-            k = _finite('gain', other)
+            k = _nonzero('gain', other)
             return FrequencyResponse(lambda p, f=self.rational: k * f(p), self.dead_time,
                                      self.sample_time, self.integrators, self.unstable_poles,
                                      self.corners)
@@ -460,11 +460,11 @@ def _phase_on(g: FrequencyResponse, w: np.ndarray) -> np.ndarray:
     return _rational_phase(g, w) - w * g.dead_time
 
 
-def _refined(g: FrequencyResponse, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Grid refined until the phase changes by < 0.2 rad between points wherever
-    |G| > 0.3 (so crossings of −180° and of |G| = 1 are not missed, even with a
-    long dead time). Returns (w, G(jω), continuous phase [rad])."""
-    w = default_grid(g) if w is None else np.asarray(w, dtype=float)
+def _refined(g: FrequencyResponse) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Default grid refined until the phase changes by < 0.2 rad between points
+    wherever |G| > 0.3 (so crossings of −180° and of |G| = 1 are not missed, even
+    with a long dead time). Returns (w, G(jω), continuous phase [rad])."""
+    w = default_grid(g)
     for _ in range(_REFINE_ROUNDS):
         val = g(w)
         ph = _phase_on(g, w)
@@ -495,12 +495,14 @@ def bode(g: FrequencyResponse, w: np.ndarray | None = None) -> tuple[np.ndarray,
 
 
 # ----------------------------------------------------------- ultimate point
-def _phase_scalar(g: FrequencyResponse, w: float, ref: float) -> float:
-    """Phase [rad] at ``w`` on the branch nearest to ``ref`` for the rational part."""
-    a = float(np.angle(g.rational(g.point(np.asarray([w])))[0]))
-    r = ref + w * g.dead_time          # reference for the rational part
-    a += 2 * math.pi * round((r - a) / (2 * math.pi))
-    return a - w * g.dead_time
+def _phase_scalar(g: FrequencyResponse, x: float, w: np.ndarray, ph: np.ndarray) -> float:
+    """Continuous phase [rad] at ``x``: the rational part's angle on the branch
+    nearest to its value interpolated from the grid (it varies slowly; the dead
+    time part ``−x·L`` is exact, so no branch question there)."""
+    ref = float(np.interp(x, w, ph + w * g.dead_time))
+    a = float(np.angle(g.rational(g.point(np.asarray([x])))[0]))
+    a += 2 * math.pi * round((ref - a) / (2 * math.pi))
+    return a - x * g.dead_time
 
 
 def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> list[float]:
@@ -509,10 +511,9 @@ def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> lis
     out = []
     for i in np.flatnonzero(np.diff(level) != 0):
         target = -math.pi + 2 * math.pi * max(level[i], level[i + 1])
-        ref = 0.5 * (ph[i] + ph[i + 1])
 
         def f(x: float) -> float:
-            return _phase_scalar(g, x, ref) - target
+            return _phase_scalar(g, x, w, ph) - target
         fa, fb = f(w[i]), f(w[i + 1])
         if fa == 0.0:
             out.append(float(w[i]))
@@ -551,7 +552,7 @@ def ultimate_point(g: FrequencyResponse) -> UltimatePoint:
         raise ValueError('g: the phase starts at or below -180 deg (negative gain or two '
                          'integrators); analyse -g (reverse action, negative kp) instead')
     crossings = [x for x in _phase_crossings(g, w, ph)
-                 if math.isclose(_phase_scalar(g, x, float(np.interp(x, w, ph))), -math.pi,
+                 if math.isclose(_phase_scalar(g, x, w, ph), -math.pi,
                                  abs_tol=1e-6)]
     if not crossings:
         raise ValueError('g: the phase never reaches -180 deg on '
@@ -632,7 +633,7 @@ def _margins_on(loop: FrequencyResponse, w: np.ndarray, val: np.ndarray, ph: np.
     wcs = _gain_crossovers(loop, w, val)
     pms = []
     for x in wcs:
-        p = _phase_scalar(loop, x, float(np.interp(x, w, ph)))
+        p = _phase_scalar(loop, x, w, ph)
         pm = (p + math.pi) % (2 * math.pi)
         pms.append(pm - 2 * math.pi if pm > math.pi else pm)
     if pms:
