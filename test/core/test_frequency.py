@@ -144,6 +144,10 @@ def test_i_control_of_pure_delay(dead, ti):
     assert m.w180 == pytest.approx(math.pi / (2 * dead), rel=1e-10)
     assert m.gain_margin == pytest.approx(math.pi * ti / (2 * dead), rel=1e-9)
     assert m.delay_margin == pytest.approx(math.pi * ti / 2 - dead, rel=1e-9)
+    # one gain crossover; phase crossovers at −180° − m·360°: ω = (π/2 + 2πm)/L
+    assert m.gain_crossovers == pytest.approx((1.0 / ti,))
+    k = np.arange(3)
+    assert m.phase_crossovers[:3] == pytest.approx(tuple((math.pi / 2 + 2 * math.pi * k) / dead))
 
 
 def test_i_control_of_pure_delay_stability_boundary():

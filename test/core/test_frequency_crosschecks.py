@@ -246,6 +246,10 @@ def test_plant_response_from_core_plant_configs():
     assert np.allclose(fr.plant_response(make_plant('ipdt', {'dead_time': 2.0}))(w), fr.ipdt(0.05, 2.0)(w))
     with pytest.raises(ValueError, match='config'):
         fr.plant_response(object())
+    # the report takes a plant object directly
+    gains = tune('mdp', 'pi', gain=0.05, dead_time=5.0)
+    assert fr.report_from_gains(make_plant('ipdt', {}), gains) == \
+        fr.report_from_gains(fr.ipdt(0.05, 5.0), gains)
 
 
 @pytest.mark.parametrize('order', [1, 2])

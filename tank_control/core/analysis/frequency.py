@@ -570,7 +570,9 @@ class Margins:
     the gain crossover (worst one; NaN if |L| never crosses 1); ``wc`` [rad/s]
     gain crossover; ``w180`` [rad/s] phase crossover; ``delay_margin`` [s] = the
     extra dead time that destabilises, min over crossovers of PM[rad]/ωc;
-    ``ms`` = max|S(jω)| and ``w_ms`` [rad/s] where it occurs; ``mt`` = max|T|."""
+    ``ms`` = max|S(jω)| and ``w_ms`` [rad/s] where it occurs; ``mt`` = max|T|;
+    ``gain_crossovers`` / ``phase_crossovers``: every |L| = 1 and every
+    −180° − m·360° crossing [rad/s], ascending."""
 
     gain_margin: float
     phase_margin: float
@@ -580,12 +582,15 @@ class Margins:
     ms: float
     w_ms: float
     mt: float
+    gain_crossovers: tuple[float, ...] = ()
+    phase_crossovers: tuple[float, ...] = ()
 
     @property
     def gain_margin_db(self) -> float:
         return 20 * math.log10(self.gain_margin) if self.gain_margin > 0 else -math.inf
 
     def as_dict(self) -> dict[str, float]:
+        """The scalar fields (not the crossover lists) and ``gain_margin_db``."""
         return {'gain_margin': self.gain_margin, 'gain_margin_db': self.gain_margin_db,
                 'phase_margin': self.phase_margin, 'wc': self.wc, 'w180': self.w180,
                 'delay_margin': self.delay_margin, 'ms': self.ms, 'w_ms': self.w_ms, 'mt': self.mt}
@@ -652,7 +657,7 @@ def _margins_on(loop: FrequencyResponse, w: np.ndarray, val: np.ndarray, ph: np.
         gm, w180 = math.inf, math.nan
     ms, w_ms = _peak(lambda x: 1.0 / (1.0 + loop(x)), w)
     mt, _ = _peak(lambda x: loop(x) / (1.0 + loop(x)), w)
-    return Margins(gm, pm_deg, wc, w180, dm, ms, w_ms, mt)
+    return Margins(gm, pm_deg, wc, w180, dm, ms, w_ms, mt, tuple(wcs), tuple(w180s))
 
 
 # ------------------------------------------------------------- Nyquist count
@@ -715,17 +720,20 @@ def gang_of_four(controller: FrequencyResponse, plant: FrequencyResponse,
 
 
 # ------------------------------------------------------------ tuning report
-def tuning_report(plant: FrequencyResponse, kp: float, ti: float | None = math.inf,
+def tuning_report(plant: FrequencyResponse | Any, kp: float, ti: float | None = math.inf,
                   td: float | None = 0.0, b: float | None = 1.0, c: float | None = 1.0,
                   n: float = 10.0) -> dict[str, float | bool]:
     """Frequency-domain report of a 2-DOF PID tuning (000 eq. 19) on ``plant``
-    (a :class:`FrequencyResponse`; ``None`` for ti/td/b/c as returned by
+    (a :class:`FrequencyResponse`, or a plant, plant configuration or identified
+    model that :func:`plant_response` accepts; ``None`` for ti/td/b/c as returned by
     ``tune()`` means no integral / no derivative / weight 1). A discrete plant
     (``ipdt_zoh``/``fopdt_zoh``) is paired with the discrete ``Pid2Dof`` law at
     its sample time. Keys: ``phase_margin`` [deg], ``gain_margin`` [ratio],
     ``gain_margin_db`` [dB], ``ms``, ``mt``, ``wc`` [rad/s], ``w180`` [rad/s],
     ``delay_margin`` [s], ``stable`` (Nyquist), ``setpoint_peak`` = max|Y/R|
     with the setpoint weights (1 = no amplification)."""
+    if not isinstance(plant, FrequencyResponse):
+        plant = plant_response(plant)
     ti = math.inf if ti is None else ti
     td = 0.0 if td is None else td
     b = 1.0 if b is None else b
@@ -746,7 +754,7 @@ def tuning_report(plant: FrequencyResponse, kp: float, ti: float | None = math.i
     return out
 
 
-def report_from_gains(plant: FrequencyResponse, gains: Mapping[str, float | None],
+def report_from_gains(plant: FrequencyResponse | Any, gains: Mapping[str, float | None],
                       n: float = 10.0) -> dict[str, float | bool]:
     """:func:`tuning_report` for a ``tune()`` result dict (keys kp, ti, td, b, c)."""
     return tuning_report(plant, gains['kp'], gains.get('ti'), gains.get('td'),
