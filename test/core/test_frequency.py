@@ -311,3 +311,12 @@ def test_discrete_integrator_loop():
 
 def p_control_discrete(kp: float, h: float = 1.0) -> fr.FrequencyResponse:
     return fr.rational_discrete([kp], [1.0], h)
+
+
+@pytest.mark.parametrize('k', [1e-3, 0.1, 10.0])
+def test_i_control_of_ipdt_is_unstable_for_every_gain(k):
+    """k/s · k1/s · e^(−To·s): phase below −180° at every ω > 0, so two closed-loop
+    poles in the right half plane for any gain (why 000 uses PI/PID, not I)."""
+    loop = fr.rational([k], [1.0, 0.0]) * fr.ipdt(0.05, 5.0)
+    assert fr.closed_loop_poles_unstable(loop) == 2
+    assert fr.margins(loop).phase_margin < 0
