@@ -567,7 +567,8 @@ class Margins:
     """Stability margins of a loop ``L = C·G`` (002; 004 §3.4.3: rezerva de fază /
     de modul). ``gain_margin`` [ratio] = 1/|L| at the phase crossover (worst one,
     ``inf`` if the phase never reaches −180°); ``phase_margin`` [deg] = 180° + ∠L at
-    the gain crossover (worst one; NaN if |L| never crosses 1); ``wc`` [rad/s]
+    the gain crossover (worst one; NaN if |L| never crosses 1), with the continuous
+    phase from ω → 0+ (not wrapped: −200° stays −200°, it does not become +160°); ``wc`` [rad/s]
     gain crossover; ``w180`` [rad/s] phase crossover; ``delay_margin`` [s] = the
     extra dead time that destabilises, min over crossovers of PM[rad]/ωc;
     ``ms`` = max|S(jω)| and ``w_ms`` [rad/s] where it occurs; ``mt`` = max|T|;
@@ -638,9 +639,7 @@ def _margins_on(loop: FrequencyResponse, w: np.ndarray, val: np.ndarray, ph: np.
     wcs = _gain_crossovers(loop, w, val)
     pms = []
     for x in wcs:
-        p = _phase_scalar(loop, x, w, ph)
-        pm = (p + math.pi) % (2 * math.pi)
-        pms.append(pm - 2 * math.pi if pm > math.pi else pm)
+        pms.append(math.pi + _phase_scalar(loop, x, w, ph))
     if pms:
         j = int(np.argmin(pms))
         pm_deg, wc = math.degrees(pms[j]), wcs[j]
