@@ -665,7 +665,9 @@ def closed_loop_poles_unstable(loop: FrequencyResponse) -> int:
     Nyquist criterion with the exact dead time: ``Z = P − Δarg(1 + L)/2π`` along
     the Nyquist contour (indented at s = 0 / z = 1 around the integrators),
     ``P`` = ``loop.unstable_poles``. Continuous loops must be strictly proper
-    enough that |L| < 0.5 at the top of the grid (else ``ValueError``)."""
+    enough that |L| < 0.5 at the top of the grid (else ``ValueError``). Open-loop
+    poles on the imaginary axis other than s = 0 (z = 1), and closed-loop poles
+    exactly on it (a loop at the stability limit), are outside its scope."""
     w, val, _ = _refined(loop)
     return _nyquist_count_on(loop, w, val)
 
