@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -63,8 +64,11 @@ def test_lockstep_ros_run_equals_the_in_process_loop(procs, ros_env, node_cmd, p
 
     def done():
         return all(max(seen[t], default=-1) >= last_tick * ts_ns for t in TOPICS)
+    started = time.monotonic()
     assert probe.wait_for(done, 60), \
         ({t: len(v) for t, v in seen.items()}, '\n'.join(p.tail() for p in procs.processes.values()))
+    # Paced: 12 s of simulated time at 10 x real time take (at least) 1.2 s of wall time.
+    assert time.monotonic() - started >= 0.95 * last_tick * 0.1 / 10.0
     assert not duplicates_differ   # re-sent ticks were answered identically
 
     # Every recorded sample equals the in-process loop at its tick. (A recorder that is not

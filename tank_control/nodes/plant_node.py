@@ -271,31 +271,39 @@ class PlantNode(Node):
         self.inbox.drop_before(self.k * self.ts_ns)
         if self._paused():
             return                      # un-pausing publishes the next tick
-        if self._pace_timer is None:
+        if self._pace_timer is None or self._wait_ns() <= 0:
             self._publish_tick()
-        elif self._due():
-            self._publish_tick()
-        # else: the pacing timer publishes it when its wall time has come
+        else:                           # a one-shot at the tick's wall time
+            self._pace_timer.timer_period_ns = self._wait_ns()
+            self._pace_timer.reset()
 
     # ------------------------------------------------------------- lockstep
     def _set_pacing(self, rtf: float) -> None:
-        """rtf 0: next tick at once; rtf > 0: tick k at wall ``start + t_k / rtf``."""
+        """rtf 0: next tick at once; rtf > 0: tick k at wall ``start + t_k / rtf``
+        (a one-shot timer armed for each tick that is early, no polling)."""
         if self._pace_timer is not None:
             self.destroy_timer(self._pace_timer)
             self._pace_timer = None
         self._rtf = rtf
         if rtf > 0:
             self._wall_start = time.monotonic() - self._t() / rtf
-            self._pace_timer = self.create_timer(min(self.ts / rtf, 0.5) / 4, self._on_pace,
-                                                 clock=steady_clock())
+            self._pace_timer = self.create_timer(self.ts / rtf, self._on_pace,
+                                                 clock=steady_clock(), autostart=False)
 
-    def _due(self) -> bool:
-        return time.monotonic() >= self._wall_start + self._t() / self._rtf
+    def _wait_ns(self) -> int:
+        """Wall nanoseconds until tick k is due (<= 0: due)."""
+        return int((self._wall_start + self._t() / self._rtf - time.monotonic()) * 1e9)
 
     def _on_pace(self) -> None:
-        if (not self._awaiting and self._tick_msgs is not None and not self._paused()
-                and self._due()):
+        self._pace_timer.cancel()
+        if self._awaiting or self._tick_msgs is None or self._paused():
+            return
+        wait = self._wait_ns()
+        if wait <= 0:
             self._publish_tick()
+        else:                           # woke a little early: sleep the rest on the timer
+            self._pace_timer.timer_period_ns = wait
+            self._pace_timer.reset()
 
     def _on_resend(self) -> None:
         if self._awaiting and time.monotonic() - self._sent_at >= self._resend_period:
