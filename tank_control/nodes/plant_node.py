@@ -84,7 +84,7 @@ class PlantNode(Node):
         self.u = nominal_inputs(self.plant)
         self.d = nominal_disturbances(self.plant)
         self.counters = {'ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
-                         'rejected_changes': 0, 'late_ticks': 0}
+                         'rejected_changes': 0}
 
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
@@ -117,9 +117,6 @@ class PlantNode(Node):
             self._stamp_offset_ns = self.get_clock().now().nanoseconds
             self._timer = self.create_timer(self.ts, self._on_tick_timer, clock=steady)
         elif self.mode == 'sim':
-            if rtf <= 0:
-                raise ValueError('real_time_factor: 0 with clock_mode sim; allowed (0, 1e6] '
-                                 '(0 = as fast as possible exists in lockstep only)')
             self._timer = self.create_timer(self.ts / rtf, self._on_tick_timer, clock=steady)
         else:
             period = float(values['lockstep.resend_period'])
@@ -141,8 +138,12 @@ class PlantNode(Node):
 
     # ------------------------------------------------------------- parameters
     def _cross_check(self, values: dict[str, Any]) -> str | None:
-        """noise_std needs 1 or one value per output; model relations (dead_time <=
-        max_dead_time, ...) are checked by the model on a trial configuration."""
+        """sim needs real_time_factor > 0; noise_std needs 1 or one value per output;
+        model relations (dead_time <= max_dead_time, ...) are checked by the model on a
+        trial copy."""
+        if values['clock_mode'] == 'sim' and values['real_time_factor'] <= 0:
+            return (f"real_time_factor: {values['real_time_factor']:g} with clock_mode sim; "
+                    'allowed (0, 1e6] (0 = as fast as possible exists in lockstep only)')
         if not hasattr(self, 'plant'):
             return None   # start-up: make_plant/MeasurementNoise check the values
         n = len(self.plant.output_names)
