@@ -1,0 +1,146 @@
+"""Offset-free state and disturbance estimation over the delayed model (issue 8).
+
+003 §4 reports a steady-state error on T for its MPCS: the linear model is
+wrong away from the operating point and nothing in the controller corrects it.
+The cure used here is the standard one for offset-free MPC: augment the model
+with integrating (constant) disturbance states ``w`` and estimate them from
+the measurements each sample, so that in steady state the model reproduces the
+measured outputs exactly and the predictive controller removes the offset.
+
+Augmented state ``ξ = [x, w, r_1, …]``:
+
+* ``x`` — model state (level deviation [cm], temperature deviation [°C]);
+* ``w`` — disturbance: ``'input'`` model adds ``w`` to the state equation
+  (``x⁺ = A x + B_u u + B_d d + w``: an unknown inflow/heat load, propagated
+  through the tank dynamics — good for load-type mismatch), ``'output'`` adds
+  ``w`` to the measured outputs (``y = C x + w``);
+* ``r_i`` — shift register of the last ``d_i`` values of ``(C x)_i`` for each
+  output with a dead time ``d_i`` (``T_out(k) = T(k − 120)``), so the delayed
+  measurement is compared with the model's value of 120 samples ago.
+
+The gain is the steady-state Kalman gain of the augmented system (discrete
+algebraic Riccati equation), computed once per design. Units: deviations in
+the model's scaled units (cm, °C).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_discrete_are
+
+from tank_control.core.control.mpcs_model import DelayedModel
+
+DISTURBANCE_MODELS = ('input', 'output')
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Noise intensities (relative to a unit measurement-noise variance)."""
+
+    disturbance_model: str = 'input'
+    disturbance_noise: float = 1e-4   # variance of the random-walk increments of w
+    state_noise: float = 1e-4         # variance of the state noise on x
+    measurement_noise: float = 1.0    # variance of the measurement noise
+
+
+class AugmentedSystem:
+    """The matrices of the augmented (disturbance + output-delay register) system."""
+
+    def __init__(self, model: DelayedModel, disturbance_model: str) -> None:
+        if disturbance_model not in DISTURBANCE_MODELS:
+            raise ValueError(f'mpcs.disturbance_model: {disturbance_model!r} is not one of '
+                             f'{", ".join(DISTURBANCE_MODELS)}')
+        self.model = model
+        self.kind = disturbance_model
+        n, ny = model.n_x, model.n_y
+        self.n_w = n if disturbance_model == 'input' else ny
+        delays = model.output_delays
+        self.reg_start = []            # index in ξ of register i (or -1 if no delay)
+        idx = n + self.n_w
+        for d in delays:
+            self.reg_start.append(idx if d > 0 else -1)
+            idx += d
+        self.n = idx
+        a = np.zeros((idx, idx))
+        a[:n, :n] = model.a
+        a[n:n + self.n_w, n:n + self.n_w] = np.eye(self.n_w)
+        if disturbance_model == 'input':
+            a[:n, n:n + self.n_w] = np.eye(n)
+        c = np.zeros((ny, idx))
+        for i, d in enumerate(delays):
+            if d == 0:
+                c[i, :n] = model.c[i]
+            else:
+                s = self.reg_start[i]
+                a[s, :n] = model.c[i]                    # r_i[0]⁺ = (C x)_i
+                for j in range(1, d):
+                    a[s + j, s + j - 1] = 1.0            # r_i[j]⁺ = r_i[j−1]
+                c[i, s + d - 1] = 1.0                    # y_i = r_i[d−1] = (Cx)_i(k−d)
+            if disturbance_model == 'output':
+                c[i, n + i] = 1.0
+        self.a, self.c = a, c
+        self.b_u = np.zeros((idx, model.n_u))
+        self.b_u[:n] = model.b_u
+        self.b_d = np.zeros((idx, model.n_d))
+        self.b_d[:n] = model.b_d
+
+    def equilibrium(self, y: np.ndarray, u_eff: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """An augmented state in steady state with ``u_eff``, ``d`` that reproduces ``y``.
+
+        Used for a bumpless start: the disturbance states take up whatever the
+        linear model cannot explain, so the first prediction is flat.
+        """
+        m = self.model
+        n = m.n_x
+        xi = np.zeros(self.n)
+        if self.kind == 'input':
+            x = np.linalg.lstsq(m.c, y, rcond=None)[0]
+            w = (np.eye(n) - m.a) @ x - m.b_u @ u_eff - m.b_d @ d
+        else:
+            x = np.linalg.solve(np.eye(n) - m.a, m.b_u @ u_eff + m.b_d @ d)
+            w = y - m.c @ x
+        xi[:n] = x
+        xi[n:n + self.n_w] = w
+        cx = m.c @ x
+        for i, d_i in enumerate(m.output_delays):
+            if d_i > 0:
+                xi[self.reg_start[i]:self.reg_start[i] + d_i] = cx[i]
+        return xi
+
+
+class KalmanEstimator:
+    """Steady-state Kalman filter on :class:`AugmentedSystem` (current-estimate form).
+
+    Per sample: ``correct(y)`` gives ``ξ̂(k|k)``; after the controller has chosen
+    ``u(k)``, ``predict(u_eff, d)`` gives ``ξ̂(k+1|k)``.
+    """
+
+    def __init__(self, model: DelayedModel, config: EstimatorConfig) -> None:
+        self.config = config
+        self.sys = AugmentedSystem(model, config.disturbance_model)
+        s = self.sys
+        q = np.zeros(s.n)
+        q[:model.n_x] = config.state_noise
+        q[model.n_x:model.n_x + s.n_w] = config.disturbance_noise
+        r = config.measurement_noise * np.eye(model.n_y)
+        p = solve_discrete_are(s.a.T, s.c.T, np.diag(q), r)
+        self.gain = p @ s.c.T @ np.linalg.inv(s.c @ p @ s.c.T + r)
+        self.xi = np.zeros(s.n)
+        self.innovation = np.zeros(model.n_y)
+
+    def reset(self, y: np.ndarray, u_eff: np.ndarray, d: np.ndarray) -> None:
+        """Start at the equilibrium that explains ``y`` (deviations)."""
+        self.xi = self.sys.equilibrium(y, u_eff, d)
+        self.innovation = np.zeros(len(y))
+
+    def correct(self, y: np.ndarray) -> np.ndarray:
+        """Measurement update with ``y(k)`` (deviations); returns ``ξ̂(k|k)``."""
+        self.innovation = y - self.sys.c @ self.xi
+        self.xi = self.xi + self.gain @ self.innovation
+        return self.xi
+
+    def predict(self, u_eff: np.ndarray, d: np.ndarray) -> None:
+        """Time update with the inputs acting over [k, k+1) (deviations)."""
+        s = self.sys
+        self.xi = s.a @ self.xi + s.b_u @ u_eff + s.b_d @ d
