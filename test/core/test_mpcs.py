@@ -1,0 +1,205 @@
+"""MPCS controller on the nonlinear tank: offset-free tracking, constraints, fallback,
+bumpless reset and runtime reconfiguration (issue 8 acceptance, in-process)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tank_control.core.control import mpcs_qp
+from tank_control.core.control.mpcs import Mpcs, MpcsConfig, config_from_params, mpcs_params
+from tank_control.core.interfaces import Controller
+from tank_control.core.params import check_all, defaults
+
+from _tank_sim import SimTank  # test/core is on sys.path (no package)
+
+T0 = 2115.0 / 63.0     # document's operating temperature (SPEC §1.3)
+U0 = np.array([14.0, 37.0])
+D0 = np.array([12.0, 33.0])
+
+
+def make_tank(**kw):
+    return SimTank(**kw)
+
+
+def run(ctl, plant, samples, ref, dist, u0=U0):
+    """The in-process loop of core/loop.py, reduced: returns y, r, u traces."""
+    ctl.reset(plant.outputs(), u0, dist(0.0))
+    ys, rs, us = [], [], []
+    for k in range(samples):
+        t = float(k)
+        y, r, d = plant.outputs(), ref(t), dist(t)
+        u = ctl.step(t, y, r, d)
+        ys.append(y)
+        rs.append(r)
+        us.append(u)
+        plant.step(u, d, 1.0)
+    return np.array(ys), np.array(rs), np.array(us)
+
+
+def scenario_ref(t):
+    """h 81 → 84 cm at 0 s, T_out → 35.5 °C at 1200 s."""
+    return np.array([84.0, T0 if t < 1200 else 35.5])
+
+
+def scenario_dist(t):
+    """F_D 12 → 15 cm³/s at 2400 s (measured, feed-forward)."""
+    return np.array([12.0 if t < 2400 else 15.0, 33.0])
+
+
+@pytest.mark.parametrize('solver', ['analytic', 'qp'])
+def test_offset_free_after_setpoint_and_disturbance_changes(solver):
+    """|e_T| ≤ 0.02 °C and |e_h| ≤ 0.05 cm once settled, on the nonlinear tank, with
+    the document's horizons (N, Nu) = (100, 50) and rate limit 0.2 per sample."""
+    ctl = Mpcs(MpcsConfig(solver=solver))
+    y, r, u = run(ctl, make_tank(), 3600, scenario_ref, scenario_dist)
+    for end in (1200, 2400, 3600):          # last 150 s before each change / the end
+        e = np.abs(y[end - 150:end] - r[end - 150:end])
+        assert e[:, 0].max() <= 0.05, (end, e[:, 0].max())
+        assert e[:, 1].max() <= 0.02, (end, e[:, 1].max())
+    assert ctl.status['fallbacks'] == 0
+    assert np.all(np.isfinite(u))
+
+
+def test_constraints_never_violated_with_qp():
+    """Hard input limits and rate limits hold at every sample while saturated."""
+    cfg = MpcsConfig(solver='qp', u_min=(5.0, 20.0), u_max=(16.0, 45.0), du_max=(0.1, 0.3))
+    ctl = Mpcs(cfg)
+    ref = lambda t: np.array([92.0 if t < 800 else 75.0, 36.0])   # 92 cm needs > 16 cm³/s
+    _, _, u = run(ctl, make_tank(), 1600, ref, lambda t: D0)
+    du = np.diff(np.vstack([U0, u]), axis=0)
+    assert np.all(u >= np.array([5.0, 20.0]) - 1e-9)
+    assert np.all(u <= np.array([16.0, 45.0]) + 1e-9)
+    assert np.all(np.abs(du) <= np.array([0.1, 0.3]) + 1e-9)
+    assert np.isclose(u[:, 0].max(), 16.0)            # the limit was actually reached
+    assert ctl.status['fallbacks'] == 0
+
+
+def test_analytic_and_qp_agree_when_no_constraint_is_active():
+    base = MpcsConfig(du_max=(100.0, 100.0), u_min=(0.0, 0.0), u_max=(500.0, 500.0))
+    ref = lambda t: np.array([81.5, T0 + 0.2])
+    traces = []
+    for solver in ('analytic', 'qp'):
+        ctl = Mpcs(replace(base, solver=solver))
+        traces.append(run(ctl, make_tank(), 400, ref, lambda t: D0)[2])
+        assert ctl.status['fallbacks'] == 0
+    np.testing.assert_allclose(traces[0], traces[1], atol=1e-6)
+
+
+def test_infeasible_qp_falls_back_to_the_clipped_analytic_move():
+    """Started 20 cm³/s above u_max with a 0.2 rate limit the QP is infeasible: the
+    fallback is used, counted, and the hard limits still win."""
+    ctl = Mpcs(MpcsConfig(solver='qp'))
+    plant = make_tank()
+    ctl.reset(plant.outputs(), np.array([120.0, 37.0]), D0)
+    u = ctl.step(0.0, plant.outputs(), np.array([81.0, T0]), D0)
+    assert ctl.status['fallbacks'] == 1
+    assert np.all(np.isfinite(u)) and u[0] == 100.0
+
+
+def test_solver_failures_never_publish_nan(monkeypatch):
+    """A solver that returns NaN, or gives up at its iteration limit, falls back."""
+    class NanModel:
+        settings = {}
+
+        def setup(self, *args):
+            return 1, 0.0
+
+        def update(self, **kw):
+            pass
+
+        def solve(self):
+            return np.full(100, np.nan), np.nan, 1, {'iterations': 1}
+
+    class FakeDaqp:
+        Model = NanModel
+
+    monkeypatch.setattr(mpcs_qp, 'daqp', FakeDaqp)
+    ctl = Mpcs(MpcsConfig(solver='qp'))
+    _, _, u = run(ctl, make_tank(), 50, lambda t: np.array([83.0, 34.0]), lambda t: D0)
+    assert np.all(np.isfinite(u)) and ctl.status['fallbacks'] == 50
+    monkeypatch.undo()
+    ctl = Mpcs(MpcsConfig(solver='qp', qp_iter_limit=1, du_max=(0.05, 0.05)))
+    _, _, u = run(ctl, make_tank(), 50, lambda t: np.array([90.0, 30.0]), lambda t: D0)
+    assert np.all(np.isfinite(u)) and ctl.status['fallbacks'] > 0
+    assert np.all(np.abs(np.diff(u, axis=0)) <= 0.05 + 1e-12)
+
+
+def test_non_finite_measurement_or_setpoint_never_reaches_the_output():
+    ctl = Mpcs(MpcsConfig(solver='qp'))
+    ctl.reset(np.array([81.0, T0]), U0, D0)
+    u1 = ctl.step(0.0, np.array([np.nan, T0]), np.array([82.0, T0]), D0)
+    u2 = ctl.step(1.0, np.array([81.0, T0]), np.array([np.nan, T0]), np.array([np.inf, 33.0]))
+    assert np.all(np.isfinite(u1)) and np.array_equal(u2, u1)
+    assert ctl.status['bad_measurements'] == 1 and ctl.status['bad_setpoints'] == 1
+
+
+def test_bumpless_reset_away_from_the_operating_point():
+    """At another equilibrium (u = (16, 37)) with r = y the input does not move."""
+    u_eq = np.array([16.0, 37.0])
+    q = 16 + 37 + 12
+    h_eq, t_eq = (q / 7.0) ** 2, (16 * 62 + 37 * 23 + 12 * 33) / q
+    plant = SimTank(h0=h_eq, T0=t_eq, F_Cin0=37.0)
+    ctl = Mpcs(MpcsConfig(solver='qp'))
+    _, _, u = run(ctl, plant, 300, lambda t: np.array([h_eq, t_eq]), lambda t: D0, u0=u_eq)
+    assert np.abs(u - u_eq).max() < 1e-6
+
+
+def test_configure_at_runtime_keeps_sampling_and_rejects_bad_values():
+    ctl = Mpcs(MpcsConfig(solver='analytic'))
+    plant = make_tank()
+    ctl.reset(plant.outputs(), U0, D0)
+    ref = lambda t: np.array([83.0, 34.5])
+    u = U0
+    for k in range(3000):
+        if k == 500:     # mid-transient: new horizons, weights and solver
+            ctl.configure(**{'mpcs.horizon': 250, 'mpcs.control_horizon': 20,
+                             'mpcs.lambda': [1.0, 2.0], 'mpcs.solver': 'qp'})
+        if k == 1000:    # new operating point: estimator restarts bumplessly
+            u_before = u
+            ctl.configure(op_F_H=15.0, op_F_Cin=38.0)
+        y = plant.outputs()
+        u = ctl.step(float(k), y, ref(k), D0)
+        if k == 1000:
+            assert np.all(np.abs(u - u_before) <= 0.2 + 1e-12)
+        plant.step(u, D0, 1.0)
+    assert ctl.config.horizon == 250 and ctl.status['solver'] == 'qp'
+    assert ctl.status['rebuilds'] == 2
+    assert abs(plant.outputs()[0] - 83.0) < 0.05 and abs(plant.outputs()[1] - 34.5) < 0.02
+    for bad, name in (({'mpcs.horizon': 0}, 'mpcs.horizon'),
+                      ({'mpcs.control_horizon': 400}, 'mpcs.control_horizon'),
+                      ({'mpcs.solver': 'lp'}, 'mpcs.solver'),
+                      ({'mpcs.u_min': [50.0, 50.0], 'mpcs.u_max': [40.0, 60.0]}, 'mpcs.u_min'),
+                      ({'mpcs.nonsense': 1}, 'mpcs.nonsense')):
+        with pytest.raises(ValueError, match=name.replace('.', r'\.')):
+            ctl.configure(**bad)
+    assert ctl.config.horizon == 250 and ctl.config.solver == 'qp'
+
+
+def test_soft_output_bound_limits_the_level():
+    """A soft upper bound of 83 cm on h overrides a setpoint of 86 cm (qp only)."""
+    cfg = MpcsConfig(solver='qp', soft_bounds=True, y_max=(83.0, 100.0), soft_weight=1e5)
+    y, _, _ = run(Mpcs(cfg), make_tank(), 1500, lambda t: np.array([86.0, T0]),
+                  lambda t: D0)
+    assert y[:, 0].max() < 83.1 and y[-1, 0] > 82.5
+
+
+def test_params_describe_the_config_and_reject_with_reasons():
+    specs = mpcs_params()
+    names = {s.name for s in specs}
+    assert {'mpcs.horizon', 'mpcs.control_horizon', 'mpcs.lambda', 'mpcs.solver',
+            'mpcs.u_min', 'mpcs.u_max', 'mpcs.du_max', 'mpcs.output_weights',
+            'mpcs.op.F_H', 'mpcs.op.F_Cin'} <= names
+    assert all(s.description for s in specs)
+    assert check_all(specs, defaults(specs)) == []
+    assert config_from_params(defaults(specs)) == MpcsConfig()
+    with pytest.raises(ValueError, match=r'mpcs\.lambda.*below the minimum'):
+        config_from_params({'mpcs.lambda': [-1.0]})
+
+
+def test_is_a_controller():
+    ctl = Mpcs()
+    assert isinstance(ctl, Controller)
+    assert ctl.output_names == ('h', 'T_out') and ctl.input_names == ('F_H', 'F_Cin')
+    assert ctl.disturbance_names == ('F_D', 'T_D') and ctl.sample_time == 1.0
