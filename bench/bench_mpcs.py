@@ -13,26 +13,24 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
 from tank_control.core.control.mpcs import Mpcs, MpcsConfig
+from tank_control.core.plants.mixing_tank import MixingTank
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test' / 'core'))
+
+class _Tank(MixingTank):
+    """The nonlinear tank (core/plants); ``d = [F_D, T_D]`` as MPCS measures them."""
+
+    def step(self, u, d, dt):
+        super().step(u, [d[0], d[1], 62.0, 23.0], dt)
 
 
-def make_tank():
-    """The nonlinear tank: the plants package's when present, else the test copy."""
-    try:
-        from tank_control.core.plants import make_plant
-        return make_plant('mixing_tank', {})
-    except (ImportError, AttributeError, KeyError, TypeError):
-        from _tank_sim import SimTank
-        return SimTank()
+def make_tank() -> MixingTank:
+    return _Tank()
 
 
 def reference(t: float) -> np.ndarray:

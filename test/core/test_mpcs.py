@@ -12,15 +12,22 @@ from tank_control.core.control.mpcs import Mpcs, MpcsConfig, config_from_params,
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import check_all, defaults
 
-from _tank_sim import SimTank  # test/core is on sys.path (no package)
+from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
 
 T0 = 2115.0 / 63.0     # document's operating temperature (SPEC §1.3)
 U0 = np.array([14.0, 37.0])
 D0 = np.array([12.0, 33.0])
 
 
+class Tank(MixingTank):
+    """The plants branch's nonlinear tank; d = [F_D, T_D] as MPCS measures them."""
+
+    def step(self, u, d, dt):
+        super().step(u, [d[0], d[1], 62.0, 23.0], dt)
+
+
 def make_tank(**kw):
-    return SimTank(**kw)
+    return Tank(MixingTankConfig(**kw))
 
 
 def run(ctl, plant, samples, ref, dist, u0=U0):
@@ -140,7 +147,7 @@ def test_bumpless_reset_away_from_the_operating_point():
     u_eq = np.array([16.0, 37.0])
     q = 16 + 37 + 12
     h_eq, t_eq = (q / 7.0) ** 2, (16 * 62 + 37 * 23 + 12 * 33) / q
-    plant = SimTank(h0=h_eq, T0=t_eq, F_Cin0=37.0)
+    plant = make_tank(initial_h=h_eq, initial_T=t_eq)
     ctl = Mpcs(MpcsConfig(solver='qp'))
     _, _, u = run(ctl, plant, 300, lambda t: np.array([h_eq, t_eq]), lambda t: D0, u0=u_eq)
     assert np.abs(u - u_eq).max() < 1e-6

@@ -92,3 +92,16 @@ def test_literal_horizon_cannot_see_t_out_and_f_cin():
     assert np.any(aligned.g[1::2, 0::2] != 0.0)    # F_H now moves the predicted T_out
     longer = Prediction(sys, CostConfig(horizon=300, control_horizon=50, align=True))
     assert np.any(longer.g[:, 1::2] != 0.0)        # N > 180: F_Cin visible
+
+
+def test_model_from_the_plants_linearize_equals_the_own_linearization():
+    """tank_model(ab=MixingTank.linearize(ts)) — the plant's (A, B) — gives the same model."""
+    from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
+    op = TankOperatingPoint(F_H=16.0, F_C=35.0)
+    plant = MixingTank(MixingTankConfig(F_H=16.0, F_C=35.0, h_op=op.h, T_op=op.T))
+    a, b, c, d = plant.linearize(1.0)
+    own = tank_model(op, 1.0)
+    other = tank_model(op, 1.0, ab=(a, b))
+    np.testing.assert_allclose(other.a, own.a, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(other.b_u, own.b_u, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(other.b_d, own.b_d, rtol=1e-9, atol=1e-12)
