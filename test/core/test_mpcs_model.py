@@ -105,3 +105,17 @@ def test_model_from_the_plants_linearize_equals_the_own_linearization():
     np.testing.assert_allclose(other.a, own.a, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(other.b_u, own.b_u, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(other.b_d, own.b_d, rtol=1e-9, atol=1e-12)
+
+
+def test_estimator_riccati_solution_matches_scipy():
+    from scipy.linalg import solve_discrete_are
+
+    from tank_control.core.control.mpcs_estimator import filter_riccati
+    model = tank_model(TankOperatingPoint(), 1.0)
+    for kind in ('input', 'output'):
+        sys = AugmentedSystem(model, kind)
+        q = np.zeros(sys.n)
+        q[:model.n_x + sys.n_w] = 1e-3
+        p = filter_riccati(sys.a, sys.c, np.diag(q), np.eye(2))
+        ref = solve_discrete_are(sys.a.T, sys.c.T, np.diag(q), np.eye(2))
+        np.testing.assert_allclose(p, ref, rtol=1e-6, atol=1e-8 * np.abs(ref).max())
