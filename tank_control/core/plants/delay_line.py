@@ -29,6 +29,9 @@ import math
 
 from tank_control.core.interfaces import seconds, to_ns
 
+_PRUNE_BATCH = 64
+"""Stale entries are dropped in batches of this many (amortised list deletion)."""
+
 _SNAP = 1e-12
 """Delayed switches closer than this [s] to a piece boundary are put on it, so
 rounding of relative times never creates slivers of ~1e-16 s."""
@@ -101,10 +104,11 @@ class DelayLine:
             self._values.pop()
 
     def _prune(self, now_ns: int) -> None:
-        """Keep every breakpoint newer than now − max_delay, and the one before."""
+        """Keep every breakpoint newer than now − max_delay, and the one before
+        (older ones are dropped in batches)."""
         cutoff = now_ns - self._keep_ns
         k = bisect.bisect_right(self._times, cutoff) - 1
-        if k > 0:
+        if k >= _PRUNE_BATCH:
             self._initial = self._values[k - 1]   # the value before the oldest kept breakpoint
             del self._times[:k]
             del self._values[:k]
@@ -196,7 +200,7 @@ class HermiteDelayLine:
     def _prune(self, now: float) -> None:
         cutoff = now - self.max_delay
         k = bisect.bisect_right(self._t, cutoff) - 1
-        if k > 0:
+        if k >= _PRUNE_BATCH:
             # The first grid point is now after the pre-filled part: the oldest
             # retained value stands for everything before it.
             self._initial = self._y[k]
