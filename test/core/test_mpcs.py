@@ -210,3 +210,19 @@ def test_is_a_controller():
     assert isinstance(ctl, Controller)
     assert ctl.output_names == ('h', 'T_out') and ctl.input_names == ('F_H', 'F_Cin')
     assert ctl.disturbance_names == ('F_D', 'T_D') and ctl.sample_time == 1.0
+
+
+def test_controller_kind_for_the_registry():
+    """build/check/update from flat parameter values, as controller_node drives them."""
+    from tank_control.core.control.mpcs import controller_kind
+    kind = controller_kind()
+    values = defaults(kind.params())
+    values.update({'mpcs.solver': 'qp', 'mpcs.horizon': 80})
+    assert kind.check(values) is None
+    ctl = kind.build(values)
+    assert ctl.config.solver == 'qp' and ctl.config.horizon == 80
+    values['mpcs.control_horizon'] = 90
+    assert 'mpcs.control_horizon' in kind.check(values)
+    values.update({'mpcs.control_horizon': 20, 'mpcs.lambda': [0.3]})
+    kind.update(ctl, values, frozenset({'mpcs.control_horizon', 'mpcs.lambda'}))
+    assert ctl.config.control_horizon == 20 and ctl.config.lam == (0.3,)

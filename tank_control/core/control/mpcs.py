@@ -93,8 +93,8 @@ def mpcs_params() -> tuple[ParamSpec, ...]:
     c = MpcsConfig()
     lst = list
     return (
-        ParamSpec('mpcs.sample_time', c.sample_time, 'controller sample time Ts [s]; the dead '
-                  'times must be multiples of it', 0.01, 60.0, read_only=True),
+        ParamSpec('sample_time', c.sample_time, 'controller sample time Ts [s] (003: 1 s); the '
+                  'dead times must be multiples of it', 0.01, 60.0, read_only=True),
         ParamSpec('mpcs.horizon', c.horizon, 'prediction horizon N [samples] (003: 50…500)',
                   1, 2000),
         ParamSpec('mpcs.control_horizon', c.control_horizon, 'control horizon Nu [samples], '
@@ -227,6 +227,41 @@ def _check_consistency(cfg: MpcsConfig) -> None:
 def _two(values: tuple[float, ...]) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     return np.full(2, arr[0]) if arr.size == 1 else arr
+
+
+def _own(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The MPCS entries of flat parameter values (``mpcs.*`` and ``sample_time``)."""
+    return {k: v for k, v in values.items() if k.startswith('mpcs.') or k == 'sample_time'}
+
+
+def controller_kind():
+    """The ``mpcs`` kind for ``core/control/registry.py`` (controller_node, in-process loop).
+
+    Register it with one line in ``registry._KIND_FACTORIES``:
+    ``'mpcs': ('tank_control.core.control.mpcs', 'controller_kind')``.
+    Live parameter changes go through :meth:`Mpcs.configure` (bumpless, the new
+    matrices are built before the swap; ``sample_time`` is read-only).
+    """
+    from tank_control.core.control import registry
+
+    def check(values: Mapping[str, Any]) -> str | None:
+        try:
+            config_from_params(_own(values))
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def build(values: Mapping[str, Any]) -> Mpcs:
+        return Mpcs(config_from_params(_own(values)))
+
+    def update(controller: Mpcs, values: Mapping[str, Any], changed: frozenset[str]) -> None:
+        controller.configure(**{k: values[k] for k in _own({k: None for k in changed})})
+
+    return registry.ControllerKind(
+        name='mpcs', params=lambda: mpcs_params() + registry._channel_specs(
+            Mpcs.output_names, Mpcs.input_names),
+        check=check, build=build, update=update,
+        description='offset-free MPCS for the mixing tank, analytic or QP (003 §4, §6)')
 
 
 class _Design:
