@@ -51,14 +51,14 @@ def disturbance(t: float) -> np.ndarray:
     return np.array([f_d, 33.0])
 
 
-def run_loop(cfg: MpcsConfig, samples: int, record: bool = False):
-    """Closed loop; returns (per-step seconds, wall seconds, recorded QPs, controller)."""
-    ctl = Mpcs(cfg)
+def run_loop(cfg: MpcsConfig | None, samples: int, record: bool = False, controller=None):
+    """Closed loop; returns (per-step seconds, wall seconds, recorded QPs, controller, IAE)."""
+    ctl = controller if controller is not None else Mpcs(cfg)
     plant = make_tank()
     u = np.array([14.0, 37.0])
-    ctl.reset(plant.outputs(), u, disturbance(0.0))
+    ctl.reset(plant.outputs(), u)
     recorded = []
-    if record and ctl._design.qp is not None:      # wrap the solver to keep its data
+    if record and getattr(ctl, '_design', None) is not None and ctl._design.qp is not None:      # wrap the solver to keep its data
         qp = ctl._design.qp
         solve = qp.solve
 
@@ -69,17 +69,20 @@ def run_loop(cfg: MpcsConfig, samples: int, record: bool = False):
             return res
         qp.solve = keep
     steps = []
+    iae = np.zeros(2)
     start = time.perf_counter()
     for k in range(samples):
         t = float(k)
         y = plant.outputs()
         d = disturbance(t)
+        r = reference(t)
         a = time.perf_counter()
-        u = ctl.step(t, y, reference(t), d)
+        u = ctl.step(t, y, r, d)
         steps.append(time.perf_counter() - a)
-        plant.step(u, d, cfg.sample_time)
+        iae += np.abs(r - y)
+        plant.step(u, d, 1.0)
     wall = time.perf_counter() - start
-    return np.array(steps), wall, recorded, ctl
+    return np.array(steps), wall, recorded, ctl, iae
 
 
 # --- QP libraries, each set up once and fed the recorded (f, bounds) ---------------------
@@ -203,7 +206,7 @@ def main() -> None:
         cfg = replace(base, solver=solver, horizon=n, control_horizon=nu)
         meds, p99s, fb = [], [], 0
         for run in range(runs):
-            steps, _, rec, ctl = run_loop(cfg, samples, record=(run == 0 and solver == 'qp'))
+            steps, _, rec, ctl, _ = run_loop(cfg, samples, record=(run == 0 and solver == 'qp'))
             meds.append(np.median(steps) * 1e3)
             p99s.append(np.percentile(steps, 99) * 1e3)
             fb = ctl.status['fallbacks']
@@ -227,10 +230,44 @@ def main() -> None:
     print('\n## One-hour tank scenario in-process, MPCS-QP (N, Nu) = (100, 50)\n')
     walls = []
     for _ in range(runs):
-        _, wall, _, ctl = run_loop(replace(base, solver='qp'), 3600)
+        _, wall, _, ctl, _ = run_loop(replace(base, solver='qp'), 3600)
         walls.append(wall)
     print(f'wall time: median {statistics.median(walls):.2f} s of {runs} runs '
           f'({", ".join(f"{w:.2f}" for w in walls)}); fallbacks {ctl.status["fallbacks"]}')
+    print('\n## Design (re)build time, ms (median of runs)\n')
+    print('| (N, Nu) | construct | configure(horizon) | configure(operating point) |')
+    print('|---|---|---|---|')
+    for n, nu in ((100, 50), (300, 100)):
+        rows = []
+        for _ in range(runs):
+            a = time.perf_counter()
+            ctl = Mpcs(replace(base, solver='qp', horizon=n, control_horizon=nu))
+            b = time.perf_counter()
+            ctl.configure(horizon=n + 1)
+            c = time.perf_counter()
+            ctl.configure(op_F_H=15.0)
+            rows.append((b - a, c - b, time.perf_counter() - c))
+        med = [statistics.median(col) * 1e3 for col in zip(*rows)]
+        print(f'| ({n}, {nu}) | {med[0]:.0f} | {med[1]:.0f} | {med[2]:.0f} |')
+    print('\n## IAE on the one-hour scenario (h [cm·s], T_out [°C·s])\n')
+    print('| controller | IAE h | IAE T_out |')
+    print('|---|---|---|')
+    for label, cfg in (('MPCS analytic (100, 50, λ=0.5)', replace(base, solver='analytic')),
+                       ('MPCS qp (100, 50, λ=0.5)', replace(base, solver='qp')),
+                       ('MPCS qp (300, 100, λ=0.5)', replace(base, solver='qp', horizon=300,
+                                                             control_horizon=100)),
+                       ("MPCS qp, document's cost (align off, w_∞ = 0)",
+                        replace(base, solver='qp', align=False, terminal_weight=0.0))):
+        iae = run_loop(cfg, 3600)[4]
+        print(f'| {label} | {iae[0]:.0f} | {iae[1]:.0f} |')
+    try:
+        from tank_control.core.control.multiloop import TwoLoopPi, document_config
+    except ImportError:
+        print('| two-loop PI (003 §2) | not available in this checkout | |')
+    else:
+        for dec in ('none', 'static'):
+            iae = run_loop(None, 3600, controller=TwoLoopPi(document_config(dec)))[4]
+            print(f'| two-loop PI of 003, decoupling {dec} | {iae[0]:.0f} | {iae[1]:.0f} |')
 
 
 if __name__ == '__main__':
