@@ -21,6 +21,29 @@ Per sample ``k`` (:meth:`Mpcs.step`):
 
 The output is never NaN: non-finite measurements skip the estimator
 correction, non-finite setpoints hold the last input.
+
+Horizons and dead times (why the defaults are what they are)
+------------------------------------------------------------
+Input→output dead times at Ts = 1 s: F_H→h 0, F_H→T_out 120, F_Cin→h 180,
+F_Cin→T_out 300 samples. With the document's cost taken literally and its
+numeric horizons (N, Nu) = (100, 50), no move can change any predicted T_out
+and F_Cin changes no predicted output at all: its columns of the dynamic
+matrix are zero, so the optimiser never moves F_Cin, and F_H alone cannot hold
+two setpoints — the T loop is left to a slow drift of the disturbance
+estimate (IAE on T about 2.7× worse, see bench/RESULTS.md). Two remedies, both
+on by default and both switchable:
+
+* ``mpcs.align`` counts T_out's horizon from its own 120 s dead time
+  (T_out(k+120+p) = T(k+p)), so (N, Nu) = (100, 50) sees F_H's effect on T;
+* ``mpcs.terminal_weight`` adds the error of the steady state the model
+  reaches if the last planned inputs are held (cost of 2 rows, exact for the
+  stable linear model); it is what tells a horizon shorter than 180 samples
+  what F_Cin is for, and makes the unconstrained fixed point offset-free
+  (the steady-state gain matrix is invertible).
+
+A horizon N ≥ ~300 sees F_Cin's full effect inside the horizon (better IAE,
+still ≤ 0.2 ms per QP sample); move blocking (``mpcs.block``) keeps the QP
+small for long control horizons.
 """
 from __future__ import annotations
 
