@@ -80,6 +80,24 @@ def test_condensed_prediction_equals_step_by_step_simulation():
     np.testing.assert_allclose(y_inf, xs_long[-1], rtol=1e-6, atol=1e-6)
 
 
+def test_literal_prediction_reads_the_delay_register():
+    """align=False: the p-th T_out prediction is T(k+p−120); for p < 120 that is a past
+    model temperature, held in the estimator's register (newest first)."""
+    model = tank_model(TankOperatingPoint(), 1.0)
+    sys = AugmentedSystem(model, 'input')
+    pred = Prediction(sys, CostConfig(horizon=200, control_horizon=20, align=False))
+    rng = np.random.default_rng(2)
+    xi = rng.normal(size=sys.n)
+    bufs = [rng.normal(size=dd) for dd in model.input_delays]
+    u_prev, d = rng.normal(size=2), rng.normal(size=2)
+    moves = rng.normal(size=(pred.n_moves, 2))
+    y_hat = (pred.m_z @ pred.z_vector(xi, bufs, u_prev, d) + pred.g @ moves.ravel())[1::2]
+    register = xi[sys.reg_start[1]:sys.reg_start[1] + 120]        # T(k−1), …, T(k−120)
+    np.testing.assert_allclose(y_hat[:119], register[118::-1], rtol=1e-12)   # p = 1..119
+    xs = _simulate(model, sys, xi, bufs, u_prev, d, moves, pred.move_times, 80)
+    np.testing.assert_allclose(y_hat[119:], xs[:81, 1], rtol=1e-9, atol=1e-9)  # p = 120..200
+
+
 def test_literal_horizon_cannot_see_t_out_and_f_cin():
     """The document's cost with (N, Nu) = (100, 50): no move changes a predicted T_out
     (120 s dead time) and F_Cin changes no predicted output (180 s dead time)."""
