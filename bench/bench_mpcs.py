@@ -58,7 +58,8 @@ def run_loop(cfg: MpcsConfig | None, samples: int, record: bool = False, control
     u = np.array([14.0, 37.0])
     ctl.reset(plant.outputs(), u)
     recorded = []
-    if record and getattr(ctl, '_design', None) is not None and ctl._design.qp is not None:      # wrap the solver to keep its data
+    design = getattr(ctl, '_design', None)
+    if record and design is not None and design.qp is not None:   # keep the QP data
         qp = ctl._design.qp
         solve = qp.solve
 

@@ -47,7 +47,6 @@ small for long control horizons.
 """
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
@@ -67,7 +66,11 @@ SOLVERS = ('analytic', 'qp')
 
 @dataclass(frozen=True)
 class MpcsConfig:
-    """All settings of :class:`Mpcs`; field ``x_y`` is parameter ``mpcs.x.y`` (``lam`` is ``mpcs.lambda``)."""
+    """All settings of :class:`Mpcs`.
+
+    Field ``x_y`` is parameter ``mpcs.x.y`` (``lam`` is ``mpcs.lambda``,
+    ``sample_time`` is the common ``sample_time``); see :func:`mpcs_params`.
+    """
 
     sample_time: float = 1.0
     horizon: int = 100
@@ -440,7 +443,8 @@ class Mpcs:
         cfg = config_from_params(changes, old.cfg)
         if cfg == old.cfg:
             return cfg
-        changed = {f.name for f in fields(MpcsConfig) if getattr(cfg, f.name) != getattr(old.cfg, f.name)}
+        changed = {f.name for f in fields(MpcsConfig)
+                   if getattr(cfg, f.name) != getattr(old.cfg, f.name)}
         if changed & _ESTIMATOR_FIELDS:
             new = _Design(cfg, self._fixed_model)
             m = new.model

@@ -12,7 +12,8 @@ future moves ``ΔU = [Δu(k+t_0), Δu(k+t_1), …]`` (``t_j = j·block``, ``j < 
 
 Cost (SPEC §2.8 plus an optional steady-state term):
 
-    J = Σ_{p=1..N} ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||² + Σ_j λ·||Δu(k+t_j)||²
+    J = Σ_{p=1..N} ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||²
+        + Σ_j λ·||Δu(k+t_j)||²
 
 * Dead-time alignment (``align``): the prediction of an output with dead time
   ``d_i`` is counted from the first sample the inputs can move it, i.e. the
@@ -89,7 +90,7 @@ class Prediction:
         self.i_d = idx + nu
         self.n_z = idx + nu + nd
         nv = self.n_z + self.n_dec           # columns: [z, ΔU]
-        # --- input trajectories u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}, as rows over [z, ΔU]
+        # --- input trajectories u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}, rows over [z, ΔU]
         def u_row(mi: int, i: int) -> np.ndarray:
             row = np.zeros(nv)
             row[self.i_uprev + mi] = 1.0
@@ -114,7 +115,8 @@ class Prediction:
         if sys.kind == 'input':
             const = const + w_sel
         offsets = [m.output_delays[i] if cost.align else 0 for i in range(ny)]
-        steps = [p + offsets[i] - m.output_delays[i] for i in range(ny) for p in range(1, big_n + 1)]
+        steps = [p + offsets[i] - m.output_delays[i]
+                 for i in range(ny) for p in range(1, big_n + 1)]
         n_steps = max(max(steps), 0)
         xs = np.zeros((n_steps + 1, n, nv))
         xs[0, :, :n] = np.eye(n)
