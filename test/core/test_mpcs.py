@@ -165,6 +165,23 @@ def test_bumpless_reset_away_from_the_operating_point():
     assert np.abs(u - u_eq).max() < 1e-6
 
 
+def test_reset_without_disturbance_takes_the_first_measured_one():
+    """reset(y, u) (the Controller protocol's signature) while F_D = 16 is already
+    flowing: the first step must not treat F_D as a 12 → 16 step."""
+    q = 14 + 37 + 16
+    h_eq, t_eq = (q / 7.0) ** 2, (14 * 62 + 37 * 23 + 16 * 33) / q
+    plant = make_tank(initial_h=h_eq, initial_T=t_eq)
+    ctl = Mpcs(MpcsConfig(solver='analytic'))
+    ctl.reset(plant.outputs(), U0)
+    d = np.array([16.0, 33.0])
+    for k in range(200):
+        u = ctl.step(float(k), plant.outputs(), np.array([h_eq, t_eq]), d)
+        assert np.abs(u - U0).max() < 1e-6
+        plant.step(u, d, 1.0)
+    ctl.reset(np.array([np.nan, 30.0]), np.array([np.inf, 37.0]))    # never NaN after this
+    assert np.all(np.isfinite(ctl.step(0.0, plant.outputs(), np.array([h_eq, t_eq]), d)))
+
+
 def test_configure_at_runtime_keeps_sampling_and_rejects_bad_values():
     ctl = Mpcs(MpcsConfig(solver='analytic'))
     plant = make_tank()

@@ -354,6 +354,7 @@ class Mpcs:
         self._u = m.u0.copy()
         self._y = m.y0.copy()
         self._d = m.d0.copy()
+        self._pending_d = True
         self._init_buffers(m)
         self._design.estimator.reset(np.zeros(m.n_y), np.zeros(m.n_u), np.zeros(m.n_d))
 
@@ -368,16 +369,27 @@ class Mpcs:
 
     def reset(self, y: np.ndarray, u: np.ndarray, d: np.ndarray | None = None) -> None:
         """Bumpless start: delay lines filled with ``u``, estimator at the equilibrium
-        that explains ``y`` with ``u`` (and ``d``, default the operating point)."""
+        that explains ``y`` with ``u`` and ``d``. Without ``d`` the equilibrium is
+        recomputed with the first measured ``d`` at the next ``step`` (so a
+        disturbance that is already present is not mistaken for a step in it).
+        Non-finite ``y``/``u`` are replaced by the operating point (counted)."""
         m = self._design.model
-        self._u = np.asarray(u, dtype=float).copy()
-        self._y = np.asarray(y, dtype=float).copy()
-        if d is not None and self.config.feedforward and np.all(np.isfinite(d)):
+        y = np.asarray(y, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if y.shape != m.y0.shape or not np.all(np.isfinite(y)):
+            self._counters['bad_measurements'] += 1
+            y = m.y0
+        if u.shape != m.u0.shape or not np.all(np.isfinite(u)):
+            self._counters['bad_setpoints'] += 1
+            u = np.clip(m.u0, self._design.u_min + m.u0, self._design.u_max + m.u0)
+        self._u, self._y = u.copy(), y.copy()
+        self._pending_d = d is None
+        if self._valid_d(d, m):
             self._d = np.asarray(d, dtype=float).copy()
         else:
             self._d = m.d0.copy()
         self._init_buffers(m)
-        self._design.estimator.reset(self._y - m.y0, self._u - m.u0, self._d - m.d0)
+        self._design.estimator.reset(self._y - m.y0, self._u - m.u0, self._d_dev(m))
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One sample (``t`` [s]; ``y`` = [h, T_out]; ``r`` setpoints; ``d`` = [F_D, T_D])."""
@@ -385,9 +397,12 @@ class Mpcs:
         m, pred, est, cfg = des.model, des.pred, des.estimator, des.cfg
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
-        if cfg.feedforward and d is not None and len(d) == m.n_d and np.all(np.isfinite(d)):
+        if self._valid_d(d, m):
             self._d = np.asarray(d, dtype=float).copy()
-        d_dev = self._d - m.d0 if cfg.feedforward else np.zeros(m.n_d)
+            if self._pending_d:         # reset(y, u) without d: equilibrium with this d
+                est.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
+        self._pending_d = False
+        d_dev = self._d_dev(m)
         if np.all(np.isfinite(y)):
             self._y = y.copy()
             est.correct(y - m.y0)
@@ -450,18 +465,29 @@ class Mpcs:
             m = new.model
             self._design = new
             self._resize_buffers(m)
-            u_eff = self._u.copy()
-            for i, buf in enumerate(self._buffers):
-                if buf.size:
-                    u_eff[i] = buf[0]
-            new.estimator.reset(self._y - m.y0, u_eff - m.u0, self._d - m.d0
-                                if cfg.feedforward else np.zeros(m.n_d))
+            new.estimator.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
         else:
             self._design = _Design(cfg, old.model, old.estimator)
         self._counters['rebuilds'] += 1
         return cfg
 
     # --- internals -----------------------------------------------------------------
+    def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> bool:
+        return (self._design.cfg.feedforward and d is not None and len(d) == m.n_d
+                and bool(np.all(np.isfinite(d))))
+
+    def _d_dev(self, m: DelayedModel) -> np.ndarray:
+        """Measured disturbance deviation used in the model (zero without feed-forward)."""
+        return self._d - m.d0 if self._design.cfg.feedforward else np.zeros(m.n_d)
+
+    def _u_eff(self, m: DelayedModel) -> np.ndarray:
+        """The inputs acting on the tank now (delayed channels from their lines)."""
+        u_eff = self._u.copy()
+        for i, buf in enumerate(self._buffers):
+            if buf.size:
+                u_eff[i] = buf[0]
+        return u_eff
+
     def _reset_counters(self) -> None:
         self._counters = {'samples': 0, 'fallbacks': 0, 'bad_measurements': 0,
                           'bad_setpoints': 0, 'rebuilds': 0}
