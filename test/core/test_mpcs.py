@@ -95,6 +95,18 @@ def test_constraints_never_violated_with_qp():
     assert ctl.status['fallbacks'] == 0
 
 
+def test_unreachable_temperature_setpoint_does_not_wind_up():
+    """003 §2.2's failure mode: T_out = 24 °C with F_D at 33 °C is unreachable at h = 81
+    (best: F_H = 0 → T = 24.9 °C). The QP holds the level, saturates F_H at 0 without
+    windup and recovers at once when the setpoint becomes reachable again."""
+    ref = lambda t: np.array([81.0, 24.0 if t < 1200 else 30.0])
+    y, r, u = run(Mpcs(MpcsConfig(solver='qp')), make_tank(), 2600, ref, lambda t: D0)
+    assert y[:1200, 0].max() < 81.2 and abs(y[1199, 0] - 81.0) < 0.05   # the level never rises
+    assert u[1199, 0] == 0.0 and abs(y[1199, 1] - (51 * 23 + 12 * 33) / 63) < 0.05
+    e = np.abs(y[-150:] - r[-150:])
+    assert e[:, 0].max() <= 0.05 and e[:, 1].max() <= 0.02
+
+
 def test_analytic_and_qp_agree_when_no_constraint_is_active():
     base = MpcsConfig(du_max=(100.0, 100.0), u_min=(0.0, 0.0), u_max=(500.0, 500.0))
     ref = lambda t: np.array([81.5, T0 + 0.2])
