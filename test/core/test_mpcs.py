@@ -81,9 +81,13 @@ def test_measured_disturbance_feedforward_reduces_the_upset():
     assert np.all(iae[True] < iae[False]), iae
 
 
-def test_constraints_never_violated_with_qp():
-    """Hard input limits and rate limits hold at every sample while saturated."""
-    cfg = MpcsConfig(solver='qp', u_min=(5.0, 20.0), u_max=(16.0, 45.0), du_max=(0.1, 0.3))
+@pytest.mark.parametrize('horizons', [(100, 50, 1), (250, 60, 6)])
+def test_constraints_never_violated_with_qp(horizons):
+    """Hard input limits and rate limits hold at every sample while saturated
+    (also with a horizon beyond the F_Cin dead time and move blocking)."""
+    n, nu, block = horizons
+    cfg = MpcsConfig(solver='qp', u_min=(5.0, 20.0), u_max=(16.0, 45.0), du_max=(0.1, 0.3),
+                     horizon=n, control_horizon=nu, block=block)
     ctl = Mpcs(cfg)
     ref = lambda t: np.array([92.0 if t < 800 else 75.0, 36.0])   # 92 cm needs > 16 cm³/s
     _, _, u = run(ctl, make_tank(), 1600, ref, lambda t: D0)
