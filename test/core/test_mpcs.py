@@ -99,6 +99,27 @@ def test_constraints_never_violated_with_qp(horizons):
     assert ctl.status['fallbacks'] == 0
 
 
+def test_large_setpoint_change_with_relinearisation():
+    """h 81 → 115 cm, T_out → 40 °C, then down to 60 cm / 30 °C, (N, Nu) = (300, 100),
+    |Δu| ≤ 2: re-linearising at each setpoint (003 §4's weak point: linearisation
+    error for large changes) settles offset-free and with a lower IAE than one
+    linearisation at 81 cm."""
+    ref = lambda t: np.array([115.0, 40.0]) if t < 1500 else np.array([60.0, 30.0])
+    iae = {}
+    for relinearize in (True, False):
+        cfg = MpcsConfig(solver='qp', horizon=300, control_horizon=100, du_max=(2.0, 2.0),
+                         relinearize=relinearize)
+        ctl = Mpcs(cfg)
+        y, r, _ = run(ctl, make_tank(), 3000, ref, lambda t: D0)
+        e = np.abs(y - r)
+        iae[relinearize] = e.sum(axis=0)
+        assert ctl.status['relinearizations'] == (2 if relinearize else 0)
+        if relinearize:
+            for end in (1500, 3000):
+                assert e[end - 200:end, 0].max() <= 0.05 and e[end - 200:end, 1].max() <= 0.02
+    assert np.all(iae[True] < iae[False]), iae
+
+
 def test_unreachable_temperature_setpoint_does_not_wind_up():
     """003 §2.2's failure mode: T_out = 24 °C with F_D at 33 °C is unreachable at h = 81
     (best: F_H = 0 → T = 24.9 °C). The QP holds the level, saturates F_H at 0 without

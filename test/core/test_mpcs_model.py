@@ -137,3 +137,32 @@ def test_estimator_riccati_solution_matches_scipy():
         p = filter_riccati(sys.a, sys.c, np.diag(q), np.eye(2))
         ref = solve_discrete_are(sys.a.T, sys.c.T, np.diag(q), np.eye(2))
         np.testing.assert_allclose(p, ref, rtol=1e-6, atol=1e-8 * np.abs(ref).max())
+
+
+def test_equilibrium_inputs_reproduce_the_steady_state():
+    """The flows found for (h, T) give back h = (ΣF/α)² and T = ΣF_i·T_i/ΣF."""
+    from tank_control.core.control.mpcs_model import equilibrium_inputs
+    op = TankOperatingPoint(F_D=10.0, T_D=30.0)
+    f_h, f_c = equilibrium_inputs(op, 100.0, 38.0)
+    q = f_h + f_c + 10.0
+    assert (q / 7.0) ** 2 == pytest.approx(100.0)
+    assert (f_h * 62 + f_c * 23 + 10.0 * 30) / q == pytest.approx(38.0)
+    assert equilibrium_inputs(op, 81.0, 23.5) is None        # colder than reachable
+
+
+def test_estimate_taken_over_by_a_model_at_another_operating_point():
+    """After take_over both models predict the same physical next state and delayed T."""
+    from tank_control.core.control.mpcs_estimator import EstimatorConfig, KalmanEstimator, take_over
+    old_m = tank_model(TankOperatingPoint(), 1.0)
+    new_m = tank_model(TankOperatingPoint(F_H=20.0, F_C=30.0, F_D=15.0), 1.0)
+    old = KalmanEstimator(old_m, EstimatorConfig())
+    new = KalmanEstimator(new_m, EstimatorConfig())
+    rng = np.random.default_rng(3)
+    old.xi = rng.normal(size=old.sys.n)
+    u_eff, d = np.array([16.0, 35.0]), np.array([13.0, 31.0])
+    assert take_over(old, new, u_eff, d)
+    old.predict(u_eff - old_m.u0, d - old_m.d0)
+    new.predict(u_eff - new_m.u0, d - new_m.d0)
+    np.testing.assert_allclose(old_m.y0 + old.xi[:2], new_m.y0 + new.xi[:2], atol=1e-9)
+    np.testing.assert_allclose(old_m.y0 + old.sys.c @ old.xi, new_m.y0 + new.sys.c @ new.xi,
+                               atol=1e-9)

@@ -55,8 +55,9 @@ from typing import Any
 import numpy as np
 
 from tank_control.core.control.mpcs_estimator import (DISTURBANCE_MODELS, EstimatorConfig,
-                                                      KalmanEstimator)
-from tank_control.core.control.mpcs_model import DelayedModel, TankOperatingPoint, tank_model
+                                                      KalmanEstimator, take_over)
+from tank_control.core.control.mpcs_model import (DelayedModel, TankOperatingPoint,
+                                                  equilibrium_inputs, tank_model)
 from tank_control.core.control.mpcs_prediction import CostConfig, Prediction
 from tank_control.core.control.mpcs_qp import DenseQp
 from tank_control.core.params import ParamSpec
@@ -93,6 +94,9 @@ class MpcsConfig:
     disturbance_noise: float = 1e-4
     state_noise: float = 1e-4
     qp_iter_limit: int = 1000
+    relinearize: bool = True
+    relinearize_h: float = 5.0
+    relinearize_T: float = 1.0
     op_F_H: float = 14.0
     op_F_Cin: float = 37.0
     op_F_D: float = 12.0
@@ -163,6 +167,13 @@ def mpcs_params() -> tuple[ParamSpec, ...]:
                   'noise', 1e-12, 1e6),
         ParamSpec('mpcs.qp_iter_limit', c.qp_iter_limit, 'QP iteration limit (beyond: fall back '
                   'to the clipped analytic move)', 1, 100000),
+        ParamSpec('mpcs.relinearize', c.relinearize, 'rebuild the model at the equilibrium of '
+                  'the setpoint (and the measured F_D, T_D) when it is farther than '
+                  'relinearize_h / relinearize_T from the model\'s operating point'),
+        ParamSpec('mpcs.relinearize_h', c.relinearize_h, 'level distance that triggers a '
+                  're-linearisation [cm]', 0.1, 1e3),
+        ParamSpec('mpcs.relinearize_T', c.relinearize_T, 'temperature distance that triggers '
+                  'a re-linearisation [°C]', 0.01, 100.0),
         ParamSpec('mpcs.op.F_H', c.op_F_H, f'operating point: hot inflow [{_UNITS_IN}]', 0.0, 1e4),
         ParamSpec('mpcs.op.F_Cin', c.op_F_Cin, f'operating point: cold inflow [{_UNITS_IN}]',
                   0.0, 1e4),
@@ -393,10 +404,12 @@ class Mpcs:
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One sample (``t`` [s]; ``y`` = [h, T_out]; ``r`` setpoints; ``d`` = [F_D, T_D])."""
-        des = self._design
-        m, pred, est, cfg = des.model, des.pred, des.estimator, des.cfg
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
+        if self._design.cfg.relinearize and self._fixed_model is None:
+            self._relinearize(r, d)
+        des = self._design
+        m, pred, est, cfg = des.model, des.pred, des.estimator, des.cfg
         if self._valid_d(d, m):
             self._d = np.asarray(d, dtype=float).copy()
             if self._pending_d:         # reset(y, u) without d: equilibrium with this d
@@ -440,6 +453,8 @@ class Mpcs:
             'bad_measurements': self._counters['bad_measurements'],
             'bad_setpoints': self._counters['bad_setpoints'],
             'rebuilds': self._counters['rebuilds'],
+            'relinearizations': self._counters['relinearizations'],
+            'operating_point': [float(v) for v in des.model.y0],
             'disturbance_estimate': [float(v) for v in est.xi[n:n + est.sys.n_w]],
             'innovation': [float(v) for v in est.innovation],
         }
@@ -451,8 +466,9 @@ class Mpcs:
         The new matrices are built before anything is swapped, so a rejected change
         leaves the controller untouched (``ValueError`` with the reason) and an accepted
         one takes effect at the next ``step`` — no sample is missed, the input continues
-        from its last value. Changing the model/estimator settings restarts the
-        estimator at the equilibrium that explains the last measurement.
+        from its last value. A new operating point carries the estimate over
+        (:func:`mpcs_estimator.take_over`); other model/estimator changes restart
+        the estimator at the equilibrium that explains the last measurement.
         """
         old = self._design
         cfg = config_from_params(changes, old.cfg)
@@ -465,13 +481,35 @@ class Mpcs:
             m = new.model
             self._design = new
             self._resize_buffers(m)
-            new.estimator.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
+            d_phys = self._d if cfg.feedforward else None
+            if not (old.cfg.feedforward == cfg.feedforward
+                    and take_over(old.estimator, new.estimator, self._u_eff(m), d_phys)):
+                new.estimator.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
         else:
             self._design = _Design(cfg, old.model, old.estimator)
         self._counters['rebuilds'] += 1
         return cfg
 
     # --- internals -----------------------------------------------------------------
+    def _relinearize(self, r: np.ndarray, d: np.ndarray | None) -> None:
+        """Gain scheduling on the setpoint: a new operating point at the equilibrium of
+        ``r`` (003 §4: the linearisation error grows with the distance from it)."""
+        cfg, m = self._design.cfg, self._design.model
+        if r.shape != m.y0.shape or not np.all(np.isfinite(r)):
+            return
+        if abs(r[0] - m.y0[0]) <= cfg.relinearize_h and abs(r[1] - m.y0[1]) <= cfg.relinearize_T:
+            return
+        f_d, t_d = (d[0], d[1]) if self._valid_d(d, m) else (cfg.op_F_D, cfg.op_T_D)
+        op = replace(cfg.operating_point(), F_D=float(f_d), T_D=float(t_d))
+        flows = equilibrium_inputs(op, float(r[0]), float(r[1]))
+        if flows is None:
+            return                                  # unreachable: keep the current model
+        try:
+            self.configure(op_F_H=flows[0], op_F_Cin=flows[1], op_F_D=op.F_D, op_T_D=op.T_D)
+        except ValueError:
+            return                                  # outside the parameter ranges
+        self._counters['relinearizations'] += 1
+
     def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> bool:
         return (self._design.cfg.feedforward and d is not None and len(d) == m.n_d
                 and bool(np.all(np.isfinite(d))))
@@ -490,7 +528,7 @@ class Mpcs:
 
     def _reset_counters(self) -> None:
         self._counters = {'samples': 0, 'fallbacks': 0, 'bad_measurements': 0,
-                          'bad_setpoints': 0, 'rebuilds': 0}
+                          'bad_setpoints': 0, 'rebuilds': 0, 'relinearizations': 0}
         self._last_solve = self._max_solve = 0.0
         self._last_flag = 0
         self._last_iter = 0

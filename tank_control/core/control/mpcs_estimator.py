@@ -173,3 +173,37 @@ class KalmanEstimator:
         """Time update with the inputs acting over [k, k+1) (deviations)."""
         s = self.sys
         self.xi = s.a @ self.xi + s.b_u @ u_eff + s.b_d @ d
+
+
+def take_over(old: KalmanEstimator, new: KalmanEstimator, u_eff: np.ndarray,
+              d: np.ndarray | None) -> bool:
+    """Carry the estimate of ``old`` over to ``new`` (another operating point).
+
+    Model states, whose output matrix is the identity, and register entries are
+    mapped through their physical values (``y0 + x``); the disturbance is chosen
+    so that both models predict the same next state for the inputs acting now
+    (``u_eff``, ``d``, physical units; ``d = None``: no feed-forward, each model at
+    its own ``d0``) — a mid-transient re-linearisation keeps the transient. Returns False (nothing changed) when the structures differ.
+    """
+    mo, mn = old.sys.model, new.sys.model
+    same = (old.sys.kind == new.sys.kind and old.sys.n == new.sys.n
+            and mo.output_delays == mn.output_delays and mo.n_x == mn.n_x == mo.n_y
+            and np.array_equal(mo.c, np.eye(mo.n_x)) and np.array_equal(mn.c, np.eye(mn.n_x)))
+    if not same:
+        return False
+    n, shift = mo.n_x, mo.y0 - mn.y0
+    xi_o, xi = old.xi, old.xi.copy()
+    xi[:n] = xi_o[:n] + shift
+    for i, d_i in enumerate(mo.output_delays):
+        if d_i > 0:
+            s = old.sys.reg_start[i]
+            xi[s:s + d_i] = xi_o[s:s + d_i] + shift[i]
+    if old.sys.kind == 'input':
+        w_o = xi_o[n:2 * n]
+        dd_o = np.zeros(mo.n_d) if d is None else d - mo.d0
+        dd_n = np.zeros(mn.n_d) if d is None else d - mn.d0
+        x_next = mo.a @ xi_o[:n] + mo.b_u @ (u_eff - mo.u0) + mo.b_d @ dd_o + w_o + shift
+        xi[n:2 * n] = x_next - mn.a @ xi[:n] - mn.b_u @ (u_eff - mn.u0) - mn.b_d @ dd_n
+    new.xi = xi
+    new.innovation = old.innovation.copy()
+    return True

@@ -73,6 +73,25 @@ class TankOperatingPoint:
         return (self.F_H * self.T_H + self.F_C * self.T_C + self.F_D * self.T_D) / self.inflow
 
 
+def equilibrium_inputs(op: TankOperatingPoint, h: float, temperature: float
+                       ) -> tuple[float, float] | None:
+    """``(F_H, F_C)`` [cm³/s] holding the tank at level ``h`` [cm] and ``temperature``
+    [°C] with the disturbance inflow of ``op`` (SPEC §1.3 at steady state):
+
+        F_H + F_C = alpha·√h − F_D,   F_H·T_H + F_C·T_C = alpha·√h·T − F_D·T_D.
+
+    ``None`` if the point needs a negative flow (unreachable) or T_H = T_C.
+    """
+    if h <= 0.0 or op.T_H == op.T_C:
+        return None
+    q = op.alpha * math.sqrt(h)
+    f_h = (q * temperature - op.F_D * op.T_D - op.T_C * (q - op.F_D)) / (op.T_H - op.T_C)
+    f_c = q - op.F_D - f_h
+    if f_h < 0.0 or f_c < 0.0:
+        return None
+    return f_h, f_c
+
+
 def linearize_mixing_tank(op: TankOperatingPoint, ts: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold discretisation of the tank linearised at ``op``.
 
