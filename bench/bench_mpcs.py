@@ -257,6 +257,8 @@ def main() -> None:
                        ('MPCS qp (100, 50, λ=0.5)', replace(base, solver='qp')),
                        ('MPCS qp (300, 100, λ=0.5)', replace(base, solver='qp', horizon=300,
                                                              control_horizon=100)),
+                       ('MPCS qp (100, 50), no re-linearisation',
+                        replace(base, solver='qp', relinearize=False)),
                        ("MPCS qp, document's cost (align off, w_∞ = 0)",
                         replace(base, solver='qp', align=False, terminal_weight=0.0))):
         iae = run_loop(cfg, 3600)[4]
