@@ -140,7 +140,8 @@ class _Proportional:
 def proportional_kind():
     from tank_control.core.params import ParamSpec
     return registry.ControllerKind(
-        name='proportional', params=lambda: (ParamSpec('gain', 1.0, 'gain [-]', min=0.0, max=10.0),),
+        name='proportional',
+        params=lambda: (ParamSpec('gain', 1.0, 'gain [-]', min=0.0, max=10.0),),
         check=lambda values: None, build=_Proportional, update=None)
 
 
@@ -176,3 +177,37 @@ def test_two_loop_pi_registered_and_rebuilt_bumplessly_on_a_gain_change():
     assert (new.step(2.0, y2, r, np.array([]))[0] - twin.step(2.0, y2, r, np.array([]))[0]
             == pytest.approx((2.0 - 0.9) * 0.5, abs=1e-9))
     assert 'fail_safe_output' in registry.check({**values, 'fail_safe_output': [1.0]})
+
+
+SMITH = {'controller': 'smith_pi', 'smith.gain': 0.05, 'smith.time_constant': 10.0,
+         'smith.dead_time': 3.0, 'sample_time': 0.5}
+
+
+def test_smith_pi_tuning_rule_and_bumpless_changes():
+    values = registry.complete_values({**SMITH, 'tuning.rule': 'smith_pi', 'tuning.te': 5.0})
+    derived = registry.derive(values)
+    # 004 eq. 3.6.7 (n = 1): kR = T/(kP·Te), Ti = T
+    assert derived == pytest.approx({'kp': 10.0 / (0.05 * 5.0), 'ti': 10.0}, rel=1e-12)
+    values.update(derived)
+    assert registry.check(values) is None
+    assert 'tuning.rule' in registry.check({**values, 'ti': 20.0})
+    assert 'tuning.rule' in registry.check({**values, 'tuning.rule': 'mdp'})
+
+    # steady state: model at rest with u = 2, y = r = 1 → prediction = y, e = 0, u stays 2
+    values['b'] = 0.5
+    ctrl = registry.make_controller(values)
+    y, r, d = np.array([1.0]), np.array([1.0]), np.array([])
+    ctrl.reset(y, np.array([2.0]))
+    assert [ctrl.step(0.5 * k, y, r, d)[0] for k in range(3)] == pytest.approx([2.0] * 3, abs=1e-12)
+    # primary gain change: in place (same object, model history kept), no jump although a
+    # recomputation would move u by Δkp·(b·r − y) = −20·(−0.5) = 10
+    values.update({'tuning.rule': 'none', 'kp': 20.0})
+    same, u = registry.step_with_changes(ctrl, values, frozenset({'tuning.rule', 'kp'}), 1.5,
+                                         y, r, d)
+    assert same is ctrl and u[0] == pytest.approx(2.0, abs=1e-12)
+    # model change: rebuilt, output continuous at that sample
+    values['smith.dead_time'] = 3.6
+    new, u = registry.step_with_changes(ctrl, values, frozenset({'smith.dead_time'}), 2.0, y, r, d)
+    assert new is not ctrl and new.config.dead_time == 3.6 and u[0] == pytest.approx(2.0, abs=1e-12)
+    # the new kp acts: a measurement step of 0.1 moves u by −kp·0.1 (prediction unchanged so far)
+    assert new.step(2.5, np.array([1.1]), r, d)[0] == pytest.approx(2.0 - 20.0 * 0.1, abs=1e-9)

@@ -11,12 +11,16 @@ A kind (:class:`ControllerKind`) supplies
 * ``check(values)`` — relations between parameters (one-line reason or None);
 * ``build(values)`` — the :class:`~tank_control.core.interfaces.Controller`;
 * ``update(controller, values, changed)`` — apply accepted changes to a
-  running controller bumplessly (the output does not jump at that sample);
-  a kind without one (``update=None``) is rebuilt from the new values and
-  re-initialised with ``reset(y, u)`` from the last measurement and output,
+  running controller in place, bumplessly (returning None or True); returning
+  False (or ``update=None``) asks for a rebuild: ``step_with_changes`` builds a
+  new object and initialises it with ``reset(y, u)`` at that sample's output,
   which is bumpless by the Controller contract;
 * ``derive(values, changed)`` — parameter values that follow from others
-  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them.
+  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them;
+* optionally ``results(controller)`` — values the controller produced at run
+  time (written back to parameters by the node) and ``commands`` — operator
+  commands the node offers as ``std_srvs/Trigger`` services ``~/<name>``
+  (e.g. ``start_autotune``, ``abort_autotune`` of issue 6).
 
 Adding a kind (e.g. ``relay_autotune``, ``mpcs``) is local: write a function
 returning a ``ControllerKind`` (usually in the controller's own module) and add
@@ -31,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from importlib import import_module
 from typing import Any
 
@@ -55,9 +59,17 @@ class ControllerKind:
     params: Callable[[], tuple[ParamSpec, ...]]
     check: Callable[[Values], str | None]
     build: Callable[[Values], Controller]
-    update: Callable[[Controller, Values, frozenset[str]], None] | None
+    update: Callable[[Controller, Values, frozenset[str]], bool | None] | None
     derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
     description: str = ''
+    results: Callable[[Controller], Mapping[str, Any]] | None = None
+    """Parameter values the running controller produced (an identified ``ku``, the gains
+    it switched to, a state name); controller_node writes changed ones back to its
+    parameters after each sample (read-only ones included), so ``ros2 param get`` shows them."""
+    commands: Mapping[str, Callable[[Controller], tuple[bool, str]]] = field(default_factory=dict)
+    """Operator commands by name; controller_node offers each as a ``std_srvs/Trigger``
+    service ``~/<name>`` that calls ``commands[name](controller) -> (success, message)``,
+    e.g. ``{'start_autotune': lambda c: c.start(), 'abort_autotune': lambda c: c.abort()}``."""
 
 
 # ------------------------------------------------------------------ pid
@@ -100,7 +112,8 @@ def _pid_check(values: Values) -> str | None:
     if tuned is not None:
         for name in _GAINS:
             if not math.isclose(float(values[name]), tuned[name], rel_tol=1e-12, abs_tol=1e-15):
-                return (f"{name}: {values[name]:g} conflicts with tuning.rule {values['tuning.rule']!r}, "
+                rule = values['tuning.rule']
+                return (f"{name}: {values[name]:g} conflicts with tuning.rule {rule!r}, "
                         f"which gives {tuned[name]:g}; set tuning.rule to none to tune by hand")
     return None
 
@@ -115,7 +128,7 @@ def _pid_build(values: Values) -> Controller:
     return controller
 
 
-def _pid_update(controller: Controller, values: Values, changed: frozenset[str]) -> None:
+def _pid_update(controller: Controller, values: Values, changed: frozenset[str]) -> bool:
     """Bumpless: gains and limits through ``Pid2Dof.set_gains`` (the integral
     absorbs the change), then the mode (manual output / bumpless return to auto)."""
     from tank_control.core.control.pid import pid_config_from_params
@@ -124,10 +137,16 @@ def _pid_update(controller: Controller, values: Values, changed: frozenset[str])
     changes = {k: v for k, v in config.items() if getattr(pid.config, k) != v}
     if changes:
         pid.set_gains(**changes)
-    if values['mode'] == 'manual' and ({'mode', 'manual_output'} & changed or pid.mode != 'manual'):
-        pid.set_manual(float(values['manual_output']))
-    elif values['mode'] == 'auto' and pid.mode != 'auto':
-        pid.set_auto()
+    _apply_mode(pid, pid.mode, values, changed)
+    return True
+
+
+def _apply_mode(target: Any, mode_now: str, values: Values, changed: frozenset[str]) -> None:
+    """Manual output on request (or when the mode changes), bumpless return to auto."""
+    if values['mode'] == 'manual' and ({'mode', 'manual_output'} & changed or mode_now != 'manual'):
+        target.set_manual(float(values['manual_output']))
+    elif values['mode'] == 'auto' and mode_now != 'auto':
+        target.set_auto()
 
 
 def _pid_kind() -> ControllerKind:
@@ -181,6 +200,79 @@ def _two_loop_kind() -> ControllerKind:
         description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)')
 
 
+# ------------------------------------------------------------- smith_pi
+_SMITH_PRIMARY = ('kp', 'ti', 'b', 'u_min', 'u_max', 'du_max', 'anti_windup', 'tracking_time')
+
+
+def _smith_tuned(values: Values) -> dict[str, float] | None:
+    """kp, ti of the PI primary from tuning.rule smith_pi (004 eqs. 3.6.7/3.6.9), else None."""
+    if values.get('tuning.rule', 'none') != 'smith_pi':
+        return None
+    from tank_control.core.control.smith import smith_config_from_params
+    cfg = smith_config_from_params(values)
+    return {'kp': float(cfg.kp), 'ti': float(cfg.ti) if math.isfinite(cfg.ti) else 0.0}
+
+
+def _smith_check(values: Values) -> str | None:
+    from tank_control.core.control.smith import check_smith_relations
+    reason = check_smith_relations(values)
+    if reason:
+        return reason
+    lo, hi = values['u_min'], values['u_max']
+    if values['fail_safe'] == 'output' and not lo <= values['fail_safe_output'] <= hi:
+        return (f"fail_safe_output: {values['fail_safe_output']:g} is outside the output limits "
+                f'[{lo:g}, {hi:g}]')
+    tuned = _smith_tuned(values)
+    for name, value in (tuned or {}).items():
+        if not math.isclose(float(values[name]), value, rel_tol=1e-12, abs_tol=1e-15):
+            return (f"{name}: {values[name]:g} conflicts with tuning.rule 'smith_pi', which gives "
+                    f'{value:g}; set tuning.rule to none to tune by hand')
+    return None
+
+
+def _smith_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
+    return _smith_tuned(values) or {}
+
+
+def _smith_build(values: Values) -> Controller:
+    from tank_control.core.control.smith import SmithPredictor, smith_config_from_params
+    controller = SmithPredictor(smith_config_from_params(values),
+                                output_name=_single(values, 'output_names'),
+                                input_name=_single(values, 'input_names'))
+    if values.get('mode') == 'manual':
+        controller.set_manual(float(values['manual_output']))
+    return controller
+
+
+def _smith_update(controller: Controller, values: Values, changed: frozenset[str]) -> bool:
+    """PI primary settings and the mode in place (bumpless, the model's history kept); a
+    change of the internal model (smith.*) rebuilds, which restarts the model from the
+    steady state of u."""
+    if any(name.startswith('smith.') for name in changed):
+        return False
+    from tank_control.core.control.smith import smith_config_from_params
+    cfg = smith_config_from_params(values)
+    primary = controller.primary              # type: ignore[attr-defined]
+    new = {name: getattr(cfg, name) for name in _SMITH_PRIMARY}
+    current = primary.config
+    changes = {k: v for k, v in new.items() if getattr(current, k) != v}
+    if changes:
+        primary.set_gains(**changes)
+    controller.config = cfg                   # type: ignore[attr-defined]
+    _apply_mode(controller, primary.mode, values, changed)
+    return True
+
+
+def _smith_kind() -> ControllerKind:
+    from tank_control.core.control.pid import pid_params
+    from tank_control.core.control.smith import smith_params
+    fail_safe = tuple(s for s in pid_params() if s.name in ('fail_safe', 'fail_safe_output'))
+    return ControllerKind(
+        name='smith_pi', params=lambda: smith_params() + fail_safe + _channel_specs(('y',), ('u',)),
+        check=_smith_check, build=_smith_build, update=_smith_update, derive=_smith_derive,
+        description='Smith predictor with a PI primary (004 §3.6.1)')
+
+
 def _single(values: Values, name: str) -> str:
     names = list(values[name])
     if len(names) != 1:
@@ -193,7 +285,7 @@ _KIND_FACTORIES: dict[str, tuple[str, str]] = {
     # name: (module, function returning a ControllerKind)
     'pid': (__name__, '_pid_kind'),
     'two_loop_pi': (__name__, '_two_loop_kind'),
-    'smith_pi': ('tank_control.core.control.smith', 'controller_kind'),
+    'smith_pi': (__name__, '_smith_kind'),
 }
 
 
@@ -320,8 +412,7 @@ def step_with_changes(controller: Controller, values: Values, changed: frozenset
     """
     kind = get_kind(str(values.get('controller', 'pid')))
     values = controller_values(values)
-    if kind.update is not None:
-        kind.update(controller, values, changed)
+    if kind.update is not None and kind.update(controller, values, changed) is not False:
         return controller, np.asarray(controller.step(t, y, r, d), dtype=float)
     u = np.asarray(controller.step(t, y, r, d), dtype=float)
     new = kind.build(complete_values(values))
