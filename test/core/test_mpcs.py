@@ -292,3 +292,19 @@ def test_controller_kind_for_the_registry():
     values.update({'mpcs.control_horizon': 20, 'mpcs.lambda': [0.3]})
     kind.update(ctl, values, frozenset({'mpcs.control_horizon', 'mpcs.lambda'}))
     assert ctl.config.control_horizon == 20 and ctl.config.lam == (0.3,)
+
+
+def test_runs_in_the_project_loop_from_an_off_nominal_start():
+    """core/loop.py (no reset call): the first step initialises from the measurement;
+    the tank starts at 78 cm / 32 °C and settles at the setpoints of the reference."""
+    from tank_control.core.loop import run_loop
+    from tank_control.core.reference import ChannelSchedule, Reference
+    plant = MixingTank(MixingTankConfig(initial_h=78.0, initial_T=32.0))
+    reference = Reference(
+        setpoints={'h': ChannelSchedule.constant(82.0), 'T_out': ChannelSchedule.constant(34.0)},
+        disturbances={'F_D': ChannelSchedule(times=(0.0, 600.0), values=(12.0, 14.0))})
+    trace = run_loop(plant, Mpcs(MpcsConfig(solver='qp')), reference, sample_time=1.0,
+                     duration=2000.0)
+    assert np.all(np.isfinite(trace['u.F_H'])) and np.all(np.isfinite(trace['u.F_Cin']))
+    assert np.abs(trace['y.h'][-150:] - 82.0).max() <= 0.05
+    assert np.abs(trace['y.T_out'][-150:] - 34.0).max() <= 0.02

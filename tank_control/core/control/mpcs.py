@@ -366,6 +366,7 @@ class Mpcs:
         self._y = m.y0.copy()
         self._d = m.d0.copy()
         self._pending_d = True
+        self._needs_init = True     # no reset(): initialise from the first measurement
         self._init_buffers(m)
         self._design.estimator.reset(np.zeros(m.n_y), np.zeros(m.n_u), np.zeros(m.n_d))
 
@@ -379,7 +380,8 @@ class Mpcs:
         return self._design.cfg.sample_time
 
     def reset(self, y: np.ndarray, u: np.ndarray, d: np.ndarray | None = None) -> None:
-        """Bumpless start: delay lines filled with ``u``, estimator at the equilibrium
+        """Bumpless start (without a call, the first ``step`` does it with the
+        operating point's inputs and its measurement): delay lines filled with ``u``, estimator at the equilibrium
         that explains ``y`` with ``u`` and ``d``. Without ``d`` the equilibrium is
         recomputed with the first measured ``d`` at the next ``step`` (so a
         disturbance that is already present is not mistaken for a step in it).
@@ -395,6 +397,7 @@ class Mpcs:
             u = np.clip(m.u0, self._design.u_min + m.u0, self._design.u_max + m.u0)
         self._u, self._y = u.copy(), y.copy()
         self._pending_d = d is None
+        self._needs_init = False
         if self._valid_d(d, m):
             self._d = np.asarray(d, dtype=float).copy()
         else:
@@ -406,6 +409,8 @@ class Mpcs:
         """One sample (``t`` [s]; ``y`` = [h, T_out]; ``r`` setpoints; ``d`` = [F_D, T_D])."""
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
+        if self._needs_init and y.shape == self._y.shape and np.all(np.isfinite(y)):
+            self.reset(y, self._u, d)   # bumpless from the operating point's inputs
         if self._design.cfg.relinearize and self._fixed_model is None:
             self._relinearize(r, d)
         des = self._design
