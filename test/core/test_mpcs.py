@@ -308,3 +308,19 @@ def test_runs_in_the_project_loop_from_an_off_nominal_start():
     assert np.all(np.isfinite(trace['u.F_H'])) and np.all(np.isfinite(trace['u.F_Cin']))
     assert np.abs(trace['y.h'][-150:] - 82.0).max() <= 0.05
     assert np.abs(trace['y.T_out'][-150:] - 34.0).max() <= 0.02
+
+
+def test_registry_integration_with_the_one_line_registration(monkeypatch):
+    """With ``'mpcs': ('tank_control.core.control.mpcs', 'controller_kind')`` in
+    registry._KIND_FACTORIES, make_controller / step_with_changes drive MPCS."""
+    from tank_control.core.control import registry
+    monkeypatch.setitem(registry._KIND_FACTORIES, 'mpcs',
+                        ('tank_control.core.control.mpcs', 'controller_kind'))
+    values = registry.complete_values({'controller': 'mpcs', 'mpcs.solver': 'qp'})
+    ctl = registry.make_controller(values)
+    assert isinstance(ctl, Mpcs) and ctl.config.solver == 'qp'
+    assert 'mpcs.horizon' in registry.check({**values, 'mpcs.horizon': 0})
+    y, r = np.array([81.0, T0]), np.array([82.0, T0])
+    values['mpcs.horizon'] = 150
+    same, u = registry.step_with_changes(ctl, values, frozenset({'mpcs.horizon'}), 0.0, y, r, D0)
+    assert same is ctl and ctl.config.horizon == 150 and np.all(np.isfinite(u))
