@@ -440,6 +440,7 @@ class Mpcs:
 
     @property
     def status(self) -> Mapping[str, Any]:
+        """Scalars for diagnostics: solver, timing [ms], counters, estimator state."""
         des = self._design
         est = des.estimator
         n = des.model.n_x
@@ -459,9 +460,13 @@ class Mpcs:
             'bad_setpoints': self._counters['bad_setpoints'],
             'rebuilds': self._counters['rebuilds'],
             'relinearizations': self._counters['relinearizations'],
-            'operating_point': [float(v) for v in des.model.y0],
-            'disturbance_estimate': [float(v) for v in est.xi[n:n + est.sys.n_w]],
-            'innovation': [float(v) for v in est.innovation],
+            'op_h': float(des.model.y0[0]),                     # [cm]
+            'op_T': float(des.model.y0[1]),                     # [°C]
+            # estimated disturbance: on [dh/dt·Ts, dT/dt·Ts] ('input') or [h, T_out] ('output')
+            'disturbance_h': float(est.xi[n]),
+            'disturbance_T': float(est.xi[n + 1]),
+            'innovation_h': float(est.innovation[0]),           # [cm]
+            'innovation_T_out': float(est.innovation[1]),       # [°C]
         }
 
     # --- runtime reconfiguration ---------------------------------------------------
