@@ -244,7 +244,9 @@ def test_configure_at_runtime_keeps_sampling_and_rejects_bad_values():
                       ({'mpcs.control_horizon': 400}, 'mpcs.control_horizon'),
                       ({'mpcs.solver': 'lp'}, 'mpcs.solver'),
                       ({'mpcs.u_min': [50.0, 50.0], 'mpcs.u_max': [40.0, 60.0]}, 'mpcs.u_min'),
-                      ({'mpcs.nonsense': 1}, 'mpcs.nonsense')):
+                      ({'mpcs.nonsense': 1}, 'mpcs.nonsense'),
+                      ({'mpcs.op.F_H': 0.0, 'mpcs.op.F_Cin': 0.0, 'mpcs.op.F_D': 0.0},
+                       'mpcs.op.F_H')):
         with pytest.raises(ValueError, match=name.replace('.', r'\.')):
             ctl.configure(**bad)
     assert ctl.config.horizon == 250 and ctl.config.solver == 'qp'

@@ -257,6 +257,9 @@ def _check_consistency(cfg: MpcsConfig) -> None:
     if len(cfg.y_min) != 2 or len(cfg.y_max) != 2 or any(
             a >= b for a, b in zip(cfg.y_min, cfg.y_max)):
         raise ValueError('mpcs.y_min/mpcs.y_max: 2 values each ([h, T_out]), min below max')
+    if cfg.op_F_H + cfg.op_F_Cin + cfg.op_F_D <= 0.0:
+        raise ValueError('mpcs.op.F_H/F_Cin/F_D: the total inflow of the operating point '
+                         'must be > 0 cm³/s')
     if len(cfg.output_weights) not in (1, 2):
         raise ValueError('mpcs.output_weights: 1 or 2 values ([h, T_out])')
 
