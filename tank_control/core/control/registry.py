@@ -286,6 +286,7 @@ _KIND_FACTORIES: dict[str, tuple[str, str]] = {
     'pid': (__name__, '_pid_kind'),
     'two_loop_pi': (__name__, '_two_loop_kind'),
     'smith_pi': (__name__, '_smith_kind'),
+    'mpcs': ('tank_control.core.control.mpcs', 'controller_kind'),
 }
 
 
