@@ -43,6 +43,11 @@ Faults end the test in ``failed`` with ``status['reason']``: no oscillation with
 measurement or setpoint, an identification or tuning rule that cannot be applied.
 ``abort()`` ends it in ``aborted``.
 
+Starting: :meth:`start` (the node's ``~/start_autotune`` service or the
+``autotune.start`` parameter, which the node re-arms to false), or at a scheduled
+time ``autotune.start_time`` (> 0, the loop's time in seconds), which the
+in-process loop and a lockstep ROS run reach at the same sample.
+
 Designed to be driven by a node: ``start()``/``abort()`` return ``(accepted,
 message)`` (a std_srvs/Trigger answer), ``state``/``status`` are plain values.
 """
@@ -89,6 +94,7 @@ class AutotuneConfig:
     process_gain: float = 0.0
     rule: str = 'zn_001'
     kind: str = 'pid'
+    start_time: float = 0.0
 
     @classmethod
     def from_params(cls, values: Mapping[str, Any]) -> AutotuneConfig:
@@ -152,6 +158,10 @@ def autotune_params() -> tuple[ParamSpec, ...]:
                   'FOPDT model', choices=RULES),
         ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
                   choices=('p', 'pi', 'pid')),
+        ParamSpec('autotune.start_time', 0.0, 'start a test at the first sample at or after '
+                  'this time [s, the loop\'s (simulated) time], once; 0 = no scheduled start. '
+                  'Lets an in-process run (core/loop.py) and a lockstep ROS run start at the '
+                  'same sample', min=0.0, max=big),
     ) + autotune_result_params()
 
 
@@ -210,6 +220,7 @@ class RelayAutotuner:
         self._result: ident.RelayIdentification | None = None
         self._gains: dict[str, float | None] | None = None
         self._cycles = 0
+        self._scheduled_done = False            # autotune.start_time has fired
         self._clear_test()
 
     # ------------------------------------------------------------------ API
@@ -235,6 +246,8 @@ class RelayAutotuner:
         if self._state in TESTING:
             raise ValueError('autotune: settings cannot change while a test is running; abort it first')
         self._check_config(autotune)
+        if autotune.start_time != self._cfg.start_time:
+            self._scheduled_done = False          # a new scheduled start is armed
         self._cfg = autotune
 
     def start(self) -> tuple[bool, str]:
@@ -299,9 +312,15 @@ class RelayAutotuner:
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One sample: time [s], measurement, setpoint → manipulated input (1 value).
 
-        The PID's rate limit also holds across the hand-overs PID → relay → PID.
+        The PID's rate limit also holds across the hand-overs PID → relay → PID. At the
+        first sample with ``t >= autotune.start_time`` (when > 0) a test starts, once
+        (re-armed when start_time changes), exactly as :meth:`start` before that sample.
         """
         yv, rv = _scalar(y, 'y'), _scalar(r, 'r')
+        if (self._cfg.start_time > 0 and not self._scheduled_done
+                and float(t) >= self._cfg.start_time - 1e-9):
+            self._scheduled_done = True
+            self.start()          # refused (no effect) if a test is already running
         u = None
         if self._state in TESTING:
             u = self._test_step(float(t), yv, rv)
@@ -624,8 +643,6 @@ def relay_autotune_kind():
     (one line there: ``'relay_autotune': ('tank_control.core.control.relay_autotune',
     'relay_autotune_kind')``). Operator commands ``~/start_autotune``, ``~/abort_autotune``;
     results written back to the read-only ``autotune.*`` parameters and the gains."""
-    from dataclasses import fields as dc_fields
-
     from tank_control.core.control import registry
     from tank_control.core.control.pid import check_pid_relations, pid_params
 
@@ -644,13 +661,10 @@ def relay_autotune_kind():
                           read_only=True),
                 ParamSpec('input_names', ['u'], 'manipulated channel written', read_only=True))
 
-    kwargs: dict[str, Any] = dict(
+    return registry.ControllerKind(
         name='relay_autotune', params=lambda: pid_params() + autotune_params() + channels(),
         check=check, build=build, update=update_relay_autotuner,
-        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)')
-    available = {f.name for f in dc_fields(registry.ControllerKind)}
-    if 'results' in available:
-        kwargs['results'] = lambda tuner: tuner.results()
-    if 'commands' in available:
-        kwargs['commands'] = AUTOTUNE_COMMANDS
-    return registry.ControllerKind(**kwargs)
+        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)',
+        results=lambda tuner: tuner.results(), state='autotune.state',
+        commands={name: (lambda tuner, name=name: tuner.command(name))
+                  for name in AUTOTUNE_COMMANDS})
