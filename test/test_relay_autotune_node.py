@@ -1,0 +1,198 @@
+"""controller: relay_autotune over real DDS (issue 6): plant (FOPDT, lockstep as fast as
+possible), controller and reference in three processes, driven by the operator interface —
+``/controller/start_autotune`` / ``abort_autotune`` services, the ``autotune.start``
+parameter, the ``/controller/autotune_state`` topic and parameter reads.
+
+001 §1.2.2's FOPDT (K = 0.05, T = 10 s, L = 3 s): exact ultimate point Ku = 117.8,
+Tu = 10.82 s (SPEC §1.2); the tuner must find them within 3 % and 2 %.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from tank_control.core.loop import run_loop
+from tank_control.core.scenario import build, read_params_file
+from tank_control.nodes.controller_node import STATE_QOS
+from tank_control.nodes.messages import from_joint_state
+
+REPO = Path(__file__).resolve().parents[1]
+KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
+NODES = ('plant', 'controller', 'reference')
+#: The recorder keeps every sample: the lockstep loop runs faster than the probe spins.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Graph:
+    """The three nodes of config/fopdt_autotune.yaml and the probe as operator and recorder."""
+
+    def __init__(self, procs, ros_env, node_cmd, probe, tmp_path: Path, paused: bool,
+                 **controller) -> None:
+        params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
+        params['plant'].update({'real_time_factor': 0.0, 'lockstep.paused': paused})
+        params['controller'].update({'autotune.start_time': 0.0, **controller})
+        self.params = params
+        path = tmp_path / 'autotune.yaml'
+        path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in NODES}))
+        self.probe, self.procs = probe, procs
+        node = probe.node
+        self.states: list[str] = []
+        self.signals: dict[str, dict[int, list[float]]] = {'measurement': {}, 'manipulated': {}}
+        self.diag_messages: list[str] = []
+        subs = [node.create_subscription(String, '/controller/autotune_state',
+                                         lambda m: self.states.append(m.data), STATE_QOS)]
+        for topic in self.signals:
+            subs.append(node.create_subscription(JointState, topic, self._recorder(topic),
+                                                 RECORD_QOS))
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        for name in NODES:
+            procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
+        assert probe.wait_for(lambda: all(s.get_publisher_count() for s in subs), 30), self.logs()
+        self.controller = AsyncParameterClient(node, 'controller')
+        self.plant = AsyncParameterClient(node, 'plant')
+        self.start = node.create_client(Trigger, '/controller/start_autotune')
+        self.abort = node.create_client(Trigger, '/controller/abort_autotune')
+        assert probe.wait_for(lambda: self.controller.services_are_ready()
+                              and self.plant.services_are_ready() and self.start.service_is_ready()
+                              and self.abort.service_is_ready(), 20), self.logs()
+
+    def _recorder(self, topic: str):
+        def record(msg: JointState) -> None:
+            stamp, _, values = from_joint_state(msg)
+            self.signals[topic][stamp] = list(values)
+        return record
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        self.diag_messages += [s.message for s in msg.status if s.name.startswith('controller')]
+
+    def logs(self) -> str:
+        return '\n'.join(p.tail() for p in self.procs.processes.values())
+
+    def result(self, future, timeout: float = 10.0):
+        assert self.probe.wait_for(future.done, timeout), self.logs()
+        return future.result()
+
+    def trigger(self, client) -> Trigger.Response:
+        return self.result(client.call_async(Trigger.Request()))
+
+    def get(self, *names: str) -> dict:
+        values = self.result(self.controller.get_parameters(list(names))).values
+        return {n: Parameter.from_parameter_msg(_msg(n, v)).value for n, v in zip(names, values)}
+
+    def set(self, client: AsyncParameterClient, **values) -> None:
+        params = [Parameter(n.replace('__', '.'), value=v) for n, v in values.items()]
+        results = self.result(client.set_parameters(params)).results
+        assert all(r.successful for r in results), [r.reason for r in results]
+
+    def wait_state(self, state: str, timeout: float = 60.0) -> None:
+        assert self.probe.wait_for(lambda: self.states and self.states[-1] == state, timeout), \
+            (self.states, self.logs())
+
+    def last_stamp(self) -> int:
+        return max(self.signals['measurement'], default=-1)
+
+    def run_for(self, seconds: float) -> int:
+        """Let the loop run ``seconds`` of simulated time; return the last measured stamp."""
+        until = self.last_stamp() + int(seconds * 1e9)
+        assert self.probe.wait_for(lambda: self.last_stamp() >= until, 60), self.logs()
+        return self.last_stamp()
+
+
+def _msg(name, value):
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    return ParameterMsg(name=name, value=value)
+
+
+def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env, node_cmd,
+                                                                  probe, tmp_path):
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, paused=True)
+    graph.wait_state('idle', 10)                       # transient local: the current state
+    reply = graph.trigger(graph.start)                 # before tick 0 (the plant is paused)
+    assert reply.success and 'settling' in reply.message
+    graph.wait_state('settling', 10)
+    graph.set(graph.plant, lockstep__paused=False)
+    graph.wait_state('running', 60)
+    assert graph.states == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+
+    got = graph.get('autotune.state', 'autotune.reason', 'autotune.ku', 'autotune.tu',
+                    'autotune.model_kind', 'autotune.model_dead_time', 'autotune.start',
+                    'kp', 'ti', 'td', 'b', 'c')
+    assert got['autotune.state'] == 'running' and got['autotune.reason'] == ''
+    assert got['autotune.ku'] == pytest.approx(KU_001, rel=0.03)
+    assert got['autotune.tu'] == pytest.approx(TU_001, rel=0.02)
+    assert got['autotune.model_kind'] == 'fopdt'
+    assert got['autotune.model_dead_time'] == pytest.approx(3.0, rel=0.05)
+    # the tuned gains: Ziegler-Nichols PID of 001 Table 6.2 from the identified Ku, Tu
+    ku, tu = got['autotune.ku'], got['autotune.tu']
+    assert (got['kp'], got['ti'], got['td']) == pytest.approx((0.6 * ku, 0.5 * tu, 0.12 * tu),
+                                                              rel=1e-9)
+    assert (got['b'], got['c'], got['autotune.start']) == (1.0, 1.0, False)
+    # result parameters are read-only for users
+    refused = graph.result(graph.controller.set_parameters(
+        [Parameter('autotune.ku', value=1.0)])).results[0]
+    assert not refused.successful
+    assert probe.wait_for(lambda: any('autotune.state running' in m
+                                      for m in graph.diag_messages), 5), graph.diag_messages[-3:]
+
+    # the same objects in-process (core/loop.py): the service call before tick 0 is start()
+    last = graph.last_stamp()
+    assert probe.wait_for(lambda: last in graph.signals['manipulated'], 10)
+    built = build(graph.params)
+    built.controller.start()
+    trace = run_loop(built.plant, built.controller, built.reference,
+                     sample_time=built.sample_time, duration=last / 1e9, noise=built.noise)
+    ticks = np.arange(len(trace)) * 100_000_000
+    y = np.array([graph.signals['measurement'][int(k)][0] for k in ticks])
+    u = np.array([graph.signals['manipulated'][int(k)][0] for k in ticks])
+    assert np.max(np.abs(y - trace['y.y'])) <= 1e-9 and np.max(np.abs(u - trace['u.u'])) <= 1e-9
+    assert built.controller.status['ku'] == pytest.approx(ku, abs=1e-9)
+
+
+def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    # min_cycles 100: the test keeps measuring until it is aborted
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, paused=False,
+                  **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0})
+    before = graph.get('kp', 'ti', 'td')
+    assert before == {'kp': 20.0, 'ti': 12.0, 'td': 0.0}
+    graph.wait_state('idle', 10)
+    assert graph.trigger(graph.start).success
+    graph.wait_state('measuring')
+    again = graph.trigger(graph.start)
+    assert not again.success and 'already running' in again.message
+    reply = graph.trigger(graph.abort)
+    assert reply.success and 'restored' in reply.message
+    graph.wait_state('aborted', 10)
+    got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
+    assert got == {'autotune.state': 'aborted', 'autotune.reason': 'abort requested', **before}
+    _assert_loop_runs_at_setpoint(graph)
+    assert not graph.trigger(graph.abort).success          # nothing to abort
+
+    # failure: output deviation above autotune.max_amplitude (relay output amplitude ≈ 2.6),
+    # started by the autotune.start parameter, which the node re-arms to false
+    graph.set(graph.controller, autotune__max_amplitude=1.0, autotune__min_cycles=4)
+    graph.set(graph.controller, autotune__start=True)
+    graph.wait_state('failed')
+    got = graph.get('autotune.state', 'autotune.reason', 'autotune.start', 'kp', 'ti', 'td')
+    assert got['autotune.state'] == 'failed' and 'max_amplitude' in got['autotune.reason']
+    assert got['autotune.start'] is False
+    assert {k: got[k] for k in before} == before
+    assert 'settling' in graph.states[graph.states.index('aborted'):]
+    _assert_loop_runs_at_setpoint(graph)
+
+
+def _assert_loop_runs_at_setpoint(graph: Graph) -> None:
+    """Simulated time goes on and the restored PI brings y back to the setpoint 100."""
+    end = graph.run_for(60.0)
+    y = [v[0] for t, v in graph.signals['measurement'].items() if t > end - 10_000_000_000]
+    assert abs(np.mean(y) - 100.0) < 0.2 and np.ptp(y) < 1.0
