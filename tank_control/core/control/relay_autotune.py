@@ -174,6 +174,9 @@ def autotune_result_params() -> tuple[ParamSpec, ...]:
                   read_only=True),
         ParamSpec('autotune.reason', '', 'why the last test failed or was aborted (read-only)',
                   read_only=True),
+        ParamSpec('autotune.state_time', 0.0, 'loop time of the first sample in the current '
+                  'state [s] (simulated time in sim/lockstep; read-only)', min=0.0, max=1e12,
+                  read_only=True),
         ParamSpec('autotune.cycles', 0, 'complete relay cycles counted since the relay started '
                   'or the bias was last corrected (read-only)', min=0, max=1_000_000,
                   read_only=True),
@@ -214,6 +217,8 @@ class RelayAutotuner:
         self._check_config(self._cfg)
         self._state = 'idle'
         self._reason = ''
+        self._state_time = 0.0                  # first sample in the current state [s]
+        self._stepped_state = 'idle'            # state after the previous step
         self._pending: float | None = None      # bumpless PID (re)start from this u
         self._last_out: float | None = None     # last output sent [u units]
         self._saved_gains: dict[str, Any] | None = None
@@ -286,6 +291,7 @@ class RelayAutotuner:
             'autotune.start': False,
             'autotune.state': self._state,
             'autotune.reason': self._reason,
+            'autotune.state_time': float(self._state_time),
             'autotune.cycles': int(self._cycles),
             'autotune.ku': float(res.ku) if res else 0.0,
             'autotune.tu': float(res.tu) if res else 0.0,
@@ -329,11 +335,14 @@ class RelayAutotuner:
         if u is None:
             u = self._limit(self._pid_step(yv, rv))
         self._last_out = u
+        if self._state != self._stepped_state:   # also a start()/abort() between samples
+            self._stepped_state, self._state_time = self._state, max(float(t), 0.0)
         return np.array([u])
 
     @property
     def status(self) -> Mapping[str, Any]:
-        """state, reason, cycles (complete relay cycles counted), u0 (relay bias), hysteresis ε,
+        """state, reason, state_time (loop time of the first sample in the state [s]), cycles
+        (complete relay cycles counted), u0 (relay bias), hysteresis ε,
         noise_std σ, ku, tu (first harmonic, corrected), ku_df, tu_df (describing function),
         amplitude, model (dict), model_method, gains (dict from the rule) and the PID status
         under 'pid'. Results are those of the last successful test (NaN/empty before one)."""
@@ -341,6 +350,7 @@ class RelayAutotuner:
         status: dict[str, Any] = {
             'state': self._state,
             'reason': self._reason,
+            'state_time': self._state_time,
             'cycles': self._cycles,
             'u0': self._u0 if self._u0 is not None else math.nan,
             'hysteresis': self._eps,
