@@ -9,6 +9,7 @@ Tu = 10.82 s (SPEC §1.2); the tuner must find them within 3 % and 2 %.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,27 +28,38 @@ from tank_control.nodes.controller_node import STATE_QOS
 from tank_control.nodes.messages import from_joint_state
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / 'test' / 'core'))
+from test_relay_autotune_helpers import exact_fopdt_ultimate  # noqa: E402
+
 KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
 NODES = ('plant', 'controller', 'reference')
 #: The recorder keeps every sample: the lockstep loop runs faster than the probe spins.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
-class Graph:
-    """The three nodes of config/fopdt_autotune.yaml and the probe as operator and recorder."""
+def fopdt_params(paused: bool, **controller) -> dict:
+    """config/fopdt_autotune.yaml, lockstep as fast as possible, no scheduled start."""
+    params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
+    params['plant'].update({'real_time_factor': 0.0, 'lockstep.paused': paused})
+    params['controller'].update({'autotune.start_time': 0.0, **controller})
+    return params
 
-    def __init__(self, procs, ros_env, node_cmd, probe, tmp_path: Path, paused: bool,
-                 **controller) -> None:
-        params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
-        params['plant'].update({'real_time_factor': 0.0, 'lockstep.paused': paused})
-        params['controller'].update({'autotune.start_time': 0.0, **controller})
+
+class Graph:
+    """plant, controller, reference (+ ``extra`` controller_node processes, by node name) from
+    ``params`` (node name → flat parameters); the probe as operator and recorder."""
+
+    def __init__(self, procs, ros_env, node_cmd, probe, tmp_path: Path, params: dict,
+                 extra: tuple[str, ...] = ()) -> None:
         self.params = params
         path = tmp_path / 'autotune.yaml'
-        path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in NODES}))
+        # JSON is YAML with quoted strings (ROS 2 reads an unquoted y as a boolean).
+        path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in NODES + extra}))
         self.probe, self.procs = probe, procs
         node = probe.node
         self.states: list[str] = []
-        self.signals: dict[str, dict[int, list[float]]] = {'measurement': {}, 'manipulated': {}}
+        self.signals: dict[str, dict[int, dict[str, float]]] = {'measurement': {},
+                                                                'manipulated': {}}
         self.diag_messages: list[str] = []
         subs = [node.create_subscription(String, '/controller/autotune_state',
                                          lambda m: self.states.append(m.data), STATE_QOS)]
@@ -57,6 +69,9 @@ class Graph:
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         for name in NODES:
             procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
+        for name in extra:
+            procs.start(name, node_cmd('controller_node', '--params-file', str(path), '-r',
+                                       f'__node:={name}'), env=ros_env)
         assert probe.wait_for(lambda: all(s.get_publisher_count() for s in subs), 30), self.logs()
         self.controller = AsyncParameterClient(node, 'controller')
         self.plant = AsyncParameterClient(node, 'plant')
@@ -68,8 +83,8 @@ class Graph:
 
     def _recorder(self, topic: str):
         def record(msg: JointState) -> None:
-            stamp, _, values = from_joint_state(msg)
-            self.signals[topic][stamp] = list(values)
+            stamp, names, values = from_joint_state(msg)
+            self.signals[topic].setdefault(stamp, {}).update(zip(names, values))
         return record
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
@@ -95,8 +110,11 @@ class Graph:
         assert all(r.successful for r in results), [r.reason for r in results]
 
     def wait_state(self, state: str, timeout: float = 60.0) -> None:
-        assert self.probe.wait_for(lambda: self.states and self.states[-1] == state, timeout), \
-            (self.states, self.logs())
+        """Until the state topic shows ``state`` (or, when waiting for another, a test end)."""
+        ends = {'failed', 'aborted'} - {state}
+        assert self.probe.wait_for(lambda: self.states and self.states[-1] in {state} | ends,
+                                   timeout), (self.states, self.logs())
+        assert self.states[-1] == state, (self.states, self.get('autotune.reason'))
 
     def last_stamp(self) -> int:
         return max(self.signals['measurement'], default=-1)
@@ -112,11 +130,12 @@ class Graph:
         assert self.probe.wait_for(later, 10), (seen, self.logs())
         return seen['t']
 
-    def measured(self, t0: float, t1: float) -> list[float]:
-        """Recorded y on (t0, t1] [s], once the recorder has it (it may lag the loop)."""
+    def measured(self, t0: float, t1: float, channel: str = 'y') -> list[float]:
+        """Recorded ``channel`` on (t0, t1] [s], once the recorder has it (it may lag the loop)."""
         end = round(t1 * 1e9)
         assert self.probe.wait_for(lambda: self.last_stamp() >= end, 60), self.logs()
-        return [v[0] for t, v in self.signals['measurement'].items() if t0 * 1e9 < t <= end]
+        return [v[channel] for t, v in self.signals['measurement'].items()
+                if t0 * 1e9 < t <= end]
 
 
 def _msg(name, value):
@@ -126,7 +145,7 @@ def _msg(name, value):
 
 def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env, node_cmd,
                                                                   probe, tmp_path):
-    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, paused=True)
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(paused=True))
     graph.wait_state('idle', 10)                       # transient local: the current state
     reply = graph.trigger(graph.start)                 # before tick 0 (the plant is paused)
     assert reply.success and 'settling' in reply.message
@@ -163,8 +182,8 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
     trace = run_loop(built.plant, built.controller, built.reference,
                      sample_time=built.sample_time, duration=last / 1e9, noise=built.noise)
     ticks = np.arange(len(trace)) * 100_000_000
-    y = np.array([graph.signals['measurement'][int(k)][0] for k in ticks])
-    u = np.array([graph.signals['manipulated'][int(k)][0] for k in ticks])
+    y = np.array([graph.signals['measurement'][int(k)]['y'] for k in ticks])
+    u = np.array([graph.signals['manipulated'][int(k)]['u'] for k in ticks])
     assert np.max(np.abs(y - trace['y.y'])) <= 1e-9 and np.max(np.abs(u - trace['u.u'])) <= 1e-9
     assert built.controller.status['ku'] == pytest.approx(ku, abs=1e-9)
 
@@ -172,8 +191,8 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
 def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running(
         procs, ros_env, node_cmd, probe, tmp_path):
     # min_cycles 100: the test keeps measuring until it is aborted
-    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, paused=False,
-                  **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0})
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(
+        paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
     before = graph.get('kp', 'ti', 'td')
     assert before == {'kp': 20.0, 'ti': 12.0, 'td': 0.0}
     graph.wait_state('idle', 10)
@@ -210,3 +229,50 @@ def _assert_loop_runs_at_setpoint(graph: Graph, t_event: float) -> None:
     (its output amplitude is ≈ 2.6)."""
     y = graph.measured(t_event + 20.0, t_event + 30.0)
     assert len(y) == 100 and abs(np.mean(y) - 100.0) < 0.5 and np.ptp(y) < 1.0, y
+
+
+def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env, node_cmd,
+                                                                  probe, tmp_path):
+    """003's tank: T_out ← F_Cin is tuned (relay_autotune by channel names, reverse acting);
+    the level loop h ← F_H is a second controller_node (pid, renamed) in manual at the
+    operating point, so the lockstep plant gets both inputs each tick. Exact point from the
+    tank linearised at 003's operating point (gain (T_C − T)/F, time constant C·h²/F, dead
+    time τ_C + τ), as in test_relay_autotune_scenarios.py."""
+    t_op, flow = 2115 / 63, 63.0
+    ku, tu = exact_fopdt_ultimate((t_op - 23.0) / flow, 0.7 * 81.0 ** 2 / flow, 300.0)
+    # 2 s samples: Tu ≈ 730 s is still ≈ 365 samples, and the test takes half the ticks
+    params = {
+        'plant': {'plant': 'mixing_tank', 'clock_mode': 'lockstep', 'sample_time': 2.0,
+                  'integration_step': 0.5, 'real_time_factor': 0.0, 'lockstep.paused': True},
+        'controller': {'controller': 'relay_autotune', 'clock_mode': 'lockstep',
+                       'sample_time': 2.0, 'output_names': ['T_out'], 'input_names': ['F_Cin'],
+                       'kp': 0.2, 'ti': 100.0, 'direct_action': True, 'u_min': 0.0,
+                       'u_max': 300.0, 'mode': 'manual', 'manual_output': 37.0,
+                       'autotune.relay_amplitude': 5.0, 'autotune.settle_time': 20.0,
+                       'autotune.settle_band': 0.1, 'autotune.timeout': 20000.0,
+                       'autotune.kind': 'pi'},
+        'level_controller': {'controller': 'pid', 'clock_mode': 'lockstep', 'sample_time': 2.0,
+                             'output_names': ['h'], 'input_names': ['F_H'], 'kp': 0.9,
+                             'ti': 90.0, 'mode': 'manual', 'manual_output': 14.0},
+        'reference': {'clock_mode': 'lockstep', 'setpoint.channels': ['h', 'T_out'],
+                      'setpoint.h.times': [0.0], 'setpoint.h.values': [81.0],
+                      'setpoint.T_out.times': [0.0], 'setpoint.T_out.values': [t_op]},
+    }
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, params,
+                  extra=('level_controller',))
+    # operator: run in manual at the operating point, switch to auto (bumpless from the
+    # manual output once the PID has run a sample), then tune
+    graph.set(graph.plant, lockstep__paused=False)
+    assert probe.wait_for(lambda: graph.last_stamp() > 0, 20), graph.logs()
+    graph.set(graph.controller, mode='auto')
+    assert graph.trigger(graph.start).success
+    graph.wait_state('running', 90)
+    got = graph.get('autotune.ku', 'autotune.tu', 'autotune.model_dead_time', 'kp',
+                    'direct_action')
+    assert got['autotune.ku'] == pytest.approx(ku, rel=0.03)
+    assert got['autotune.tu'] == pytest.approx(tu, rel=0.02)
+    assert got['autotune.model_dead_time'] == pytest.approx(300.0, rel=0.02)
+    assert got['kp'] == pytest.approx(0.45 * got['autotune.ku'], rel=1e-9)   # ZN PI, 001
+    assert got['direct_action'] is True
+    # the level loop stayed in manual: F_H = 14 on every recorded tick
+    assert {v.get('F_H') for v in graph.signals['manipulated'].values()} <= {14.0, None}
