@@ -61,6 +61,7 @@ class Graph:
         self.signals: dict[str, dict[int, dict[str, float]]] = {'measurement': {},
                                                                 'manipulated': {}}
         self.diag_messages: list[str] = []
+        self.diag: dict[str, str] = {}
         subs = [node.create_subscription(String, '/controller/autotune_state',
                                          lambda m: self.states.append(m.data), STATE_QOS)]
         for topic in self.signals:
@@ -88,7 +89,10 @@ class Graph:
         return record
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
-        self.diag_messages += [s.message for s in msg.status if s.name.startswith('controller')]
+        for status in msg.status:
+            if status.name.startswith('controller:'):
+                self.diag_messages.append(status.message)
+                self.diag = {kv.key: kv.value for kv in status.values}
 
     def logs(self) -> str:
         return '\n'.join(p.tail() for p in self.procs.processes.values())
@@ -171,6 +175,8 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
     refused = graph.result(graph.controller.set_parameters(
         [Parameter('autotune.ku', value=1.0)])).results[0]
     assert not refused.successful
+    # the node's own result writes are not counted as rejected changes: only that one
+    assert probe.wait_for(lambda: graph.diag.get('rejected_parameters') == '1', 5), graph.diag
     assert probe.wait_for(lambda: any('autotune.state running' in m
                                       for m in graph.diag_messages), 5), graph.diag_messages[-3:]
 
