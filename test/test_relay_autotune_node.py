@@ -113,12 +113,16 @@ class Graph:
         results = self.result(client.set_parameters(params)).results
         assert all(r.successful for r in results), [r.reason for r in results]
 
-    def wait_state(self, state: str, timeout: float = 60.0) -> None:
-        """Until the state topic shows ``state`` (or, when waiting for another, a test end)."""
+    def wait_state(self, state: str, timeout: float = 60.0, since: int = 0) -> None:
+        """Until the state topic has shown ``state`` after its first ``since`` messages; fails
+        at once if the test ends otherwise (failed/aborted) first."""
         ends = {'failed', 'aborted'} - {state}
-        assert self.probe.wait_for(lambda: self.states and self.states[-1] in {state} | ends,
-                                   timeout), (self.states, self.logs())
-        assert self.states[-1] == state, (self.states, self.get('autotune.reason'))
+
+        def first():
+            return next((s for s in self.states[since:] if s == state or s in ends), None)
+        assert self.probe.wait_for(lambda: first() is not None, timeout), (self.states,
+                                                                           self.logs())
+        assert first() == state, (self.states, self.get('autotune.reason'))
 
     def last_stamp(self) -> int:
         return max(self.signals['measurement'], default=-1)
@@ -219,8 +223,9 @@ def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running
     # failure: output deviation above autotune.max_amplitude (relay output amplitude ≈ 2.6),
     # started by the autotune.start parameter, which the node re-arms to false
     graph.set(graph.controller, autotune__max_amplitude=1.0, autotune__min_cycles=4)
+    since = len(graph.states)
     graph.set(graph.controller, autotune__start=True)
-    graph.wait_state('failed')
+    graph.wait_state('failed', since=since)
     got = graph.get('autotune.state', 'autotune.reason', 'autotune.start', 'kp', 'ti', 'td')
     assert got['autotune.state'] == 'failed' and 'max_amplitude' in got['autotune.reason']
     assert got['autotune.start'] is False
