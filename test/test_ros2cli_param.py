@@ -65,8 +65,7 @@ def test_list_get_set_describe(procs, probe, ros_env):
 
 
 def test_dump_load_and_params_file(procs, probe, ros_env, tmp_path):
-    _start(procs, probe, ros_env)
-    assert ros2(ros_env, 'param', 'set', '/fixture', 'gain', '4.25').returncode == 0
+    _start(procs, probe, ros_env, 'fixture', '-p', 'gain:=4.25')
 
     dumped = ros2(ros_env, 'param', 'dump', '/fixture')
     assert dumped.returncode == 0, dumped.stderr
