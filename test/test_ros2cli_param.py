@@ -61,7 +61,8 @@ def test_list_get_set_describe(procs, probe, ros_env):
     # values above never reached the node.
     ok = ros2(ros_env, 'param', 'set', '/fixture', 'gain', '2')
     assert (ok.returncode, ok.stdout.strip()) == (0, 'Set parameter successful'), ok.stderr
-    assert ros2(ros_env, 'param', 'get', '/fixture', 'gain').stdout.strip() == 'Double value is: 2.0'
+    got = ros2(ros_env, 'param', 'get', '/fixture', 'gain')
+    assert got.stdout.strip() == 'Double value is: 2.0'
 
 
 def test_dump_load_and_params_file(procs, probe, ros_env, tmp_path):
@@ -103,4 +104,5 @@ def test_dump_load_and_params_file(procs, probe, ros_env, tmp_path):
     procs.processes.pop('fixture')
     assert probe.wait_for(lambda: 'fixture' not in probe.node.get_node_names(), 10)
     _start(procs, probe, ros_env, 'fixture', '--params-file', str(dump_file))
-    assert ros2(ros_env, 'param', 'get', '/fixture', 'gain').stdout.strip() == 'Double value is: 4.25'
+    got = ros2(ros_env, 'param', 'get', '/fixture', 'gain')
+    assert got.stdout.strip() == 'Double value is: 4.25'

@@ -40,22 +40,21 @@ def add_spin_time_argument(parser: argparse.ArgumentParser) -> None:
 
 @contextmanager
 def client_node() -> Iterator['Node']:
-    """An rclpy context and a hidden node (``_ros2cli_<pid>``) for one command."""
+    """rclpy (default context, with its SIGINT/SIGTERM handlers) and a hidden node
+    ``_ros2cli_<pid>`` for one command."""
     import rclpy
-    from rclpy.context import Context
 
-    context = Context()
-    rclpy.init(args=[], context=context)
+    rclpy.init(args=[])
     node = None
     try:
         node = rclpy.create_node(
-            f'_ros2cli_{os.getpid()}', context=context, use_global_arguments=False,
-            enable_rosout=False, start_parameter_services=False)
+            f'_ros2cli_{os.getpid()}', use_global_arguments=False, enable_rosout=False,
+            start_parameter_services=False)
         yield node
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown(context=context)
+        rclpy.try_shutdown()
 
 
 def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | None) -> bool:

@@ -36,7 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='ros2', description='ros2 is an extensible command-line tool for ROS 2 '
                                  '(tank_control edition: run, param, topic, node, service).')
-    commands = parser.add_subparsers(title='Commands', dest='command', metavar='Call `ros2 <command> -h` for more detailed usage.')
+    commands = parser.add_subparsers(
+        title='Commands', dest='command',
+        metavar='Call `ros2 <command> -h` for more detailed usage.')
     commands.required = True
     for module in _COMMANDS:
         module.add_parser(commands)

@@ -139,9 +139,10 @@ def _scalar(value: Any, slot: Any, where: str) -> Any:
     typename = getattr(slot, 'typename', None)
     if isinstance(slot, (idl.AbstractString, idl.AbstractWString)):
         return value if isinstance(value, str) else str(value)
-    if typename in _FLOAT_TYPES and isinstance(value, (int, float)) and not isinstance(value, bool):
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if typename in _FLOAT_TYPES and number:
         return float(value)
-    if typename in _INT_TYPES and isinstance(value, int) and not isinstance(value, bool):
+    if typename in _INT_TYPES and number and isinstance(value, int):
         return value
     if typename == 'boolean' and isinstance(value, bool):
         return value

@@ -17,7 +17,7 @@ import yaml
 
 from tank_control.ros2cli.common import (
     CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
-    client_node, is_hidden, settle_graph, wait_for_node)
+    client_node, is_hidden, settle_graph, spin_until, wait_for_node)
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -38,7 +38,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
     p = verbs.add_parser('list', help='Output a list of available parameters',
                          description='Output a list of available parameters')
-    p.add_argument('node_name', nargs='?', metavar='NODE', help='name of the node (all if omitted)')
+    p.add_argument('node_name', nargs='?', metavar='NODE',
+                   help='name of the node (all nodes if omitted)')
     p.add_argument('--filter', metavar='REGEX', help='only parameters matching this regex')
     p.add_argument('--param-type', action='store_true', help='print the type of each parameter')
     p.add_argument('-a', '--include-hidden-nodes', action='store_true',
@@ -187,24 +188,47 @@ def _format_value(value: Any) -> str:
 
 # verbs --------------------------------------------------------------------------------------
 
+def _list_all(node: 'Node', targets: list[str], timeout: float) -> dict[str, list[str] | None]:
+    """Parameter names of many nodes at once; ``None`` for a node that did not answer."""
+    from rcl_interfaces.srv import ListParameters
+    request = ListParameters.Request(depth=ListParameters.Request.DEPTH_RECURSIVE)
+    clients = {t: node.create_client(ListParameters, f'{t}/list_parameters') for t in targets}
+    try:
+        spin_until(node, lambda: all(c.service_is_ready() for c in clients.values()), timeout)
+        futures = {t: c.call_async(request) for t, c in clients.items() if c.service_is_ready()}
+        spin_until(node, lambda: all(f.done() for f in futures.values()), timeout)
+        return {t: sorted(futures[t].result().result.names)
+                if t in futures and futures[t].done() and futures[t].result() is not None
+                else None for t in targets}
+    finally:
+        for client in clients.values():
+            node.destroy_client(client)
+
+
 def list_verb(args: argparse.Namespace) -> int:
     pattern = re.compile(args.filter) if args.filter else None
     with client_node() as node:
         if args.node_name:
-            targets = [_connect(node, args.node_name, args.timeout)]
+            target = _connect(node, args.node_name, args.timeout)
+            listing = {target: _list_names(node, target, args.timeout)}
         else:
             settle_graph(node, args.spin_time)
             services = {name for name, _ in node.get_service_names_and_types()}
             targets = sorted(n for n in node.get_fully_qualified_node_names()
                              if f'{n}/list_parameters' in services and
                              (args.include_hidden_nodes or not is_hidden(n)))
-        for target in targets:
-            names = [n for n in _list_names(node, target, args.timeout)
-                     if pattern is None or pattern.search(n)]
+            listing = _list_all(node, targets, args.timeout)
+        for target, names in listing.items():
+            if names is None:
+                print(f"Warning: node '{target}' did not answer within {args.timeout:g} s",
+                      file=sys.stderr)
+                continue
+            names = [n for n in names if pattern is None or pattern.search(n)]
             types = {}
             if args.param_type and names:
                 values = _get_values(node, target, names, args.timeout)
-                types = {n: _TYPE_NAMES.get(v.type, '?') for n, v in zip(names, values)}
+                types = {n: _TYPE_NAMES.get(v.type, '?') if v else '?'
+                         for n, v in zip(names, values)}
             if not args.node_name:
                 print(f'{target}:')
             for name in names:
