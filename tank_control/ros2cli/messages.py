@@ -17,9 +17,13 @@ from rosidl_parser import definition as idl
 from tank_control.ros2cli.common import CliError
 
 _FLOAT_TYPES = {'float', 'double', 'long double'}
-_INT_TYPES = {'int8', 'uint8', 'int16', 'uint16', 'int32', 'uint32', 'int64', 'uint64',
-              'short', 'unsigned short', 'long', 'unsigned long', 'long long',
-              'unsigned long long'}
+_INT_RANGES = {f'{sign}int{bits}': ((0, 2 ** bits - 1) if sign else
+                                     (-2 ** (bits - 1), 2 ** (bits - 1) - 1))
+               for sign in ('', 'u') for bits in (8, 16, 32, 64)}
+_INT_RANGES.update({'short': _INT_RANGES['int16'], 'unsigned short': _INT_RANGES['uint16'],
+                    'long': _INT_RANGES['int32'], 'unsigned long': _INT_RANGES['uint32'],
+                    'long long': _INT_RANGES['int64'],
+                    'unsigned long long': _INT_RANGES['uint64'], 'octet': (0, 255)})
 
 
 def resolve_type(name: str, kind: str = 'msg') -> type:
@@ -142,12 +146,14 @@ def _scalar(value: Any, slot: Any, where: str) -> Any:
     number = isinstance(value, (int, float)) and not isinstance(value, bool)
     if typename in _FLOAT_TYPES and number:
         return float(value)
-    if typename in _INT_TYPES and number and isinstance(value, int):
-        return value
+    if typename in _INT_RANGES and number and isinstance(value, int):
+        low, high = _INT_RANGES[typename]
+        if not low <= value <= high:
+            raise CliError(f"Failed to populate field '{where}': {value} is out of the "
+                           f'{typename} range [{low}, {high}]')
+        return bytes([value]) if typename == 'octet' else value
     if typename == 'boolean' and isinstance(value, bool):
         return value
-    if typename == 'octet' and isinstance(value, int) and not isinstance(value, bool):
-        return bytes([value])
     if typename in ('char', 'wchar') and isinstance(value, (str, int)):
         return value
     raise CliError(f"Failed to populate field '{where}': {value!r} is not a valid {typename}")

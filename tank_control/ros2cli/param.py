@@ -148,35 +148,40 @@ def _python(value: Any) -> Any:
 # values -------------------------------------------------------------------------------------
 
 def value_from_python(value: Any, declared_type: int, raw: str | None = None) -> Any:
-    """A ParameterValue for ``value``, converted to the parameter's declared type.
+    """A ParameterValue for ``value`` (or the YAML text ``raw``), fitted to the declared type.
 
-    An integer (list) is taken as a double (list) by a double parameter, and an empty
-    list takes the declared array type; anything else keeps its YAML type and the
-    node decides (and gives its reason when it refuses).
+    An integer (list) is taken as a double (list) by a double parameter, an empty list
+    takes the declared array type, and a string parameter takes ``raw`` as text; anything
+    else keeps its YAML type and the node decides (and gives its reason when it refuses).
     """
-    from rcl_interfaces.msg import ParameterType, ParameterValue
-    from rclpy.parameter import get_parameter_value
+    from rcl_interfaces.msg import ParameterType as T
+    from rcl_interfaces.msg import ParameterValue
+    from rclpy.parameter import Parameter, get_parameter_value
     if raw is not None:
         msg = get_parameter_value(raw)
+        try:
+            value = yaml.safe_load(raw)
+        except yaml.YAMLError:
+            value = raw
     else:
-        from rclpy.parameter import Parameter
         try:
             msg = Parameter('p', value=value).get_parameter_value()
-        except TypeError:
-            msg = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(value))
-    T = ParameterType
-    if declared_type == T.PARAMETER_DOUBLE and msg.type == T.PARAMETER_INTEGER:
-        return ParameterValue(type=T.PARAMETER_DOUBLE, double_value=float(msg.integer_value))
-    if declared_type == T.PARAMETER_DOUBLE_ARRAY:
-        items = _python(msg)
-        if isinstance(items, list) and all(isinstance(v, (int, float)) and
-                                           not isinstance(v, bool) for v in items):
-            return ParameterValue(type=T.PARAMETER_DOUBLE_ARRAY,
-                                  double_array_value=[float(v) for v in items])
-    if declared_type in (T.PARAMETER_INTEGER_ARRAY, T.PARAMETER_STRING_ARRAY) and \
-            msg.type == T.PARAMETER_BOOL_ARRAY and not msg.bool_array_value:
+        except TypeError:   # e.g. a list mixing types
+            msg = ParameterValue(type=T.PARAMETER_STRING, string_value=str(value))
+    number = (int, float)
+    numbers = isinstance(value, list) and all(
+        isinstance(v, number) and not isinstance(v, bool) for v in value)
+    if declared_type == T.PARAMETER_DOUBLE and isinstance(value, int) and \
+            not isinstance(value, bool):
+        return ParameterValue(type=T.PARAMETER_DOUBLE, double_value=float(value))
+    if declared_type == T.PARAMETER_DOUBLE_ARRAY and numbers:
+        return ParameterValue(type=T.PARAMETER_DOUBLE_ARRAY,
+                              double_array_value=[float(v) for v in value])
+    if declared_type in (T.PARAMETER_BOOL_ARRAY, T.PARAMETER_INTEGER_ARRAY,
+                         T.PARAMETER_STRING_ARRAY) and value == []:
         return ParameterValue(type=declared_type)
-    if declared_type == T.PARAMETER_STRING and msg.type != T.PARAMETER_STRING and raw is not None:
+    if declared_type == T.PARAMETER_STRING and msg.type != T.PARAMETER_STRING and \
+            raw is not None:
         return ParameterValue(type=T.PARAMETER_STRING, string_value=raw)
     return msg
 
