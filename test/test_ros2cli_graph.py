@@ -29,12 +29,13 @@ def graph(fixture_node, probe):
 
 
 def test_topic_list_info_type_echo(graph, ros_env):
-    listed, typed, info, verbose, topic_type, once, field = ros2_parallel(
+    # Echo subscribes to /signal, so it runs after the commands that count endpoints.
+    listed, typed, info, verbose, topic_type = ros2_parallel(
         ros_env,
         ('topic', 'list'), ('topic', 'list', '-t'), ('topic', 'info', '/signal'),
-        ('topic', 'info', 'signal', '-v'), ('topic', 'type', '/signal'),
-        ('topic', 'echo', '--once', '/signal'),
-        ('topic', 'echo', '/signal', '--once', '--field', 'name'))
+        ('topic', 'info', 'signal', '-v'), ('topic', 'type', '/signal'))
+    once, field = ros2_parallel(ros_env, ('topic', 'echo', '--once', '/signal'),
+                                ('topic', 'echo', '/signal', '--once', '--field', 'name'))
     for result in (listed, typed, info, verbose, topic_type, once, field):
         assert result.returncode == 0, (result.args, result.stderr)
 
@@ -65,7 +66,7 @@ def test_topic_echo_stream_and_hz(graph, ros_env):
         assert echo.read_until(lambda lines: lines.count('---') >= 3, 20), echo.lines
         counts = [float(line[2:]) for line in echo.lines if line.startswith('- ')]
         assert counts == sorted(counts) and len(set(counts)) == len(counts)
-        assert echo.interrupt() == 0
+        assert echo.interrupt() == 0, echo.stderr
 
         # Two lines per report: average rate, then min/max/std dev/window.
         assert hz.read_until(lambda lines: any('window: 20' in line for line in lines), 20), \
@@ -79,7 +80,7 @@ def test_topic_echo_stream_and_hz(graph, ros_env):
         assert found, stats
         low, high, _ = map(float, found.groups())
         assert low <= 1.0 / rate <= high
-        assert hz.interrupt(signal.SIGTERM) == 0
+        assert hz.interrupt(signal.SIGTERM) == 0, hz.stderr
     finally:
         echo.close()
         hz.close()

@@ -16,14 +16,20 @@ if TYPE_CHECKING:  # rclpy is imported lazily: `ros2 run` and `--help` do not ne
     from rclpy.node import Node
 
 DEFAULT_TIMEOUT = 5.0      # [s] waiting for a node, topic or service to be discovered
-SPIN_TIME = 0.5            # [s] minimal discovery time for whole-graph listings
-QUIET_TIME = 0.3           # [s] the graph counts as discovered after this long without change
-EMPTY_WAIT = 2.0           # [s] discovery time granted while no other node is known
-SETTLE_LIMIT = 5.0         # [s] longest discovery wait of a listing
+SPIN_TIME = 1.0            # [s] minimal discovery time for whole-graph listings
+QUIET_TIME = 0.5           # [s] the graph counts as discovered after this long without change
+EMPTY_WAIT = 3.5           # [s] discovery time granted while no other node is known: a
+                           #     participant that missed our first announcements announces
+                           #     itself again within Fast DDS's 3 s period
+SETTLE_LIMIT = 6.0         # [s] longest discovery wait of a listing
 
 
 class CliError(Exception):
     """A user-facing failure: printed as one line on stderr, exit code 1."""
+
+
+class Interrupted(Exception):
+    """SIGINT/SIGTERM shut rclpy down while waiting: a normal end, exit code 0."""
 
 
 def add_timeout_argument(parser: argparse.ArgumentParser,
@@ -64,7 +70,14 @@ def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | Non
     """
     from rclpy.executors import SingleThreadedExecutor
 
-    executor = SingleThreadedExecutor(context=node.context)
+    if not node.context.ok():
+        raise Interrupted()
+    try:
+        executor = SingleThreadedExecutor(context=node.context)
+    except Exception:
+        if not node.context.ok():      # the signal came between the check and here
+            raise Interrupted() from None
+        raise
     executor.add_node(node)
     try:
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -83,7 +96,7 @@ def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | Non
 
 def graph_snapshot(node: 'Node') -> tuple:
     """Everything the listings show, to detect when discovery has settled."""
-    return (tuple(sorted(node.get_fully_qualified_node_names())),
+    return (tuple(sorted(n for n in node.get_fully_qualified_node_names() if not is_hidden(n))),
             tuple(sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types())),
             tuple(sorted((n, tuple(t)) for n, t in node.get_service_names_and_types())))
 
@@ -99,7 +112,6 @@ def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIE
     ``limit`` s in a graph that keeps changing.
     """
     snapshot_of = snapshot_of or (lambda: graph_snapshot(node))
-    own = node.get_fully_qualified_name()
     start = time.monotonic()
     state = {'snapshot': snapshot_of(), 'changed': start}
 
@@ -108,7 +120,7 @@ def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIE
         snapshot = snapshot_of()
         if snapshot != state['snapshot']:
             state['snapshot'], state['changed'] = snapshot, now
-        others = any(n != own for n in node.get_fully_qualified_node_names())
+        others = any(not is_hidden(n) for n in node.get_fully_qualified_node_names())
         return (now - start >= spin_time and now - state['changed'] >= quiet and
                 (others or now - start >= empty_wait))
 

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 
 from tank_control.ros2cli import node, param, run, service, topic
-from tank_control.ros2cli.common import CliError
+from tank_control.ros2cli.common import CliError, Interrupted
 
 _COMMANDS = (run, param, topic, node, service)
 
@@ -62,7 +62,7 @@ def _guarded(call) -> int:
     except CliError as exc:
         print(str(exc), file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Interrupted):
         return 0
     except Exception as exc:  # one line, never a traceback, for anything unforeseen
         if type(exc).__name__ == 'ExternalShutdownException':
