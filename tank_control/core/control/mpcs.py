@@ -1,0 +1,624 @@
+"""MPCS: offset-free predictive control of the mixing tank (003 §4, §6; SPEC §2.8; issue 8).
+
+Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured
+disturbances ``F_D`` [cm³/s], ``T_D`` [°C] used as feed-forward.
+
+Per sample ``k`` (:meth:`Mpcs.step`):
+
+1. the Kalman estimator (:mod:`mpcs_estimator`) corrects the augmented state
+   (model state, integrating disturbances, ``T_out`` delay register) with
+   ``y(k)``;
+2. the prediction (:mod:`mpcs_prediction`) — linear in the estimate, the
+   ``F_Cin`` values still in the 180 s delay line, ``u(k−1)`` and ``d(k)`` —
+   gives the cost of SPEC §2.8;
+3. ``solver='analytic'``: the unconstrained optimum's first move, a constant
+   gain (003 §4), then clipped to ``|Δu| ≤ du_max`` and ``u_min ≤ u ≤ u_max``;
+   ``solver='qp'``: the constrained QP (003 §6, :mod:`mpcs_qp`); a failed or
+   infeasible QP falls back to the clipped analytic move (counted in
+   ``status['fallbacks']``);
+4. the estimator is advanced with the input that acts on the tank over
+   ``[k, k+1)`` (``F_H(k)``, ``F_Cin(k−180)``) and ``d(k)``.
+
+The output is never NaN: non-finite measurements skip the estimator
+correction, non-finite setpoints hold the last input.
+
+Horizons and dead times (why the defaults are what they are)
+------------------------------------------------------------
+Input→output dead times at Ts = 1 s: F_H→h 0, F_H→T_out 120, F_Cin→h 180,
+F_Cin→T_out 300 samples. With the document's cost taken literally and its
+numeric horizons (N, Nu) = (100, 50), no move can change any predicted T_out
+and F_Cin changes no predicted output at all: its columns of the dynamic
+matrix are zero, so the optimiser never moves F_Cin, and F_H alone cannot hold
+two setpoints — the T loop is left to a slow drift of the disturbance
+estimate (IAE on T about 2.7× worse, see bench/RESULTS.md). Two remedies, both
+on by default and both switchable:
+
+* ``mpcs.align`` counts T_out's horizon from its own 120 s dead time
+  (T_out(k+120+p) = T(k+p)), so (N, Nu) = (100, 50) sees F_H's effect on T;
+* ``mpcs.terminal_weight`` adds the error of the steady state the model
+  reaches if the last planned inputs are held (cost of 2 rows, exact for the
+  stable linear model); it is what tells a horizon shorter than 180 samples
+  what F_Cin is for, and makes the unconstrained fixed point offset-free
+  (the steady-state gain matrix is invertible).
+
+A horizon N ≥ ~300 sees F_Cin's full effect inside the horizon (better IAE,
+still ≤ 0.2 ms per QP sample); move blocking (``mpcs.block``) keeps the QP
+small for long control horizons.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.control.mpcs_estimator import (DISTURBANCE_MODELS, EstimatorConfig,
+                                                      KalmanEstimator, take_over)
+from tank_control.core.control.mpcs_model import (DelayedModel, TankOperatingPoint,
+                                                  equilibrium_inputs, tank_model)
+from tank_control.core.control.mpcs_prediction import CostConfig, Prediction
+from tank_control.core.control.mpcs_qp import DenseQp
+from tank_control.core.params import ParamSpec
+
+SOLVERS = ('analytic', 'qp')
+
+
+@dataclass(frozen=True)
+class MpcsConfig:
+    """All settings of :class:`Mpcs`.
+
+    Field ``x_y`` is parameter ``mpcs.x.y`` (``lam`` is ``mpcs.lambda``,
+    ``sample_time`` is the common ``sample_time``); see :func:`mpcs_params`.
+    """
+
+    sample_time: float = 1.0
+    horizon: int = 100
+    control_horizon: int = 50
+    lam: tuple[float, ...] = (0.5,)
+    output_weights: tuple[float, ...] = (1.0, 1.0)
+    terminal_weight: float = 100.0
+    block: int = 1
+    align: bool = True
+    solver: str = 'analytic'
+    u_min: tuple[float, ...] = (0.0, 0.0)
+    u_max: tuple[float, ...] = (100.0, 100.0)
+    du_max: tuple[float, ...] = (0.2, 0.2)
+    soft_bounds: bool = False
+    y_min: tuple[float, ...] = (0.0, 0.0)
+    y_max: tuple[float, ...] = (200.0, 100.0)
+    soft_weight: float = 1e4
+    feedforward: bool = True
+    disturbance_model: str = 'input'
+    disturbance_noise: float = 1e-4
+    state_noise: float = 1e-4
+    qp_iter_limit: int = 1000
+    relinearize: bool = True
+    relinearize_h: float = 5.0
+    relinearize_T: float = 1.0
+    op_F_H: float = 14.0
+    op_F_Cin: float = 37.0
+    op_F_D: float = 12.0
+    op_T_H: float = 62.0
+    op_T_C: float = 23.0
+    op_T_D: float = 33.0
+    model_C: float = 0.7
+    model_alpha: float = 7.0
+    model_tau: float = 120.0
+    model_tau_c: float = 180.0
+
+    def operating_point(self) -> TankOperatingPoint:
+        return TankOperatingPoint(F_H=self.op_F_H, F_C=self.op_F_Cin, F_D=self.op_F_D,
+                                  T_H=self.op_T_H, T_C=self.op_T_C, T_D=self.op_T_D,
+                                  C=self.model_C, alpha=self.model_alpha,
+                                  tau=self.model_tau, tau_c=self.model_tau_c)
+
+
+_UNITS_IN = 'cm³/s'
+
+
+def mpcs_params() -> tuple[ParamSpec, ...]:
+    """User-facing parameters of MPCS (ROS 2 names ``mpcs.*``); defaults = :class:`MpcsConfig`."""
+    c = MpcsConfig()
+    lst = list
+    return (
+        ParamSpec('sample_time', c.sample_time, 'controller sample time Ts [s] (003: 1 s); the '
+                  'dead times must be multiples of it', 0.01, 60.0, read_only=True),
+        ParamSpec('mpcs.horizon', c.horizon, 'prediction horizon N [samples] (003: 50…500)',
+                  1, 2000),
+        ParamSpec('mpcs.control_horizon', c.control_horizon, 'control horizon Nu [samples], '
+                  '<= N (003: 10…100)', 1, 2000),
+        ParamSpec('mpcs.lambda', lst(c.lam), 'move weight λ on ||Δu||², one value or one per '
+                  'input [F_H, F_Cin] ((cm/(cm³/s))² scale; 003: 0.1…1)', 1e-6, 1e6),
+        ParamSpec('mpcs.output_weights', lst(c.output_weights), 'output weights W_y on '
+                  '[h (per cm), T_out (per °C)], one value or one per output', 0.0, 1e3),
+        ParamSpec('mpcs.terminal_weight', c.terminal_weight, 'weight w_∞ of the predicted '
+                  'steady-state error (lets a horizon shorter than the 180 s F_Cin dead time '
+                  'use F_Cin; 0 = the document\'s cost)', 0.0, 1e6),
+        ParamSpec('mpcs.block', c.block, 'move blocking: one free move every `block` samples '
+                  'within Nu (1 = every sample)', 1, 100),
+        ParamSpec('mpcs.align', c.align, 'count the horizon of T_out from its 120 s dead time '
+                  '(predict T_out(k+τ+p) = T(k+p)); false = literal p = 1..N'),
+        ParamSpec('mpcs.solver', c.solver, 'analytic = precomputed unconstrained gain, clipped; '
+                  'qp = constrained QP each sample (DAQP)', choices=SOLVERS),
+        ParamSpec('mpcs.u_min', lst(c.u_min), f'lower limits of [F_H, F_Cin] [{_UNITS_IN}]',
+                  0.0, 1e4),
+        ParamSpec('mpcs.u_max', lst(c.u_max), f'upper limits of [F_H, F_Cin] [{_UNITS_IN}]',
+                  0.0, 1e4),
+        ParamSpec('mpcs.du_max', lst(c.du_max), f'rate limits |Δu| per sample of [F_H, F_Cin] '
+                  f'[{_UNITS_IN} per sample] (003: 0.2)', 1e-6, 1e4),
+        ParamSpec('mpcs.soft_bounds', c.soft_bounds, 'qp only: keep the predicted outputs '
+                  'within mpcs.y_min … mpcs.y_max as soft constraints (penalised slack)'),
+        ParamSpec('mpcs.y_min', lst(c.y_min), 'soft lower bounds on predicted [h [cm], '
+                  'T_out [°C]]', -1e4, 1e4),
+        ParamSpec('mpcs.y_max', lst(c.y_max), 'soft upper bounds on predicted [h [cm], '
+                  'T_out [°C]]', -1e4, 1e4),
+        ParamSpec('mpcs.soft_weight', c.soft_weight, 'quadratic weight of the soft-bound slack',
+                  0.0, 1e9),
+        ParamSpec('mpcs.feedforward', c.feedforward, 'use measured F_D, T_D in the prediction'),
+        ParamSpec('mpcs.disturbance_model', c.disturbance_model, 'offset-free disturbance '
+                  'model: input = unknown loads on the tank states, output = output biases',
+                  choices=DISTURBANCE_MODELS),
+        ParamSpec('mpcs.disturbance_noise', c.disturbance_noise, 'Kalman: variance of the '
+                  'disturbance random walk per sample, relative to a unit measurement-noise '
+                  'variance (larger = faster offset removal, more noise)', 1e-12, 1e6),
+        ParamSpec('mpcs.state_noise', c.state_noise, 'Kalman: relative variance of the state '
+                  'noise', 1e-12, 1e6),
+        ParamSpec('mpcs.qp_iter_limit', c.qp_iter_limit, 'QP iteration limit (beyond: fall back '
+                  'to the clipped analytic move)', 1, 100000),
+        ParamSpec('mpcs.relinearize', c.relinearize, 'rebuild the model at the equilibrium of '
+                  'the setpoint (and the measured F_D, T_D) when it is farther than '
+                  'relinearize_h / relinearize_T from the model\'s operating point'),
+        ParamSpec('mpcs.relinearize_h', c.relinearize_h, 'level distance that triggers a '
+                  're-linearisation [cm]', 0.1, 1e3),
+        ParamSpec('mpcs.relinearize_T', c.relinearize_T, 'temperature distance that triggers '
+                  'a re-linearisation [°C]', 0.01, 100.0),
+        ParamSpec('mpcs.op.F_H', c.op_F_H, f'operating point: hot inflow [{_UNITS_IN}]', 0.0, 1e4),
+        ParamSpec('mpcs.op.F_Cin', c.op_F_Cin, f'operating point: cold inflow [{_UNITS_IN}]',
+                  0.0, 1e4),
+        ParamSpec('mpcs.op.F_D', c.op_F_D, f'operating point: disturbance inflow [{_UNITS_IN}]',
+                  0.0, 1e4),
+        ParamSpec('mpcs.op.T_H', c.op_T_H, 'operating point: hot water temperature [°C]',
+                  0.0, 100.0),
+        ParamSpec('mpcs.op.T_C', c.op_T_C, 'operating point: cold water temperature [°C]',
+                  0.0, 100.0),
+        ParamSpec('mpcs.op.T_D', c.op_T_D, 'operating point: disturbance temperature [°C]',
+                  0.0, 100.0),
+        ParamSpec('mpcs.model.C', c.model_C, 'tank constant C in V = C·h² [cm]', 1e-3, 1e3),
+        ParamSpec('mpcs.model.alpha', c.model_alpha, 'outflow constant α in F = α·√h '
+                  '[cm^2.5/s]', 1e-3, 1e3),
+        ParamSpec('mpcs.model.tau', c.model_tau, 'output dead time on T_out [s]', 0.0, 3600.0),
+        ParamSpec('mpcs.model.tau_c', c.model_tau_c, 'input dead time on F_Cin [s]',
+                  0.0, 3600.0),
+    )
+
+
+_FIELD_OF = {'lambda': 'lam'}
+_TUPLE_FIELDS = {'lam', 'output_weights', 'u_min', 'u_max', 'du_max', 'y_min', 'y_max'}
+_ESTIMATOR_FIELDS = {'sample_time', 'disturbance_model', 'disturbance_noise', 'state_noise',
+                     'op_F_H', 'op_F_Cin', 'op_F_D', 'op_T_H', 'op_T_C', 'op_T_D', 'model_C',
+                     'model_alpha', 'model_tau', 'model_tau_c'}
+
+
+def field_name(param: str) -> str:
+    """``'mpcs.op.F_H'`` → ``'op_F_H'``; ``'mpcs.lambda'`` → ``'lam'``; field names pass."""
+    name = param[5:] if param.startswith('mpcs.') else param
+    name = _FIELD_OF.get(name, name)
+    return name.replace('.', '_')
+
+
+def config_from_params(values: Mapping[str, Any], base: MpcsConfig | None = None) -> MpcsConfig:
+    """Validated :class:`MpcsConfig` from parameter values (``mpcs.*`` or field names).
+
+    Raises ``ValueError`` with one line per rejected value (name and allowed range).
+    """
+    base = base or MpcsConfig()
+    specs = {field_name(s.name): s for s in mpcs_params()}
+    known = {f.name for f in fields(MpcsConfig)}
+    changes: dict[str, Any] = {}
+    reasons = []
+    for key, value in values.items():
+        name = field_name(key)
+        if name not in known:
+            reasons.append(f'{key}: unknown parameter')
+            continue
+        if isinstance(value, (tuple, np.ndarray)):
+            value = list(np.asarray(value).tolist())
+        spec = specs.get(name)
+        if spec is not None:
+            if isinstance(spec.default, list) and isinstance(value, (int, float)) \
+                    and not isinstance(value, bool):
+                value = [float(value)]
+            reason = spec.check(value)
+            if reason:
+                reasons.append(reason)
+                continue
+        changes[name] = tuple(float(v) for v in value) if name in _TUPLE_FIELDS else value
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    cfg = replace(base, **changes)
+    _check_consistency(cfg)
+    return cfg
+
+
+def _check_consistency(cfg: MpcsConfig) -> None:
+    """Cross-parameter checks (one-line reasons naming the parameters)."""
+    if cfg.control_horizon > cfg.horizon:
+        raise ValueError(f'mpcs.control_horizon: {cfg.control_horizon} must be <= '
+                         f'mpcs.horizon ({cfg.horizon})')
+    for name in ('u_min', 'u_max', 'du_max', 'lam'):
+        if len(getattr(cfg, name)) not in (1, 2):
+            raise ValueError(f'mpcs.{"lambda" if name == "lam" else name}: 1 or 2 values '
+                             f'([F_H, F_Cin])')
+    lo, hi = _two(cfg.u_min), _two(cfg.u_max)
+    if np.any(lo >= hi):
+        raise ValueError('mpcs.u_min/mpcs.u_max: each lower limit must be below its upper limit')
+    if len(cfg.y_min) != 2 or len(cfg.y_max) != 2 or any(
+            a >= b for a, b in zip(cfg.y_min, cfg.y_max)):
+        raise ValueError('mpcs.y_min/mpcs.y_max: 2 values each ([h, T_out]), min below max')
+    if cfg.op_F_H + cfg.op_F_Cin + cfg.op_F_D <= 0.0:
+        raise ValueError('mpcs.op.F_H/F_Cin/F_D: the total inflow of the operating point '
+                         'must be > 0 cm³/s')
+    if len(cfg.output_weights) not in (1, 2):
+        raise ValueError('mpcs.output_weights: 1 or 2 values ([h, T_out])')
+
+
+def _two(values: tuple[float, ...]) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    return np.full(2, arr[0]) if arr.size == 1 else arr
+
+
+def _own(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The MPCS entries of flat parameter values (``mpcs.*`` and ``sample_time``)."""
+    return {k: v for k, v in values.items() if k.startswith('mpcs.') or k == 'sample_time'}
+
+
+def controller_kind():
+    """The ``mpcs`` kind for ``core/control/registry.py`` (controller_node, in-process loop).
+
+    Register it with one line in ``registry._KIND_FACTORIES``:
+    ``'mpcs': ('tank_control.core.control.mpcs', 'controller_kind')``.
+    Live parameter changes go through :meth:`Mpcs.configure` (bumpless, the new
+    matrices are built before the swap; ``sample_time`` is read-only).
+    """
+    from tank_control.core.control import registry
+
+    def check(values: Mapping[str, Any]) -> str | None:
+        try:
+            config_from_params(_own(values))
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def build(values: Mapping[str, Any]) -> Mpcs:
+        return Mpcs(config_from_params(_own(values)))
+
+    def update(controller: Mpcs, values: Mapping[str, Any], changed: frozenset[str]) -> None:
+        controller.configure(**{k: values[k] for k in _own({k: None for k in changed})})
+
+    return registry.ControllerKind(
+        name='mpcs', params=lambda: mpcs_params() + registry._channel_specs(
+            Mpcs.output_names, Mpcs.input_names),
+        check=check, build=build, update=update,
+        description='offset-free MPCS for the mixing tank, analytic or QP (003 §4, §6)')
+
+
+class _Design:
+    """Everything precomputed from a configuration (swapped atomically by ``configure``)."""
+
+    def __init__(self, cfg: MpcsConfig, model: DelayedModel | None = None,
+                 estimator: KalmanEstimator | None = None) -> None:
+        self.cfg = cfg
+        self.model = model or tank_model(cfg.operating_point(), cfg.sample_time)
+        self.estimator = estimator or KalmanEstimator(
+            self.model, EstimatorConfig(cfg.disturbance_model, cfg.disturbance_noise,
+                                        cfg.state_noise))
+        cost = CostConfig(cfg.horizon, cfg.control_horizon, cfg.lam, cfg.output_weights,
+                          cfg.terminal_weight, cfg.block, cfg.align)
+        self.pred = Prediction(self.estimator.sys, cost)
+        m, p = self.model, self.pred
+        self.u_min, self.u_max = _two(cfg.u_min) - m.u0, _two(cfg.u_max) - m.u0   # deviations
+        self.du_max = _two(cfg.du_max)
+        nu = m.n_u
+        # simple bounds on ΔU: the first move is a one-sample move; a blocked move later
+        # stands for a ramp over `block` samples
+        du = np.tile(self.du_max * cfg.block, p.n_moves)
+        du[:nu] = self.du_max
+        self.soft = cfg.soft_bounds and cfg.solver == 'qp'
+        n_dec = p.n_dec
+        if self.soft:
+            ny = m.n_y
+            n_var = n_dec + ny
+            h = np.zeros((n_var, n_var))
+            h[:n_dec, :n_dec] = p.hessian
+            h[n_dec:, n_dec:] = cfg.soft_weight * np.eye(ny)
+            sel = np.tile(np.eye(ny), (cfg.horizon, 1))        # slack of each predicted row
+            a = np.block([[p.cum, np.zeros((p.cum.shape[0], ny))],
+                          [p.g, -sel], [p.g, sel]])
+            self.lb = np.concatenate([-du, np.zeros(ny)])
+            self.ub = np.concatenate([du, np.full(ny, np.inf)])
+            y_lo = np.asarray(cfg.y_min, float) - m.y0
+            y_hi = np.asarray(cfg.y_max, float) - m.y0
+            self.y_lo, self.y_hi = np.tile(y_lo, cfg.horizon), np.tile(y_hi, cfg.horizon)
+        else:
+            h, a = p.hessian, p.cum
+            self.lb, self.ub = -du, du
+        self.n_var = h.shape[0]
+        self.qp = DenseQp(h, a, cfg.qp_iter_limit) if cfg.solver == 'qp' else None
+
+
+class Mpcs:
+    """The MPCS controller (``Controller`` protocol of ``core/interfaces.py``)."""
+
+    output_names = ('h', 'T_out')
+    input_names = ('F_H', 'F_Cin')
+    disturbance_names = ('F_D', 'T_D')
+
+    def __init__(self, config: MpcsConfig | None = None, model: DelayedModel | None = None
+                 ) -> None:
+        """``model``: a prediction model to use instead of the tank built from the config
+        (e.g. from a plant's ``linearize``); it is kept across ``configure`` calls."""
+        cfg = config or MpcsConfig()
+        _check_consistency(cfg)
+        self._fixed_model = model
+        self._design = _Design(cfg, model)
+        self._reset_counters()
+        m = self._design.model
+        self._u = m.u0.copy()
+        self._y = m.y0.copy()
+        self._d = m.d0.copy()
+        self._pending_d = True
+        self._needs_init = True     # no reset(): initialise from the first measurement
+        self._init_buffers(m)
+        self._design.estimator.reset(np.zeros(m.n_y), np.zeros(m.n_u), np.zeros(m.n_d))
+
+    # --- Controller protocol -------------------------------------------------------
+    @property
+    def config(self) -> MpcsConfig:
+        return self._design.cfg
+
+    @property
+    def sample_time(self) -> float:
+        return self._design.cfg.sample_time
+
+    def reset(self, y: np.ndarray, u: np.ndarray, d: np.ndarray | None = None) -> None:
+        """Bumpless start (without a call, the first ``step`` does it with the
+        operating point's inputs and its measurement): delay lines filled with ``u``, estimator at the equilibrium
+        that explains ``y`` with ``u`` and ``d``. Without ``d`` the equilibrium is
+        recomputed with the first measured ``d`` at the next ``step`` (so a
+        disturbance that is already present is not mistaken for a step in it).
+        Non-finite ``y``/``u`` are replaced by the operating point (counted)."""
+        m = self._design.model
+        y = np.asarray(y, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if y.shape != m.y0.shape or not np.all(np.isfinite(y)):
+            self._counters['bad_measurements'] += 1
+            y = m.y0
+        if u.shape != m.u0.shape or not np.all(np.isfinite(u)):
+            self._counters['bad_setpoints'] += 1
+            u = np.clip(m.u0, self._design.u_min + m.u0, self._design.u_max + m.u0)
+        self._u, self._y = u.copy(), y.copy()
+        self._pending_d = d is None
+        self._needs_init = False
+        if self._valid_d(d, m):
+            self._d = np.asarray(d, dtype=float).copy()
+        else:
+            self._d = m.d0.copy()
+        self._init_buffers(m)
+        self._design.estimator.reset(self._y - m.y0, self._u - m.u0, self._d_dev(m))
+
+    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """One sample (``t`` [s]; ``y`` = [h, T_out]; ``r`` setpoints; ``d`` = [F_D, T_D])."""
+        y = np.asarray(y, dtype=float)
+        r = np.asarray(r, dtype=float)
+        if self._needs_init and y.shape == self._y.shape and np.all(np.isfinite(y)):
+            self.reset(y, self._u, d)   # bumpless from the operating point's inputs
+        if self._design.cfg.relinearize and self._fixed_model is None:
+            self._relinearize(r, d)
+        des = self._design
+        m, pred, est, cfg = des.model, des.pred, des.estimator, des.cfg
+        if self._valid_d(d, m):
+            self._d = np.asarray(d, dtype=float).copy()
+            if self._pending_d:         # reset(y, u) without d: equilibrium with this d
+                est.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
+        self._pending_d = False
+        d_dev = self._d_dev(m)
+        if np.all(np.isfinite(y)):
+            self._y = y.copy()
+            est.correct(y - m.y0)
+        else:
+            self._counters['bad_measurements'] += 1
+        u_prev = self._u
+        z = pred.z_vector(est.xi, [b - m.u0[i] for i, b in enumerate(self._buffers)],
+                          u_prev - m.u0, d_dev)
+        if not np.all(np.isfinite(r)) or len(r) != m.n_y:
+            self._counters['bad_setpoints'] += 1
+            u = u_prev.copy()
+        else:
+            u = self._move(des, z, r - m.y0, u_prev)
+        self._advance(m, est, u, d_dev)
+        self._counters['samples'] += 1
+        return u.copy()
+
+    @property
+    def status(self) -> Mapping[str, Any]:
+        """Scalars for diagnostics: solver, timing [ms], counters, estimator state."""
+        des = self._design
+        est = des.estimator
+        n = des.model.n_x
+        return {
+            'solver': des.cfg.solver,
+            'horizon': des.cfg.horizon,
+            'control_horizon': des.cfg.control_horizon,
+            'solve_time_ms': self._last_solve * 1e3,
+            'solve_time_max_ms': self._max_solve * 1e3,
+            'fallbacks': self._counters['fallbacks'],
+            'last_exitflag': self._last_flag,
+            'qp_iterations': self._last_iter,
+            'active_constraints': self._last_active,
+            'clipped': self._last_clipped,
+            'samples': self._counters['samples'],
+            'bad_measurements': self._counters['bad_measurements'],
+            'bad_setpoints': self._counters['bad_setpoints'],
+            'rebuilds': self._counters['rebuilds'],
+            'relinearizations': self._counters['relinearizations'],
+            'op_h': float(des.model.y0[0]),                     # [cm]
+            'op_T': float(des.model.y0[1]),                     # [°C]
+            # estimated disturbance: on [dh/dt·Ts, dT/dt·Ts] ('input') or [h, T_out] ('output')
+            'disturbance_h': float(est.xi[n]),
+            'disturbance_T': float(est.xi[n + 1]),
+            'innovation_h': float(est.innovation[0]),           # [cm]
+            'innovation_T_out': float(est.innovation[1]),       # [°C]
+        }
+
+    # --- runtime reconfiguration ---------------------------------------------------
+    def configure(self, **changes: Any) -> MpcsConfig:
+        """Apply parameter changes (``mpcs.horizon=…`` or ``horizon=…`` style keys).
+
+        The new matrices are built before anything is swapped, so a rejected change
+        leaves the controller untouched (``ValueError`` with the reason) and an accepted
+        one takes effect at the next ``step`` — no sample is missed, the input continues
+        from its last value. A new operating point carries the estimate over
+        (:func:`mpcs_estimator.take_over`); other model/estimator changes restart
+        the estimator at the equilibrium that explains the last measurement.
+        """
+        old = self._design
+        cfg = config_from_params(changes, old.cfg)
+        if cfg == old.cfg:
+            return cfg
+        changed = {f.name for f in fields(MpcsConfig)
+                   if getattr(cfg, f.name) != getattr(old.cfg, f.name)}
+        if changed & _ESTIMATOR_FIELDS:
+            new = _Design(cfg, self._fixed_model)
+            m = new.model
+            self._design = new
+            self._resize_buffers(m)
+            d_phys = self._d if cfg.feedforward else None
+            if not (old.cfg.feedforward == cfg.feedforward
+                    and take_over(old.estimator, new.estimator, self._u_eff(m), d_phys)):
+                new.estimator.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
+        else:
+            self._design = _Design(cfg, old.model, old.estimator)
+        self._counters['rebuilds'] += 1
+        return cfg
+
+    # --- internals -----------------------------------------------------------------
+    def _relinearize(self, r: np.ndarray, d: np.ndarray | None) -> None:
+        """Gain scheduling on the setpoint: a new operating point at the equilibrium of
+        ``r`` (003 §4: the linearisation error grows with the distance from it)."""
+        cfg, m = self._design.cfg, self._design.model
+        if r.shape != m.y0.shape or not np.all(np.isfinite(r)):
+            return
+        if abs(r[0] - m.y0[0]) <= cfg.relinearize_h and abs(r[1] - m.y0[1]) <= cfg.relinearize_T:
+            return
+        f_d, t_d = (d[0], d[1]) if self._valid_d(d, m) else (cfg.op_F_D, cfg.op_T_D)
+        op = replace(cfg.operating_point(), F_D=float(f_d), T_D=float(t_d))
+        flows = equilibrium_inputs(op, float(r[0]), float(r[1]))
+        if flows is None:
+            return                                  # unreachable: keep the current model
+        try:
+            self.configure(op_F_H=flows[0], op_F_Cin=flows[1], op_F_D=op.F_D, op_T_D=op.T_D)
+        except ValueError:
+            return                                  # outside the parameter ranges
+        self._counters['relinearizations'] += 1
+
+    def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> bool:
+        return (self._design.cfg.feedforward and d is not None and len(d) == m.n_d
+                and bool(np.all(np.isfinite(d))))
+
+    def _d_dev(self, m: DelayedModel) -> np.ndarray:
+        """Measured disturbance deviation used in the model (zero without feed-forward)."""
+        return self._d - m.d0 if self._design.cfg.feedforward else np.zeros(m.n_d)
+
+    def _u_eff(self, m: DelayedModel) -> np.ndarray:
+        """The inputs acting on the tank now (delayed channels from their lines)."""
+        u_eff = self._u.copy()
+        for i, buf in enumerate(self._buffers):
+            if buf.size:
+                u_eff[i] = buf[0]
+        return u_eff
+
+    def _reset_counters(self) -> None:
+        self._counters = {'samples': 0, 'fallbacks': 0, 'bad_measurements': 0,
+                          'bad_setpoints': 0, 'rebuilds': 0, 'relinearizations': 0}
+        self._last_solve = self._max_solve = 0.0
+        self._last_flag = 0
+        self._last_iter = 0
+        self._last_active = 0
+        self._last_clipped = False
+
+    def _init_buffers(self, m: DelayedModel) -> None:
+        self._buffers = [np.full(dm, self._u[i]) for i, dm in enumerate(m.input_delays)]
+
+    def _resize_buffers(self, m: DelayedModel) -> None:
+        new = []
+        for i, dm in enumerate(m.input_delays):
+            old = self._buffers[i] if i < len(self._buffers) else np.zeros(0)
+            if old.size >= dm:
+                new.append(old[old.size - dm:].copy())
+            else:
+                fill = old[0] if old.size else self._u[i]
+                new.append(np.concatenate([np.full(dm - old.size, fill), old]))
+        self._buffers = new
+
+    def _move(self, des: _Design, z: np.ndarray, r_dev: np.ndarray, u_prev: np.ndarray
+              ) -> np.ndarray:
+        """The new input: analytic (clipped) or QP with analytic fallback."""
+        pred, m = des.pred, des.model
+        start = time.perf_counter()
+        du_analytic = pred.k_r @ r_dev - pred.k_z @ z
+        u = None
+        if des.qp is not None:
+            u_prev_dev = u_prev - m.u0
+            f = pred.f_z @ z - pred.f_r @ r_dev
+            cum_lo = np.tile(des.u_min - u_prev_dev, pred.n_moves)
+            cum_hi = np.tile(des.u_max - u_prev_dev, pred.n_moves)
+            if des.soft:
+                y_free = pred.m_z @ z
+                f = np.concatenate([f, np.zeros(m.n_y)])
+                lo = np.concatenate([cum_lo, np.full(y_free.size, -np.inf), des.y_lo - y_free])
+                hi = np.concatenate([cum_hi, des.y_hi - y_free, np.full(y_free.size, np.inf)])
+            else:
+                lo, hi = cum_lo, cum_hi
+            res = des.qp.solve(f, des.lb, des.ub, lo, hi)
+            self._last_flag, self._last_iter, self._last_active = (res.exitflag, res.iterations,
+                                                                   res.active)
+            if res.x is not None:
+                u = u_prev + res.x[:m.n_u]
+            else:
+                self._counters['fallbacks'] += 1
+        if u is None or not np.all(np.isfinite(u)):
+            if u is not None:
+                self._counters['fallbacks'] += 1
+            u = self._clip(des, u_prev, du_analytic, u_prev)
+        else:
+            # the QP honours the limits to its tolerance; clip the last ulp as well
+            u = self._clip(des, u_prev, u - u_prev, u_prev)
+        elapsed = time.perf_counter() - start
+        self._last_solve = elapsed
+        self._max_solve = max(self._max_solve, elapsed)
+        return u
+
+    def _clip(self, des: _Design, u_prev: np.ndarray, du: np.ndarray, fallback: np.ndarray
+              ) -> np.ndarray:
+        """Rate limit, then absolute limits (the absolute limits always win)."""
+        m = des.model
+        if not np.all(np.isfinite(du)):
+            du = np.zeros_like(du)
+        du_c = np.clip(du, -des.du_max, des.du_max)
+        u = np.clip(u_prev + du_c, des.u_min + m.u0, des.u_max + m.u0)
+        self._last_clipped = bool(np.any(np.abs(u - (u_prev + du)) > 1e-9))
+        return u if np.all(np.isfinite(u)) else fallback
+
+    def _advance(self, m: DelayedModel, est: KalmanEstimator, u: np.ndarray,
+                 d_dev: np.ndarray) -> None:
+        """Estimator time update with the inputs acting over [k, k+1); shift delay lines."""
+        u_eff = u.copy()
+        for i, buf in enumerate(self._buffers):
+            if buf.size:
+                u_eff[i] = buf[0]
+                buf[:-1] = buf[1:]
+                buf[-1] = u[i]
+        est.predict(u_eff - m.u0, d_dev)
+        self._u = u

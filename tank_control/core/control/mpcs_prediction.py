@@ -1,0 +1,181 @@
+"""Condensed MPCS prediction and cost (SPEC §2.8, 003 §4 and §6) with dead times.
+
+Predicted outputs are linear in the *known* vector
+
+    z = [ξ̂(k|k), past inputs still in the input delay lines, u(k−1), d(k)]
+
+(deviations; ``ξ̂`` from :mod:`mpcs_estimator`) and in the decision vector of
+future moves ``ΔU = [Δu(k+t_0), Δu(k+t_1), …]`` (``t_j = j·block``, ``j < ⌈Nu/block⌉``;
+``block = 1`` is the document's ``Nu`` free moves):
+
+    Ŷ = M_z z + G ΔU,        ŷ_∞ = M∞ z + G∞ ΔU.
+
+Cost (SPEC §2.8 plus an optional steady-state term):
+
+    J = Σ_{p=1..N} ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||²
+        + Σ_j λ·||Δu(k+t_j)||²
+
+* Dead-time alignment (``align``): the prediction of an output with dead time
+  ``d_i`` is counted from the first sample the inputs can move it, i.e. the
+  p-th prediction of ``T_out`` is ``T_out(k+d_i+p) = T(k+p)``. Without it
+  (the document's literal cost) and ``N ≤ 120`` no move can change any
+  predicted ``T_out``, so the T loop is blind.
+* ``F_Cin`` acts on both outputs only after 180 samples; with ``N ≤ 180`` its
+  columns of ``G`` are zero and only the steady-state term ``ŷ_∞`` (the
+  output the model settles at if the last planned inputs are held, ``w_∞ > 0``)
+  tells the controller what ``F_Cin`` is for. Without it a short horizon
+  leaves one input unused and the two outputs cannot both be tracked.
+* ``w`` (estimated disturbance) is held constant over the horizon; measured
+  disturbances ``d`` are held at their current value (feed-forward).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from tank_control.core.control.mpcs_estimator import AugmentedSystem
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """Horizons and weights of the cost (units: outputs cm and °C, inputs cm³/s)."""
+
+    horizon: int = 100                    # N [samples]
+    control_horizon: int = 50             # Nu [samples]
+    move_weight: tuple[float, ...] = (0.5,)   # λ, scalar or one per input
+    output_weights: tuple[float, ...] = (1.0,)  # W_y diagonal, scalar or one per output
+    terminal_weight: float = 0.0          # w_∞ (weight of the steady-state term)
+    block: int = 1                        # move blocking: a move every `block` samples
+    align: bool = True                    # count each output's horizon from its dead time
+
+
+def _per_channel(values: tuple[float, ...], n: int, name: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=float).ravel()
+    if arr.size == 1:
+        arr = np.full(n, arr[0])
+    if arr.size != n:
+        raise ValueError(f'{name}: expected 1 or {n} values, got {arr.size}')
+    return arr
+
+
+class Prediction:
+    """The condensed prediction matrices and the cost's Hessian/linear terms.
+
+    ``z`` layout: ``[ξ̂ (sys.n), delay-line inputs (Σ input_delays), u_prev (n_u), d (n_d)]``,
+    each delay line oldest first (``u_m(k−d_m) … u_m(k−1)``).
+    """
+
+    def __init__(self, sys: AugmentedSystem, cost: CostConfig) -> None:
+        m = sys.model
+        n, nu, ny, nd = m.n_x, m.n_u, m.n_y, m.n_d
+        big_n, nu_h, blk = cost.horizon, cost.control_horizon, cost.block
+        if big_n < 1 or nu_h < 1 or blk < 1:
+            raise ValueError('mpcs: horizon, control_horizon and block must be >= 1')
+        if nu_h > big_n:
+            raise ValueError(f'mpcs.control_horizon: {nu_h} exceeds mpcs.horizon {big_n}')
+        self.sys, self.cost = sys, cost
+        self.n_moves = math.ceil(nu_h / blk)
+        self.move_times = np.arange(self.n_moves) * blk
+        self.n_dec = self.n_moves * nu
+        # --- layout of z
+        self.i_xi = 0
+        self.i_buf = []
+        idx = sys.n
+        for dm in m.input_delays:
+            self.i_buf.append(idx)
+            idx += dm
+        self.i_uprev = idx
+        self.i_d = idx + nu
+        self.n_z = idx + nu + nd
+        nv = self.n_z + self.n_dec           # columns: [z, ΔU]
+        # --- input trajectories u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}, rows over [z, ΔU]
+        def u_row(mi: int, i: int) -> np.ndarray:
+            row = np.zeros(nv)
+            row[self.i_uprev + mi] = 1.0
+            nj = int(np.searchsorted(self.move_times, i, side='right'))
+            row[self.n_z + mi + nu * np.arange(nj)] = 1.0
+            return row
+
+        def u_eff_rows(j: int) -> np.ndarray:
+            rows = np.zeros((nu, nv))
+            for mi, dm in enumerate(m.input_delays):
+                if j < dm:
+                    rows[mi, self.i_buf[mi] + j] = 1.0    # known past input
+                else:
+                    rows[mi] = u_row(mi, j - dm)
+            return rows
+
+        w_sel = np.zeros((sys.n_w, nv))
+        w_sel[:, n + np.arange(sys.n_w)] = np.eye(sys.n_w)
+        d_sel = np.zeros((nd, nv))
+        d_sel[:, self.i_d:self.i_d + nd] = np.eye(nd)
+        const = m.b_d @ d_sel
+        if sys.kind == 'input':
+            const = const + w_sel
+        offsets = [m.output_delays[i] if cost.align else 0 for i in range(ny)]
+        steps = [p + offsets[i] - m.output_delays[i]
+                 for i in range(ny) for p in range(1, big_n + 1)]
+        n_steps = max(max(steps), 0)
+        xs = np.zeros((n_steps + 1, n, nv))
+        xs[0, :, :n] = np.eye(n)
+        for j in range(n_steps):
+            xs[j + 1] = m.a @ xs[j] + m.b_u @ u_eff_rows(j) + const
+        # --- outputs, ordered p-major: row (p−1)·ny + i
+        y_rows = np.zeros((big_n * ny, nv))
+        for i in range(ny):
+            for p in range(1, big_n + 1):
+                s = p + offsets[i] - m.output_delays[i]
+                if s >= 0:
+                    row = m.c[i] @ xs[s]
+                else:                                   # still in the register: known past
+                    row = np.zeros(nv)
+                    row[sys.reg_start[i] + (-s) - 1] = 1.0
+                if sys.kind == 'output':
+                    row = row + w_sel[i]
+                y_rows[(p - 1) * ny + i] = row
+        # --- steady state reached when the last planned inputs are held
+        u_last = np.zeros((nu, nv))
+        u_last[:, self.i_uprev:self.i_uprev + nu] = np.eye(nu)
+        for j in range(self.n_moves):
+            u_last[:, self.n_z + j * nu:self.n_z + (j + 1) * nu] += np.eye(nu)
+        x_inf = np.linalg.solve(np.eye(n) - m.a, m.b_u @ u_last + const)
+        y_inf = m.c @ x_inf
+        if sys.kind == 'output':
+            y_inf = y_inf + w_sel[:ny]
+        self.m_z, self.g = y_rows[:, :self.n_z], y_rows[:, self.n_z:]
+        self.m_inf, self.g_inf = y_inf[:, :self.n_z], y_inf[:, self.n_z:]
+        # --- cost
+        wy2 = _per_channel(cost.output_weights, ny, 'mpcs.output_weights') ** 2
+        lam = _per_channel(cost.move_weight, nu, 'mpcs.lambda')
+        if np.any(wy2 < 0) or np.any(lam < 0) or cost.terminal_weight < 0:
+            raise ValueError('mpcs: weights must be >= 0')
+        q = np.tile(wy2, big_n)
+        qg = self.g * q[:, None]
+        qinf = cost.terminal_weight * wy2
+        self.hessian = (self.g.T @ qg + self.g_inf.T @ (self.g_inf * qinf[:, None])
+                        + np.diag(np.tile(lam, self.n_moves)))
+        # f = F_z z − F_r r   (r: setpoint deviations, constant over the horizon)
+        self.f_z = qg.T @ self.m_z + (self.g_inf * qinf[:, None]).T @ self.m_inf
+        r_tile = np.tile(np.eye(ny), (big_n, 1))
+        self.f_r = qg.T @ r_tile + (self.g_inf * qinf[:, None]).T
+        try:
+            h_inv = np.linalg.inv(self.hessian)
+        except np.linalg.LinAlgError as exc:
+            raise ValueError('mpcs: cost Hessian is singular (lambda = 0 with an input '
+                             'that has no effect within the horizon?)') from exc
+        if not np.all(np.isfinite(h_inv)) or np.linalg.cond(self.hessian) > 1e12:
+            raise ValueError('mpcs: cost Hessian is ill-conditioned; increase mpcs.lambda')
+        # analytic first move: Δu(k) = −K_z z + K_r r       (SPEC §2.8 "analytic")
+        first = h_inv[:nu]
+        self.k_z = first @ self.f_z
+        self.k_r = first @ self.f_r
+        # cumulative-sum matrix: u(k+t_j) − u_prev = L ΔU
+        self.cum = np.kron(np.tril(np.ones((self.n_moves, self.n_moves))), np.eye(nu))
+
+    def z_vector(self, xi: np.ndarray, buffers: list[np.ndarray], u_prev: np.ndarray,
+                 d: np.ndarray) -> np.ndarray:
+        """Assemble ``z`` from the estimate, the delay lines, ``u(k−1)`` and ``d(k)``."""
+        parts = [xi] + [b for b in buffers if b.size] + [u_prev, d]
+        return np.concatenate(parts)

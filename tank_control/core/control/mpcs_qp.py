@@ -1,0 +1,78 @@
+"""The constrained MPCS step as a dense QP (003 §6, SPEC §2.8 "numeric").
+
+    minimise   ½ xᵀ H x + fᵀ x
+    subject to lb ≤ x ≤ ub                   (|Δu| ≤ du_max, slack ≥ 0)
+               lo ≤ A x ≤ hi                 (u_min ≤ u ≤ u_max, soft output bounds)
+
+Solved with DAQP (dual active-set; chosen by ``bench/bench_mpcs.py`` against
+quadprog, proxsuite and OSQP). One DAQP workspace is set up per design and
+reused every sample: only ``f`` and the bounds change, and the active set of
+the previous sample is the starting point (warm start).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+try:  # the QP library is optional at import time: the analytic solver needs none
+    import daqp
+except ImportError:  # pragma: no cover - exercised only without the dependency
+    daqp = None
+
+BIG = 1e20     # stands for ±inf in the solver's bounds
+
+
+@dataclass
+class QpResult:
+    """Outcome of one solve: ``x`` is ``None`` when the solve failed."""
+
+    x: np.ndarray | None
+    exitflag: int
+    iterations: int
+    active: int            # number of active inequality constraints/bounds
+    seconds: float
+
+
+class DenseQp:
+    """A fixed-structure QP solved repeatedly with new ``f`` and bounds."""
+
+    def __init__(self, hessian: np.ndarray, a: np.ndarray, iter_limit: int = 1000) -> None:
+        if daqp is None:
+            raise ValueError("mpcs.solver: 'qp' needs the daqp package (pip install daqp)")
+        self.h = np.ascontiguousarray(hessian, dtype=float)
+        self.a = np.ascontiguousarray(a, dtype=float)
+        self.n = self.h.shape[0]
+        self.iter_limit = iter_limit
+        self._model = None
+
+    def solve(self, f: np.ndarray, lb: np.ndarray, ub: np.ndarray,
+              lo: np.ndarray, hi: np.ndarray) -> QpResult:
+        """Solve; bounds may contain ±inf. Never raises for numerical failures."""
+        start = time.perf_counter()
+        upper = np.clip(np.concatenate([ub, hi]), -BIG, BIG)
+        lower = np.clip(np.concatenate([lb, lo]), -BIG, BIG)
+        f = np.ascontiguousarray(f, dtype=float)
+        try:
+            if self._model is None:
+                self._model = daqp.Model()
+                self._model.settings = {'iter_limit': self.iter_limit}
+                flag, _ = self._model.setup(self.h, f, self.a, upper, lower)
+                if flag < 0:
+                    self._model = None
+                    return QpResult(None, int(flag), 0, 0, time.perf_counter() - start)
+            else:
+                self._model.update(f=f, bupper=upper, blower=lower)
+            x, _, flag, info = self._model.solve()
+        except Exception:      # noqa: BLE001 - any solver error becomes a fallback
+            self._model = None
+            return QpResult(None, -99, 0, 0, time.perf_counter() - start)
+        x = np.asarray(x, dtype=float)
+        ok = flag >= 1 and np.all(np.isfinite(x))
+        lam = np.asarray(info.get('lam', ()), dtype=float)
+        active = int(np.count_nonzero(np.abs(lam) > 1e-9)) if lam.size else 0
+        if not ok:
+            self._model = None          # start the next solve from a clean workspace
+        return QpResult(x if ok else None, int(flag), int(info.get('iterations', 0)), active,
+                        time.perf_counter() - start)

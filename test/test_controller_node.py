@@ -1,0 +1,268 @@
+"""controller_node over real DDS: parameters, validation, bumpless changes, faults, lockstep.
+
+The test process plays plant and reference through the ``probe`` node. Each
+test starts one controller process and runs several checks on it.
+"""
+from __future__ import annotations
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import JointState
+
+from tank_control.core.interfaces import to_ns
+from tank_control.nodes.messages import SIGNAL_QOS, stamp_to_ns, to_joint_state
+
+K1 = 0.05      # 000's worked example, SPEC §1.1
+
+
+def mdp_pid(k1: float, to: float) -> dict[str, float]:
+    """000 eqs. 25–26, 32 (SPEC §2.2), independent of the tuning module."""
+    s3 = math.sqrt(3.0)
+    return {'kp': 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (k1 * to), 'ti': (2 + s3) * to,
+            'td': (3 + s3) / 18 * to, 'b': (3 - s3) / 3, 'c': (3 - s3) / 2}
+
+
+class Loop:
+    """The probe as plant + reference + operator of one controller node."""
+
+    def __init__(self, probe) -> None:
+        self.probe = probe
+        node = probe.node
+        self.meas = node.create_publisher(JointState, 'measurement', SIGNAL_QOS)
+        self.setp = node.create_publisher(JointState, 'setpoint', SIGNAL_QOS)
+        self.answers: list[tuple[int, list[str], list[float]]] = []
+        self.diag: dict[str, str] = {}
+        node.create_subscription(JointState, 'manipulated', self._on_u, SIGNAL_QOS)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.params = AsyncParameterClient(node, 'controller')
+        assert self.params.wait_for_services(timeout_sec=20.0), 'controller parameters not up'
+
+    def _on_u(self, msg: JointState) -> None:
+        self.answers.append((stamp_to_ns(msg.header.stamp), list(msg.name), list(msg.position)))
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith('controller'):
+                self.diag = {kv.key: kv.value for kv in status.values}
+
+    def call(self, future, timeout: float = 10.0):
+        assert self.probe.wait_for(future.done, timeout)
+        return future.result()
+
+    def set(self, name: str, value):
+        return self.call(self.params.set_parameters([Parameter(name, value=value)])).results[0]
+
+    def get(self, name: str):
+        return Parameter.from_parameter_msg(
+            _named(name, self.call(self.params.get_parameters([name])).values[0])).value
+
+    def tick(self, t_ns: int, y, r, resend_until: float = 10.0):
+        """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
+        ``y``, ``r``: a value for channel ``y`` or a {channel: value} map (then the
+        answer is a {channel: value} map). Re-sends the tick while unanswered (the
+        plant's rule, which also covers discovery)."""
+        siso = not isinstance(y, dict)
+        ys, rs = ({'y': y}, {'y': r}) if siso else (y, r)
+
+        def answered():
+            return any(a[0] == t_ns for a in self.answers)
+        waited = 0.0
+        while not answered():
+            assert waited < resend_until, f'no answer for tick {t_ns}'
+            self.meas.publish(to_joint_state(t_ns, list(ys), list(ys.values())))
+            self.setp.publish(to_joint_state(t_ns, list(rs), list(rs.values())))
+            self.probe.wait_for(answered, 0.5)
+            waited += 0.5
+        stamp, names, values = next(a for a in self.answers if a[0] == t_ns)
+        if siso:
+            assert names == ['u']
+            return values[0]
+        return dict(zip(names, values))
+
+
+def _named(name, value_msg):
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    return ParameterMsg(name=name, value=value_msg)
+
+
+def _start(procs, node_cmd, ros_env, *params: str):
+    argv = node_cmd('controller_node', *[x for p in params for x in ('-p', p)])
+    return procs.start('controller', argv, env=ros_env)
+
+
+def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
+    ts = 0.2
+    # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
+           'diagnostics_period:=0.1',
+           'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
+    loop = Loop(probe)
+
+    # declared with descriptors: range, read-only, description
+    described = loop.call(loop.params.describe_parameters(['kp', 'controller']))
+    kp_desc, ctrl_desc = described.descriptors
+    assert kp_desc.floating_point_range and kp_desc.floating_point_range[0].from_value == 0.0
+    assert 'gain' in kp_desc.description
+    assert ctrl_desc.read_only
+
+    tick = to_ns(0.1)     # plant tick 0.1 s; controller samples every second tick
+    # tick 0: u = kp·(b·r − y) + I(0) = 1·(0.5 − 1) = −0.5 (000 eq. 19, I starts at 0)
+    assert loop.tick(0, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    # idempotent: tick 0 re-sent with another measurement gets the same answer again
+    before = len(loop.answers)
+    loop.meas.publish(to_joint_state(0, ['y'], [4.0]))
+    assert probe.wait_for(lambda: len(loop.answers) > before, 5.0)
+    assert loop.answers[-1][0] == 0 and loop.answers[-1][2] == [-0.5]
+    # tick 1 is not a controller instant: held even though y changed
+    assert loop.tick(1 * tick, 3.0, 1.0) == -0.5
+
+    # rejected changes: reason names the parameter; the running controller is untouched
+    result = loop.set('kp', -1.0)
+    assert not result.successful and 'kp' in result.reason
+    result = loop.set('u_min', 6.0)
+    assert not result.successful and 'u_min' in result.reason and 'u_max' in result.reason
+    result = loop.set('n', 100.0)
+    assert not result.successful and 'n' in result.reason and '50' in result.reason
+    assert not loop.set('controller', 'smith_pi').successful
+    assert loop.get('kp') == 1.0 and loop.get('u_min') == -5.0
+    assert loop.tick(2 * tick, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+
+    # a valid change typed as an integer (ros2 param set /controller kp 3) is accepted
+    result = loop.set('kp', 3)
+    assert result.successful, result.reason
+    assert loop.get('kp') == 3.0
+    # applied at the next sample without a bump (a recomputation would give 3·(0.5 − 1) = −1.5)
+    assert loop.tick(4 * tick, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    # and in effect: a measurement step of 0.1 moves u by −kp_new·0.1 (P part)
+    u6 = loop.tick(6 * tick, 1.1, 1.0)
+    assert u6 == pytest.approx(-0.5 - 3.0 * 0.1, abs=1e-12)
+
+    # non-finite measurement: last output held, counted; recovery without a jump
+    assert loop.tick(8 * tick, math.nan, 1.0) == u6
+    assert loop.tick(10 * tick, 1.1, 1.0) == pytest.approx(u6, abs=1e-12)
+    # fail-safe output on a fault when configured
+    assert loop.set('fail_safe_output', 2.0).successful
+    assert loop.set('fail_safe', 'output').successful
+    assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
+    assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
+    assert int(loop.diag['rejected_parameters']) >= 4
+    for key in ('mode', 'saturated', 'anti_windup_active', 'stale_inputs', 'rejected_inputs',
+                'last_computation_time_us'):
+        assert key in loop.diag
+    assert float(loop.diag['last_computation_time_us']) > 0.0
+    assert loop.tick(14 * tick, 1.1, 1.0) == pytest.approx(2.0, abs=1e-12)   # resumes from 2.0
+
+    # manual mode: switching keeps the current output (manual_output follows it), then
+    # the operator's value; back to auto continues from the manual output
+    assert loop.set('mode', 'manual').successful
+    assert loop.get('manual_output') == pytest.approx(2.0, abs=1e-12)
+    assert loop.tick(16 * tick, 1.1, 1.0) == pytest.approx(2.0, abs=1e-12)
+    assert loop.set('manual_output', 1).successful
+    assert loop.tick(18 * tick, 1.1, 1.0) == 1.0
+    assert not loop.set('manual_output', 9.0).successful      # outside [u_min, u_max]
+    assert loop.set('mode', 'auto').successful
+    assert loop.tick(20 * tick, 1.1, 1.0) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, probe):
+    ts = 0.05
+    _start(procs, node_cmd, ros_env, f'sample_time:={ts}', 'tuning.rule:=mdp',
+           'tuning.kind:=pid', f'tuning.gain:={K1}', 'tuning.dead_time:=5.0',
+           'diagnostics_period:=0.1', 'u_min:=-100.0', 'u_max:=100.0')
+    loop = Loop(probe)
+
+    # the rule's gains are applied and visible as parameters (000 Table 1: 3.14 / 18.66 / ...)
+    for name, value in mdp_pid(K1, 5.0).items():
+        assert loop.get(name) == pytest.approx(value, rel=1e-9)
+    assert loop.set('tuning.dead_time', 6.0).successful
+    assert loop.get('kp') == pytest.approx(mdp_pid(K1, 6.0)['kp'], rel=1e-9)
+    result = loop.set('kp', 2.0)
+    assert not result.successful and 'tuning.rule' in result.reason
+
+    # measurements flowing: the controller samples on its wall timer
+    sending = {'y': True}
+
+    def publish():
+        now = probe.node.get_clock().now().nanoseconds
+        if sending['y']:
+            loop.meas.publish(to_joint_state(now, ['y'], [1.0]))
+        loop.setp.publish(to_joint_state(now, ['y'], [1.0]))
+    probe.node.create_timer(ts / 2, publish)
+    assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+
+    u_running = loop.answers[-1][2][0]
+    # stale: no measurement for 3 samples → fail_safe_output sent (configured), reported
+    assert loop.set('fail_safe_output', 5.0).successful
+    assert loop.set('fail_safe', 'output').successful
+    sending['y'] = False
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 5.0)
+    assert loop.diag['stale_inputs'] == 'True'
+    n = len(loop.answers)
+    assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 5.0)
+    assert [a[2][0] for a in loop.answers[n:]] == [5.0] * len(loop.answers[n:])
+    assert u_running != 5.0
+
+    # recovery: control resumes from the output the plant got (5.0), no jump; with
+    # y = r the error is zero, so it stays there
+    sending['y'] = True
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+    m = len(loop.answers)
+    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 5.0)
+    assert [a[2][0] for a in loop.answers[m:]] == pytest.approx([5.0] * len(loop.answers[m:]),
+                                                                abs=1e-9)
+    assert int(loop.diag['stale_samples']) >= 3
+
+
+def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, probe):
+    from rosgraph_msgs.msg import Clock
+
+    from tank_control.nodes.messages import CLOCK_QOS, clock_msg
+    ts = 0.5
+    _start(procs, node_cmd, ros_env, 'clock_mode:=sim', 'use_sim_time:=true',
+           f'sample_time:={ts}', 'kp:=2.0')
+    loop = Loop(probe)
+    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    t = {'ns': 0}
+
+    def advance():          # simulated time 10x faster than wall, 0.1 s ticks
+        t['ns'] += to_ns(0.1)
+        clock.publish(clock_msg(t['ns']))
+        loop.meas.publish(to_joint_state(t['ns'], ['y'], [1.0]))
+        loop.setp.publish(to_joint_state(t['ns'], ['y'], [3.0]))
+    probe.node.create_timer(0.01, advance)
+    assert probe.wait_for(lambda: len(loop.answers) >= 4, 15.0)
+    stamps = [a[0] for a in loop.answers]
+    assert all(s % to_ns(ts) == 0 for s in stamps)            # on the k·ts grid
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)   # P only
+
+
+def test_two_loop_pi_on_tank_channels_in_lockstep(procs, node_cmd, ros_env, probe):
+    _start(procs, node_cmd, ros_env, 'controller:=two_loop_pi', 'clock_mode:=lockstep')
+    loop = Loop(probe)
+    y, r = {'h': 80.0, 'T_out': 34.0, 'extra': 1.0}, {'h': 81.0, 'T_out': 33.57}
+    u = loop.tick(0, y, r)
+    # 003 §2.1 gains from a zero integral: F_H = 0.9·1, F_Cin = −0.2·(−0.43)
+    assert u == pytest.approx({'F_H': 0.9, 'F_Cin': 0.086}, abs=1e-12)
+    result = loop.set('two_loop.kp_h', 2)
+    assert result.successful, result.reason
+    assert not loop.set('u_max', -1.0).successful
+    # the change takes effect at this sample without a jump: still the old law's
+    # output (integral of tick 0 added, ki·h·e), the new kp_h from the next sample
+    u1 = loop.tick(to_ns(1.0), y, r)
+    assert u1['F_H'] == pytest.approx(0.9 + 0.01 * 1.0, abs=1e-12)
+    # h error 1 → 1.5: u moves by kp_new·0.5 plus the integral of tick 1 (ki·h·1)
+    u2 = loop.tick(to_ns(2.0), {**y, 'h': 79.5}, r)
+    assert u2['F_H'] == pytest.approx(u1['F_H'] + 2.0 * 0.5 + 0.01 * 1.0, abs=1e-12)
+
+
+def test_bad_start_up_parameter_exits_with_a_reason(procs, node_cmd, ros_env, probe):
+    proc = _start(procs, node_cmd, ros_env, 'kp:=-1.0')
+    assert probe.wait_for(lambda: proc.returncode is not None, 20.0)
+    assert proc.returncode == 2
+    assert 'kp' in proc.tail(5) and 'minimum' in proc.tail(5)
