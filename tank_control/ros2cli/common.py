@@ -1,0 +1,167 @@
+"""Shared pieces of the verbs: the client node, graph waits, names, errors.
+
+Every wait has a deadline: a missing node, topic or service ends the command
+with a one-line error instead of hanging.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # rclpy is imported lazily: `ros2 run` and `--help` do not need it
+    from rclpy.node import Node
+
+DEFAULT_TIMEOUT = 5.0      # [s] waiting for a node, topic or service to be discovered
+SPIN_TIME = 1.0            # [s] minimal discovery time for whole-graph listings
+QUIET_TIME = 0.5           # [s] the graph counts as discovered after this long without change
+EMPTY_WAIT = 3.5           # [s] discovery time granted while no other node is known: a
+                           #     participant that missed our first announcements announces
+                           #     itself again within Fast DDS's 3 s period
+SETTLE_LIMIT = 6.0         # [s] longest discovery wait of a listing
+
+
+class CliError(Exception):
+    """A user-facing failure: printed as one line on stderr, exit code 1."""
+
+
+class Interrupted(Exception):
+    """SIGINT/SIGTERM shut rclpy down while waiting: a normal end, exit code 0."""
+
+
+def add_timeout_argument(parser: argparse.ArgumentParser,
+                         default: float = DEFAULT_TIMEOUT, what: str = 'the node') -> None:
+    parser.add_argument('--timeout', type=float, default=default, metavar='SECONDS',
+                        help=f'seconds to wait for {what} to be discovered (default {default:g})')
+
+
+def add_spin_time_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--spin-time', type=float, default=SPIN_TIME, metavar='SECONDS',
+                        help='minimal seconds of discovery before listing the graph '
+                             f'(default {SPIN_TIME:g})')
+
+
+@contextmanager
+def client_node() -> Iterator['Node']:
+    """rclpy (default context, with its SIGINT/SIGTERM handlers) and a hidden node
+    ``_ros2cli_<pid>`` for one command."""
+    import rclpy
+
+    rclpy.init(args=[])
+    node = None
+    try:
+        node = rclpy.create_node(
+            f'_ros2cli_{os.getpid()}', use_global_arguments=False, enable_rosout=False,
+            start_parameter_services=False)
+        yield node
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | None) -> bool:
+    """Spin ``node`` until ``condition()`` holds; False when ``timeout`` seconds pass first.
+
+    ``timeout=None`` waits without a deadline (only for verbs a user stops with Ctrl-C).
+    """
+    from rclpy.executors import SingleThreadedExecutor
+
+    if not node.context.ok():
+        raise Interrupted()
+    try:
+        executor = SingleThreadedExecutor(context=node.context)
+    except Exception:
+        if not node.context.ok():      # the signal came between the check and here
+            raise Interrupted() from None
+        raise
+    executor.add_node(node)
+    try:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not condition():
+            if deadline is None:
+                executor.spin_once(timeout_sec=0.05)
+                continue
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            executor.spin_once(timeout_sec=min(0.05, remaining))
+        return True
+    finally:
+        executor.remove_node(node)
+
+
+def graph_snapshot(node: 'Node') -> tuple:
+    """Everything the listings show, to detect when discovery has settled."""
+    return (tuple(sorted(n for n in node.get_fully_qualified_node_names() if not is_hidden(n))),
+            tuple(sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types())),
+            tuple(sorted((n, tuple(t)) for n, t in node.get_service_names_and_types())))
+
+
+def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIET_TIME,
+                 snapshot_of: Callable[[], object] | None = None,
+                 empty_wait: float = EMPTY_WAIT, limit: float = SETTLE_LIMIT) -> None:
+    """Discover for at least ``spin_time`` s, then until nothing changed for ``quiet`` s.
+
+    ``snapshot_of`` is what must stop changing (default: the whole graph). Discovery
+    of a new participant can take more than a second on a loaded machine, so while
+    no other node is known the wait goes on up to ``empty_wait`` s. Stops at
+    ``limit`` s in a graph that keeps changing.
+    """
+    snapshot_of = snapshot_of or (lambda: graph_snapshot(node))
+    start = time.monotonic()
+    state = {'snapshot': snapshot_of(), 'changed': start}
+
+    def settled() -> bool:
+        now = time.monotonic()
+        snapshot = snapshot_of()
+        if snapshot != state['snapshot']:
+            state['snapshot'], state['changed'] = snapshot, now
+        others = any(not is_hidden(n) for n in node.get_fully_qualified_node_names())
+        return (now - start >= spin_time and now - state['changed'] >= quiet and
+                (others or now - start >= empty_wait))
+
+    spin_until(node, settled, limit)
+
+
+def absolute_name(name: str) -> str:
+    """``plant`` → ``/plant`` (names are resolved from the root namespace, like ros2cli)."""
+    return name if name.startswith('/') else '/' + name
+
+
+def split_node_name(full_name: str) -> tuple[str, str]:
+    """``/ns/plant`` → (``plant``, ``/ns``); ``/plant`` → (``plant``, ``/``)."""
+    namespace, _, name = absolute_name(full_name).rpartition('/')
+    return name, namespace or '/'
+
+
+def is_hidden(name: str) -> bool:
+    """A name is hidden when any of its tokens starts with ``_`` (ROS 2 convention)."""
+    return any(token.startswith('_') for token in name.split('/') if token)
+
+
+def wait_for_node(node: 'Node', full_name: str, timeout: float) -> None:
+    """Wait until ``full_name`` is in the graph, else raise ``CliError('Node not found')``."""
+    if not spin_until(node, lambda: full_name in node.get_fully_qualified_node_names(), timeout):
+        raise CliError(f"Node not found: '{full_name}' (waited {timeout:g} s)")
+
+
+def call_service(node: 'Node', srv_type: type, name: str, request: object,
+                 timeout: float) -> object:
+    """Call a service with one deadline for discovery and the answer together."""
+    deadline = time.monotonic() + timeout
+    client = node.create_client(srv_type, name)
+    try:
+        if not spin_until(node, client.service_is_ready, timeout):
+            raise CliError(f"Service '{name}' not available (waited {timeout:g} s)")
+        future = client.call_async(request)
+        if not spin_until(node, future.done, max(0.0, deadline - time.monotonic())):
+            raise CliError(f"No response from service '{name}' within {timeout:g} s")
+        if future.exception() is not None:
+            raise CliError(f"Service '{name}' failed: {future.exception()}")
+        return future.result()
+    finally:
+        node.destroy_client(client)

@@ -1,0 +1,82 @@
+"""Entry point of the ``ros2`` command (console script ``ros2``).
+
+If a real ros2cli is importable, this hands over to it unchanged, so a full
+ROS 2 installation is never shadowed. Otherwise it dispatches to the verbs of
+this package. Exit code 0 on success; on failure one line on stderr and 1 (or
+the exit code of the executable for ``ros2 run``).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from collections.abc import Sequence
+
+from tank_control.ros2cli import node, param, run, service, topic
+from tank_control.ros2cli.common import CliError, Interrupted
+
+_COMMANDS = (run, param, topic, node, service)
+
+
+def real_ros2cli_available() -> bool:
+    """True when the ros2cli package (a full ROS 2 install) is importable."""
+    try:
+        return importlib.util.find_spec('ros2cli') is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def hand_over() -> int:
+    """Run ros2cli's own entry point (``ros2cli.cli:main``) with our argv."""
+    from ros2cli.cli import main as ros2cli_main
+    return ros2cli_main()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='ros2', description='ros2 is an extensible command-line tool for ROS 2 '
+                                 '(tank_control edition: run, param, topic, node, service).')
+    commands = parser.add_subparsers(
+        title='Commands', dest='command',
+        metavar='Call `ros2 <command> -h` for more detailed usage.')
+    commands.required = True
+    for module in _COMMANDS:
+        module.add_parser(commands)
+    return parser
+
+
+def run_cli(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` and run the verb; errors become one line on stderr and exit 1."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if run.is_run_command(argv):
+        # `ros2 run PKG EXE ...`: everything after EXE belongs to the executable.
+        return _guarded(lambda: run.main_from_argv(argv[1:]))
+    args = parser.parse_args(argv)
+    return _guarded(lambda: args.func(args))
+
+
+def _guarded(call) -> int:
+    try:
+        rc = call()
+    except CliError as exc:
+        print(str(exc), file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, Interrupted):
+        return 0
+    except Exception as exc:  # one line, never a traceback, for anything unforeseen
+        if type(exc).__name__ == 'ExternalShutdownException':
+            return 0
+        print(f'{type(exc).__name__}: {exc}'.splitlines()[0], file=sys.stderr)
+        return 1
+    return 0 if rc is None else rc
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    if real_ros2cli_available():
+        return hand_over()
+    return run_cli(argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

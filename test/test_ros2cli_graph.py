@@ -1,0 +1,186 @@
+"""`ros2 topic|node|service` over real DDS against one test-only node (module scope)."""
+from __future__ import annotations
+
+import re
+import signal
+
+import pytest
+import yaml
+from fixtures.param_node import SPECS
+from fixtures.ros2cli_support import Streaming, fixture_argv, ros2, ros2_parallel
+
+from tank_control.harness.processes import ProcessGroup
+
+PERIOD = next(spec.default for spec in SPECS if spec.name == 'period')   # [s] of /signal
+
+
+@pytest.fixture(scope='module')
+def fixture_node(tmp_path_factory, ros_env):
+    """The node ``/fixture`` for every test of this module."""
+    with ProcessGroup(tmp_path_factory.mktemp('graph_logs')) as group:
+        yield group.start('fixture', fixture_argv('fixture'), env=ros_env)
+
+
+@pytest.fixture
+def graph(fixture_node, probe):
+    assert probe.wait_for(lambda: 'fixture' in probe.node.get_node_names(), 20), \
+        fixture_node.tail()
+    return probe
+
+
+def test_topic_list_info_type_echo(graph, ros_env):
+    # Echo subscribes to /signal, so it runs after the commands that count endpoints.
+    listed, typed, info, verbose, topic_type = ros2_parallel(
+        ros_env,
+        ('topic', 'list'), ('topic', 'list', '-t'), ('topic', 'info', '/signal'),
+        ('topic', 'info', 'signal', '-v'), ('topic', 'type', '/signal'))
+    once, field = ros2_parallel(ros_env, ('topic', 'echo', '--once', '/signal'),
+                                ('topic', 'echo', '/signal', '--once', '--field', 'name'))
+    for result in (listed, typed, info, verbose, topic_type, once, field):
+        assert result.returncode == 0, (result.args, result.stderr)
+
+    assert {'/signal', '/command', '/parameter_events', '/rosout'} <= set(listed.stdout.split())
+    assert '/signal [sensor_msgs/msg/JointState]' in typed.stdout.splitlines()
+    assert '/command [std_msgs/msg/Float64]' in typed.stdout.splitlines()
+    assert info.stdout.splitlines() == ['Type: sensor_msgs/msg/JointState',
+                                        'Publisher count: 1', 'Subscription count: 0']
+    assert 'Node name: fixture' in verbose.stdout and 'Endpoint type: PUBLISHER' in verbose.stdout
+    assert 'Reliability: RELIABLE' in verbose.stdout
+    assert topic_type.stdout.strip() == 'sensor_msgs/msg/JointState'
+
+    # One message as YAML, closed by the --- separator.
+    body, separator, rest = once.stdout.partition('---\n')
+    assert separator and rest == ''
+    message = yaml.safe_load(body)
+    assert message['name'] == ['y'] and len(message['position']) == 1
+    assert message['position'][0] >= 1.0 and message['velocity'] == []
+    assert set(message['header']['stamp']) == {'sec', 'nanosec'}
+    assert message['header']['stamp']['sec'] > 1_000_000_000      # wall-clock stamp
+    assert field.stdout == '- y\n---\n'
+
+
+def test_topic_echo_stream_and_hz(graph, ros_env):
+    echo = Streaming(ros_env, 'topic', 'echo', '/signal', '--field', 'position')
+    hz = Streaming(ros_env, 'topic', 'hz', '/signal', '--window', '20')
+    try:
+        assert echo.read_until(lambda lines: lines.count('---') >= 3, 20), echo.lines
+        counts = [float(line[2:]) for line in echo.lines if line.startswith('- ')]
+        assert counts == sorted(counts) and len(set(counts)) == len(counts)
+        assert echo.interrupt() == 0, echo.stderr
+
+        # Two lines per report: average rate, then min/max/std dev/window.
+        assert hz.read_until(lambda lines: any('window: 20' in line for line in lines), 20), \
+            hz.lines
+        rate_line = [line for line in hz.lines if line.startswith('average rate:')][-1]
+        stats = hz.lines[hz.lines.index(rate_line) + 1]
+        rate = float(rate_line.split(':')[1])
+        assert 0.5 / PERIOD < rate < 1.5 / PERIOD      # timer of the node, loose on a busy host
+        found = re.fullmatch(r'\tmin: ([\d.]+)s max: ([\d.]+)s std dev: ([\d.]+)s window: 20',
+                             stats)
+        assert found, stats
+        low, high, _ = map(float, found.groups())
+        assert low <= 1.0 / rate <= high
+        assert hz.interrupt(signal.SIGTERM) == 0, hz.stderr
+    finally:
+        echo.close()
+        hz.close()
+
+
+def test_topic_pub(graph, ros_env):
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    floats, states = [], []
+    graph.node.create_subscription(Float64, '/cli_test/value', floats.append, 10)
+    graph.node.create_subscription(JointState, '/cli_test/state', states.append, 10)
+    once, times = ros2_parallel(
+        ros_env,
+        ('topic', 'pub', '--once', '/cli_test/value', 'std_msgs/msg/Float64', '{data: 1.5}'),
+        ('topic', 'pub', '-t', '3', '-r', '20', '/cli_test/state', 'sensor_msgs/JointState',
+         '{header: {stamp: {sec: 7, nanosec: 5}, frame_id: tank}, name: [h, T_out], '
+         'position: [12, 30.5]}'))
+    assert once.returncode == 0, once.stderr
+    assert once.stdout.startswith('publisher: beginning loop\npublishing #1: std_msgs.msg.Float64')
+    assert times.returncode == 0, times.stderr
+    assert times.stdout.count('publishing #') == 3
+    assert graph.wait_for(lambda: floats and len(states) == 3, 10)
+    assert floats[0].data == 1.5
+    state = states[-1]
+    assert (state.header.stamp.sec, state.header.stamp.nanosec) == (7, 5)
+    assert state.header.frame_id == 'tank'
+    assert list(state.name) == ['h', 'T_out'] and list(state.position) == [12.0, 30.5]
+
+    bad_field, bad_type, bad_yaml = ros2_parallel(
+        ros_env,
+        ('topic', 'pub', '--once', '/x', 'std_msgs/msg/Float64', '{value: 1}'),
+        ('topic', 'pub', '--once', '/x', 'std_msgs/msg/NoSuchType', '{}'),
+        ('topic', 'pub', '--once', '/x', 'std_msgs/msg/Float64', '{data: [1'))
+    for result, words in ((bad_field, ('value', 'data')), (bad_type, ('NoSuchType',)),
+                          (bad_yaml, ('YAML',))):
+        assert result.returncode == 1, result.stdout
+        assert len(result.stderr.strip().splitlines()) == 1
+        assert all(word in result.stderr for word in words), result.stderr
+
+
+def test_node_and_service_verbs(graph, ros_env):
+    nodes, info, services, params, trigger, set_bool = ros2_parallel(
+        ros_env,
+        ('node', 'list'), ('node', 'info', '/fixture'), ('service', 'list', '-t'),
+        ('param', 'list', '--timeout', '2'),
+        ('service', 'call', '/fixture/trigger', 'std_srvs/srv/Trigger'),
+        ('service', 'call', 'fixture/enable', 'std_srvs/srv/SetBool', '{data: true}'))
+    for result in (nodes, info, services, params, trigger, set_bool):
+        assert result.returncode == 0, (result.args, result.stderr)
+    assert '/fixture' in nodes.stdout.splitlines()
+    assert not any('_ros2cli' in line for line in nodes.stdout.splitlines())   # hidden
+
+    text = info.stdout
+    assert text.startswith('/fixture\n  Subscribers:\n')
+    sections = re.split(r'\n  (?=\S)', text)
+    by_title = {s.split(':\n')[0].strip(): s for s in sections[1:]}
+    assert '/command: std_msgs/msg/Float64' in by_title['Subscribers']
+    assert '/signal: sensor_msgs/msg/JointState' in by_title['Publishers']
+    assert '/fixture/trigger: std_srvs/srv/Trigger' in by_title['Service Servers']
+    assert '/fixture/enable: std_srvs/srv/SetBool' in by_title['Service Servers']
+
+    listed = services.stdout.splitlines()
+    assert '/fixture/trigger [std_srvs/srv/Trigger]' in listed
+    assert '/fixture/get_parameters [rcl_interfaces/srv/GetParameters]' in listed
+
+    # Without a node name: every node with parameter services, its parameters indented.
+    lines = params.stdout.splitlines()
+    assert '/fixture:' in lines and '  gain' in lines[lines.index('/fixture:'):]
+    # The test's own probe node is not spinning: reported on stderr, the rest still listed.
+    assert f"'{graph.node.get_fully_qualified_name()}' did not answer" in params.stderr
+
+    assert trigger.stdout.startswith(
+        'requester: making request: std_srvs.srv.Trigger_Request()\n\nresponse:\n'
+        'std_srvs.srv.Trigger_Response(success=True, message=')
+    assert 'SetBool_Request(data=True)' in set_bool.stdout
+    assert 'SetBool_Response(success=True' in set_bool.stdout
+    got = ros2(ros_env, 'param', 'get', '/fixture', 'enabled')
+    assert got.stdout.strip() == 'Boolean value is: True'   # the service reached the node
+
+
+def test_missing_things_fail_instead_of_hanging(graph, ros_env):
+    """Each wait ends at its --timeout with one line on stderr (ros2_parallel kills at 30 s)."""
+    results = ros2_parallel(
+        ros_env,
+        ('param', 'get', '/no_such_node', 'gain', '--timeout', '1'),
+        ('param', 'set', '/no_such_node', 'gain', '1.0', '--timeout', '1'),
+        ('param', 'dump', '/no_such_node', '--timeout', '1'),
+        ('node', 'info', '/no_such_node', '--timeout', '1'),
+        ('topic', 'echo', '--once', '/no_such_topic', '--timeout', '1'),
+        ('topic', 'echo', '--once', '/silent_1', 'std_msgs/msg/Float64', '--timeout', '1'),
+        ('topic', 'info', '/no_such_topic', '--timeout', '1'),
+        ('topic', 'hz', '/no_such_topic', '--timeout', '1'),
+        ('topic', 'pub', '--once', '/silent_2', 'std_msgs/msg/Float64', '--timeout', '1'),
+        ('service', 'call', '/no_such/service', 'std_srvs/srv/Trigger', '--timeout', '1'),
+        ('service', 'call', '/fixture/trigger', 'std_srvs/srv/NoSuch', '--timeout', '1'),
+        timeout=30)
+    for result in results:
+        assert result.returncode == 1, (result.args, result.stdout)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and 'Traceback' not in result.stderr, (result.args, lines)
+    assert 'Node not found' in results[0].stderr
+    assert "Unable to find node '/no_such_node'" in results[3].stderr
+    assert "'/no_such_topic'" in results[4].stderr

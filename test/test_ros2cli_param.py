@@ -1,0 +1,108 @@
+"""`ros2 param` against a node over real DDS: list, get, set, describe, dump, load.
+
+Independent commands run in parallel (``ros2_parallel``) so their discovery waits overlap.
+"""
+from __future__ import annotations
+
+import yaml
+from fixtures.param_node import SPECS
+from fixtures.ros2cli_support import fixture_argv, ros2, ros2_parallel
+
+SPEC = {spec.name: spec for spec in SPECS}
+
+
+def _start(procs, probe, ros_env, name='fixture', *ros_args):
+    proc = procs.start(name, fixture_argv(name, *ros_args), env=ros_env)
+    assert probe.wait_for(lambda: name in probe.node.get_node_names(), 20), proc.tail()
+    return proc
+
+
+def test_list_get_set_describe(procs, probe, ros_env):
+    _start(procs, probe, ros_env)
+    listed, got, hidden_type, described, missing, out_of_range, not_a_choice, read_only = \
+        ros2_parallel(
+            ros_env,
+            ('param', 'list', '/fixture'),
+            ('param', 'get', '/fixture', 'gain'),
+            ('param', 'get', 'fixture', 'weights', '--hide-type'),
+            ('param', 'describe', '/fixture', 'gain', 'period'),
+            ('param', 'get', '/fixture', 'no_such_parameter'),
+            ('param', 'set', '/fixture', 'gain', '11.5'),
+            ('param', 'set', '/fixture', 'mode', 'bogus'),
+            ('param', 'set', '/fixture', 'period', '1.0'))
+
+    assert listed.returncode == 0, listed.stderr
+    names = [line.strip() for line in listed.stdout.splitlines()]
+    assert set(SPEC) <= set(names) and 'use_sim_time' in names
+    assert names == sorted(names)
+
+    assert (got.returncode, got.stdout.strip()) == (0, f'Double value is: {SPEC["gain"].default}')
+    assert hidden_type.stdout.strip() == str(SPEC['weights'].default)
+
+    assert described.returncode == 0, described.stderr
+    text = described.stdout
+    assert 'Parameter name: gain\n  Type: double\n' in text
+    assert f'Description: {SPEC["gain"].description}' in text
+    assert f'Min value: {SPEC["gain"].min}' in text and f'Max value: {SPEC["gain"].max}' in text
+    period = text[text.index('Parameter name: period'):]
+    assert 'Read only: true' in period and 'Read only' not in text[:text.index('period')]
+
+    assert missing.returncode != 0 and 'no_such_parameter' in missing.stderr
+
+    # Rejections: the node's reason on one stderr line, non-zero exit.
+    assert out_of_range.returncode != 0
+    assert 'gain' in out_of_range.stderr and '10' in out_of_range.stderr
+    assert len(out_of_range.stderr.strip().splitlines()) == 1
+    assert not_a_choice.returncode != 0
+    assert SPEC['mode'].check('bogus') in not_a_choice.stderr   # the on-set callback's reason
+    assert read_only.returncode != 0 and 'read-only' in read_only.stderr.lower()
+
+    # A YAML integer for a double parameter is taken as a double (2 → 2.0); rejected
+    # values above never reached the node.
+    ok = ros2(ros_env, 'param', 'set', '/fixture', 'gain', '2')
+    assert (ok.returncode, ok.stdout.strip()) == (0, 'Set parameter successful'), ok.stderr
+    got = ros2(ros_env, 'param', 'get', '/fixture', 'gain')
+    assert got.stdout.strip() == 'Double value is: 2.0'
+
+
+def test_dump_load_and_params_file(procs, probe, ros_env, tmp_path):
+    _start(procs, probe, ros_env, 'fixture', '-p', 'gain:=4.25')
+
+    dumped = ros2(ros_env, 'param', 'dump', '/fixture')
+    assert dumped.returncode == 0, dumped.stderr
+    params = yaml.safe_load(dumped.stdout)['/fixture']['ros__parameters']
+    assert params['gain'] == 4.25 and params['filter'] == {'order': SPEC['filter.order'].default}
+    assert params['weights'] == SPEC['weights'].default
+    assert params['period'] == SPEC['period'].default
+
+    dump_file = tmp_path / 'dump.yaml'
+    dump_file.write_text(dumped.stdout)
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('/fixture:\n  ros__parameters:\n    count: 500\n')
+    other = tmp_path / 'other.yaml'
+    other.write_text('/plant:\n  ros__parameters:\n    gain: 1.0\n')
+    reloaded, rejected, not_for_us = ros2_parallel(
+        ros_env, ('param', 'load', '/fixture', str(dump_file)),
+        ('param', 'load', '/fixture', str(bad)), ('param', 'load', '/fixture', str(other)))
+    # The dump loads back unchanged (read-only values equal to the node's are skipped).
+    assert reloaded.returncode == 0, reloaded.stderr
+    assert rejected.returncode != 0 and 'count' in rejected.stderr
+    assert not_for_us.returncode != 0 and '/fixture' in not_for_us.stderr
+
+    # A hand-written file: wildcard section, then the node's own section overrides it.
+    edited = tmp_path / 'edited.yaml'
+    edited.write_text('/**:\n  ros__parameters:\n    gain: 7.0\n    count: 9\n'
+                      'fixture:\n  ros__parameters:\n    gain: 3\n    filter:\n      order: 4\n')
+    loaded = ros2(ros_env, 'param', 'load', '/fixture', str(edited))
+    assert loaded.returncode == 0, loaded.stderr
+    params = yaml.safe_load(ros2(ros_env, 'param', 'dump', '/fixture').stdout)
+    params = params['/fixture']['ros__parameters']
+    assert (params['gain'], params['count'], params['filter']['order']) == (3.0, 9, 4)
+
+    # The dump is a valid --params-file: a restarted node starts with the dumped values.
+    procs.stop('fixture')
+    procs.processes.pop('fixture')
+    assert probe.wait_for(lambda: 'fixture' not in probe.node.get_node_names(), 10)
+    _start(procs, probe, ros_env, 'fixture', '--params-file', str(dump_file))
+    got = ros2(ros_env, 'param', 'get', '/fixture', 'gain')
+    assert got.stdout.strip() == 'Double value is: 4.25'
