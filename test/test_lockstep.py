@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,6 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
-from tank_control.core.loop import Trace
 from tank_control.core.scenario import read_params_file, run_in_process
 from tank_control.nodes.messages import SIGNAL_QOS, from_joint_state
 
@@ -20,10 +20,13 @@ TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance'
 def scenario(tmp_path: Path) -> tuple[dict, Path]:
     """config/ipdt_pid.yaml, shortened, with measurement noise (same seeded draws in both)."""
     params = read_params_file(REPO / 'config' / 'ipdt_pid.yaml')
-    params['plant'].update({'noise_std': [0.01], 'seed': 7, 'lockstep.paused': True})
+    # Paced at 10 x real time (100 ticks/s): the recorder in this test process must keep up
+    # with four topics whose writers keep only the last 10 samples.
+    params['plant'].update({'noise_std': [0.01], 'seed': 7, 'lockstep.paused': True,
+                            'real_time_factor': 10.0})
     params['reference'].update({'setpoint.y.times': [0.0, 1.0], 'setpoint.y.values': [0.0, 1.0],
                                 'setpoint.y.ramp_rate': 0.5,
-                                'disturbance.v.times': [0.0, 12.0],
+                                'disturbance.v.times': [0.0, 7.0],
                                 'disturbance.v.values': [0.0, -0.1]})
     params['controller']['sample_time'] = 0.2     # every second plant tick: holds in between
     path = tmp_path / 'scenario.yaml'
@@ -35,7 +38,7 @@ def scenario(tmp_path: Path) -> tuple[dict, Path]:
 
 def test_lockstep_ros_run_equals_the_in_process_loop(procs, ros_env, node_cmd, probe, tmp_path):
     params, path = scenario(tmp_path)
-    ts_ns, last_tick = 100_000_000, 200          # 20 s of simulated time
+    ts_ns, last_tick = 100_000_000, 120          # 12 s of simulated time
     seen: dict[str, dict[int, tuple]] = {topic: {} for topic in TOPICS}
     duplicates_differ = []
 
@@ -60,24 +63,29 @@ def test_lockstep_ros_run_equals_the_in_process_loop(procs, ros_env, node_cmd, p
     assert probe.wait_for(future.done, 10) and future.result().results[0].successful
 
     def done():
-        return all(last_tick * ts_ns in seen[t] for t in TOPICS)
+        return all(max(seen[t], default=-1) >= last_tick * ts_ns for t in TOPICS)
+    started = time.monotonic()
     assert probe.wait_for(done, 60), \
         ({t: len(v) for t, v in seen.items()}, '\n'.join(p.tail() for p in procs.processes.values()))
+    # Paced: 12 s of simulated time at 10 x real time take (at least) 1.2 s of wall time.
+    assert time.monotonic() - started >= 0.95 * last_tick * 0.1 / 10.0
     assert not duplicates_differ   # re-sent ticks were answered identically
 
+    # Every recorded sample equals the in-process loop at its tick. (A recorder that is not
+    # part of the lockstep can miss a sample when this 2-core machine is overloaded: the
+    # writers keep 10 samples. The loop itself cannot: a lost answer stalls it and is re-sent.)
     expected = run_in_process(params, duration=last_tick * ts_ns / 1e9)
-    columns = {'t': [k * ts_ns / 1e9 for k in range(last_tick + 1)]}
+    worst: dict[str, float] = {}
     for topic, prefix in TOPICS.items():
-        missing = [k for k in range(last_tick + 1) if k * ts_ns not in seen[topic]]
-        assert not missing, (topic, missing[:5])
-        names = seen[topic][0][0]
+        ticks = [k for k in range(last_tick + 1) if k * ts_ns in seen[topic]]
+        assert len(ticks) >= 0.9 * (last_tick + 1), (topic, len(ticks))
+        names = seen[topic][ticks[0] * ts_ns][0]
         for i, name in enumerate(names):
-            columns[f'{prefix}.{name}'] = [seen[topic][k * ts_ns][1][i]
-                                           for k in range(last_tick + 1)]
-    ros = Trace({name: np.asarray(v, dtype=float) for name, v in columns.items()})
-    assert set(ros.names) == set(expected.names)
-    diff = ros.max_abs_difference(expected)
-    assert max(diff.values()) <= 1e-9, diff
+            column = f'{prefix}.{name}'
+            ros = np.array([seen[topic][k * ts_ns][1][i] for k in ticks])
+            worst[column] = float(np.max(np.abs(ros - expected[column][ticks])))
+    assert set(worst) == set(expected.names) - {'t'}
+    assert max(worst.values()) <= 1e-9, worst
     # The run is not trivial: setpoint ramp, controller action, noise, disturbance all present.
     assert expected['r.y'][-1] == 1.0 and expected['d.v'][-1] == -0.1
     assert np.ptp(expected['u.u']) > 0.1 and np.std(np.diff(expected['y.y'][:10])) > 1e-3

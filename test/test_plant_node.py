@@ -68,7 +68,7 @@ def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, 
     stamps = [s for s, _, _ in rec.measurements]
     # One message per sample, stamps exactly sample_time apart, at the sample rate.
     assert all(b - a == 50_000_000 for a, b in zip(stamps, stamps[1:]))
-    assert 0.6 < elapsed / (20 * 0.05) < 1.6
+    assert 0.5 < elapsed / (20 * 0.05) < 2.0   # loose: the test machine is shared
     assert all(names == ('y',) and values == (2.5,) for _, names, values in rec.measurements)
     assert rec.clock == []   # no /clock in wall mode
 
@@ -141,3 +141,36 @@ def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs,
     log = proc.tail(50)
     assert log.count('non-finite value') == 2 and log.count("unknown channel 'w'") == 1
     assert proc.returncode is None   # still running
+
+
+def test_sim_mode_publishes_clock_at_the_real_time_factor(procs, ros_env, node_cmd, probe,
+                                                         tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='fopdt', sample_time=0.1,
+                       clock_mode='sim', real_time_factor=5.0)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: len(rec.clock) >= 3, 20), proc.tail()
+    n = len(rec.clock)
+    t0 = probe.node.get_clock().now().nanoseconds
+    assert probe.wait_for(lambda: len(rec.clock) >= n + 25, 10)
+    wall = (probe.node.get_clock().now().nanoseconds - t0) / 1e9
+    sim = (rec.clock[-1] - rec.clock[n - 1]) / 1e9
+    assert 0.5 < (sim / wall) / 5.0 < 2.0   # 5 × real time (loose: shared machine)
+    assert all(b - a == 100_000_000 for a, b in zip(rec.clock, rec.clock[1:]))
+    stamps = [s for s, _, _ in rec.measurements]
+    assert stamps and all(s % 100_000_000 == 0 for s in stamps)   # on the k·ts grid
+
+
+def test_unanswered_lockstep_tick_is_resent_unchanged_with_the_same_noise(procs, ros_env,
+                                                                         node_cmd, probe,
+                                                                         tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.1,
+                       clock_mode='lockstep', noise_std=[0.5], seed=3, diagnostics_period=0.1,
+                       **{'lockstep.resend_period': 0.1})
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: len(rec.measurements) >= 4, 20), proc.tail()
+    # Nobody answers: tick 0 again and again, the very same message (one noise draw).
+    assert {m for m in rec.measurements} == {rec.measurements[0]}
+    assert rec.measurements[0][0] == 0 and rec.measurements[0][2] != (0.0,)
+    assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['resent_ticks']) >= 3
+                          and rec.diagnostics[-1]['waiting_for'] == 'manipulated, disturbance'
+                          if rec.diagnostics else False, 5), rec.diagnostics[-1:]

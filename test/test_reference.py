@@ -92,3 +92,15 @@ def test_param_specs_describe_every_channel_field_with_the_schedule_as_default()
     assert specs['disturbance.v.value'].default == -0.1
     assert specs['setpoint.channels'].read_only
     assert specs['setpoint.y.ramp_rate'].check(-1.0) is not None
+
+
+def test_limit_changes_are_judged_on_the_present_and_future_not_the_past():
+    ref = reference_from_params({'setpoint.channels': ['y'], 'setpoint.y.times': [0.0, 5.0, 20.0],
+                                 'setpoint.y.values': [0.0, 50.0, 60.0], 'setpoint.y.ramp_rate': 2.0})
+    # At t = 10 the ramp is at 10 (from 0 toward 50 since t = 5): 0 is past, 10 is current.
+    assert ref.update('setpoint', 'y', {'min': 11.0}, t=10.0) == \
+        'setpoint.y.values: 10 is out of range; allowed [11, 1e+09]'
+    assert ref.update('setpoint', 'y', {'min': 5.0}, t=10.0) is None
+    # The ramp and the later scheduled change are unaffected.
+    assert [ref.setpoints(t)[0] for t in (10.0, 15.0, 30.0, 40.0)] == [10.0, 20.0, 50.0, 60.0]
+    assert ref.update('setpoint', 'y', {'max': 55.0}, t=12.0).startswith('setpoint.y.values: 60')

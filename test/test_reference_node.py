@@ -60,6 +60,11 @@ def test_wall_mode_publishes_the_schedule_and_applies_runtime_changes(procs, ros
     # The change is in force at the next published instant (at most one message later).
     assert setpoints[n + 1][2] == (7.5,)
     assert all(v[0] in (2.0, 7.5) for _, _, v in setpoints[n - 1:])
+    # Limits are checked against the running schedule (with the override) before acceptance.
+    result = set_param(probe, 'setpoint.y.min', 8.0)
+    assert not result.successful
+    assert result.reason == 'setpoint.y.values: 7.5 is out of range; allowed [8, 10]'
+    assert set_param(probe, 'setpoint.y.min', 5.0).successful
     # Stamps increase by about the sample time (wall clock).
     stamps = [s for s, _, _ in setpoints[-5:]]
     assert all(0.02e9 < b - a < 0.2e9 for a, b in zip(stamps, stamps[1:]))
@@ -82,6 +87,10 @@ def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
     d = {s: v[0] for s, _, v in disturbances}
     # Ramp from 0 at t = 0.5 s toward -0.5 at 1 /s: -0.1 at 0.6 s, -0.5 from 1.0 s.
     assert abs(d[600_000_000] + 0.1) < 1e-12 and d[1_000_000_000] == -0.5
+    # Each tick was answered once; the next one ahead (anticipated: ticks are evenly spaced).
+    assert probe.wait_for(lambda: setpoints[-1][0] == 1_100_000_000, 5)
+    assert sorted({s for s, _, _ in setpoints}) == [k * 100_000_000 for k in range(12)]
+    assert len({m for m in setpoints}) == 12   # repeated stamps carry identical answers
     # A re-sent tick gets the identical answer again.
     n = len(setpoints)
     clock.publish(clock_msg(1_000_000_000))

@@ -101,11 +101,22 @@ class ChannelSchedule:
             x = _approach(x, self.values[i], self.ramp_rate * (end - self.times[i]))
         return x
 
+    def compacted(self, t: float) -> ChannelSchedule:
+        """The same values from ``t`` on, with the past folded into the value at ``t``
+        (held from 0) — so limits are never judged on values already past."""
+        future = bisect.bisect_right(self.times, t)
+        x, target = self.at(t), self.target(t)
+        times, values = [0.0], [x]
+        if target != x:                       # a ramp in progress continues toward target
+            times.append(t)
+            values.append(target)
+        return replace(self, times=tuple(times) + self.times[future:],
+                       values=tuple(values) + self.values[future:])
+
     def override(self, value: float, t: float) -> ChannelSchedule:
-        """Target ``value`` from ``t`` on; scheduled entries after ``t`` are dropped."""
-        keep = bisect.bisect_right(self.times, t)
-        return replace(self, times=self.times[:keep] + (t,),
-                       values=self.values[:keep] + (float(value),))
+        """Target ``value`` from ``t`` on; scheduled entries after ``t`` are dropped
+        (a ramp continues from the value reached at ``t``)."""
+        return replace(self, times=(0.0, t), values=(self.at(t), float(value)))
 
 
 def _approach(x: float, target: float, delta: float) -> float:
@@ -168,7 +179,10 @@ class Reference:
             for key in ('ramp_rate', 'min', 'max'):
                 if key in fields:
                     fields[key] = float(fields[key])
-            candidate = replace(channels[name], **fields)
+            base = channels[name]
+            if 'times' not in fields and 'values' not in fields:
+                base = base.compacted(t)      # keep the future, judge no past values
+            candidate = replace(base, **fields)
             if value is not None:
                 value = float(value)
                 if not candidate.min <= value <= candidate.max:
@@ -263,6 +277,9 @@ def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
         ParamSpec('clock_mode', 'wall', 'wall: publish every sample_time on a wall timer; '
                   'sim/lockstep (also implied by use_sim_time): answer every /clock tick, '
                   'stamped t_k', choices=('wall', 'sim', 'lockstep'), read_only=True),
+        ParamSpec('lockstep.anticipate', True, 'sim/lockstep: on /clock t_k also answer the '
+                  'next tick t_k + (t_k - t_k-1) ahead (same values and stamps; the '
+                  'controller then waits only for the measurement)', read_only=True),
         # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)
         ParamSpec('setpoint.channels', list(reference.setpoint_names) or [''],
                   'setpoint channel names (= controlled outputs)', read_only=True),

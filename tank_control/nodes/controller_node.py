@@ -15,7 +15,13 @@ sample instant) and ``/diagnostics`` (mode, saturation, anti-windup, faults,
 counters, computation time and the controller's ``status`` as ``status.*``).
 A kind's operator commands are ``std_srvs/Trigger`` services ``~/<command>``;
 values a kind produces while running (``results``) are written back to its
-parameters after each sample.
+parameters after each sample and after each command. A kind with a state machine
+(``ControllerKind.state``, e.g. ``autotune.state`` of ``relay_autotune``)
+publishes every state change on ``~/<state name, '.' → '_'>`` (e.g.
+``/controller/autotune_state``; ``std_msgs/String`` holding the state name,
+reliable, transient local, keep-last 10: a late subscriber gets the recent states,
+the last one current)
+and in ``/diagnostics`` at once (message ``<state name> <state>[: reason]``).
 
 Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
 
@@ -51,7 +57,9 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from tank_control.core.control import registry
@@ -62,6 +70,14 @@ from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DI
                                          from_joint_state, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
+
+#: State topic of a kind with a state machine: reliable, transient local, keep-last 10 (a
+#: one-sample state such as ``tuned`` is not overwritten before delivery); a late subscriber
+#: gets the recent states, the last one is the current state.
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
 
 class ControllerNode(Node):
     """Thin adapter: parameters → core controller → timer/lockstep → messages."""
@@ -111,6 +127,11 @@ class ControllerNode(Node):
             required['disturbance'] = ()   # arrival is enough; missing channels keep last values
         self._inbox = StampedInbox(required)
         self._answers = Answers()
+        self._state_pub = None
+        if self._kind.state is not None:
+            self._state_pub = self.create_publisher(
+                String, '~/' + self._kind.state.replace('.', '_'), STATE_QOS)
+            self._state_pub.publish(String(data=str(self._params.values[self._kind.state])))
         for command in self._kind.commands:
             self.create_service(Trigger, f'~/{command}',
                                 lambda request, response, c=command: self._on_command(c, response))
@@ -301,6 +322,20 @@ class ControllerNode(Node):
             result = self._params.write(changed)
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
+            state = self._kind.state
+            if state is not None and state in changed and self._state_pub is not None:
+                self._state_pub.publish(String(data=str(changed[state])))
+                self.get_logger().info(f'{self._state_text()}')
+                self._publish_diagnostics()
+
+    def _state_text(self) -> str:
+        """``<state name> <state>[: reason]`` of a kind with a state machine, else ''."""
+        state = self._kind.state
+        if state is None:
+            return ''
+        values = self._params.values
+        reason = values.get(state.rsplit('.', 1)[0] + '.reason', '') if '.' in state else ''
+        return f'{state} {values[state]}' + (f': {reason}' if reason else '')
 
     def _on_command(self, command: str, response: Trigger.Response) -> Trigger.Response:
         """An operator command (std_srvs/Trigger ``~/<command>``) for the running controller."""
@@ -309,6 +344,7 @@ class ControllerNode(Node):
         except ValueError as exc:
             response.success, response.message = False, f'{command}: {exc}'
         self.get_logger().info(f'{command}: {response.message}')
+        self._write_results()
         return response
 
     def _hold(self, fault: str) -> np.ndarray:
@@ -338,6 +374,8 @@ class ControllerNode(Node):
         waiting = len(self._y) < len(self._outputs) and self._mode != 'lockstep'
         message = (f'measurement {self._fault}: holding' if self._fault
                    else 'waiting for measurement' if waiting else 'running')
+        if self._kind.state is not None:
+            message += f'; {self._state_text()}'
         fields = {
             'controller': self._params.values['controller'],
             'clock_mode': self._mode,

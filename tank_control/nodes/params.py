@@ -138,6 +138,7 @@ class ParameterBinding:
         self._pending: dict[str, ParamValue] = {}
         self.rejected = 0
         self.last_rejection = ''
+        self._writing = False        # inside write(): the node's own values, not a user's
         self._declare()
         node.add_pre_set_parameters_callback(self._pre_set)
         node.add_on_set_parameters_callback(self._on_set)
@@ -206,6 +207,8 @@ class ParameterBinding:
     def _count_descriptor_rejection(self, spec: ParamSpec, value: Any) -> None:
         """Count (and log) a change rclpy's descriptor check will refuse before our
         on-set check runs (read-only, outside the range); rclpy returns the reason."""
+        if self._writing:
+            return               # write() unlocks read-only results for the node itself
         if spec.read_only:
             self._note_rejection(f'{spec.name}: read-only (set at start-up only)')
         elif isinstance(value, (int, float)) and not isinstance(value, bool) \
@@ -265,9 +268,11 @@ class ParameterBinding:
         pending_before = dict(self._pending)
         for name in locked:
             self._node.describe_parameter(name).read_only = False
+        self._writing = True
         try:
             result = self._node.set_parameters_atomically(params)
         finally:
+            self._writing = False
             for name in locked:
                 self._node.describe_parameter(name).read_only = True
         self._pending = pending_before

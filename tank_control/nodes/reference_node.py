@@ -10,7 +10,12 @@ Timing: with ``clock_mode: wall`` (default) and without ``use_sim_time`` on a
 wall timer every ``sample_time`` (schedule time = seconds since start, stamp =
 now); with ``clock_mode`` ``sim``/``lockstep`` or ``use_sim_time`` on every
 ``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
-re-sent tick gets the same messages again, nothing is recomputed).
+re-sent tick gets the same messages again, nothing is recomputed). With
+``lockstep.anticipate`` (default) it also answers the next tick
+``t_k + (t_k − t_{k−1})`` right away: the values are a function of time only,
+so the messages are the ones it would send on ``/clock t_{k+1}``, and the
+controller of tick k+1 then needs only the measurement — one DDS hop less per
+tick. (Live parameter changes then act from the next tick not yet answered.)
 
 Parameters: ``core/reference.py`` (layout and semantics). Runtime changes
 (``ros2 param set /reference setpoint.y.value 2.0``) are validated (limits,
@@ -19,19 +24,22 @@ effect at the next published instant.
 """
 from __future__ import annotations
 
+import copy
 import sys
 from typing import Any
 
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import seconds, to_ns
-from tank_control.core.reference import (FIELDS, KINDS, Reference, channel_lists,
+from tank_control.core.reference import (KINDS, Reference, channel_lists,
                                          reference_from_params, reference_params,
-                                         schedule_from_fields, split_param_name)
-from tank_control.nodes.clock import Answers, steady_clock
+                                         split_param_name)
+from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
-                                         TOPIC_SETPOINT, stamp_to_ns, to_joint_state)
+                                         TOPIC_SETPOINT, quiet_publisher_events,
+                                         quiet_subscription_events, stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
 
@@ -57,16 +65,20 @@ class ReferenceNode(Node):
         self.reference: Reference = reference
         self.params = ParameterBinding(self, reference_params(reference),
                                        cross_check=self._cross_check)
-        self.setpoint_pub = self.create_publisher(type(to_joint_state(0, [], [])),
-                                                  TOPIC_SETPOINT, SIGNAL_QOS)
-        self.disturbance_pub = self.create_publisher(type(to_joint_state(0, [], [])),
-                                                     TOPIC_DISTURBANCE, SIGNAL_QOS)
-        self.answers = Answers()
+        self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, SIGNAL_QOS,
+                                                  event_callbacks=quiet_publisher_events())
+        self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
+                                                     event_callbacks=quiet_publisher_events())
+        self._last_t = 0.0
+        self._answered: dict[int, tuple[JointState, JointState]] = {}
+        self._last_clock: int | None = None
+        self._anticipate = bool(self.params.values['lockstep.anticipate'])
         self.published = 0
         self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
                              or self.params.values['clock_mode'] != 'wall')
         if self.use_sim_time:
-            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS)
+            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
+                                     event_callbacks=quiet_subscription_events())
         else:
             period = float(self.params.values['sample_time'])
             self._start_ns = self.get_clock().now().nanoseconds
@@ -79,20 +91,23 @@ class ReferenceNode(Node):
 
     # ------------------------------------------------------------- parameters
     def _cross_check(self, values: dict[str, Any]) -> str | None:
-        """The candidate schedules must be valid; an override value must be within limits."""
-        for kind in KINDS:
-            names = channel_lists(values)[0 if kind == 'setpoint' else 1]
-            for ch in names:
-                fields = {f: values[f'{kind}.{ch}.{f}'] for f in FIELDS
-                          if f != 'value' and f'{kind}.{ch}.{f}' in values}
-                try:
-                    schedule = schedule_from_fields(f'{kind}.{ch}', fields)
-                except ValueError as exc:
-                    return str(exc)
-                value = values.get(f'{kind}.{ch}.value')
-                if value is not None and not schedule.min <= value <= schedule.max:
-                    return (f'{kind}.{ch}.value: {value:g} is out of range; allowed '
-                            f'[{schedule.min:g}, {schedule.max:g}]')
+        """The change must leave every schedule valid: it is tried on a copy of the
+        running reference (which includes earlier overrides), so nothing accepted
+        here can be refused when it is applied."""
+        params = getattr(self, 'params', None)
+        if params is None:
+            return None          # start-up: reference_from_params has checked the file
+        current = params.values
+        trial = copy.deepcopy(self.reference)
+        by_channel: dict[tuple[str, str], dict[str, Any]] = {}
+        for name, value in values.items():
+            parts = split_param_name(name)
+            if parts and current.get(name) != value:
+                by_channel.setdefault(parts[:2], {})[parts[2]] = value
+        for (kind, ch), changes in by_channel.items():
+            reason = trial.update(kind, ch, changes, self._last_t)
+            if reason:
+                return reason
         return None
 
     def _apply_pending(self, t: float) -> None:
@@ -114,25 +129,40 @@ class ReferenceNode(Node):
 
     # ---------------------------------------------------------------- publish
     def _publish(self, stamp_ns: int, t: float) -> None:
+        self._last_t = max(self._last_t, t)
         self._apply_pending(t)
         ref = self.reference
         sp = to_joint_state(stamp_ns, ref.setpoint_names, ref.setpoints(t))
         dist = to_joint_state(stamp_ns, ref.disturbance_names, ref.disturbances(t))
-        self.answers.remember(stamp_ns, sp, dist)
+        self._answered[stamp_ns] = (sp, dist)
         self.setpoint_pub.publish(sp)
         self.disturbance_pub.publish(dist)
         self.published += 1
 
     def _on_clock(self, msg: Clock) -> None:
+        """Answer tick t_k once (idempotent: a re-sent /clock gets the same messages);
+        with ``lockstep.anticipate`` also answer the next tick ahead."""
         t_ns = stamp_to_ns(msg.clock)
-        cached = self.answers.get(t_ns)
-        if cached is not None:            # a re-sent tick: the same answer again
+        if t_ns == 0 and self._last_clock:  # the plant (re)started: a new run
+            self.get_logger().info('/clock restarted at 0: answering a new run')
+            self._answered.clear()
+            self._last_clock = None
+        if self._last_clock is not None and t_ns < self._last_clock:
+            return                        # a stale duplicate of an earlier tick
+        cached = self._answered.get(t_ns)
+        if t_ns == self._last_clock and cached is not None:   # the plant re-sent tick k
             for pub, answer in zip((self.setpoint_pub, self.disturbance_pub), cached):
                 pub.publish(answer)
             return
-        if self.answers.stamp is not None and t_ns < self.answers.stamp:
-            return                        # a stale duplicate of an earlier tick
-        self._publish(t_ns, seconds(t_ns))
+        previous, self._last_clock = self._last_clock, t_ns
+        for stamp in [s for s in self._answered if s < t_ns]:
+            del self._answered[stamp]
+        if cached is None:
+            self._publish(t_ns, seconds(t_ns))
+        if self._anticipate and previous is not None and t_ns > previous:
+            ahead = 2 * t_ns - previous   # the plant's ticks are evenly spaced
+            if ahead not in self._answered:
+                self._publish(ahead, seconds(ahead))
 
     def _on_timer(self) -> None:
         now_ns = self.get_clock().now().nanoseconds

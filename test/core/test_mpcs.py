@@ -312,12 +312,11 @@ def test_runs_in_the_project_loop_from_an_off_nominal_start():
     assert np.abs(trace['y.T_out'][-150:] - 34.0).max() <= 0.02
 
 
-def test_registry_integration_with_the_one_line_registration(monkeypatch):
-    """With ``'mpcs': ('tank_control.core.control.mpcs', 'controller_kind')`` in
-    registry._KIND_FACTORIES, make_controller / step_with_changes drive MPCS."""
+def test_registered_kind_is_built_checked_and_reconfigured_by_the_registry():
+    """``controller: mpcs`` is a registered kind: make_controller / check /
+    step_with_changes (what controller_node and the in-process loop call) drive MPCS."""
     from tank_control.core.control import registry
-    monkeypatch.setitem(registry._KIND_FACTORIES, 'mpcs',
-                        ('tank_control.core.control.mpcs', 'controller_kind'))
+    assert 'mpcs' in registry.kind_names()
     values = registry.complete_values({'controller': 'mpcs', 'mpcs.solver': 'qp'})
     ctl = registry.make_controller(values)
     assert isinstance(ctl, Mpcs) and ctl.config.solver == 'qp'

@@ -70,6 +70,11 @@ class ControllerKind:
     """Operator commands by name; controller_node offers each as a ``std_srvs/Trigger``
     service ``~/<name>`` that calls ``commands[name](controller) -> (success, message)``,
     e.g. ``{'start_autotune': lambda c: c.start(), 'abort_autotune': lambda c: c.abort()}``."""
+    state: str | None = None
+    """Name of the ``results`` entry that is the controller's state-machine state (e.g.
+    ``autotune.state``); controller_node publishes each change on ``~/<name, '.' → '_'>``
+    (``std_msgs/String``, reliable, transient local: a late subscriber gets the current
+    state) and in ``/diagnostics`` at once."""
 
 
 # ------------------------------------------------------------------ pid
@@ -286,6 +291,8 @@ _KIND_FACTORIES: dict[str, tuple[str, str]] = {
     'pid': (__name__, '_pid_kind'),
     'two_loop_pi': (__name__, '_two_loop_kind'),
     'smith_pi': (__name__, '_smith_kind'),
+    'mpcs': ('tank_control.core.control.mpcs', 'controller_kind'),
+    'relay_autotune': ('tank_control.core.control.relay_autotune', 'relay_autotune_kind'),
 }
 
 

@@ -43,6 +43,11 @@ Faults end the test in ``failed`` with ``status['reason']``: no oscillation with
 measurement or setpoint, an identification or tuning rule that cannot be applied.
 ``abort()`` ends it in ``aborted``.
 
+Starting: :meth:`start` (the node's ``~/start_autotune`` service or the
+``autotune.start`` parameter, which the node re-arms to false), or at a scheduled
+time ``autotune.start_time`` (> 0, the loop's time in seconds), which the
+in-process loop and a lockstep ROS run reach at the same sample.
+
 Designed to be driven by a node: ``start()``/``abort()`` return ``(accepted,
 message)`` (a std_srvs/Trigger answer), ``state``/``status`` are plain values.
 """
@@ -89,6 +94,7 @@ class AutotuneConfig:
     process_gain: float = 0.0
     rule: str = 'zn_001'
     kind: str = 'pid'
+    start_time: float = 0.0
 
     @classmethod
     def from_params(cls, values: Mapping[str, Any]) -> AutotuneConfig:
@@ -152,6 +158,10 @@ def autotune_params() -> tuple[ParamSpec, ...]:
                   'FOPDT model', choices=RULES),
         ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
                   choices=('p', 'pi', 'pid')),
+        ParamSpec('autotune.start_time', 0.0, 'start a test at the first sample at or after '
+                  'this time [s, the loop\'s (simulated) time], once; 0 = no scheduled start. '
+                  'Lets an in-process run (core/loop.py) and a lockstep ROS run start at the '
+                  'same sample', min=0.0, max=big),
     ) + autotune_result_params()
 
 
@@ -163,6 +173,9 @@ def autotune_result_params() -> tuple[ParamSpec, ...]:
         ParamSpec('autotune.state', 'idle', 'state of the auto-tuner (read-only)', choices=STATES,
                   read_only=True),
         ParamSpec('autotune.reason', '', 'why the last test failed or was aborted (read-only)',
+                  read_only=True),
+        ParamSpec('autotune.state_time', 0.0, 'loop time of the first sample in the current '
+                  'state [s] (simulated time in sim/lockstep; read-only)', min=0.0, max=1e12,
                   read_only=True),
         ParamSpec('autotune.cycles', 0, 'complete relay cycles counted since the relay started '
                   'or the bias was last corrected (read-only)', min=0, max=1_000_000,
@@ -204,12 +217,15 @@ class RelayAutotuner:
         self._check_config(self._cfg)
         self._state = 'idle'
         self._reason = ''
+        self._state_time = 0.0                  # first sample in the current state [s]
+        self._stepped_state = 'idle'            # state after the previous step
         self._pending: float | None = None      # bumpless PID (re)start from this u
         self._last_out: float | None = None     # last output sent [u units]
         self._saved_gains: dict[str, Any] | None = None
         self._result: ident.RelayIdentification | None = None
         self._gains: dict[str, float | None] | None = None
         self._cycles = 0
+        self._scheduled_done = False            # autotune.start_time has fired
         self._clear_test()
 
     # ------------------------------------------------------------------ API
@@ -235,6 +251,8 @@ class RelayAutotuner:
         if self._state in TESTING:
             raise ValueError('autotune: settings cannot change while a test is running; abort it first')
         self._check_config(autotune)
+        if autotune.start_time != self._cfg.start_time:
+            self._scheduled_done = False          # a new scheduled start is armed
         self._cfg = autotune
 
     def start(self) -> tuple[bool, str]:
@@ -273,6 +291,7 @@ class RelayAutotuner:
             'autotune.start': False,
             'autotune.state': self._state,
             'autotune.reason': self._reason,
+            'autotune.state_time': float(self._state_time),
             'autotune.cycles': int(self._cycles),
             'autotune.ku': float(res.ku) if res else 0.0,
             'autotune.tu': float(res.tu) if res else 0.0,
@@ -299,9 +318,15 @@ class RelayAutotuner:
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One sample: time [s], measurement, setpoint → manipulated input (1 value).
 
-        The PID's rate limit also holds across the hand-overs PID → relay → PID.
+        The PID's rate limit also holds across the hand-overs PID → relay → PID. At the
+        first sample with ``t >= autotune.start_time`` (when > 0) a test starts, once
+        (re-armed when start_time changes), exactly as :meth:`start` before that sample.
         """
         yv, rv = _scalar(y, 'y'), _scalar(r, 'r')
+        if (self._cfg.start_time > 0 and not self._scheduled_done
+                and float(t) >= self._cfg.start_time - 1e-9):
+            self._scheduled_done = True
+            self.start()          # refused (no effect) if a test is already running
         u = None
         if self._state in TESTING:
             u = self._test_step(float(t), yv, rv)
@@ -310,11 +335,14 @@ class RelayAutotuner:
         if u is None:
             u = self._limit(self._pid_step(yv, rv))
         self._last_out = u
+        if self._state != self._stepped_state:   # also a start()/abort() between samples
+            self._stepped_state, self._state_time = self._state, max(float(t), 0.0)
         return np.array([u])
 
     @property
     def status(self) -> Mapping[str, Any]:
-        """state, reason, cycles (complete relay cycles counted), u0 (relay bias), hysteresis ε,
+        """state, reason, state_time (loop time of the first sample in the state [s]), cycles
+        (complete relay cycles counted), u0 (relay bias), hysteresis ε,
         noise_std σ, ku, tu (first harmonic, corrected), ku_df, tu_df (describing function),
         amplitude, model (dict), model_method, gains (dict from the rule) and the PID status
         under 'pid'. Results are those of the last successful test (NaN/empty before one)."""
@@ -322,6 +350,7 @@ class RelayAutotuner:
         status: dict[str, Any] = {
             'state': self._state,
             'reason': self._reason,
+            'state_time': self._state_time,
             'cycles': self._cycles,
             'u0': self._u0 if self._u0 is not None else math.nan,
             'hysteresis': self._eps,
@@ -624,8 +653,6 @@ def relay_autotune_kind():
     (one line there: ``'relay_autotune': ('tank_control.core.control.relay_autotune',
     'relay_autotune_kind')``). Operator commands ``~/start_autotune``, ``~/abort_autotune``;
     results written back to the read-only ``autotune.*`` parameters and the gains."""
-    from dataclasses import fields as dc_fields
-
     from tank_control.core.control import registry
     from tank_control.core.control.pid import check_pid_relations, pid_params
 
@@ -644,13 +671,10 @@ def relay_autotune_kind():
                           read_only=True),
                 ParamSpec('input_names', ['u'], 'manipulated channel written', read_only=True))
 
-    kwargs: dict[str, Any] = dict(
+    return registry.ControllerKind(
         name='relay_autotune', params=lambda: pid_params() + autotune_params() + channels(),
         check=check, build=build, update=update_relay_autotuner,
-        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)')
-    available = {f.name for f in dc_fields(registry.ControllerKind)}
-    if 'results' in available:
-        kwargs['results'] = lambda tuner: tuner.results()
-    if 'commands' in available:
-        kwargs['commands'] = AUTOTUNE_COMMANDS
-    return registry.ControllerKind(**kwargs)
+        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)',
+        results=lambda tuner: tuner.results(), state='autotune.state',
+        commands={name: (lambda tuner, name=name: tuner.command(name))
+                  for name in AUTOTUNE_COMMANDS})

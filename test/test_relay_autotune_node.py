@@ -1,0 +1,289 @@
+"""controller: relay_autotune over real DDS (issue 6): plant (FOPDT, lockstep as fast as
+possible), controller and reference in three processes, driven by the operator interface —
+``/controller/start_autotune`` / ``abort_autotune`` services, the ``autotune.start``
+parameter, the ``/controller/autotune_state`` topic and parameter reads.
+
+001 §1.2.2's FOPDT (K = 0.05, T = 10 s, L = 3 s): exact ultimate point Ku = 117.8,
+Tu = 10.82 s (SPEC §1.2); the tuner must find them within 3 % and 2 %.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from tank_control.core.loop import run_loop
+from tank_control.core.scenario import build, read_params_file
+from tank_control.nodes.controller_node import STATE_QOS
+from tank_control.nodes.messages import from_joint_state
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / 'test' / 'core'))
+from test_relay_autotune_helpers import exact_fopdt_ultimate  # noqa: E402
+
+KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
+NODES = ('plant', 'controller', 'reference')
+#: The recorder keeps every sample: the lockstep loop runs faster than the probe spins.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def fopdt_params(paused: bool, **controller) -> dict:
+    """config/fopdt_autotune.yaml, lockstep as fast as possible, no scheduled start."""
+    params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
+    params['plant'].update({'real_time_factor': 0.0, 'lockstep.paused': paused})
+    params['controller'].update({'autotune.start_time': 0.0, **controller})
+    return params
+
+
+class Graph:
+    """plant, controller, reference (+ ``extra`` controller_node processes, by node name) from
+    ``params`` (node name → flat parameters); the probe as operator and recorder."""
+
+    def __init__(self, procs, ros_env, node_cmd, probe, tmp_path: Path, params: dict,
+                 extra: tuple[str, ...] = ()) -> None:
+        self.params = params
+        path = tmp_path / 'autotune.yaml'
+        # JSON is YAML with quoted strings (ROS 2 reads an unquoted y as a boolean).
+        path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in NODES + extra}))
+        self.probe, self.procs = probe, procs
+        node = probe.node
+        self.states: list[str] = []
+        self.signals: dict[str, dict[int, dict[str, float]]] = {'measurement': {},
+                                                                'manipulated': {}}
+        self.diag_messages: list[str] = []
+        self.diag: dict[str, str] = {}
+        subs = [node.create_subscription(String, '/controller/autotune_state',
+                                         lambda m: self.states.append(m.data), STATE_QOS)]
+        for topic in self.signals:
+            subs.append(node.create_subscription(JointState, topic, self._recorder(topic),
+                                                 RECORD_QOS))
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        for name in NODES:
+            procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
+        for name in extra:
+            procs.start(name, node_cmd('controller_node', '--params-file', str(path), '-r',
+                                       f'__node:={name}'), env=ros_env)
+        assert probe.wait_for(lambda: all(s.get_publisher_count() for s in subs), 30), self.logs()
+        self.controller = AsyncParameterClient(node, 'controller')
+        self.plant = AsyncParameterClient(node, 'plant')
+        self.start = node.create_client(Trigger, '/controller/start_autotune')
+        self.abort = node.create_client(Trigger, '/controller/abort_autotune')
+        assert probe.wait_for(lambda: self.controller.services_are_ready()
+                              and self.plant.services_are_ready() and self.start.service_is_ready()
+                              and self.abort.service_is_ready(), 20), self.logs()
+
+    def _recorder(self, topic: str):
+        def record(msg: JointState) -> None:
+            stamp, names, values = from_joint_state(msg)
+            self.signals[topic].setdefault(stamp, {}).update(zip(names, values))
+        return record
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith('controller:'):
+                self.diag_messages.append(status.message)
+                self.diag = {kv.key: kv.value for kv in status.values}
+
+    def logs(self) -> str:
+        return '\n'.join(p.tail() for p in self.procs.processes.values())
+
+    def result(self, future, timeout: float = 10.0):
+        assert self.probe.wait_for(future.done, timeout), self.logs()
+        return future.result()
+
+    def trigger(self, client) -> Trigger.Response:
+        return self.result(client.call_async(Trigger.Request()))
+
+    def get(self, *names: str) -> dict:
+        values = self.result(self.controller.get_parameters(list(names))).values
+        return {n: Parameter.from_parameter_msg(_msg(n, v)).value for n, v in zip(names, values)}
+
+    def set(self, client: AsyncParameterClient, **values) -> None:
+        params = [Parameter(n.replace('__', '.'), value=v) for n, v in values.items()]
+        results = self.result(client.set_parameters(params)).results
+        assert all(r.successful for r in results), [r.reason for r in results]
+
+    def wait_state(self, state: str, timeout: float = 60.0, since: int = 0) -> None:
+        """Until the state topic has shown ``state`` after its first ``since`` messages; fails
+        at once if the test ends otherwise (failed/aborted) first."""
+        ends = {'failed', 'aborted'} - {state}
+
+        def first():
+            return next((s for s in self.states[since:] if s == state or s in ends), None)
+        assert self.probe.wait_for(lambda: first() is not None, timeout), (self.states,
+                                                                           self.logs())
+        assert first() == state, (self.states, self.get('autotune.reason'))
+
+    def last_stamp(self) -> int:
+        return max(self.signals['measurement'], default=-1)
+
+    def state_time(self, after: float) -> float:
+        """``autotune.state_time`` once it is later than ``after`` [s] (a command changes the
+        state between samples; the time is that of the next sample)."""
+        seen = {}
+
+        def later() -> bool:
+            seen['t'] = self.get('autotune.state_time')['autotune.state_time']
+            return seen['t'] > after
+        assert self.probe.wait_for(later, 10), (seen, self.logs())
+        return seen['t']
+
+    def measured(self, t0: float, t1: float, channel: str = 'y') -> list[float]:
+        """Recorded ``channel`` on (t0, t1] [s], once the recorder has it (it may lag the loop)."""
+        end = round(t1 * 1e9)
+        assert self.probe.wait_for(lambda: self.last_stamp() >= end, 60), self.logs()
+        return [v[channel] for t, v in self.signals['measurement'].items()
+                if t0 * 1e9 < t <= end]
+
+
+def _msg(name, value):
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    return ParameterMsg(name=name, value=value)
+
+
+def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env, node_cmd,
+                                                                  probe, tmp_path):
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(paused=True))
+    graph.wait_state('idle', 10)                       # transient local: the current state
+    reply = graph.trigger(graph.start)                 # before tick 0 (the plant is paused)
+    assert reply.success and 'settling' in reply.message
+    graph.wait_state('settling', 10)
+    graph.set(graph.plant, lockstep__paused=False)
+    graph.wait_state('running', 60)
+    assert graph.states == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+
+    got = graph.get('autotune.state', 'autotune.reason', 'autotune.ku', 'autotune.tu',
+                    'autotune.model_kind', 'autotune.model_dead_time', 'autotune.start',
+                    'kp', 'ti', 'td', 'b', 'c')
+    assert got['autotune.state'] == 'running' and got['autotune.reason'] == ''
+    assert got['autotune.ku'] == pytest.approx(KU_001, rel=0.03)
+    assert got['autotune.tu'] == pytest.approx(TU_001, rel=0.02)
+    assert got['autotune.model_kind'] == 'fopdt'
+    assert got['autotune.model_dead_time'] == pytest.approx(3.0, rel=0.05)
+    # the tuned gains: Ziegler-Nichols PID of 001 Table 6.2 from the identified Ku, Tu
+    ku, tu = got['autotune.ku'], got['autotune.tu']
+    assert (got['kp'], got['ti'], got['td']) == pytest.approx((0.6 * ku, 0.5 * tu, 0.12 * tu),
+                                                              rel=1e-9)
+    assert (got['b'], got['c'], got['autotune.start']) == (1.0, 1.0, False)
+    # result parameters are read-only for users
+    refused = graph.result(graph.controller.set_parameters(
+        [Parameter('autotune.ku', value=1.0)])).results[0]
+    assert not refused.successful
+    # the node's own result writes are not counted as rejected changes: only that one
+    assert probe.wait_for(lambda: graph.diag.get('rejected_parameters') == '1', 5), graph.diag
+    assert probe.wait_for(lambda: any('autotune.state running' in m
+                                      for m in graph.diag_messages), 5), graph.diag_messages[-3:]
+
+    # the same objects in-process (core/loop.py): the service call before tick 0 is start()
+    last = graph.last_stamp()
+    assert probe.wait_for(lambda: last in graph.signals['manipulated'], 10)
+    built = build(graph.params)
+    built.controller.start()
+    trace = run_loop(built.plant, built.controller, built.reference,
+                     sample_time=built.sample_time, duration=last / 1e9, noise=built.noise)
+    ticks = np.arange(len(trace)) * 100_000_000
+    y = np.array([graph.signals['measurement'][int(k)]['y'] for k in ticks])
+    u = np.array([graph.signals['manipulated'][int(k)]['u'] for k in ticks])
+    assert np.max(np.abs(y - trace['y.y'])) <= 1e-9 and np.max(np.abs(u - trace['u.u'])) <= 1e-9
+    assert built.controller.status['ku'] == pytest.approx(ku, abs=1e-9)
+
+
+def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    # min_cycles 100: the test keeps measuring until it is aborted
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(
+        paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
+    before = graph.get('kp', 'ti', 'td')
+    assert before == {'kp': 20.0, 'ti': 12.0, 'td': 0.0}
+    graph.wait_state('idle', 10)
+    assert graph.trigger(graph.start).success
+    graph.wait_state('measuring')
+    t_measuring = graph.state_time(0.0)
+    again = graph.trigger(graph.start)
+    assert not again.success and 'already running' in again.message
+    reply = graph.trigger(graph.abort)
+    assert reply.success and 'restored' in reply.message
+    graph.wait_state('aborted', 10)
+    got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
+    assert got == {'autotune.state': 'aborted', 'autotune.reason': 'abort requested', **before}
+    t_aborted = graph.state_time(t_measuring)
+    _assert_loop_runs_at_setpoint(graph, t_aborted)
+    assert not graph.trigger(graph.abort).success          # nothing to abort
+
+    # failure: output deviation above autotune.max_amplitude (relay output amplitude ≈ 2.6),
+    # started by the autotune.start parameter, which the node re-arms to false
+    graph.set(graph.controller, autotune__max_amplitude=1.0, autotune__min_cycles=4)
+    since = len(graph.states)
+    graph.set(graph.controller, autotune__start=True)
+    graph.wait_state('failed', since=since)
+    got = graph.get('autotune.state', 'autotune.reason', 'autotune.start', 'kp', 'ti', 'td')
+    assert got['autotune.state'] == 'failed' and 'max_amplitude' in got['autotune.reason']
+    assert got['autotune.start'] is False
+    assert {k: got[k] for k in before} == before
+    assert 'settling' in graph.states[graph.states.index('aborted'):]
+    _assert_loop_runs_at_setpoint(graph, graph.state_time(t_aborted))
+
+
+def _assert_loop_runs_at_setpoint(graph: Graph, t_event: float) -> None:
+    """Simulated time goes on (30 s after the event) and the restored PI holds y near the
+    setpoint 100 over 20…30 s after it: within the settle band (0.5), no relay oscillation
+    (its output amplitude is ≈ 2.6)."""
+    y = graph.measured(t_event + 20.0, t_event + 30.0)
+    assert len(y) == 100 and abs(np.mean(y) - 100.0) < 0.5 and np.ptp(y) < 1.0, y
+
+
+def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env, node_cmd,
+                                                                  probe, tmp_path):
+    """003's tank: T_out ← F_Cin is tuned (relay_autotune by channel names, reverse acting);
+    the level loop h ← F_H is a second controller_node (pid, renamed) in manual at the
+    operating point, so the lockstep plant gets both inputs each tick. Exact point from the
+    tank linearised at 003's operating point (gain (T_C − T)/F, time constant C·h²/F, dead
+    time τ_C + τ), as in test_relay_autotune_scenarios.py."""
+    t_op, flow = 2115 / 63, 63.0
+    ku, tu = exact_fopdt_ultimate((t_op - 23.0) / flow, 0.7 * 81.0 ** 2 / flow, 300.0)
+    # 2 s samples: Tu ≈ 730 s is still ≈ 365 samples, and the test takes half the ticks
+    params = {
+        'plant': {'plant': 'mixing_tank', 'clock_mode': 'lockstep', 'sample_time': 2.0,
+                  'integration_step': 0.5, 'real_time_factor': 0.0, 'lockstep.paused': True},
+        'controller': {'controller': 'relay_autotune', 'clock_mode': 'lockstep',
+                       'sample_time': 2.0, 'output_names': ['T_out'], 'input_names': ['F_Cin'],
+                       'kp': 0.2, 'ti': 100.0, 'direct_action': True, 'u_min': 0.0,
+                       'u_max': 300.0, 'mode': 'manual', 'manual_output': 37.0,
+                       'autotune.relay_amplitude': 5.0, 'autotune.settle_time': 20.0,
+                       'autotune.settle_band': 0.1, 'autotune.timeout': 20000.0,
+                       'autotune.kind': 'pi'},
+        'level_controller': {'controller': 'pid', 'clock_mode': 'lockstep', 'sample_time': 2.0,
+                             'output_names': ['h'], 'input_names': ['F_H'], 'kp': 0.9,
+                             'ti': 90.0, 'mode': 'manual', 'manual_output': 14.0},
+        'reference': {'clock_mode': 'lockstep', 'setpoint.channels': ['h', 'T_out'],
+                      'setpoint.h.times': [0.0], 'setpoint.h.values': [81.0],
+                      'setpoint.T_out.times': [0.0], 'setpoint.T_out.values': [t_op]},
+    }
+    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, params,
+                  extra=('level_controller',))
+    # operator: run in manual at the operating point, switch to auto (bumpless from the
+    # manual output once the PID has run a sample), then tune
+    graph.set(graph.plant, lockstep__paused=False)
+    assert probe.wait_for(lambda: graph.last_stamp() > 0, 20), graph.logs()
+    graph.set(graph.controller, mode='auto')
+    assert graph.trigger(graph.start).success
+    graph.wait_state('running', 90)
+    got = graph.get('autotune.ku', 'autotune.tu', 'autotune.model_dead_time', 'kp',
+                    'direct_action')
+    assert got['autotune.ku'] == pytest.approx(ku, rel=0.03)
+    assert got['autotune.tu'] == pytest.approx(tu, rel=0.02)
+    assert got['autotune.model_dead_time'] == pytest.approx(300.0, rel=0.02)
+    assert got['kp'] == pytest.approx(0.45 * got['autotune.ku'], rel=1e-9)   # ZN PI, 001
+    assert got['direct_action'] is True
+    # the level loop stayed in manual: F_H = 14 on every recorded tick
+    assert {v.get('F_H') for v in graph.signals['manipulated'].values()} <= {14.0, None}

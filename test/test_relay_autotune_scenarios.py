@@ -1,0 +1,142 @@
+"""controller: relay_autotune in the in-process loop (core/loop.py) from the flat parameters the
+nodes receive — the shipped config/fopdt_autotune.yaml with its scheduled start, an IPDT, and
+one loop of the mixing tank (T_out ← F_Cin) by channel names. Exact ultimate points are solved
+here independently of the tuner."""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tank_control.core.loop import run_loop
+from tank_control.core.scenario import build, read_params_file, run_in_process
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / 'test' / 'core'))
+from test_relay_autotune_helpers import exact_fopdt_ultimate, exact_ipdt_ultimate  # noqa: E402
+
+
+def run_logged(params, duration: float, reset: tuple[float, float] | None = None):
+    """Run ``params`` in-process; returns (trace, controller, [(t, state) at each change])."""
+    built = build(params)
+    tuner = built.controller
+    if reset is not None:
+        tuner.reset(np.array([reset[0]]), np.array([reset[1]]))
+    log: list[tuple[float, str]] = []
+    step = tuner.step
+
+    def logged(t, y, r, d):
+        u = step(t, y, r, d)
+        if not log or log[-1][1] != tuner.state:
+            log.append((t, tuner.state))
+        return u
+    tuner.step = logged
+    trace = run_loop(built.plant, tuner, built.reference, sample_time=built.sample_time,
+                     duration=duration, noise=built.noise)
+    return trace, tuner, log
+
+
+def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
+    params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
+    duration = float(params['harness']['duration'])
+    trace, tuner, log = run_logged(params, duration)
+    states = [s for _, s in log]
+    assert states == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+    assert log[1][0] == pytest.approx(params['controller']['autotune.start_time'], abs=1e-9)
+    ku, tu = exact_fopdt_ultimate(0.05, 10.0, 3.0)
+    st = tuner.status
+    assert st['ku'] == pytest.approx(ku, rel=0.03) and st['tu'] == pytest.approx(tu, rel=0.02)
+    assert st['ku'] == pytest.approx(117.8, rel=0.03) and st['tu'] == pytest.approx(10.82, rel=0.02)
+    # experiment (relay start → tuned) within 8 oscillation periods (issue 6)
+    t_relay, t_tuned = log[2][0], log[4][0]
+    assert t_tuned - t_relay <= 8 * tu
+    # the tuned ZN PID holds the setpoint afterwards
+    tail = trace['t'] > duration - 20.0
+    assert abs(np.mean(trace['y.y'][tail]) - 100.0) < 0.1
+    # the node's results: what `ros2 param get /controller ...` shows
+    res = tuner.results()
+    assert res['autotune.state'] == 'running' and res['kp'] == pytest.approx(0.6 * st['ku'])
+    # run_in_process(file) runs the same objects: the same trace
+    again = run_in_process(REPO / 'config' / 'fopdt_autotune.yaml')
+    assert max(again.max_abs_difference(trace).values()) == 0.0
+
+
+def test_ipdt_loop_tunes_to_the_exact_ultimate_point_with_noise():
+    k1, to = 0.05, 5.0                                      # 000's process, SPEC §1.1
+    amp = k1 * 1.0 * to                                     # relay output amplitude ≈ 0.25
+    params = {
+        'plant': {'plant': 'ipdt', 'sample_time': 0.1, 'gain': k1, 'dead_time': to,
+                  'noise_std': [0.01 * amp], 'seed': 3},
+        'controller': {'controller': 'relay_autotune', 'sample_time': 0.1, 'kp': 1.0,
+                       'ti': 40.0, 'output_names': ['y'], 'input_names': ['u'],
+                       'autotune.relay_amplitude': 1.0, 'autotune.settle_time': 5.0,
+                       'autotune.settle_band': 0.05, 'autotune.start_time': 30.0,
+                       'autotune.rule': 'mdp', 'autotune.kind': 'pid'},
+        'reference': {'setpoint.channels': ['y'], 'setpoint.y.times': [0.0],
+                      'setpoint.y.values': [1.0]},
+    }
+    trace, tuner, log = run_logged(params, 300.0)
+    assert log[-1][1] == 'running', tuner.status['reason']
+    ku, tu = exact_ipdt_ultimate(k1, to)
+    st = tuner.status
+    assert st['ku'] == pytest.approx(ku, rel=0.03) and st['tu'] == pytest.approx(tu, rel=0.02)
+    assert st['model']['kind'] == 'ipdt'
+    # mdp (000 eqs. 25-26) from the identified model: kp = 6(2√3−3)e^(√3−3)/(k1·To)
+    s3 = math.sqrt(3.0)
+    kp_mdp = 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (st['model']['gain'] * st['model']['dead_time'])
+    assert tuner.pid.config.kp == pytest.approx(kp_mdp, rel=1e-9)
+    assert abs(np.mean(trace['y.y'][trace['t'] > 280.0]) - 1.0) < 0.02
+
+
+def test_tank_temperature_loop_by_channel_names():
+    """T_out ← F_Cin of 003's tank (reverse acting: direct_action), the level left open.
+    Linearised at 003's operating point: gain (T_C − T)/F, time constant C·h²/F, dead time
+    τ_C + τ (F = 63 cm³/s, h = 81 cm, T = 2115/63 °C)."""
+    t_op, flow = 2115 / 63, 63.0
+    gain, tau = (t_op - 23.0) / flow, 0.7 * 81.0 ** 2 / flow
+    params = {
+        'plant': {'plant': 'mixing_tank', 'sample_time': 1.0, 'integration_step': 0.5,
+                  'noise_std': [0.0], 'seed': 1},
+        'controller': {'controller': 'relay_autotune', 'sample_time': 1.0, 'kp': 0.2,
+                       'ti': 100.0, 'direct_action': True, 'u_min': 0.0, 'u_max': 300.0,
+                       'output_names': ['T_out'], 'input_names': ['F_Cin'],
+                       'autotune.relay_amplitude': 5.0, 'autotune.settle_time': 20.0,
+                       'autotune.settle_band': 0.1, 'autotune.start_time': 10.0,
+                       'autotune.timeout': 20000.0, 'autotune.kind': 'pi'},
+        'reference': {'setpoint.channels': ['T_out'], 'setpoint.T_out.times': [0.0],
+                      'setpoint.T_out.values': [t_op]},
+    }
+    # the PI starts at the operating point (F_Cin = 37), as a bumpless hand-over would
+    trace, tuner, log = run_logged(params, 3300.0, reset=(t_op, 37.0))
+    assert log[-1][1] == 'running', tuner.status['reason']
+    ku, tu = exact_fopdt_ultimate(gain, tau, 180.0 + 120.0)
+    st = tuner.status
+    assert st['ku'] == pytest.approx(ku, rel=0.03) and st['tu'] == pytest.approx(tu, rel=0.02)
+    assert st['model']['dead_time'] == pytest.approx(300.0, rel=0.02)
+    assert st['model']['gain'] == pytest.approx(gain, rel=0.03)
+    # the reverse action is kept: ZN PI of 001 Table 6.2 (0.45 Ku, Tu/1.2), still direct_action
+    assert tuner.pid.config.kp == pytest.approx(0.45 * st['ku'], rel=1e-9)
+    assert tuner.pid.config.direct_action
+    assert set(trace.names) >= {'y.T_out', 'u.F_Cin', 'r.T_out'}
+
+
+def test_scheduled_start_fires_once_and_is_rearmed_by_a_new_start_time():
+    from tank_control.core.control.registry import complete_values, make_controller
+    from tank_control.core.control.relay_autotune import update_relay_autotuner
+    values = complete_values({'controller': 'relay_autotune', 'kp': 1.0, 'ti': 10.0,
+                              'autotune.start_time': 1.0})
+    tuner = make_controller(values)
+    y = r = np.array([0.0])
+
+    def state_after(t):
+        tuner.step(t, y, r, np.array([]))
+        return tuner.state
+    assert state_after(0.0) == 'idle' and state_after(0.9) == 'idle'
+    assert state_after(1.0) == 'settling'
+    assert tuner.abort()[0] and state_after(2.0) == 'aborted'     # not started again
+    update_relay_autotuner(tuner, {**values, 'autotune.start_time': 3.0},
+                           frozenset({'autotune.start_time'}))
+    assert state_after(2.5) == 'aborted' and state_after(3.0) == 'settling'
