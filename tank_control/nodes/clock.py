@@ -1,0 +1,127 @@
+"""Clock modes and the lockstep bookkeeping shared by the nodes (BRIEF "Clock modes").
+
+* ``wall``: every node samples on its own wall timer with the latest data.
+* ``sim``: the plant publishes ``/clock`` at ``real_time_factor`` × real time;
+  the other nodes run with ``use_sim_time``.
+* ``lockstep``: the plant publishes tick k (``/clock = t_k`` and the
+  measurement stamped ``t_k = k * ts_ns``) and advances only when every answer
+  stamped ``t_k`` has arrived. Answers are idempotent per stamp: a node that
+  already answered ``t_k`` re-publishes the same messages when tick k is
+  re-sent (``Answers``).
+
+``StampedInbox`` collects the messages of one stamp from several topics and
+says when a tick is complete; the plant uses it for ``manipulated`` (+
+``disturbance``), a controller for ``measurement`` + ``setpoint`` (+
+``disturbance``).
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from rclpy.clock import Clock, ClockType
+
+CLOCK_MODES = ('wall', 'sim', 'lockstep')
+
+
+def steady_clock() -> Clock:
+    """A monotonic wall clock for timers that must ignore ``use_sim_time``
+    (pacing, re-sending, diagnostics)."""
+    return Clock(clock_type=ClockType.STEADY_TIME)
+
+
+def is_sample_instant(t_ns: int, sample_time_ns: int) -> bool:
+    """True if ``t_ns`` is a multiple of the sample time (integer arithmetic, BRIEF)."""
+    return sample_time_ns > 0 and t_ns % sample_time_ns == 0
+
+
+def sample_ratio(sample_time_ns: int, tick_ns: int) -> int:
+    """How many plant ticks one sample spans; ValueError unless an integer multiple."""
+    if tick_ns <= 0 or sample_time_ns <= 0 or sample_time_ns % tick_ns:
+        raise ValueError(f'sample_time: {sample_time_ns} ns is not a positive integer multiple '
+                         f'of the plant tick {tick_ns} ns')
+    return sample_time_ns // tick_ns
+
+
+@dataclass
+class _Slot:
+    arrived: set[str] = field(default_factory=set)
+    values: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+class StampedInbox:
+    """Messages of one lockstep tick, grouped by stamp and source topic.
+
+    ``required`` maps each source (topic) to the channels it must deliver for a
+    tick to be complete; a source with no channels only has to arrive (e.g. a
+    disturbance message without channels). Values of one source may come in
+    several messages of the same stamp (they are merged).
+    """
+
+    def __init__(self, required: Mapping[str, Sequence[str]]) -> None:
+        self.required = {src: tuple(chs) for src, chs in required.items()}
+        self._slots: dict[int, _Slot] = {}
+
+    def put(self, source: str, t_ns: int, values: Mapping[str, float]) -> None:
+        """Record that ``source`` sent ``values`` stamped ``t_ns``."""
+        slot = self._slots.setdefault(t_ns, _Slot())
+        slot.arrived.add(source)
+        slot.values.setdefault(source, {}).update(values)
+
+    def complete(self, t_ns: int) -> bool:
+        """True once every required source delivered all its channels for ``t_ns``."""
+        slot = self._slots.get(t_ns)
+        if slot is None:
+            return False
+        for source, channels in self.required.items():
+            if source not in slot.arrived:
+                return False
+            got = slot.values.get(source, {})
+            if any(ch not in got for ch in channels):
+                return False
+        return True
+
+    def missing(self, t_ns: int) -> list[str]:
+        """``source`` or ``source.channel`` entries still missing for ``t_ns`` (diagnostics)."""
+        slot = self._slots.get(t_ns, _Slot())
+        out = []
+        for source, channels in self.required.items():
+            if source not in slot.arrived:
+                out.append(source)
+            else:
+                got = slot.values.get(source, {})
+                out += [f'{source}.{ch}' for ch in channels if ch not in got]
+        return out
+
+    def values(self, t_ns: int, source: str) -> dict[str, float]:
+        """Channel values ``source`` delivered for ``t_ns`` (empty if none)."""
+        slot = self._slots.get(t_ns)
+        return dict(slot.values.get(source, {})) if slot else {}
+
+    def drop_before(self, t_ns: int) -> None:
+        """Forget every stamp earlier than ``t_ns`` (late duplicates of past ticks)."""
+        for stamp in [s for s in self._slots if s < t_ns]:
+            del self._slots[stamp]
+
+    def stamps(self) -> Iterable[int]:
+        return sorted(self._slots)
+
+
+class Answers:
+    """Idempotent lockstep answers: the messages last published for a stamp.
+
+    ``get(t_ns)`` returns the cached messages when ``t_ns`` was already
+    answered (re-publish them, do not recompute), else ``None``.
+    """
+
+    def __init__(self) -> None:
+        self.stamp: int | None = None
+        self.messages: tuple = ()
+
+    def get(self, t_ns: int) -> tuple | None:
+        return self.messages if self.stamp == t_ns else None
+
+    def remember(self, t_ns: int, *messages: object) -> tuple:
+        self.stamp = t_ns
+        self.messages = tuple(messages)
+        return self.messages

@@ -1,0 +1,128 @@
+"""Signal messages and QoS shared by every node (BRIEF "Messages").
+
+Every signal topic (``measurement``, ``manipulated``, ``setpoint``,
+``disturbance``) carries a ``sensor_msgs/msg/JointState``: ``header.stamp`` is
+the sample instant (integer nanoseconds, exactly ``k * ts_ns`` in sim and
+lockstep), ``name[]`` the channel names and ``position[]`` the values
+(float64, units of the channel); ``velocity``/``effort`` stay empty.
+
+JointState is chosen because it is in common_interfaces, has a header and
+carries named float64 values, so every standard tool (``ros2 topic echo``,
+rosbag/MCAP, PlotJuggler, Foxglove) shows the channels by name.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from builtin_interfaces.msg import Time
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from tank_control.core.interfaces import NS_PER_S
+
+#: Signal topics: reliable, keep-last 10 (BRIEF "QoS for signal topics").
+SIGNAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+#: ``/clock`` published by the plant (reliable keep-last 10; a best-effort
+#: subscriber such as rclpy's own TimeSource still matches it).
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+
+TOPIC_MEASUREMENT = 'measurement'
+TOPIC_MANIPULATED = 'manipulated'
+TOPIC_SETPOINT = 'setpoint'
+TOPIC_DISTURBANCE = 'disturbance'
+TOPIC_CLOCK = '/clock'
+TOPIC_DIAGNOSTICS = '/diagnostics'
+
+
+def ns_to_stamp(t_ns: int) -> Time:
+    """Integer nanoseconds → ``builtin_interfaces/Time`` (exact)."""
+    sec, nanosec = divmod(int(t_ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """``builtin_interfaces/Time`` → integer nanoseconds (exact)."""
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def to_joint_state(t_ns: int, names: Sequence[str], values: Iterable[float]) -> JointState:
+    """A signal message: stamp ``t_ns``, channels ``names`` with ``values``."""
+    msg = JointState()
+    msg.header.stamp = ns_to_stamp(t_ns)
+    msg.name = list(names)
+    msg.position = [float(v) for v in values]
+    return msg
+
+
+def from_joint_state(msg: JointState) -> tuple[int, tuple[str, ...], tuple[float, ...]]:
+    """``(stamp_ns, names, values)`` of a signal message.
+
+    Raises ``ValueError`` (one line) when ``name`` and ``position`` differ in
+    length or a channel name repeats — a malformed message.
+    """
+    names = tuple(msg.name)
+    values = tuple(float(v) for v in msg.position)
+    if len(names) != len(values):
+        raise ValueError(f'{len(names)} names but {len(values)} positions')
+    if len(set(names)) != len(names):
+        raise ValueError(f'repeated channel name in {list(names)}')
+    return stamp_to_ns(msg.header.stamp), names, values
+
+
+def clock_msg(t_ns: int) -> Clock:
+    """``rosgraph_msgs/Clock`` for the instant ``t_ns``."""
+    return Clock(clock=ns_to_stamp(t_ns))
+
+
+@dataclass
+class ChannelFilter:
+    """Accepts channel values by name; counts and explains what it ignores.
+
+    A value is ignored (the last valid one is kept by the caller) when the
+    message is malformed, the channel is not one of ``known`` or the value is
+    not finite. Every distinct reason is reported once through ``first_seen``
+    (for a log line), every ignored item is counted in ``ignored``.
+    """
+
+    known: tuple[str, ...]
+    ignored: int = 0
+    reasons: set[str] = field(default_factory=set)
+
+    def accept(self, topic: str, msg: JointState) -> tuple[int | None, dict[str, float], list[str]]:
+        """``(stamp_ns or None, accepted {name: value}, new reasons to log once)``."""
+        new: list[str] = []
+        try:
+            t_ns, names, values = from_joint_state(msg)
+        except ValueError as err:
+            self.ignored += 1
+            self._note(f'{topic}: malformed message ignored ({err})', new)
+            return None, {}, new
+        accepted: dict[str, float] = {}
+        for name, value in zip(names, values):
+            if name not in self.known:
+                self.ignored += 1
+                self._note(f'{topic}: unknown channel {name!r} ignored; known: '
+                           f'{", ".join(self.known) or "none"}', new)
+            elif not math.isfinite(value):
+                self.ignored += 1
+                self._note(f'{topic}: non-finite value for {name!r} ignored; last valid kept', new)
+            else:
+                accepted[name] = value
+        return t_ns, accepted, new
+
+    def _note(self, reason: str, new: list[str]) -> None:
+        if reason not in self.reasons:
+            self.reasons.add(reason)
+            new.append(reason)
+
+
+def values_in_order(names: Sequence[str], values: Mapping[str, float]) -> list[float]:
+    """Values of ``names`` from a mapping (KeyError if one is missing)."""
+    return [values[name] for name in names]
