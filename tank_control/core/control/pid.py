@@ -1,0 +1,536 @@
+"""Discrete two-degree-of-freedom PID controller (000 eq. 19, SPEC §2.1).
+
+Continuous law (000 eq. 19 with the real derivative of eq. 13)::
+
+    U = kp·[ (b·W − Y) + 1/(ti·s)·(W − Y) + td·s/(Tf·s + 1)·(c·W − Y) ],   Tf = td/n
+
+``b`` weights the setpoint in the proportional term, ``c`` in the derivative
+term (both in [0, 1]); ``b = c = 1`` is the standard PID (000 eq. 2), ``td = 0``
+gives PI, ``ti = inf`` removes integral action.
+
+Discretisation (sample time ``h`` = ``sample_time`` [s]):
+
+* P: static, ``P(k) = kp·(b·r(k) − y(k))``.
+* D: **step-invariant (exact ZOH) discretisation** of ``td·s/(Tf·s + 1)``.
+  The filter is written ``n·(1 − 1/(Tf·s + 1))``; its low-pass state ``x``
+  follows ``x(k+1) = a·x(k) + (1 − a)·e_d(k)`` with ``a = exp(−h/Tf)`` and
+  ``D(k) = kp·n·(e_d(k) − x(k))``, ``e_d = c·r − y``. ``0 < a < 1`` for every
+  ``Tf > 0``, so it is stable for any filter constant (also ``Tf ≪ h``), and a
+  setpoint step ``w0`` gives exactly ``u(0) = kp·(b + c·n)·w0`` — with
+  ``b = c = 1`` the ``kp·(1 + td/Tf)·w0`` of 000 eq. 16; with ``c = 0`` no kick.
+* I: forward (explicit) Euler, ``I(k+1) = I(k) + kp·h/ti·(r(k) − y(k))``, so
+  the integral acts from the sample after a change (``u(0)`` above holds).
+  ``I`` is stored in output units, which makes ``ti`` changes bumpless.
+
+Anti-windup (the applied output ``u`` — after limits and rate limit — is
+compared with the unsaturated ``v = P + I + D``):
+
+* ``back_calculation``: ``I += kp·h/ti·e + min(h/Tt, 1)·(u − v)``. Default
+  tracking time ``Tt = √(ti·td)`` for PID and ``Tt = ti`` for PI
+  (Åström–Hägglund's rule of thumb); ``h/Tt`` is capped at 1 (``Tt ≥ h``),
+  which keeps the tracking loop stable for any user value.
+* ``conditional_integration``: the integral increment is skipped while the
+  output is limited and the increment would drive it further into the limit.
+* ``none``: plain integration (for demonstrating windup).
+
+Other behaviour users rely on:
+
+* no derivative spike on the first sample or after ``reset`` (the filter
+  state starts at the current ``c·r − y``);
+* bumpless gain changes: ``set_gains`` keeps ``v`` at the last inputs
+  unchanged (the integral absorbs the change of P and D; a change of ``c``
+  shifts the filter state so the derivative term is untouched);
+* manual/auto with bumpless transfer both ways (in manual the integral tracks
+  the manual output; ``set_manual()`` without argument holds the last output);
+* output limits ``[u_min, u_max]`` and rate limit ``|Δu| ≤ du_max·h``
+  (``du_max`` in output units per second), also in manual mode;
+* a non-finite ``r`` or ``y`` holds the last output, sets
+  ``status['input_fault']`` and leaves the state untouched; the next finite
+  sample re-initialises bumplessly from the held output;
+* ``direct_action=True`` flips the sign of the whole law (output rises with
+  the measurement); a negative ``kp`` does the same.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.params import ParamSpec
+
+ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
+N_MIN, N_MAX = 2.0, 50.0
+
+
+@dataclass
+class PidConfig:
+    """Settings of :class:`Pid2Dof` (000 eq. 19). Units: time in seconds,
+    ``kp`` in output units per measurement unit, limits in output units,
+    ``du_max`` in output units per second."""
+
+    kp: float
+    ti: float = math.inf
+    td: float = 0.0
+    n: float = 10.0
+    b: float = 1.0
+    c: float = 1.0
+    sample_time: float = 1.0
+    u_min: float = -math.inf
+    u_max: float = math.inf
+    du_max: float = math.inf
+    anti_windup: str = 'back_calculation'
+    tracking_time: float | None = None
+    direct_action: bool = False
+
+
+def config_reason(config: PidConfig) -> str | None:
+    """One-line reason why ``config`` is invalid, naming the parameter, or None."""
+    def number(name: str) -> float:
+        return getattr(config, name)
+
+    for name in ('kp', 'td', 'n', 'b', 'c', 'sample_time'):
+        value = number(name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            return f'{name}: {value!r} is not a finite number'
+    checks = [
+        ('kp', config.kp != 0.0, 'must be non-zero (negative = reverse sign)'),
+        ('td', config.td >= 0.0, 'allowed [0, inf)'),
+        ('n', N_MIN <= config.n <= N_MAX, f'allowed [{N_MIN:g}, {N_MAX:g}] (000 eq. 14)'),
+        ('b', 0.0 <= config.b <= 1.0, 'allowed [0, 1]'),
+        ('c', 0.0 <= config.c <= 1.0, 'allowed [0, 1]'),
+        ('sample_time', config.sample_time > 0.0, 'allowed (0, inf) s'),
+    ]
+    for name, ok, allowed in checks:
+        if not ok:
+            return f'{name}: {number(name)!r} is out of range; {allowed}'
+    if not _is_number(config.ti) or math.isnan(config.ti) or config.ti <= 0.0:
+        return f'ti: {config.ti!r} is out of range; allowed (0, inf] s (inf = no integral action)'
+    for name in ('u_min', 'u_max'):
+        if not _is_number(number(name)) or math.isnan(number(name)):
+            return f'{name}: {number(name)!r} is not a number'
+    if not config.u_min < config.u_max:
+        return f'u_min: {config.u_min!r} must be below u_max {config.u_max!r}'
+    if not _is_number(config.du_max) or math.isnan(config.du_max) or config.du_max <= 0.0:
+        return f'du_max: {config.du_max!r} is out of range; allowed (0, inf] units/s (inf = no rate limit)'
+    if config.anti_windup not in ANTI_WINDUP_CHOICES:
+        return f'anti_windup: {config.anti_windup!r} is not one of ' + ', '.join(ANTI_WINDUP_CHOICES)
+    tt = config.tracking_time
+    if tt is not None and (not _is_number(tt) or not math.isfinite(tt) or tt <= 0.0):
+        return f'tracking_time: {tt!r} is out of range; allowed (0, inf) s or None (default)'
+    if not isinstance(config.direct_action, bool):
+        return f'direct_action: {config.direct_action!r} is not a bool'
+    return None
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def default_tracking_time(ti: float, td: float) -> float:
+    """Tracking time Tt [s] used when none is configured: √(ti·td) for PID,
+    ti for PI (Åström–Hägglund); inf when there is no integral action."""
+    if math.isinf(ti):
+        return math.inf
+    return math.sqrt(ti * td) if td > 0.0 else ti
+
+
+class Pid2Dof:
+    """Discrete 2-DOF PID with filtered derivative (000 eq. 19, eqs. 13–14).
+
+    See the module docstring for the discretisation and every guarantee.
+    ``update`` is called once per sample (every ``sample_time`` seconds).
+    """
+
+    def __init__(self, config: PidConfig) -> None:
+        reason = config_reason(config)
+        if reason:
+            raise ValueError(reason)
+        self._cfg = replace(config)
+        self._mode = 'auto'
+        self._manual_u: float | None = None
+        self._i = 0.0            # integral term [output units]
+        self._x = 0.0            # derivative low-pass state [units of c·r − y]
+        self._u: float | None = None   # last applied output
+        self._v = 0.0            # last unsaturated output
+        self._p = 0.0
+        self._d = 0.0
+        self._i_out = 0.0
+        self._last: tuple[float, float] | None = None   # last finite (r, y)
+        self._initialised = False
+        self._fault = False
+        self._saturated = False
+        self._rate_limited = False
+        self._aw_active = False
+
+    # ----------------------------------------------------------------- state
+    @property
+    def config(self) -> PidConfig:
+        """A copy of the current settings."""
+        return replace(self._cfg)
+
+    @property
+    def output(self) -> float | None:
+        """Last applied output (None before the first sample)."""
+        return self._u
+
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    @property
+    def status(self) -> dict[str, Any]:
+        """mode, saturated, rate_limited, anti_windup_active, input_fault and the
+        p, i, d terms, unsaturated v and applied u of the last sample."""
+        return {
+            'mode': self._mode,
+            'saturated': self._saturated,
+            'rate_limited': self._rate_limited,
+            'anti_windup_active': self._aw_active,
+            'input_fault': self._fault,
+            'p': self._p, 'i': self._i_out, 'd': self._d,
+            'v': self._v,
+            'u': math.nan if self._u is None else self._u,
+        }
+
+    def _gain(self, cfg: PidConfig | None = None) -> float:
+        cfg = cfg or self._cfg
+        return -cfg.kp if cfg.direct_action else cfg.kp
+
+    def _clip(self, u: float) -> float:
+        return min(max(u, self._cfg.u_min), self._cfg.u_max)
+
+    # ------------------------------------------------------------- operation
+    def reset(self, r: float, y: float, u: float) -> None:
+        """Initialise bumplessly: with the same ``r`` and ``y`` the next
+        ``update`` returns ``u`` (clipped to the limits). No derivative kick."""
+        for name, value in (('r', r), ('y', y), ('u', u)):
+            if not math.isfinite(value):
+                raise ValueError(f'reset: {name} = {value!r} is not finite')
+        u = self._clip(float(u))
+        self._track(float(r), float(y), u)
+        self._u = u
+        self._v = u
+        self._fault = False
+        if self._mode == 'manual':
+            self._manual_u = u
+
+    def _track(self, r: float, y: float, u: float) -> None:
+        """Set the states so that v(r, y) = u with zero derivative term."""
+        cfg = self._cfg
+        self._x = cfg.c * r - y
+        self._p = self._gain() * (cfg.b * r - y)
+        self._d = 0.0
+        self._i = u - self._p
+        self._i_out = self._i
+        self._last = (r, y)
+        self._initialised = True
+
+    def update(self, r: float, y: float) -> float:
+        """One sample: setpoint ``r`` and measurement ``y`` → output ``u``."""
+        if not (math.isfinite(r) and math.isfinite(y)):
+            self._fault = True
+            return self._hold_output()
+        r, y = float(r), float(y)
+        if self._fault:
+            self._fault = False
+            self._track(r, y, self._hold_output())
+        if not self._initialised:
+            self._track(r, y, 0.0)
+            self._i = self._i_out = 0.0
+        if self._mode == 'manual':
+            return self._update_manual(r, y)
+        return self._update_auto(r, y)
+
+    def _hold_output(self) -> float:
+        return self._u if self._u is not None else self._clip(0.0)
+
+    def _limit(self, v: float) -> float:
+        """Limits, then rate limit relative to the last output, then limits again."""
+        cfg = self._cfg
+        u = self._clip(v)
+        if self._u is not None and math.isfinite(cfg.du_max):
+            step = cfg.du_max * cfg.sample_time
+            u = min(max(u, self._u - step), self._u + step)
+        u = self._clip(u)
+        self._rate_limited = u != self._clip(v)
+        return u
+
+    def _update_manual(self, r: float, y: float) -> float:
+        target = self._manual_u if self._manual_u is not None else self._hold_output()
+        u = self._limit(target)
+        self._track(r, y, u)
+        self._v = u
+        self._u = u
+        self._saturated = u != target
+        self._aw_active = False
+        return u
+
+    def _update_auto(self, r: float, y: float) -> float:
+        cfg = self._cfg
+        k = self._gain()
+        h = cfg.sample_time
+        p = k * (cfg.b * r - y)
+        ed = cfg.c * r - y
+        if cfg.td > 0.0:
+            tf = cfg.td / cfg.n
+            d = k * cfg.n * (ed - self._x)
+            a = math.exp(-h / tf)
+            self._x = a * self._x + (1.0 - a) * ed
+        else:
+            d = 0.0
+            self._x = ed
+        v = p + self._i + d
+        if not math.isfinite(v):      # overflow of absurd inputs: keep last output
+            self._fault = True
+            return self._hold_output()
+        u = self._limit(v)
+        self._p, self._d, self._v = p, d, v
+        i_used = self._i
+        self._aw_active = False
+        if math.isfinite(cfg.ti):
+            di = k * h / cfg.ti * (r - y)
+            if cfg.anti_windup == 'back_calculation':
+                tt = cfg.tracking_time or default_tracking_time(cfg.ti, cfg.td)
+                self._i += di + min(h / tt, 1.0) * (u - v)
+                self._aw_active = u != v
+            elif cfg.anti_windup == 'conditional_integration':
+                if (v > u and di > 0.0) or (v < u and di < 0.0):
+                    self._aw_active = True
+                else:
+                    self._i += di
+            else:
+                self._i += di
+        self._saturated = u != v
+        self._i_out = i_used
+        self._u = u
+        self._last = (r, y)
+        return u
+
+    # ------------------------------------------------------ operator actions
+    def set_gains(self, **changes: Any) -> None:
+        """Change any PidConfig field bumplessly (000 eq. 19 gains, limits, ...).
+
+        Raises ValueError (naming the parameter and the allowed range) and
+        leaves the controller untouched if a value is invalid.
+        """
+        known = {f.name for f in fields(PidConfig)}
+        for name in changes:
+            if name not in known:
+                raise ValueError(f'{name}: unknown PID parameter; allowed ' + ', '.join(sorted(known)))
+        new = replace(self._cfg, **changes)
+        reason = config_reason(new)
+        if reason:
+            raise ValueError(reason)
+        old = self._cfg
+        if self._initialised and self._last is not None:
+            r, y = self._last
+            x_new = self._x + (new.c - old.c) * r     # keeps c·r − y − x unchanged
+            p_old = self._gain(old) * (old.b * r - y)
+            d_old = self._gain(old) * old.n * (old.c * r - y - self._x) if old.td > 0 else 0.0
+            p_new = self._gain(new) * (new.b * r - y)
+            d_new = self._gain(new) * new.n * (new.c * r - y - x_new) if new.td > 0 else 0.0
+            self._x = x_new
+            self._i += (p_old + d_old) - (p_new + d_new)
+        self._cfg = new
+
+    def set_manual(self, u: float | None = None) -> None:
+        """Switch to manual: the output becomes ``u`` (limited) from the next
+        sample; without ``u`` the last output is held (bumpless)."""
+        if u is not None and not math.isfinite(u):
+            raise ValueError(f'manual_output: {u!r} is not finite')
+        self._manual_u = self._hold_output() if u is None else float(u)
+        self._mode = 'manual'
+
+    def set_auto(self) -> None:
+        """Switch to automatic; the next output continues from the last one."""
+        if self._mode == 'manual' and self._last is not None and self._u is not None:
+            self._track(*self._last, self._u)
+        self._mode = 'auto'
+
+
+class PidController:
+    """:class:`Pid2Dof` behind the Controller protocol of core/interfaces.py (SISO).
+
+    Reads the measured channel ``output_name`` (default ``y``) and its
+    setpoint, writes the manipulated channel ``input_name`` (default ``u``).
+    ``reset(y, u)`` is completed at the first ``step`` (which knows ``r``),
+    so that step returns ``u`` exactly.
+    """
+
+    disturbance_names: tuple[str, ...] = ()
+
+    def __init__(self, config: PidConfig, output_name: str = 'y', input_name: str = 'u') -> None:
+        self.pid = Pid2Dof(config)
+        self.output_names = (output_name,)
+        self.input_names = (input_name,)
+        self._pending: tuple[float, float] | None = None
+
+    @property
+    def sample_time(self) -> float:
+        return self.pid.config.sample_time
+
+    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
+        y0, u0 = _scalar(y, 'y'), _scalar(u, 'u')
+        if not math.isfinite(u0):
+            raise ValueError(f'reset: u = {u0!r} is not finite')
+        self._pending = (y0, u0)
+
+    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        y0, r0 = _scalar(y, 'y'), _scalar(r, 'r')
+        if self._pending is not None and math.isfinite(y0) and math.isfinite(r0):
+            self.pid.reset(r0, y0, self._pending[1])
+            self._pending = None
+        return np.array([self.pid.update(r0, y0)], dtype=float)
+
+    def set_gains(self, **changes: Any) -> None:
+        self.pid.set_gains(**changes)
+
+    @property
+    def status(self) -> Mapping[str, Any]:
+        return self.pid.status
+
+
+def _scalar(value: Any, name: str) -> float:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.size != 1:
+        raise ValueError(f'{name}: expected 1 value for a SISO PID, got {arr.size}')
+    return float(arr[0])
+
+
+# ------------------------------------------------------------- parameters
+BIG = 1e12
+TUNING_RULES = ('none', 'mdp', 'experimental', 'zn_001', 'zn_004_q0', 'zn_004_q1',
+                'oppelt', 'cohen_coon', 'smith_pi')
+
+
+def pid_params() -> tuple[ParamSpec, ...]:
+    """ParamSpecs of the PID for controller_node (units in the descriptions).
+
+    ROS parameters cannot hold inf, so: ``ti = 0`` means no integral action,
+    ``du_max = 0`` no rate limit, ``tracking_time = 0`` the default Tt;
+    tuning process values of 0 mean "not given".
+    """
+    return (
+        ParamSpec('sample_time', 1.0, 'controller sample time h [s]', min=1e-3, max=3600.0,
+                  read_only=True),
+        ParamSpec('kp', 1.0, 'proportional gain kp [u units per y unit], 000 eq. 19; > 0, '
+                  'use direct_action for the opposite sign', min=0.0, max=BIG),
+        ParamSpec('ti', 0.0, 'integral time ti [s]; 0 = no integral action', min=0.0, max=BIG),
+        ParamSpec('td', 0.0, 'derivative time td [s]; 0 = no derivative action', min=0.0, max=BIG),
+        ParamSpec('n', 10.0, 'derivative filter ratio n = td/Tf [-], 000 eq. 14', min=N_MIN, max=N_MAX),
+        ParamSpec('b', 1.0, 'setpoint weight in the P term [-], 000 eq. 19', min=0.0, max=1.0),
+        ParamSpec('c', 1.0, 'setpoint weight in the D term [-], 000 eq. 19', min=0.0, max=1.0),
+        ParamSpec('u_min', -1e9, 'lower output limit [u units]', min=-BIG, max=BIG),
+        ParamSpec('u_max', 1e9, 'upper output limit [u units]', min=-BIG, max=BIG),
+        ParamSpec('du_max', 0.0, 'output rate limit [u units/s]; 0 = none', min=0.0, max=BIG),
+        ParamSpec('anti_windup', 'back_calculation', 'integrator anti-windup method',
+                  choices=ANTI_WINDUP_CHOICES),
+        ParamSpec('tracking_time', 0.0, 'back-calculation tracking time Tt [s]; 0 = default '
+                  'sqrt(ti*td) for PID, ti for PI', min=0.0, max=BIG),
+        ParamSpec('direct_action', False, 'true: output rises when the measurement rises '
+                  '(equivalent to a negative kp)'),
+        ParamSpec('mode', 'auto', 'auto = closed loop; manual = output is manual_output '
+                  '(bumpless both ways)', choices=('auto', 'manual')),
+        ParamSpec('manual_output', 0.0, 'output in manual mode [u units]', min=-BIG, max=BIG),
+        ParamSpec('fail_safe', 'hold', 'on stale or non-finite measurement: hold the last output '
+                  'or send fail_safe_output', choices=('hold', 'output')),
+        ParamSpec('fail_safe_output', 0.0, 'output sent on a measurement fault when '
+                  "fail_safe = 'output' [u units]", min=-BIG, max=BIG),
+        ParamSpec('tuning.rule', 'none', 'tuning rule; not none: kp, ti, td, b, c come from it',
+                  choices=TUNING_RULES),
+        ParamSpec('tuning.kind', 'pid', 'controller type the rule designs', choices=('p', 'pi', 'pid')),
+        ParamSpec('tuning.gain', 0.0, 'process gain K or k1 [y units per u unit (per s for IPDT)]; '
+                  '0 = not given', min=0.0, max=BIG),
+        ParamSpec('tuning.dead_time', 0.0, 'process dead time L or To [s]; 0 = not given',
+                  min=0.0, max=BIG),
+        ParamSpec('tuning.time_constant', 0.0, 'process time constant T [s]; 0 = not given',
+                  min=0.0, max=BIG),
+        ParamSpec('tuning.ku', 0.0, 'ultimate gain Ku [u units per y unit]; 0 = not given',
+                  min=0.0, max=BIG),
+        ParamSpec('tuning.tu', 0.0, 'ultimate period Tu [s]; 0 = not given', min=0.0, max=BIG),
+        ParamSpec('tuning.te', 0.0, 'smith_pi n=1: desired closed-loop time constant Te [s] '
+                  '(0.2...1)*T, 004 eq. 3.6.7; 0 = not given', min=0.0, max=BIG),
+        ParamSpec('tuning.xi', 0.0, 'smith_pi n=2: damping xi [-] in [0.5, 1], 004 eq. 3.6.9; '
+                  '0 = not given', min=0.0, max=1.0),
+        ParamSpec('tuning.order', 1, 'smith_pi model order n (1 or 2)', min=1, max=2),
+    )
+
+
+def tuned_gains(values: Mapping[str, Any]) -> dict[str, float | None] | None:
+    """Gains from the tuning.* parameters (None when tuning.rule is 'none').
+
+    Raises ValueError naming the missing/invalid process argument.
+    """
+    rule = values.get('tuning.rule', 'none')
+    if rule == 'none':
+        return None
+    from tank_control.core.tuning.rules import tune   # local: tuning is a sibling package
+
+    process: dict[str, float] = {}
+    for key in ('gain', 'dead_time', 'time_constant', 'ku', 'tu', 'te', 'xi'):
+        value = values.get('tuning.' + key, 0.0)
+        if value:
+            process[key] = float(value)
+    if rule == 'smith_pi':
+        process['n'] = int(values.get('tuning.order', 1))
+    return tune(rule, values.get('tuning.kind', 'pid'), **process)
+
+
+def pid_config_from_params(values: Mapping[str, Any]) -> PidConfig:
+    """PidConfig from parameter values (missing names take their defaults).
+
+    Applies the parameter conventions (ti = 0 → inf, du_max = 0 → inf,
+    tracking_time = 0 → default) and, with a tuning rule, the tuned kp, ti,
+    td, b, c (a negative tuned kp becomes direct_action). Raises ValueError.
+    """
+    merged = {spec.name: spec.default for spec in pid_params()}
+    merged.update(values)
+    kp, ti, td, b, c = (float(merged[k]) for k in ('kp', 'ti', 'td', 'b', 'c'))
+    direct = bool(merged['direct_action'])
+    gains = tuned_gains(merged)
+    if gains is not None:
+        kp = gains['kp']
+        ti = gains['ti'] if gains['ti'] is not None else 0.0
+        td = gains['td'] if gains['td'] is not None else 0.0
+        b = gains['b'] if gains['b'] is not None else 1.0
+        c = gains['c'] if gains['c'] is not None else 1.0
+        if kp < 0:
+            kp, direct = -kp, not direct
+    config = PidConfig(
+        kp=kp, ti=ti if ti > 0 else math.inf, td=td, n=float(merged['n']), b=b, c=c,
+        sample_time=float(merged['sample_time']),
+        u_min=float(merged['u_min']), u_max=float(merged['u_max']),
+        du_max=float(merged['du_max']) if merged['du_max'] > 0 else math.inf,
+        anti_windup=str(merged['anti_windup']),
+        tracking_time=float(merged['tracking_time']) if merged['tracking_time'] > 0 else None,
+        direct_action=direct,
+    )
+    reason = config_reason(config)
+    if reason:
+        raise ValueError(reason)
+    return config
+
+
+def check_pid_relations(values: Mapping[str, Any]) -> str | None:
+    """Cross-parameter checks on a full or partial set of PID parameter values
+    (missing names take their defaults): u_min < u_max, kp > 0 without a
+    tuning rule, manual/fail-safe outputs inside the limits, and a tuning rule
+    that has every process argument it needs. Returns a one-line reason."""
+    merged = {spec.name: spec.default for spec in pid_params()}
+    merged.update(values)
+    lo, hi = merged['u_min'], merged['u_max']
+    if not lo < hi:
+        return f'u_min: {lo:g} must be below u_max {hi:g}'
+    if merged['tuning.rule'] == 'none' and not merged['kp'] > 0:
+        return f"kp: {merged['kp']:g} must be > 0 (use direct_action for a reverse sign); allowed (0, {BIG:g}]"
+    for name in ('manual_output', 'fail_safe_output'):
+        if not lo <= merged[name] <= hi:
+            return f'{name}: {merged[name]:g} is outside the output limits [{lo:g}, {hi:g}]'
+    try:
+        pid_config_from_params(merged)
+    except ValueError as exc:
+        return str(exc)
+    return None
