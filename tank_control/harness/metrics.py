@@ -1,0 +1,167 @@
+"""Metrics of a run, computed from its trace (``metrics.json``).
+
+Per output channel (one with a setpoint column ``r.<name>``):
+
+* ``iae`` = ∫|e| dt and ``ise`` = ∫e² dt with e = r − y, summed on the sample
+  grid with the zero-order hold the loop uses (e_k held over [t_k, t_k+1)).
+  Units: channel unit·s and unit²·s.
+* ``steps``: one entry per setpoint change. A change is a run of consecutive
+  samples where r moves (a step is one sample, a ramp several); it goes from
+  ``r_from`` (the value before) to ``r_to`` (the value once r is constant) and
+  its window lasts until the next change or the end of the run. When the run
+  starts away from its setpoint (|r(0) − y(0)| > 0), t = 0 counts as a change
+  from y(0). Per change (Δ = r_to − r_from, t from the change's start):
+
+  - ``overshoot_pct``: max(0, max sign(Δ)·(y − r_to)) / |Δ| · 100;
+  - ``rise_time``: time from 10 % to 90 % of Δ (linear interpolation between
+    samples), None if 90 % is never reached;
+  - ``settling_time``: time after which |y − r_to| stays within 2 % of |Δ|
+    (interpolated), None if it never does within the window;
+  - ``ss_error``: r_to − mean(y) over the last 5 % of the window (at least one
+    sample).
+
+Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
+and ``constraint_violations`` (samples outside the controller's
+``[u_min, u_max]``, 1e-9 tolerance, when limits are known).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from tank_control.harness.trace import TraceTable
+
+SETTLING_BAND = 0.02
+RISE_LOW, RISE_HIGH = 0.1, 0.9
+SS_WINDOW = 0.05
+
+
+def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray) -> dict[str, Any]:
+    """IAE, ISE and per-setpoint-change metrics of one output channel."""
+    e = r - y
+    dt = np.diff(t)
+    finite = np.isfinite(e[:-1])
+    result: dict[str, Any] = {
+        'iae': float(np.sum(np.abs(e[:-1][finite]) * dt[finite])) if len(t) > 1 else 0.0,
+        'ise': float(np.sum(e[:-1][finite] ** 2 * dt[finite])) if len(t) > 1 else 0.0,
+        'steps': [],
+    }
+    for start, settle, stop, r_from, r_to in setpoint_changes(t, y, r):
+        result['steps'].append(step_metrics(t[start:stop], y[start:stop], r_from, r_to))
+    return result
+
+
+def setpoint_changes(t: np.ndarray, y: np.ndarray, r: np.ndarray,
+                     rel_tol: float = 1e-9) -> list[tuple[int, int, int, float, float]]:
+    """``(start, constant_from, stop, r_from, r_to)`` index ranges of each setpoint change."""
+    n = len(r)
+    if n == 0:
+        return []
+    scale = max(1.0, float(np.nanmax(np.abs(r))) if np.isfinite(r).any() else 1.0)
+    tol = rel_tol * scale
+    moving = np.zeros(n, dtype=bool)
+    moving[1:] = np.abs(np.diff(r)) > tol
+    changes: list[list[Any]] = []
+    if math.isfinite(y[0]) and math.isfinite(r[0]) and abs(r[0] - y[0]) > tol:
+        changes.append([0, 0, float(y[0])])
+    i = 1
+    while i < n:
+        if moving[i]:
+            j = i
+            while j + 1 < n and moving[j + 1]:
+                j += 1
+            changes.append([i, j, float(r[i - 1])])
+            i = j + 1
+        else:
+            i += 1
+    out = []
+    for k, (start, last_move, r_from) in enumerate(changes):
+        stop = changes[k + 1][0] if k + 1 < len(changes) else n
+        out.append((start, last_move, stop, r_from, float(r[last_move])))
+    return out
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> dict[str, Any]:
+    """Overshoot [%], rise time [s], settling time [s] and steady-state error of one change;
+    times are measured from ``t[0]``, the change's first sample."""
+    delta = r_to - r_from
+    entry: dict[str, Any] = {'t': float(t[0]), 'r_from': r_from, 'r_to': r_to,
+                             'overshoot_pct': None, 'rise_time': None, 'settling_time': None,
+                             'ss_error': None}
+    if delta == 0 or len(t) == 0:
+        return entry
+    sign = math.copysign(1.0, delta)
+    progress = sign * (y - r_from) / abs(delta)           # 0 at start, 1 at the new setpoint
+    entry['overshoot_pct'] = float(max(0.0, np.nanmax(progress) - 1.0) * 100.0)
+    low = _first_crossing(t, progress, RISE_LOW)
+    high = _first_crossing(t, progress, RISE_HIGH)
+    if low is not None and high is not None:
+        entry['rise_time'] = high - low
+    entry['settling_time'] = _settling_time(t, np.abs(y - r_to) / abs(delta))
+    tail = max(1, int(math.ceil(SS_WINDOW * len(y))))
+    entry['ss_error'] = float(r_to - np.nanmean(y[-tail:]))
+    return entry
+
+
+def _first_crossing(t: np.ndarray, x: np.ndarray, level: float) -> float | None:
+    above = np.nonzero(x >= level)[0]
+    if above.size == 0:
+        return None
+    i = int(above[0])
+    if i == 0:
+        return float(t[0])
+    x0, x1 = x[i - 1], x[i]
+    frac = (level - x0) / (x1 - x0) if x1 != x0 else 1.0
+    return float(t[i - 1] + frac * (t[i] - t[i - 1]))
+
+
+def _settling_time(t: np.ndarray, deviation: np.ndarray) -> float | None:
+    outside = np.nonzero(~(deviation <= SETTLING_BAND))[0]
+    if outside.size == 0:
+        return 0.0
+    i = int(outside[-1])
+    if i == len(t) - 1:
+        return None                                    # still outside at the end of the window
+    d0, d1 = deviation[i], deviation[i + 1]
+    frac = (d0 - SETTLING_BAND) / (d0 - d1) if d0 != d1 else 1.0
+    return float(t[i] + frac * (t[i + 1] - t[i]) - t[0])
+
+
+def input_metrics(u: np.ndarray, u_min: float = -math.inf,
+                  u_max: float = math.inf) -> dict[str, Any]:
+    """Min, max, total variation and the number of samples outside [u_min, u_max]."""
+    finite = u[np.isfinite(u)]
+    if finite.size == 0:
+        return {'min': None, 'max': None, 'total_variation': None, 'constraint_violations': 0}
+    return {
+        'min': float(finite.min()),
+        'max': float(finite.max()),
+        'total_variation': float(np.sum(np.abs(np.diff(finite)))),
+        'constraint_violations': int(np.sum((finite < u_min - 1e-9) | (finite > u_max + 1e-9))),
+    }
+
+
+def trace_metrics(trace: TraceTable,
+                  input_limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
+    """``outputs`` and ``inputs`` sections of ``metrics.json`` for a trace."""
+    limits = input_limits or {}
+    outputs = {name: output_metrics(trace.t, trace.columns[f'y.{name}'], trace.columns[f'r.{name}'])
+               for name in trace.channels('y') if f'r.{name}' in trace.columns}
+    inputs = {name: input_metrics(trace.columns[f'u.{name}'], *limits.get(name, (-math.inf, math.inf)))
+              for name in trace.channels('u')}
+    return {'outputs': outputs, 'inputs': inputs}
+
+
+def sampling_metrics(stamps_ns: np.ndarray, sample_time: float | None) -> dict[str, Any]:
+    """Ticks that should have been there but are not, and the largest deviation of the
+    measurement stamp spacing from the plant sample time [s]."""
+    if len(stamps_ns) < 2 or not sample_time:
+        return {'missed_samples': 0, 'max_jitter': 0.0}
+    ts_ns = int(round(sample_time * 1e9))
+    gaps = np.diff(np.asarray(stamps_ns, dtype=np.int64))
+    missed = int(np.sum(np.maximum(np.round(gaps / ts_ns) - 1, 0)))
+    jitter = float(np.max(np.abs(gaps - ts_ns)) / 1e9)
+    return {'missed_samples': missed, 'max_jitter': jitter}
