@@ -1,0 +1,233 @@
+"""Controller kinds by name: parameters, checks, construction and live updates.
+
+``controller_node`` (ROS) and the in-process loop (``core/scenario.py``) both
+build their controller with :func:`make_controller` from the same flat
+parameter values (dotted names, as in the params file), so a ROS run and an
+in-process run execute identical objects.
+
+A kind (:class:`ControllerKind`) supplies
+
+* ``params()`` — its ``ParamSpec`` tuple (gains, limits, mode, tuning, ...);
+* ``check(values)`` — relations between parameters (one-line reason or None);
+* ``build(values)`` — the :class:`~tank_control.core.interfaces.Controller`;
+* ``update(controller, values, changed)`` — apply accepted changes to a
+  running controller bumplessly (the output does not jump at that sample);
+* ``derive(values, changed)`` — parameter values that follow from others
+  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them.
+
+Adding a kind (e.g. ``relay_autotune``, ``mpcs``) is local: write a function
+returning a ``ControllerKind`` (usually in the controller's own module) and add
+one line to ``_KIND_FACTORIES``. The common parameters (``controller`` and the
+channel names) are added here; a kind's own specs win on a name clash.
+
+Parameter conventions of this package (ROS parameters cannot hold ``inf``):
+``ti = 0`` no integral action, ``du_max = 0`` no rate limit, ``tracking_time
+= 0`` the default tracking time; tuning process values of 0 mean "not given".
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from importlib import import_module
+from typing import Any
+
+from tank_control.core.interfaces import Controller
+from tank_control.core.params import ParamSpec, check_all
+
+Values = Mapping[str, Any]
+
+
+def _no_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
+    return {}
+
+
+@dataclass(frozen=True)
+class ControllerKind:
+    """Everything controller_node and the in-process loop need to run one controller type."""
+
+    name: str
+    params: Callable[[], tuple[ParamSpec, ...]]
+    check: Callable[[Values], str | None]
+    build: Callable[[Values], Controller]
+    update: Callable[[Controller, Values, frozenset[str]], None]
+    derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
+    description: str = ''
+
+
+# ------------------------------------------------------------------ pid
+_GAINS = ('kp', 'ti', 'td', 'b', 'c')
+
+
+def _pid_tuned(values: Values) -> dict[str, float] | None:
+    """Gains of ``tuning.rule`` in parameter convention (SPEC §2.2–2.6), None without a rule."""
+    from tank_control.core.control.pid import tuned_gains
+    gains = tuned_gains(values)
+    if gains is None:
+        return None
+    out = {
+        'kp': float(gains['kp']),
+        'ti': float(gains['ti']) if gains.get('ti') is not None else 0.0,
+        'td': float(gains['td']) if gains.get('td') is not None else 0.0,
+        'b': float(gains['b']) if gains.get('b') is not None else 1.0,
+        'c': float(gains['c']) if gains.get('c') is not None else 1.0,
+    }
+    if out['kp'] < 0:   # reverse-acting process: magnitude here, sign by direct_action
+        out['kp'] = -out['kp']
+    return out
+
+
+def _pid_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
+    """With ``tuning.rule`` set, kp/ti/td/b/c are the rule's (written back as parameters)."""
+    tuned = _pid_tuned(values)
+    return {} if tuned is None else tuned
+
+
+def _pid_check(values: Values) -> str | None:
+    from tank_control.core.control.pid import check_pid_relations
+    reason = check_pid_relations(values)
+    if reason:
+        return reason
+    try:
+        tuned = _pid_tuned(values)
+    except ValueError as exc:
+        return str(exc)
+    if tuned is not None:
+        for name in _GAINS:
+            if not math.isclose(float(values[name]), tuned[name], rel_tol=1e-12, abs_tol=1e-15):
+                return (f"{name}: {values[name]:g} conflicts with tuning.rule {values['tuning.rule']!r}, "
+                        f"which gives {tuned[name]:g}; set tuning.rule to none to tune by hand")
+    return None
+
+
+def _pid_build(values: Values) -> Controller:
+    from tank_control.core.control.pid import PidController, pid_config_from_params
+    config = pid_config_from_params(values)
+    controller = PidController(config, output_name=_single(values, 'output_names'),
+                               input_name=_single(values, 'input_names'))
+    if values.get('mode') == 'manual':
+        controller.pid.set_manual(float(values['manual_output']))
+    return controller
+
+
+def _pid_update(controller: Controller, values: Values, changed: frozenset[str]) -> None:
+    """Bumpless: gains and limits through ``Pid2Dof.set_gains`` (the integral
+    absorbs the change), then the mode (manual output / bumpless return to auto)."""
+    from tank_control.core.control.pid import pid_config_from_params
+    pid = controller.pid                      # type: ignore[attr-defined]
+    config = asdict(pid_config_from_params(values))
+    changes = {k: v for k, v in config.items() if getattr(pid.config, k) != v}
+    if changes:
+        pid.set_gains(**changes)
+    if values['mode'] == 'manual' and ({'mode', 'manual_output'} & changed or pid.mode != 'manual'):
+        pid.set_manual(float(values['manual_output']))
+    elif values['mode'] == 'auto' and pid.mode != 'auto':
+        pid.set_auto()
+
+
+def _pid_kind() -> ControllerKind:
+    from tank_control.core.control.pid import pid_params
+    return ControllerKind(
+        name='pid', params=lambda: pid_params() + _channel_specs(('y',), ('u',)),
+        check=_pid_check, build=_pid_build, update=_pid_update, derive=_pid_derive,
+        description='SISO 2-DOF PID (000 eq. 19) with filter, limits, anti-windup, tuning rules')
+
+
+def _single(values: Values, name: str) -> str:
+    names = list(values[name])
+    if len(names) != 1:
+        raise ValueError(f'{name}: a SISO controller needs exactly 1 channel name, got {names}')
+    return str(names[0])
+
+
+# ------------------------------------------------------------ registry
+_KIND_FACTORIES: dict[str, tuple[str, str]] = {
+    # name: (module, function returning a ControllerKind)
+    'pid': (__name__, '_pid_kind'),
+    'two_loop_pi': ('tank_control.core.control.multiloop', 'controller_kind'),
+    'smith_pi': ('tank_control.core.control.smith', 'controller_kind'),
+}
+
+
+def kind_names() -> tuple[str, ...]:
+    """Names of the controller kinds available in this build (their modules import)."""
+    names = []
+    for name in _KIND_FACTORIES:
+        try:
+            get_kind(name)
+        except (ImportError, AttributeError):
+            continue
+        names.append(name)
+    return tuple(names)
+
+
+def get_kind(name: str) -> ControllerKind:
+    """The kind called ``name``; ValueError naming the allowed kinds if unknown."""
+    if name not in _KIND_FACTORIES:
+        raise ValueError(f"controller: {name!r} is not a controller kind; allowed one of "
+                         + ', '.join(_KIND_FACTORIES))
+    module, function = _KIND_FACTORIES[name]
+    return getattr(import_module(module), function)()
+
+
+def _channel_specs(outputs: tuple[str, ...], inputs: tuple[str, ...]) -> tuple[ParamSpec, ...]:
+    return (
+        ParamSpec('output_names', list(outputs), 'measured channels read (and their setpoints), '
+                  'by name in the measurement/setpoint messages', read_only=True),
+        ParamSpec('input_names', list(inputs), 'manipulated channels written, by name in the '
+                  'manipulated message', read_only=True),
+    )
+
+
+def specs_for(name: str) -> tuple[ParamSpec, ...]:
+    """All parameters of kind ``name``: ``controller`` (read-only) + the kind's own."""
+    kind = get_kind(name)
+    common = ParamSpec('controller', name, 'controller kind (set at start-up)',
+                       choices=kind_names(), read_only=True)
+    own = kind.params()
+    return (common,) + tuple(s for s in own if s.name != 'controller')
+
+
+def complete_values(values: Values) -> dict[str, Any]:
+    """``values`` with the defaults of the selected kind filled in (``controller`` defaults to pid)."""
+    name = str(values.get('controller', 'pid'))
+    merged = {spec.name: spec.default for spec in specs_for(name)}
+    merged.update(values)
+    return merged
+
+
+def check(values: Values) -> str | None:
+    """Every reason the complete parameter ``values`` are invalid, joined; None if valid."""
+    name = str(values.get('controller', 'pid'))
+    try:
+        specs = specs_for(name)
+    except (ValueError, ImportError, AttributeError) as exc:
+        return str(exc)
+    reasons = check_all(specs, values)
+    if reasons:
+        return '; '.join(reasons)
+    return get_kind(name).check(values)
+
+
+def derive(values: Values, changed: frozenset[str] = frozenset()) -> dict[str, Any]:
+    """Values that follow from others (tuning gains), for the complete ``values``."""
+    return get_kind(str(values.get('controller', 'pid'))).derive(values, changed)
+
+
+def make_controller(values: Values) -> Controller:
+    """The controller the parameter ``values`` describe (missing names take defaults).
+
+    Derived values (tuning gains) are applied first, exactly as controller_node
+    does at start-up. Raises ValueError with the one-line reason(s).
+    """
+    merged = complete_values(values)
+    merged.update(derive(merged, frozenset(values)))
+    reason = check(merged)
+    if reason:
+        raise ValueError(reason)
+    return get_kind(merged['controller']).build(merged)
+
+
+def apply_changes(controller: Controller, values: Values, changed: frozenset[str]) -> None:
+    """Apply accepted parameter changes to a running controller (bumpless)."""
+    get_kind(str(values.get('controller', 'pid'))).update(controller, values, changed)

@@ -1,0 +1,167 @@
+"""The discrete-time closed loop run in-process: the reference every ROS run must match.
+
+Exactly the arithmetic of the lockstep protocol (BRIEF "Clock modes"), without
+ROS. With ``ts_ns = to_ns(sample_time)`` (the plant's sample time), for tick
+``k = 0, 1, ..., K`` (``K = duration_ns // ts_ns``):
+
+1. ``t_k = k * ts_ns`` (integer ns), ``t = seconds(t_k)``;
+2. ``r``, ``d`` from the reference at ``t`` (disturbance channels the
+   reference does not schedule keep the plant's nominal values);
+3. ``y = plant.outputs() + noise()`` — one noise draw per tick, the same
+   draws the plant node makes;
+4. ``u = controller.step(t, y, r, d)`` if ``t_k % controller_ts_ns == 0``
+   (the controller's sample instants), else the last ``u`` is held;
+5. record ``t, y.*, r.*, u.*, d.*``;
+6. ``plant.step(u, d, sample_time)`` — zero-order hold over ``[t_k, t_k+1)``.
+
+Channels are matched by name: the controller reads ``controller.output_names``
+from ``y`` and ``r``, ``controller.disturbance_names`` from ``d``, and writes
+``controller.input_names`` into the plant's inputs (others keep their nominal
+value).
+"""
+from __future__ import annotations
+
+import csv
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tank_control.core.interfaces import Controller, Plant, seconds, to_ns
+from tank_control.core.reference import Reference
+
+Noise = Callable[[], np.ndarray]
+"""One measurement-noise draw per call, ordered as the plant's outputs."""
+
+
+@dataclass
+class Trace:
+    """Recorded signals: ``t`` [s] and named columns ``y.*``, ``r.*``, ``u.*``, ``d.*``."""
+
+    columns: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def from_rows(cls, names: Sequence[str], rows: Iterable[Sequence[float]]) -> Trace:
+        data = np.asarray(list(rows), dtype=float).reshape(-1, len(names))
+        return cls({name: data[:, i].copy() for i, name in enumerate(names)})
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.columns)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[name]
+
+    def __len__(self) -> int:
+        return len(self.columns['t']) if 't' in self.columns else 0
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write a header line of column names, then one row per tick (full precision)."""
+        path = Path(path)
+        with path.open('w', newline='') as handle:
+            writer = csv.writer(handle)
+            writer.writerow(self.names)
+            for row in zip(*self.columns.values()):
+                writer.writerow([repr(float(v)) for v in row])
+        return path
+
+    @classmethod
+    def read_csv(cls, path: str | Path) -> Trace:
+        with Path(path).open(newline='') as handle:
+            reader = csv.reader(handle)
+            names = next(reader)
+            return cls.from_rows(names, ([float(v) for v in row] for row in reader))
+
+    def max_abs_difference(self, other: Trace, names: Iterable[str] | None = None) -> dict[str, float]:
+        """Per common column (or ``names``): the largest absolute difference over the
+        common length; ``inf`` if the lengths differ."""
+        names = [n for n in (names or self.names) if n in other.columns]
+        out = {}
+        for name in names:
+            a, b = self.columns[name], other.columns[name]
+            out[name] = float(np.max(np.abs(a - b))) if len(a) == len(b) and len(a) else (
+                0.0 if len(a) == len(b) else float('inf'))
+        return out
+
+
+def nominal_inputs(plant: Plant) -> dict[str, float]:
+    """The plant's inputs before any controller output arrives (nominal operating point)."""
+    return _nominal(plant, 'nominal_inputs', plant.input_names)
+
+
+def nominal_disturbances(plant: Plant) -> dict[str, float]:
+    """The plant's disturbances when the reference does not schedule them."""
+    return _nominal(plant, 'nominal_disturbances', plant.disturbance_names)
+
+
+def _nominal(plant: Plant, attr: str, names: Sequence[str]) -> dict[str, float]:
+    source = getattr(plant, attr, None)
+    values = source() if callable(source) else source
+    if values is None:
+        return {name: 0.0 for name in names}
+    if isinstance(values, Mapping):
+        return {name: float(values.get(name, 0.0)) for name in names}
+    return {name: float(v) for name, v in zip(names, values)}
+
+
+def check_wiring(plant: Plant, controller: Controller, reference: Reference) -> None:
+    """ValueError naming the first channel that cannot be connected."""
+    for name in controller.output_names:
+        if name not in plant.output_names:
+            raise ValueError(f'controller reads output {name!r}; plant outputs: {plant.output_names}')
+        if name not in reference.setpoint_names:
+            raise ValueError(f'controller needs setpoint {name!r}; reference setpoint.channels: '
+                             f'{reference.setpoint_names}')
+    for name in controller.input_names:
+        if name not in plant.input_names:
+            raise ValueError(f'controller writes input {name!r}; plant inputs: {plant.input_names}')
+    for name in (*reference.disturbance_names, *controller.disturbance_names):
+        if name not in plant.disturbance_names:
+            raise ValueError(f'disturbance {name!r} is not a plant disturbance; plant has '
+                             f'{plant.disturbance_names}')
+
+
+def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
+             sample_time: float, duration: float, noise: Noise | None = None) -> Trace:
+    """Run the closed loop for ``duration`` seconds of simulated time (ticks 0..K inclusive).
+
+    ``sample_time`` is the plant's tick [s]; the controller's ``sample_time``
+    must be an integer multiple of it.
+    """
+    check_wiring(plant, controller, reference)
+    ts_ns = to_ns(sample_time)
+    cts_ns = to_ns(controller.sample_time)
+    if ts_ns <= 0 or cts_ns <= 0 or cts_ns % ts_ns:
+        raise ValueError(f'controller sample_time {controller.sample_time} s is not a positive '
+                         f'integer multiple of the plant sample_time {sample_time} s')
+    n_ticks = to_ns(duration) // ts_ns + 1
+
+    u_all = nominal_inputs(plant)
+    d_all = nominal_disturbances(plant)
+    y_index = [plant.output_names.index(n) for n in controller.output_names]
+    r_index = [reference.setpoint_names.index(n) for n in controller.output_names]
+    names = (['t'] + [f'y.{n}' for n in plant.output_names]
+             + [f'r.{n}' for n in reference.setpoint_names]
+             + [f'u.{n}' for n in controller.input_names]
+             + [f'd.{n}' for n in reference.disturbance_names])
+    rows = np.empty((n_ticks, len(names)))
+    u_ctrl = np.array([u_all[n] for n in controller.input_names], dtype=float)
+    for k in range(n_ticks):
+        t_ns = k * ts_ns
+        t = seconds(t_ns)
+        r_all = reference.setpoints(t)
+        d_ref = reference.disturbances(t)
+        d_all.update(zip(reference.disturbance_names, d_ref.tolist()))
+        y = plant.outputs()
+        if noise is not None:
+            y = y + noise()
+        if t_ns % cts_ns == 0:
+            d_ctrl = np.array([d_all[n] for n in controller.disturbance_names], dtype=float)
+            u_ctrl = np.asarray(controller.step(t, y[y_index], r_all[r_index], d_ctrl), dtype=float)
+            u_all.update(zip(controller.input_names, u_ctrl.tolist()))
+        rows[k] = np.concatenate(([t], y, r_all, u_ctrl, d_ref))
+        plant.step(np.array([u_all[n] for n in plant.input_names], dtype=float),
+                   np.array([d_all[n] for n in plant.disturbance_names], dtype=float),
+                   sample_time)
+    return Trace.from_rows(names, rows)

@@ -1,0 +1,288 @@
+"""Setpoint and disturbance schedules per channel (issue 4, reference publisher).
+
+A channel is a piecewise-constant *target* — ``values[i]`` from ``times[i]``
+on (``values[0]`` also before ``times[0]``) — optionally followed at a limited
+rate ``ramp_rate`` [units/s] instead of jumping. A rate limit turns a step into
+a ramp: 001 Fig. 1.15 reaches setpoint 100 in 25 s, i.e. ``ramp_rate = 4``
+(SPEC §2.4: ~40 % overshoot of the ZN PID with a step, ~3 % with the ramp).
+The value at time ``t`` is a closed-form function of the schedule and ``t``
+(no hidden integrator state), so the ROS reference node and the in-process
+loop (``core/loop.py``) compute bit-identical values.
+
+Parameter layout (flat typed ROS 2 parameters; nested YAML maps flatten to the
+same dotted names)::
+
+    reference:
+      ros__parameters:
+        sample_time: 1.0               # publishing period in wall mode [s]
+        setpoint.channels: [y]          # setpoint channels (= controlled outputs)
+        setpoint.y.times: [0.0, 10.0]   # [s] instants of scheduled changes (non-decreasing)
+        setpoint.y.values: [0.0, 1.0]   # target from times[i] on [channel units]
+        setpoint.y.ramp_rate: 0.0       # [units/s] rate limit of transitions; 0 = steps
+        setpoint.y.min: -1.0e9          # limits: an out-of-range value is rejected
+        setpoint.y.max: 1.0e9
+        disturbance.channels: [v]
+        disturbance.v.value: 0.0        # shorthand for a constant (instead of times/values)
+
+``<kind>.<ch>.value`` in a file is a constant (``times: [0.0]``,
+``values: [value]``); giving it together with ``times``/``values`` is an error.
+At runtime ``ros2 param set /reference setpoint.y.value 2.0`` is an operator
+override applied at the next published instant ``t``: the target becomes 2.0
+from ``t`` on and later scheduled entries are dropped (the ramp rate still
+applies). A new ``times``/``values`` pair replaces the schedule (equal lengths;
+set both at once, e.g. ``ros2 param load`` or ``set_parameters_atomically``).
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.params import ParamSpec
+
+KINDS = ('setpoint', 'disturbance')
+FIELDS = ('value', 'times', 'values', 'ramp_rate', 'min', 'max')
+UNBOUNDED = 1.0e9   # default |limit|: no practical limit
+
+
+@dataclass(frozen=True)
+class ChannelSchedule:
+    """One channel's schedule (units of the channel, times in seconds)."""
+
+    times: tuple[float, ...] = (0.0,)
+    values: tuple[float, ...] = (0.0,)
+    ramp_rate: float = 0.0
+    min: float = -UNBOUNDED
+    max: float = UNBOUNDED
+
+    @classmethod
+    def constant(cls, value: float, **limits: float) -> ChannelSchedule:
+        return cls(times=(0.0,), values=(float(value),), **limits)
+
+    def check(self, name: str) -> str | None:
+        """One-line reason why the schedule of channel ``name`` is invalid, or None."""
+        if not self.min < self.max:
+            return f'{name}.min: {self.min:g} must be below {name}.max {self.max:g}'
+        if not self.times:
+            return f'{name}.times: empty; give at least one time/value pair'
+        if len(self.times) != len(self.values):
+            return (f'{name}.times/values: {len(self.times)} times but {len(self.values)} '
+                    'values; they must have equal lengths (set both together)')
+        if any(not math.isfinite(t) or t < 0 for t in self.times):
+            return f'{name}.times: {list(self.times)}; allowed finite values >= 0'
+        if any(b < a for a, b in zip(self.times, self.times[1:])):
+            return f'{name}.times: {list(self.times)} must be non-decreasing'
+        if not (math.isfinite(self.ramp_rate) and self.ramp_rate >= 0):
+            return f'{name}.ramp_rate: {self.ramp_rate:g}; allowed [0, inf)'
+        for v in self.values:
+            if not self.min <= v <= self.max:   # also rejects NaN
+                return (f'{name}.values: {v:g} is out of range; allowed '
+                        f'[{self.min:g}, {self.max:g}]')
+        return None
+
+    def target(self, t: float) -> float:
+        """The scheduled (unramped) target at ``t`` [s]."""
+        i = bisect.bisect_right(self.times, t)
+        return self.values[max(i - 1, 0)]
+
+    def at(self, t: float) -> float:
+        """The channel value at ``t`` [s]: the target, rate-limited by ``ramp_rate``."""
+        if self.ramp_rate <= 0.0:
+            return self.target(t)
+        x = self.values[0]
+        n = bisect.bisect_right(self.times, t)
+        for i in range(n):
+            end = self.times[i + 1] if i + 1 < n else t
+            x = _approach(x, self.values[i], self.ramp_rate * (end - self.times[i]))
+        return x
+
+    def override(self, value: float, t: float) -> ChannelSchedule:
+        """Target ``value`` from ``t`` on; scheduled entries after ``t`` are dropped."""
+        keep = bisect.bisect_right(self.times, t)
+        return replace(self, times=self.times[:keep] + (t,),
+                       values=self.values[:keep] + (float(value),))
+
+
+def _approach(x: float, target: float, delta: float) -> float:
+    """Move ``x`` toward ``target`` by at most ``delta`` (>= 0)."""
+    if target > x:
+        return min(x + delta, target)
+    return max(x - delta, target)
+
+
+class Reference:
+    """Setpoints and disturbances as functions of time, per named channel."""
+
+    def __init__(self, setpoints: Mapping[str, ChannelSchedule] | None = None,
+                 disturbances: Mapping[str, ChannelSchedule] | None = None) -> None:
+        self._channels: dict[str, dict[str, ChannelSchedule]] = {
+            'setpoint': dict(setpoints or {}), 'disturbance': dict(disturbances or {})}
+        reasons = [r for kind in KINDS for name, s in self._channels[kind].items()
+                   if (r := s.check(f'{kind}.{name}'))]
+        if reasons:
+            raise ValueError('; '.join(reasons))
+
+    @property
+    def setpoint_names(self) -> tuple[str, ...]:
+        return tuple(self._channels['setpoint'])
+
+    @property
+    def disturbance_names(self) -> tuple[str, ...]:
+        return tuple(self._channels['disturbance'])
+
+    def schedule(self, kind: str, name: str) -> ChannelSchedule:
+        return self._channels[kind][name]
+
+    def setpoints(self, t: float) -> np.ndarray:
+        """Setpoints at ``t`` [s], ordered as ``setpoint_names``."""
+        return np.array([s.at(t) for s in self._channels['setpoint'].values()], dtype=float)
+
+    def disturbances(self, t: float) -> np.ndarray:
+        """Disturbances at ``t`` [s], ordered as ``disturbance_names``."""
+        return np.array([s.at(t) for s in self._channels['disturbance'].values()], dtype=float)
+
+    def set_value(self, kind: str, name: str, value: float, t: float) -> str | None:
+        """Operator override: target ``value`` from ``t`` on. Returns a reason if rejected."""
+        return self.update(kind, name, {'value': value}, t)
+
+    def update(self, kind: str, name: str, changes: Mapping[str, Any], t: float = 0.0) -> str | None:
+        """Change one channel live (``times``, ``values``, ``ramp_rate``, ``min``, ``max``;
+        ``value`` is an override from ``t``). A rejected change leaves it untouched."""
+        channels = self._channels.get(kind)
+        if channels is None or name not in channels:
+            return f'{kind}.{name}: unknown channel; known: {", ".join(channels or ()) or "none"}'
+        fields = dict(changes)
+        unknown = set(fields) - set(FIELDS)
+        if unknown:
+            return f'{kind}.{name}: unknown field(s) {sorted(unknown)}; allowed {", ".join(FIELDS)}'
+        value = fields.pop('value', None)
+        try:
+            for key in ('times', 'values'):
+                if key in fields:
+                    fields[key] = tuple(float(v) for v in fields[key])
+            for key in ('ramp_rate', 'min', 'max'):
+                if key in fields:
+                    fields[key] = float(fields[key])
+            candidate = replace(channels[name], **fields)
+            if value is not None:
+                value = float(value)
+                if not candidate.min <= value <= candidate.max:
+                    return (f'{kind}.{name}.value: {value:g} is out of range; allowed '
+                            f'[{candidate.min:g}, {candidate.max:g}]')
+                candidate = candidate.override(value, t)
+        except (TypeError, ValueError) as exc:
+            return f'{kind}.{name}: {exc}'
+        reason = candidate.check(f'{kind}.{name}')
+        if reason:
+            return reason
+        channels[name] = candidate
+        return None
+
+
+# --------------------------------------------------------------------------- parameters
+
+def channel_lists(values: Mapping[str, Any]) -> tuple[list[str], list[str]]:
+    """The setpoint and disturbance channel names of a flat parameter dict."""
+    return ([c for c in values.get('setpoint.channels', []) if c],
+            [c for c in values.get('disturbance.channels', []) if c])
+
+
+def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedule:
+    """A ChannelSchedule from the fields given for channel ``name`` (ValueError with a reason)."""
+    fields = dict(fields)
+    unknown = set(fields) - set(FIELDS)
+    if unknown:
+        raise ValueError(f'{name}: unknown field(s) {sorted(unknown)}; allowed {", ".join(FIELDS)}')
+    if 'value' in fields:
+        if 'times' in fields or 'values' in fields:
+            raise ValueError(f'{name}.value: give either value (a constant) or times/values, not both')
+        fields['times'], fields['values'] = [0.0], [fields.pop('value')]
+    try:
+        kw = {k: (tuple(float(v) for v in val) if k in ('times', 'values') else float(val))
+              for k, val in fields.items()}
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f'{name}: {exc}') from None
+    if 'values' in kw and 'times' not in kw and len(kw['values']) == 1:
+        kw['times'] = (0.0,)
+    schedule = ChannelSchedule(**kw)
+    reason = schedule.check(name)
+    if reason:
+        raise ValueError(reason)
+    return schedule
+
+
+def reference_from_params(values: Mapping[str, Any]) -> Reference:
+    """Build a ``Reference`` from the flat parameters of a params file (ValueError with the
+    reasons). Channel fields not listed in ``*.channels`` are an error (a typo guard)."""
+    setpoint_channels, disturbance_channels = channel_lists(values)
+    built: dict[str, dict[str, ChannelSchedule]] = {'setpoint': {}, 'disturbance': {}}
+    listed = {('setpoint', c) for c in setpoint_channels} | {('disturbance', c) for c in disturbance_channels}
+    reasons = []
+    for key in values:
+        parts = split_param_name(key)
+        if parts and (parts[0], parts[1]) not in listed:
+            reasons.append(f'{key}: channel {parts[1]!r} is not in {parts[0]}.channels')
+    for kind, names in (('setpoint', setpoint_channels), ('disturbance', disturbance_channels)):
+        for ch in names:
+            prefix = f'{kind}.{ch}.'
+            fields = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
+            try:
+                built[kind][ch] = schedule_from_fields(f'{kind}.{ch}', fields)
+            except ValueError as exc:
+                reasons.append(str(exc))
+    if reasons:
+        raise ValueError('; '.join(reasons))
+    return Reference(built['setpoint'], built['disturbance'])
+
+
+def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
+    """ParamSpecs of the reference node; defaults are the given reference's schedules.
+
+    ``value`` is declared with the channel's value at t = 0 and acts as the
+    runtime override (layout and semantics: module doc).
+    """
+    specs = [
+        ParamSpec('sample_time', 1.0, 'publishing period in wall mode [s]; in sim/lockstep '
+                  'the reference answers every /clock tick', min=1e-6, max=3600.0),
+        ParamSpec('clock_mode', 'wall', 'wall: publish on a wall timer; sim/lockstep: answer '
+                  'every /clock tick with messages stamped at the tick', choices=CLOCK_MODES,
+                  read_only=True),
+        # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)
+        ParamSpec('setpoint.channels', list(reference.setpoint_names) or [''],
+                  'setpoint channel names (= controlled outputs)', read_only=True),
+        ParamSpec('disturbance.channels', list(reference.disturbance_names) or [''],
+                  'disturbance channel names (plant disturbance inputs)', read_only=True),
+    ]
+    for kind in KINDS:
+        names = reference.setpoint_names if kind == 'setpoint' else reference.disturbance_names
+        for ch in names:
+            s = reference.schedule(kind, ch)
+            p = f'{kind}.{ch}'
+            specs += [
+                ParamSpec(f'{p}.value', s.at(0.0), f'{kind} {ch}: set at runtime to override the '
+                          'schedule from the next instant on [channel units]'),
+                ParamSpec(f'{p}.times', list(s.times), f'{kind} {ch}: instants of scheduled '
+                          'changes, non-decreasing [s]', min=0.0),
+                ParamSpec(f'{p}.values', list(s.values), f'{kind} {ch}: target from times[i] on '
+                          '[channel units]'),
+                ParamSpec(f'{p}.ramp_rate', s.ramp_rate, f'{kind} {ch}: rate limit of transitions '
+                          '(0 = steps) [channel units/s]', min=0.0),
+                ParamSpec(f'{p}.min', s.min, f'{kind} {ch}: lowest accepted value'),
+                ParamSpec(f'{p}.max', s.max, f'{kind} {ch}: highest accepted value'),
+            ]
+    return tuple(specs)
+
+
+CLOCK_MODES = ('wall', 'sim', 'lockstep')
+
+
+def split_param_name(name: str) -> tuple[str, str, str] | None:
+    """``'setpoint.T_out.value'`` → ``('setpoint', 'T_out', 'value')``; None if not a channel field."""
+    parts = name.split('.')
+    if len(parts) < 3 or parts[0] not in KINDS or parts[-1] not in FIELDS:
+        return None
+    return parts[0], '.'.join(parts[1:-1]), parts[-1]

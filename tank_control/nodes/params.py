@@ -1,0 +1,241 @@
+"""Core ``ParamSpec`` tuples → declared, validated ROS 2 parameters.
+
+One ``ParameterBinding`` per node does the whole parameter user interface:
+
+* **declare** every spec with a ``ParameterDescriptor`` (description,
+  ``FloatingPointRange``/``IntegerRange`` from ``min``/``max``, ``read_only``,
+  ``additional_constraints`` naming the allowed values), taking the initial
+  value from the params file (the node's overrides) after validating it;
+* **pre-set** callback (``add_pre_set_parameters_callback``, Jazzy): coerces
+  types as ROS users expect and adds derived parameters (e.g. the gains a
+  tuning rule produces) so they are set atomically with the change;
+* **on-set** callback: checks every value against its spec and the whole
+  candidate set against the node's cross-parameter relations; a violation
+  returns ``SetParametersResult(successful=False, reason=...)`` with a
+  one-line reason naming the parameter and the allowed range — nothing is
+  accepted and then ignored;
+* **post-set** callback: records accepted changes; the node takes them with
+  ``take_pending()`` and applies them at its next sample.
+
+Typing. Jazzy's rclpy does not coerce: a statically typed ``double`` parameter
+rejects an ``integer`` value ("Wrong parameter type"), both from a params file
+(``kp: 2`` raises at declaration) and from ``ros2 param set /controller kp 2``
+(YAML parses ``2`` as an integer). ``ParameterDescriptor.dynamic_typing`` only
+switches the type check off. This module keeps one type per parameter (the
+type of the spec's default) and converts integers to doubles itself — in the
+overrides before declaring and in the pre-set callback for runtime sets —
+while declaring with ``dynamic_typing=True`` so that a value of a wrong type
+(a string for a gain, say) reaches the on-set check and gets our reason
+("kp: 'abc' is a str, expected float; allowed [0, 1e+12]") instead of rclpy's
+nameless type error. Stored values therefore always have the spec's type.
+"""
+from __future__ import annotations
+
+import array
+import math
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from tank_control.core.params import ParamSpec, ParamValue
+
+CrossCheck = Callable[[Mapping[str, Any]], 'str | None']
+"""Relations between parameters: full candidate values → one-line reason or None."""
+
+Derive = Callable[[Mapping[str, Any], frozenset[str]], Mapping[str, Any]]
+"""Derived values: (candidate values, names the user set) → extra name → value to set."""
+
+_INT64_MIN, _INT64_MAX = -(2 ** 63), 2 ** 63 - 1
+
+
+class ParameterError(ValueError):
+    """A start-up parameter value (params file or default) that the specs reject."""
+
+
+def ros_type(spec: ParamSpec) -> Parameter.Type:
+    """The ROS parameter type of a spec: the type of its default.
+
+    List defaults must be non-empty (rclpy cannot type an empty list).
+    """
+    default = spec.default
+    if isinstance(default, list) and not default:
+        raise ValueError(f'{spec.name}: a list parameter needs a non-empty default to have a type')
+    return Parameter.Type.from_parameter_value(default)
+
+
+def coerce(spec: ParamSpec, value: Any) -> Any:
+    """``value`` converted as a ROS user expects, else unchanged.
+
+    Integers become doubles where the spec is a double (``kp 2`` → ``2.0``),
+    also inside arrays; rclpy's ``array.array``/tuple values become lists.
+    """
+    if isinstance(value, (array.array, tuple)):
+        value = list(value)
+    default = spec.default
+    if isinstance(default, float) and _is_int(value):
+        return float(value)
+    if (isinstance(default, list) and default and isinstance(default[0], float)
+            and isinstance(value, list) and all(_is_int(v) or isinstance(v, float) for v in value)):
+        return [float(v) for v in value]
+    return value
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ``ParameterDescriptor`` of a spec (description, range, read-only, constraints)."""
+    kind = ros_type(spec)
+    desc = ParameterDescriptor(
+        name=spec.name, description=spec.description, read_only=spec.read_only,
+        dynamic_typing=True,
+        additional_constraints=f'{_type_word(kind)}; allowed {spec.allowed()}')
+    if spec.min is not None or spec.max is not None:
+        if kind == Parameter.Type.DOUBLE:
+            desc.floating_point_range = [FloatingPointRange(
+                from_value=-math.inf if spec.min is None else float(spec.min),
+                to_value=math.inf if spec.max is None else float(spec.max), step=0.0)]
+        elif kind == Parameter.Type.INTEGER:
+            desc.integer_range = [IntegerRange(
+                from_value=_INT64_MIN if spec.min is None else int(math.ceil(spec.min)),
+                to_value=_INT64_MAX if spec.max is None else int(math.floor(spec.max)), step=0)]
+    return desc
+
+
+def _type_word(kind: Parameter.Type) -> str:
+    return kind.name.lower().replace('_', ' ')
+
+
+class ParameterBinding:
+    """The parameters of one node, declared from specs and validated on every change.
+
+    ``cross_check`` sees the complete candidate values (current values with
+    the requested changes) and returns a reason or None; ``derive`` returns
+    extra values to set along with a change (never overriding a value the user
+    set in the same request). Both also run on the start-up values.
+    """
+
+    def __init__(self, node: Node, specs: Iterable[ParamSpec], *,
+                 cross_check: CrossCheck | None = None, derive: Derive | None = None) -> None:
+        self._node = node
+        self._specs = {spec.name: spec for spec in specs}
+        self._cross_check = cross_check
+        self._derive = derive
+        self._values: dict[str, ParamValue] = {}
+        self._pending: dict[str, ParamValue] = {}
+        self.rejected = 0
+        self.last_rejection = ''
+        self._declare()
+        node.add_pre_set_parameters_callback(self._pre_set)
+        node.add_on_set_parameters_callback(self._on_set)
+        node.add_post_set_parameters_callback(self._post_set)
+
+    # ------------------------------------------------------------ start-up
+    def _declare(self) -> None:
+        overrides = getattr(self._node, '_parameter_overrides', {})   # rclpy has no public getter
+        values: dict[str, Any] = {}
+        reasons: list[str] = []
+        for name, spec in self._specs.items():
+            ros_type(spec)   # fail early on an untypable default
+            value = spec.default
+            if name in overrides:
+                value = coerce(spec, overrides[name].value)
+            reason = spec.check(value)
+            if reason:
+                reasons.append(reason)
+            values[name] = value
+        if not reasons and self._derive is not None:
+            try:
+                extra = self._derive(values, frozenset(n for n in self._specs if n in overrides))
+            except ValueError as exc:
+                reasons.append(str(exc))
+            else:
+                values.update({k: coerce(self._specs[k], v) for k, v in extra.items()})
+        if not reasons and self._cross_check is not None:
+            reason = self._cross_check(values)
+            if reason:
+                reasons.append(reason)
+        if reasons:
+            raise ParameterError('; '.join(reasons))
+        for name, spec in self._specs.items():
+            self._node.declare_parameter(name, values[name], descriptor(spec), ignore_override=True)
+        self._values = values
+
+    # ------------------------------------------------------------ callbacks
+    def _pre_set(self, parameters: list[Parameter]) -> list[Parameter]:
+        out: list[Parameter] = []
+        changes: dict[str, Any] = {}
+        for param in parameters:
+            spec = self._specs.get(param.name)
+            if spec is None or param.type_ == Parameter.Type.NOT_SET:
+                out.append(param)
+                continue
+            value = coerce(spec, param.value)
+            try:
+                param = Parameter(param.name, value=value)
+            except (TypeError, ValueError):
+                pass   # untypable: the on-set check rejects it with a reason
+            out.append(param)
+            changes[param.name] = value
+        if changes and self._derive is not None:
+            candidate = {**self._values, **changes}
+            if not any(self._specs[n].check(v) for n, v in changes.items()):
+                try:
+                    extra = self._derive(candidate, frozenset(changes))
+                except ValueError:
+                    extra = {}   # the cross-check names the problem
+                for name, value in extra.items():
+                    if name not in changes and value != self._values.get(name):
+                        out.append(Parameter(name, value=coerce(self._specs[name], value)))
+        return out
+
+    def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
+        changes: dict[str, Any] = {}
+        for param in parameters:
+            spec = self._specs.get(param.name)
+            if spec is None:
+                continue   # not ours (use_sim_time, ...): leave it to its owner
+            # rclpy retypes a dynamically typed descriptor to the incoming value's
+            # type before this check; keep it at the spec's type (only that is accepted).
+            self._node.describe_parameter(param.name).type = ros_type(spec).value
+            value = None if param.type_ == Parameter.Type.NOT_SET else coerce(spec, param.value)
+            reason = (f'{param.name}: cannot be unset; allowed {spec.allowed()}' if value is None
+                      else spec.check(value))
+            if reason:
+                return self._reject(reason)
+            changes[param.name] = value
+        if changes and self._cross_check is not None:
+            reason = self._cross_check({**self._values, **changes})
+            if reason:
+                return self._reject(reason)
+        return SetParametersResult(successful=True)
+
+    def _reject(self, reason: str) -> SetParametersResult:
+        self.rejected += 1
+        self.last_rejection = reason
+        self._node.get_logger().warning(f'parameter change rejected: {reason}')
+        return SetParametersResult(successful=False, reason=reason)
+
+    def _post_set(self, parameters: list[Parameter]) -> None:
+        for param in parameters:
+            spec = self._specs.get(param.name)
+            if spec is not None:
+                value = coerce(spec, param.value)
+                self._values[param.name] = value
+                self._pending[param.name] = value
+
+    # -------------------------------------------------------------- access
+    @property
+    def values(self) -> dict[str, ParamValue]:
+        """Current accepted values (a copy), name → value with the spec's type."""
+        return dict(self._values)
+
+    def take_pending(self) -> dict[str, ParamValue]:
+        """Changes accepted since the last call (applied by the node at its next sample)."""
+        pending, self._pending = self._pending, {}
+        return pending

@@ -1,0 +1,102 @@
+"""core/control/registry.py: controller kinds by name, tuning write-back, bumpless live updates."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tank_control.core.control import registry
+from tank_control.core.interfaces import Controller
+
+K1, TO = 0.05, 5.0     # 000's worked example (SPEC §1.1)
+
+
+def mdp_pid_closed_form(k1: float, to: float) -> dict[str, float]:
+    """000 eqs. 25–26, 32 (SPEC §2.2), written out independently of the tuning module."""
+    s3 = math.sqrt(3.0)
+    return {'kp': 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (k1 * to), 'ti': (2 + s3) * to,
+            'td': (3 + s3) / 18 * to, 'b': (3 - s3) / 3, 'c': (3 - s3) / 2}
+
+
+def step(ctrl: Controller, t: float, y: float, r: float) -> float:
+    return float(ctrl.step(t, np.array([y]), np.array([r]), np.array([]))[0])
+
+
+def test_pid_is_registered_with_controller_and_channel_params():
+    assert 'pid' in registry.kind_names()
+    names = [s.name for s in registry.specs_for('pid')]
+    for name in ('controller', 'sample_time', 'kp', 'ti', 'td', 'n', 'b', 'c', 'u_min', 'u_max',
+                 'du_max', 'anti_windup', 'tracking_time', 'mode', 'manual_output',
+                 'fail_safe_output', 'tuning.rule', 'output_names', 'input_names'):
+        assert name in names
+    controller_spec = registry.specs_for('pid')[0]
+    assert controller_spec.read_only and controller_spec.default == 'pid'
+
+
+def test_make_controller_builds_the_described_pid():
+    ctrl = registry.make_controller({'controller': 'pid', 'kp': 2.0, 'b': 0.5, 'sample_time': 0.1,
+                                     'output_names': ['h'], 'input_names': ['F_H']})
+    assert isinstance(ctrl, Controller)
+    assert ctrl.output_names == ('h',) and ctrl.input_names == ('F_H',)
+    assert ctrl.sample_time == 0.1
+    # P only (ti = 0 → no integral): u = kp·(b·r − y), 000 eq. 19
+    assert step(ctrl, 0.0, 1.0, 4.0) == pytest.approx(2.0 * (0.5 * 4.0 - 1.0), abs=1e-12)
+
+
+@pytest.mark.parametrize('values, name', [
+    ({'kp': -1.0}, 'kp'),
+    ({'kp': 0.0}, 'kp'),
+    ({'u_min': 5.0, 'u_max': 5.0}, 'u_min'),
+    ({'n': 1.0}, 'n'),
+    ({'controller': 'fuzzy'}, 'controller'),
+    ({'tuning.rule': 'mdp', 'tuning.gain': 0.05}, 'dead_time'),   # missing process argument
+])
+def test_bad_values_rejected_with_a_reason_naming_the_parameter(values, name):
+    with pytest.raises(ValueError, match=name):
+        registry.make_controller(values)
+    assert name in registry.check(registry.complete_values(values) if 'controller' not in values
+                                  else values)
+
+
+def test_tuning_rule_gains_are_derived_and_used():
+    values = registry.complete_values({'tuning.rule': 'mdp', 'tuning.kind': 'pid',
+                                       'tuning.gain': K1, 'tuning.dead_time': TO})
+    derived = registry.derive(values)
+    expected = mdp_pid_closed_form(K1, TO)
+    for name, value in expected.items():
+        assert derived[name] == pytest.approx(value, rel=1e-12)
+    ctrl = registry.make_controller(values)
+    assert ctrl.pid.config.kp == pytest.approx(expected['kp'], rel=1e-12)
+    # a hand-set gain that contradicts the rule is refused, not silently replaced
+    reason = registry.check({**values, **derived, 'kp': 2.0})
+    assert reason and reason.startswith('kp:') and 'tuning.rule' in reason
+    assert registry.check({**values, **derived}) is None
+
+
+def test_live_gain_change_is_bumpless_and_then_in_effect():
+    values = registry.complete_values({'kp': 1.0, 'ti': 10.0, 'b': 0.5, 'sample_time': 1.0})
+    ctrl = registry.make_controller(values)
+    for k in range(3):                     # e = 0: the output is steady
+        u_before = step(ctrl, float(k), 1.0, 1.0)
+    values['kp'] = 3.0
+    registry.apply_changes(ctrl, values, frozenset({'kp'}))
+    u_after = step(ctrl, 3.0, 1.0, 1.0)
+    # a plain recomputation would jump by Δkp·(b·r − y) = 2·(−0.5) = −1
+    assert u_after == pytest.approx(u_before, abs=1e-12)
+    u_next = step(ctrl, 4.0, 1.1, 1.0)     # the new kp acts on the next error (P part)
+    assert u_next - u_after == pytest.approx(-3.0 * 0.1, abs=1e-12)
+
+
+def test_manual_mode_and_bumpless_return():
+    values = registry.complete_values({'kp': 1.0, 'ti': 10.0})
+    ctrl = registry.make_controller(values)
+    u0 = step(ctrl, 0.0, 0.0, 1.0)
+    values.update(mode='manual', manual_output=7.0)
+    registry.apply_changes(ctrl, values, frozenset({'mode', 'manual_output'}))
+    assert step(ctrl, 1.0, 0.0, 1.0) == 7.0
+    assert ctrl.status['mode'] == 'manual'
+    values['mode'] = 'auto'
+    registry.apply_changes(ctrl, values, frozenset({'mode'}))
+    assert step(ctrl, 2.0, 0.0, 1.0) == pytest.approx(7.0, abs=1e-12)
+    assert u0 != 7.0
