@@ -1,0 +1,147 @@
+"""Step-response and error-integral metrics of recorded (sampled) signals.
+
+Conventions: ``t`` in seconds (strictly increasing samples), signals in the
+units of the measured output. Every function accepts noisy data and steps in
+either direction (the response is normalised by the signed step size).
+
+* :func:`iae` — ∫|e| dt [unit·s], trapezoidal rule over the samples.
+* :func:`ise` — ∫e² dt [unit²·s], trapezoidal rule.
+* :func:`step_metrics` — overshoot [%], rise time 10–90 % [s], settling time
+  into a ±2 % band [s], steady-state error [unit], peak value and time.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+def _as_arrays(t, *signals) -> tuple[np.ndarray, ...]:
+    t = np.asarray(t, dtype=float).reshape(-1)
+    out = [t]
+    for s in signals:
+        arr = np.asarray(s, dtype=float).reshape(-1)
+        if arr.shape != t.shape:
+            raise ValueError(f'signal has {arr.size} samples, t has {t.size}')
+        out.append(arr)
+    if t.size < 2:
+        raise ValueError(f't: need at least 2 samples, got {t.size}')
+    if np.any(np.diff(t) <= 0):
+        raise ValueError('t: sample times must be strictly increasing')
+    return tuple(out)
+
+
+def _trapz(t: np.ndarray, f: np.ndarray) -> float:
+    return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(t)))
+
+
+def iae(t, e) -> float:
+    """Integral of the absolute error ∫|e(t)| dt [unit·s] (trapezoidal)."""
+    t, e = _as_arrays(t, e)
+    return _trapz(t, np.abs(e))
+
+
+def ise(t, e) -> float:
+    """Integral of the squared error ∫e(t)² dt [unit²·s] (trapezoidal)."""
+    t, e = _as_arrays(t, e)
+    return _trapz(t, e * e)
+
+
+@dataclass(frozen=True)
+class StepMetrics:
+    """Metrics of a response to a setpoint step (units in the field comments).
+
+    ``overshoot``: (peak beyond the final setpoint) / |step| · 100 [%], ≥ 0.
+    ``rise_time``: time from 10 % to 90 % of the step [s]; NaN if 90 % is never reached.
+    ``settling_time``: time after the step after which the response stays within
+    ``band``·|step| of the final setpoint [s]; NaN if it never settles.
+    ``steady_state_error``: final setpoint − mean output over the final window [unit].
+    ``peak``: extreme output in the step direction [unit]; ``peak_time`` [s] after the step.
+    """
+
+    overshoot: float
+    rise_time: float
+    settling_time: float
+    steady_state_error: float
+    peak: float
+    peak_time: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def _interp(t: np.ndarray, z: np.ndarray, level: float, i: int) -> float:
+    """Time where z crosses ``level`` between samples i-1 and i (linear)."""
+    if i <= 0:
+        return float(t[0])
+    z0, z1 = z[i - 1], z[i]
+    if z1 == z0:
+        return float(t[i])
+    return float(t[i - 1] + (level - z0) / (z1 - z0) * (t[i] - t[i - 1]))
+
+
+def _level_time(t: np.ndarray, z: np.ndarray, level: float, i_peak: int) -> float:
+    """Time the rising part (up to the peak) of z passes ``level``: the mean of
+    the first upward crossing and the last crossing before the peak (equal for
+    noise-free data; an unbiased estimate under symmetric noise). NaN if never."""
+    rising = z[:i_peak + 1]
+    above = np.nonzero(rising >= level)[0]
+    if above.size == 0:
+        return math.nan
+    first = _interp(t, z, level, int(above[0]))
+    below = np.nonzero(rising < level)[0]
+    if below.size == 0:
+        return first
+    last = _interp(t, z, level, int(below[-1]) + 1)
+    return 0.5 * (first + last)
+
+
+def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | None = None,
+                 band: float = 0.02, final_window: float = 0.1) -> StepMetrics:
+    """Step-response metrics of output ``y`` for a setpoint change to ``r_final``.
+
+    t, y: samples [s], [unit]. ``t_step``: instant of the setpoint change
+    (default ``t[0]``); samples before it are ignored. ``y0``: output before
+    the step (default: ``y`` at ``t_step``). ``band``: settling band as a
+    fraction of |r_final − y0| (default 2 %). ``final_window``: fraction of
+    the record after the step averaged for the steady state (default 10 %).
+
+    The response is normalised as z = (y − y0)/(r_final − y0), so steps in
+    either direction are handled alike. Each of the 10 % and 90 % instants is
+    the mean of the first and the last crossing of that level before the peak,
+    so noise that wanders across a level does not bias the rise time. The
+    settling time is read on the raw record (noise that leaves the band
+    delays it; filter the record first if the noise is not small vs the band).
+    """
+    t, y = _as_arrays(t, y)
+    t_step = float(t[0]) if t_step is None else float(t_step)
+    keep = t >= t_step - 1e-12
+    if keep.sum() < 2:
+        raise ValueError(f't_step: {t_step} leaves fewer than 2 samples')
+    t, y = t[keep], y[keep]
+    y0 = float(y[0]) if y0 is None else float(y0)
+    step = float(r_final) - y0
+    if step == 0.0 or not math.isfinite(step):
+        raise ValueError(f'r_final: {r_final} gives no step from y0 = {y0}')
+    z = (y - y0) / step
+    n_final = max(1, int(round(final_window * len(y))))
+    sse = float(r_final - np.mean(y[-n_final:]))
+
+    i_peak = int(np.argmax(z))
+    overshoot = max(0.0, float(z[i_peak]) - 1.0) * 100.0
+
+    t10 = _level_time(t, z, 0.1, i_peak)
+    t90 = _level_time(t, z, 0.9, i_peak)
+    rise = t90 - t10
+
+    outside = np.nonzero(np.abs(z - 1.0) > band)[0]
+    if outside.size == 0:
+        settling = 0.0
+    elif outside[-1] == len(z) - 1:
+        settling = math.nan
+    else:
+        settling = float(t[outside[-1] + 1] - t_step)
+    return StepMetrics(overshoot=overshoot, rise_time=rise, settling_time=settling,
+                       steady_state_error=sse, peak=float(y[i_peak]),
+                       peak_time=float(t[i_peak] - t_step))
