@@ -26,6 +26,7 @@ setup(
             'plant_node = tank_control.nodes.plant_node:main',
             'controller_node = tank_control.nodes.controller_node:main',
             'reference_node = tank_control.nodes.reference_node:main',
+            'tank-control = tank_control.harness.cli:main',
         ],
     },
 )

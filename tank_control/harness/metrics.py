@@ -2,9 +2,8 @@
 
 Per output channel (one with a setpoint column ``r.<name>``):
 
-* ``iae`` = ∫|e| dt and ``ise`` = ∫e² dt with e = r − y, summed on the sample
-  grid with the zero-order hold the loop uses (e_k held over [t_k, t_k+1)).
-  Units: channel unit·s and unit²·s.
+* ``iae`` = ∫|e| dt and ``ise`` = ∫e² dt with e = r − y (trapezoidal rule,
+  ``core.analysis.step_metrics``). Units: channel unit·s and unit²·s.
 * ``steps``: one entry per setpoint change. A change is a run of consecutive
   samples where r moves (a step is one sample, a ramp several); it goes from
   ``r_from`` (the value before) to ``r_to`` (the value once r is constant) and
@@ -13,12 +12,11 @@ Per output channel (one with a setpoint column ``r.<name>``):
   from y(0). Per change (Δ = r_to − r_from, t from the change's start):
 
   - ``overshoot_pct``: max(0, max sign(Δ)·(y − r_to)) / |Δ| · 100;
-  - ``rise_time``: time from 10 % to 90 % of Δ (linear interpolation between
-    samples), None if 90 % is never reached;
-  - ``settling_time``: time after which |y − r_to| stays within 2 % of |Δ|
-    (interpolated), None if it never does within the window;
-  - ``ss_error``: r_to − mean(y) over the last 5 % of the window (at least one
-    sample).
+  - ``rise_time``: time from 10 % to 90 % of Δ, None if 90 % is never reached;
+  - ``settling_time``: time after which |y − r_to| stays within 2 % of |Δ|,
+    None if it never does within the window;
+  - ``ss_error``: r_to − mean(y) over the last 5 % of the window;
+  - ``peak``, ``peak_time`` (computed by ``core.analysis.step_metrics``).
 
 Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
 and ``constraint_violations`` (samples outside the controller's
@@ -32,26 +30,42 @@ from typing import Any
 
 import numpy as np
 
+from tank_control.core.analysis import step_metrics as sm
 from tank_control.harness.trace import TraceTable
 
-SETTLING_BAND = 0.02
-RISE_LOW, RISE_HIGH = 0.1, 0.9
 SS_WINDOW = 0.05
 
 
 def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray) -> dict[str, Any]:
     """IAE, ISE and per-setpoint-change metrics of one output channel."""
     e = r - y
-    dt = np.diff(t)
-    finite = np.isfinite(e[:-1])
+    finite = np.isfinite(e)
+    enough = int(finite.sum()) >= 2
     result: dict[str, Any] = {
-        'iae': float(np.sum(np.abs(e[:-1][finite]) * dt[finite])) if len(t) > 1 else 0.0,
-        'ise': float(np.sum(e[:-1][finite] ** 2 * dt[finite])) if len(t) > 1 else 0.0,
+        'iae': sm.iae(t[finite], e[finite]) if enough else 0.0,
+        'ise': sm.ise(t[finite], e[finite]) if enough else 0.0,
         'steps': [],
     }
-    for start, settle, stop, r_from, r_to in setpoint_changes(t, y, r):
-        result['steps'].append(step_metrics(t[start:stop], y[start:stop], r_from, r_to))
+    for start, _, stop, r_from, r_to in setpoint_changes(t, y, r):
+        result['steps'].append(change_metrics(t[start:stop], y[start:stop], r_from, r_to))
     return result
+
+
+def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> dict[str, Any]:
+    """Metrics of one setpoint change over its window (``core.analysis.step_metrics`` with the
+    response normalised by the setpoint change r_from → r_to)."""
+    entry: dict[str, Any] = {'t': float(t[0]), 'r_from': r_from, 'r_to': r_to,
+                             'overshoot_pct': None, 'rise_time': None, 'settling_time': None,
+                             'ss_error': None}
+    finite = np.isfinite(y)
+    if finite.sum() < 2 or r_to == r_from:
+        return entry
+    m = sm.step_metrics(t[finite], y[finite], r_final=r_to, y0=r_from, final_window=SS_WINDOW)
+    entry.update(overshoot_pct=m.overshoot, rise_time=m.rise_time,
+                 settling_time=m.settling_time, ss_error=m.steady_state_error,
+                 peak=m.peak, peak_time=m.peak_time)
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in entry.items()}
 
 
 def setpoint_changes(t: np.ndarray, y: np.ndarray, r: np.ndarray,
@@ -82,52 +96,6 @@ def setpoint_changes(t: np.ndarray, y: np.ndarray, r: np.ndarray,
         stop = changes[k + 1][0] if k + 1 < len(changes) else n
         out.append((start, last_move, stop, r_from, float(r[last_move])))
     return out
-
-
-def step_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> dict[str, Any]:
-    """Overshoot [%], rise time [s], settling time [s] and steady-state error of one change;
-    times are measured from ``t[0]``, the change's first sample."""
-    delta = r_to - r_from
-    entry: dict[str, Any] = {'t': float(t[0]), 'r_from': r_from, 'r_to': r_to,
-                             'overshoot_pct': None, 'rise_time': None, 'settling_time': None,
-                             'ss_error': None}
-    if delta == 0 or len(t) == 0:
-        return entry
-    sign = math.copysign(1.0, delta)
-    progress = sign * (y - r_from) / abs(delta)           # 0 at start, 1 at the new setpoint
-    entry['overshoot_pct'] = float(max(0.0, np.nanmax(progress) - 1.0) * 100.0)
-    low = _first_crossing(t, progress, RISE_LOW)
-    high = _first_crossing(t, progress, RISE_HIGH)
-    if low is not None and high is not None:
-        entry['rise_time'] = high - low
-    entry['settling_time'] = _settling_time(t, np.abs(y - r_to) / abs(delta))
-    tail = max(1, int(math.ceil(SS_WINDOW * len(y))))
-    entry['ss_error'] = float(r_to - np.nanmean(y[-tail:]))
-    return entry
-
-
-def _first_crossing(t: np.ndarray, x: np.ndarray, level: float) -> float | None:
-    above = np.nonzero(x >= level)[0]
-    if above.size == 0:
-        return None
-    i = int(above[0])
-    if i == 0:
-        return float(t[0])
-    x0, x1 = x[i - 1], x[i]
-    frac = (level - x0) / (x1 - x0) if x1 != x0 else 1.0
-    return float(t[i - 1] + frac * (t[i] - t[i - 1]))
-
-
-def _settling_time(t: np.ndarray, deviation: np.ndarray) -> float | None:
-    outside = np.nonzero(~(deviation <= SETTLING_BAND))[0]
-    if outside.size == 0:
-        return 0.0
-    i = int(outside[-1])
-    if i == len(t) - 1:
-        return None                                    # still outside at the end of the window
-    d0, d1 = deviation[i], deviation[i + 1]
-    frac = (d0 - SETTLING_BAND) / (d0 - d1) if d0 != d1 else 1.0
-    return float(t[i] + frac * (t[i + 1] - t[i]) - t[0])
 
 
 def input_metrics(u: np.ndarray, u_min: float = -math.inf,
