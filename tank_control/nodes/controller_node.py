@@ -1,16 +1,345 @@
-"""controller_node (stub until its issue lands): starts, spins, exits 0 on SIGINT/SIGTERM."""
+"""controller_node: a core controller (selected by name) sampled on the ROS 2 graph.
+
+Parameters: those of the selected controller kind (``core/control/registry.py``;
+for ``pid`` the gains ``kp, ti, td, n, b, c``, limits ``u_min, u_max,
+du_max``, ``anti_windup``, ``tracking_time``, ``mode``, ``manual_output``,
+``fail_safe``, ``fail_safe_output``, ``tuning.*``, channel names
+``output_names``/``input_names``) plus the node's own (``clock_mode``,
+``stale_samples``, ``diagnostics_period``). Every change is validated before it
+is accepted (``nodes/params.py``) and applied at the next sample, bumplessly.
+
+Topics (relative names): subscribes ``measurement``, ``setpoint`` and, when the
+controller uses measured disturbances, ``disturbance``; publishes
+``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
+sample instant) and ``/diagnostics``.
+
+Sampling (BRIEF "Clock modes"):
+
+* ``wall`` — a wall timer every ``sample_time`` with the latest data;
+* ``sim`` — the same timer on the simulated clock (run with
+  ``use_sim_time:=true``), stamps on the grid ``k·sample_time``;
+* ``lockstep`` — no timer: once ``measurement`` and ``setpoint`` (and
+  ``disturbance`` if used) stamped ``t_k`` are in, the node computes
+  ``step(t_k, ...)`` if ``t_k`` is a multiple of its sample time (else holds its
+  last output) and publishes ``manipulated`` stamped ``t_k``. Answers are
+  idempotent: a re-sent tick gets the same message again, not a recomputation.
+
+Measurement faults: a non-finite measured value, or (wall/sim) no measurement
+for ``stale_samples`` samples, holds the last output — or sends
+``fail_safe_output`` when ``fail_safe`` is ``output`` — without touching the
+controller's state; it is logged once per episode and counted in the
+diagnostics. When good measurements return the controller is re-initialised
+from the output the plant received (``Controller.reset(y, u)``), so the
+output continues without a jump.
+"""
 from __future__ import annotations
 
+import math
 import sys
+import time
+from collections.abc import Mapping
+from typing import Any
 
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 
+from tank_control.core.control import registry
+from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.params import ParamSpec
+from tank_control.nodes.clock import CLOCK_MODES, Answers, StampedInbox, is_sample_instant, \
+    steady_clock
+from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
+                                         TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
+                                         from_joint_state, to_joint_state)
+from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
+
+NODE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec('clock_mode', 'wall', 'wall: wall timer; sim: timer on /clock (use_sim_time); '
+              'lockstep: answer each plant tick stamped t_k (BRIEF "Clock modes")',
+              choices=CLOCK_MODES, read_only=True),
+    ParamSpec('stale_samples', 3, 'wall/sim: samples without a measurement after which it is '
+              'stale (hold or fail-safe output)', min=1, max=1000),
+    ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [s, wall clock]',
+              min=0.05, max=60.0, read_only=True),
+)
+
+
+class ControllerNode(Node):
+    """Thin adapter: parameters → core controller → timer/lockstep → messages."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('controller', **kwargs)
+        self._u: np.ndarray | None = None          # last published output
+        kind_name = self._kind_from_overrides()
+        self._kind = registry.get_kind(kind_name)
+        self._kind_names = tuple(s.name for s in registry.specs_for(kind_name))
+        self._params = ParameterBinding(self, registry.specs_for(kind_name) + NODE_SPECS,
+                                        cross_check=self._cross_check, derive=self._derive)
+        values = self._params.values
+        self._controller = registry.make_controller(self._kind_values(values))
+        self._params.take_pending()
+        self._outputs = tuple(self._controller.output_names)
+        self._inputs = tuple(self._controller.input_names)
+        self._disturbances = tuple(self._controller.disturbance_names)
+        self._ts_ns = to_ns(self._controller.sample_time)
+        self._mode = str(values['clock_mode'])
+
+        # latest inputs (wall/sim) and fault bookkeeping
+        self._y: dict[str, float] = {}
+        self._r: dict[str, float] = {}
+        self._d: dict[str, float] = {name: 0.0 for name in self._disturbances}
+        self._fresh = False
+        self._since_measurement = 0
+        self._fault = ''                 # '' | 'stale' | 'non-finite'
+        self._logged: set[str] = set()
+        self.counters = {'samples': 0, 'stale_samples': 0, 'nonfinite_measurements': 0,
+                         'rejected_inputs': 0, 'fault_episodes': 0, 'update_errors': 0}
+        self._compute_s = math.nan
+
+        self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS)
+        self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS)
+        if self._disturbances:
+            self.create_subscription(JointState, TOPIC_DISTURBANCE, self._on_disturbance,
+                                     SIGNAL_QOS)
+        required: dict[str, tuple[str, ...]] = {'measurement': self._outputs,
+                                                'setpoint': self._outputs}
+        if self._disturbances:
+            required['disturbance'] = ()   # arrival is enough; missing channels keep last values
+        self._inbox = StampedInbox(required)
+        self._answers = Answers()
+        if self._mode != 'lockstep':
+            self.create_timer(self._controller.sample_time, self._on_timer)
+        self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
+                          clock=steady_clock())
+        self.get_logger().info(
+            f'{kind_name} controller, {self._mode} clock, sample_time '
+            f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '
+            f'writes {list(self._inputs)}')
+
+    # ------------------------------------------------------------ parameters
+    def _kind_from_overrides(self) -> str:
+        override = getattr(self, '_parameter_overrides', {}).get('controller')
+        name = 'pid' if override is None else override.value
+        if name not in registry.kind_names():
+            raise ParameterError(f'controller: {name!r} is not available; allowed one of '
+                                 + ', '.join(registry.kind_names()))
+        return name
+
+    def _kind_values(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        return {name: values[name] for name in self._kind_names if name in values}
+
+    def _cross_check(self, values: Mapping[str, Any]) -> str | None:
+        return self._kind.check(self._kind_values(values))
+
+    def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
+        extra = dict(self._kind.derive(self._kind_values(values), changed))
+        # auto → manual without a manual_output: keep the current output (bumpless)
+        if ('mode' in changed and values.get('mode') == 'manual' and 'manual_output' not in changed
+                and isinstance(values.get('manual_output'), float) and self._u is not None
+                and self._u.size == 1):
+            lo, hi = values.get('u_min', -math.inf), values.get('u_max', math.inf)
+            extra['manual_output'] = float(min(max(self._u[0], lo), hi))
+        return extra
+
+    def _apply_pending(self) -> None:
+        changed = self._params.take_pending()
+        if not changed:
+            return
+        try:
+            registry.apply_changes(self._controller, self._kind_values(self._params.values),
+                                   frozenset(changed))
+        except ValueError as exc:    # validated before acceptance; never expected
+            self.counters['update_errors'] += 1
+            self.get_logger().error(f'parameter change could not be applied: {exc}')
+
+    # ---------------------------------------------------------------- inputs
+    def _parse(self, topic: str, msg: JointState) -> tuple[int, dict[str, float]] | None:
+        try:
+            t_ns, names, values = from_joint_state(msg)
+        except ValueError as exc:
+            self._reject_input(f'{topic}: malformed message ignored ({exc})')
+            return None
+        return t_ns, dict(zip(names, values))
+
+    def _reject_input(self, reason: str) -> None:
+        self.counters['rejected_inputs'] += 1
+        self._log_once(reason)
+
+    def _log_once(self, text: str) -> None:
+        if text not in self._logged:
+            self._logged.add(text)
+            self.get_logger().warning(text)
+
+    def _finite_or_last(self, topic: str, values: Mapping[str, float], names: tuple[str, ...],
+                        last: dict[str, float]) -> dict[str, float]:
+        """Channels ``names`` from ``values``; a non-finite one is rejected (last valid kept)."""
+        out = {}
+        for name in names:
+            if name not in values:
+                continue
+            if math.isfinite(values[name]):
+                out[name] = last[name] = values[name]
+            else:
+                self._reject_input(f'{topic}: non-finite value for {name!r} ignored; last valid kept')
+                if name in last:
+                    out[name] = last[name]
+        return out
+
+    def _on_measurement(self, msg: JointState) -> None:
+        parsed = self._parse(TOPIC_MEASUREMENT, msg)
+        if parsed is None:
+            return
+        t_ns, values = parsed
+        mine = {name: values[name] for name in self._outputs if name in values}
+        if self._mode == 'lockstep':
+            self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
+            self._maybe_answer(t_ns, resent=True)
+            return
+        self._y.update(mine)
+        if len(mine) == len(self._outputs):
+            self._fresh = True
+
+    def _on_setpoint(self, msg: JointState) -> None:
+        parsed = self._parse(TOPIC_SETPOINT, msg)
+        if parsed is not None:
+            values = self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs, self._r)
+            if self._mode == 'lockstep':
+                self._inbox.put('setpoint', parsed[0], values)
+                self._maybe_answer(parsed[0])
+
+    def _on_disturbance(self, msg: JointState) -> None:
+        parsed = self._parse(TOPIC_DISTURBANCE, msg)
+        if parsed is not None:
+            values = self._finite_or_last(TOPIC_DISTURBANCE, parsed[1], self._disturbances,
+                                          self._d)
+            if self._mode == 'lockstep':
+                self._inbox.put('disturbance', parsed[0], values)
+                self._maybe_answer(parsed[0])
+
+    # -------------------------------------------------------------- sampling
+    def _maybe_answer(self, t_ns: int, resent: bool = False) -> None:
+        """Lockstep: answer tick ``t_ns`` once its inputs are complete (idempotent).
+
+        A measurement of a tick already answered (the plant re-sent it) gets the
+        same message again, without recomputation.
+        """
+        cached = self._answers.get(t_ns)
+        if cached is not None:
+            if resent:
+                self._pub.publish(cached[0])
+            return
+        if self._answers.stamp is not None and t_ns < self._answers.stamp:
+            return          # a late duplicate of a tick already passed
+        if not self._inbox.complete(t_ns):
+            return
+        y = self._inbox.values(t_ns, 'measurement')
+        r = self._inbox.values(t_ns, 'setpoint')
+        d = {**self._d, **self._inbox.values(t_ns, 'disturbance')}
+        if is_sample_instant(t_ns, self._ts_ns) or self._u is None:
+            u = self._sample(t_ns, y, r, d, stale=False)
+        else:
+            u = self._u
+        msg = to_joint_state(t_ns, self._inputs, u)
+        self._answers.remember(t_ns, msg)
+        self._inbox.drop_before(t_ns)
+        self._pub.publish(msg)
+
+    def _on_timer(self) -> None:
+        """wall/sim: one sample with the latest data."""
+        self._since_measurement = 0 if self._fresh else self._since_measurement + 1
+        self._fresh = False
+        if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
+            return          # nothing measured or no setpoint yet: nothing to control
+        now = self.get_clock().now().nanoseconds
+        t_ns = round(now / self._ts_ns) * self._ts_ns if self._mode == 'sim' else now
+        stale = self._since_measurement >= int(self._params.values['stale_samples'])
+        u = self._sample(t_ns, self._y, self._r, self._d, stale=stale)
+        self._pub.publish(to_joint_state(t_ns, self._inputs, u))
+
+    def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
+                d: Mapping[str, float], stale: bool) -> np.ndarray:
+        """One controller sample: apply accepted changes, then step — or hold on a fault."""
+        self._apply_pending()
+        y_vec = np.array([y[name] for name in self._outputs], dtype=float)
+        r_vec = np.array([r[name] for name in self._outputs], dtype=float)
+        d_vec = np.array([d.get(name, 0.0) for name in self._disturbances], dtype=float)
+        self.counters['samples'] += 1
+        fault = 'stale' if stale else ('' if np.all(np.isfinite(y_vec)) else 'non-finite')
+        if fault:
+            return self._hold(fault)
+        if self._fault and self._u is not None:
+            self._controller.reset(y_vec, self._u)       # continue from what the plant got
+            self.get_logger().info(f'measurement recovered after {self._fault} episode; '
+                                   'control resumed bumplessly')
+            self._fault = ''
+            self._publish_diagnostics()
+        start = time.perf_counter()
+        u = np.array(self._controller.step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
+        self._compute_s = time.perf_counter() - start
+        self._u = u
+        return u
+
+    def _hold(self, fault: str) -> np.ndarray:
+        self.counters['stale_samples' if fault == 'stale' else 'nonfinite_measurements'] += 1
+        values = self._params.values
+        fail_safe = values.get('fail_safe', 'hold') == 'output' or self._u is None
+        if fail_safe:
+            u = np.broadcast_to(np.asarray(values.get('fail_safe_output', 0.0), dtype=float),
+                                (len(self._inputs),)).copy()
+        else:
+            u = self._u.copy()
+        if self._fault != fault:
+            self.counters['fault_episodes'] += 1
+            action = 'fail_safe_output' if fail_safe else 'last output held'
+            self.get_logger().warning(f'measurement {fault}: {action} {u.tolist()} until good '
+                                      'measurements return')
+            self._fault = fault
+            self._u = u
+            self._publish_diagnostics()
+        self._u = u
+        return u
+
+    # ----------------------------------------------------------- diagnostics
+    def _publish_diagnostics(self) -> None:
+        status = dict(self._controller.status)
+        level = DiagnosticStatus.WARN if self._fault else DiagnosticStatus.OK
+        waiting = len(self._y) < len(self._outputs) and self._mode != 'lockstep'
+        message = (f'measurement {self._fault}: holding' if self._fault
+                   else 'waiting for measurement' if waiting else 'running')
+        fields = {
+            'controller': self._params.values['controller'],
+            'clock_mode': self._mode,
+            'mode': status.get('mode', 'auto'),
+            'saturated': status.get('saturated', False),
+            'anti_windup_active': status.get('anti_windup_active', False),
+            'fault': self._fault or 'none',
+            'stale_inputs': self._fault == 'stale',
+            'rejected_parameters': self._params.rejected,
+            'last_computation_time_us': round(self._compute_s * 1e6, 3),
+            'output': [] if self._u is None else self._u.tolist(),
+            **self.counters,
+        }
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [DiagnosticStatus(
+            level=level, name=f'{self.get_name()}: {fields["controller"]}', message=message,
+            hardware_id='tank_control',
+            values=[KeyValue(key=k, value=str(v)) for k, v in fields.items()])]
+        self._diag_pub.publish(msg)
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console entry point controller_node."""
-    return run_node(lambda: Node('controller'), args if args is not None else sys.argv)
+    """Console entry point controller_node; exit 2 with a one-line reason on bad parameters."""
+    try:
+        return run_node(ControllerNode, args if args is not None else sys.argv)
+    except (ParameterError, ValueError) as exc:
+        sys.stderr.write(f'controller_node: {exc}\n')
+        return 2
 
 
 if __name__ == '__main__':

@@ -176,6 +176,7 @@ class ParameterBinding:
                 out.append(param)
                 continue
             value = coerce(spec, param.value)
+            self._count_descriptor_rejection(spec, value)
             try:
                 param = Parameter(param.name, value=value)
             except (TypeError, ValueError):
@@ -193,6 +194,20 @@ class ParameterBinding:
                     if name not in changes and value != self._values.get(name):
                         out.append(Parameter(name, value=coerce(self._specs[name], value)))
         return out
+
+    def _count_descriptor_rejection(self, spec: ParamSpec, value: Any) -> None:
+        """Count (and log) a change rclpy's descriptor check will refuse before our
+        on-set check runs (read-only, outside the range); rclpy returns the reason."""
+        if spec.read_only:
+            self._note_rejection(f'{spec.name}: read-only (set at start-up only)')
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) \
+                and type(value) is type(spec.default) and spec.check(value):
+            self._note_rejection(spec.check(value))
+
+    def _note_rejection(self, reason: str) -> None:
+        self.rejected += 1
+        self.last_rejection = reason
+        self._node.get_logger().warning(f'parameter change rejected: {reason}')
 
     def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
         changes: dict[str, Any] = {}
@@ -216,9 +231,7 @@ class ParameterBinding:
         return SetParametersResult(successful=True)
 
     def _reject(self, reason: str) -> SetParametersResult:
-        self.rejected += 1
-        self.last_rejection = reason
-        self._node.get_logger().warning(f'parameter change rejected: {reason}')
+        self._note_rejection(reason)
         return SetParametersResult(successful=False, reason=reason)
 
     def _post_set(self, parameters: list[Parameter]) -> None:

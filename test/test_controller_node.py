@@ -1,0 +1,193 @@
+"""controller_node over real DDS: parameters, validation, bumpless changes, faults, lockstep.
+
+The test process plays plant and reference through the ``probe`` node. Each
+test starts one controller process and runs several checks on it.
+"""
+from __future__ import annotations
+
+import math
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import JointState
+
+from tank_control.core.interfaces import to_ns
+from tank_control.nodes.messages import SIGNAL_QOS, stamp_to_ns, to_joint_state
+
+K1 = 0.05      # 000's worked example, SPEC §1.1
+
+
+def mdp_pid(k1: float, to: float) -> dict[str, float]:
+    """000 eqs. 25–26, 32 (SPEC §2.2), independent of the tuning module."""
+    s3 = math.sqrt(3.0)
+    return {'kp': 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (k1 * to), 'ti': (2 + s3) * to,
+            'td': (3 + s3) / 18 * to, 'b': (3 - s3) / 3, 'c': (3 - s3) / 2}
+
+
+class Loop:
+    """The probe as plant + reference + operator of one controller node."""
+
+    def __init__(self, probe) -> None:
+        self.probe = probe
+        node = probe.node
+        self.meas = node.create_publisher(JointState, 'measurement', SIGNAL_QOS)
+        self.setp = node.create_publisher(JointState, 'setpoint', SIGNAL_QOS)
+        self.answers: list[tuple[int, list[str], list[float]]] = []
+        self.diag: dict[str, str] = {}
+        node.create_subscription(JointState, 'manipulated', self._on_u, SIGNAL_QOS)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.params = AsyncParameterClient(node, 'controller')
+        assert self.params.wait_for_services(timeout_sec=20.0), 'controller parameters not up'
+
+    def _on_u(self, msg: JointState) -> None:
+        self.answers.append((stamp_to_ns(msg.header.stamp), list(msg.name), list(msg.position)))
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith('controller'):
+                self.diag = {kv.key: kv.value for kv in status.values}
+
+    def call(self, future, timeout: float = 10.0):
+        assert self.probe.wait_for(future.done, timeout)
+        return future.result()
+
+    def set(self, name: str, value):
+        return self.call(self.params.set_parameters([Parameter(name, value=value)])).results[0]
+
+    def get(self, name: str):
+        return Parameter.from_parameter_msg(
+            _named(name, self.call(self.params.get_parameters([name])).values[0])).value
+
+    def tick(self, t_ns: int, y: float, r: float, resend_until: float = 10.0) -> float:
+        """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
+        Re-sends the tick while unanswered (the plant's rule, also covering discovery)."""
+        def answered():
+            return any(a[0] == t_ns for a in self.answers)
+        waited = 0.0
+        while not answered():
+            assert waited < resend_until, f'no answer for tick {t_ns}'
+            self.meas.publish(to_joint_state(t_ns, ['y'], [y]))
+            self.setp.publish(to_joint_state(t_ns, ['y'], [r]))
+            self.probe.wait_for(answered, 0.5)
+            waited += 0.5
+        stamp, names, values = next(a for a in self.answers if a[0] == t_ns)
+        assert names == ['u']
+        return values[0]
+
+
+def _named(name, value_msg):
+    from rcl_interfaces.msg import Parameter as ParameterMsg
+    return ParameterMsg(name=name, value=value_msg)
+
+
+def _start(procs, node_cmd, ros_env, *params: str):
+    argv = node_cmd('controller_node', *[x for p in params for x in ('-p', p)])
+    return procs.start('controller', argv, env=ros_env)
+
+
+def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
+    ts = 0.2
+    _start(procs, node_cmd, ros_env, 'clock_mode:=lockstep', f'sample_time:={ts}',
+           'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
+    loop = Loop(probe)
+
+    # declared with descriptors: range, read-only, description
+    kp_desc, ctrl_desc = loop.call(loop.params.describe_parameters(['kp', 'controller'])).descriptors
+    assert kp_desc.floating_point_range and kp_desc.floating_point_range[0].from_value == 0.0
+    assert 'gain' in kp_desc.description
+    assert ctrl_desc.read_only
+
+    tick = to_ns(0.1)     # plant tick 0.1 s; controller samples every second tick
+    # tick 0: u = kp·(b·r − y) + I(0) = 1·(0.5 − 1) = −0.5 (000 eq. 19, I starts at 0)
+    assert loop.tick(0, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    # idempotent: tick 0 re-sent with another measurement gets the same answer again
+    before = len(loop.answers)
+    loop.meas.publish(to_joint_state(0, ['y'], [4.0]))
+    assert probe.wait_for(lambda: len(loop.answers) > before, 5.0)
+    assert loop.answers[-1][0] == 0 and loop.answers[-1][2] == [-0.5]
+    # tick 1 is not a controller instant: held even though y changed
+    assert loop.tick(1 * tick, 3.0, 1.0) == -0.5
+
+    # rejected changes: reason names the parameter; the running controller is untouched
+    result = loop.set('kp', -1.0)
+    assert not result.successful and 'kp' in result.reason
+    result = loop.set('u_min', 6.0)
+    assert not result.successful and 'u_min' in result.reason and 'u_max' in result.reason
+    result = loop.set('n', 100.0)
+    assert not result.successful and 'n' in result.reason and '50' in result.reason
+    assert not loop.set('controller', 'smith_pi').successful
+    assert loop.get('kp') == 1.0 and loop.get('u_min') == -5.0
+    assert loop.tick(2 * tick, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+
+    # a valid change typed as an integer (ros2 param set /controller kp 3) is accepted
+    result = loop.set('kp', 3)
+    assert result.successful, result.reason
+    assert loop.get('kp') == 3.0
+    # applied at the next sample without a bump (a recomputation would give 3·(0.5 − 1) = −1.5)
+    assert loop.tick(4 * tick, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    # and in effect: a measurement step of 0.1 moves u by −kp_new·0.1 (P part)
+    u6 = loop.tick(6 * tick, 1.1, 1.0)
+    assert u6 == pytest.approx(-0.5 - 3.0 * 0.1, abs=1e-12)
+
+    # non-finite measurement: last output held, counted; recovery without a jump
+    assert loop.tick(8 * tick, math.nan, 1.0) == u6
+    assert loop.tick(10 * tick, 1.1, 1.0) == pytest.approx(u6, abs=1e-12)
+    # fail-safe output on a fault when configured
+    assert loop.set('fail_safe_output', 2.0).successful
+    assert loop.set('fail_safe', 'output').successful
+    assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
+    assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
+    assert int(loop.diag['rejected_parameters']) >= 4
+
+
+def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, probe):
+    ts = 0.05
+    _start(procs, node_cmd, ros_env, f'sample_time:={ts}', 'tuning.rule:=mdp',
+           'tuning.kind:=pid', f'tuning.gain:={K1}', 'tuning.dead_time:=5.0',
+           'diagnostics_period:=0.1', 'u_min:=-100.0', 'u_max:=100.0')
+    loop = Loop(probe)
+
+    # the rule's gains are applied and visible as parameters (000 Table 1: 3.14 / 18.66 / ...)
+    for name, value in mdp_pid(K1, 5.0).items():
+        assert loop.get(name) == pytest.approx(value, rel=1e-9)
+    assert loop.set('tuning.dead_time', 6.0).successful
+    assert loop.get('kp') == pytest.approx(mdp_pid(K1, 6.0)['kp'], rel=1e-9)
+    result = loop.set('kp', 2.0)
+    assert not result.successful and 'tuning.rule' in result.reason
+
+    # measurements flowing: the controller samples on its wall timer
+    sending = {'y': True}
+
+    def publish():
+        now = probe.node.get_clock().now().nanoseconds
+        if sending['y']:
+            loop.meas.publish(to_joint_state(now, ['y'], [1.0]))
+        loop.setp.publish(to_joint_state(now, ['y'], [1.0]))
+    probe.node.create_timer(ts / 2, publish)
+    assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+
+    # stale: no measurement for 3 samples → last output held, reported
+    sending['y'] = False
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 5.0)
+    assert loop.diag['stale_inputs'] == 'True'
+    n = len(loop.answers)
+    assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 5.0)
+    held = [a[2][0] for a in loop.answers[n:]]
+    assert len(set(held)) == 1
+
+    # recovery: control resumes from the held output (no jump at the first sample)
+    sending['y'] = True
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+    after = [a[2][0] for a in loop.answers[n:]]
+    assert after[-1] == pytest.approx(held[0], abs=1e-9)   # y = r = 1 and e = 0: steady
+    assert int(loop.diag['stale_samples']) >= 1
+
+
+def test_bad_start_up_parameter_exits_with_a_reason(procs, node_cmd, ros_env, probe):
+    proc = _start(procs, node_cmd, ros_env, 'kp:=-1.0')
+    assert probe.wait_for(lambda: proc.returncode is not None, 20.0)
+    assert proc.returncode == 2
+    assert 'kp' in proc.tail(5) and 'minimum' in proc.tail(5)
