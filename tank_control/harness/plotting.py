@@ -58,7 +58,7 @@ def plot_runs(traces: Sequence[tuple[str, TraceTable]], path: str | Path, title:
                 ax.plot(trace.t, column, label=series, drawstyle='steps-post' if kind == 'u' else None)
                 if kind == 'y' and f'r.{name}' in trace.columns and (not overlay or trace is first):
                     ax.plot(trace.t, trace.columns[f'r.{name}'], 'k--', linewidth=1,
-                            label=f'setpoint {name}')
+                            label=f'setpoint {name}', drawstyle='steps-post')
         ax.set_ylabel(f'{_TITLES[kind]} [{panel_unit}]')
         ax.grid(True, alpha=0.3)
         ax.legend(loc='best', fontsize='small')

@@ -49,6 +49,7 @@ from tank_control.harness.scenario_file import (Scenario, effective_harness, loa
 from tank_control.harness.trace import TraceTable, from_core_trace, from_messages
 
 NS = 1_000_000_000
+OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
 GAIN_NAMES = ('kp', 'ti', 'td', 'b', 'c', 'n', 'ki')
 STARTS_FIRST = ('plant', 'reference')
 PUBLISHES = {'plant': 'measurement', 'reference': 'setpoint'}
@@ -83,6 +84,15 @@ class RunResult:
     files: dict[str, Path] = field(default_factory=dict)
 
 
+NodeCommand = Callable[[str], list[str]]
+"""Node name → the argv that starts it, before ``--ros-args``."""
+
+
+def node_module_command(node: str) -> list[str]:
+    """``python -m tank_control.nodes.<node>_node`` with this interpreter."""
+    return [sys.executable, '-m', f'tank_control.nodes.{node}_node']
+
+
 def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = None,
         rtf: float | None = None, duration: float | None = None, overrides: Sequence[str] = (),
         in_process: bool = False, env: Mapping[str, str] | None = None,
@@ -93,14 +103,17 @@ def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = No
 
 
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
-                 env: Mapping[str, str] | None = None,
-                 progress: ProgressFn | None = None) -> RunResult:
+                 env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
+                 node_command: NodeCommand = node_module_command) -> RunResult:
+    """Run a loaded scenario into ``out_dir`` (see the module docstring)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    for stale in OUTPUT_FILES:                    # a failed run must not leave old results
+        (out / stale).unlink(missing_ok=True)
     params_file = write_params_file(scenario, out / 'scenario.yaml')
     if in_process:
         return _run_in_process(scenario, params_file, out, progress)
-    return _RosRun(scenario, params_file, out, env, progress).execute()
+    return _RosRun(scenario, params_file, out, env, progress, node_command).execute()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -189,7 +202,9 @@ def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
 
 class _RosRun:
     def __init__(self, scenario: Scenario, params_file: Path, out: Path,
-                 env: Mapping[str, str] | None, progress: ProgressFn | None) -> None:
+                 env: Mapping[str, str] | None, progress: ProgressFn | None,
+                 node_command: NodeCommand = node_module_command) -> None:
+        self.node_command = node_command
         self.scenario = scenario
         self.config = scenario.harness
         self.params_file = params_file
@@ -204,8 +219,7 @@ class _RosRun:
 
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
-        argv = [sys.executable, '-m', f'tank_control.nodes.{node}_node', '--ros-args',
-                '--params-file', str(self.params_file)]
+        argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
         if self.mode != 'wall' and node != 'plant':
             argv += ['-p', 'use_sim_time:=true']
         return argv
@@ -336,7 +350,7 @@ class _RosRun:
                  plant_params: dict[str, Any], codes: Mapping[str, int], run_wall: float,
                  total_wall: float) -> RunResult:
         t0 = self.t0_ns or 0
-        trace = from_messages(recorder.signal_messages(), t0).until(self.config.duration)
+        trace = from_messages(recorder.signal_messages(), t0, self.duration_ns)
         sample_time = plant_params.get('sample_time', self.scenario.params('plant').get('sample_time'))
         stamps = np.array([s for s in sorted({m.stamp_ns for m in recorder.signal_messages()
                                               if m.topic == 'measurement'})

@@ -206,9 +206,12 @@ def effective_harness(scenario: Scenario, mode: str | None = None, rtf: float | 
 
 
 def node_parameters(scenario: Scenario) -> dict[str, dict[str, Any]]:
-    """The parameters written for the node processes (clock settings given to the plant)."""
+    """The parameters written for the node processes: ``clock_mode`` for every node started,
+    ``real_time_factor`` for the plant (the clock master)."""
     config = scenario.harness
     out = {name: dict(values) for name, values in scenario.sections.items() if name != HARNESS}
+    for node in config.nodes:                     # every node samples in the same clock mode
+        out.setdefault(node, {})['clock_mode'] = config.clock_mode
     plant = out.setdefault('plant', {})
     plant['clock_mode'] = config.clock_mode
     plant['real_time_factor'] = float(config.real_time_factor)

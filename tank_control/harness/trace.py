@@ -110,11 +110,13 @@ def from_core_trace(trace: object) -> TraceTable:
     raise TypeError(f'cannot read a trace from {type(trace).__name__}')
 
 
-def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0) -> TraceTable:
+def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
+                  t_end_ns: int | None = None) -> TraceTable:
     """Join recorded signal messages into a table (see the module docstring).
 
     ``t0_ns`` is subtracted from the stamps (0 in sim/lockstep, where the sim
-    clock starts at 0; the first measurement's stamp in wall mode).
+    clock starts at 0; the first measurement's stamp in wall mode); rows end at
+    ``t_end_ns`` after ``t0_ns`` when given.
     """
     by_topic: dict[str, dict[int, dict[str, float]]] = {topic: {} for topic in TOPIC_PREFIX}
     channels: dict[str, list[str]] = {topic: [] for topic in TOPIC_PREFIX}
@@ -126,7 +128,7 @@ def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0) -> TraceTab
             slot[name] = value        # a re-sent message of the same stamp is identical
             if name not in channels[msg.topic]:
                 channels[msg.topic].append(name)
-    stamps = sorted(by_topic['measurement'])
+    stamps = sorted(s for s in by_topic['measurement'] if t_end_ns is None or s - t0_ns <= t_end_ns)
     columns: dict[str, np.ndarray] = {
         't': np.array([(s - t0_ns) / NS_PER_S for s in stamps], dtype=float)}
     late: dict[str, int] = {}
