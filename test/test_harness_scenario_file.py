@@ -117,7 +117,7 @@ def test_missing_file_is_a_one_line_error(tmp_path):
         load_scenario(tmp_path / 'nope.yaml')
 
 
-def test_merged_file_is_a_standard_params_file_with_clock_on_the_plant(scenario_path, tmp_path):
+def test_merged_file_is_a_standard_params_file_with_the_clock_mode_for_every_node(scenario_path, tmp_path):
     scenario = effective_harness(load_scenario(scenario_path, ['controller.kp=2']), mode='lockstep',
                                  duration=5)
     out = write_params_file(scenario, tmp_path / 'merged.yaml')
@@ -125,9 +125,11 @@ def test_merged_file_is_a_standard_params_file_with_clock_on_the_plant(scenario_
     assert document['controller']['ros__parameters']['kp'] == 2.0
     assert document['controller']['ros__parameters']['tuning'] == {'rule': 'none', 'dead_time': 5.0}
     assert document['plant']['ros__parameters']['clock_mode'] == 'lockstep'
+    assert document['controller']['ros__parameters']['clock_mode'] == 'lockstep'
+    assert document['reference']['ros__parameters'] == {'clock_mode': 'lockstep'}
     assert document['plant']['ros__parameters']['real_time_factor'] == 0.0
     assert document['harness']['ros__parameters']['duration'] == 5.0
     # The merged file loads back to the same scenario.
     again = load_scenario(out)
-    assert again.params('controller') == scenario.params('controller')
+    assert again.params('controller') == {**scenario.params('controller'), 'clock_mode': 'lockstep'}
     assert math.isclose(again.harness.duration, 5.0)
