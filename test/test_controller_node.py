@@ -140,6 +140,18 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
     assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
     assert int(loop.diag['rejected_parameters']) >= 4
+    assert loop.tick(14 * tick, 1.1, 1.0) == pytest.approx(2.0, abs=1e-12)   # resumes from 2.0
+
+    # manual mode: switching keeps the current output (manual_output follows it), then
+    # the operator's value; back to auto continues from the manual output
+    assert loop.set('mode', 'manual').successful
+    assert loop.get('manual_output') == pytest.approx(2.0, abs=1e-12)
+    assert loop.tick(16 * tick, 1.1, 1.0) == pytest.approx(2.0, abs=1e-12)
+    assert loop.set('manual_output', 1).successful
+    assert loop.tick(18 * tick, 1.1, 1.0) == 1.0
+    assert not loop.set('manual_output', 9.0).successful      # outside [u_min, u_max]
+    assert loop.set('mode', 'auto').successful
+    assert loop.tick(20 * tick, 1.1, 1.0) == pytest.approx(1.0, abs=1e-12)
 
 
 def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, probe):
@@ -184,6 +196,30 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
     after = [a[2][0] for a in loop.answers[n:]]
     assert after[-1] == pytest.approx(held[0], abs=1e-9)   # y = r = 1 and e = 0: steady
     assert int(loop.diag['stale_samples']) >= 1
+
+
+def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, probe):
+    from rosgraph_msgs.msg import Clock
+
+    from tank_control.nodes.messages import CLOCK_QOS, clock_msg
+    ts = 0.5
+    _start(procs, node_cmd, ros_env, 'clock_mode:=sim', 'use_sim_time:=true',
+           f'sample_time:={ts}', 'kp:=2.0')
+    loop = Loop(probe)
+    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    t = {'ns': 0}
+
+    def advance():          # simulated time 10x faster than wall, 0.1 s ticks
+        t['ns'] += to_ns(0.1)
+        clock.publish(clock_msg(t['ns']))
+        loop.meas.publish(to_joint_state(t['ns'], ['y'], [1.0]))
+        loop.setp.publish(to_joint_state(t['ns'], ['y'], [3.0]))
+    probe.node.create_timer(0.01, advance)
+    assert probe.wait_for(lambda: len(loop.answers) >= 4, 15.0)
+    stamps = [a[0] for a in loop.answers]
+    assert all(s % to_ns(ts) == 0 for s in stamps)            # on the k·ts grid
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)   # P only
 
 
 def test_bad_start_up_parameter_exits_with_a_reason(procs, node_cmd, ros_env, probe):

@@ -100,3 +100,47 @@ def test_manual_mode_and_bumpless_return():
     registry.apply_changes(ctrl, values, frozenset({'mode'}))
     assert step(ctrl, 2.0, 0.0, 1.0) == pytest.approx(7.0, abs=1e-12)
     assert u0 != 7.0
+
+
+class _Proportional:
+    """A minimal Controller (u = u0 + gain·(r − y)) to exercise the registry hooks."""
+
+    output_names, input_names, disturbance_names = ('y',), ('u',), ()
+
+    def __init__(self, values):
+        self.gain = float(values['gain'])
+        self.sample_time = 1.0
+        self.u0 = 0.0
+        self.pending = None
+
+    def reset(self, y, u):            # completed at the next step, which knows r
+        self.pending = (float(y[0]), float(u[0]))
+
+    def step(self, t, y, r, d):
+        if self.pending is not None:
+            y0, u0 = self.pending
+            self.u0, self.pending = u0 - self.gain * (float(r[0]) - y0), None
+        return np.array([self.u0 + self.gain * (float(r[0]) - float(y[0]))])
+
+    status = {'mode': 'auto'}
+
+
+def proportional_kind():
+    from tank_control.core.params import ParamSpec
+    return registry.ControllerKind(
+        name='proportional', params=lambda: (ParamSpec('gain', 1.0, 'gain [-]', min=0.0, max=10.0),),
+        check=lambda values: None, build=_Proportional, update=None)
+
+
+def test_a_new_kind_is_one_registry_line_and_rebuilt_bumplessly(monkeypatch):
+    monkeypatch.setitem(registry._KIND_FACTORIES, 'proportional', (__name__, 'proportional_kind'))
+    assert 'proportional' in registry.kind_names()
+    with pytest.raises(ValueError, match='gain'):
+        registry.make_controller({'controller': 'proportional', 'gain': 20.0})
+    values = {'controller': 'proportional', 'gain': 1.0}
+    ctrl = registry.make_controller(values)
+    u = step(ctrl, 0.0, 1.0, 2.0)
+    new = registry.apply_changes(ctrl, {**values, 'gain': 4.0}, frozenset({'gain'}),
+                                 y=np.array([1.0]), u=np.array([u]))
+    assert new is not ctrl and new.gain == 4.0
+    assert step(new, 1.0, 1.0, 2.0) == pytest.approx(u, abs=1e-12)   # continues from u

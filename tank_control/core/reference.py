@@ -15,6 +15,7 @@ same dotted names)::
     reference:
       ros__parameters:
         sample_time: 1.0               # publishing period in wall mode [s]
+        clock_mode: wall               # sim/lockstep: answer every /clock tick instead
         setpoint.channels: [y]          # setpoint channels (= controlled outputs)
         setpoint.y.times: [0.0, 10.0]   # [s] instants of scheduled changes (non-decreasing)
         setpoint.y.values: [0.0, 1.0]   # target from times[i] on [channel units]
@@ -186,9 +187,20 @@ class Reference:
 # --------------------------------------------------------------------------- parameters
 
 def channel_lists(values: Mapping[str, Any]) -> tuple[list[str], list[str]]:
-    """The setpoint and disturbance channel names of a flat parameter dict."""
-    return ([c for c in values.get('setpoint.channels', []) if c],
-            [c for c in values.get('disturbance.channels', []) if c])
+    """The setpoint and disturbance channel names of a flat parameter dict.
+
+    ValueError if a name is not a string: ROS 2 params files read an unquoted
+    ``y``/``n``/``on``/``yes`` as a boolean, so such names must be quoted (``['y']``).
+    """
+    out = []
+    for kind in KINDS:
+        names = values.get(f'{kind}.channels', [])
+        for name in names:
+            if not isinstance(name, str):
+                raise ValueError(f'{kind}.channels: {name!r} is not a channel name; quote names '
+                                 "such as 'y' (YAML reads an unquoted y as a boolean)")
+        out.append([c for c in names if c])
+    return out[0], out[1]
 
 
 def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedule:
@@ -247,10 +259,10 @@ def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
     """
     specs = [
         ParamSpec('sample_time', 1.0, 'publishing period in wall mode [s]; in sim/lockstep '
-                  'the reference answers every /clock tick', min=1e-6, max=3600.0),
-        ParamSpec('clock_mode', 'wall', 'wall: publish on a wall timer; sim/lockstep: answer '
-                  'every /clock tick with messages stamped at the tick', choices=CLOCK_MODES,
-                  read_only=True),
+                  'the reference answers every /clock tick instead', min=1e-6, max=3600.0),
+        ParamSpec('clock_mode', 'wall', 'wall: publish every sample_time on a wall timer; '
+                  'sim/lockstep (also implied by use_sim_time): answer every /clock tick, '
+                  'stamped t_k', choices=('wall', 'sim', 'lockstep'), read_only=True),
         # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)
         ParamSpec('setpoint.channels', list(reference.setpoint_names) or [''],
                   'setpoint channel names (= controlled outputs)', read_only=True),
@@ -275,9 +287,6 @@ def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
                 ParamSpec(f'{p}.max', s.max, f'{kind} {ch}: highest accepted value'),
             ]
     return tuple(specs)
-
-
-CLOCK_MODES = ('wall', 'sim', 'lockstep')
 
 
 def split_param_name(name: str) -> tuple[str, str, str] | None:

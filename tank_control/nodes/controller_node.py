@@ -91,6 +91,7 @@ class ControllerNode(Node):
         self._y: dict[str, float] = {}
         self._r: dict[str, float] = {}
         self._d: dict[str, float] = {name: 0.0 for name in self._disturbances}
+        self._y_last: np.ndarray | None = None      # last finite measurement used
         self._fresh = False
         self._since_measurement = 0
         self._fault = ''                 # '' | 'stale' | 'non-finite'
@@ -151,8 +152,9 @@ class ControllerNode(Node):
         if not changed:
             return
         try:
-            registry.apply_changes(self._controller, self._kind_values(self._params.values),
-                                   frozenset(changed))
+            self._controller = registry.apply_changes(
+                self._controller, self._kind_values(self._params.values), frozenset(changed),
+                self._y_last, self._u)
         except ValueError as exc:    # validated before acceptance; never expected
             self.counters['update_errors'] += 1
             self.get_logger().error(f'parameter change could not be applied: {exc}')
@@ -278,6 +280,7 @@ class ControllerNode(Node):
                                    'control resumed bumplessly')
             self._fault = ''
             self._publish_diagnostics()
+        self._y_last = y_vec
         start = time.perf_counter()
         u = np.array(self._controller.step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start

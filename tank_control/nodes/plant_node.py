@@ -1,16 +1,278 @@
-"""plant_node (stub until its issue lands): starts, spins, exits 0 on SIGINT/SIGTERM."""
+"""plant_node: simulates a core plant model and is the clock master (issue 4).
+
+Topics (``sensor_msgs/JointState`` signals, see ``nodes/messages.py``):
+
+* publishes ``measurement`` — every output channel with seeded Gaussian noise,
+  one message per tick, ``header.stamp`` = the sample instant;
+* subscribes ``manipulated`` and ``disturbance`` — values taken by channel
+  name; a malformed message, an unknown channel or a non-finite value is
+  ignored (the last valid value is kept), logged once per kind and counted;
+* publishes ``/clock`` (``rosgraph_msgs/Clock``) in ``sim`` and ``lockstep``;
+* publishes ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): ticks,
+  ignored inputs, re-sent ticks, the model's status (clipped flows, overflow).
+
+Clock modes (parameter ``clock_mode``, BRIEF "Clock modes"):
+
+* ``wall``: a wall timer every ``sample_time``; stamps ``start + k·ts``.
+* ``sim``: a wall timer every ``sample_time / real_time_factor``; tick k is
+  ``t_k = k·ts_ns`` on ``/clock`` (measurement first, then ``/clock``).
+* ``lockstep``: tick k publishes ``measurement`` and ``/clock`` stamped
+  ``t_k``; the plant integrates ``[t_k, t_k+1)`` once every input channel
+  has a value stamped ``t_k`` on ``manipulated`` and (with
+  ``lockstep.wait_for_reference``) the ``disturbance`` message of ``t_k``
+  arrived, then publishes tick k+1 at once (``real_time_factor: 0``) or when
+  its wall time ``t_{k+1} / real_time_factor`` has come (a pacing timer).
+  Tick k is re-sent unchanged (same noise draw) if no complete answer came
+  within ``lockstep.resend_period`` — this also covers start-up before
+  discovery has matched the endpoints.
+
+In ``wall``/``sim`` each timer tick k first integrates ``[t_{k-1}, t_k)``
+with the latest inputs (the answers to tick k-1), then publishes tick k.
+Model parameter changes (``ros2 param set /plant dead_time 6.0``) are
+validated (a rejected change returns the reason) and take effect at the next
+step.
+"""
 from __future__ import annotations
 
 import sys
+import time
+from typing import Any
 
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
+from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.loop import nominal_disturbances, nominal_inputs
+from tank_control.core.params import ParamSpec
+from tank_control.core.scenario import (PLANT_NODE_SPECS, build_noise, build_plant,
+                                        model_values, noise_std_per_output, plant_specs)
+from tank_control.nodes.clock import StampedInbox, steady_clock
+from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
+                                         TOPIC_DISTURBANCE, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
+                                         ChannelFilter, clock_msg, to_joint_state)
+from tank_control.nodes.params import ParameterBinding
 from tank_control.nodes.runtime import run_node
+
+_KIND_SPEC: ParamSpec = PLANT_NODE_SPECS[0]
+_RUNTIME_ONLY = {s.name for s in PLANT_NODE_SPECS}
+
+
+class PlantNode(Node):
+    """The plant simulation node (see module doc)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('plant', **kwargs)
+        # The model kind decides which parameters exist: bind it first, then the rest.
+        kind = ParameterBinding(self, (_KIND_SPEC,)).values['plant']
+        self.params = ParameterBinding(
+            self, tuple(s for s in plant_specs(str(kind)) if s.name != 'plant'),
+            cross_check=self._cross_check)
+        values = {**self.params.values, 'plant': kind}
+        self.plant = build_plant(values)
+        self.noise = build_noise(values, self.plant.output_names)
+        self.mode = str(values['clock_mode'])
+        self.ts = float(values['sample_time'])
+        self.ts_ns = to_ns(self.ts)
+        self.k = 0
+        self.u = nominal_inputs(self.plant)
+        self.d = nominal_disturbances(self.plant)
+        self.counters = {'ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
+                         'rejected_changes': 0, 'late_ticks': 0}
+
+        self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS)
+        self.clock_pub = (self.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS)
+                          if self.mode in ('sim', 'lockstep') else None)
+        self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names),
+                        TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names)}
+        self.create_subscription(JointState, TOPIC_MANIPULATED,
+                                 lambda m: self._on_input(TOPIC_MANIPULATED, m), SIGNAL_QOS)
+        self.create_subscription(JointState, TOPIC_DISTURBANCE,
+                                 lambda m: self._on_input(TOPIC_DISTURBANCE, m), SIGNAL_QOS)
+
+        required: dict[str, tuple[str, ...]] = {TOPIC_MANIPULATED: self.plant.input_names}
+        if values['lockstep.wait_for_reference']:
+            required[TOPIC_DISTURBANCE] = ()
+        self.inbox = StampedInbox(required)
+        self._tick_msgs: tuple[JointState, Clock | None] | None = None
+        self._awaiting = False
+        self._sent_at = 0.0
+        self._wall_start = time.monotonic()
+        self._stamp_offset_ns = 0
+        steady = steady_clock()
+        rtf = float(values['real_time_factor'])
+        if self.mode == 'wall':
+            self._stamp_offset_ns = self.get_clock().now().nanoseconds
+            self._timer = self.create_timer(self.ts, self._on_tick_timer, clock=steady)
+        elif self.mode == 'sim':
+            if rtf <= 0:
+                raise ValueError('real_time_factor: 0 with clock_mode sim; allowed (0, 1e6] '
+                                 '(0 = as fast as possible exists in lockstep only)')
+            self._timer = self.create_timer(self.ts / rtf, self._on_tick_timer, clock=steady)
+        else:
+            period = float(values['lockstep.resend_period'])
+            self._resend_timer = self.create_timer(min(period / 2, 0.05), self._on_resend,
+                                                   clock=steady)
+            self._pace_timer = None
+            self._set_pacing(rtf)
+        self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
+                          clock=steady)
+        if self.mode != 'wall':
+            self._publish_tick()          # tick 0 right away (re-sent until answered)
+        self.get_logger().info(
+            f'plant {kind}: outputs {list(self.plant.output_names)}, inputs '
+            f'{list(self.plant.input_names)}, disturbances {list(self.plant.disturbance_names)}; '
+            f'{self.mode} clock, sample_time {self.ts:g} s')
+
+    # ------------------------------------------------------------- parameters
+    def _cross_check(self, values: dict[str, Any]) -> str | None:
+        try:
+            noise_std_per_output(values, self.plant.output_names) if hasattr(self, 'plant') else None
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def _apply_pending(self) -> None:
+        """Accepted parameter changes act from this step on."""
+        pending = self.params.take_pending()
+        if not pending:
+            return
+        model = {k: v for k, v in pending.items() if k not in _RUNTIME_ONLY}
+        if model:
+            try:
+                self.plant.configure(**model)
+                self.get_logger().info(f'model change applied at t = {self._t():g} s: {model}')
+            except ValueError as exc:   # a relation the model checks (e.g. dead_time <= max)
+                self.counters['rejected_changes'] += 1
+                self.get_logger().warning(f'model change not applied: {exc}')
+        if 'noise_std' in pending:
+            self.noise.std = noise_std_per_output(pending, self.plant.output_names)
+        if 'real_time_factor' in pending and self.mode == 'lockstep':
+            self._set_pacing(float(pending['real_time_factor']))
+        elif 'real_time_factor' in pending and self.mode == 'sim':
+            rtf = float(pending['real_time_factor'])
+            if rtf > 0:
+                self._timer.timer_period_ns = to_ns(self.ts / rtf)
+
+    # ----------------------------------------------------------------- ticks
+    def _t(self) -> float:
+        return seconds(self.k * self.ts_ns)
+
+    def _publish_tick(self) -> None:
+        """Measure tick k (one noise draw), publish measurement (+ /clock)."""
+        t_ns = self.k * self.ts_ns
+        y = self.plant.outputs() + self.noise.draw()
+        stamp = self._stamp_offset_ns + t_ns
+        msg = to_joint_state(stamp, self.plant.output_names, y)
+        clock = clock_msg(t_ns) if self.clock_pub is not None else None
+        self._tick_msgs = (msg, clock)
+        self._send()
+        self.counters['ticks'] += 1
+        self._awaiting = self.mode == 'lockstep'
+
+    def _send(self) -> None:
+        msg, clock = self._tick_msgs
+        self.measurement_pub.publish(msg)
+        if clock is not None:
+            self.clock_pub.publish(clock)
+        self._sent_at = time.monotonic()
+
+    def _step(self) -> None:
+        """Integrate [t_k, t_k+1) with the held inputs, k += 1."""
+        self._apply_pending()
+        self.plant.step(np.array([self.u[n] for n in self.plant.input_names]),
+                        np.array([self.d[n] for n in self.plant.disturbance_names]), self.ts)
+        self.k += 1
+
+    def _on_tick_timer(self) -> None:
+        """wall/sim: close the previous interval with the latest inputs, publish tick k."""
+        if self._tick_msgs is not None:
+            self._step()
+        self._publish_tick()
+
+    # --------------------------------------------------------------- inputs
+    def _on_input(self, topic: str, msg: JointState) -> None:
+        flt = self.filters[topic]
+        t_ns, accepted, new_reasons = flt.accept(topic, msg)
+        for reason in new_reasons:
+            self.get_logger().warning(reason + ' (logged once)')
+        self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
+        if self.mode != 'lockstep':
+            (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
+            return
+        if t_ns is None or t_ns != self.k * self.ts_ns or not self._awaiting:
+            return                      # malformed, a stale duplicate, or not asked for
+        held = self.u if topic == TOPIC_MANIPULATED else self.d
+        # A known channel with an ignored (non-finite) value still answers the
+        # tick: its last valid value is kept.
+        answered = {n: accepted.get(n, held[n]) for n in msg.name if n in flt.known}
+        self.inbox.put(topic, t_ns, answered)
+        if self.inbox.complete(t_ns):
+            self._advance(t_ns)
+
+    def _advance(self, t_ns: int) -> None:
+        self.u.update(self.inbox.values(t_ns, TOPIC_MANIPULATED))
+        self.d.update(self.inbox.values(t_ns, TOPIC_DISTURBANCE))
+        self._awaiting = False
+        self._step()
+        self.inbox.drop_before(self.k * self.ts_ns)
+        if self._pace_timer is None:
+            self._publish_tick()
+        elif self._due():
+            self._publish_tick()
+        # else: the pacing timer publishes it when its wall time has come
+
+    # ------------------------------------------------------------- lockstep
+    def _set_pacing(self, rtf: float) -> None:
+        """rtf 0: next tick at once; rtf > 0: tick k at wall ``start + t_k / rtf``."""
+        if self._pace_timer is not None:
+            self.destroy_timer(self._pace_timer)
+            self._pace_timer = None
+        self._rtf = rtf
+        if rtf > 0:
+            self._wall_start = time.monotonic() - self._t() / rtf
+            self._pace_timer = self.create_timer(min(self.ts / rtf, 0.5) / 4, self._on_pace,
+                                                 clock=steady_clock())
+
+    def _due(self) -> bool:
+        return time.monotonic() >= self._wall_start + self._t() / self._rtf
+
+    def _on_pace(self) -> None:
+        if not self._awaiting and self._tick_msgs is not None and self._due():
+            self._publish_tick()
+
+    def _on_resend(self) -> None:
+        period = float(self.params.values['lockstep.resend_period'])
+        if self._awaiting and time.monotonic() - self._sent_at >= period:
+            self.counters['resent_ticks'] += 1
+            self._send()
+
+    # ----------------------------------------------------------- diagnostics
+    def _publish_diagnostics(self) -> None:
+        status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
+        ignored = self.counters['ignored_inputs']
+        status.level = DiagnosticStatus.WARN if ignored else DiagnosticStatus.OK
+        status.message = (f'{ignored} ignored inputs' if ignored else 'ok')
+        items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}', **self.counters}
+        if self.mode == 'lockstep' and self._awaiting:
+            items['waiting_for'] = ', '.join(self.inbox.missing(self.k * self.ts_ns))
+        for name, value in dict(self.plant.status).items():
+            items[f'model.{name}'] = value
+        for topic, flt in self.filters.items():
+            items[f'ignored.{topic}'] = flt.ignored
+        status.values = [KeyValue(key=str(k), value=str(v)) for k, v in items.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
 
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point plant_node."""
-    return run_node(lambda: Node('plant'), args if args is not None else sys.argv)
+    return run_node(PlantNode, args if args is not None else sys.argv)
 
 
 if __name__ == '__main__':

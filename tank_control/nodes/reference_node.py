@@ -1,16 +1,147 @@
-"""reference_node (stub until its issue lands): starts, spins, exits 0 on SIGINT/SIGTERM."""
+"""reference_node: publishes setpoints and disturbances per channel (issue 4).
+
+Topics (``sensor_msgs/JointState``, see ``nodes/messages.py``):
+
+* ``setpoint`` — the setpoint channels (``setpoint.channels``), stamped with the instant;
+* ``disturbance`` — the disturbance channels (may be empty; in lockstep it is
+  the reference's answer for the tick and the plant waits for it).
+
+Timing: with ``clock_mode: wall`` (default) and without ``use_sim_time`` on a
+wall timer every ``sample_time`` (schedule time = seconds since start, stamp =
+now); with ``clock_mode`` ``sim``/``lockstep`` or ``use_sim_time`` on every
+``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
+re-sent tick gets the same messages again, nothing is recomputed).
+
+Parameters: ``core/reference.py`` (layout and semantics). Runtime changes
+(``ros2 param set /reference setpoint.y.value 2.0``) are validated (limits,
+equal times/values lengths) — a rejected change returns the reason — and take
+effect at the next published instant.
+"""
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 
+from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.reference import (FIELDS, KINDS, Reference, channel_lists,
+                                         reference_from_params, reference_params,
+                                         schedule_from_fields, split_param_name)
+from tank_control.nodes.clock import Answers, steady_clock
+from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
+                                         TOPIC_SETPOINT, stamp_to_ns, to_joint_state)
+from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
+
+
+def _file_values(node: Node) -> dict[str, Any]:
+    """The node's start-up values from the params file / command line (flat)."""
+    overrides = getattr(node, '_parameter_overrides', {})   # rclpy has no public getter
+    return {name: param.value for name, param in overrides.items()
+            if name.split('.')[0] in KINDS}
+
+
+class ReferenceNode(Node):
+    """Setpoint/disturbance publisher around a core ``Reference``."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('reference', **kwargs)
+        try:
+            reference = reference_from_params({k: (list(v) if not isinstance(v, (str, bytes))
+                                                   and hasattr(v, '__len__') else v)
+                                               for k, v in _file_values(self).items()})
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        self.reference: Reference = reference
+        self.params = ParameterBinding(self, reference_params(reference),
+                                       cross_check=self._cross_check)
+        self.setpoint_pub = self.create_publisher(type(to_joint_state(0, [], [])),
+                                                  TOPIC_SETPOINT, SIGNAL_QOS)
+        self.disturbance_pub = self.create_publisher(type(to_joint_state(0, [], [])),
+                                                     TOPIC_DISTURBANCE, SIGNAL_QOS)
+        self.answers = Answers()
+        self.published = 0
+        self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
+                             or self.params.values['clock_mode'] != 'wall')
+        if self.use_sim_time:
+            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS)
+        else:
+            period = float(self.params.values['sample_time'])
+            self._start_ns = self.get_clock().now().nanoseconds
+            self._timer = self.create_timer(period, self._on_timer, clock=steady_clock())
+            self._on_timer()
+        sp, dist = channel_lists(self.params.values)
+        self.get_logger().info(
+            f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, '
+            f'{"answering /clock ticks" if self.use_sim_time else f"every {period:g} s"}')
+
+    # ------------------------------------------------------------- parameters
+    def _cross_check(self, values: dict[str, Any]) -> str | None:
+        """The candidate schedules must be valid; an override value must be within limits."""
+        for kind in KINDS:
+            names = channel_lists(values)[0 if kind == 'setpoint' else 1]
+            for ch in names:
+                fields = {f: values[f'{kind}.{ch}.{f}'] for f in FIELDS
+                          if f != 'value' and f'{kind}.{ch}.{f}' in values}
+                try:
+                    schedule = schedule_from_fields(f'{kind}.{ch}', fields)
+                except ValueError as exc:
+                    return str(exc)
+                value = values.get(f'{kind}.{ch}.value')
+                if value is not None and not schedule.min <= value <= schedule.max:
+                    return (f'{kind}.{ch}.value: {value:g} is out of range; allowed '
+                            f'[{schedule.min:g}, {schedule.max:g}]')
+        return None
+
+    def _apply_pending(self, t: float) -> None:
+        """Accepted parameter changes take effect at instant ``t`` [s]."""
+        pending = self.params.take_pending()
+        if 'sample_time' in pending and not self.use_sim_time:
+            self._timer.timer_period_ns = to_ns(float(pending['sample_time']))
+        by_channel: dict[tuple[str, str], dict[str, Any]] = {}
+        for name, value in pending.items():
+            parts = split_param_name(name)
+            if parts:
+                by_channel.setdefault(parts[:2], {})[parts[2]] = value
+        for (kind, ch), changes in by_channel.items():
+            reason = self.reference.update(kind, ch, changes, t)
+            if reason:   # accepted as parameters but inconsistent with the running schedule
+                self.get_logger().warning(f'change of {kind}.{ch} not applied: {reason}')
+            else:
+                self.get_logger().info(f'{kind}.{ch}: {changes} from t = {t:g} s')
+
+    # ---------------------------------------------------------------- publish
+    def _publish(self, stamp_ns: int, t: float) -> None:
+        self._apply_pending(t)
+        ref = self.reference
+        sp = to_joint_state(stamp_ns, ref.setpoint_names, ref.setpoints(t))
+        dist = to_joint_state(stamp_ns, ref.disturbance_names, ref.disturbances(t))
+        self.answers.remember(stamp_ns, sp, dist)
+        self.setpoint_pub.publish(sp)
+        self.disturbance_pub.publish(dist)
+        self.published += 1
+
+    def _on_clock(self, msg: Clock) -> None:
+        t_ns = stamp_to_ns(msg.clock)
+        cached = self.answers.get(t_ns)
+        if cached is not None:            # a re-sent tick: the same answer again
+            for pub, answer in zip((self.setpoint_pub, self.disturbance_pub), cached):
+                pub.publish(answer)
+            return
+        if self.answers.stamp is not None and t_ns < self.answers.stamp:
+            return                        # a stale duplicate of an earlier tick
+        self._publish(t_ns, seconds(t_ns))
+
+    def _on_timer(self) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        self._publish(now_ns, seconds(now_ns - self._start_ns))
 
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point reference_node."""
-    return run_node(lambda: Node('reference'), args if args is not None else sys.argv)
+    return run_node(ReferenceNode, args if args is not None else sys.argv)
 
 
 if __name__ == '__main__':

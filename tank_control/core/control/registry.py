@@ -12,6 +12,9 @@ A kind (:class:`ControllerKind`) supplies
 * ``build(values)`` — the :class:`~tank_control.core.interfaces.Controller`;
 * ``update(controller, values, changed)`` — apply accepted changes to a
   running controller bumplessly (the output does not jump at that sample);
+  a kind without one (``update=None``) is rebuilt from the new values and
+  re-initialised with ``reset(y, u)`` from the last measurement and output,
+  which is bumpless by the Controller contract;
 * ``derive(values, changed)`` — parameter values that follow from others
   (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them.
 
@@ -32,6 +35,8 @@ from dataclasses import asdict, dataclass
 from importlib import import_module
 from typing import Any
 
+import numpy as np
+
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ParamSpec, check_all
 
@@ -50,7 +55,7 @@ class ControllerKind:
     params: Callable[[], tuple[ParamSpec, ...]]
     check: Callable[[Values], str | None]
     build: Callable[[Values], Controller]
-    update: Callable[[Controller, Values, frozenset[str]], None]
+    update: Callable[[Controller, Values, frozenset[str]], None] | None
     derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
     description: str = ''
 
@@ -228,6 +233,19 @@ def make_controller(values: Values) -> Controller:
     return get_kind(merged['controller']).build(merged)
 
 
-def apply_changes(controller: Controller, values: Values, changed: frozenset[str]) -> None:
-    """Apply accepted parameter changes to a running controller (bumpless)."""
-    get_kind(str(values.get('controller', 'pid'))).update(controller, values, changed)
+def apply_changes(controller: Controller, values: Values, changed: frozenset[str],
+                  y: np.ndarray | None = None, u: np.ndarray | None = None) -> Controller:
+    """Apply accepted parameter changes to a running controller, bumplessly.
+
+    Returns the controller to use from now on: the same object when the kind
+    updates in place, else a new one built from ``values`` and ``reset(y, u)``
+    with the last measurement ``y`` and output ``u`` (both needed then).
+    """
+    kind = get_kind(str(values.get('controller', 'pid')))
+    if kind.update is not None:
+        kind.update(controller, values, changed)
+        return controller
+    new = kind.build(complete_values(values))
+    if y is not None and u is not None:
+        new.reset(np.asarray(y, dtype=float), np.asarray(u, dtype=float))
+    return new

@@ -1,0 +1,75 @@
+"""Gaussian measurement noise per output channel, reproducible by seed.
+
+Draw order (the contract shared by ``core/loop.py`` and ``plant_node``):
+
+* one ``MeasurementNoise`` per plant, built from ``seed``; ``reset()`` restarts
+  the stream (``numpy.random.default_rng(seed)``, PCG64);
+* exactly one call of ``sample()`` (or ``apply(y)``) per sample instant k, in
+  tick order, and none otherwise — a re-sent measurement of tick k must reuse
+  the value drawn for tick k, not draw again;
+* every call draws ``standard_normal(n)`` for all ``n`` output channels in the
+  order of ``output_names``, whatever the standard deviations are, so a zero
+  ``std`` on one channel (exactly no noise there) or a live change of ``std``
+  never shifts the random numbers of the other channels or later ticks.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from tank_control.core.params import ParamSpec
+
+NOISE_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('noise_std', [0.0], 'standard deviation of the Gaussian measurement noise per '
+              'output channel, in the channel\'s units; one value applies to every channel',
+              min=0.0, max=1e6),
+    ParamSpec('seed', 0, 'seed of the measurement-noise generator (numpy PCG64)',
+              min=0, max=2 ** 63 - 1, read_only=True),
+)
+
+
+def _std_vector(std: float | Sequence[float], n: int) -> np.ndarray:
+    values = np.atleast_1d(np.asarray(std, dtype=np.float64))
+    if values.size == 1:
+        values = np.full(n, values[0])
+    if values.size != n:
+        raise ValueError(f'noise_std: {values.size} values for {n} output channels; '
+                         f'give 1 or {n}')
+    if not np.all(np.isfinite(values)) or np.any(values < 0.0):
+        raise ValueError(f'noise_std: {values.tolist()} must be finite and >= 0')
+    return values
+
+
+class MeasurementNoise:
+    """Additive white Gaussian noise ``y_measured = y + std · z``, ``z ~ N(0, I)``."""
+
+    def __init__(self, n_outputs: int, std: float | Sequence[float] = 0.0, seed: int = 0) -> None:
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f'seed: {seed!r} must be an integer >= 0')
+        self.n_outputs = int(n_outputs)
+        self.seed = int(seed)
+        self._std = _std_vector(std, self.n_outputs)
+        self.reset()
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard deviation per channel (a copy)."""
+        return self._std.copy()
+
+    def set_std(self, std: float | Sequence[float]) -> None:
+        """Change the standard deviations live; the random stream is unaffected."""
+        self._std = _std_vector(std, self.n_outputs)
+
+    def reset(self) -> None:
+        """Restart the random stream from ``seed``."""
+        self._rng = np.random.default_rng(self.seed)
+
+    def sample(self) -> np.ndarray:
+        """The noise of the next sample instant (always ``n_outputs`` draws)."""
+        z = self._rng.standard_normal(self.n_outputs)
+        return np.where(self._std > 0.0, self._std * z, 0.0)
+
+    def apply(self, y: np.ndarray) -> np.ndarray:
+        """``y`` plus the noise of the next sample instant (a new array)."""
+        return np.asarray(y, dtype=np.float64) + self.sample()

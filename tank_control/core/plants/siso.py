@@ -1,0 +1,135 @@
+"""Common machinery of the SISO dead-time plants (IPDT 000 eq. 1, FOPDT 001 eq. 6.14).
+
+Structure (000 Fig. 1): the load disturbance ``v`` enters at the plant input,
+``y = y0 + G(s)·(u + v)`` with ``G(s) = G0(s)·e^(−L·s)``. The sum ``w = u + v``
+is held constant over each step (ZOH), delayed exactly by a ``DelayLine``, and
+the delay-free part ``G0`` is advanced in closed form over every constant piece
+of the delayed input, so the outputs at the sample instants do not depend on
+the step size (exact discretisation, no integration error).
+
+``y0 = initial_output`` is an output offset: the output the plant holds at rest
+with ``u + v = 0``. Changing it live shifts the output by the difference.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.interfaces import StatusValue, seconds, to_ns
+from tank_control.core.params import ParamSpec
+from tank_control.core.plants.config import changed_config, checked_config
+from tank_control.core.plants.delay_line import DelayLine
+
+
+def dead_time_cross_check(config: Any) -> str | None:
+    """``dead_time`` must fit in the stored history (``max_dead_time``)."""
+    if config.dead_time > config.max_dead_time:
+        return (f'dead_time: {config.dead_time:g} is above max_dead_time; '
+                f'allowed [0, {config.max_dead_time:g}]')
+    return None
+
+
+def as_vector(name: str, values: Any, size: int, allow_empty: bool = False) -> np.ndarray:
+    """A finite 1-D float vector of ``size`` items (or empty if allowed), else ``ValueError``."""
+    vector = np.asarray(values, dtype=np.float64).reshape(-1)
+    if vector.size != size and not (allow_empty and vector.size == 0):
+        raise ValueError(f'{name}: {vector.size} values given, expected {size}')
+    if not np.all(np.isfinite(vector)):
+        raise ValueError(f'{name}: non-finite value in {vector.tolist()}')
+    return vector
+
+
+def checked_dt(dt: float) -> int:
+    """A step length in seconds → integer nanoseconds (finite, >= 0), else ``ValueError``."""
+    if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt >= 0.0):
+        raise ValueError(f'dt: {dt!r} must be a finite number of seconds >= 0')
+    return to_ns(float(dt))
+
+
+class DeadTimePlant:
+    """Base of IPDT/FOPDT: channels ``y``/``u``/``v``, delay line, live configuration.
+
+    Subclasses set ``PARAMS`` (their ``ParamSpec`` tuple) and implement
+    ``_advance(x, w, duration)``: the delay-free state after ``duration``
+    seconds of constant delayed input ``w``.
+    """
+
+    output_names: tuple[str, ...] = ('y',)
+    input_names: tuple[str, ...] = ('u',)
+    disturbance_names: tuple[str, ...] = ('v',)
+    PARAMS: tuple[ParamSpec, ...] = ()
+
+    def __init__(self, config: Any) -> None:
+        self._config = checked_config(self.PARAMS, config, dead_time_cross_check)
+        self._line = DelayLine(self._config.max_dead_time, initial=0.0)
+        self.reset()
+
+    @property
+    def config(self) -> Any:
+        """The current configuration (a copy; change it with ``configure``)."""
+        return self._config
+
+    def configure(self, **changes: Any) -> None:
+        """Change parameters live (all-or-nothing); they act from the next ``step``.
+
+        Raises ``ValueError`` with a one-line reason naming the parameter and the
+        allowed range; ``max_dead_time`` is read-only (fixed at construction).
+        """
+        self._config = changed_config(self.PARAMS, self._config, changes, live=True,
+                                      cross_check=dead_time_cross_check)
+
+    def reset(self) -> None:
+        """Back to rest at t = 0: delay line empty (input history 0), y = initial_output."""
+        self._line.reset(0.0)
+        self._x = 0.0
+        self._t_ns = 0
+        self._steps = 0
+
+    @property
+    def time(self) -> float:
+        """Plant time [s] (sum of the step lengths since ``reset``)."""
+        return seconds(self._t_ns)
+
+    def outputs(self) -> np.ndarray:
+        """``[y]`` at the current instant (noise-free)."""
+        return np.array([self._config.initial_output + self._x])
+
+    def nominal_inputs(self) -> np.ndarray:
+        """Inputs at rest: ``[u] = [0]``."""
+        return np.zeros(1)
+
+    def nominal_disturbances(self) -> np.ndarray:
+        """Disturbances at rest: ``[v] = [0]`` (also used when ``d`` is empty)."""
+        return np.zeros(1)
+
+    def step(self, u: Any, d: Any, dt: float) -> None:
+        """Advance ``dt`` seconds with ``u`` and ``v`` held (ZOH); ``d`` may be empty (v = 0).
+
+        Raises ``ValueError`` (state untouched) on a wrong size or non-finite value.
+        """
+        u_vec = as_vector('u', u, 1)
+        d_vec = as_vector('d', d, 1, allow_empty=True)
+        dt_ns = checked_dt(dt)
+        w = float(u_vec[0] + (d_vec[0] if d_vec.size else 0.0))   # 000 Fig. 1: G·(u + v)
+        self._line.push(self._t_ns, w)
+        x = self._x
+        for duration, w_delayed in self._line.segments(self._t_ns, seconds(dt_ns),
+                                                       self._config.dead_time):
+            if duration > 0.0:
+                x = self._advance(x, w_delayed, duration)
+        self._x = x
+        self._t_ns += dt_ns
+        self._steps += 1
+
+    def _advance(self, x: float, w: float, duration: float) -> float:
+        raise NotImplementedError
+
+    @property
+    def status(self) -> Mapping[str, StatusValue]:
+        """``time`` [s], ``steps``, ``dead_time`` [s] in force, ``history_breakpoints``."""
+        return {'time': self.time, 'steps': self._steps,
+                'dead_time': self._config.dead_time,
+                'history_breakpoints': len(self._line)}

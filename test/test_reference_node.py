@@ -1,0 +1,89 @@
+"""reference_node over real DDS: schedule published, runtime changes, lockstep answers."""
+from __future__ import annotations
+
+import json
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from tank_control.nodes.messages import CLOCK_QOS, SIGNAL_QOS, clock_msg, from_joint_state
+
+REFERENCE = {
+    'setpoint.channels': ['y'],
+    'setpoint.y.times': [0.0, 0.3], 'setpoint.y.values': [1.0, 2.0],
+    'setpoint.y.min': 0.0, 'setpoint.y.max': 10.0,
+    'disturbance.channels': ['v'],
+    'disturbance.v.times': [0.0, 0.5], 'disturbance.v.values': [0.0, -0.5],
+    'disturbance.v.ramp_rate': 1.0,
+}
+
+
+def params_file(tmp_path, **extra):
+    path = tmp_path / 'reference.yaml'
+    # JSON is YAML with every string quoted (ROS 2 reads an unquoted y as a boolean).
+    path.write_text(json.dumps({'reference': {'ros__parameters': {**REFERENCE, **extra}}}))
+    return str(path)
+
+
+def collect(probe, topic):
+    got = []
+    probe.node.create_subscription(JointState, topic, lambda m: got.append(from_joint_state(m)),
+                                   SIGNAL_QOS)
+    return got
+
+
+def set_param(probe, name, value):
+    client = probe.node.create_client(SetParameters, '/reference/set_parameters')
+    assert probe.wait_for(client.service_is_ready, 20)
+    future = client.call_async(SetParameters.Request(
+        parameters=[Parameter(name, value=value).to_parameter_msg()]))
+    assert probe.wait_for(future.done, 10)
+    return future.result().results[0]
+
+
+def test_wall_mode_publishes_the_schedule_and_applies_runtime_changes(procs, ros_env, node_cmd,
+                                                                      probe, tmp_path):
+    proc = procs.start('reference', node_cmd('reference_node', '--params-file',
+                                             params_file(tmp_path, sample_time=0.05)), env=ros_env)
+    setpoints = collect(probe, 'setpoint')
+    assert probe.wait_for(lambda: any(v == (2.0,) for _, _, v in setpoints), 20), proc.tail()
+    assert all(names == ('y',) for _, names, _ in setpoints)
+    # Out of range: rejected with the reason, nothing changes.
+    result = set_param(probe, 'setpoint.y.value', 11.0)
+    assert not result.successful
+    assert result.reason == 'setpoint.y.value: 11 is out of range; allowed [0, 10]'
+    result = set_param(probe, 'setpoint.y.value', 7.5)
+    assert result.successful, result.reason
+    n = len(setpoints)
+    assert probe.wait_for(lambda: len(setpoints) > n + 1, 5)
+    # The change is in force at the next published instant (at most one message later).
+    assert setpoints[n + 1][2] == (7.5,)
+    assert all(v[0] in (2.0, 7.5) for _, _, v in setpoints[n - 1:])
+    # Stamps increase by about the sample time (wall clock).
+    stamps = [s for s, _, _ in setpoints[-5:]]
+    assert all(0.02e9 < b - a < 0.2e9 for a, b in zip(stamps, stamps[1:]))
+
+
+def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    procs.start('reference', node_cmd('reference_node', '--params-file',
+                                      params_file(tmp_path, clock_mode='lockstep')), env=ros_env)
+    setpoints, disturbances = collect(probe, 'setpoint'), collect(probe, 'disturbance')
+    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    # Until discovery matches, re-send tick 0 (as the plant does).
+    assert probe.wait_for(lambda: setpoints or clock.publish(clock_msg(0)), 20)
+    for k in range(1, 11):
+        clock.publish(clock_msg(k * 100_000_000))
+        assert probe.wait_for(lambda: setpoints[-1][0] == k * 100_000_000, 5)
+    assert probe.wait_for(lambda: disturbances and disturbances[-1][0] == 1_000_000_000, 5)
+    by_stamp = {s: v[0] for s, _, v in setpoints}
+    assert [by_stamp[k * 100_000_000] for k in range(11)] == [1.0] * 3 + [2.0] * 8
+    d = {s: v[0] for s, _, v in disturbances}
+    # Ramp from 0 at t = 0.5 s toward -0.5 at 1 /s: -0.1 at 0.6 s, -0.5 from 1.0 s.
+    assert abs(d[600_000_000] + 0.1) < 1e-12 and d[1_000_000_000] == -0.5
+    # A re-sent tick gets the identical answer again.
+    n = len(setpoints)
+    clock.publish(clock_msg(1_000_000_000))
+    assert probe.wait_for(lambda: len(setpoints) > n, 5)
+    assert setpoints[-1] == (1_000_000_000, ('y',), (2.0,))
