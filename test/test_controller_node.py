@@ -89,7 +89,8 @@ def _start(procs, node_cmd, ros_env, *params: str):
 
 def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
     ts = 0.2
-    _start(procs, node_cmd, ros_env, 'clock_mode:=lockstep', f'sample_time:={ts}',
+    # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
            'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
     loop = Loop(probe)
 

@@ -44,6 +44,16 @@ def test_make_controller_builds_the_described_pid():
     assert step(ctrl, 0.0, 1.0, 4.0) == pytest.approx(2.0 * (0.5 * 4.0 - 1.0), abs=1e-12)
 
 
+def test_runtime_parameters_of_the_node_are_accepted_and_ignored_in_process():
+    ctrl = registry.make_controller({'kp': 2.0, 'clock_mode': 'lockstep', 'stale_samples': 5,
+                                     'use_sim_time': True})
+    assert step(ctrl, 0.0, 1.0, 2.0) == pytest.approx(2.0, abs=1e-12)
+    with pytest.raises(ValueError, match='stale_samples'):
+        registry.make_controller({'stale_samples': 0})
+    with pytest.raises(ValueError, match='gain_typo'):
+        registry.make_controller({'gain_typo': 1.0})
+
+
 @pytest.mark.parametrize('values, name', [
     ({'kp': -1.0}, 'kp'),
     ({'kp': 0.0}, 'kp'),

@@ -13,16 +13,20 @@ controller uses measured disturbances, ``disturbance``; publishes
 ``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
 sample instant) and ``/diagnostics``.
 
-Sampling (BRIEF "Clock modes"):
+Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
 
 * ``wall`` — a wall timer every ``sample_time`` with the latest data;
-* ``sim`` — the same timer on the simulated clock (run with
-  ``use_sim_time:=true``), stamps on the grid ``k·sample_time``;
+* ``sim`` — the same timer on the simulated clock (``use_sim_time:=true``),
+  stamps on the grid ``k·sample_time``, latest data;
 * ``lockstep`` — no timer: once ``measurement`` and ``setpoint`` (and
   ``disturbance`` if used) stamped ``t_k`` are in, the node computes
   ``step(t_k, ...)`` if ``t_k`` is a multiple of its sample time (else holds its
   last output) and publishes ``manipulated`` stamped ``t_k``. Answers are
-  idempotent: a re-sent tick gets the same message again, not a recomputation.
+  idempotent: a re-sent tick gets the same message again, not a recomputation;
+* ``auto`` (default) — ``lockstep`` answering when ``use_sim_time`` is true
+  (the harness passes it in the plant's sim and lockstep modes; the reference
+  answers every ``/clock`` tick in both, so each sample uses the measurement
+  of exactly its instant), else ``wall``.
 
 Measurement faults: a non-finite measured value, or (wall/sim) no measurement
 for ``stale_samples`` samples, holds the last output — or sends
@@ -47,25 +51,12 @@ from sensor_msgs.msg import JointState
 
 from tank_control.core.control import registry
 from tank_control.core.interfaces import seconds, to_ns
-from tank_control.core.params import ParamSpec
-from tank_control.nodes.clock import CLOCK_MODES, Answers, StampedInbox, is_sample_instant, \
-    steady_clock
+from tank_control.nodes.clock import Answers, StampedInbox, is_sample_instant, steady_clock
 from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          from_joint_state, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
-
-NODE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec('clock_mode', 'wall', 'wall: wall timer; sim: timer on /clock (use_sim_time); '
-              'lockstep: answer each plant tick stamped t_k (BRIEF "Clock modes")',
-              choices=CLOCK_MODES, read_only=True),
-    ParamSpec('stale_samples', 3, 'wall/sim: samples without a measurement after which it is '
-              'stale (hold or fail-safe output)', min=1, max=1000),
-    ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [s, wall clock]',
-              min=0.05, max=60.0, read_only=True),
-)
-
 
 class ControllerNode(Node):
     """Thin adapter: parameters → core controller → timer/lockstep → messages."""
@@ -75,8 +66,8 @@ class ControllerNode(Node):
         self._u: np.ndarray | None = None          # last published output
         kind_name = self._kind_from_overrides()
         self._kind = registry.get_kind(kind_name)
-        self._kind_names = tuple(s.name for s in registry.specs_for(kind_name))
-        self._params = ParameterBinding(self, registry.specs_for(kind_name) + NODE_SPECS,
+        self._kind_names = tuple(s.name for s in registry.controller_specs(kind_name))
+        self._params = ParameterBinding(self, registry.specs_for(kind_name),
                                         cross_check=self._cross_check, derive=self._derive)
         values = self._params.values
         self._controller = registry.make_controller(self._kind_values(values))
@@ -86,6 +77,9 @@ class ControllerNode(Node):
         self._disturbances = tuple(self._controller.disturbance_names)
         self._ts_ns = to_ns(self._controller.sample_time)
         self._mode = str(values['clock_mode'])
+        if self._mode == 'auto':       # the harness passes use_sim_time in sim and lockstep
+            sim = bool(self.get_parameter('use_sim_time').value)
+            self._mode = 'lockstep' if sim else 'wall'
 
         # latest inputs (wall/sim) and fault bookkeeping
         self._y: dict[str, float] = {}

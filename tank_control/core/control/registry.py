@@ -184,20 +184,48 @@ def _channel_specs(outputs: tuple[str, ...], inputs: tuple[str, ...]) -> tuple[P
     )
 
 
-def specs_for(name: str) -> tuple[ParamSpec, ...]:
-    """All parameters of kind ``name``: ``controller`` (read-only) + the kind's own."""
+#: Parameters of the runtime around any controller (controller_node); the
+#: in-process loop accepts and ignores them, so one params file serves both.
+RUNTIME_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec('clock_mode', 'auto', 'auto: lockstep answering with use_sim_time, else wall; '
+              'wall: wall timer every sample_time; sim: timer on /clock; lockstep: answer each '
+              'plant tick stamped t_k once measurement and setpoint of t_k are in',
+              choices=('auto', 'wall', 'sim', 'lockstep'), read_only=True),
+    ParamSpec('stale_samples', 3, 'wall/sim: samples without a measurement after which it is '
+              'stale (hold or fail-safe output)', min=1, max=1000),
+    ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [s, wall clock]',
+              min=0.05, max=60.0, read_only=True),
+)
+_IGNORED = frozenset({'use_sim_time'})   # ROS's own parameter, present in every node section
+
+
+def controller_specs(name: str) -> tuple[ParamSpec, ...]:
+    """The parameters that describe the controller: ``controller`` (read-only) + the kind's own."""
     kind = get_kind(name)
     common = ParamSpec('controller', name, 'controller kind (set at start-up)',
                        choices=kind_names(), read_only=True)
     own = kind.params()
-    return (common,) + tuple(s for s in own if s.name != 'controller')
+    runtime = {spec.name for spec in RUNTIME_SPECS}
+    return (common,) + tuple(s for s in own if s.name != 'controller' and s.name not in runtime)
+
+
+def specs_for(name: str) -> tuple[ParamSpec, ...]:
+    """Every parameter of a controller_node running kind ``name`` (controller + runtime)."""
+    return controller_specs(name) + RUNTIME_SPECS
+
+
+def controller_values(values: Values) -> dict[str, Any]:
+    """The controller's own entries of ``values`` (runtime parameters and use_sim_time dropped)."""
+    skip = {spec.name for spec in RUNTIME_SPECS} | _IGNORED
+    return {k: v for k, v in values.items() if k not in skip}
 
 
 def complete_values(values: Values) -> dict[str, Any]:
-    """``values`` with the defaults of the selected kind filled in (``controller`` defaults to pid)."""
+    """The controller's ``values`` with the defaults of the selected kind filled in
+    (``controller`` defaults to pid; runtime parameters dropped)."""
     name = str(values.get('controller', 'pid'))
-    merged = {spec.name: spec.default for spec in specs_for(name)}
-    merged.update(values)
+    merged = {spec.name: spec.default for spec in controller_specs(name)}
+    merged.update(controller_values(values))
     return merged
 
 
@@ -208,10 +236,10 @@ def check(values: Values) -> str | None:
         specs = specs_for(name)
     except (ValueError, ImportError, AttributeError) as exc:
         return str(exc)
-    reasons = check_all(specs, values)
+    reasons = check_all(specs, {k: v for k, v in values.items() if k not in _IGNORED})
     if reasons:
         return '; '.join(reasons)
-    return get_kind(name).check(values)
+    return get_kind(name).check(controller_values(values))
 
 
 def derive(values: Values, changed: frozenset[str] = frozenset()) -> dict[str, Any]:
@@ -227,7 +255,7 @@ def make_controller(values: Values) -> Controller:
     """
     merged = complete_values(values)
     merged.update(derive(merged, frozenset(values)))
-    reason = check(merged)
+    reason = check({**values, **merged})
     if reason:
         raise ValueError(reason)
     return get_kind(merged['controller']).build(merged)
@@ -242,6 +270,7 @@ def apply_changes(controller: Controller, values: Values, changed: frozenset[str
     with the last measurement ``y`` and output ``u`` (both needed then).
     """
     kind = get_kind(str(values.get('controller', 'pid')))
+    values = controller_values(values)
     if kind.update is not None:
         kind.update(controller, values, changed)
         return controller

@@ -1,0 +1,342 @@
+"""Two-loop PI for the mixing tank, with or without decoupling (003 §2–3, SPEC §2.7).
+
+Loops (pairing of 003): level ``h`` [cm] ← hot inflow ``F_H`` [cm³/s] and
+outlet temperature ``T_out`` [°C] ← cold inflow command ``F_Cin`` [cm³/s].
+
+Each loop is a parallel PI ``v = kp·e + ki·∫e dt`` (e = r − y), discretised
+with forward Euler, ``I(k+1) = I(k) + ki·h·e(k)``. The document gives
+``Kp, Ki`` for a discrete PI sampled at 1 s; we read ``Ki`` as the integral
+gain ``ki = kp/ti`` in 1/s, which at the document's ``Ts = 1 s`` is the same
+number as a per-sample gain on the error sum (and stays meaningful at other
+sample times). The parallel form is needed because the decoupled T loop has
+``Kp = 0`` (pure integral action), which has no ``kp/ti`` form.
+
+Document settings:
+
+* without decoupling (003 §2.1): ``F_H``: kp 0.9, ki 0.01; ``F_Cin``: kp −0.2,
+  ki −0.002 (ti = 90 s and 100 s); outputs limited to 0…300.
+* with decoupling (003 §3, eqs. 1–3): ``F_H = v_h + D12·v_T``,
+  ``F_Cin = v_T + D21·v_h`` with ``D12 = −1`` and ``D21`` static ≈ 2.69 or the
+  first-order discrete filter (0.00619·z + 2.122e−5)/(0.002301·z + 7.897e−6)
+  (eq. 2). Gains ``F_H``: 0.04 / 0.0004, ``F_Cin``: 0 / −0.01. As 003 §3
+  explains, the PI outputs and the decoupler outputs are limited to
+  −300…300 and the physical limit 0…300 is applied only after the sum.
+
+  Note: eq. 3 of 003 prints the difference equation with ``+7.897e−6·y(k−1)``;
+  the transfer function of eq. 2 (and its quoted gain 2.69) needs ``−``. We
+  implement eq. 2: y(k) = (0.00619·u(k) + 2.122e−5·u(k−1) − 7.897e−6·y(k−1)) / 0.002301.
+  (Eq. 3 as printed has DC gain 2.709; the difference is immaterial.)
+
+  The static decoupler makes the steady state exactly non-interacting at
+  the operating point: v_T changes F_H + F_C by 0 (D12 = −1) and v_h changes
+  the heat balance by 0 since D21 = (T_H − T)/(T − T_C) = 28.43/10.57 = 2.69.
+
+Anti-windup sees the applied (saturated) flows: with decoupling, loop i's
+effective output is ``u_i,sat − (decoupler term into u_i)``, limited to the PI
+output range, and ``back_calculation`` drives the integral towards it:
+``I += ki·h·e + min(h/Tt, 1)·(v_eff − v)``, default ``Tt = kp/ki`` (= ti) and
+``Tt = h`` (clamping) for a pure integral loop. ``conditional_integration``
+freezes the integral while it would push further into the limit.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.params import ParamSpec
+
+DECOUPLING_CHOICES = ('none', 'static', 'dynamic')
+ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
+D21_NUM = (0.00619, 2.122e-5)        # 003 eq. 2, numerator in z: b0·z + b1
+D21_DEN = (0.002301, 7.897e-6)       # denominator: a0·z + a1
+
+
+@dataclass
+class PiLoop:
+    """One parallel PI loop: v = kp·e + ki·∫e dt. kp [u/y units], ki [u/(y units·s)],
+    tracking_time [s] (None: kp/ki, or the sample time for a pure integral loop)."""
+
+    kp: float
+    ki: float
+    tracking_time: float | None = None
+
+
+@dataclass
+class TwoLoopPiConfig:
+    """Settings of :class:`TwoLoopPi` (003 §2–3); flows in cm³/s, time in s."""
+
+    h_loop: PiLoop = field(default_factory=lambda: PiLoop(0.9, 0.01))
+    t_loop: PiLoop = field(default_factory=lambda: PiLoop(-0.2, -0.002))
+    decoupling: str = 'none'
+    d12: float = -1.0
+    d21: float = 2.69                 # static gain (003 eq. 2, right-hand side)
+    u_min: float = 0.0
+    u_max: float = 300.0
+    v_limit: float | None = None      # |PI output| limit with decoupling; None → u_max
+    sample_time: float = 1.0
+    anti_windup: str = 'back_calculation'
+
+
+def document_config(decoupling: str = 'none', **changes: Any) -> TwoLoopPiConfig:
+    """The settings of 003: §2.1 without decoupling, §3.1 with it ('static' or 'dynamic')."""
+    if decoupling == 'none':
+        cfg = TwoLoopPiConfig()
+    else:
+        cfg = TwoLoopPiConfig(h_loop=PiLoop(0.04, 0.0004), t_loop=PiLoop(0.0, -0.01), decoupling=decoupling)
+    return replace(cfg, **changes)
+
+
+def config_reason(cfg: TwoLoopPiConfig) -> str | None:
+    """One-line reason naming the invalid setting, or None."""
+    for name, loop in (('h_loop', cfg.h_loop), ('t_loop', cfg.t_loop)):
+        for attr in ('kp', 'ki'):
+            value = getattr(loop, attr)
+            if not _finite(value):
+                return f'{name}.{attr}: {value!r} is not a finite number'
+        if loop.kp == 0.0 and loop.ki == 0.0:
+            return f'{name}: kp and ki are both 0; at least one must be non-zero'
+        if loop.kp * loop.ki < 0:
+            return f'{name}: kp {loop.kp:g} and ki {loop.ki:g} must have the same sign'
+        tt = loop.tracking_time
+        if tt is not None and (not _finite(tt) or tt <= 0):
+            return f'{name}.tracking_time: {tt!r} is out of range; allowed (0, inf) s or None'
+    if cfg.decoupling not in DECOUPLING_CHOICES:
+        return f'decoupling: {cfg.decoupling!r} is not one of ' + ', '.join(DECOUPLING_CHOICES)
+    for name in ('d12', 'd21', 'u_min', 'u_max', 'sample_time'):
+        if not _finite(getattr(cfg, name)):
+            return f'{name}: {getattr(cfg, name)!r} is not a finite number'
+    if not cfg.u_min < cfg.u_max:
+        return f'u_min: {cfg.u_min:g} must be below u_max {cfg.u_max:g}'
+    if cfg.sample_time <= 0:
+        return f'sample_time: {cfg.sample_time:g} is out of range; allowed (0, inf) s'
+    if cfg.v_limit is not None and (not _finite(cfg.v_limit) or cfg.v_limit <= 0):
+        return f'v_limit: {cfg.v_limit!r} is out of range; allowed (0, inf) or None'
+    if cfg.decoupling != 'none' and abs(1.0 - cfg.d12 * _d21_gain(cfg)) < 1e-9:
+        return f'd12, d21: 1 − d12·d21 = 0 makes the decoupler singular'
+    if cfg.anti_windup not in ANTI_WINDUP_CHOICES:
+        return f'anti_windup: {cfg.anti_windup!r} is not one of ' + ', '.join(ANTI_WINDUP_CHOICES)
+    return None
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _d21_gain(cfg: TwoLoopPiConfig) -> float:
+    if cfg.decoupling == 'dynamic':
+        return (D21_NUM[0] + D21_NUM[1]) / (D21_DEN[0] + D21_DEN[1])
+    return cfg.d21
+
+
+class D21Filter:
+    """003 eq. 2 as a difference equation: a0·y(k) + a1·y(k−1) = b0·u(k) + b1·u(k−1)."""
+
+    def __init__(self) -> None:
+        self.u_prev = 0.0
+        self.y_prev = 0.0
+
+    @staticmethod
+    def dc_gain() -> float:
+        return (D21_NUM[0] + D21_NUM[1]) / (D21_DEN[0] + D21_DEN[1])
+
+    def settle(self, u: float) -> None:
+        """Put the filter in steady state for a constant input u."""
+        self.u_prev = u
+        self.y_prev = self.dc_gain() * u
+
+    def step(self, u: float) -> float:
+        y = (D21_NUM[0] * u + D21_NUM[1] * self.u_prev - D21_DEN[1] * self.y_prev) / D21_DEN[0]
+        self.u_prev, self.y_prev = u, y
+        return y
+
+
+class TwoLoopPi:
+    """Two-loop PI of 003 behind the Controller protocol.
+
+    Outputs (measured) ``('h', 'T_out')``, inputs (manipulated)
+    ``('F_H', 'F_Cin')``, no measured disturbances. ``reset(y, u)`` is
+    completed at the next ``step`` (which knows the setpoints): that step
+    returns ``u`` (within the limits).
+    """
+
+    output_names = ('h', 'T_out')
+    input_names = ('F_H', 'F_Cin')
+    disturbance_names: tuple[str, ...] = ()
+
+    def __init__(self, config: TwoLoopPiConfig | None = None) -> None:
+        cfg = config or TwoLoopPiConfig()
+        reason = config_reason(cfg)
+        if reason:
+            raise ValueError(reason)
+        self.config = cfg
+        self._integral = np.zeros(2)
+        self._d21 = D21Filter()
+        self._u = np.full(2, np.nan)
+        self._pending: np.ndarray | None = None
+        self._initialised = False
+        self._fault = False
+        self._status: dict[str, Any] = {}
+
+    @property
+    def sample_time(self) -> float:
+        return self.config.sample_time
+
+    def _loops(self) -> tuple[PiLoop, PiLoop]:
+        return self.config.h_loop, self.config.t_loop
+
+    def _v_range(self) -> tuple[float, float]:
+        cfg = self.config
+        if cfg.decoupling == 'none':
+            return cfg.u_min, cfg.u_max
+        lim = cfg.u_max if cfg.v_limit is None else cfg.v_limit
+        return -lim, lim
+
+    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if u.size != 2 or not np.all(np.isfinite(u)):
+            raise ValueError(f'reset: u must be 2 finite flows (F_H, F_Cin), got {u!r}')
+        self._pending = np.clip(u, self.config.u_min, self.config.u_max)
+
+    def _init_from(self, e: np.ndarray, u: np.ndarray) -> None:
+        """States such that the PI outputs reproduce the flows u at error e."""
+        cfg = self.config
+        lo, hi = self._v_range()
+        if cfg.decoupling == 'none':
+            v = u.copy()
+        else:
+            g21 = _d21_gain(cfg)
+            v = np.linalg.solve(np.array([[1.0, cfg.d12], [g21, 1.0]]), u)
+            v = np.clip(v, lo, hi)
+            self._d21.settle(v[0])
+        for i, loop in enumerate(self._loops()):
+            self._integral[i] = v[i] - loop.kp * e[i]
+        self._u = u.copy()
+        self._initialised = True
+
+    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        y = np.asarray(y, dtype=float).reshape(-1)
+        r = np.asarray(r, dtype=float).reshape(-1)
+        if y.size != 2 or r.size != 2:
+            raise ValueError(f'y, r: expected 2 values (h, T_out), got {y.size} and {r.size}')
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
+            self._fault = True
+            self._status['input_fault'] = True
+            return self._held()
+        e = r - y
+        if self._pending is not None:
+            self._init_from(e, self._pending)
+            self._pending = None
+        elif self._fault:
+            self._init_from(e, self._held())
+        elif not self._initialised:
+            self._integral[:] = 0.0
+            self._d21.settle(0.0)
+            self._initialised = True
+        self._fault = False
+        return self._compute(e)
+
+    def _held(self) -> np.ndarray:
+        if np.all(np.isfinite(self._u)):
+            return self._u.copy()
+        return np.clip(np.zeros(2), self.config.u_min, self.config.u_max)
+
+    def _compute(self, e: np.ndarray) -> np.ndarray:
+        cfg = self.config
+        h = cfg.sample_time
+        lo, hi = self._v_range()
+        loops = self._loops()
+        w = np.array([loop.kp * e[i] + self._integral[i] for i, loop in enumerate(loops)])
+        v = np.clip(w, lo, hi)
+        if cfg.decoupling == 'none':
+            cross = np.zeros(2)
+        else:
+            c21 = self._d21.step(v[0]) if cfg.decoupling == 'dynamic' else cfg.d21 * v[0]
+            cross = np.clip(np.array([cfg.d12 * v[1], c21]), lo, hi)   # 003 §3.1: decoupler outputs clipped
+        u = np.clip(v + cross, cfg.u_min, cfg.u_max)
+        v_eff = np.clip(u - cross, lo, hi)
+        aw = [False, False]
+        for i, loop in enumerate(loops):
+            di = loop.ki * h * e[i]
+            if cfg.anti_windup == 'back_calculation':
+                tt = loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0 else h)
+                self._integral[i] += di + min(h / tt, 1.0) * (v_eff[i] - w[i])
+                aw[i] = bool(v_eff[i] != w[i])
+            elif cfg.anti_windup == 'conditional_integration':
+                push = w[i] - v_eff[i]
+                if push != 0 and di * push > 0:
+                    aw[i] = True
+                else:
+                    self._integral[i] += di
+            else:
+                self._integral[i] += di
+        self._u = u
+        self._status = {
+            'decoupling': cfg.decoupling,
+            'saturated': bool(np.any(u != v + cross) or np.any(v != w)),
+            'saturated.F_H': bool(u[0] != v[0] + cross[0] or v[0] != w[0]),
+            'saturated.F_Cin': bool(u[1] != v[1] + cross[1] or v[1] != w[1]),
+            'anti_windup_active': bool(aw[0] or aw[1]),
+            'input_fault': False,
+            'v.h': float(v[0]), 'v.T_out': float(v[1]),
+            'i.h': float(self._integral[0]), 'i.T_out': float(self._integral[1]),
+        }
+        return u.copy()
+
+    @property
+    def status(self) -> Mapping[str, Any]:
+        return dict(self._status)
+
+
+def two_loop_pi_params() -> tuple[ParamSpec, ...]:
+    """ParamSpecs of the two-loop PI (prefix ``two_loop.``); 003 §2–3 defaults
+    are those of the variant without decoupling."""
+    big = 1e6
+    return (
+        ParamSpec('sample_time', 1.0, 'controller sample time [s] (003 used 1 s)', min=1e-3, max=3600.0,
+                  read_only=True),
+        ParamSpec('two_loop.decoupling', 'none', "decoupler: none (003 §2), static D21 = 2.69 or "
+                  "dynamic D21 filter (003 eqs. 1-3)", choices=DECOUPLING_CHOICES, read_only=True),
+        ParamSpec('two_loop.kp_h', 0.9, 'h ← F_H proportional gain [cm³/s per cm]', min=-big, max=big),
+        ParamSpec('two_loop.ki_h', 0.01, 'h ← F_H integral gain kp/ti [cm³/s per cm·s]', min=-big, max=big),
+        ParamSpec('two_loop.kp_T', -0.2, 'T_out ← F_Cin proportional gain [cm³/s per °C]',
+                  min=-big, max=big),
+        ParamSpec('two_loop.ki_T', -0.002, 'T_out ← F_Cin integral gain [cm³/s per °C·s]',
+                  min=-big, max=big),
+        ParamSpec('two_loop.d12', -1.0, 'decoupler D12 (v_T into F_H) [-], 003 eq. 1', min=-100.0, max=100.0),
+        ParamSpec('two_loop.d21', 2.69, "static decoupler D21 (v_h into F_Cin) [-], 003 eq. 2; "
+                  "ignored with decoupling = dynamic", min=-100.0, max=100.0),
+        ParamSpec('u_min', 0.0, 'lower flow limit for F_H and F_Cin [cm³/s]', min=0.0, max=1e4),
+        ParamSpec('u_max', 300.0, 'upper flow limit for F_H and F_Cin [cm³/s]', min=0.0, max=1e4),
+        ParamSpec('anti_windup', 'back_calculation', 'integrator anti-windup method',
+                  choices=ANTI_WINDUP_CHOICES),
+    )
+
+
+def two_loop_config_from_params(values: Mapping[str, Any]) -> TwoLoopPiConfig:
+    """TwoLoopPiConfig from parameter values (defaults for missing names); ValueError if invalid."""
+    merged = {spec.name: spec.default for spec in two_loop_pi_params()}
+    merged.update(values)
+    cfg = TwoLoopPiConfig(
+        h_loop=PiLoop(float(merged['two_loop.kp_h']), float(merged['two_loop.ki_h'])),
+        t_loop=PiLoop(float(merged['two_loop.kp_T']), float(merged['two_loop.ki_T'])),
+        decoupling=str(merged['two_loop.decoupling']), d12=float(merged['two_loop.d12']),
+        d21=float(merged['two_loop.d21']), u_min=float(merged['u_min']), u_max=float(merged['u_max']),
+        sample_time=float(merged['sample_time']), anti_windup=str(merged['anti_windup']),
+    )
+    reason = config_reason(cfg)
+    if reason:
+        raise ValueError(reason)
+    return cfg
+
+
+def check_two_loop_relations(values: Mapping[str, Any]) -> str | None:
+    """Cross-parameter checks (u_min < u_max, gain signs, ...): a one-line reason or None."""
+    try:
+        two_loop_config_from_params(values)
+    except ValueError as exc:
+        return str(exc)
+    return None
