@@ -44,8 +44,8 @@ from tank_control.harness import metrics as metrics_mod
 from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
-from tank_control.harness.scenario_file import (Scenario, effective_harness, load_scenario,
-                                                write_params_file)
+from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
+                                                load_scenario, write_params_file)
 from tank_control.harness.trace import TraceTable, from_core_trace, from_messages
 
 NS = 1_000_000_000
@@ -179,7 +179,10 @@ def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
 
     config = scenario.harness
     start = time.monotonic()
-    core_trace = core_scenario.run_in_process(params_file, config.duration)
+    try:
+        core_trace = core_scenario.run_in_process(params_file, config.duration)
+    except ValueError as exc:            # a parameter the core objects reject: one line
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
     wall = time.monotonic() - start
     trace = from_core_trace(core_trace).until(config.duration)
     ticks = len(trace)
@@ -216,6 +219,7 @@ class _RosRun:
         self.duration_ns = int(round(self.config.duration * NS))
         self.mode = self.config.clock_mode
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
+        self.phase = 'while starting'
 
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
@@ -228,7 +232,7 @@ class _RosRun:
         for name, proc in self.group.processes.items():
             code = proc.returncode
             if code is not None:
-                raise RunFailed(f'node {name} exited with code {code} during the run; '
+                raise RunFailed(f'node {name} exited with code {code} {self.phase}; '
                                 f'last lines of {proc.log_path}:\n{proc.tail(15)}')
 
     # -- run ----------------------------------------------------------------------------------
@@ -255,8 +259,10 @@ class _RosRun:
                 self._await(lambda: 'controller' in recorder.node_names(),
                             'node controller did not appear in the graph')
             run_start = time.monotonic()
+            self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
+            self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
                                  if 'controller' in nodes else {})
             plant_params = recorder.node_parameters('plant', 5.0, self._check_alive)

@@ -81,6 +81,23 @@ _Loader.add_implicit_resolver(
                   |[-+]?\.(?:inf|Inf|INF)
                   |\.(?:nan|NaN|NAN))$''', re.X),
     list('-+0123456789.'))
+# ROS 2's parser (libyaml, YAML 1.1) also reads y/Y/n/N as booleans: read them the same way.
+_Loader.add_implicit_resolver('tag:yaml.org,2002:bool', re.compile(r'^(?:y|Y|n|N)$'), list('yYnN'))
+_Loader.bool_values = {**yaml.SafeLoader.bool_values, 'y': True, 'n': False}
+
+
+class _Dumper(yaml.SafeDumper):
+    """Quotes every string that a YAML 1.1 reader (ROS 2) would take for another type
+    (``y``, ``n``, ``1e-3``, ...), so channel names survive the merged file."""
+
+
+def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.Node:
+    plain = yaml.load(value, Loader=_Loader) if value.strip() else value
+    style = "'" if not isinstance(plain, str) or plain != value else None
+    return dumper.represent_scalar('tag:yaml.org,2002:str', value, style=style)
+
+
+_Dumper.add_representer(str, _represent_str)
 
 
 def parse_value(text: str) -> Any:
@@ -230,7 +247,8 @@ def write_params_file(scenario: Scenario, path: str | Path) -> Path:
     sections[HARNESS] = harness
     document = {name: {'ros__parameters': _nest(values)} for name, values in sections.items()}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=100))
+    path.write_text(yaml.dump(document, Dumper=_Dumper, sort_keys=False, default_flow_style=None,
+                              width=100, allow_unicode=True))
     return path
 
 
