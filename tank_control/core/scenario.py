@@ -34,21 +34,21 @@ import yaml
 from tank_control.core.interfaces import Controller, Plant
 from tank_control.core.loop import Noise, Trace, run_loop
 from tank_control.core.params import ParamSpec, check_all
+from tank_control.core.plants import (NOISE_PARAMS, PLANT_KIND_SPEC, PLANT_KINDS, make_plant,
+                                      plant_params)
+from tank_control.core.plants.noise import MeasurementNoise
 from tank_control.core.reference import Reference, reference_from_params
 
-PLANT_KINDS = ('ipdt', 'fopdt', 'mixing_tank')
 CLOCK_MODES = ('wall', 'sim', 'lockstep')
 
-#: Parameters of plant_node besides the model's own (``plant_params(kind)``).
+#: Parameters of plant_node besides the model's own (``plant_params(kind)``):
+#: the kind, the tick, the measurement noise (``NOISE_PARAMS``) and the clock.
 PLANT_NODE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec('plant', 'ipdt', 'plant model (set at start-up)', choices=PLANT_KINDS, read_only=True),
+    PLANT_KIND_SPEC,
     ParamSpec('sample_time', 0.1, 'plant tick: measurements are published every sample_time; '
               'in sim/lockstep tick k is at k * sample_time [s]', min=1e-4, max=3600.0,
               read_only=True),
-    ParamSpec('noise_std', [0.0], 'standard deviation of the Gaussian measurement noise per '
-              'output (one value = every output) [output units]', min=0.0, max=1e9),
-    ParamSpec('seed', 0, 'seed of the measurement-noise generator (runs are reproducible)',
-              min=0, max=2 ** 31 - 1, read_only=True),
+) + NOISE_PARAMS + (
     ParamSpec('clock_mode', 'wall', 'wall: real time; sim: the plant publishes /clock at '
               'real_time_factor x real time; lockstep: /clock advances when every answer of a '
               'tick arrived', choices=CLOCK_MODES, read_only=True),
@@ -56,6 +56,8 @@ PLANT_NODE_SPECS: tuple[ParamSpec, ...] = (
               '(lockstep: 0 = as fast as possible)', min=0.0, max=1e6),
     ParamSpec('lockstep.resend_period', 0.5, 'lockstep: re-send the current tick when its '
               'answers have not come within this wall time [s]', min=0.01, max=60.0),
+    ParamSpec('lockstep.paused', False, 'lockstep: hold the current tick (simulated time '
+              'stops) until set to false; lets a recorder join before tick 0'),
     ParamSpec('lockstep.wait_for_reference', True, 'lockstep: also wait for the reference '
               'disturbance message of each tick'),
     ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [wall s]', min=0.05, max=3600.0),
@@ -134,7 +136,6 @@ def node_values(params: Mapping[str, Mapping[str, Any]], node: str) -> dict[str,
 
 def plant_specs(kind: str) -> tuple[ParamSpec, ...]:
     """Every plant_node parameter for model ``kind``: node specs + the model's own."""
-    from tank_control.core.plants import plant_params
     own = plant_params(kind)
     names = {s.name for s in own}
     return tuple(s for s in PLANT_NODE_SPECS if s.name not in names) + tuple(own)
@@ -142,7 +143,7 @@ def plant_specs(kind: str) -> tuple[ParamSpec, ...]:
 
 def complete_plant_values(values: Mapping[str, Any]) -> dict[str, Any]:
     """``values`` with every default filled in; ValueError with the reasons if invalid."""
-    kind = str(values.get('plant', 'ipdt'))
+    kind = str(values.get('plant', PLANT_KIND_SPEC.default))
     if kind not in PLANT_KINDS:
         raise ValueError(f'plant: {kind!r} is not a choice; allowed one of {", ".join(PLANT_KINDS)}')
     specs = plant_specs(kind)
@@ -157,31 +158,17 @@ def complete_plant_values(values: Mapping[str, Any]) -> dict[str, Any]:
 
 def model_values(values: Mapping[str, Any]) -> dict[str, Any]:
     """The model's own parameters (those of ``plant_params(kind)``) out of plant_node values."""
-    from tank_control.core.plants import plant_params
     return {s.name: values[s.name] for s in plant_params(str(values['plant'])) if s.name in values}
 
 
 def build_plant(values: Mapping[str, Any]) -> Plant:
     """The plant model of complete plant_node ``values`` (``make_plant(kind, model values)``)."""
-    from tank_control.core.plants import make_plant
     return make_plant(str(values['plant']), model_values(values))
 
 
-def noise_std_per_output(values: Mapping[str, Any], output_names: tuple[str, ...]) -> np.ndarray:
-    """``noise_std`` as one value per output (a single value applies to every output)."""
-    std = [float(v) for v in values['noise_std']]
-    if len(std) == 1:
-        std = std * len(output_names)
-    if len(std) != len(output_names):
-        raise ValueError(f'noise_std: {len(std)} values for {len(output_names)} outputs '
-                         f'{list(output_names)}; give one value or one per output')
-    return np.asarray(std, dtype=float)
-
-
-def build_noise(values: Mapping[str, Any], output_names: tuple[str, ...]):
-    """The seeded measurement-noise source of plant_node ``values`` (one draw per tick)."""
-    from tank_control.core.plants.noise import MeasurementNoise
-    return MeasurementNoise(noise_std_per_output(values, output_names), seed=int(values['seed']))
+def build_noise(values: Mapping[str, Any], output_names: tuple[str, ...]) -> MeasurementNoise:
+    """The seeded measurement noise of plant_node ``values`` (one ``sample()`` per tick)."""
+    return MeasurementNoise(len(output_names), values['noise_std'], seed=int(values['seed']))
 
 
 # ------------------------------------------------------------------- controller
@@ -214,7 +201,7 @@ def build(params: Mapping[str, Mapping[str, Any]]) -> Built:
     return Built(plant=plant,
                  controller=make_controller(node_values(params, 'controller')),
                  reference=reference_from_params(node_values(params, 'reference')),
-                 noise=noise_src.draw, sample_time=float(plant_values['sample_time']),
+                 noise=noise_src.sample, sample_time=float(plant_values['sample_time']),
                  plant_values=plant_values)
 
 

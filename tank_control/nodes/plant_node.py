@@ -24,7 +24,9 @@ Clock modes (parameter ``clock_mode``, BRIEF "Clock modes"):
   its wall time ``t_{k+1} / real_time_factor`` has come (a pacing timer).
   Tick k is re-sent unchanged (same noise draw) if no complete answer came
   within ``lockstep.resend_period`` — this also covers start-up before
-  discovery has matched the endpoints.
+  discovery has matched the endpoints. ``lockstep.paused: true`` holds the
+  clock (no tick is published) until it is set to false — e.g. to let a
+  recorder match every publisher before tick 0.
 
 In ``wall``/``sim`` each timer tick k first integrates ``[t_{k-1}, t_k)``
 with the latest inputs (the answers to tick k-1), then publishes tick k.
@@ -34,6 +36,7 @@ step.
 """
 from __future__ import annotations
 
+import copy
 import sys
 import time
 from typing import Any
@@ -41,15 +44,13 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import nominal_disturbances, nominal_inputs
 from tank_control.core.params import ParamSpec
-from tank_control.core.scenario import (PLANT_NODE_SPECS, build_noise, build_plant,
-                                        model_values, noise_std_per_output, plant_specs)
+from tank_control.core.scenario import PLANT_NODE_SPECS, build_noise, build_plant, plant_specs
 from tank_control.nodes.clock import StampedInbox, steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
@@ -58,7 +59,7 @@ from tank_control.nodes.params import ParameterBinding
 from tank_control.nodes.runtime import run_node
 
 _KIND_SPEC: ParamSpec = PLANT_NODE_SPECS[0]
-_RUNTIME_ONLY = {s.name for s in PLANT_NODE_SPECS}
+_NODE_ONLY = {s.name for s in PLANT_NODE_SPECS}
 
 
 class PlantNode(Node):
@@ -121,7 +122,8 @@ class PlantNode(Node):
             self._set_pacing(rtf)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady)
-        if self.mode != 'wall':
+        self.add_post_set_parameters_callback(self._on_params_set)
+        if self.mode == 'sim' or (self.mode == 'lockstep' and not self._paused()):
             self._publish_tick()          # tick 0 right away (re-sent until answered)
         self.get_logger().info(
             f'plant {kind}: outputs {list(self.plant.output_names)}, inputs '
@@ -130,10 +132,22 @@ class PlantNode(Node):
 
     # ------------------------------------------------------------- parameters
     def _cross_check(self, values: dict[str, Any]) -> str | None:
-        try:
-            noise_std_per_output(values, self.plant.output_names) if hasattr(self, 'plant') else None
-        except ValueError as exc:
-            return str(exc)
+        """noise_std needs 1 or one value per output; model relations (dead_time <=
+        max_dead_time, ...) are checked by the model on a trial configuration."""
+        if not hasattr(self, 'plant'):
+            return None   # start-up: make_plant/MeasurementNoise check the values
+        n = len(self.plant.output_names)
+        if len(values['noise_std']) not in (1, n):
+            return (f"noise_std: {len(values['noise_std'])} values for {n} outputs "
+                    f'{list(self.plant.output_names)}; give 1 or {n}')
+        config = getattr(self.plant, 'config', None)
+        changes = {k: v for k, v in values.items()
+                   if k not in _NODE_ONLY and getattr(config, k, v) != v}
+        if changes:
+            try:   # the model's own relations, on a throw-away copy
+                copy.deepcopy(self.plant).configure(**changes)
+            except ValueError as exc:
+                return str(exc)
         return None
 
     def _apply_pending(self) -> None:
@@ -141,7 +155,7 @@ class PlantNode(Node):
         pending = self.params.take_pending()
         if not pending:
             return
-        model = {k: v for k, v in pending.items() if k not in _RUNTIME_ONLY}
+        model = {k: v for k, v in pending.items() if k not in _NODE_ONLY}
         if model:
             try:
                 self.plant.configure(**model)
@@ -150,13 +164,24 @@ class PlantNode(Node):
                 self.counters['rejected_changes'] += 1
                 self.get_logger().warning(f'model change not applied: {exc}')
         if 'noise_std' in pending:
-            self.noise.std = noise_std_per_output(pending, self.plant.output_names)
+            self.noise.set_std(pending['noise_std'])
         if 'real_time_factor' in pending and self.mode == 'lockstep':
             self._set_pacing(float(pending['real_time_factor']))
         elif 'real_time_factor' in pending and self.mode == 'sim':
             rtf = float(pending['real_time_factor'])
             if rtf > 0:
                 self._timer.timer_period_ns = to_ns(self.ts / rtf)
+
+    def _paused(self) -> bool:
+        return bool(self.params.values['lockstep.paused'])
+
+    def _on_params_set(self, parameters: list) -> None:
+        """Un-pausing lockstep acts at once (other changes wait for the next step)."""
+        if (self.mode == 'lockstep' and any(p.name == 'lockstep.paused' for p in parameters)
+                and not self._paused() and not self._awaiting):
+            if self._pace_timer is not None:
+                self._wall_start = time.monotonic() - self._t() / self._rtf
+            self._publish_tick()
 
     # ----------------------------------------------------------------- ticks
     def _t(self) -> float:
@@ -165,7 +190,7 @@ class PlantNode(Node):
     def _publish_tick(self) -> None:
         """Measure tick k (one noise draw), publish measurement (+ /clock)."""
         t_ns = self.k * self.ts_ns
-        y = self.plant.outputs() + self.noise.draw()
+        y = self.plant.outputs() + self.noise.sample()
         stamp = self._stamp_offset_ns + t_ns
         msg = to_joint_state(stamp, self.plant.output_names, y)
         clock = clock_msg(t_ns) if self.clock_pub is not None else None
@@ -220,6 +245,8 @@ class PlantNode(Node):
         self._awaiting = False
         self._step()
         self.inbox.drop_before(self.k * self.ts_ns)
+        if self._paused():
+            return                      # un-pausing publishes the next tick
         if self._pace_timer is None:
             self._publish_tick()
         elif self._due():
@@ -242,7 +269,8 @@ class PlantNode(Node):
         return time.monotonic() >= self._wall_start + self._t() / self._rtf
 
     def _on_pace(self) -> None:
-        if not self._awaiting and self._tick_msgs is not None and self._due():
+        if (not self._awaiting and self._tick_msgs is not None and not self._paused()
+                and self._due()):
             self._publish_tick()
 
     def _on_resend(self) -> None:

@@ -1,0 +1,143 @@
+"""plant_node over real DDS: sample rate and stamps, live dead_time, garbage inputs, diagnostics."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.srv import SetParameters
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, from_joint_state,
+                                         stamp_to_ns, to_joint_state)
+
+
+def start_plant(procs, ros_env, node_cmd, tmp_path, **params):
+    path = tmp_path / 'plant.yaml'
+    path.write_text(json.dumps({'plant': {'ros__parameters': params}}))   # JSON: strings quoted
+    return procs.start('plant', node_cmd('plant_node', '--params-file', str(path)), env=ros_env)
+
+
+class Recorder:
+    """Signals (and /diagnostics) seen by the probe."""
+
+    def __init__(self, probe) -> None:
+        self.probe = probe
+        self.measurements: list[tuple[int, tuple, tuple]] = []
+        self.clock: list[int] = []
+        self.diagnostics: list[dict[str, str]] = []
+        node = probe.node
+        self.meas_sub = node.create_subscription(
+            JointState, 'measurement', lambda m: self.measurements.append(from_joint_state(m)),
+            SIGNAL_QOS)
+        node.create_subscription(Clock, '/clock', lambda m: self.clock.append(stamp_to_ns(m.clock)),
+                                 CLOCK_QOS)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
+        self.manipulated = node.create_publisher(JointState, 'manipulated', SIGNAL_QOS)
+        self.disturbance = node.create_publisher(JointState, 'disturbance', SIGNAL_QOS)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name == 'plant':
+                self.diagnostics.append({kv.key: kv.value for kv in status.values})
+
+    def set_param(self, name, value):
+        client = self.probe.node.create_client(SetParameters, '/plant/set_parameters')
+        assert self.probe.wait_for(client.service_is_ready, 20)
+        future = client.call_async(SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()]))
+        assert self.probe.wait_for(future.done, 10)
+        return future.result().results[0]
+
+    def y_at(self, t_ns: int) -> float:
+        return {s: v for s, _, v in self.measurements}[t_ns][0]
+
+
+def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, node_cmd, probe,
+                                                                 tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       initial_output=2.5)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: len(rec.measurements) >= 3, 20), proc.tail()
+    first = len(rec.measurements)
+    t0 = probe.node.get_clock().now().nanoseconds
+    assert probe.wait_for(lambda: len(rec.measurements) >= first + 20, 5)
+    elapsed = (probe.node.get_clock().now().nanoseconds - t0) / 1e9
+    stamps = [s for s, _, _ in rec.measurements]
+    # One message per sample, stamps exactly sample_time apart, at the sample rate.
+    assert all(b - a == 50_000_000 for a, b in zip(stamps, stamps[1:]))
+    assert 0.6 < elapsed / (20 * 0.05) < 1.6
+    assert all(names == ('y',) and values == (2.5,) for _, names, values in rec.measurements)
+    assert rec.clock == []   # no /clock in wall mode
+
+
+def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs, ros_env,
+                                                                          node_cmd, probe,
+                                                                          tmp_path):
+    # IPDT k1 = 1, L = 0.3 s, ts = 0.1 s; the probe is the controller (u) of every tick.
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.1,
+                       gain=1.0, dead_time=0.3, clock_mode='lockstep', real_time_factor=0.0,
+                       **{'lockstep.wait_for_reference': False, 'lockstep.resend_period': 0.2})
+    rec = Recorder(probe)
+    u_of_tick: dict[int, float] = {}
+
+    def answer(k: int) -> None:
+        """Answer ticks in order up to k with u from u_of_tick (0 by default)."""
+        while True:
+            if not probe.wait_for(lambda: rec.measurements, 20):
+                raise AssertionError(proc.tail())
+            stamp = rec.measurements[-1][0]
+            j = stamp // 100_000_000
+            rec.manipulated.publish(to_joint_state(stamp, ['u'], [u_of_tick.get(j, 0.0)]))
+            if j >= k:
+                return
+            probe.wait_for(lambda: rec.measurements[-1][0] > stamp, 1.0)
+
+    answer(2)
+    assert [s for s, _, _ in rec.measurements][-3:] == [0, 100_000_000, 200_000_000]
+    assert probe.wait_for(lambda: rec.clock and rec.clock[-1] >= 200_000_000, 5)
+    assert 200_000_000 in rec.clock and rec.clock == sorted(rec.clock)
+    # Out of range for the model (above max_dead_time): rejected with the reason.
+    result = rec.set_param('dead_time', 1e3)
+    assert not result.successful and 'dead_time' in result.reason and 'max_dead_time' in result.reason
+    assert rec.set_param('dead_time', 0.6).successful
+    # Step u = 1 from tick 3: with the new dead time y rises from t = 0.3 + 0.6 s on.
+    u_of_tick.update({k: 1.0 for k in range(3, 40)})
+    answer(15)
+    for k in range(3, 15):
+        expected = max(0.0, (k - 3) * 0.1 - 0.6)   # k1·(t − t_step − L), closed form
+        assert rec.y_at(k * 100_000_000) == pytest.approx(expected, abs=1e-12), k
+    assert [s for s, _, _ in rec.measurements] == sorted({s for s, _, _ in rec.measurements})
+
+
+def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs, ros_env,
+                                                                          node_cmd, probe,
+                                                                          tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       gain=1.0, dead_time=0.0, diagnostics_period=0.1)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.measurements and rec.manipulated.get_subscription_count(),
+                          20), proc.tail()
+    rec.manipulated.publish(to_joint_state(0, ['u'], [2.0]))
+    bad = [to_joint_state(0, ['u'], [float('nan')]),      # non-finite
+           to_joint_state(0, ['w'], [1.0]),                # unknown channel
+           to_joint_state(0, ['u', 'x'], [1.0])]           # names/positions differ
+    for msg in bad:
+        rec.manipulated.publish(msg)
+    rec.disturbance.publish(to_joint_state(0, ['v'], [float('inf')]))
+
+    def counted():
+        return rec.diagnostics and rec.diagnostics[-1].get('ignored.manipulated') == '3' \
+            and rec.diagnostics[-1].get('ignored.disturbance') == '1'
+    assert probe.wait_for(counted, 10), (rec.diagnostics[-1:], proc.tail())
+    assert rec.diagnostics[-1]['ignored_inputs'] == '4'
+    # The plant still integrates the last valid u = 2 (slope k1·u = 2 per second).
+    n = len(rec.measurements)
+    assert probe.wait_for(lambda: len(rec.measurements) > n + 2, 5)
+    (_, _, (y0,)), (_, _, (y1,)) = rec.measurements[-2:]
+    assert y1 - y0 == pytest.approx(2.0 * 0.05, abs=1e-12)
+    log = proc.tail(50)
+    assert log.count('non-finite value') == 2 and log.count("unknown channel 'w'") == 1
+    assert proc.returncode is None   # still running
