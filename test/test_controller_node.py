@@ -60,21 +60,28 @@ class Loop:
         return Parameter.from_parameter_msg(
             _named(name, self.call(self.params.get_parameters([name])).values[0])).value
 
-    def tick(self, t_ns: int, y: float, r: float, resend_until: float = 10.0) -> float:
+    def tick(self, t_ns: int, y, r, resend_until: float = 10.0):
         """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
-        Re-sends the tick while unanswered (the plant's rule, also covering discovery)."""
+        ``y``, ``r``: a value for channel ``y`` or a {channel: value} map (then the
+        answer is a {channel: value} map). Re-sends the tick while unanswered (the
+        plant's rule, which also covers discovery)."""
+        siso = not isinstance(y, dict)
+        ys, rs = ({'y': y}, {'y': r}) if siso else (y, r)
+
         def answered():
             return any(a[0] == t_ns for a in self.answers)
         waited = 0.0
         while not answered():
             assert waited < resend_until, f'no answer for tick {t_ns}'
-            self.meas.publish(to_joint_state(t_ns, ['y'], [y]))
-            self.setp.publish(to_joint_state(t_ns, ['y'], [r]))
+            self.meas.publish(to_joint_state(t_ns, list(ys), list(ys.values())))
+            self.setp.publish(to_joint_state(t_ns, list(rs), list(rs.values())))
             self.probe.wait_for(answered, 0.5)
             waited += 0.5
         stamp, names, values = next(a for a in self.answers if a[0] == t_ns)
-        assert names == ['u']
-        return values[0]
+        if siso:
+            assert names == ['u']
+            return values[0]
+        return dict(zip(names, values))
 
 
 def _named(name, value_msg):
@@ -90,7 +97,7 @@ def _start(procs, node_cmd, ros_env, *params: str):
 def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
     ts = 0.2
     # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
-    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}', 'diagnostics_period:=0.1',
            'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
     loop = Loop(probe)
 
@@ -141,6 +148,10 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
     assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
     assert int(loop.diag['rejected_parameters']) >= 4
+    for key in ('mode', 'saturated', 'anti_windup_active', 'stale_inputs', 'rejected_inputs',
+                'last_computation_time_us'):
+        assert key in loop.diag
+    assert float(loop.diag['last_computation_time_us']) > 0.0
     assert loop.tick(14 * tick, 1.1, 1.0) == pytest.approx(2.0, abs=1e-12)   # resumes from 2.0
 
     # manual mode: switching keeps the current output (manual_output follows it), then
@@ -221,6 +232,25 @@ def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, 
     assert all(s % to_ns(ts) == 0 for s in stamps)            # on the k·ts grid
     assert all(b > a for a, b in zip(stamps, stamps[1:]))
     assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)   # P only
+
+
+def test_two_loop_pi_on_tank_channels_in_lockstep(procs, node_cmd, ros_env, probe):
+    _start(procs, node_cmd, ros_env, 'controller:=two_loop_pi', 'clock_mode:=lockstep')
+    loop = Loop(probe)
+    y, r = {'h': 80.0, 'T_out': 34.0, 'extra': 1.0}, {'h': 81.0, 'T_out': 33.57}
+    u = loop.tick(0, y, r)
+    # 003 §2.1 gains from a zero integral: F_H = 0.9·1, F_Cin = −0.2·(−0.43)
+    assert u == pytest.approx({'F_H': 0.9, 'F_Cin': 0.086}, abs=1e-12)
+    result = loop.set('two_loop.kp_h', 2)
+    assert result.successful, result.reason
+    assert not loop.set('u_max', -1.0).successful
+    # the change takes effect at this sample without a jump: still the old law's
+    # output (integral of tick 0 added, ki·h·e), the new kp_h from the next sample
+    u1 = loop.tick(to_ns(1.0), y, r)
+    assert u1['F_H'] == pytest.approx(0.9 + 0.01 * 1.0, abs=1e-12)
+    # h error 1 → 1.5: u moves by kp_new·0.5 plus the integral of tick 1 (ki·h·1)
+    u2 = loop.tick(to_ns(2.0), {**y, 'h': 79.5}, r)
+    assert u2['F_H'] == pytest.approx(u1['F_H'] + 2.0 * 0.5 + 0.01 * 1.0, abs=1e-12)
 
 
 def test_bad_start_up_parameter_exits_with_a_reason(procs, node_cmd, ros_env, probe):

@@ -90,8 +90,9 @@ def test_live_gain_change_is_bumpless_and_then_in_effect():
     for k in range(3):                     # e = 0: the output is steady
         u_before = step(ctrl, float(k), 1.0, 1.0)
     values['kp'] = 3.0
-    registry.apply_changes(ctrl, values, frozenset({'kp'}))
-    u_after = step(ctrl, 3.0, 1.0, 1.0)
+    ctrl, u = registry.step_with_changes(ctrl, values, frozenset({'kp'}), 3.0,
+                                         np.array([1.0]), np.array([1.0]), np.array([]))
+    u_after = float(u[0])
     # a plain recomputation would jump by Δkp·(b·r − y) = 2·(−0.5) = −1
     assert u_after == pytest.approx(u_before, abs=1e-12)
     u_next = step(ctrl, 4.0, 1.1, 1.0)     # the new kp acts on the next error (P part)
@@ -103,12 +104,13 @@ def test_manual_mode_and_bumpless_return():
     ctrl = registry.make_controller(values)
     u0 = step(ctrl, 0.0, 0.0, 1.0)
     values.update(mode='manual', manual_output=7.0)
-    registry.apply_changes(ctrl, values, frozenset({'mode', 'manual_output'}))
-    assert step(ctrl, 1.0, 0.0, 1.0) == 7.0
-    assert ctrl.status['mode'] == 'manual'
+    y, r, d = np.array([0.0]), np.array([1.0]), np.array([])
+    ctrl, u = registry.step_with_changes(ctrl, values, frozenset({'mode', 'manual_output'}),
+                                         1.0, y, r, d)
+    assert u[0] == 7.0 and ctrl.status['mode'] == 'manual'
     values['mode'] = 'auto'
-    registry.apply_changes(ctrl, values, frozenset({'mode'}))
-    assert step(ctrl, 2.0, 0.0, 1.0) == pytest.approx(7.0, abs=1e-12)
+    ctrl, u = registry.step_with_changes(ctrl, values, frozenset({'mode'}), 2.0, y, r, d)
+    assert u[0] == pytest.approx(7.0, abs=1e-12)
     assert u0 != 7.0
 
 
@@ -149,8 +151,61 @@ def test_a_new_kind_is_one_registry_line_and_rebuilt_bumplessly(monkeypatch):
         registry.make_controller({'controller': 'proportional', 'gain': 20.0})
     values = {'controller': 'proportional', 'gain': 1.0}
     ctrl = registry.make_controller(values)
-    u = step(ctrl, 0.0, 1.0, 2.0)
-    new = registry.apply_changes(ctrl, {**values, 'gain': 4.0}, frozenset({'gain'}),
-                                 y=np.array([1.0]), u=np.array([u]))
+    u = step(ctrl, 0.0, 1.0, 2.0)                                      # 0 + 1·(2 − 1)
+    new, u1 = registry.step_with_changes(ctrl, {**values, 'gain': 4.0}, frozenset({'gain'}), 1.0,
+                                         np.array([1.5]), np.array([2.0]), np.array([]))
     assert new is not ctrl and new.gain == 4.0
-    assert step(new, 1.0, 1.0, 2.0) == pytest.approx(u, abs=1e-12)   # continues from u
+    assert u1[0] == pytest.approx(0.5, abs=1e-12)       # this sample: old gain on the new error
+    assert step(new, 2.0, 1.0, 2.0) == pytest.approx(0.5 + 4.0 * 0.5, abs=1e-12)   # new gain
+
+
+def test_two_loop_pi_registered_and_rebuilt_bumplessly_on_a_gain_change():
+    values = registry.complete_values({'controller': 'two_loop_pi'})
+    ctrl = registry.make_controller(values)
+    assert ctrl.output_names == ('h', 'T_out') and ctrl.input_names == ('F_H', 'F_Cin')
+    y, r = np.array([80.0, 34.0]), np.array([81.0, 33.57])
+    # 003 §2.1 gains, first sample from zero integral: u = kp·e, clipped to 0…300
+    u0 = ctrl.step(0.0, y, r, np.array([]))
+    assert u0 == pytest.approx(np.clip([0.9 * 1.0, -0.2 * -0.43], 0, 300), abs=1e-12)
+    twin = registry.make_controller(values)          # the same loop without the change
+    twin.step(0.0, y, r, np.array([]))
+    new, u1 = registry.step_with_changes(ctrl, {**values, 'two_loop.kp_h': 2.0},
+                                         frozenset({'two_loop.kp_h'}), 1.0, y, r, np.array([]))
+    assert u1 == pytest.approx(twin.step(1.0, y, r, np.array([])), abs=1e-12)   # continuous
+    y2 = np.array([79.5, 34.0])                       # h error 1 → 1.5: the new kp_h acts on it
+    assert (new.step(2.0, y2, r, np.array([]))[0] - twin.step(2.0, y2, r, np.array([]))[0]
+            == pytest.approx((2.0 - 0.9) * 0.5, abs=1e-9))
+    assert 'fail_safe_output' in registry.check({**values, 'fail_safe_output': [1.0]})
+
+
+SMITH = {'controller': 'smith_pi', 'smith.gain': 0.05, 'smith.time_constant': 10.0,
+         'smith.dead_time': 3.0, 'sample_time': 0.5}
+
+
+def test_smith_pi_tuning_rule_and_bumpless_changes():
+    values = registry.complete_values({**SMITH, 'tuning.rule': 'smith_pi', 'tuning.te': 5.0})
+    derived = registry.derive(values)
+    # 004 eq. 3.6.7 (n = 1): kR = T/(kP·Te), Ti = T
+    assert derived == pytest.approx({'kp': 10.0 / (0.05 * 5.0), 'ti': 10.0}, rel=1e-12)
+    values.update(derived)
+    assert registry.check(values) is None
+    assert 'tuning.rule' in registry.check({**values, 'ti': 20.0})
+    assert 'tuning.rule' in registry.check({**values, 'tuning.rule': 'mdp'})
+
+    # steady state: model at rest with u = 2, y = r = 1 → prediction = y, e = 0, u stays 2
+    values['b'] = 0.5
+    ctrl = registry.make_controller(values)
+    y, r, d = np.array([1.0]), np.array([1.0]), np.array([])
+    ctrl.reset(y, np.array([2.0]))
+    assert [ctrl.step(0.5 * k, y, r, d)[0] for k in range(3)] == pytest.approx([2.0] * 3, abs=1e-12)
+    # primary gain change: in place (same object, model history kept), no jump although a
+    # recomputation would move u by Δkp·(b·r − y) = −20·(−0.5) = 10
+    values.update({'tuning.rule': 'none', 'kp': 20.0})
+    same, u = registry.step_with_changes(ctrl, values, frozenset({'tuning.rule', 'kp'}), 1.5, y, r, d)
+    assert same is ctrl and u[0] == pytest.approx(2.0, abs=1e-12)
+    # model change: rebuilt, output continuous at that sample
+    values['smith.dead_time'] = 3.6
+    new, u = registry.step_with_changes(ctrl, values, frozenset({'smith.dead_time'}), 2.0, y, r, d)
+    assert new is not ctrl and new.config.dead_time == 3.6 and u[0] == pytest.approx(2.0, abs=1e-12)
+    # the new kp acts: a measurement step of 0.1 moves u by −kp·0.1 (prediction unchanged so far)
+    assert new.step(2.5, np.array([1.1]), r, d)[0] == pytest.approx(2.0 - 20.0 * 0.1, abs=1e-9)

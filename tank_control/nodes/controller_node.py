@@ -85,7 +85,6 @@ class ControllerNode(Node):
         self._y: dict[str, float] = {}
         self._r: dict[str, float] = {}
         self._d: dict[str, float] = {name: 0.0 for name in self._disturbances}
-        self._y_last: np.ndarray | None = None      # last finite measurement used
         self._fresh = False
         self._since_measurement = 0
         self._fault = ''                 # '' | 'stale' | 'non-finite'
@@ -141,17 +140,19 @@ class ControllerNode(Node):
             extra['manual_output'] = float(min(max(self._u[0], lo), hi))
         return extra
 
-    def _apply_pending(self) -> None:
-        changed = self._params.take_pending()
-        if not changed:
-            return
-        try:
-            self._controller = registry.apply_changes(
-                self._controller, self._kind_values(self._params.values), frozenset(changed),
-                self._y_last, self._u)
-        except ValueError as exc:    # validated before acceptance; never expected
-            self.counters['update_errors'] += 1
-            self.get_logger().error(f'parameter change could not be applied: {exc}')
+    def _step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """One controller step; accepted parameter changes take effect at it, bumplessly."""
+        changed = [name for name in self._params.take_pending() if name in self._kind_names]
+        if changed:
+            try:
+                self._controller, u = registry.step_with_changes(
+                    self._controller, self._kind_values(self._params.values), frozenset(changed),
+                    t, y, r, d)
+                return u
+            except ValueError as exc:    # validated before acceptance; never expected
+                self.counters['update_errors'] += 1
+                self.get_logger().error(f'parameter change could not be applied: {exc}')
+        return np.asarray(self._controller.step(t, y, r, d), dtype=float)
 
     # ---------------------------------------------------------------- inputs
     def _parse(self, topic: str, msg: JointState) -> tuple[int, dict[str, float]] | None:
@@ -259,8 +260,7 @@ class ControllerNode(Node):
 
     def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
                 d: Mapping[str, float], stale: bool) -> np.ndarray:
-        """One controller sample: apply accepted changes, then step — or hold on a fault."""
-        self._apply_pending()
+        """One controller sample (accepted changes take effect) — or hold on a fault."""
         y_vec = np.array([y[name] for name in self._outputs], dtype=float)
         r_vec = np.array([r[name] for name in self._outputs], dtype=float)
         d_vec = np.array([d.get(name, 0.0) for name in self._disturbances], dtype=float)
@@ -274,9 +274,8 @@ class ControllerNode(Node):
                                    'control resumed bumplessly')
             self._fault = ''
             self._publish_diagnostics()
-        self._y_last = y_vec
         start = time.perf_counter()
-        u = np.array(self._controller.step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
+        u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start
         self._u = u
         return u

@@ -10,11 +10,11 @@ A kind (:class:`ControllerKind`) supplies
 * ``params()`` — its ``ParamSpec`` tuple (gains, limits, mode, tuning, ...);
 * ``check(values)`` — relations between parameters (one-line reason or None);
 * ``build(values)`` — the :class:`~tank_control.core.interfaces.Controller`;
-* ``update(controller, values, changed)`` — apply accepted changes to a
-  running controller bumplessly (the output does not jump at that sample);
-  a kind without one (``update=None``) is rebuilt from the new values and
-  re-initialised with ``reset(y, u)`` from the last measurement and output,
-  which is bumpless by the Controller contract;
+* ``update(controller, values, changed) -> bool`` — apply accepted changes
+  to a running controller in place, bumplessly, and return True; False (or
+  ``update=None``) means "rebuild": ``step_with_changes`` builds a new object
+  and initialises it with ``reset(y, u)`` at that sample's output, which is
+  bumpless by the Controller contract;
 * ``derive(values, changed)`` — parameter values that follow from others
   (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them.
 
@@ -55,7 +55,7 @@ class ControllerKind:
     params: Callable[[], tuple[ParamSpec, ...]]
     check: Callable[[Values], str | None]
     build: Callable[[Values], Controller]
-    update: Callable[[Controller, Values, frozenset[str]], None] | None
+    update: Callable[[Controller, Values, frozenset[str]], bool] | None
     derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
     description: str = ''
 
@@ -115,7 +115,7 @@ def _pid_build(values: Values) -> Controller:
     return controller
 
 
-def _pid_update(controller: Controller, values: Values, changed: frozenset[str]) -> None:
+def _pid_update(controller: Controller, values: Values, changed: frozenset[str]) -> bool:
     """Bumpless: gains and limits through ``Pid2Dof.set_gains`` (the integral
     absorbs the change), then the mode (manual output / bumpless return to auto)."""
     from tank_control.core.control.pid import pid_config_from_params
@@ -128,6 +128,7 @@ def _pid_update(controller: Controller, values: Values, changed: frozenset[str])
         pid.set_manual(float(values['manual_output']))
     elif values['mode'] == 'auto' and pid.mode != 'auto':
         pid.set_auto()
+    return True
 
 
 def _pid_kind() -> ControllerKind:
@@ -136,6 +137,116 @@ def _pid_kind() -> ControllerKind:
         name='pid', params=lambda: pid_params() + _channel_specs(('y',), ('u',)),
         check=_pid_check, build=_pid_build, update=_pid_update, derive=_pid_derive,
         description='SISO 2-DOF PID (000 eq. 19) with filter, limits, anti-windup, tuning rules')
+
+
+# ---------------------------------------------------------- two_loop_pi
+def _two_loop_check(values: Values) -> str | None:
+    from tank_control.core.control.multiloop import check_two_loop_relations
+    reason = check_two_loop_relations(values)
+    if reason:
+        return reason
+    for name in ('output_names', 'input_names'):
+        if len(values[name]) != 2:
+            return f'{name}: {list(values[name])} must name 2 channels (h and T_out loops)'
+    safe = list(values['fail_safe_output'])
+    lo, hi = values['u_min'], values['u_max']
+    if len(safe) != 2 or not all(lo <= v <= hi for v in safe):
+        return (f'fail_safe_output: {safe} must be 2 flows (F_H, F_Cin) within the limits '
+                f'[{lo:g}, {hi:g}]')
+    return None
+
+
+def _two_loop_build(values: Values) -> Controller:
+    from tank_control.core.control.multiloop import TwoLoopPi, two_loop_config_from_params
+    controller = TwoLoopPi(two_loop_config_from_params(values))
+    controller.output_names = tuple(values['output_names'])
+    controller.input_names = tuple(values['input_names'])
+    return controller
+
+
+def _two_loop_kind() -> ControllerKind:
+    """Two-loop PI of 003 §2–3; changes rebuild it, re-initialised from the last (y, u)."""
+    from tank_control.core.control.multiloop import two_loop_pi_params
+    fail_safe = (
+        ParamSpec('fail_safe', 'hold', 'on stale or non-finite measurement: hold the last flows '
+                  'or send fail_safe_output', choices=('hold', 'output')),
+        ParamSpec('fail_safe_output', [14.0, 37.0], 'flows [F_H, F_Cin] sent on a measurement '
+                  "fault when fail_safe = 'output' [cm³/s] (default: 003 operating point)",
+                  min=0.0, max=1e4),
+    )
+    return ControllerKind(
+        name='two_loop_pi',
+        params=lambda: two_loop_pi_params() + fail_safe
+        + _channel_specs(('h', 'T_out'), ('F_H', 'F_Cin')),
+        check=_two_loop_check, build=_two_loop_build, update=None,
+        description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)')
+
+
+# ------------------------------------------------------------- smith_pi
+_SMITH_PRIMARY = ('kp', 'ti', 'b', 'u_min', 'u_max', 'du_max', 'anti_windup', 'tracking_time')
+
+
+def _smith_tuned(values: Values) -> dict[str, float] | None:
+    """kp, ti of the PI primary from tuning.rule smith_pi (004 eqs. 3.6.7/3.6.9), else None."""
+    if values.get('tuning.rule', 'none') != 'smith_pi':
+        return None
+    from tank_control.core.control.smith import smith_config_from_params
+    cfg = smith_config_from_params(values)
+    return {'kp': float(cfg.kp), 'ti': float(cfg.ti) if math.isfinite(cfg.ti) else 0.0}
+
+
+def _smith_check(values: Values) -> str | None:
+    from tank_control.core.control.smith import check_smith_relations
+    reason = check_smith_relations(values)
+    if reason:
+        return reason
+    lo, hi = values['u_min'], values['u_max']
+    if values['fail_safe'] == 'output' and not lo <= values['fail_safe_output'] <= hi:
+        return (f"fail_safe_output: {values['fail_safe_output']:g} is outside the output limits "
+                f'[{lo:g}, {hi:g}]')
+    tuned = _smith_tuned(values)
+    for name, value in (tuned or {}).items():
+        if not math.isclose(float(values[name]), value, rel_tol=1e-12, abs_tol=1e-15):
+            return (f"{name}: {values[name]:g} conflicts with tuning.rule 'smith_pi', which gives "
+                    f'{value:g}; set tuning.rule to none to tune by hand')
+    return None
+
+
+def _smith_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
+    return _smith_tuned(values) or {}
+
+
+def _smith_build(values: Values) -> Controller:
+    from tank_control.core.control.smith import SmithPredictor, smith_config_from_params
+    return SmithPredictor(smith_config_from_params(values), output_name=_single(values, 'output_names'),
+                          input_name=_single(values, 'input_names'))
+
+
+def _smith_update(controller: Controller, values: Values, changed: frozenset[str]) -> bool:
+    """PI primary settings in place (bumpless, the model's history kept); a change of the
+    internal model (smith.*) rebuilds, which restarts the model from the steady state of u."""
+    if any(name.startswith('smith.') for name in changed):
+        return False
+    from tank_control.core.control.smith import smith_config_from_params
+    cfg = smith_config_from_params(values)
+    primary = controller.primary              # type: ignore[attr-defined]
+    new = {name: getattr(cfg, name) for name in _SMITH_PRIMARY}
+    current = primary.config
+    changes = {k: v for k, v in new.items() if getattr(current, k) != v}
+    if changes:
+        primary.set_gains(**changes)
+    controller.config = cfg                   # type: ignore[attr-defined]
+    return True
+
+
+def _smith_kind() -> ControllerKind:
+    from tank_control.core.control.pid import pid_params
+    from tank_control.core.control.smith import smith_params
+    fail_safe = tuple(s for s in pid_params() if s.name in ('fail_safe', 'fail_safe_output'))
+    return ControllerKind(
+        name='smith_pi', params=lambda: smith_params() + fail_safe + _channel_specs(('y',), ('u',)),
+        check=_smith_check, build=_smith_build, update=_smith_update, derive=_smith_derive,
+        description='Smith predictor with a PI primary (004 §3.6.1)')
 
 
 def _single(values: Values, name: str) -> str:
@@ -149,8 +260,8 @@ def _single(values: Values, name: str) -> str:
 _KIND_FACTORIES: dict[str, tuple[str, str]] = {
     # name: (module, function returning a ControllerKind)
     'pid': (__name__, '_pid_kind'),
-    'two_loop_pi': ('tank_control.core.control.multiloop', 'controller_kind'),
-    'smith_pi': ('tank_control.core.control.smith', 'controller_kind'),
+    'two_loop_pi': (__name__, '_two_loop_kind'),
+    'smith_pi': (__name__, '_smith_kind'),
 }
 
 
@@ -261,20 +372,26 @@ def make_controller(values: Values) -> Controller:
     return get_kind(merged['controller']).build(merged)
 
 
-def apply_changes(controller: Controller, values: Values, changed: frozenset[str],
-                  y: np.ndarray | None = None, u: np.ndarray | None = None) -> Controller:
-    """Apply accepted parameter changes to a running controller, bumplessly.
+def step_with_changes(controller: Controller, values: Values, changed: frozenset[str],
+                      t: float, y: np.ndarray, r: np.ndarray,
+                      d: np.ndarray) -> tuple[Controller, np.ndarray]:
+    """The sample at which accepted parameter changes take effect, bumplessly.
 
-    Returns the controller to use from now on: the same object when the kind
-    updates in place, else a new one built from ``values`` and ``reset(y, u)``
-    with the last measurement ``y`` and output ``u`` (both needed then).
+    Returns ``(controller to use from now on, output of this sample)``. A kind
+    with an in-place ``update`` changes the running object, then steps (the
+    update keeps the output continuous, e.g. the PID's integral absorbs a gain
+    change). Any other kind computes this sample with the old object, then a
+    new object built from ``values`` is ``reset(y, u)`` to that output and
+    stepped once on the same sample (which returns ``u`` by the Controller
+    contract and initialises it), so the output is exactly continuous and the
+    new settings act from the next sample.
     """
     kind = get_kind(str(values.get('controller', 'pid')))
     values = controller_values(values)
-    if kind.update is not None:
-        kind.update(controller, values, changed)
-        return controller
+    if kind.update is not None and kind.update(controller, values, changed):
+        return controller, np.asarray(controller.step(t, y, r, d), dtype=float)
+    u = np.asarray(controller.step(t, y, r, d), dtype=float)
     new = kind.build(complete_values(values))
-    if y is not None and u is not None:
-        new.reset(np.asarray(y, dtype=float), np.asarray(u, dtype=float))
-    return new
+    new.reset(y, u)
+    new.step(t, y, r, d)
+    return new, u

@@ -1,0 +1,160 @@
+"""Smith predictor (004 §3.6.1): with a perfect model the loop equals the delay-free loop, delayed."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tank_control.core.analysis.step_metrics import ise, step_metrics
+from tank_control.core.control.pid import Pid2Dof, PidConfig
+from tank_control.core.control.smith import (
+    SmithConfig, SmithPredictor, check_smith_relations, smith_config_from_params, smith_params,
+)
+from tank_control.core.interfaces import Controller
+from tank_control.core.params import defaults
+from tank_control.tuning import tune
+
+SUB = 10      # plant substeps per controller sample (the plant's dead time is on this finer grid)
+
+
+def run(controller_step, h, t_end, model, gain, dead_time, time_constant=None, w=None,
+        v=lambda t: 0.0):
+    """Exact plant on a grid of h/SUB: FOPDT or IPDT with the dead time a whole number of
+    substeps, input held over each controller sample. Default setpoint: a unit step at the
+    second sample (the first completes the controller's bumpless reset at r = 0).
+    Returns the fine time grid and y."""
+    if w is None:
+        w = lambda t: 1.0 if t >= h - 1e-12 else 0.0     # noqa: E731
+    dt = h / SUB
+    nd = int(round(dead_time / dt))
+    line = [0.0] * nd
+    a = math.exp(-dt / time_constant) if model == 'fopdt' else 1.0
+    y, ts, ys = 0.0, [], []
+    u = 0.0
+    for j in range(int(round(t_end / dt))):
+        t = j * dt
+        if j % SUB == 0:
+            u = controller_step(t, y, w(t))
+        ts.append(t)
+        ys.append(y)
+        line.append(u + v(t))
+        x = line.pop(0)
+        y = a * y + gain * (1 - a) * x if model == 'fopdt' else y + gain * dt * x
+    return np.array(ts), np.array(ys)
+
+
+def smith_step(cfg):
+    sp = SmithPredictor(cfg)
+    sp.reset(np.array([0.0]), np.array([0.0]))
+    return lambda t, y, r: float(sp.step(t, np.array([y]), np.array([r]), np.array([]))[0])
+
+
+def pi_step(kp, ti, h, b=1.0):
+    pid = Pid2Dof(PidConfig(kp=kp, ti=ti, b=b, c=0.0, sample_time=h))
+    pid.reset(0.0, 0.0, 0.0)
+    return lambda t, y, r: pid.update(r, y)
+
+
+@pytest.mark.parametrize('dead_time', [3.0, 3.5, 0.4])      # whole samples, half a sample, < 1 sample
+def test_fopdt_perfect_model_equals_delayed_delay_free_loop(dead_time):
+    k, t_c, h = 0.05, 10.0, 1.0
+    g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=4.0, n=1)
+    cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead_time,
+                      kp=g['kp'], ti=g['ti'], sample_time=h)
+    ts, y_sp = run(smith_step(cfg), h, 60.0, 'fopdt', k, dead_time, t_c)
+    _, y_free = run(pi_step(g['kp'], g['ti'], h), h, 60.0, 'fopdt', k, 0.0, t_c)
+    shift = int(round(dead_time / (h / SUB)))
+    assert np.abs(y_sp[shift:] - y_free[:len(y_free) - shift]).max() < 1e-9
+    assert np.all(y_sp[:shift] == 0.0)
+
+
+@pytest.mark.parametrize('dead_time', [5.0, 5.5])
+def test_ipdt_perfect_model_equals_delayed_delay_free_loop(dead_time):
+    k1, h = 0.05, 0.5
+    kp, ti = 4.0, 20.0
+    cfg = SmithConfig(model='ipdt', gain=k1, dead_time=dead_time, kp=kp, ti=ti, sample_time=h)
+    ts, y_sp = run(smith_step(cfg), h, 80.0, 'ipdt', k1, dead_time)
+    _, y_free = run(pi_step(kp, ti, h), h, 80.0, 'ipdt', k1, 0.0)
+    shift = int(round(dead_time / (h / SUB)))
+    assert np.abs(y_sp[shift:] - y_free[:len(y_free) - shift]).max() < 1e-9
+
+
+def test_smith_pi_design_gives_first_order_like_response():
+    """004 eq. 3.6.6–7: closed loop ≈ e^(−L s)/(te·s + 1): no overshoot, 2 % settling ≈ L + 3.9·te."""
+    k, t_c, dead, te, h = 0.05, 10.0, 3.0, 4.0, 0.1
+    g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=te, n=1)
+    cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
+                      kp=g['kp'], ti=g['ti'], sample_time=h)
+    ts, y = run(smith_step(cfg), h, 60.0, 'fopdt', k, dead, t_c)
+    m = step_metrics(ts, y, 1.0)
+    assert m.overshoot < 0.5
+    assert m.settling_time == pytest.approx(dead + te * math.log(50), rel=0.05)
+
+
+def test_beats_plain_pi_on_a_dead_time_dominant_process():
+    k, t_c, dead, h = 1.0, 5.0, 10.0, 0.5
+    g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=3.0, n=1)
+    cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
+                      kp=g['kp'], ti=g['ti'], sample_time=h)
+    ts, y_sp = run(smith_step(cfg), h, 150.0, 'fopdt', k, dead, t_c)
+    # plain PI tuned by Cohen–Coon for the same FOPDT (a fair, documented rule)
+    cc = tune('cohen_coon', 'pi', gain=k, time_constant=t_c, dead_time=dead)
+    _, y_pi = run(pi_step(cc['kp'], cc['ti'], h), h, 150.0, 'fopdt', k, dead, t_c)
+    assert ise(ts, 1.0 - y_sp) < ise(ts, 1.0 - y_pi)
+    assert step_metrics(ts, y_sp, 1.0).overshoot < step_metrics(ts, y_pi, 1.0).overshoot
+
+
+@pytest.mark.parametrize('model', ['fopdt', 'ipdt'])
+def test_plus_20_percent_dead_time_mismatch_stays_stable(model):
+    h = 0.5
+    if model == 'fopdt':
+        k, t_c, dead = 0.05, 10.0, 3.0
+        g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=5.0, n=1)
+        cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
+                          kp=g['kp'], ti=g['ti'], sample_time=h)
+    else:
+        k, t_c, dead = 0.05, None, 5.0
+        cfg = SmithConfig(model='ipdt', gain=k, dead_time=dead, kp=2.0, ti=40.0, sample_time=h)
+    ts, y = run(smith_step(cfg), h, 200.0, model, k, 1.2 * dead, t_c)
+    m = step_metrics(ts, y, 1.0)
+    assert m.overshoot <= 20.0 and abs(m.steady_state_error) < 0.01
+
+
+def test_ipdt_load_step_leaves_the_known_offset():
+    """Documented limitation: constant input load v0 → steady error k1·L·v0 (classical SP, IPDT)."""
+    k1, dead, h, v0 = 0.05, 5.0, 0.5, 0.2
+    cfg = SmithConfig(model='ipdt', gain=k1, dead_time=dead, kp=2.0, ti=40.0, sample_time=h)
+    ts, y = run(smith_step(cfg), h, 600.0, 'ipdt', k1, dead, w=lambda t: 0.0, v=lambda t: v0)
+    assert (0.0 - y[-1]) == pytest.approx(-k1 * dead * v0, rel=1e-3)
+
+
+def test_reset_is_bumpless_and_protocol():
+    cfg = SmithConfig(model='fopdt', gain=2.0, time_constant=10.0, dead_time=3.0, kp=1.0, ti=10.0,
+                      sample_time=1.0)
+    sp = SmithPredictor(cfg, output_name='T', input_name='Q')
+    assert isinstance(sp, Controller) and sp.output_names == ('T',) and sp.input_names == ('Q',)
+    sp.reset(np.array([8.0]), np.array([4.0]))
+    assert sp.step(0.0, np.array([8.0]), np.array([9.0]), np.array([]))[0] == pytest.approx(4.0)
+    held = sp.step(1.0, np.array([8.0]), np.array([9.0]), np.array([]))[0]
+    assert sp.step(2.0, np.array([math.nan]), np.array([9.0]), np.array([]))[0] == held
+    assert sp.status['input_fault']
+
+
+def test_params_and_validation():
+    specs = smith_params()
+    for spec in specs:
+        assert spec.description and spec.check(spec.default) is None
+    values = defaults(specs)
+    assert check_smith_relations(values) is None
+    tuned = smith_config_from_params({'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
+                                      'smith.time_constant': 10.0, 'smith.dead_time': 3.0})
+    assert tuned.kp == pytest.approx(10.0 / (0.05 * 4.0)) and tuned.ti == 10.0
+    assert 'u_min' in check_smith_relations({'u_min': 1.0, 'u_max': 0.0})
+    assert 'tuning.rule' in check_smith_relations({'tuning.rule': 'mdp'})
+    for bad, name in ((dict(model='x'), 'model'), (dict(gain=0.0), 'gain'),
+                      (dict(dead_time=-1.0), 'dead_time'), (dict(time_constant=None), 'time_constant')):
+        base = dict(model='fopdt', gain=1.0, time_constant=1.0, dead_time=1.0, kp=1.0, ti=1.0)
+        base.update(bad)
+        with pytest.raises(ValueError, match=name):
+            SmithPredictor(SmithConfig(**base))
