@@ -9,9 +9,9 @@ STAMP  := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): requirements.txt setup.py package.xml
+$(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.txt -r requirements-colcon.txt
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
 	@touch $(STAMP)
 
@@ -23,8 +23,6 @@ test: $(STAMP)
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.
 colcon: $(STAMP)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements-colcon.txt
-	cd build/colcon 2>/dev/null || mkdir -p build/colcon
 	$(BIN)/colcon --log-base build/colcon/log build --base-paths . \
 	  --build-base build/colcon/build --install-base build/colcon/install
 

@@ -12,7 +12,8 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shut down; return 0.
 
     rclpy's default signal handlers cover SIGINT and SIGTERM: spinning ends with
-    ``KeyboardInterrupt`` or ``ExternalShutdownException``, both a clean stop.
+    ``KeyboardInterrupt`` or ``ExternalShutdownException``, both a clean stop;
+    a signal that arrives while the node is still being built is one too.
     """
     rclpy.init(args=args)
     node: Node | None = None
@@ -21,6 +22,11 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # A signal during start-up shuts the context down under the constructor:
+        # that is a requested stop, not a crash. Anything else is a real error.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

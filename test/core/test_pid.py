@@ -273,3 +273,13 @@ def test_relations_are_checked_with_reasons():
 def test_param_conventions_map_to_config():
     cfg = pid_config_from_params({'kp': 3.0, 'ti': 0.0, 'du_max': 0.0, 'tracking_time': 0.0})
     assert cfg.kp == 3.0 and math.isinf(cfg.ti) and math.isinf(cfg.du_max) and cfg.tracking_time is None
+
+
+def test_tuning_parameters_give_the_gains_and_name_missing_ones():
+    cfg = pid_config_from_params({'tuning.rule': 'mdp', 'tuning.kind': 'pid', 'tuning.gain': 0.05,
+                                  'tuning.dead_time': 5.0, 'kp': 1.0})
+    assert cfg.kp == pytest.approx(3.134, abs=1e-3) and cfg.b == pytest.approx(0.423, abs=1e-3)
+    reason = check_pid_relations({'tuning.rule': 'mdp', 'tuning.kind': 'pi', 'tuning.gain': 0.05})
+    assert 'tuning.dead_time' in reason
+    assert 'kind' in check_pid_relations({'tuning.rule': 'mdp', 'tuning.kind': 'p',
+                                          'tuning.gain': 0.05, 'tuning.dead_time': 5.0})

@@ -158,3 +158,31 @@ def test_params_and_validation():
         base.update(bad)
         with pytest.raises(ValueError, match=name):
             SmithPredictor(SmithConfig(**base))
+
+
+def test_registered_as_smith_pi_kind_with_derived_gains_and_bumpless_rebuild():
+    from tank_control.core.control import registry
+    assert 'smith_pi' in registry.kind_names()
+    values = registry.complete_values({
+        'controller': 'smith_pi', 'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
+        'smith.time_constant': 10.0, 'smith.dead_time': 3.0, 'output_names': ['T'], 'input_names': ['Q']})
+    values.update(registry.derive(values))
+    assert values['kp'] == pytest.approx(10.0 / (0.05 * 4.0)) and values['ti'] == 10.0   # 004 eq. 3.6.7
+    ctl = registry.make_controller(values)
+    assert ctl.output_names == ('T',) and ctl.input_names == ('Q',)
+    y, r = np.array([0.0]), np.array([1.0])
+    u = [ctl.step(float(k), y, r, np.array([]))[0] for k in range(3)]
+    new, u3 = registry.step_with_changes(ctl, {**values, 'smith.dead_time': 4.0},
+                                         frozenset({'smith.dead_time'}), 3.0, y, r, np.array([]))
+    twin = registry.make_controller(values)
+    for k in range(4):
+        u_twin = twin.step(float(k), y, r, np.array([]))[0]
+    assert new is not ctl and u3[0] == pytest.approx(u_twin, abs=1e-12)   # old law at this sample
+    # the rebuilt predictor starts from the steady state of u3 (prediction 0 here), so the next
+    # output is u3 plus one integral increment kp·h/ti·e = 50·1/10·1
+    assert new.step(4.0, y, r, np.array([]))[0] == pytest.approx(u3[0] + 5.0, abs=1e-9)
+    assert 'tuning.rule' in (registry.check({**values, 'tuning.rule': 'mdp'}) or '')
+    manual, _ = registry.step_with_changes(new, {**values, 'smith.dead_time': 4.0, 'mode': 'manual',
+                                                 'manual_output': 7.0},
+                                           frozenset({'mode', 'manual_output'}), 5.0, y, r, np.array([]))
+    assert manual.step(6.0, y, r, np.array([]))[0] == 7.0

@@ -275,17 +275,17 @@ class Pid2Dof:
         p = k * (cfg.b * r - y)
         ed = cfg.c * r - y
         if cfg.td > 0.0:
-            tf = cfg.td / cfg.n
+            a = math.exp(-h * cfg.n / cfg.td)          # exp(−h/Tf)
             d = k * cfg.n * (ed - self._x)
-            a = math.exp(-h / tf)
-            self._x = a * self._x + (1.0 - a) * ed
+            x_next = a * self._x + (1.0 - a) * ed
         else:
             d = 0.0
-            self._x = ed
+            x_next = ed
         v = p + self._i + d
-        if not math.isfinite(v):      # overflow of absurd inputs: keep last output
-            self._fault = True
+        if not (math.isfinite(v) and math.isfinite(x_next)):
+            self._fault = True        # overflow from absurd inputs: keep the state and the last output
             return self._hold_output()
+        self._x = x_next
         u = self._limit(v)
         self._p, self._d, self._v = p, d, v
         i_used = self._i
@@ -441,7 +441,7 @@ def pid_params() -> tuple[ParamSpec, ...]:
                   "fail_safe = 'output' [u units]", min=-BIG, max=BIG),
         ParamSpec('tuning.rule', 'none', 'tuning rule; not none: kp, ti, td, b, c come from it',
                   choices=TUNING_RULES),
-        ParamSpec('tuning.kind', 'pid', 'controller type the rule designs', choices=('p', 'pi', 'pid')),
+        ParamSpec('tuning.kind', 'pid', 'controller type the rule designs', choices=('p', 'pi', 'pd', 'pid')),
         ParamSpec('tuning.gain', 0.0, 'process gain K or k1 [y units per u unit (per s for IPDT)]; '
                   '0 = not given', min=0.0, max=BIG),
         ParamSpec('tuning.dead_time', 0.0, 'process dead time L or To [s]; 0 = not given',
@@ -465,6 +465,7 @@ def tuned_gains(values: Mapping[str, Any]) -> dict[str, float | None] | None:
     Raises ValueError naming the missing/invalid process argument.
     """
     rule = values.get('tuning.rule', 'none')
+    kind = values.get('tuning.kind', 'pid')
     if rule == 'none':
         return None
     from tank_control.core.tuning.rules import tune   # local: tuning is a sibling package
@@ -476,7 +477,11 @@ def tuned_gains(values: Mapping[str, Any]) -> dict[str, float | None] | None:
             process[key] = float(value)
     if rule == 'smith_pi':
         process['n'] = int(values.get('tuning.order', 1))
-    return tune(rule, values.get('tuning.kind', 'pid'), **process)
+    try:
+        return tune(rule, kind, **process)
+    except ValueError as exc:     # name the ROS parameters: 'gain' is tuning.gain, ...
+        message = str(exc).removeprefix('tune: ').replace("process argument '", "parameter 'tuning.")
+        raise ValueError(f'tuning.rule {rule!r} with tuning.kind {kind!r}: {message}') from None
 
 
 def pid_config_from_params(values: Mapping[str, Any]) -> PidConfig:

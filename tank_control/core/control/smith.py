@@ -123,6 +123,7 @@ class SmithPredictor:
         self._y_free = 0.0     # ŷ*
         self._y_del = 0.0      # ŷ_L
         self._pending: float | None = None
+        self._mode_request: tuple[str, float | None] | None = None
         self._last_pred = math.nan
 
     @property
@@ -170,10 +171,32 @@ class SmithPredictor:
         if self._pending is not None:
             self.primary.reset(r0, y_pred, self._pending)
             self._pending = None
+        self._apply_mode()
         u = self.primary.update(r0, y_pred)
         self._last_pred = y_pred
         self._advance(u)
         return np.array([u])
+
+    def set_manual(self, u: float | None = None) -> None:
+        """Manual output ``u`` (None: hold the last output); takes effect at the next step,
+        also right after ``reset`` (the internal model keeps running on the manual output)."""
+        if u is not None and not math.isfinite(u):
+            raise ValueError(f'manual_output: {u!r} is not finite')
+        self._mode_request = ('manual', u)
+
+    def set_auto(self) -> None:
+        """Back to automatic, bumplessly (the primary continues from the last output)."""
+        self._mode_request = ('auto', None)
+
+    def _apply_mode(self) -> None:
+        if self._mode_request is None:
+            return
+        mode, u = self._mode_request
+        self._mode_request = None
+        if mode == 'manual':
+            self.primary.set_manual(u)
+        else:
+            self.primary.set_auto()
 
     @property
     def status(self) -> Mapping[str, Any]:
@@ -191,7 +214,8 @@ def _scalar(value: Any, name: str) -> float:
 
 
 _PRIMARY_NAMES = ('sample_time', 'kp', 'ti', 'b', 'u_min', 'u_max', 'du_max', 'anti_windup',
-                  'tracking_time', 'tuning.rule', 'tuning.te', 'tuning.xi', 'tuning.order')
+                  'tracking_time', 'mode', 'manual_output', 'fail_safe', 'fail_safe_output',
+                  'tuning.te', 'tuning.xi', 'tuning.order')
 
 
 def smith_params() -> tuple[ParamSpec, ...]:
@@ -202,6 +226,8 @@ def smith_params() -> tuple[ParamSpec, ...]:
     """
     primary = tuple(s for s in pid_params() if s.name in _PRIMARY_NAMES)
     return primary + (
+        ParamSpec('tuning.rule', 'none', 'none: kp, ti by hand; smith_pi: from the model '
+                  '(004 eqs. 3.6.7 with tuning.te, 3.6.9 with tuning.xi)', choices=('none', 'smith_pi')),
         ParamSpec('smith.model', 'fopdt', 'internal model: fopdt K/(T s+1) e^(-L s) or ipdt k1/s e^(-L s)',
                   choices=MODELS, read_only=True),
         ParamSpec('smith.gain', 1.0, 'model gain K [y/u units] (ipdt: k1 [1/s])', min=-1e9, max=1e9),
@@ -243,13 +269,75 @@ def smith_config_from_params(values: Mapping[str, Any]) -> SmithConfig:
 
 
 def check_smith_relations(values: Mapping[str, Any]) -> str | None:
-    """Cross-parameter checks (u_min < u_max, kp > 0, model complete): a reason or None."""
+    """Cross-parameter checks (u_min < u_max, kp > 0, outputs within limits, model
+    complete, a tuning rule with what it needs): a one-line reason or None."""
     merged = {spec.name: spec.default for spec in smith_params()}
     merged.update(values)
-    if not merged['u_min'] < merged['u_max']:
-        return f"u_min: {merged['u_min']:g} must be below u_max {merged['u_max']:g}"
+    lo, hi = merged['u_min'], merged['u_max']
+    if not lo < hi:
+        return f'u_min: {lo:g} must be below u_max {hi:g}'
+    if merged['tuning.rule'] == 'none' and not merged['kp'] > 0:
+        return f"kp: {merged['kp']:g} must be > 0; allowed (0, 1e+12]"
+    for name in ('manual_output', 'fail_safe_output'):
+        if not lo <= merged[name] <= hi:
+            return f'{name}: {merged[name]:g} is outside the output limits [{lo:g}, {hi:g}]'
     try:
         smith_config_from_params(merged)
     except ValueError as exc:
         return str(exc)
     return None
+
+
+def smith_tuned(values: Mapping[str, Any]) -> dict[str, float] | None:
+    """kp, ti from ``tuning.rule = smith_pi`` (None without a rule); ValueError if incomplete."""
+    merged = {spec.name: spec.default for spec in smith_params()}
+    merged.update(values)
+    if merged['tuning.rule'] != 'smith_pi':
+        return None
+    cfg = smith_config_from_params(merged)
+    return {'kp': cfg.kp, 'ti': cfg.ti}
+
+
+def controller_kind():
+    """The ``smith_pi`` kind for core/control/registry.py (controller_node, in-process loop).
+
+    Parameter changes rebuild the predictor and re-initialise it from the last
+    (y, u) — bumpless by the Controller contract; the rebuilt internal model
+    starts in the steady state of that u, so right after a change during a
+    transient the prediction is approximate for about one dead time plus the
+    model's settling. ``tuning.rule = smith_pi`` derives kp, ti (written back
+    as parameters).
+    """
+    from tank_control.core.control import registry
+
+    def check(values: Mapping[str, Any]) -> str | None:
+        reason = check_smith_relations(values)
+        if reason:
+            return reason
+        tuned = smith_tuned(values)
+        if tuned is not None:
+            for name, value in tuned.items():
+                if name in values and not math.isclose(float(values[name]), value, rel_tol=1e-12):
+                    return (f"{name}: {values[name]:g} conflicts with tuning.rule 'smith_pi', which "
+                            f'gives {value:g}; set tuning.rule to none to tune by hand')
+        return None
+
+    def build(values: Mapping[str, Any]) -> SmithPredictor:
+        ctl = SmithPredictor(smith_config_from_params(values),
+                             output_name=registry._single(values, 'output_names'),
+                             input_name=registry._single(values, 'input_names'))
+        if values.get('mode') == 'manual':
+            ctl.set_manual(float(values['manual_output']))
+        return ctl
+
+    def derive(values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
+        try:
+            tuned = smith_tuned(values)
+        except ValueError:
+            return {}            # check() reports the reason
+        return {} if tuned is None else tuned
+
+    return registry.ControllerKind(
+        name='smith_pi', params=lambda: smith_params() + registry._channel_specs(('y',), ('u',)),
+        check=check, build=build, update=None, derive=derive,
+        description='Smith predictor with a PI primary on the delay-free model (004 §3.6.1)')
