@@ -9,11 +9,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from rcl_interfaces.srv import GetParameters, ListParameters
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import parameter_value_to_python
+from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
@@ -133,6 +133,26 @@ class Recorder:
         finally:
             self.node.destroy_client(lister)
             self.node.destroy_client(getter)
+
+    def set_parameters(self, node: str, values: dict[str, Any], timeout: float,
+                       check: Callable[[], None] = lambda: None) -> str | None:
+        """Set parameters of ``/node`` through its service; None on success, else the reason."""
+        client = self.node.create_client(SetParameters, f'/{node}/set_parameters')
+        try:
+            if not self.spin_until(client.service_is_ready, timeout, check):
+                return f'/{node}/set_parameters did not become available in {timeout:g} s'
+            request = SetParameters.Request(
+                parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+            response = self._call(client, request, timeout, check)
+            if response is None:
+                return f'/{node}/set_parameters did not answer in {timeout:g} s'
+            failed = [r.reason for r in response.results if not r.successful]
+            return '; '.join(failed) if failed else None
+        finally:
+            self.node.destroy_client(client)
+
+    def publisher_count(self, topic: str) -> int:
+        return self.node.count_publishers(topic)
 
     def _call(self, client: Any, request: Any, timeout: float, check: Callable[[], None]) -> Any:
         future = client.call_async(request)

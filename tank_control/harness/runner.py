@@ -9,13 +9,14 @@
 ROS run, step by step (no sleeps: every wait spins the recorder until an event):
 
 1. the recorder node starts in this process (its own rclpy context);
-2. every node except the controller starts as its own OS process
+2. every node starts as its own OS process
    (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
-   plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep);
-3. wait until the recorder receives their first messages (in lockstep the plant
-   re-sends tick 0 until it is answered, so this proves that those publishers
-   reach the recorder before anything can move);
-4. the controller starts; in lockstep nothing advances until it answers;
+   plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
+   ``-p lockstep.paused:=true`` for the plant in lockstep);
+3. wait until every node is in the graph and the recorder has matched every
+   publisher (measurement, /clock, setpoint, disturbance, manipulated);
+4. lockstep: un-pause the plant through its parameter service — tick 0 is
+   published only now, so the recorder sees every tick from the first;
 5. run until the simulated time reaches the duration (lockstep: until every
    answer of the last tick ≤ duration is recorded), watching that every
    process is alive and the clock is moving;
@@ -51,8 +52,8 @@ from tank_control.harness.trace import TraceTable, from_core_trace, from_message
 NS = 1_000_000_000
 OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
 GAIN_NAMES = ('kp', 'ti', 'td', 'b', 'c', 'n', 'ki')
-STARTS_FIRST = ('plant', 'reference')
-PUBLISHES = {'plant': 'measurement', 'reference': 'setpoint'}
+PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
+             'controller': ('manipulated',)}
 
 
 class RunFailed(RuntimeError):
@@ -226,6 +227,8 @@ class _RosRun:
         argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
         if self.mode != 'wall' and node != 'plant':
             argv += ['-p', 'use_sim_time:=true']
+        if self.mode == 'lockstep' and node == 'plant':
+            argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
         return argv
 
     def _check_alive(self) -> None:
@@ -249,22 +252,18 @@ class _RosRun:
         try:
             recorder = Recorder(context)
             self.recorder = recorder
-            nodes = self.config.nodes
-            first = [n for n in nodes if n in STARTS_FIRST]
-            for node in first:
+            for node in self.config.nodes:
                 self.group.start(node, self._argv(node), env=self.env)
-            self._await_first_messages(first)
-            if 'controller' in nodes:
-                self.group.start('controller', self._argv('controller'), env=self.env)
-                self._await(lambda: 'controller' in recorder.node_names(),
-                            'node controller did not appear in the graph')
+            self._await_graph()
+            if self.mode == 'lockstep' and 'plant' in self.config.nodes:
+                self._unpause()
             run_start = time.monotonic()
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
             self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
-                                 if 'controller' in nodes else {})
+                                 if 'controller' in self.config.nodes else {})
             plant_params = recorder.node_parameters('plant', 5.0, self._check_alive)
         finally:
             codes = self.group.stop_all()
@@ -281,10 +280,27 @@ class _RosRun:
             raise RunFailed(f'{what} within {self.config.startup_timeout:g} s '
                             f'(harness.startup_timeout); node logs:\n{details}')
 
-    def _await_first_messages(self, started: Sequence[str]) -> None:
-        topics = [PUBLISHES[n] for n in started if n in PUBLISHES]
-        self._await(lambda: all(t in self.recorder.latest for t in topics),
-                    'no first message on ' + ', '.join(topics))
+    def _unpause(self) -> None:
+        """Lockstep: release tick 0. Set twice: plant_node's own post-set callback runs
+        before its parameter binding has stored the new value (rclpy calls the most
+        recently added callback first), so the first set only stores ``false`` and
+        the second publishes the tick; with that fixed, the second set is a no-op
+        (the plant is already waiting for the answers to tick 0)."""
+        for _ in range(2):
+            reason = self.recorder.set_parameters('plant', {'lockstep.paused': False},
+                                                  self.config.startup_timeout, self._check_alive)
+            if reason:
+                raise RunFailed(f'could not start the plant\'s clock: {reason}')
+
+    def _await_graph(self) -> None:
+        """Every node in the graph and every publisher the recorder needs matched
+        (in lockstep the plant holds tick 0 until it is un-paused)."""
+        rec = self.recorder
+        topics = [topic for node in self.config.nodes for topic in PUBLISHES[node]]
+        self._await(lambda: (set(self.config.nodes) <= rec.node_names()
+                             and all(rec.publisher_count(t) > 0 for t in topics)),
+                    'the graph did not come up (nodes ' + ', '.join(self.config.nodes)
+                    + '; publishers of ' + ', '.join(topics) + ')')
 
     def _sim_ns(self) -> int | None:
         stamp = self.recorder.latest.get('measurement')

@@ -3,7 +3,8 @@
 ``plant``: an integrator y(k+1) = y(k) + ts·(u(k) + v) (exact ZOH), output ``y``,
 input ``u``, no disturbance channel; it follows the lockstep protocol of the
 BRIEF (tick k: /clock and measurement stamped t_k; advance once ``manipulated``
-and ``disturbance`` stamped t_k are in; re-send after 0.5 s). Parameter
+and ``disturbance`` stamped t_k are in; re-send every 0.5 s; ``lockstep.paused``
+holds tick 0 until set to false, as plant_node does). Parameter
 ``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time.
 ``reference``: setpoint ``y`` = ``step_value`` from ``step_time`` on (0 before),
 an empty disturbance message, answering each /clock.
@@ -39,8 +40,22 @@ class StandinPlant(Node):
         self.meas_pub = self.create_publisher(JointState, 'measurement', SIGNAL_QOS)
         self.create_subscription(JointState, 'manipulated', self.on_u, SIGNAL_QOS)
         self.create_subscription(JointState, 'disturbance', self.on_d, SIGNAL_QOS)
-        self.create_timer(0.5, self.publish_tick, clock=steady_clock())
-        self.publish_tick()
+        self.paused = self.declare_parameter('lockstep.paused', False).value
+        self.add_post_set_parameters_callback(self.on_set)
+        self.create_timer(0.5, self.resend, clock=steady_clock())
+        if not self.paused:
+            self.publish_tick()
+
+    def on_set(self, params) -> None:
+        for p in params:
+            if p.name == 'lockstep.paused':
+                self.paused = p.value
+                if not self.paused:
+                    self.publish_tick()
+
+    def resend(self) -> None:
+        if not self.paused:
+            self.publish_tick()
 
     def publish_tick(self) -> None:
         t = self.k * self.ts_ns
