@@ -146,3 +146,22 @@ def test_plot_is_a_png(tmp_path):
     from tank_control.harness.plotting import plot_runs
     path = plot_runs([('a', _trace()), ('b', _trace())], tmp_path / 'plot.png', title='x')
     assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_a_disturbance_change_ends_the_setpoint_window_and_is_measured():
+    t = np.arange(0.0, 300.0, 0.5)
+    r = np.where(t < 10, 0.0, 1.0)
+    tau = 5.0
+    y = np.where(t < 10, 0.0, 1 - np.exp(-(t - 10) / tau))
+    bump = np.where(t >= 150, 0.3 * (t - 150) / 10 * np.exp(-(t - 150) / 10), 0.0)  # peak 0.3/e at 10 s
+    y = y - bump
+    d = np.where(t < 150, 0.0, -0.1)
+    trace = ordered({'t': t, 'y.y': y, 'r.y': r, 'u.u': np.zeros_like(t), 'd.v': d})
+    out = metrics.trace_metrics(trace)['outputs']['y']
+    (step,) = out['steps']
+    assert step['settling_time'] == pytest.approx(tau * math.log(50), abs=0.5)   # not the load
+    (load,) = out['disturbance_steps']
+    assert load['t'] == 150.0
+    assert load['peak_error'] == pytest.approx(0.3 / math.e, rel=1e-3)
+    assert load['peak_time'] == pytest.approx(10.0, abs=0.5)
+    assert abs(load['final_error']) < 1e-3

@@ -18,6 +18,11 @@ Per output channel (one with a setpoint column ``r.<name>``):
   - ``ss_error``: r_to − mean(y) over the last 5 % of the window;
   - ``peak``, ``peak_time`` (computed by ``core.analysis.step_metrics``).
 
+  A disturbance change also ends the window of a setpoint change. Per
+  disturbance change (``disturbance_steps``): ``peak_error`` |r − y| and
+  ``peak_signed``, ``peak_time`` after the change, ``iae`` over its window and
+  ``final_error`` (mean over the last 5 %).
+
 Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
 and ``constraint_violations`` (samples outside the controller's
 ``[u_min, u_max]``, 1e-9 tolerance, when limits are known).
@@ -25,7 +30,7 @@ and ``constraint_violations`` (samples outside the controller's
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -36,8 +41,13 @@ from tank_control.harness.trace import TraceTable
 SS_WINDOW = 0.05
 
 
-def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray) -> dict[str, Any]:
-    """IAE, ISE and per-setpoint-change metrics of one output channel."""
+def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray,
+                   disturbance_changes: Sequence[int] = ()) -> dict[str, Any]:
+    """IAE, ISE, per-setpoint-change and per-disturbance-change metrics of one output.
+
+    ``disturbance_changes``: sample indices where a disturbance changes; they also
+    end the window of a setpoint change (its response is not mixed with a load
+    response)."""
     e = r - y
     finite = np.isfinite(e)
     enough = int(finite.sum()) >= 2
@@ -45,10 +55,45 @@ def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray) -> dict[str, Any
         'iae': sm.iae(t[finite], e[finite]) if enough else 0.0,
         'ise': sm.ise(t[finite], e[finite]) if enough else 0.0,
         'steps': [],
+        'disturbance_steps': [],
     }
-    for start, _, stop, r_from, r_to in setpoint_changes(t, y, r):
+    changes = setpoint_changes(t, y, r)
+    starts = sorted({c[0] for c in changes} | set(disturbance_changes))
+    for start, _, stop, r_from, r_to in changes:
+        stop = min([stop] + [i for i in starts if i > start])
         result['steps'].append(change_metrics(t[start:stop], y[start:stop], r_from, r_to))
+    for start in disturbance_changes:
+        stop = min([len(t)] + [i for i in starts if i > start])
+        result['disturbance_steps'].append(load_metrics(t[start:stop], e[start:stop]))
     return result
+
+
+def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
+    """Response of an output to a disturbance change over its window: the largest error
+    |r − y| (``peak_error``, signed ``peak_signed``) and when (``peak_time`` after the
+    change), IAE over the window, and the mean error over its last 5 % (``final_error``)."""
+    finite = np.isfinite(e)
+    if finite.sum() < 2:
+        return {'t': float(t[0]) if len(t) else None, 'peak_error': None, 'peak_signed': None,
+                'peak_time': None, 'iae': None, 'final_error': None}
+    t, e = t[finite], e[finite]
+    i = int(np.argmax(np.abs(e)))
+    tail = max(1, int(math.ceil(SS_WINDOW * len(e))))
+    return {'t': float(t[0]), 'peak_error': float(abs(e[i])), 'peak_signed': float(e[i]),
+            'peak_time': float(t[i] - t[0]), 'iae': sm.iae(t, e),
+            'final_error': float(np.mean(e[-tail:]))}
+
+
+def disturbance_change_indices(trace: TraceTable, rel_tol: float = 1e-9) -> list[int]:
+    """Sample indices where any disturbance column changes (first sample of a ramp)."""
+    indices: set[int] = set()
+    for name in trace.channels('d'):
+        d = trace.columns[f'd.{name}']
+        scale = max(1.0, float(np.nanmax(np.abs(d)))) if np.isfinite(d).any() else 1.0
+        moving = np.zeros(len(d), dtype=bool)
+        moving[1:] = np.abs(np.diff(d)) > rel_tol * scale
+        indices |= {int(i) for i in np.nonzero(moving & ~np.roll(moving, 1))[0]}
+    return sorted(indices)
 
 
 def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> dict[str, Any]:
@@ -116,7 +161,9 @@ def trace_metrics(trace: TraceTable,
                   input_limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
     """``outputs`` and ``inputs`` sections of ``metrics.json`` for a trace."""
     limits = input_limits or {}
-    outputs = {name: output_metrics(trace.t, trace.columns[f'y.{name}'], trace.columns[f'r.{name}'])
+    loads = disturbance_change_indices(trace)
+    outputs = {name: output_metrics(trace.t, trace.columns[f'y.{name}'], trace.columns[f'r.{name}'],
+                                    loads)
                for name in trace.channels('y') if f'r.{name}' in trace.columns}
     inputs = {name: input_metrics(trace.columns[f'u.{name}'], *limits.get(name, (-math.inf, math.inf)))
               for name in trace.channels('u')}
