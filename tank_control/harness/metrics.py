@@ -20,8 +20,8 @@ Per output channel (one with a setpoint column ``r.<name>``):
 
   A disturbance change also ends the window of a setpoint change. Per
   disturbance change (``disturbance_steps``): ``peak_error`` |r − y| and
-  ``peak_signed``, ``peak_time`` after the change, ``iae`` over its window and
-  ``final_error`` (mean over the last 5 %).
+  ``peak_signed``, ``peak_time`` after the change, ``iae`` and signed
+  ``integral_error`` over its window, and ``final_error`` (mean over the last 5 %).
 
 Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
 and ``constraint_violations`` (samples outside the controller's
@@ -71,16 +71,19 @@ def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray,
 def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
     """Response of an output to a disturbance change over its window: the largest error
     |r − y| (``peak_error``, signed ``peak_signed``) and when (``peak_time`` after the
-    change), IAE over the window, and the mean error over its last 5 % (``final_error``)."""
+    change), IAE and the signed ∫e dt (``integral_error``, trapezoidal; 000 eq. 10 gives it
+    in closed form for integrating plants) over the window, and the mean error over its
+    last 5 % (``final_error``)."""
     finite = np.isfinite(e)
     if finite.sum() < 2:
         return {'t': float(t[0]) if len(t) else None, 'peak_error': None, 'peak_signed': None,
-                'peak_time': None, 'iae': None, 'final_error': None}
+                'peak_time': None, 'iae': None, 'integral_error': None, 'final_error': None}
     t, e = t[finite], e[finite]
     i = int(np.argmax(np.abs(e)))
     tail = max(1, int(math.ceil(SS_WINDOW * len(e))))
+    integral = float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t)))
     return {'t': float(t[0]), 'peak_error': float(abs(e[i])), 'peak_signed': float(e[i]),
-            'peak_time': float(t[i] - t[0]), 'iae': sm.iae(t, e),
+            'peak_time': float(t[i] - t[0]), 'iae': sm.iae(t, e), 'integral_error': integral,
             'final_error': float(np.mean(e[-tail:]))}
 
 

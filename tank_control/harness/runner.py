@@ -196,9 +196,21 @@ def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
         'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
     }
-    controller_params = dict(scenario.params('controller'))
-    return finish(scenario, out, trace, run_info, controller_params,
+    return finish(scenario, out, trace, run_info, _controller_values(scenario),
                   lambda path: write_trace(path, trace))
+
+
+def _controller_values(scenario: Scenario) -> dict[str, Any]:
+    """The controller's parameters as controller_node would hold them: defaults filled in
+    and the gains a ``tuning.rule`` derives (what a ROS run reads from the node)."""
+    values = dict(scenario.params('controller'))
+    try:
+        from tank_control.core.control import registry
+        values = registry.complete_values(values)
+        values.update(registry.derive(values, frozenset(scenario.params('controller'))))
+    except (ImportError, ValueError):
+        pass                                   # report what the file says
+    return values
 
 
 # ----------------------------------------------------------------------------------------------
