@@ -174,9 +174,13 @@ def build_noise(values: Mapping[str, Any], output_names: tuple[str, ...]) -> Mea
 # ------------------------------------------------------------------- controller
 
 def make_controller(values: Mapping[str, Any]) -> Controller:
-    """The controller of controller_node ``values`` (the registry controller_node uses)."""
+    """The controller of controller_node ``values`` (the registry controller_node uses;
+    the node's own parameters such as ``clock_mode`` are left out)."""
     from tank_control.core.control.registry import make_controller as registry_make
-    return registry_make(values)
+    from tank_control.core.control.registry import specs_for
+    # Node-level parameters (clock_mode, stale_samples, ...) are not the controller's.
+    own = {spec.name for spec in specs_for(str(values.get('controller', 'pid')))}
+    return registry_make({k: v for k, v in values.items() if k in own})
 
 
 # --------------------------------------------------------------------- scenario

@@ -177,8 +177,9 @@ class PlantNode(Node):
 
     def _on_params_set(self, parameters: list) -> None:
         """Un-pausing lockstep acts at once (other changes wait for the next step)."""
-        if (self.mode == 'lockstep' and any(p.name == 'lockstep.paused' for p in parameters)
-                and not self._paused() and not self._awaiting):
+        # rclpy may run this before the binding's own post-set callback: read the new value.
+        unpaused = any(p.name == 'lockstep.paused' and not p.value for p in parameters)
+        if self.mode == 'lockstep' and unpaused and not self._awaiting:
             if self._pace_timer is not None:
                 self._wall_start = time.monotonic() - self._t() / self._rtf
             self._publish_tick()
