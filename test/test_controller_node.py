@@ -97,12 +97,14 @@ def _start(procs, node_cmd, ros_env, *params: str):
 def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
     ts = 0.2
     # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
-    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}', 'diagnostics_period:=0.1',
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
+           'diagnostics_period:=0.1',
            'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
     loop = Loop(probe)
 
     # declared with descriptors: range, read-only, description
-    kp_desc, ctrl_desc = loop.call(loop.params.describe_parameters(['kp', 'controller'])).descriptors
+    described = loop.call(loop.params.describe_parameters(['kp', 'controller']))
+    kp_desc, ctrl_desc = described.descriptors
     assert kp_desc.floating_point_range and kp_desc.floating_point_range[0].from_value == 0.0
     assert 'gain' in kp_desc.description
     assert ctrl_desc.read_only
@@ -193,21 +195,27 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
     assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
 
-    # stale: no measurement for 3 samples → last output held, reported
+    u_running = loop.answers[-1][2][0]
+    # stale: no measurement for 3 samples → fail_safe_output sent (configured), reported
+    assert loop.set('fail_safe_output', 5.0).successful
+    assert loop.set('fail_safe', 'output').successful
     sending['y'] = False
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 5.0)
     assert loop.diag['stale_inputs'] == 'True'
     n = len(loop.answers)
     assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 5.0)
-    held = [a[2][0] for a in loop.answers[n:]]
-    assert len(set(held)) == 1
+    assert [a[2][0] for a in loop.answers[n:]] == [5.0] * len(loop.answers[n:])
+    assert u_running != 5.0
 
-    # recovery: control resumes from the held output (no jump at the first sample)
+    # recovery: control resumes from the output the plant got (5.0), no jump; with
+    # y = r the error is zero, so it stays there
     sending['y'] = True
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
-    after = [a[2][0] for a in loop.answers[n:]]
-    assert after[-1] == pytest.approx(held[0], abs=1e-9)   # y = r = 1 and e = 0: steady
-    assert int(loop.diag['stale_samples']) >= 1
+    m = len(loop.answers)
+    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 5.0)
+    assert [a[2][0] for a in loop.answers[m:]] == pytest.approx([5.0] * len(loop.answers[m:]),
+                                                                abs=1e-9)
+    assert int(loop.diag['stale_samples']) >= 3
 
 
 def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, probe):

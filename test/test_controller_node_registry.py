@@ -140,7 +140,8 @@ class _Proportional:
 def proportional_kind():
     from tank_control.core.params import ParamSpec
     return registry.ControllerKind(
-        name='proportional', params=lambda: (ParamSpec('gain', 1.0, 'gain [-]', min=0.0, max=10.0),),
+        name='proportional',
+        params=lambda: (ParamSpec('gain', 1.0, 'gain [-]', min=0.0, max=10.0),),
         check=lambda values: None, build=_Proportional, update=None)
 
 
@@ -201,7 +202,8 @@ def test_smith_pi_tuning_rule_and_bumpless_changes():
     # primary gain change: in place (same object, model history kept), no jump although a
     # recomputation would move u by Δkp·(b·r − y) = −20·(−0.5) = 10
     values.update({'tuning.rule': 'none', 'kp': 20.0})
-    same, u = registry.step_with_changes(ctrl, values, frozenset({'tuning.rule', 'kp'}), 1.5, y, r, d)
+    same, u = registry.step_with_changes(ctrl, values, frozenset({'tuning.rule', 'kp'}), 1.5,
+                                         y, r, d)
     assert same is ctrl and u[0] == pytest.approx(2.0, abs=1e-12)
     # model change: rebuilt, output continuous at that sample
     values['smith.dead_time'] = 3.6

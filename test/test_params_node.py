@@ -54,7 +54,8 @@ def test_declared_with_descriptors_ranges_and_read_only(make_node):
     node, _ = make_node()
     kp = node.describe_parameter('kp')
     assert kp.description == 'proportional gain [-]'
-    assert (kp.floating_point_range[0].from_value, kp.floating_point_range[0].to_value) == (0.0, 100.0)
+    span = kp.floating_point_range[0]
+    assert (span.from_value, span.to_value) == (0.0, 100.0)
     order = node.describe_parameter('order')
     assert (order.integer_range[0].from_value, order.integer_range[0].to_value) == (1, 2)
     assert node.describe_parameter('mode_name').read_only
@@ -129,3 +130,14 @@ def test_bad_start_up_value_raises_naming_the_parameter(make_node):
         make_node([Parameter('kp', value=200.0)])
     with pytest.raises(ParameterError, match='u_min'):
         make_node([Parameter('u_min', value=50.0)])
+
+
+def test_node_writes_results_including_read_only_without_pending(make_node):
+    node, binding = make_node()
+    result = binding.write({'mode_name': 'pi', 'kp': 7})
+    assert result.successful, result.reason
+    assert node.get_parameter('mode_name').value == 'pi' and node.get_parameter('kp').value == 7.0
+    assert binding.take_pending() == {}
+    assert node.describe_parameter('mode_name').read_only            # still read-only for users
+    assert not node.set_parameters([Parameter('mode_name', value='pid')])[0].successful
+    assert not binding.write({'kp': 1000.0}).successful              # validated all the same

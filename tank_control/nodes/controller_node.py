@@ -11,7 +11,11 @@ is accepted (``nodes/params.py``) and applied at the next sample, bumplessly.
 Topics (relative names): subscribes ``measurement``, ``setpoint`` and, when the
 controller uses measured disturbances, ``disturbance``; publishes
 ``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
-sample instant) and ``/diagnostics``.
+sample instant) and ``/diagnostics`` (mode, saturation, anti-windup, faults,
+counters, computation time and the controller's ``status`` as ``status.*``).
+A kind's operator commands are ``std_srvs/Trigger`` services ``~/<command>``;
+values a kind produces while running (``results``) are written back to its
+parameters after each sample.
 
 Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
 
@@ -48,6 +52,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from tank_control.core.control import registry
 from tank_control.core.interfaces import seconds, to_ns
@@ -106,6 +111,9 @@ class ControllerNode(Node):
             required['disturbance'] = ()   # arrival is enough; missing channels keep last values
         self._inbox = StampedInbox(required)
         self._answers = Answers()
+        for command in self._kind.commands:
+            self.create_service(Trigger, f'~/{command}',
+                                lambda request, response, c=command: self._on_command(c, response))
         if self._mode != 'lockstep':
             self.create_timer(self._controller.sample_time, self._on_timer)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
@@ -182,7 +190,8 @@ class ControllerNode(Node):
             if math.isfinite(values[name]):
                 out[name] = last[name] = values[name]
             else:
-                self._reject_input(f'{topic}: non-finite value for {name!r} ignored; last valid kept')
+                self._reject_input(f'{topic}: non-finite value for {name!r} ignored; '
+                                   'last valid kept')
                 if name in last:
                     out[name] = last[name]
         return out
@@ -278,7 +287,29 @@ class ControllerNode(Node):
         u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start
         self._u = u
+        self._write_results()
         return u
+
+    def _write_results(self) -> None:
+        """Values the controller produced (kind.results) → parameters, when they changed."""
+        if self._kind.results is None:
+            return
+        current = self._params.values
+        changed = {k: v for k, v in self._kind.results(self._controller).items()
+                   if current.get(k) != v}
+        if changed:
+            result = self._params.write(changed)
+            if not result.successful:
+                self._log_once(f'controller results not written to parameters: {result.reason}')
+
+    def _on_command(self, command: str, response: Trigger.Response) -> Trigger.Response:
+        """An operator command (std_srvs/Trigger ``~/<command>``) for the running controller."""
+        try:
+            response.success, response.message = self._kind.commands[command](self._controller)
+        except ValueError as exc:
+            response.success, response.message = False, f'{command}: {exc}'
+        self.get_logger().info(f'{command}: {response.message}')
+        return response
 
     def _hold(self, fault: str) -> np.ndarray:
         self.counters['stale_samples' if fault == 'stale' else 'nonfinite_measurements'] += 1
@@ -319,6 +350,8 @@ class ControllerNode(Node):
             'last_computation_time_us': round(self._compute_s * 1e6, 3),
             'output': [] if self._u is None else self._u.tolist(),
             **self.counters,
+            **{f'status.{k}': v for k, v in status.items()
+               if isinstance(v, (bool, int, float, str))},
         }
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -17,6 +17,14 @@ One ``ParameterBinding`` per node does the whole parameter user interface:
 * **post-set** callback: records accepted changes; the node takes them with
   ``take_pending()`` and applies them at its next sample.
 
+Why validation sits in the on-set callback: Jazzy's pre-set callback can only
+rewrite the list of parameters (an emptied list fails with a generic message),
+so a reason naming the parameter can only come from the on-set callback. Both
+run before anything is stored, so a rejected request changes nothing. Range
+and read-only violations are refused by rclpy itself from the descriptor,
+before the on-set callback, with its own one-line reason ("Parameter kp out of
+range Min: 0.0, Max: ..., value: -1.0"); they are counted in ``rejected`` too.
+
 Typing. Jazzy's rclpy does not coerce: a statically typed ``double`` parameter
 rejects an ``integer`` value ("Wrong parameter type"), both from a params file
 (``kp: 2`` raises at declaration) and from ``ros2 param set /controller kp 2``
@@ -241,6 +249,29 @@ class ParameterBinding:
                 value = coerce(spec, param.value)
                 self._values[param.name] = value
                 self._pending[param.name] = value
+
+    # ------------------------------------------------------- node's writes
+    def write(self, values: Mapping[str, Any]) -> SetParametersResult:
+        """Set parameters from the node itself (results it computed, e.g. tuned gains or
+        an identified ``ku``), so ``ros2 param get`` shows them.
+
+        The values are validated like any change (atomically), read-only ones
+        included — read-only means "not settable by users". They reflect the
+        node's state already, so they are not handed back through ``take_pending``.
+        """
+        params = [Parameter(name, value=coerce(self._specs[name], value))
+                  for name, value in values.items()]
+        locked = [p.name for p in params if self._node.describe_parameter(p.name).read_only]
+        pending_before = dict(self._pending)
+        for name in locked:
+            self._node.describe_parameter(name).read_only = False
+        try:
+            result = self._node.set_parameters_atomically(params)
+        finally:
+            for name in locked:
+                self._node.describe_parameter(name).read_only = True
+        self._pending = pending_before
+        return result
 
     # -------------------------------------------------------------- access
     @property

@@ -10,13 +10,17 @@ A kind (:class:`ControllerKind`) supplies
 * ``params()`` — its ``ParamSpec`` tuple (gains, limits, mode, tuning, ...);
 * ``check(values)`` — relations between parameters (one-line reason or None);
 * ``build(values)`` — the :class:`~tank_control.core.interfaces.Controller`;
-* ``update(controller, values, changed) -> bool`` — apply accepted changes
-  to a running controller in place, bumplessly, and return True; False (or
-  ``update=None``) means "rebuild": ``step_with_changes`` builds a new object
-  and initialises it with ``reset(y, u)`` at that sample's output, which is
-  bumpless by the Controller contract;
+* ``update(controller, values, changed)`` — apply accepted changes to a
+  running controller in place, bumplessly (returning None or True); returning
+  False (or ``update=None``) asks for a rebuild: ``step_with_changes`` builds a
+  new object and initialises it with ``reset(y, u)`` at that sample's output,
+  which is bumpless by the Controller contract;
 * ``derive(values, changed)`` — parameter values that follow from others
-  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them.
+  (the gains of ``tuning.rule``), written back so ``ros2 param get`` shows them;
+* optionally ``results(controller)`` — values the controller produced at run
+  time (written back to parameters by the node) and ``commands`` — operator
+  commands the node offers as ``std_srvs/Trigger`` services ``~/<name>``
+  (e.g. ``start_autotune``, ``abort_autotune`` of issue 6).
 
 Adding a kind (e.g. ``relay_autotune``, ``mpcs``) is local: write a function
 returning a ``ControllerKind`` (usually in the controller's own module) and add
@@ -31,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from importlib import import_module
 from typing import Any
 
@@ -55,9 +59,17 @@ class ControllerKind:
     params: Callable[[], tuple[ParamSpec, ...]]
     check: Callable[[Values], str | None]
     build: Callable[[Values], Controller]
-    update: Callable[[Controller, Values, frozenset[str]], bool] | None
+    update: Callable[[Controller, Values, frozenset[str]], bool | None] | None
     derive: Callable[[Values, frozenset[str]], dict[str, Any]] = _no_derive
     description: str = ''
+    results: Callable[[Controller], Mapping[str, Any]] | None = None
+    """Parameter values the running controller produced (an identified ``ku``, the gains
+    it switched to, a state name); controller_node writes changed ones back to its
+    parameters after each sample (read-only ones included), so ``ros2 param get`` shows them."""
+    commands: Mapping[str, Callable[[Controller], tuple[bool, str]]] = field(default_factory=dict)
+    """Operator commands by name; controller_node offers each as a ``std_srvs/Trigger``
+    service ``~/<name>`` that calls ``commands[name](controller) -> (success, message)``,
+    e.g. ``{'start_autotune': lambda c: c.start(), 'abort_autotune': lambda c: c.abort()}``."""
 
 
 # ------------------------------------------------------------------ pid
@@ -100,7 +112,8 @@ def _pid_check(values: Values) -> str | None:
     if tuned is not None:
         for name in _GAINS:
             if not math.isclose(float(values[name]), tuned[name], rel_tol=1e-12, abs_tol=1e-15):
-                return (f"{name}: {values[name]:g} conflicts with tuning.rule {values['tuning.rule']!r}, "
+                rule = values['tuning.rule']
+                return (f"{name}: {values[name]:g} conflicts with tuning.rule {rule!r}, "
                         f"which gives {tuned[name]:g}; set tuning.rule to none to tune by hand")
     return None
 
@@ -218,7 +231,8 @@ def _smith_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
 
 def _smith_build(values: Values) -> Controller:
     from tank_control.core.control.smith import SmithPredictor, smith_config_from_params
-    return SmithPredictor(smith_config_from_params(values), output_name=_single(values, 'output_names'),
+    return SmithPredictor(smith_config_from_params(values),
+                          output_name=_single(values, 'output_names'),
                           input_name=_single(values, 'input_names'))
 
 
@@ -388,7 +402,7 @@ def step_with_changes(controller: Controller, values: Values, changed: frozenset
     """
     kind = get_kind(str(values.get('controller', 'pid')))
     values = controller_values(values)
-    if kind.update is not None and kind.update(controller, values, changed):
+    if kind.update is not None and kind.update(controller, values, changed) is not False:
         return controller, np.asarray(controller.step(t, y, r, d), dtype=float)
     u = np.asarray(controller.step(t, y, r, d), dtype=float)
     new = kind.build(complete_values(values))
