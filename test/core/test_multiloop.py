@@ -8,7 +8,7 @@ import pytest
 from scipy.signal import lfilter
 
 from tank_control.core.control.multiloop import (
-    D21_DEN, D21_NUM, D21Filter, TwoLoopPi, check_two_loop_relations, document_config,
+    D21_DEN, D21_NUM, D21Filter, SetpointGuard, TwoLoopPi, check_two_loop_relations, document_config,
     two_loop_config_from_params, two_loop_pi_params,
 )
 from tank_control.core.interfaces import Controller
@@ -152,3 +152,18 @@ def test_protocol_params_and_validation():
     assert cfg.decoupling == 'dynamic'
     with pytest.raises(ValueError, match='decoupling'):
         TwoLoopPi(document_config('sideways'))
+
+
+def test_setpoint_guard_prevents_the_unreachable_temperature_failure_of_003():
+    """003 §2.2: T_out setpoint near T_C with the warmer disturbance inflow is unreachable; the
+    integrators then keep F_Cin up and the level drifts. The guard limits r_T to the reachable
+    steady-state interval at the level setpoint: ((F − F_D)·T_C + F_D·T_D)/F + margin."""
+    r_fn = lambda k: np.array([81.0, T0 if k < 100 else 24.0])      # noqa: E731
+    guarded = TwoLoopPi(document_config('none'))
+    out = tank_run(guarded, r_fn, 3000)
+    reachable = (51.0 * TC + 12.0 * TD) / 63.0 + 0.5                  # 25.40 °C at h = 81 cm
+    assert guarded.status['setpoint_limited'] and guarded.status['r.T_out'] == pytest.approx(reachable)
+    assert abs(out[-1, 0] - 81.0) < 0.2 and abs(out[-1, 1] - reachable) < 0.1
+    unguarded = TwoLoopPi(document_config('none', guard=SetpointGuard(enabled=False)))
+    out = tank_run(unguarded, r_fn, 3000)
+    assert out[-1, 0] - 81.0 > 3.0 and out[-1, 2] == 0.0             # F_H shut, level drifting up

@@ -31,6 +31,16 @@ Document settings:
   the operating point: v_T changes F_H + F_C by 0 (D12 = −1) and v_h changes
   the heat balance by 0 since D21 = (T_H − T)/(T − T_C) = 28.43/10.57 = 2.69.
 
+Setpoint guard (003 §2.2, SPEC §2.7): a T_out setpoint the tank cannot reach
+at steady state (e.g. near T_C while the disturbance inflow is warmer) makes
+the integrators push one flow to its limit forever and the level drift or
+overflow. With ``setpoint_guard`` the level setpoint is limited to
+``h_range`` and the T_out setpoint to the interval reachable at steady state
+with that level and the nominal disturbance inflow (003 operating point:
+F_D = 12 cm³/s at T_D = 33 °C, T_H = 62, T_C = 23 °C; outflow α·√h, α = 7):
+``F = α·√h_r``, ``T ∈ [((F−F_D)·T_C + F_D·T_D)/F, ((F−F_D)·T_H + F_D·T_D)/F]``,
+shrunk by ``guard_margin``. ``status['setpoint_limited']`` reports it.
+
 Anti-windup sees the applied (saturated) flows: with decoupling, loop i's
 effective output is ``u_i,sat − (decoupler term into u_i)``, limited to the PI
 output range, and ``back_calculation`` drives the integral towards it:
@@ -66,6 +76,34 @@ class PiLoop:
 
 
 @dataclass
+class SetpointGuard:
+    """Steady-state feasibility of the setpoints (003 §1 balance at nominal disturbances).
+    Flows cm³/s, temperatures °C, levels cm, alpha cm^2.5/s."""
+
+    enabled: bool = True
+    h_min: float = 1.0
+    h_max: float = 190.0
+    margin: float = 0.5
+    alpha: float = 7.0
+    F_D: float = 12.0
+    T_D: float = 33.0
+    T_H: float = 62.0
+    T_C: float = 23.0
+
+    def limit(self, r: np.ndarray) -> np.ndarray:
+        """Setpoints [h, T_out] limited to what the tank can hold at steady state."""
+        if not self.enabled:
+            return r
+        h = min(max(r[0], self.h_min), self.h_max)
+        total = self.alpha * math.sqrt(h)
+        free = max(total - self.F_D, 0.0)
+        lo = (free * self.T_C + self.F_D * self.T_D) / total + self.margin
+        hi = (free * self.T_H + self.F_D * self.T_D) / total - self.margin
+        t = 0.5 * (lo + hi) if lo > hi else min(max(r[1], lo), hi)
+        return np.array([h, t])
+
+
+@dataclass
 class TwoLoopPiConfig:
     """Settings of :class:`TwoLoopPi` (003 §2–3); flows in cm³/s, time in s."""
 
@@ -79,6 +117,7 @@ class TwoLoopPiConfig:
     v_limit: float | None = None      # |PI output| limit with decoupling; None → u_max
     sample_time: float = 1.0
     anti_windup: str = 'back_calculation'
+    guard: SetpointGuard = field(default_factory=SetpointGuard)
 
 
 def document_config(decoupling: str = 'none', **changes: Any) -> TwoLoopPiConfig:
@@ -116,9 +155,14 @@ def config_reason(cfg: TwoLoopPiConfig) -> str | None:
     if cfg.v_limit is not None and (not _finite(cfg.v_limit) or cfg.v_limit <= 0):
         return f'v_limit: {cfg.v_limit!r} is out of range; allowed (0, inf) or None'
     if cfg.decoupling != 'none' and abs(1.0 - cfg.d12 * _d21_gain(cfg)) < 1e-9:
-        return f'd12, d21: 1 − d12·d21 = 0 makes the decoupler singular'
+        return 'd12, d21: 1 − d12·d21 = 0 makes the decoupler singular'
     if cfg.anti_windup not in ANTI_WINDUP_CHOICES:
         return f'anti_windup: {cfg.anti_windup!r} is not one of ' + ', '.join(ANTI_WINDUP_CHOICES)
+    g = cfg.guard
+    if not (0.0 < g.h_min < g.h_max):
+        return f'guard.h_min: {g.h_min:g} must satisfy 0 < h_min < h_max = {g.h_max:g}'
+    if not (g.margin >= 0 and g.alpha > 0 and g.F_D >= 0 and g.T_C < g.T_H):
+        return 'guard: needs margin >= 0, alpha > 0, F_D >= 0 and T_C < T_H'
     return None
 
 
@@ -226,7 +270,9 @@ class TwoLoopPi:
             self._fault = True
             self._status['input_fault'] = True
             return self._held()
-        e = r - y
+        r_used = self.config.guard.limit(r)
+        limited = bool(np.any(r_used != r))
+        e = r_used - y
         if self._pending is not None:
             self._init_from(e, self._pending)
             self._pending = None
@@ -237,7 +283,10 @@ class TwoLoopPi:
             self._d21.settle(0.0)
             self._initialised = True
         self._fault = False
-        return self._compute(e)
+        u = self._compute(e)
+        self._status['setpoint_limited'] = limited
+        self._status['r.h'], self._status['r.T_out'] = float(r_used[0]), float(r_used[1])
+        return u
 
     def _held(self) -> np.ndarray:
         if np.all(np.isfinite(self._u)):
@@ -313,6 +362,12 @@ def two_loop_pi_params() -> tuple[ParamSpec, ...]:
         ParamSpec('u_max', 300.0, 'upper flow limit for F_H and F_Cin [cm³/s]', min=0.0, max=1e4),
         ParamSpec('anti_windup', 'back_calculation', 'integrator anti-windup method',
                   choices=ANTI_WINDUP_CHOICES),
+        ParamSpec('two_loop.setpoint_guard', True, 'limit setpoints to what the tank can reach at '
+                  'steady state (nominal disturbance inflow), see 003 §2.2'),
+        ParamSpec('two_loop.h_min', 1.0, 'lowest level setpoint used [cm]', min=0.1, max=1e4),
+        ParamSpec('two_loop.h_max', 190.0, 'highest level setpoint used [cm]', min=0.1, max=1e4),
+        ParamSpec('two_loop.guard_margin', 0.5, 'distance kept from the reachable T_out limits [°C]',
+                  min=0.0, max=20.0),
     )
 
 
@@ -326,6 +381,9 @@ def two_loop_config_from_params(values: Mapping[str, Any]) -> TwoLoopPiConfig:
         decoupling=str(merged['two_loop.decoupling']), d12=float(merged['two_loop.d12']),
         d21=float(merged['two_loop.d21']), u_min=float(merged['u_min']), u_max=float(merged['u_max']),
         sample_time=float(merged['sample_time']), anti_windup=str(merged['anti_windup']),
+        guard=SetpointGuard(enabled=bool(merged['two_loop.setpoint_guard']),
+                            h_min=float(merged['two_loop.h_min']), h_max=float(merged['two_loop.h_max']),
+                            margin=float(merged['two_loop.guard_margin'])),
     )
     reason = config_reason(cfg)
     if reason:
