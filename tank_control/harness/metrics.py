@@ -173,13 +173,17 @@ def trace_metrics(trace: TraceTable,
     return {'outputs': outputs, 'inputs': inputs}
 
 
-def sampling_metrics(stamps_ns: np.ndarray, sample_time: float | None) -> dict[str, Any]:
-    """Ticks that should have been there but are not, and the largest deviation of the
-    measurement stamp spacing from the plant sample time [s]."""
+def sampling_metrics(stamps_ns: np.ndarray, sample_time: float | None,
+                     start_ns: int | None = None) -> dict[str, Any]:
+    """Ticks that should have been there but are not (gaps in the measurement stamps, and
+    before the first one when the clock starts at ``start_ns``), and the largest deviation
+    of the measurement stamp spacing from the plant sample time [s]."""
     if len(stamps_ns) < 2 or not sample_time:
         return {'missed_samples': 0, 'max_jitter': 0.0}
     ts_ns = int(round(sample_time * 1e9))
     gaps = np.diff(np.asarray(stamps_ns, dtype=np.int64))
     missed = int(np.sum(np.maximum(np.round(gaps / ts_ns) - 1, 0)))
+    if start_ns is not None:
+        missed += int(round((int(stamps_ns[0]) - start_ns) / ts_ns))
     jitter = float(np.max(np.abs(gaps - ts_ns)) / 1e9)
     return {'missed_samples': missed, 'max_jitter': jitter}

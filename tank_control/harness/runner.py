@@ -9,7 +9,10 @@
 ROS run, step by step (no sleeps: every wait spins the recorder until an event):
 
 1. the recorder node starts in this process (its own rclpy context);
-2. every node starts as its own OS process
+2. every node starts as its own OS process (in sim mode the plant, whose
+   clock runs from its start, only once the others are up; ticks published
+   before the recorder has matched the plant — discovery takes 1–2 s of wall
+   time — are not recorded and are counted as missed samples)
    (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
    plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
    ``-p lockstep.paused:=true`` for the plant in lockstep);
@@ -32,6 +35,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -51,7 +55,7 @@ from tank_control.harness.trace import TraceTable, from_core_trace, from_message
 
 NS = 1_000_000_000
 OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
-GAIN_NAMES = ('kp', 'ti', 'td', 'b', 'c', 'n', 'ki')
+GAIN_NAMES = re.compile(r'^(kp|ki|ti|td|b|c|n|d12|d21)(_\w+)?$')
 PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
              'controller': ('manipulated',)}
 
@@ -136,7 +140,7 @@ def finish(scenario: Scenario, out: Path, trace: TraceTable, run_info: dict[str,
     """Write trace.csv, run.mcap, metrics.json and plot.png."""
     limits = input_limits(scenario, controller_params)
     body = metrics_mod.trace_metrics(trace, {name: limits['*'] for name in trace.channels('u')})
-    gains = {k: v for k, v in controller_params.items() if k.split('.')[-1] in GAIN_NAMES}
+    gains = {k: v for k, v in controller_params.items() if GAIN_NAMES.match(k.split('.')[-1])}
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
     metrics = {
         'scenario': scenario.name,
@@ -264,9 +268,16 @@ class _RosRun:
         try:
             recorder = Recorder(context)
             self.recorder = recorder
-            for node in self.config.nodes:
+            nodes = self.config.nodes
+            # sim: the plant's clock runs from its start, so it starts once the others are up
+            late = ('plant',) if self.mode == 'sim' and 'plant' in nodes else ()
+            for node in (n for n in nodes if n not in late):
                 self.group.start(node, self._argv(node), env=self.env)
-            self._await_graph()
+            self._await_graph([n for n in nodes if n not in late])
+            for node in late:
+                self.group.start(node, self._argv(node), env=self.env)
+            if late:
+                self._await_graph(nodes)
             if self.mode == 'lockstep' and 'plant' in self.config.nodes:
                 self._unpause()
             run_start = time.monotonic()
@@ -304,14 +315,14 @@ class _RosRun:
             if reason:
                 raise RunFailed(f'could not start the plant\'s clock: {reason}')
 
-    def _await_graph(self) -> None:
+    def _await_graph(self, nodes: Sequence[str]) -> None:
         """Every node in the graph and every publisher the recorder needs matched
         (in lockstep the plant holds tick 0 until it is un-paused)."""
         rec = self.recorder
-        topics = [topic for node in self.config.nodes for topic in PUBLISHES[node]]
-        self._await(lambda: (set(self.config.nodes) <= rec.node_names()
+        topics = [topic for node in nodes for topic in PUBLISHES[node]]
+        self._await(lambda: (set(nodes) <= rec.node_names()
                              and all(rec.publisher_count(t) > 0 for t in topics)),
-                    'the graph did not come up (nodes ' + ', '.join(self.config.nodes)
+                    'the graph did not come up (nodes ' + ', '.join(nodes)
                     + '; publishers of ' + ', '.join(topics) + ')')
 
     def _sim_ns(self) -> int | None:
@@ -389,7 +400,8 @@ class _RosRun:
         stamps = np.array([s for s in sorted({m.stamp_ns for m in recorder.signal_messages()
                                               if m.topic == 'measurement'})
                            if s - t0 <= self.duration_ns], dtype=np.int64)
-        sampling = metrics_mod.sampling_metrics(stamps, sample_time)
+        sampling = metrics_mod.sampling_metrics(stamps, sample_time,
+                                               None if self.mode == 'wall' else 0)
         ticks = len(trace)
         run_info = {
             'mode': self.mode,
