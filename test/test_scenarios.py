@@ -216,3 +216,15 @@ def test_003_unreachable_temperature_setpoint_winds_up_and_raises_the_level(resu
     h = result.trace.columns['y.h']
     assert h[-1] > 81.0 + 10.0                                   # level far above its setpoint
     assert result.metrics['inputs']['F_H']['min'] == 0.0         # hot water shut off
+
+
+def test_003_setpoint_guard_keeps_the_level_when_the_temperature_is_unreachable(results):
+    """Our answer to that failure mode (the controller's two_loop.setpoint_guard, on by
+    default): the same unreachable request leaves the level at its setpoint and T_out at
+    the coldest reachable temperature instead of winding up."""
+    result = results('tank_pi_unreachable', 'controller.two_loop.setpoint_guard=true')
+    assert_physical(result)
+    h = result.trace.columns['y.h']
+    assert abs(h[-1] - 81.0) < 0.5
+    temp = result.trace.columns['y.T_out'][-1]
+    assert 24.0 < temp < 27.0                       # as cold as F_D at 33 °C allows, not 24
