@@ -26,6 +26,12 @@ Per output channel (one with a setpoint column ``r.<name>``):
 Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
 and ``constraint_violations`` (samples outside the controller's
 ``[u_min, u_max]``, 1e-9 tolerance, when limits are known).
+
+Run (``sampling_metrics``): ``missed_samples`` — plant ticks without a recorded
+measurement (gaps, and before the first one when the clock starts at 0);
+``max_jitter`` [s] — largest deviation of the spacing of successive
+measurements from the plant sample time: of their stamps in sim/lockstep (0 on
+the exact tick grid), of their arrival times at the recorder in wall mode.
 """
 from __future__ import annotations
 

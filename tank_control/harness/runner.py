@@ -278,9 +278,9 @@ class _RosRun:
                 self.group.start(node, self._argv(node), env=self.env)
             if late:
                 self._await_graph(nodes)
+            run_start = time.monotonic()
             if self.mode == 'lockstep' and 'plant' in self.config.nodes:
                 self._unpause()
-            run_start = time.monotonic()
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
@@ -319,7 +319,8 @@ class _RosRun:
         """Every node in the graph and every publisher the recorder needs matched
         (in lockstep the plant holds tick 0 until it is un-paused)."""
         rec = self.recorder
-        topics = [topic for node in nodes for topic in PUBLISHES[node]]
+        topics = [topic for node in nodes for topic in PUBLISHES[node]
+                  if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
         self._await(lambda: (set(nodes) <= rec.node_names()
                              and all(rec.publisher_count(t) > 0 for t in topics)),
                     'the graph did not come up (nodes ' + ', '.join(nodes)
@@ -395,13 +396,20 @@ class _RosRun:
                  plant_params: dict[str, Any], codes: Mapping[str, int], run_wall: float,
                  total_wall: float) -> RunResult:
         t0 = self.t0_ns or 0
-        trace = from_messages(recorder.signal_messages(), t0, self.duration_ns)
+        trace = from_messages(recorder.signal_messages(), t0, self.duration_ns)  # deserialises
         sample_time = plant_params.get('sample_time', self.scenario.params('plant').get('sample_time'))
-        stamps = np.array([s for s in sorted({m.stamp_ns for m in recorder.signal_messages()
+        signals = recorder.signal_messages()
+        stamps = np.array([s for s in sorted({m.stamp_ns for m in signals
                                               if m.topic == 'measurement'})
                            if s - t0 <= self.duration_ns], dtype=np.int64)
         sampling = metrics_mod.sampling_metrics(stamps, sample_time,
                                                None if self.mode == 'wall' else 0)
+        if self.mode == 'wall':
+            # Stamps of a wall-clock plant lie on its timer's grid; the jitter a consumer sees
+            # is in the arrival times (timer jitter plus transport), measured by the recorder.
+            arrivals = np.array([m.log_time_ns for m in recorder.messages
+                                 if m.topic == '/measurement'], dtype=np.int64)[:len(stamps)]
+            sampling['max_jitter'] = metrics_mod.sampling_metrics(arrivals, sample_time)['max_jitter']
         ticks = len(trace)
         run_info = {
             'mode': self.mode,
