@@ -20,7 +20,10 @@ TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance'
 def scenario(tmp_path: Path) -> tuple[dict, Path]:
     """config/ipdt_pid.yaml, shortened, with measurement noise (same seeded draws in both)."""
     params = read_params_file(REPO / 'config' / 'ipdt_pid.yaml')
-    params['plant'].update({'noise_std': [0.01], 'seed': 7, 'lockstep.paused': True})
+    # Paced at 20 x real time (200 ticks/s): the recorder in this test process must keep up
+    # with four topics whose writers keep only the last 10 samples.
+    params['plant'].update({'noise_std': [0.01], 'seed': 7, 'lockstep.paused': True,
+                            'real_time_factor': 20.0})
     params['reference'].update({'setpoint.y.times': [0.0, 1.0], 'setpoint.y.values': [0.0, 1.0],
                                 'setpoint.y.ramp_rate': 0.5,
                                 'disturbance.v.times': [0.0, 12.0],

@@ -141,3 +141,20 @@ def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs,
     log = proc.tail(50)
     assert log.count('non-finite value') == 2 and log.count("unknown channel 'w'") == 1
     assert proc.returncode is None   # still running
+
+
+def test_sim_mode_publishes_clock_at_the_real_time_factor(procs, ros_env, node_cmd, probe,
+                                                         tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='fopdt', sample_time=0.1,
+                       clock_mode='sim', real_time_factor=5.0)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: len(rec.clock) >= 3, 20), proc.tail()
+    n = len(rec.clock)
+    t0 = probe.node.get_clock().now().nanoseconds
+    assert probe.wait_for(lambda: len(rec.clock) >= n + 25, 10)
+    wall = (probe.node.get_clock().now().nanoseconds - t0) / 1e9
+    sim = (rec.clock[-1] - rec.clock[n - 1]) / 1e9
+    assert 0.6 < (sim / wall) / 5.0 < 1.5                  # 5 × real time
+    assert all(b - a == 100_000_000 for a, b in zip(rec.clock, rec.clock[1:]))
+    stamps = [s for s, _, _ in rec.measurements]
+    assert stamps and all(s % 100_000_000 == 0 for s in stamps)   # on the k·ts grid

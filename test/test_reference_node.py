@@ -82,6 +82,10 @@ def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
     d = {s: v[0] for s, _, v in disturbances}
     # Ramp from 0 at t = 0.5 s toward -0.5 at 1 /s: -0.1 at 0.6 s, -0.5 from 1.0 s.
     assert abs(d[600_000_000] + 0.1) < 1e-12 and d[1_000_000_000] == -0.5
+    # Each tick was answered once; the next one ahead (anticipated: ticks are evenly spaced).
+    assert probe.wait_for(lambda: setpoints[-1][0] == 1_100_000_000, 5)
+    assert sorted({s for s, _, _ in setpoints}) == [k * 100_000_000 for k in range(12)]
+    assert len({m for m in setpoints}) == 12   # repeated stamps carry identical answers
     # A re-sent tick gets the identical answer again.
     n = len(setpoints)
     clock.publish(clock_msg(1_000_000_000))

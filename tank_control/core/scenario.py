@@ -82,6 +82,21 @@ _Loader.add_implicit_resolver(
 _Loader.add_implicit_resolver('tag:yaml.org,2002:bool', re.compile(r'^(?:y|Y|n|N)$'), list('yYnN'))
 _Loader.bool_values = {**yaml.SafeLoader.bool_values, 'y': True, 'n': False}
 
+
+
+def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict[str, Any]:
+    """Map keys are parameter/node names, always strings (as in rcl's parser): a key
+    ``y`` stays ``'y'``, while a value ``y`` is a boolean."""
+    out: dict[str, Any] = {}
+    for key_node, value_node in node.value:
+        key = key_node.value if isinstance(key_node, yaml.ScalarNode) else str(
+            loader.construct_object(key_node, deep=True))
+        out[key] = loader.construct_object(value_node, deep=True)
+    return out
+
+
+_Loader.add_constructor('tag:yaml.org,2002:map', _construct_mapping)
+
 _WILDCARDS = ('/**', '/*')
 
 

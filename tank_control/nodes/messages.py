@@ -17,6 +17,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from builtin_interfaces.msg import Time
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -32,6 +33,25 @@ SIGNAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+
+
+
+def quiet_publisher_events() -> PublisherEventCallbacks:
+    """No default QoS-event handlers for a hot-path publisher.
+
+    rclpy attaches an "incompatible QoS/type" handler to every endpoint by
+    default; each is one more waitable the executor rebuilds its wait set with
+    on every spin — measurable in lockstep, where a tick is a few callbacks.
+    Our signal QoS (reliable) is compatible with reliable and best-effort
+    readers alike, so the handlers have nothing to report.
+    """
+    return PublisherEventCallbacks(use_default_callbacks=False)
+
+
+def quiet_subscription_events() -> SubscriptionEventCallbacks:
+    """No default QoS-event handlers for a hot-path subscription (see above)."""
+    return SubscriptionEventCallbacks(use_default_callbacks=False)
+
 
 TOPIC_MEASUREMENT = 'measurement'
 TOPIC_MANIPULATED = 'manipulated'

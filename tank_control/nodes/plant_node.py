@@ -16,7 +16,7 @@ Clock modes (parameter ``clock_mode``, BRIEF "Clock modes"):
 * ``wall``: a wall timer every ``sample_time``; stamps ``start + k·ts``.
 * ``sim``: a wall timer every ``sample_time / real_time_factor``; tick k is
   ``t_k = k·ts_ns`` on ``/clock`` (measurement first, then ``/clock``).
-* ``lockstep``: tick k publishes ``measurement`` and ``/clock`` stamped
+* ``lockstep``: tick k publishes ``/clock`` and ``measurement`` stamped
   ``t_k``; the plant integrates ``[t_k, t_k+1)`` once every input channel
   has a value stamped ``t_k`` on ``manipulated`` and (with
   ``lockstep.wait_for_reference``) the ``disturbance`` message of ``t_k``
@@ -54,12 +54,14 @@ from tank_control.core.scenario import PLANT_NODE_SPECS, build_noise, build_plan
 from tank_control.nodes.clock import StampedInbox, steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
-                                         ChannelFilter, clock_msg, to_joint_state)
+                                         ChannelFilter, clock_msg, quiet_publisher_events,
+                                         quiet_subscription_events, to_joint_state)
 from tank_control.nodes.params import ParameterBinding
 from tank_control.nodes.runtime import run_node
 
 _KIND_SPEC: ParamSpec = PLANT_NODE_SPECS[0]
 _NODE_ONLY = {s.name for s in PLANT_NODE_SPECS}
+_LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
 
 
 class PlantNode(Node):
@@ -84,16 +86,20 @@ class PlantNode(Node):
         self.counters = {'ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
                          'rejected_changes': 0, 'late_ticks': 0}
 
-        self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS)
-        self.clock_pub = (self.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS)
+        self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
+                                                     event_callbacks=quiet_publisher_events())
+        self.clock_pub = (self.create_publisher(Clock, TOPIC_CLOCK, CLOCK_QOS,
+                                                event_callbacks=quiet_publisher_events())
                           if self.mode in ('sim', 'lockstep') else None)
         self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names),
                         TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names)}
         self.create_subscription(JointState, TOPIC_MANIPULATED,
-                                 lambda m: self._on_input(TOPIC_MANIPULATED, m), SIGNAL_QOS)
+                                 lambda m: self._on_input(TOPIC_MANIPULATED, m), SIGNAL_QOS,
+                                 event_callbacks=quiet_subscription_events())
         self.create_subscription(JointState, TOPIC_DISTURBANCE,
-                                 lambda m: self._on_input(TOPIC_DISTURBANCE, m), SIGNAL_QOS)
+                                 lambda m: self._on_input(TOPIC_DISTURBANCE, m), SIGNAL_QOS,
+                                 event_callbacks=quiet_subscription_events())
 
         required: dict[str, tuple[str, ...]] = {TOPIC_MANIPULATED: self.plant.input_names}
         if values['lockstep.wait_for_reference']:
@@ -122,6 +128,8 @@ class PlantNode(Node):
             self._set_pacing(rtf)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady)
+        self._is_paused = bool(values['lockstep.paused'])
+        self._resend_period = float(values['lockstep.resend_period'])
         self.add_post_set_parameters_callback(self._on_params_set)
         if self.mode == 'sim' or (self.mode == 'lockstep' and not self._paused()):
             self._publish_tick()          # tick 0 right away (re-sent until answered)
@@ -173,11 +181,16 @@ class PlantNode(Node):
                 self._timer.timer_period_ns = to_ns(self.ts / rtf)
 
     def _paused(self) -> bool:
-        return bool(self.params.values['lockstep.paused'])
+        return self._is_paused
 
     def _on_params_set(self, parameters: list) -> None:
         """Un-pausing lockstep acts at once (other changes wait for the next step)."""
         # rclpy may run this before the binding's own post-set callback: read the new value.
+        for p in parameters:
+            if p.name == 'lockstep.paused':
+                self._is_paused = bool(p.value)
+            elif p.name == 'lockstep.resend_period':
+                self._resend_period = float(p.value)
         unpaused = any(p.name == 'lockstep.paused' and not p.value for p in parameters)
         if self.mode == 'lockstep' and unpaused and not self._awaiting:
             if self._pace_timer is not None:
@@ -202,9 +215,16 @@ class PlantNode(Node):
 
     def _send(self) -> None:
         msg, clock = self._tick_msgs
-        self.measurement_pub.publish(msg)
-        if clock is not None:
+        if self.mode == 'lockstep':
+            # /clock first: it starts the longest answer chain (reference → setpoint →
+            # controller), the measurement only has to be there when the setpoint is.
             self.clock_pub.publish(clock)
+            self.measurement_pub.publish(msg)
+        else:
+            # sim: the measurement of t_k must be in before /clock fires the others' timers.
+            self.measurement_pub.publish(msg)
+            if clock is not None:
+                self.clock_pub.publish(clock)
         self._sent_at = time.monotonic()
 
     def _step(self) -> None:
@@ -230,14 +250,16 @@ class PlantNode(Node):
         if self.mode != 'lockstep':
             (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
             return
-        if t_ns is None or t_ns != self.k * self.ts_ns or not self._awaiting:
-            return                      # malformed, a stale duplicate, or not asked for
+        current = self.k * self.ts_ns
+        if t_ns is None or not current <= t_ns <= current + _LOOKAHEAD * self.ts_ns:
+            return                      # malformed, a stale duplicate, or far ahead
         held = self.u if topic == TOPIC_MANIPULATED else self.d
         # A known channel with an ignored (non-finite) value still answers the
         # tick: its last valid value is kept.
         answered = {n: accepted.get(n, held[n]) for n in msg.name if n in flt.known}
+        # Answers for a later tick (the reference may answer ahead) wait in the inbox.
         self.inbox.put(topic, t_ns, answered)
-        if self.inbox.complete(t_ns):
+        if t_ns == current and self._awaiting and self.inbox.complete(t_ns):
             self._advance(t_ns)
 
     def _advance(self, t_ns: int) -> None:
@@ -275,8 +297,7 @@ class PlantNode(Node):
             self._publish_tick()
 
     def _on_resend(self) -> None:
-        period = float(self.params.values['lockstep.resend_period'])
-        if self._awaiting and time.monotonic() - self._sent_at >= period:
+        if self._awaiting and time.monotonic() - self._sent_at >= self._resend_period:
             self.counters['resent_ticks'] += 1
             self._send()
 

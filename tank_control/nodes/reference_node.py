@@ -10,7 +10,12 @@ Timing: with ``clock_mode: wall`` (default) and without ``use_sim_time`` on a
 wall timer every ``sample_time`` (schedule time = seconds since start, stamp =
 now); with ``clock_mode`` ``sim``/``lockstep`` or ``use_sim_time`` on every
 ``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
-re-sent tick gets the same messages again, nothing is recomputed).
+re-sent tick gets the same messages again, nothing is recomputed). With
+``lockstep.anticipate`` (default) it also answers the next tick
+``t_k + (t_k − t_{k−1})`` right away: the values are a function of time only,
+so the messages are the ones it would send on ``/clock t_{k+1}``, and the
+controller of tick k+1 then needs only the measurement — one DDS hop less per
+tick. (Live parameter changes then act from the next tick not yet answered.)
 
 Parameters: ``core/reference.py`` (layout and semantics). Runtime changes
 (``ros2 param set /reference setpoint.y.value 2.0``) are validated (limits,
@@ -24,14 +29,16 @@ from typing import Any
 
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.reference import (FIELDS, KINDS, Reference, channel_lists,
                                          reference_from_params, reference_params,
                                          schedule_from_fields, split_param_name)
-from tank_control.nodes.clock import Answers, steady_clock
+from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
-                                         TOPIC_SETPOINT, stamp_to_ns, to_joint_state)
+                                         TOPIC_SETPOINT, quiet_publisher_events,
+                                         quiet_subscription_events, stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
 
@@ -57,16 +64,19 @@ class ReferenceNode(Node):
         self.reference: Reference = reference
         self.params = ParameterBinding(self, reference_params(reference),
                                        cross_check=self._cross_check)
-        self.setpoint_pub = self.create_publisher(type(to_joint_state(0, [], [])),
-                                                  TOPIC_SETPOINT, SIGNAL_QOS)
-        self.disturbance_pub = self.create_publisher(type(to_joint_state(0, [], [])),
-                                                     TOPIC_DISTURBANCE, SIGNAL_QOS)
-        self.answers = Answers()
+        self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, SIGNAL_QOS,
+                                                  event_callbacks=quiet_publisher_events())
+        self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
+                                                     event_callbacks=quiet_publisher_events())
+        self._answered: dict[int, tuple[JointState, JointState]] = {}
+        self._last_clock: int | None = None
+        self._anticipate = bool(self.params.values['lockstep.anticipate'])
         self.published = 0
         self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
                              or self.params.values['clock_mode'] != 'wall')
         if self.use_sim_time:
-            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS)
+            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
+                                     event_callbacks=quiet_subscription_events())
         else:
             period = float(self.params.values['sample_time'])
             self._start_ns = self.get_clock().now().nanoseconds
@@ -118,21 +128,31 @@ class ReferenceNode(Node):
         ref = self.reference
         sp = to_joint_state(stamp_ns, ref.setpoint_names, ref.setpoints(t))
         dist = to_joint_state(stamp_ns, ref.disturbance_names, ref.disturbances(t))
-        self.answers.remember(stamp_ns, sp, dist)
+        self._answered[stamp_ns] = (sp, dist)
         self.setpoint_pub.publish(sp)
         self.disturbance_pub.publish(dist)
         self.published += 1
 
     def _on_clock(self, msg: Clock) -> None:
+        """Answer tick t_k once (idempotent: a re-sent /clock gets the same messages);
+        with ``lockstep.anticipate`` also answer the next tick ahead."""
         t_ns = stamp_to_ns(msg.clock)
-        cached = self.answers.get(t_ns)
-        if cached is not None:            # a re-sent tick: the same answer again
+        if self._last_clock is not None and t_ns < self._last_clock:
+            return                        # a stale duplicate of an earlier tick
+        cached = self._answered.get(t_ns)
+        if t_ns == self._last_clock and cached is not None:   # the plant re-sent tick k
             for pub, answer in zip((self.setpoint_pub, self.disturbance_pub), cached):
                 pub.publish(answer)
             return
-        if self.answers.stamp is not None and t_ns < self.answers.stamp:
-            return                        # a stale duplicate of an earlier tick
-        self._publish(t_ns, seconds(t_ns))
+        previous, self._last_clock = self._last_clock, t_ns
+        for stamp in [s for s in self._answered if s < t_ns]:
+            del self._answered[stamp]
+        if cached is None:
+            self._publish(t_ns, seconds(t_ns))
+        if self._anticipate and previous is not None and t_ns > previous:
+            ahead = 2 * t_ns - previous   # the plant's ticks are evenly spaced
+            if ahead not in self._answered:
+                self._publish(ahead, seconds(ahead))
 
     def _on_timer(self) -> None:
         now_ns = self.get_clock().now().nanoseconds
