@@ -100,6 +100,14 @@ class Recorder:
     def node_names(self) -> set[str]:
         return set(self.node.get_node_names())
 
+    def node_counts(self) -> dict[str, int]:
+        """How many nodes of each name the graph holds (two ``plant``s: two graphs on one domain)."""
+        counts: dict[str, int] = {}
+        for name, namespace in self.node.get_node_names_and_namespaces():
+            key = name if namespace == '/' else f'{namespace.rstrip("/")}/{name}'
+            counts[key] = counts.get(key, 0) + 1
+        return counts
+
     def signal_messages(self) -> list[SignalMessage]:
         """The recorded signal messages, deserialised (after the run)."""
         from sensor_msgs.msg import JointState

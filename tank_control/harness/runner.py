@@ -317,7 +317,8 @@ class _RosRun:
 
     def _await_graph(self, nodes: Sequence[str]) -> None:
         """Every node in the graph and every publisher the recorder needs matched
-        (in lockstep the plant holds tick 0 until it is un-paused)."""
+        (in lockstep the plant holds tick 0 until it is un-paused); fail if the names are
+        taken twice (another run on the same ROS_DOMAIN_ID would mix into this one)."""
         rec = self.recorder
         topics = [topic for node in nodes for topic in PUBLISHES[node]
                   if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
@@ -325,6 +326,17 @@ class _RosRun:
                              and all(rec.publisher_count(t) > 0 for t in topics)),
                     'the graph did not come up (nodes ' + ', '.join(nodes)
                     + '; publishers of ' + ', '.join(topics) + ')')
+        self._check_no_other_graph()
+
+    def _check_no_other_graph(self) -> None:
+        counts = self.recorder.node_counts()
+        taken = [name for name in self.config.nodes if counts.get(name, 0) > (
+            1 if name in self.group.processes else 0)]
+        if taken:
+            domain = self.env.get('ROS_DOMAIN_ID', '0')
+            raise RunFailed(f'node name(s) {", ".join(taken)} already in use on ROS_DOMAIN_ID '
+                            f'{domain}: another graph is running there and would mix into this '
+                            'run; stop it or set a different ROS_DOMAIN_ID')
 
     def _sim_ns(self) -> int | None:
         stamp = self.recorder.latest.get('measurement')
