@@ -79,6 +79,9 @@ def _run_one(path: Path, out: Path, args: argparse.Namespace):
 
 def _print_result(result) -> None:
     from tank_control.harness.compare import markdown_table
+    claim = result.metrics.get('claim')
+    if claim:
+        print(f'documented claim: {claim}')
     print(markdown_table([result]), end='')
     for key in ('plot', 'trace', 'recording', 'metrics'):
         print(f'{key}: {result.files[key]}')

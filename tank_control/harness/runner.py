@@ -145,6 +145,7 @@ def finish(scenario: Scenario, out: Path, trace: TraceTable, run_info: dict[str,
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
+        'claim': scenario.harness.claim,
         'mode': run_info.get('mode'),
         **body,
         'run': run_info,
