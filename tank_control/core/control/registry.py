@@ -137,11 +137,16 @@ def _pid_update(controller: Controller, values: Values, changed: frozenset[str])
     changes = {k: v for k, v in config.items() if getattr(pid.config, k) != v}
     if changes:
         pid.set_gains(**changes)
-    if values['mode'] == 'manual' and ({'mode', 'manual_output'} & changed or pid.mode != 'manual'):
-        pid.set_manual(float(values['manual_output']))
-    elif values['mode'] == 'auto' and pid.mode != 'auto':
-        pid.set_auto()
+    _apply_mode(pid, pid.mode, values, changed)
     return True
+
+
+def _apply_mode(target: Any, mode_now: str, values: Values, changed: frozenset[str]) -> None:
+    """Manual output on request (or when the mode changes), bumpless return to auto."""
+    if values['mode'] == 'manual' and ({'mode', 'manual_output'} & changed or mode_now != 'manual'):
+        target.set_manual(float(values['manual_output']))
+    elif values['mode'] == 'auto' and mode_now != 'auto':
+        target.set_auto()
 
 
 def _pid_kind() -> ControllerKind:
@@ -231,14 +236,18 @@ def _smith_derive(values: Values, changed: frozenset[str]) -> dict[str, Any]:
 
 def _smith_build(values: Values) -> Controller:
     from tank_control.core.control.smith import SmithPredictor, smith_config_from_params
-    return SmithPredictor(smith_config_from_params(values),
-                          output_name=_single(values, 'output_names'),
-                          input_name=_single(values, 'input_names'))
+    controller = SmithPredictor(smith_config_from_params(values),
+                                output_name=_single(values, 'output_names'),
+                                input_name=_single(values, 'input_names'))
+    if values.get('mode') == 'manual':
+        controller.set_manual(float(values['manual_output']))
+    return controller
 
 
 def _smith_update(controller: Controller, values: Values, changed: frozenset[str]) -> bool:
-    """PI primary settings in place (bumpless, the model's history kept); a change of the
-    internal model (smith.*) rebuilds, which restarts the model from the steady state of u."""
+    """PI primary settings and the mode in place (bumpless, the model's history kept); a
+    change of the internal model (smith.*) rebuilds, which restarts the model from the
+    steady state of u."""
     if any(name.startswith('smith.') for name in changed):
         return False
     from tank_control.core.control.smith import smith_config_from_params
@@ -250,6 +259,7 @@ def _smith_update(controller: Controller, values: Values, changed: frozenset[str
     if changes:
         primary.set_gains(**changes)
     controller.config = cfg                   # type: ignore[attr-defined]
+    _apply_mode(controller, primary.mode, values, changed)
     return True
 
 

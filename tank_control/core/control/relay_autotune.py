@@ -1,0 +1,656 @@
+"""Relay auto-tuner: a PID that identifies its process with a relay test and tunes itself.
+
+The "push a button and it tunes itself" controller of 001 §1.3 (Fig. 6.16: a PID
+and an on-off controller in parallel, "Tuning" → "Automat") and 004 §3.2–3.3,
+made safe to run on a live loop (SPEC §2.5, issue 6).
+
+States (``status['state']``)::
+
+    idle ──start()──► settling ──► relay ──► measuring ──► tuned ──► running
+      ▲                  │            │           │                     │
+      └──── failed / aborted ◄────────┴───────────┘        start() again┘
+
+* ``idle`` / ``running`` / ``failed`` / ``aborted``: normal PID operation
+  (:class:`~tank_control.core.control.pid.Pid2Dof`); ``running`` with the tuned
+  gains, ``failed``/``aborted`` with the gains from before the test (restored,
+  bumpless from the bias ``u0``).
+* ``settling``: the PID keeps control until the output has stayed within
+  ``autotune.settle_band`` of the setpoint for ``autotune.settle_time`` (or
+  ``autotune.settle_timeout`` passed); ``u0`` = mean PID output over that window
+  (the bias of the relay), noise σ estimated from the sample-to-sample
+  differences of ``y`` (σ ≈ std(Δy)/√2).
+* ``relay``: ``u = u0 ± d`` (``d`` = ``autotune.relay_amplitude``) switched by the
+  error with hysteresis ``ε = max(autotune.hysteresis, autotune.noise_band·σ)``,
+  within the PID's output limits (d shrinks so that the relay stays symmetric about
+  u0) and rate limit, until the first whole cycle is complete.
+* ``measuring``: whole cycles are collected until the last ``autotune.min_cycles``
+  are stationary (periods and first-harmonic amplitudes within
+  ``autotune.stationarity_tol``). When a cycle's half-periods are asymmetric
+  (``|Tu1 − Tu2|/P`` above ``autotune.asymmetry_tol`` in two consecutive cycles, on the
+  same side) and bias correction is on, ``u0`` becomes the last cycle's mean input
+  and counting starts again.
+* ``tuned``: :func:`~tank_control.core.tuning.identification.identify_relay` gives
+  ku, tu (first harmonic corrected to −180°, or the describing function if
+  ``autotune.method`` says so) and an FOPDT/IPDT model; the gains come from
+  ``tune(autotune.rule, autotune.kind, ...)``, are set bumplessly and the PID
+  takes over in the same sample (a relay switch, so y is near the setpoint) with
+  its integral at the bias ``u0`` — the equilibrium input, not the last relay value
+  ``u0 ± d``, which would disturb the loop by d; the next sample is ``running``.
+
+Faults end the test in ``failed`` with ``status['reason']``: no oscillation within
+``autotune.timeout`` (counted from the relay start), output deviation above
+``autotune.max_amplitude``, setpoint changed during the test, a non-finite
+measurement or setpoint, an identification or tuning rule that cannot be applied.
+``abort()`` ends it in ``aborted``.
+
+Designed to be driven by a node: ``start()``/``abort()`` return ``(accepted,
+message)`` (a std_srvs/Trigger answer), ``state``/``status`` are plain values.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from tank_control.core.control.pid import PidConfig, Pid2Dof
+from tank_control.core.params import ParamSpec, check_all
+from tank_control.core.tuning import identification as ident
+
+STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'failed', 'aborted')
+TESTING = ('settling', 'relay', 'measuring')
+RULES_ULTIMATE = ('zn_001', 'zn_004_q0', 'zn_004_q1')
+RULES_IPDT = ('mdp', 'experimental')
+RULES_FOPDT = ('oppelt', 'cohen_coon')
+RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT
+
+
+@dataclass(frozen=True)
+class AutotuneConfig:
+    """Settings of the relay test; the ``autotune.*`` parameters without the prefix (see :func:`autotune_params`)."""
+
+    relay_amplitude: float = 1.0
+    hysteresis: float = 0.0
+    noise_band: float = 4.0
+    bias_correction: bool = True
+    asymmetry_tol: float = 0.1
+    min_cycles: int = 4
+    stationarity_tol: float = 0.05
+    timeout: float = 600.0
+    settle_time: float = 10.0
+    settle_band: float = 1.0
+    settle_timeout: float = 300.0
+    max_amplitude: float = 0.0
+    method: str = 'first_harmonic'
+    model: str = 'auto'
+    process_gain: float = 0.0
+    rule: str = 'zn_001'
+    kind: str = 'pid'
+
+    @classmethod
+    def from_params(cls, values: Mapping[str, Any]) -> AutotuneConfig:
+        """From ``autotune.*`` parameter values (missing ones take their defaults); ValueError with the reasons."""
+        specs = autotune_params()
+        reasons = check_all(specs, values)
+        if reasons:
+            raise ValueError('; '.join(reasons))
+        merged = {s.name: s.default for s in specs}
+        merged.update(values)
+        names = {f.name for f in fields(cls)}
+        return cls(**{k.split('.', 1)[1]: v for k, v in merged.items()
+                      if k.split('.', 1)[1] in names})
+
+    def params(self) -> dict[str, Any]:
+        """The ``autotune.*`` parameter values of this configuration."""
+        return {'autotune.' + f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def autotune_params() -> tuple[ParamSpec, ...]:
+    """ParamSpecs of every ``autotune.*`` parameter (units in the descriptions; SPEC §2.5, issue 6)."""
+    big = 1e12
+    return (
+        ParamSpec('autotune.start', False, 'set true to start a relay test (the node resets it to '
+                  'false; same as the ~/start_autotune service)'),
+        ParamSpec('autotune.relay_amplitude', 1.0, 'relay amplitude d around the bias u0 '
+                  '[u units], 001 eq. 6.22 / 004 eq. 3.2.1', min=1e-9, max=big),
+        ParamSpec('autotune.hysteresis', 0.0, 'relay hysteresis ε [y units] (noise band, 004 '
+                  'Fig. 3.3); the larger of this and noise_band·σ is used', min=0.0, max=big),
+        ParamSpec('autotune.noise_band', 4.0, 'automatic hysteresis in units of the noise '
+                  'standard deviation σ estimated while settling [-]; 0 = off', min=0.0, max=100.0),
+        ParamSpec('autotune.bias_correction', True, 'move the relay bias u0 to the mean input '
+                  'of a cycle whose half-periods are asymmetric'),
+        ParamSpec('autotune.asymmetry_tol', 0.1, '|Tu1 − Tu2|/period above which the bias is '
+                  'corrected [-]', min=0.0, max=1.0),
+        ParamSpec('autotune.min_cycles', 4, 'stationary relay periods used for identification '
+                  '[-] (004 §3.3: at least four)', min=2, max=100),
+        ParamSpec('autotune.stationarity_tol', 0.05, 'relative spread of periods and '
+                  'first-harmonic amplitudes allowed among the measured cycles [-]',
+                  min=1e-4, max=1.0),
+        ParamSpec('autotune.timeout', 600.0, 'longest relay + measuring time before the test '
+                  'fails [s]', min=1e-3, max=big),
+        ParamSpec('autotune.settle_time', 10.0, 'the output must stay within settle_band of the '
+                  'setpoint this long before the relay starts [s]', min=0.0, max=big),
+        ParamSpec('autotune.settle_band', 1.0, 'steady band around the setpoint for settling '
+                  '[y units]', min=0.0, max=big),
+        ParamSpec('autotune.settle_timeout', 300.0, 'after this long in settling the relay '
+                  'starts anyway [s]', min=0.0, max=big),
+        ParamSpec('autotune.max_amplitude', 0.0, 'largest |y − setpoint| allowed during the test '
+                  '[y units]; exceeding it fails the test; 0 = no limit', min=0.0, max=big),
+        ParamSpec('autotune.method', 'first_harmonic', 'ultimate point used for tuning: '
+                  'first_harmonic (004 eqs. 3.3.19–3.3.21, corrected to −180°) or '
+                  'describing_function (001 eq. 6.22)',
+                  choices=('first_harmonic', 'describing_function')),
+        ParamSpec('autotune.model', 'auto', 'model identified from the relay data (004 §3.3, '
+                  '3.6.2)', choices=('auto', 'fopdt', 'ipdt')),
+        ParamSpec('autotune.process_gain', 0.0, 'known static gain kP for the FOPDT model '
+                  '(004 eq. 3.6.2) [y units per u unit]; 0 = identify', min=0.0, max=big),
+        ParamSpec('autotune.rule', 'zn_001', 'tuning rule: zn_001 / zn_004_q0 / zn_004_q1 from '
+                  'ku, tu; mdp / experimental from the IPDT model; oppelt / cohen_coon from the '
+                  'FOPDT model', choices=RULES),
+        ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
+                  choices=('p', 'pi', 'pid')),
+    ) + autotune_result_params()
+
+
+def autotune_result_params() -> tuple[ParamSpec, ...]:
+    """Read-only ``autotune.*`` parameters that report the test (written by the node from
+    :meth:`RelayAutotuner.results`); 0 means "no successful test yet"."""
+    big = 1e12
+    return (
+        ParamSpec('autotune.state', 'idle', 'state of the auto-tuner (read-only)', choices=STATES,
+                  read_only=True),
+        ParamSpec('autotune.reason', '', 'why the last test failed or was aborted (read-only)',
+                  read_only=True),
+        ParamSpec('autotune.cycles', 0, 'complete relay cycles counted since the relay started '
+                  'or the bias was last corrected (read-only)', min=0, max=1_000_000,
+                  read_only=True),
+        ParamSpec('autotune.ku', 0.0, 'identified ultimate gain Ku, first harmonic corrected to '
+                  '−180° [u units per y unit] (read-only)', min=0.0, max=big, read_only=True),
+        ParamSpec('autotune.tu', 0.0, 'identified ultimate period Tu [s] (read-only)', min=0.0,
+                  max=big, read_only=True),
+        ParamSpec('autotune.ku_df', 0.0, 'describing-function Ku = 4d/(πa), 001 eq. 6.22 '
+                  '(read-only)', min=0.0, max=big, read_only=True),
+        ParamSpec('autotune.tu_df', 0.0, 'mean relay period [s] (read-only)', min=0.0, max=big,
+                  read_only=True),
+        ParamSpec('autotune.model_kind', 'none', 'identified model (read-only)',
+                  choices=('none', 'fopdt', 'ipdt'), read_only=True),
+        ParamSpec('autotune.model_gain', 0.0, 'model gain K (FOPDT) or k1 (IPDT, per s) '
+                  '(read-only)', min=-big, max=big, read_only=True),
+        ParamSpec('autotune.model_time_constant', 0.0, 'model time constant T [s] (read-only)',
+                  min=0.0, max=big, read_only=True),
+        ParamSpec('autotune.model_dead_time', 0.0, 'model dead time L or To [s] (read-only)',
+                  min=0.0, max=big, read_only=True),
+    )
+
+
+class RelayAutotuner:
+    """SISO Controller (core/interfaces.py): a :class:`Pid2Dof` with a relay auto-tuning test.
+
+    ``pid_config``: the PID in normal operation (its limits bound the relay too);
+    ``autotune``: the test settings. Channels: reads ``output_name``, writes ``input_name``.
+    """
+
+    disturbance_names: tuple[str, ...] = ()
+
+    def __init__(self, pid_config: PidConfig, autotune: AutotuneConfig | None = None,
+                 output_name: str = 'y', input_name: str = 'u') -> None:
+        self.pid = Pid2Dof(pid_config)
+        self.output_names = (output_name,)
+        self.input_names = (input_name,)
+        self._cfg = autotune or AutotuneConfig()
+        self._check_config(self._cfg)
+        self._state = 'idle'
+        self._reason = ''
+        self._pending: float | None = None      # bumpless PID (re)start from this u
+        self._last_out: float | None = None     # last output sent [u units]
+        self._saved_gains: dict[str, Any] | None = None
+        self._result: ident.RelayIdentification | None = None
+        self._gains: dict[str, float | None] | None = None
+        self._cycles = 0
+        self._clear_test()
+
+    # ------------------------------------------------------------------ API
+    @property
+    def sample_time(self) -> float:
+        return self.pid.config.sample_time
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    @property
+    def config(self) -> AutotuneConfig:
+        return self._cfg
+
+    @property
+    def result(self) -> ident.RelayIdentification | None:
+        """The identification of the last successful test."""
+        return self._result
+
+    def configure(self, autotune: AutotuneConfig) -> None:
+        """Replace the test settings (not while a test runs: ValueError)."""
+        if self._state in TESTING:
+            raise ValueError('autotune: settings cannot change while a test is running; abort it first')
+        self._check_config(autotune)
+        self._cfg = autotune
+
+    def start(self) -> tuple[bool, str]:
+        """Begin a test (from idle, running, tuned, failed or aborted). Returns ``(accepted, message)``."""
+        if self._state in TESTING:
+            return False, f'autotune: a test is already running (state {self._state})'
+        self._saved_gains = _gain_fields(self.pid.config)
+        self._clear_test()
+        self._state = 'settling'
+        self._reason = ''
+        return True, 'autotune: test started (settling)'
+
+    def abort(self, reason: str = 'abort requested') -> tuple[bool, str]:
+        """End a running test now: previous gains restored, the PID resumes from u0 at the next sample."""
+        if self._state not in TESTING:
+            return False, f'autotune: no test is running (state {self._state})'
+        self._end('aborted', reason)
+        return True, 'autotune: test aborted, previous gains restored'
+
+    def command(self, name: str) -> tuple[bool, str]:
+        """Operator commands for a node's std_srvs/Trigger services: ``start_autotune``, ``abort_autotune``."""
+        if name == 'start_autotune':
+            return self.start()
+        if name == 'abort_autotune':
+            return self.abort()
+        raise ValueError(f'command: {name!r} is unknown; allowed start_autotune, abort_autotune')
+
+    def results(self) -> dict[str, Any]:
+        """Parameter values the tuner produced (see :func:`autotune_result_params`), the PID's
+        gains in parameter convention (ti = 0: no integral action) and ``autotune.start`` = False
+        (so a node re-arms its start parameter)."""
+        res = self._result
+        model = res.model if res else None
+        cfg = self.pid.config
+        return {
+            'autotune.start': False,
+            'autotune.state': self._state,
+            'autotune.reason': self._reason,
+            'autotune.cycles': int(self._cycles),
+            'autotune.ku': float(res.ku) if res else 0.0,
+            'autotune.tu': float(res.tu) if res else 0.0,
+            'autotune.ku_df': float(res.ku_df) if res else 0.0,
+            'autotune.tu_df': float(res.tu_df) if res else 0.0,
+            'autotune.model_kind': model.kind if model else 'none',
+            'autotune.model_gain': float(model.gain) if model else 0.0,
+            'autotune.model_time_constant': float(getattr(model, 'time_constant', 0.0)) if model else 0.0,
+            'autotune.model_dead_time': float(model.dead_time) if model else 0.0,
+            'kp': abs(cfg.kp), 'ti': cfg.ti if math.isfinite(cfg.ti) else 0.0, 'td': cfg.td,
+            'b': cfg.b, 'c': cfg.c,
+        }
+
+    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
+        """Bumpless (re)start of normal PID operation from ``u``; a running test is abandoned (aborted)."""
+        u0 = _scalar(u, 'u')
+        if not math.isfinite(u0):
+            raise ValueError(f'reset: u = {u0!r} is not finite')
+        if self._state in TESTING:
+            self._end('aborted', 'reset during the test')
+        self._pending = u0
+        self._last_out = u0
+
+    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """One sample: time [s], measurement, setpoint → manipulated input (1 value).
+
+        The PID's rate limit also holds across the hand-overs PID → relay → PID.
+        """
+        yv, rv = _scalar(y, 'y'), _scalar(r, 'r')
+        u = None
+        if self._state in TESTING:
+            u = self._test_step(float(t), yv, rv)
+        elif self._state == 'tuned':
+            self._state = 'running'
+        if u is None:
+            u = self._limit(self._pid_step(yv, rv))
+        self._last_out = u
+        return np.array([u])
+
+    @property
+    def status(self) -> Mapping[str, Any]:
+        """state, reason, cycles (complete relay cycles counted), u0 (relay bias), hysteresis ε,
+        noise_std σ, ku, tu (first harmonic, corrected), ku_df, tu_df (describing function),
+        amplitude, model (dict), model_method, gains (dict from the rule) and the PID status
+        under 'pid'. Results are those of the last successful test (NaN/empty before one)."""
+        res = self._result
+        status: dict[str, Any] = {
+            'state': self._state,
+            'reason': self._reason,
+            'cycles': self._cycles,
+            'u0': self._u0 if self._u0 is not None else math.nan,
+            'hysteresis': self._eps,
+            'noise_std': self._sigma,
+            'ku': res.ku if res else math.nan,
+            'tu': res.tu if res else math.nan,
+            'ku_df': res.ku_df if res else math.nan,
+            'tu_df': res.tu_df if res else math.nan,
+            'amplitude': res.amplitude if res else math.nan,
+            'model': dict(res.model.as_dict()) if res else {},
+            'model_method': res.model_method if res else '',
+            'gains': dict(self._gains) if self._gains else {},
+        }
+        status['pid'] = dict(self.pid.status)
+        return status
+
+    # ------------------------------------------------------------ internals
+    @staticmethod
+    def _check_config(cfg: AutotuneConfig) -> None:
+        reasons = check_all(autotune_params(), cfg.params())
+        if reasons:
+            raise ValueError('; '.join(reasons))
+
+    def _clear_test(self) -> None:
+        self._t_start = math.nan       # start of the current phase [s]
+        self._r_test = math.nan
+        self._win_t: deque[float] = deque()
+        self._win_y: deque[float] = deque()
+        self._win_u: deque[float] = deque()
+        self._u0: float | None = None
+        self._u0_start: float | None = None
+        self._sigma = math.nan
+        self._eps = math.nan
+        self._relay_high = True
+        self._rec_t: list[float] = []
+        self._rec_u: list[float] = []
+        self._rec_y: list[float] = []
+        self._first_cycle = 0
+        self._cycles = 0
+
+    def _pid_step(self, y: float, r: float) -> float:
+        if self._pending is not None:
+            if not (math.isfinite(y) and math.isfinite(r)):
+                return self._clip(self._pending)
+            self.pid.reset(r, y, self._pending)
+            self._pending = None
+        return self.pid.update(r, y)
+
+    def _clip(self, u: float) -> float:
+        cfg = self.pid.config
+        return min(max(u, cfg.u_min), cfg.u_max)
+
+    def _amplitude(self) -> float:
+        """``autotune.relay_amplitude``, reduced so that ``u0 ± d`` stays within the output limits
+        (a clipped, asymmetric relay would defeat the bias correction)."""
+        cfg = self.pid.config
+        return min(self._cfg.relay_amplitude, cfg.u_max - self._u0, self._u0 - cfg.u_min)
+
+    def _limit(self, u: float) -> float:
+        """The PID's output limits and rate limit (du_max per second) applied to the relay output."""
+        cfg = self.pid.config
+        if self._last_out is not None and math.isfinite(cfg.du_max):
+            step = cfg.du_max * cfg.sample_time
+            u = min(max(u, self._last_out - step), self._last_out + step)
+        return self._clip(u)
+
+    def _direction(self) -> float:
+        cfg = self.pid.config
+        return -1.0 if (cfg.direct_action != (cfg.kp < 0)) else 1.0
+
+    def _end(self, state: str, reason: str) -> None:
+        """Leave the test: restore the gains from before it, PID resumes bumplessly from u0."""
+        if self._saved_gains is not None:
+            self.pid.set_gains(**self._saved_gains)
+        if self._u0 is not None:
+            self._pending = self._u0              # the bias: equilibrium input of the test
+        elif self._pending is None:               # ended while settling: continue the last output
+            last = self._last_out if self._last_out is not None else self.pid.output
+            self._pending = 0.0 if last is None else last
+        self._state = state
+        self._reason = reason
+
+    def _test_step(self, t: float, y: float, r: float) -> float | None:
+        """One sample of settling/relay/measuring; None = let the PID act (settling, or the test ended)."""
+        if not (math.isfinite(y) and math.isfinite(r)):
+            self._end('failed', 'non-finite measurement or setpoint during the test')
+            return None
+        if math.isnan(self._t_start):
+            self._t_start, self._r_test = t, r
+        if r != self._r_test:
+            self._end('failed', 'setpoint changed during the test')
+            return None
+        if self._state == 'settling':
+            return self._settle(t, y, r)
+        return self._relay(t, y, r)
+
+    def _settle(self, t: float, y: float, r: float) -> float | None:
+        cfg = self._cfg
+        u = self._pid_step(y, r)
+        self._win_t.append(t)
+        self._win_y.append(y)
+        self._win_u.append(u)
+        while self._win_t and self._win_t[0] < t - cfg.settle_time - 1e-9:
+            for window in (self._win_t, self._win_y, self._win_u):
+                window.popleft()
+        elapsed = t - self._t_start
+        full = elapsed >= cfg.settle_time - 1e-9
+        steady = full and all(abs(v - r) <= cfg.settle_band for v in self._win_y)
+        if steady or elapsed >= cfg.settle_timeout:
+            wy = np.array(self._win_y)
+            self._u0 = float(np.mean(self._win_u))
+            self._u0_start = self._u0
+            self._sigma = float(np.std(np.diff(wy)) / math.sqrt(2.0)) if len(wy) > 2 else 0.0
+            self._eps = max(cfg.hysteresis, cfg.noise_band * self._sigma)
+            self._state = 'relay'
+            self._t_start = t
+            self._relay_high = r - y >= 0.0
+            if self._amplitude() < 0.1 * self._cfg.relay_amplitude:
+                self._end('failed', f'relay has no amplitude: the bias u0 = {self._u0:g} is within '
+                                    f'10 % of autotune.relay_amplitude from an output limit')
+                return None
+            return self._relay(t, y, r)
+        return u
+
+    def _relay(self, t: float, y: float, r: float) -> float | None:
+        cfg = self._cfg
+        if cfg.max_amplitude > 0 and abs(y - r) > cfg.max_amplitude:
+            self._end('failed', f'output amplitude |y − r| = {abs(y - r):g} above '
+                                f'autotune.max_amplitude = {cfg.max_amplitude:g}')
+            return None
+        e = r - y      # relay in the frame of a positive-gain plant; the sign goes on u
+        if e > self._eps:
+            self._relay_high = True
+        elif e < -self._eps:
+            self._relay_high = False
+        sign = 1.0 if self._relay_high else -1.0
+        u = self._limit(self._u0 + self._direction() * sign * self._amplitude())
+        switched = bool(self._rec_u) and (u != self._rec_u[-1])
+        self._rec_t.append(t)
+        self._rec_u.append(u)
+        self._rec_y.append(y)
+        if switched:
+            self._analyse(r)
+            if self._state not in TESTING:
+                return None       # tuned (PID takes over from u0) or failed
+        if t - self._t_start > cfg.timeout:
+            what = 'no oscillation' if self._state == 'relay' else 'no stationary oscillation'
+            self._end('failed', f'{what} within autotune.timeout = {cfg.timeout:g} s')
+            return None
+        return u
+
+    def _analyse(self, r: float) -> bool:
+        """At a relay switch: count cycles, correct the bias, identify and tune when enough are stationary."""
+        cfg = self._cfg
+        tt = np.array(self._rec_t)
+        uu, ref = self._identification_input()
+        yy = np.array(self._rec_y)
+        cycles = [c for c in ident.relay_cycles(tt, uu, yy, ref) if c.start >= self._first_cycle]
+        if not cycles:
+            return False
+        self._state = 'measuring'
+        last = cycles[-1]
+        if last.end != len(tt) - 1:
+            return False      # this switch closed a half cycle only
+        asym = [(c.high_time - c.low_time) / c.period for c in cycles[-2:]]
+        if (cfg.bias_correction and len(asym) == 2 and min(abs(a) for a in asym) > cfg.asymmetry_tol
+                and asym[0] * asym[1] > 0.0):     # two cycles in a row, same side: not noise
+            seg = slice(last.start, last.end)
+            self._u0 = float(np.mean(np.array(self._rec_u)[seg]))
+            self._first_cycle = last.end
+            self._cycles = 0
+            return False
+        self._cycles = len(cycles)
+        slack = 2.0 * self.sample_time
+        tail = ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack)
+        if tail is None:
+            return False
+        try:
+            res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
+                                       gain=cfg.process_gain or None, kind=cfg.model)
+            gains = self._tune(res)
+            sign = -1.0 if self.pid.config.kp < 0 else 1.0   # keep a reverse action by negative kp
+            new = {'kp': sign * gains['kp'],
+                   'ti': gains['ti'] if gains.get('ti') else math.inf,
+                   'td': gains['td'] if gains.get('td') else 0.0,
+                   'b': gains['b'] if gains.get('b') is not None else 1.0,
+                   'c': gains['c'] if gains.get('c') is not None else 1.0}
+            self.pid.set_gains(**new)
+        except (ValueError, ArithmeticError) as exc:
+            self._end('failed', f'identification/tuning failed: {exc}')
+            return True
+        self._result, self._gains = res, gains
+        self._pending = self._u0
+        self._state = 'tuned'
+        self._reason = ''
+        return True
+
+    def _identification_input(self) -> tuple[np.ndarray, float]:
+        """Recorded u as seen by a positive-gain plant and the current relay centre.
+
+        Reverse-acting loops (negative plant gain) are mirrored around the initial bias.
+        """
+        uu = np.array(self._rec_u)
+        if self._direction() < 0:
+            return 2.0 * self._u0_start - uu, 2.0 * self._u0_start - self._u0
+        return uu, self._u0
+
+    def _tune(self, res: ident.RelayIdentification) -> dict[str, float | None]:
+        from tank_control.core.tuning.rules import tune   # sibling package, imported when needed
+        cfg = self._cfg
+        if cfg.rule in RULES_ULTIMATE:
+            ku, tu = (res.ku, res.tu) if cfg.method == 'first_harmonic' else (res.ku_df, res.tu_df)
+            return dict(tune(cfg.rule, cfg.kind, ku=ku, tu=tu))
+        model = res.model
+        if cfg.rule in RULES_IPDT:
+            if not isinstance(model, ident.IpdtModel):
+                raise ValueError(f'autotune.rule: {cfg.rule} needs an integrating (IPDT) model, '
+                                 f'the relay data gave {model.kind}')
+            return dict(tune(cfg.rule, cfg.kind, gain=model.gain, dead_time=model.dead_time))
+        if not isinstance(model, ident.FopdtModel):
+            raise ValueError(f'autotune.rule: {cfg.rule} needs an FOPDT model, the relay data gave '
+                             f'{model.kind}')
+        return dict(tune(cfg.rule, cfg.kind, gain=model.gain, time_constant=model.time_constant,
+                         dead_time=model.dead_time))
+
+
+def _gain_fields(cfg: PidConfig) -> dict[str, Any]:
+    return {'kp': cfg.kp, 'ti': cfg.ti, 'td': cfg.td, 'n': cfg.n, 'b': cfg.b, 'c': cfg.c}
+
+
+def _scalar(value: Any, name: str) -> float:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.size != 1:
+        raise ValueError(f'{name}: expected 1 value for the SISO relay auto-tuner, got {arr.size}')
+    return float(arr[0])
+
+
+# ------------------------------------------------- controller_node plumbing
+AUTOTUNE_COMMANDS = ('start_autotune', 'abort_autotune')
+_RESULT_NAMES = frozenset(s.name for s in autotune_result_params())
+
+
+def _autotune_values(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The settable ``autotune.*`` values (results and the start trigger left out)."""
+    return {k: v for k, v in values.items()
+            if k.startswith('autotune.') and k not in _RESULT_NAMES and k != 'autotune.start'}
+
+
+def build_relay_autotuner(values: Mapping[str, Any], output_name: str = 'y',
+                          input_name: str = 'u') -> RelayAutotuner:
+    """A :class:`RelayAutotuner` from flat parameter values: the PID's (``pid_params()``:
+    kp, ti, ..., limits, tuning.*) and ``autotune.*``. ValueError with the reasons."""
+    from tank_control.core.control.pid import pid_config_from_params
+    tuner = RelayAutotuner(pid_config_from_params(values),
+                           AutotuneConfig.from_params(_autotune_values(values)),
+                           output_name=output_name, input_name=input_name)
+    if values.get('mode') == 'manual':
+        tuner.pid.set_manual(float(values['manual_output']))
+    if values.get('autotune.start'):
+        tuner.start()
+    return tuner
+
+
+def update_relay_autotuner(tuner: RelayAutotuner, values: Mapping[str, Any],
+                           changed: frozenset[str]) -> bool:
+    """Apply accepted parameter changes in place, bumplessly; always True (never rebuild).
+
+    A change of a PID or test setting while a test runs aborts the test first (reason
+    'parameters changed during the test') — the settings are never accepted and ignored.
+    ``autotune.start`` = True starts a test. Only PID settings named in ``changed`` are
+    applied (so tuned gains are not reverted by an unrelated change before the node has
+    written them back); result parameters (``autotune.state`` …) change nothing.
+    """
+    from dataclasses import asdict
+
+    from tank_control.core.control.pid import pid_config_from_params
+    config = asdict(pid_config_from_params(values))
+    # only PID settings named in `changed`: the running gains may be tuned ones that the
+    # parameters show only once the node has written the results back
+    pid_changes = {k: v for k, v in config.items()
+                   if k in changed and getattr(tuner.pid.config, k) != v}
+    new_cfg = AutotuneConfig.from_params(_autotune_values(values))
+    if (pid_changes or new_cfg != tuner.config) and tuner.state in TESTING:
+        tuner.abort('parameters changed during the test')
+    if pid_changes:
+        tuner.pid.set_gains(**pid_changes)
+    if new_cfg != tuner.config:
+        tuner.configure(new_cfg)
+    if values.get('mode') == 'manual' and tuner.pid.mode != 'manual':
+        tuner.pid.set_manual(float(values['manual_output']))
+    elif values.get('mode', 'auto') == 'auto' and tuner.pid.mode != 'auto':
+        tuner.pid.set_auto()
+    if 'autotune.start' in changed and values.get('autotune.start'):
+        tuner.start()
+    return True
+
+
+def relay_autotune_kind():
+    """The ``relay_autotune`` controller kind for ``core/control/registry.py``
+    (one line there: ``'relay_autotune': ('tank_control.core.control.relay_autotune',
+    'relay_autotune_kind')``). Operator commands ``~/start_autotune``, ``~/abort_autotune``;
+    results written back to the read-only ``autotune.*`` parameters and the gains."""
+    from dataclasses import fields as dc_fields
+
+    from tank_control.core.control import registry
+    from tank_control.core.control.pid import check_pid_relations, pid_params
+
+    def build(values: Mapping[str, Any]) -> RelayAutotuner:
+        return build_relay_autotuner(values, output_name=str(list(values['output_names'])[0]),
+                                     input_name=str(list(values['input_names'])[0]))
+
+    def check(values: Mapping[str, Any]) -> str | None:
+        if values.get('tuning.rule', 'none') != 'none':
+            return ("tuning.rule: must be 'none' for relay_autotune (the test sets the gains); "
+                    'allowed none')
+        return check_pid_relations(values)
+
+    def channels() -> tuple[ParamSpec, ...]:
+        return (ParamSpec('output_names', ['y'], 'measured channel read (and its setpoint)',
+                          read_only=True),
+                ParamSpec('input_names', ['u'], 'manipulated channel written', read_only=True))
+
+    kwargs: dict[str, Any] = dict(
+        name='relay_autotune', params=lambda: pid_params() + autotune_params() + channels(),
+        check=check, build=build, update=update_relay_autotuner,
+        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)')
+    available = {f.name for f in dc_fields(registry.ControllerKind)}
+    if 'results' in available:
+        kwargs['results'] = lambda tuner: tuner.results()
+    if 'commands' in available:
+        kwargs['commands'] = AUTOTUNE_COMMANDS
+    return registry.ControllerKind(**kwargs)

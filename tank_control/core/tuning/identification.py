@@ -1,0 +1,670 @@
+"""Identification from a relay (on-off) experiment: ultimate point and low-order models.
+
+Pure functions on recorded samples ``t`` [s], ``u`` (plant input, held constant
+between samples: zero-order hold) and ``y`` (measured plant output). Sources:
+001 §1.3 (eqs. 6.16–6.22), 004 §3.2–3.3 and §3.6 (eqs. 3.2.1, 3.3.1–3.3.21,
+3.6.1–3.6.2); SPEC §1.2 and §2.5.
+
+Two estimates of the ultimate point (ku, tu) are computed from the same record:
+
+* describing function (001 eq. 6.22, 004 eq. 3.2.1): ``ku = 4·d/(π·a)`` with
+  ``a`` the output amplitude and ``tu`` the oscillation period. It neglects the
+  higher harmonics of ``y`` and, with hysteresis, the fact that the oscillation
+  is not at the −180° point; on FOPDT it is off by −18 % … +13 % (SPEC §2.5).
+* first harmonic (004 eqs. 3.3.19–3.3.21): over whole stationary periods the
+  Fourier coefficients of ``u`` and ``y`` at ``k·ωc`` give the plant frequency
+  response ``G(j·k·ωc) = Y_k/U_k`` *exactly* for a linear plant, whatever the
+  relay and its hysteresis did (``u`` is integrated exactly as a ZOH signal;
+  ``y`` by the trapezoidal sum over whole periods). ``ωc`` is, however, not the
+  phase-crossover frequency ``ωu``: even an ideal relay oscillates a few per cent
+  away from it (the higher harmonics of ``y`` shift the switching instants), and
+  hysteresis ε lowers it by about ``arcsin(ε/a)`` of phase; a sampled relay adds up
+  to one sample of delay per switch. ``1/|G(jωc)|`` alone is off by up to 5–18 %
+  under 1 % noise (bench/RESULTS.md).
+
+Correction to the −180° point (:func:`anchored_ultimate_point`): the measured
+``G(jωc)`` is the anchor, a local model bridges the phase gap. The bridge is
+``k·e^(−L·s)/(s + α)^n`` with a *real* order n, solved exactly through the two
+measured points ``G(jωc)`` and ``G(j3ωc)`` (:func:`fit_local_model`: four real
+equations, four unknowns; exact for FOPDT, IPDT and any ``1/(s+α)^n`` with dead
+time). When it has no solution the bridge is the FOPDT/IPDT fitted to the samples
+in the time domain (:func:`fit_time_domain`, an exact simulation of the model under
+the recorded ZOH input). That fitted FOPDT/IPDT is also the reported model (for
+model-based tuning rules). Verified numerically (test_identification.py,
+bench/bench_autotune.py): worst errors 0.8 % (Ku) and 0.3 % (Tu) against the exact
+ultimate point on FOPDT L/T = 0.1 … 3, IPDT and SOPDT with 1 % noise, 47 samples per
+period, 4 cycles (2 % / 0.9 % with 20 samples per period).
+
+Signs: ``u`` and ``y`` are used as deviations from the operating point
+``(u0, y0)``; the plant gain is assumed positive (reverse-acting plants: negate
+``u`` before calling).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import brentq, least_squares
+from scipy.signal import lfilter
+
+# --------------------------------------------------------------------------- models
+
+
+@dataclass(frozen=True)
+class FopdtModel:
+    """``G(s) = gain/(time_constant·s + 1)^order · e^(−dead_time·s)`` (004 eq. 3.6.1; 001 eq. 6.14).
+
+    ``gain`` in output units per input unit, times in seconds, ``order`` 1 or 2.
+    """
+
+    gain: float
+    time_constant: float
+    dead_time: float
+    order: int = 1
+    kind: str = field(default='fopdt', init=False)
+
+    def frequency_response(self, omega: float) -> complex:
+        """``G(jω)`` at ``omega`` [rad/s]."""
+        s = 1j * omega
+        return self.gain / (self.time_constant * s + 1.0) ** self.order * np.exp(-self.dead_time * s)
+
+    def ultimate_point(self) -> tuple[float, float]:
+        """Exact ``(ku, tu)``: solve ``ω·L + n·arctan(ω·T) = π``, ``ku = 1/|G(jωu)|`` (SPEC §1.2)."""
+        n, tc, dt = self.order, self.time_constant, self.dead_time
+        if dt <= 0.0 and n == 1:
+            raise ValueError('dead_time: a first-order plant without dead time has no ultimate point')
+
+        def phase_gap(w: float) -> float:
+            return w * dt + n * math.atan(w * tc) - math.pi
+
+        hi = 1.0
+        while phase_gap(hi) < 0.0:
+            hi *= 2.0
+            if hi > 1e12:
+                raise ValueError('no phase crossover found')
+        wu = brentq(phase_gap, 0.0, hi, xtol=1e-14, rtol=1e-13)
+        return 1.0 / abs(self.frequency_response(wu)), 2.0 * math.pi / wu
+
+    def as_dict(self) -> dict[str, float | str | int]:
+        return {'kind': self.kind, 'gain': self.gain, 'time_constant': self.time_constant,
+                'dead_time': self.dead_time, 'order': self.order}
+
+
+@dataclass(frozen=True)
+class IpdtModel:
+    """``G(s) = gain/s · e^(−dead_time·s)`` (000 eq. 1; ``gain`` = k1 [output units per input unit per s])."""
+
+    gain: float
+    dead_time: float
+    kind: str = field(default='ipdt', init=False)
+
+    def frequency_response(self, omega: float) -> complex:
+        s = 1j * omega
+        return self.gain / s * np.exp(-self.dead_time * s)
+
+    def ultimate_point(self) -> tuple[float, float]:
+        """Exact ``ku = π/(2·k1·To)``, ``tu = 4·To`` (SPEC §1.2)."""
+        if self.dead_time <= 0.0:
+            raise ValueError('dead_time: an integrator without dead time has no ultimate point')
+        return math.pi / (2.0 * self.gain * self.dead_time), 4.0 * self.dead_time
+
+    def as_dict(self) -> dict[str, float | str]:
+        return {'kind': self.kind, 'gain': self.gain, 'dead_time': self.dead_time}
+
+
+Model = FopdtModel | IpdtModel
+
+
+def fopdt_from_ultimate(ku: float, tu: float, gain: float, order: int = 1) -> FopdtModel:
+    """FOPDT (order 1) or SOPDT (order 2) through the ultimate point and a known static gain (004 eq. 3.6.2).
+
+    ``T = (1/ωu)·√((kP·ku)^(2/n) − 1)``, ``L = (π − n·arctan(ωu·T))/ωu`` with ``ωu = 2π/tu``.
+    """
+    if order not in (1, 2):
+        raise ValueError(f'order: {order} is not allowed; allowed 1 or 2')
+    if not (ku > 0 and tu > 0 and gain > 0):
+        raise ValueError('ku, tu, gain: must be positive')
+    if gain * ku <= 1.0:
+        raise ValueError(f'gain: kP·ku = {gain * ku:g} must exceed 1 for 004 eq. 3.6.2')
+    wu = 2.0 * math.pi / tu
+    tc = math.sqrt((gain * ku) ** (2.0 / order) - 1.0) / wu
+    dead = (math.pi - order * math.atan(wu * tc)) / wu
+    return FopdtModel(gain=gain, time_constant=tc, dead_time=max(dead, 0.0), order=order)
+
+
+def ipdt_from_ultimate(ku: float, tu: float) -> IpdtModel:
+    """IPDT through the ultimate point, exact for IPDT: ``To = tu/4``, ``k1 = π/(2·ku·To)`` (SPEC §1.2)."""
+    if not (ku > 0 and tu > 0):
+        raise ValueError('ku, tu: must be positive')
+    dead = tu / 4.0
+    return IpdtModel(gain=math.pi / (2.0 * ku * dead), dead_time=dead)
+
+
+# --------------------------------------------------------------- record analysis
+
+
+def crossing_times(t: np.ndarray, x: np.ndarray, level: float = 0.0, rising: bool = True) -> np.ndarray:
+    """Instants [s] where ``x`` crosses ``level`` upwards (``rising``) or downwards, linearly interpolated."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float) - level
+    if rising:
+        idx = np.nonzero((x[:-1] < 0.0) & (x[1:] >= 0.0))[0]
+    else:
+        idx = np.nonzero((x[:-1] > 0.0) & (x[1:] <= 0.0))[0]
+    frac = x[idx] / (x[idx] - x[idx + 1])
+    return t[idx] + frac * (t[idx + 1] - t[idx])
+
+
+def switching_indices(u: np.ndarray, u0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sample indices where a relay output ``u`` (ZOH) switches above / below ``u0``.
+
+    Returns ``(to_high, to_low)``: index ``k`` such that ``u[k-1]`` and ``u[k]`` are on
+    opposite sides of ``u0``; the switch happened at ``t[k]``.
+    """
+    high = np.asarray(u, float) > u0
+    change = np.nonzero(high[1:] != high[:-1])[0] + 1
+    return change[high[change]], change[~high[change]]
+
+
+@dataclass(frozen=True)
+class RelayCycle:
+    """One period between two switches in the same direction (004 Fig. 3.4).
+
+    ``start``/``end`` are sample indices; ``period``, ``high_time`` (Tu1, u above u0) and
+    ``low_time`` (Tu2) in seconds; ``y_max``/``y_min`` extremes of ``y`` within the cycle;
+    ``y1`` the amplitude of the first harmonic of ``y`` over this cycle.
+    """
+
+    start: int
+    end: int
+    period: float
+    high_time: float
+    low_time: float
+    y_max: float
+    y_min: float
+    y1: float
+
+
+def relay_cycles(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float) -> list[RelayCycle]:
+    """Split a relay record into whole cycles, each starting at a switch in the direction of the first switch.
+
+    The part before the first switch (the start of the relay from rest) is never part of a cycle.
+    """
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    to_high, to_low = switching_indices(u, u0)
+    if len(to_high) == 0 or len(to_low) == 0:
+        return []
+    starts, others = (to_high, to_low) if to_high[0] < to_low[0] else (to_low, to_high)
+    start_is_high = starts is to_high
+    cycles = []
+    for a, b in zip(starts[:-1], starts[1:]):
+        mid = others[(others > a) & (others < b)]
+        if len(mid) != 1:
+            continue
+        m = int(mid[0])
+        first, second = t[m] - t[a], t[b] - t[m]
+        high_time, low_time = (first, second) if start_is_high else (second, first)
+        seg = y[a:b + 1]
+        w = 2.0 * math.pi / (t[b] - t[a])
+        y1 = 2.0 * abs(_fourier_samples(t[a:b + 1], seg - seg.mean(), w)) / (t[b] - t[a])
+        cycles.append(RelayCycle(int(a), int(b), float(t[b] - t[a]), float(high_time), float(low_time),
+                                 float(seg.max()), float(seg.min()), float(y1)))
+    return cycles
+
+
+def stationary_cycles(cycles: Sequence[RelayCycle], count: int, tolerance: float,
+                      period_slack: float = 0.0) -> list[RelayCycle] | None:
+    """The last ``count`` cycles if they are stationary, else ``None``.
+
+    Stationary: every period within ``tolerance·mean + period_slack`` [s] of the mean
+    period (``period_slack`` absorbs the ±1-sample quantisation of a sampled relay) and
+    every first-harmonic amplitude within ``tolerance`` (relative) of their mean (004 §3.3:
+    at least four stationary periods).
+    """
+    if count < 1 or len(cycles) < count:
+        return None
+    tail = list(cycles[-count:])
+    periods = np.array([c.period for c in tail])
+    amps = np.array([c.y1 for c in tail])
+    if np.any(np.abs(periods - periods.mean()) > tolerance * periods.mean() + period_slack):
+        return None
+    if amps.mean() <= 0.0 or np.any(np.abs(amps - amps.mean()) > tolerance * amps.mean()):
+        return None
+    return tail
+
+
+# ------------------------------------------------------------- Fourier analysis
+
+
+def _fourier_samples(t: np.ndarray, x: np.ndarray, omega: float) -> complex:
+    """Trapezoidal ``∫ x(t)·e^(−jωt) dt`` over the sampled window ``t[0] … t[-1]``."""
+    f = x * np.exp(-1j * omega * t)
+    return complex(np.trapezoid(f, t))
+
+
+def _fourier_zoh(t: np.ndarray, x: np.ndarray, omega: float) -> complex:
+    """Exact ``∫ x(t)·e^(−jωt) dt`` over ``t[0] … t[-1]`` of a ZOH signal (``x[k]`` held on ``[t[k], t[k+1])``)."""
+    e = np.exp(-1j * omega * t)
+    return complex(np.sum(x[:-1] * (e[:-1] - e[1:])) / (1j * omega))
+
+
+def harmonic_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end: int,
+                      periods: int, harmonics: Sequence[int] = (1, 3)) -> tuple[float, dict[int, complex]]:
+    """Plant frequency response at the odd harmonics of a stationary relay oscillation (004 eqs. 3.3.19–3.3.21).
+
+    ``start``/``end`` are sample indices spanning exactly ``periods`` whole periods. Returns
+    ``(ωc, {k: G(j·k·ωc)})`` with ``ωc = 2π·periods/(t[end] − t[start])`` [rad/s] and
+    ``G = Y_k/U_k``: ``U_k`` integrated exactly as a ZOH signal, ``Y_k`` by the trapezoidal
+    sum of the samples of ``y`` (exact at the sample instants). Means are removed first.
+    """
+    t = np.asarray(t, float)[start:end + 1]
+    u = np.asarray(u, float)[start:end + 1]
+    y = np.asarray(y, float)[start:end + 1]
+    width = t[-1] - t[0]
+    wc = 2.0 * math.pi * periods / width
+    u = u - np.average(u[:-1], weights=np.diff(t))
+    y = y - np.trapezoid(y, t) / width
+    result = {}
+    for k in harmonics:
+        uk = _fourier_zoh(t, u, k * wc)
+        yk = _fourier_samples(t, y, k * wc)
+        result[k] = yk / uk
+    return wc, result
+
+
+def static_gain(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end: int,
+                u0: float, y0: float) -> float | None:
+    """Static gain from a biased relay, ``kP = ∫(y − y0) dt / ∫(u − u0) dt`` over whole periods (004 3.3.13).
+
+    ``None`` when the relay is (nearly) symmetric, i.e. ``|∫(u − u0)|`` is below 2 % of
+    ``∫|u − u0|`` and the ratio would be noise.
+    """
+    t = np.asarray(t, float)[start:end + 1]
+    du = np.asarray(u, float)[start:end + 1] - u0
+    dy = np.asarray(y, float)[start:end + 1] - y0
+    iu = float(np.sum(du[:-1] * np.diff(t)))
+    if abs(iu) < 0.02 * float(np.sum(np.abs(du[:-1]) * np.diff(t))):
+        return None
+    return float(np.trapezoid(dy, t)) / iu
+
+
+def fit_first_order_delay(omega: float, g1: complex, g3: complex | None = None,
+                          gain: float | None = None, kind: str = 'auto') -> Model:
+    """``k·e^(−L·s)/(s + α)`` through the measured point ``g1 = G(jω)`` (FOPDT if α > 0, IPDT if α = 0).
+
+    The pole: from a known static gain ``kP = k/α`` (004 eq. 3.6.2, n = 1:
+    ``α = ω·|g1|/√(kP² − |g1|²)``), otherwise from the magnitude ratio at ω and 3ω:
+    ``α² = ω²·(9|g3|² − |g1|²)/(|g1|² − |g3|²)`` (α = 0 when that is ≤ 0, i.e. integrating).
+    Then ``k = |g1|·√(ω² + α²)`` and ``L = (−arg g1 − arctan(ω/α))/ω`` (arg in (−2π, 0]).
+    ``kind``: 'auto', 'fopdt' or 'ipdt' (forces α = 0).
+    """
+    if kind not in ('auto', 'fopdt', 'ipdt'):
+        raise ValueError(f"kind: {kind!r} is not a choice; allowed one of auto, fopdt, ipdt")
+    m1 = abs(g1)
+    alpha2 = 0.0
+    if kind != 'ipdt':
+        if gain is not None and gain > m1:
+            alpha2 = (omega * m1) ** 2 / (gain ** 2 - m1 ** 2)
+        elif g3 is not None and m1 > abs(g3):
+            m3 = abs(g3)
+            alpha2 = max(omega ** 2 * (9.0 * m3 ** 2 - m1 ** 2) / (m1 ** 2 - m3 ** 2), 0.0)
+    alpha = math.sqrt(alpha2)
+    if kind == 'fopdt' and alpha == 0.0:
+        raise ValueError('kind: fopdt requested but the data show an integrating plant (no finite static gain)')
+    k = m1 * math.sqrt(omega ** 2 + alpha2)
+    phase = math.atan2(g1.imag, g1.real)
+    if phase > 0.0:
+        phase -= 2.0 * math.pi
+    lag = math.atan2(omega, alpha)  # = π/2 for the integrator
+    dead = max((-phase - lag) / omega, 0.0)
+    if alpha == 0.0:
+        return IpdtModel(gain=k, dead_time=dead)
+    return FopdtModel(gain=k / alpha, time_constant=1.0 / alpha, dead_time=dead)
+
+
+def simulate_first_order_delay(u: np.ndarray, sample_time: float, gain: float, alpha: float,
+                               dead_time: float) -> np.ndarray:
+    """Exact sampled response of ``gain·e^(−L·s)/(s + α)`` to a ZOH input, zero initial state.
+
+    ``u[k]`` is held on ``[k·Ts, (k+1)·Ts)`` and was 0 before; returns ``x`` at ``k·Ts``.
+    With ``L = d·Ts + δ`` (0 ≤ δ < Ts) the delayed input is ``u[m−d−1]`` on
+    ``[t_m, t_m + δ)`` and ``u[m−d]`` on ``[t_m + δ, t_m+1)`` (modified z-transform):
+    ``x[m+1] = φ·x[m] + b0·u[m−d] + b1·u[m−d−1]``, ``φ = e^(−α·Ts)``.
+    """
+    ts = sample_time
+    d = int(math.floor(dead_time / ts))
+    delta = dead_time - d * ts
+    if alpha > 1e-12:
+        phi = math.exp(-alpha * ts)
+        b0 = gain / alpha * (1.0 - math.exp(-alpha * (ts - delta)))
+        b1 = gain / alpha * (math.exp(-alpha * (ts - delta)) - phi)
+    else:
+        phi, b0, b1 = 1.0, gain * (ts - delta), gain * delta
+    num = np.zeros(d + 3)
+    num[d + 1], num[d + 2] = b0, b1
+    return lfilter(num, [1.0, -phi], np.asarray(u, float))
+
+
+def fit_time_domain(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end: int,
+                    u0: float, initial: Model, kind: str = 'auto') -> Model:
+    """Least-squares refinement of ``k·e^(−L·s)/(s + α)`` on the recorded samples (output-error fit).
+
+    The model is simulated exactly (:func:`simulate_first_order_delay`) from the first
+    sample of the record (the relay start, loop at rest at ``u0``) with the recorded ZOH
+    input ``u − u0 − b``; the residual ``y − c − x`` is minimised over samples
+    ``start … end`` (the stationary cycles) for ``k, α ≥ 0, L ≥ 0`` and the nuisance
+    input bias ``b`` and output level ``c``. Sampling must be uniform. Unlike the
+    harmonic ratio, this is exact however few samples a period has (no aliasing of the
+    corners of ``y``); noise averages out over all samples.
+    """
+    t = np.asarray(t, float)
+    ts = float(np.median(np.diff(t)))
+    du = np.asarray(u, float) - u0
+    y = np.asarray(y, float)
+    seg = slice(start, end + 1)
+    if isinstance(initial, IpdtModel):
+        k0, a0 = initial.gain, 0.0
+    else:
+        k0, a0 = initial.gain / initial.time_constant, 1.0 / initial.time_constant
+    period = (t[end] - t[start])
+    scale = max(float(np.std(y[seg])), 1e-12)
+    c0 = float(np.mean(y[seg]))
+    force_ipdt = kind == 'ipdt'
+
+    def model_output(p: np.ndarray) -> np.ndarray:
+        k, a, dead, b, c = p
+        a = 0.0 if force_ipdt else max(a, 0.0)
+        return c + simulate_first_order_delay(du - b, ts, k, a, max(dead, 0.0))[seg]
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        return (y[seg] - model_output(p)) / scale
+
+    p0 = np.array([k0, a0, initial.dead_time, 0.0, c0])
+    lower = [0.0, 0.0, 0.0, -np.inf, -np.inf]
+    upper = [np.inf, np.inf, period, np.inf, np.inf]
+    p0 = np.clip(p0, [1e-300, 0.0, 0.0, -np.inf, -np.inf], [np.inf, np.inf, period, np.inf, np.inf])
+    x_scale = [max(k0, 1e-12), max(a0, 1.0 / period), max(ts, initial.dead_time), 1.0, scale]
+    fit = least_squares(residual, p0, bounds=(lower, upper), x_scale=x_scale, method='trf',
+                        xtol=1e-10, ftol=1e-10, max_nfev=200)
+    k, a, dead = float(fit.x[0]), float(fit.x[1]), float(fit.x[2])
+    if force_ipdt or a * period < 1e-6:
+        return IpdtModel(gain=k, dead_time=dead)
+    return FopdtModel(gain=k / a, time_constant=1.0 / a, dead_time=dead)
+
+
+# --------------------------------------------------------- describing function
+
+
+def ku_describing_function(relay_amplitude: float, amplitude: float, hysteresis: float = 0.0) -> float:
+    """Ultimate gain by the describing function, ``ku = 4·d/(π·a)`` (001 eq. 6.22, 004 eq. 3.2.1).
+
+    With hysteresis ε the relay's describing function is
+    ``N(a) = 4d/(πa)·(√(1 − (ε/a)²) − j·ε/a)``; ``−1/N`` is then not on the negative real
+    axis. The corrected estimate takes the gain that moves that point onto the axis,
+    ``ku = 4·d/(π·√(a² − ε²))`` (still an approximation: ``ωc`` is not ``ωu``).
+    """
+    if relay_amplitude <= 0 or amplitude <= 0:
+        raise ValueError('relay_amplitude, amplitude: must be positive')
+    if hysteresis >= amplitude:
+        raise ValueError(f'hysteresis: {hysteresis:g} must be below the output amplitude {amplitude:g}')
+    return 4.0 * relay_amplitude / (math.pi * math.sqrt(amplitude ** 2 - hysteresis ** 2))
+
+
+# ---------------------------------------------------- 004 §3.3 B, biased relay
+
+
+@dataclass(frozen=True)
+class RelayLimitCycle:
+    """Exact limit cycle of FOPDT under a biased relay with hysteresis (004 eq. 3.3.12).
+
+    Relay output ``u0 + (μ + μ0)`` while the error exceeds ``+ε``, ``u0 − (μ − μ0)`` below ``−ε``.
+    ``a_up``/``a_down``: output excursions above/below ``y0``; ``t_high`` (Tu1) / ``t_low`` (Tu2).
+    """
+
+    a_up: float
+    a_down: float
+    t_high: float
+    t_low: float
+
+
+def fopdt_relay_limit_cycle(model: FopdtModel, mu: float, mu0: float, hysteresis: float) -> RelayLimitCycle:
+    """004 eq. 3.3.12 (derived: ``y`` moves exponentially towards ``kP·u`` for ``L`` after each switch)."""
+    kp, tc, tau, eps = model.gain, model.time_constant, model.dead_time / model.time_constant, hysteresis
+    e = math.exp(-tau)
+    a_up = (mu + mu0) * kp * (1 - e) + eps * e
+    a_down = (mu - mu0) * kp * (1 - e) + eps * e
+    t_high = tc * math.log((2 * mu * kp / e - (mu - mu0) * kp + eps) / ((mu + mu0) * kp - eps))
+    t_low = tc * math.log((2 * mu * kp / e - (mu + mu0) * kp + eps) / ((mu - mu0) * kp - eps))
+    return RelayLimitCycle(a_up, a_down, t_high, t_low)
+
+
+def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: float,
+                            t_high: float, gain: float) -> FopdtModel:
+    """FOPDT from a biased hysteresis relay (004 eqs. 3.3.14–3.3.17) given kP (3.3.13 or known).
+
+    Normalised dead time ``τ = L/T = ln(((μ+μ0)·kP − ε)/((μ+μ0)·kP − A_u))`` (3.3.15),
+    ``T = Tu1 / ln((2μ·kP·e^τ − (μ−μ0)·kP + ε)/((μ+μ0)·kP − ε))`` (3.3.17), ``L = τ·T`` (3.3.16).
+    """
+    hi = (mu + mu0) * gain
+    if not (hi > a_up > hysteresis):
+        raise ValueError('a_up: must lie between the hysteresis and (μ+μ0)·kP for 004 eq. 3.3.15')
+    tau = math.log((hi - hysteresis) / (hi - a_up))
+    tc = t_high / math.log((2 * mu * gain * math.exp(tau) - (mu - mu0) * gain + hysteresis) / (hi - hysteresis))
+    return FopdtModel(gain=gain, time_constant=tc, dead_time=tau * tc)
+
+
+# ------------------------------------------------------------ whole analysis
+
+
+@dataclass(frozen=True)
+class LocalModel:
+    """``G(s) = gain·e^(−dead_time·s)/(s + alpha)^order`` with a real ``order`` > 0.
+
+    Used only to bridge the short distance from the relay frequency to the −180°
+    point (:func:`anchored_ultimate_point`); ``alpha`` = 0 is an n-fold integrator.
+    """
+
+    gain: float
+    alpha: float
+    dead_time: float
+    order: float
+    kind: str = field(default='local', init=False)
+
+    def frequency_response(self, omega: float) -> complex:
+        s = 1j * omega
+        return self.gain / (s + self.alpha) ** self.order * np.exp(-self.dead_time * s)
+
+    def lag(self, omega: float) -> float:
+        """Phase lag ``−arg G(jω)`` [rad], continuous in ω."""
+        return self.order * math.atan2(omega, self.alpha) + omega * self.dead_time
+
+
+def fit_local_model(omega: float, g1: complex, g3: complex) -> LocalModel | None:
+    """``k·e^(−L·s)/(s + α)^n`` (n real) through both measured points ``G(jω)``, ``G(j3ω)`` (004 eq. 3.3.19).
+
+    Four real equations, four unknowns. With ``x = α/ω`` and ``R = |g1|/|g3|``:
+    ``n = 2·ln R / ln((9 + x²)/(1 + x²))`` (magnitudes) and
+    ``n·(arctan(3/x) − 3·arctan(1/x)) = 3·arg g1 − arg g3`` (phases; the dead time cancels,
+    the 2π ambiguity of ``arg g3`` is resolved by taking the combination in (−2π, 0], i.e.
+    n ≤ 2 in the lag-dominated limit). Then ``L = (−arg g1 − n·arctan(1/x))/ω`` and
+    ``k = |g1|·(ω² + α²)^(n/2)``. Returns ``None`` when no root with 0.3 < n < 4 and
+    L ≥ 0 exists (the caller then bridges with the FOPDT/IPDT fit); the limit
+    ``x → 0`` gives the integrator ``α = 0``, ``n = ln R/ln 3``.
+    """
+    m1, m3 = abs(g1), abs(g3)
+    if not (m1 > m3 > 0.0):
+        return None
+    ratio = math.log(m1 / m3)
+    p1 = math.atan2(g1.imag, g1.real)
+    if p1 > 0.0:
+        p1 -= 2.0 * math.pi
+    combo = 3.0 * p1 - math.atan2(g3.imag, g3.real)
+    combo = combo - 2.0 * math.pi * math.ceil(combo / (2.0 * math.pi))     # into (−2π, 0]
+
+    def order(x: float) -> float:
+        return 2.0 * ratio / math.log((9.0 + x * x) / (1.0 + x * x))
+
+    def gap(x: float) -> float:
+        return order(x) * (math.atan(3.0 / x) - 3.0 * math.atan(1.0 / x)) - combo
+
+    candidates: list[tuple[float, float]] = []
+    xs = np.logspace(-4.0, 4.0, 161)
+    gaps = [gap(x) for x in xs]
+    for i in range(len(xs) - 1):
+        if gaps[i] == 0.0 or gaps[i] * gaps[i + 1] < 0.0:
+            x = brentq(gap, xs[i], xs[i + 1], xtol=1e-14, rtol=1e-12)
+            candidates.append((x, order(x)))
+    if not candidates and ratio > 0.0:
+        candidates.append((0.0, ratio / math.log(3.0)))      # integrating limit
+    best = None
+    for x, n in candidates:
+        lag = n * (math.pi / 2.0 if x == 0.0 else math.atan(1.0 / x))
+        dead = (-p1 - lag) / omega
+        if 0.3 < n < 4.0 and dead >= -1e-9 and (best is None or abs(n - 1.0) < abs(best[1] - 1.0)):
+            best = (x, n, max(dead, 0.0))
+    if best is None:
+        return None
+    x, n, dead = best
+    alpha = x * omega
+    return LocalModel(gain=m1 * (omega ** 2 + alpha ** 2) ** (n / 2.0), alpha=alpha, dead_time=dead, order=n)
+
+
+def _lag(model: Model | LocalModel, omega: float) -> float:
+    if isinstance(model, LocalModel):
+        return model.lag(omega)
+    if isinstance(model, IpdtModel):
+        return math.pi / 2.0 + omega * model.dead_time
+    return model.order * math.atan(omega * model.time_constant) + omega * model.dead_time
+
+
+def anchored_ultimate_point(model: Model | LocalModel, omega: float, g1: complex) -> tuple[float, float]:
+    """Ultimate point of the true plant, using ``model`` only to bridge from ``ωc`` to ``ωu``.
+
+    The measured ``g1 = G(jωc)`` is exact for any linear plant; the model supplies the
+    local shape: with ``Δφ = arg g1 − arg G_M(jωc)`` and ``ρ = |g1|/|G_M(jωc)|`` (both 0/1
+    when the model passes through ``g1``), ``ωu`` solves ``arg G_M(jω) + Δφ = −π`` and
+    ``ku = 1/(ρ·|G_M(jωu)|)``, ``tu = 2π/ωu``.
+    """
+    gm = model.frequency_response(omega)
+    dphi = math.remainder(math.atan2(g1.imag, g1.real) - math.atan2(gm.imag, gm.real), 2.0 * math.pi)
+    rho = abs(g1) / abs(gm)
+
+    def gap(w: float) -> float:
+        return _lag(model, w) - dphi - math.pi
+
+    lo, hi = omega, omega
+    while gap(lo) > 0.0 and lo > 1e-9 * omega:
+        lo *= 0.5
+    while gap(hi) < 0.0 and hi < 1e9 * omega:
+        hi *= 2.0
+    if gap(lo) > 0.0 or gap(hi) < 0.0:
+        raise ValueError('model: no phase crossover near the relay frequency')
+    wu = brentq(gap, lo, hi, xtol=1e-14 * omega, rtol=1e-13)
+    return float(1.0 / (rho * abs(model.frequency_response(wu)))), float(2.0 * math.pi / wu)
+
+
+@dataclass(frozen=True)
+class RelayIdentification:
+    """Result of :func:`identify_relay`.
+
+    ``ku``/``tu``: the accurate ultimate point (first harmonic, corrected to the −180°
+    point along ``local_model``, or along ``model`` when the local fit has no solution);
+    ``ku_model``/``tu_model``: the same correction along ``model``; ``ku_df``/``tu_df``:
+    describing function (with the hysteresis correction) and mean period;
+    ``ku_fh``/``tu_fh``: the uncorrected first-harmonic point ``1/|G(jωc)|``, ``2π/ωc``.
+    ``omega`` = ωc [rad/s], ``g1``/``g3`` = ``G(jωc)``, ``G(j3ωc)``; ``amplitude``: mean
+    half peak-to-peak of ``y``; ``relay_amplitude``: half the span of ``u``; ``model``:
+    the FOPDT/IPDT for model-based tuning, by ``model_method``: ``'eq_3_6_2'`` (a static
+    gain is known: 004 eq. 3.6.2 through ``ku``, ``tu``) or ``'time_domain'``
+    (:func:`fit_time_domain`); ``model_harmonic``: from ``g1``, ``g3``/kP only (its start);
+    ``static_gain``: kP supplied or from 004 eq. 3.3.13 (biased relay), else ``None``.
+    """
+
+    ku: float
+    tu: float
+    ku_model: float
+    tu_model: float
+    local_model: LocalModel | None
+    ku_df: float
+    tu_df: float
+    ku_fh: float
+    tu_fh: float
+    omega: float
+    g1: complex
+    g3: complex
+    amplitude: float
+    relay_amplitude: float
+    hysteresis: float
+    cycles: int
+    model: Model
+    model_harmonic: Model
+    model_method: str
+    static_gain: float | None
+
+
+def _integrating(model: Model, period: float) -> Model:
+    """An FOPDT whose time constant exceeds 50 periods is reported as the IPDT it behaves like."""
+    if isinstance(model, FopdtModel) and model.time_constant > 50.0 * period:
+        return IpdtModel(gain=model.gain / model.time_constant, dead_time=model.dead_time)
+    return model
+
+
+def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: float,
+                   hysteresis: float = 0.0, cycles: Sequence[RelayCycle] | None = None,
+                   gain: float | None = None, kind: str = 'auto',
+                   refine: bool = True) -> RelayIdentification:
+    """Ultimate point and model from a relay record (001 §1.3; 004 §3.2–3.3, 3.6).
+
+    Steps: ``G(jωc)``, ``G(j3ωc)`` by Fourier over the cycles; FOPDT/IPDT through them
+    (:func:`fit_first_order_delay`), refined on the samples (:func:`fit_time_domain`);
+    ``ku``, ``tu`` by :func:`anchored_ultimate_point` along :func:`fit_local_model`
+    (or the refined model when the local one has no solution); with a static gain the
+    reported FOPDT is 004 eq. 3.6.2 through ``ku``, ``tu``.
+
+    ``t, u, y``: the record from the relay start (loop at rest at ``u0``, ``y0``),
+    uniformly sampled. ``cycles``: the stationary cycles to use (consecutive, from
+    :func:`relay_cycles`); default: all complete cycles after the first one. ``gain``:
+    known static gain kP (else 004 eq. 3.3.13 if the relay is biased). ``kind``:
+    'auto', 'fopdt' or 'ipdt'. ``refine``: run the time-domain fit.
+    Raises ``ValueError`` with a reason when the record cannot be analysed.
+    """
+    t = np.asarray(t, float)
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+        raise ValueError('record: non-finite samples')
+    if cycles is None:
+        found = relay_cycles(t, u, y, u0)
+        cycles = found[1:] if len(found) > 1 else found
+    if not cycles:
+        raise ValueError('record: no complete relay cycle')
+    start, end, n = cycles[0].start, cycles[-1].end, len(cycles)
+    wc, g = harmonic_response(t, u, y, start, end, n, (1, 3))
+    seg_u = u[start:end]
+    relay_amp = 0.5 * (float(seg_u.max()) - float(seg_u.min()))
+    amp = float(np.mean([0.5 * (c.y_max - c.y_min) for c in cycles]))
+    eps = min(hysteresis, 0.99 * amp)
+    kp = gain if gain is not None else static_gain(t, u, y, start, end, u0, y0)
+    if kp is not None and kp <= 0:
+        kp = None
+    period = 2.0 * math.pi / wc
+    keep = (lambda m: m) if kind == 'fopdt' else (lambda m: _integrating(m, period))  # noqa: E731
+    harmonic = keep(fit_first_order_delay(wc, g[1], g[3], kp, kind))
+    model, method = harmonic, 'harmonic'
+    if refine:
+        model, method = keep(fit_time_domain(t, u, y, start, end, u0, harmonic, kind)), 'time_domain'
+    ku_model, tu_model = anchored_ultimate_point(model, wc, g[1])
+    local = fit_local_model(wc, g[1], g[3])
+    ku, tu = anchored_ultimate_point(local, wc, g[1]) if local is not None else (ku_model, tu_model)
+    if kp is not None and kind != 'ipdt' and kp * ku > 1.0:
+        model, method = fopdt_from_ultimate(ku, tu, kp, order=1), 'eq_3_6_2'
+    return RelayIdentification(
+        ku=ku, tu=tu, ku_model=ku_model, tu_model=tu_model, local_model=local,
+        ku_df=ku_describing_function(relay_amp, amp, eps),
+        tu_df=float(np.mean([c.period for c in cycles])),
+        ku_fh=1.0 / abs(g[1]), tu_fh=period, omega=wc, g1=g[1], g3=g[3],
+        amplitude=amp, relay_amplitude=relay_amp, hysteresis=hysteresis, cycles=n,
+        model=model, model_harmonic=harmonic, model_method=method, static_gain=kp)
