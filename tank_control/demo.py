@@ -1,6 +1,6 @@
 """The main job (``make demo``): the mixing tank of 003 in lockstep over a real ROS 2 graph.
 
-Runs ``config/tank_pi_decoupled.yaml`` — the nonlinear mixing tank with the
+Runs ``config/scenarios/tank_pi_decoupled.yaml`` — the nonlinear mixing tank with the
 two-loop PI and decoupler of 003 §3, the best controller available so far —
 as three node processes (plant, controller, reference) plus the harness's
 recorder, as fast as the machine allows, then prints the metrics table and
@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-DEFAULT_SCENARIO = 'tank_pi_decoupled.yaml'
+DEFAULT_SCENARIO = 'scenarios/tank_pi_decoupled.yaml'
 
 
 def config_dir() -> Path:

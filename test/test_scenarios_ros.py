@@ -75,7 +75,7 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
 def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     """The demo's scenario (003 two-loop PI with decoupling, delays of 180 s and 120 s):
     every signal of both outputs and inputs equal to 1e-9 over 1000 ticks."""
-    scenario = CONFIG / 'tank_pi_decoupled.yaml'
+    scenario = CONFIG / 'scenarios' / 'tank_pi_decoupled.yaml'
     ros = run(scenario, tmp_path / 'ros', duration=1000.0, env=ros_env)
     ref = run(scenario, tmp_path / 'ref', duration=1000.0, in_process=True)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
@@ -103,7 +103,8 @@ def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
 
 def test_compare_writes_a_table_and_an_overlay(tmp_path):
     out = tmp_path / 'cmp'
-    done = cli('compare', str(CONFIG / 'ipdt_mdp_pi.yaml'), str(CONFIG / 'ipdt_mdp_pi_1dof.yaml'),
+    done = cli('compare', str(CONFIG / 'scenarios' / 'ipdt_mdp_pi.yaml'),
+               str(CONFIG / 'scenarios' / 'ipdt_mdp_pi_1dof.yaml'),
                '--in-process', '--quiet', '--out', str(out))
     assert done.returncode == 0, done.stderr
     table = (out / 'comparison.md').read_text()
