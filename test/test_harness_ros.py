@@ -105,10 +105,12 @@ def test_a_node_that_refuses_its_parameters_fails_the_start(scenario_path, tmp_p
     assert 'n' in str(info.value)
 
 
-def test_another_graph_on_the_same_domain_is_refused(scenario_path, tmp_path, ros_env, procs):
-    """A second `reference` already on this ROS_DOMAIN_ID would answer our plant too."""
-    procs.start('foreign', [*standin_command('reference'), '--ros-args', '-p', 'step_value:=5.0'],
-                env=ros_env)
+def test_another_graph_on_the_same_domain_is_refused(scenario_path, tmp_path, ros_env, procs,
+                                                     probe):
+    """A second `reference` already running on this ROS_DOMAIN_ID would answer our plant too."""
+    foreign = procs.start('foreign', [*standin_command('reference'), '--ros-args', '-p',
+                                      'step_value:=5.0'], env=ros_env)
+    assert probe.wait_for(lambda: 'reference' in probe.node.get_node_names(), 30), foreign.tail()
     with pytest.raises(RunFailed, match='reference already in use on ROS_DOMAIN_ID'):
         run_scenario(load_scenario(scenario_path), tmp_path / 'out', env=ros_env,
                      node_command=standin_command)

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import deserialize_message
 
 from tank_control.harness.recording import RawMessage
-from tank_control.harness.trace import TOPIC_PREFIX, SignalMessage
+from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
 
 #: (topic, type) of everything recorded. Signal topics are relative names (remapping works).
 TOPICS: tuple[tuple[str, str], ...] = (
@@ -34,6 +34,11 @@ TOPICS: tuple[tuple[str, str], ...] = (
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+
+GATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+_GATE_NEEDS = ('measurement', 'setpoint', 'manipulated', 'disturbance')
 
 
 def _message_class(type_name: str) -> type:
@@ -61,6 +66,10 @@ class Recorder:
         self.latest: dict[str, int] = {}        # topic → largest stamp seen [ns]
         self.first: dict[str, int] = {}         # topic → first stamp seen [ns]
         self.counts: dict[str, int] = {}
+        self._gate_pub: Any = None
+        self._gate_stamps: dict[str, set[int]] = {}
+        self._gate_disturbance: dict[int, bytes] = {}
+        self.relayed = 0
         for topic, type_name in TOPICS:
             self.node.create_subscription(_message_class(type_name), topic,
                                           self._callback(topic, type_name), RECORD_QOS, raw=True)
@@ -79,7 +88,33 @@ class Recorder:
                 self.first.setdefault(key, stamp)
                 if stamp > self.latest.get(key, -1):
                     self.latest[key] = stamp
+                if self._gate_pub is not None and key in _GATE_NEEDS:
+                    self._gate(key, stamp, data)
         return record
+
+    def enable_gate(self) -> None:
+        """Lockstep back-pressure: the plant's ``disturbance`` input is remapped to
+        ``disturbance_gated``, and the recorder relays each tick's disturbance message there
+        (the same bytes) only once it has recorded that tick's measurement, setpoint,
+        manipulated and disturbance. The plant cannot start tick k+1 before the recording
+        holds all of tick k, so a busy machine slows the run instead of losing samples
+        (signal publishers keep only the last 10 messages for a slow reader)."""
+        from sensor_msgs.msg import JointState
+        self._gate_stamps = {topic: set() for topic in _GATE_NEEDS}
+        self._gate_pub = self.node.create_publisher(JointState, GATED_DISTURBANCE, GATE_QOS)
+
+    def _gate(self, topic: str, stamp: int, data: bytes) -> None:
+        self._gate_stamps[topic].add(stamp)
+        if topic == 'disturbance':
+            self._gate_disturbance[stamp] = bytes(data)
+        if all(stamp in seen for seen in self._gate_stamps.values()):
+            self._gate_pub.publish(self._gate_disturbance[stamp])
+            self.relayed += 1
+            for old in [s for s in self._gate_disturbance if s < stamp]:
+                del self._gate_disturbance[old]
+
+    def subscriber_count(self, topic: str) -> int:
+        return self.node.count_subscribers(topic)
 
     def spin_once(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)

@@ -19,7 +19,11 @@ ROS run, step by step (no sleeps: every wait spins the recorder until an event):
 3. wait until every node is in the graph and the recorder has matched every
    publisher (measurement, /clock, setpoint, disturbance, manipulated);
 4. lockstep: un-pause the plant through its parameter service — tick 0 is
-   published only now, so the recorder sees every tick from the first;
+   published only now, so the recorder sees every tick from the first. The
+   plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
+   recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
+   plant cannot run ahead of the recording, so no sample is lost on a busy
+   machine (the signal publishers keep only 10 messages for a slow reader);
 5. run until the simulated time reaches the duration (lockstep: until every
    answer of the last tick ≤ duration is recorded), watching that every
    process is alive and the clock is moving;
@@ -51,7 +55,8 @@ from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
                                                 load_scenario, write_params_file)
-from tank_control.harness.trace import TraceTable, from_core_trace, from_messages
+from tank_control.harness.trace import (GATED_DISTURBANCE, TraceTable, from_core_trace,
+                                        from_messages)
 
 NS = 1_000_000_000
 OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
@@ -238,6 +243,9 @@ class _RosRun:
         self.mode = self.config.clock_mode
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
         self.phase = 'while starting'
+        plant = scenario.params('plant')
+        self.gated = (self.mode == 'lockstep' and {'plant', 'reference'} <= set(self.config.nodes)
+                      and plant.get('lockstep.wait_for_reference', True) is True)
 
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
@@ -246,6 +254,8 @@ class _RosRun:
             argv += ['-p', 'use_sim_time:=true']
         if self.mode == 'lockstep' and node == 'plant':
             argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
+            if self.gated:
+                argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']   # through the recorder
         return argv
 
     def _check_alive(self) -> None:
@@ -269,6 +279,8 @@ class _RosRun:
         try:
             recorder = Recorder(context)
             self.recorder = recorder
+            if self.gated:
+                recorder.enable_gate()
             nodes = self.config.nodes
             # sim: the plant's clock runs from its start, so it starts once the others are up
             late = ('plant',) if self.mode == 'sim' and 'plant' in nodes else ()
@@ -323,8 +335,10 @@ class _RosRun:
         rec = self.recorder
         topics = [topic for node in nodes for topic in PUBLISHES[node]
                   if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
+        gate = self.gated and 'plant' in nodes
         self._await(lambda: (set(nodes) <= rec.node_names()
-                             and all(rec.publisher_count(t) > 0 for t in topics)),
+                             and all(rec.publisher_count(t) > 0 for t in topics)
+                             and (not gate or rec.subscriber_count(GATED_DISTURBANCE) > 0)),
                     'the graph did not come up (nodes ' + ', '.join(nodes)
                     + '; publishers of ' + ', '.join(topics) + ')')
         self._check_no_other_graph()
@@ -437,6 +451,7 @@ class _RosRun:
             'late_by_signal': trace.late,
             'max_jitter': sampling['max_jitter'],
             'messages': dict(recorder.counts),
+            'recorder_gate': self.gated,
             'exit_codes': dict(codes),
         }
         messages = recorder.messages

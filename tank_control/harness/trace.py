@@ -27,6 +27,8 @@ from tank_control.core.interfaces import NS_PER_S
 #: Topic → column prefix.
 TOPIC_PREFIX = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
 PREFIX_ORDER = ('y', 'r', 'u', 'd')
+#: The plant's ``disturbance`` input in a gated lockstep run (see ``Recorder.enable_gate``).
+GATED_DISTURBANCE = 'disturbance_gated'
 
 
 @dataclass(frozen=True)
