@@ -22,7 +22,6 @@ ROS 2 does). ``build_plant``, ``build_noise``, ``make_controller`` and
 """
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any
 
 import yaml
 
+from tank_control.core import ros_yaml
 from tank_control.core.interfaces import Controller, Plant
 from tank_control.core.loop import Noise, Trace, run_loop
 from tank_control.core.params import ParamSpec, check_all
@@ -63,39 +63,6 @@ PLANT_NODE_SPECS: tuple[ParamSpec, ...] = (
 )
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader reading ``1e-3`` as a float (YAML 1.2, as ROS 2's parser does)."""
-
-
-_Loader.add_implicit_resolver(
-    'tag:yaml.org,2002:float',
-    re.compile(r'''^[-+]?(?:[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-                  |[0-9][0-9_]*[eE][-+]?[0-9]+
-                  |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-                  |[-+]?\.(?:inf|Inf|INF)
-                  |\.(?:nan|NaN|NAN))$''', re.X),
-    list('-+0123456789.'))
-
-# ROS 2's parser (YAML 1.1 via libyaml) also reads y/Y/n/N as booleans; do the same so a
-# file that ROS rejects is rejected here too.
-_Loader.add_implicit_resolver('tag:yaml.org,2002:bool', re.compile(r'^(?:y|Y|n|N)$'), list('yYnN'))
-_Loader.bool_values = {**yaml.SafeLoader.bool_values, 'y': True, 'n': False}
-
-
-
-def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict[str, Any]:
-    """Map keys are parameter/node names, always strings (as in rcl's parser): a key
-    ``y`` stays ``'y'``, while a value ``y`` is a boolean."""
-    out: dict[str, Any] = {}
-    for key_node, value_node in node.value:
-        key = key_node.value if isinstance(key_node, yaml.ScalarNode) else str(
-            loader.construct_object(key_node, deep=True))
-        out[key] = loader.construct_object(value_node, deep=True)
-    return out
-
-
-_Loader.add_constructor('tag:yaml.org,2002:map', _construct_mapping)
-
 _WILDCARDS = ('/**', '/*')
 
 
@@ -118,7 +85,7 @@ def read_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
     """
     path = Path(path)
     try:
-        document = yaml.load(path.read_text(), Loader=_Loader)
+        document = ros_yaml.load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
         raise ValueError(f'{path}: cannot read a ROS 2 params file ({exc})') from None
     if not isinstance(document, dict):

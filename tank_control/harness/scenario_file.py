@@ -39,6 +39,7 @@ from typing import Any
 
 import yaml
 
+from tank_control.core import ros_yaml
 from tank_control.core.params import ParamSpec, check_all, defaults
 
 NODE_NAMES = ('plant', 'controller', 'reference')
@@ -69,41 +70,10 @@ class ScenarioError(ValueError):
     """A scenario file or override that cannot be used; the message is one line."""
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that reads ``1e-3`` as a float (YAML 1.2, as ROS 2's parser does)."""
-
-
-_Loader.add_implicit_resolver(
-    'tag:yaml.org,2002:float',
-    re.compile(r'''^[-+]?(?:[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-                  |[0-9][0-9_]*[eE][-+]?[0-9]+
-                  |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-                  |[-+]?\.(?:inf|Inf|INF)
-                  |\.(?:nan|NaN|NAN))$''', re.X),
-    list('-+0123456789.'))
-# ROS 2's parser (libyaml, YAML 1.1) also reads y/Y/n/N as booleans: read them the same way.
-_Loader.add_implicit_resolver('tag:yaml.org,2002:bool', re.compile(r'^(?:y|Y|n|N)$'), list('yYnN'))
-_Loader.bool_values = {**yaml.SafeLoader.bool_values, 'y': True, 'n': False}
-
-
-class _Dumper(yaml.SafeDumper):
-    """Quotes every string that a YAML 1.1 reader (ROS 2) would take for another type
-    (``y``, ``n``, ``1e-3``, ...), so channel names survive the merged file."""
-
-
-def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.Node:
-    plain = yaml.load(value, Loader=_Loader) if value.strip() else value
-    style = "'" if not isinstance(plain, str) or plain != value else None
-    return dumper.represent_scalar('tag:yaml.org,2002:str', value, style=style)
-
-
-_Dumper.add_representer(str, _represent_str)
-
-
 def parse_value(text: str) -> Any:
     """A command-line value typed as YAML (``2.5`` float, ``1e-3`` float, ``mdp`` str)."""
     try:
-        return yaml.load(text, Loader=_Loader) if text.strip() else ''
+        return ros_yaml.load(text) if text.strip() else ''
     except yaml.YAMLError as exc:
         raise ScenarioError(f'value {text!r} is not valid YAML: {str(exc).splitlines()[0]}') from None
 
@@ -168,7 +138,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     except OSError as exc:
         raise ScenarioError(f'{path}: cannot read ({exc.strerror})') from None
     try:
-        document = yaml.load(text, Loader=_Loader)
+        document = ros_yaml.load(text)
     except yaml.YAMLError as exc:
         raise ScenarioError(f'{path}: not valid YAML: {str(exc).splitlines()[0]}') from None
     scenario = Scenario(path, _sections(path, document))
@@ -247,8 +217,7 @@ def write_params_file(scenario: Scenario, path: str | Path) -> Path:
     sections[HARNESS] = harness
     document = {name: {'ros__parameters': _nest(values)} for name, values in sections.items()}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(yaml.dump(document, Dumper=_Dumper, sort_keys=False, default_flow_style=None,
-                              width=100, allow_unicode=True))
+    path.write_text(ros_yaml.dump(document))
     return path
 
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from tank_control.core import ros_yaml
 from tank_control.ros2cli.common import (
     CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
     client_node, is_hidden, settle_graph, spin_until, wait_for_node)
@@ -360,7 +361,7 @@ def parameters_from_file(path: str, target: str, use_wildcard: bool = True) -> d
     """Flat name → value for ``target`` from a parameter file (wildcards first, then exact)."""
     try:
         with open(path, encoding='utf-8') as stream:
-            document = yaml.safe_load(stream)
+            document = ros_yaml.load(stream.read())   # as --params-file reads it
     except OSError as exc:
         raise CliError(f"Cannot read parameter file '{path}': {exc.strerror}") from None
     except yaml.YAMLError as exc:

@@ -526,16 +526,25 @@ def check_pid_relations(values: Mapping[str, Any]) -> str | None:
     that has every process argument it needs. Returns a one-line reason."""
     merged = {spec.name: spec.default for spec in pid_params()}
     merged.update(values)
-    lo, hi = merged['u_min'], merged['u_max']
-    if not lo < hi:
-        return f'u_min: {lo:g} must be below u_max {hi:g}'
-    if merged['tuning.rule'] == 'none' and not merged['kp'] > 0:
-        return f"kp: {merged['kp']:g} must be > 0 (use direct_action for a reverse sign); allowed (0, {BIG:g}]"
-    for name in ('manual_output', 'fail_safe_output'):
-        if not lo <= merged[name] <= hi:
-            return f'{name}: {merged[name]:g} is outside the output limits [{lo:g}, {hi:g}]'
+    reason = limit_relations_reason(merged, ' (use direct_action for a reverse sign)')
+    if reason:
+        return reason
     try:
         pid_config_from_params(merged)
     except ValueError as exc:
         return str(exc)
+    return None
+
+
+def limit_relations_reason(merged: Mapping[str, Any], kp_hint: str = '') -> str | None:
+    """Relations shared by the PI/PID-based kinds, on complete values: u_min < u_max,
+    kp > 0 without a tuning rule, manual/fail-safe outputs inside the limits."""
+    lo, hi = merged['u_min'], merged['u_max']
+    if not lo < hi:
+        return f'u_min: {lo:g} must be below u_max {hi:g}'
+    if merged['tuning.rule'] == 'none' and not merged['kp'] > 0:
+        return f"kp: {merged['kp']:g} must be > 0{kp_hint}; allowed (0, {BIG:g}]"
+    for name in ('manual_output', 'fail_safe_output'):
+        if not lo <= merged[name] <= hi:
+            return f'{name}: {merged[name]:g} is outside the output limits [{lo:g}, {hi:g}]'
     return None

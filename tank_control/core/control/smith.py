@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.pid import Pid2Dof, PidConfig, pid_params
+from tank_control.core.control.pid import Pid2Dof, PidConfig, limit_relations_reason, pid_params
 from tank_control.core.params import ParamSpec
 
 MODELS = ('fopdt', 'ipdt')
@@ -273,14 +273,9 @@ def check_smith_relations(values: Mapping[str, Any]) -> str | None:
     complete, a tuning rule with what it needs): a one-line reason or None."""
     merged = {spec.name: spec.default for spec in smith_params()}
     merged.update(values)
-    lo, hi = merged['u_min'], merged['u_max']
-    if not lo < hi:
-        return f'u_min: {lo:g} must be below u_max {hi:g}'
-    if merged['tuning.rule'] == 'none' and not merged['kp'] > 0:
-        return f"kp: {merged['kp']:g} must be > 0; allowed (0, 1e+12]"
-    for name in ('manual_output', 'fail_safe_output'):
-        if not lo <= merged[name] <= hi:
-            return f'{name}: {merged[name]:g} is outside the output limits [{lo:g}, {hi:g}]'
+    reason = limit_relations_reason(merged)
+    if reason:
+        return reason
     try:
         smith_config_from_params(merged)
     except ValueError as exc:

@@ -1,0 +1,18 @@
+"""Parameter files mean the same to the nodes (rcl's parser) and to Python tools."""
+from __future__ import annotations
+
+from tank_control.core import ros_yaml
+
+
+def test_scalars_are_read_as_ros_2_reads_them():
+    doc = ros_yaml.load("plant:\n  ros__parameters:\n    noise_std: 1e-3\n    flag: y\n    y: 2\n")
+    params = doc['plant']['ros__parameters']
+    assert params['noise_std'] == 0.001 and isinstance(params['noise_std'], float)
+    assert params['flag'] is True          # a value y is a boolean in ROS 2 files
+    assert params['y'] == 2                # a key y is a name
+
+
+def test_dump_quotes_strings_that_would_change_type():
+    document = {'reference': {'ros__parameters': {'setpoint.channels': ['y', 'h'], 'eps': '1e-3'}}}
+    text = ros_yaml.dump(document)
+    assert ros_yaml.load(text) == document
