@@ -41,7 +41,8 @@ class Recorder:
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name == 'plant':
-                self.diagnostics.append({kv.key: kv.value for kv in status.values})
+                self.diagnostics.append({'level': status.level, 'message': status.message,
+                                         **{kv.key: kv.value for kv in status.values}})
 
     def set_param(self, name, value):
         client = self.probe.node.create_client(SetParameters, '/plant/set_parameters')
@@ -174,3 +175,21 @@ def test_unanswered_lockstep_tick_is_resent_unchanged_with_the_same_noise(procs,
     assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['resent_ticks']) >= 3
                           and rec.diagnostics[-1]['waiting_for'] == 'manipulated, disturbance'
                           if rec.diagnostics else False, 5), rec.diagnostics[-1:]
+
+
+def test_tank_reports_clipped_negative_flows_on_diagnostics(procs, ros_env, node_cmd, probe,
+                                                             tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='mixing_tank', sample_time=0.05,
+                       diagnostics_period=0.1)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.measurements and rec.manipulated.get_subscription_count(),
+                          20), proc.tail()
+    assert rec.measurements[-1][1] == ('h', 'T_out')
+    rec.manipulated.publish(to_joint_state(0, ['F_H', 'F_Cin'], [-5.0, 37.0]))   # finite, < 0
+
+    def clipped():
+        return rec.diagnostics and int(rec.diagnostics[-1].get('model.clipped_flows', 0)) > 0
+    assert probe.wait_for(clipped, 10), rec.diagnostics[-1:]
+    last = rec.diagnostics[-1]
+    assert last['level'] == b'\x01' and 'clipped flows' in last['message']   # WARN
+    assert last['ignored_inputs'] == '0'           # a negative flow is physics, not garbage

@@ -96,3 +96,17 @@ def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
     clock.publish(clock_msg(1_000_000_000))
     assert probe.wait_for(lambda: len(setpoints) > n, 5)
     assert setpoints[-1] == (1_000_000_000, ('y',), (2.0,))
+
+
+def test_sim_mode_answers_only_the_current_tick(procs, ros_env, node_cmd, probe, tmp_path):
+    """In sim the plant and controller use the latest message: it must be tick k's."""
+    procs.start('reference', node_cmd('reference_node', '--params-file',
+                                      params_file(tmp_path, clock_mode='sim')), env=ros_env)
+    setpoints = collect(probe, 'setpoint')
+    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    assert probe.wait_for(lambda: setpoints or clock.publish(clock_msg(0)), 20)
+    for k in range(1, 5):
+        clock.publish(clock_msg(k * 100_000_000))
+        assert probe.wait_for(lambda: setpoints[-1][0] == k * 100_000_000, 5)
+    probe.wait_for(lambda: False, 0.3)             # nothing ahead arrives
+    assert max(s for s, _, _ in setpoints) == 400_000_000

@@ -7,7 +7,8 @@ import signal
 import pytest
 import yaml
 from fixtures.param_node import SPECS
-from fixtures.ros2cli_support import Streaming, fixture_argv, ros2, ros2_parallel
+from fixtures.ros2cli_support import (Streaming, fixture_argv, ros2, ros2_parallel,
+                                      until_complete)
 
 from tank_control.harness.processes import ProcessGroup
 
@@ -38,6 +39,8 @@ def test_topic_list_info_type_echo(graph, ros_env):
                                 ('topic', 'echo', '/signal', '--once', '--field', 'name'))
     for result in (listed, typed, info, verbose, topic_type, once, field):
         assert result.returncode == 0, (result.args, result.stderr)
+    listed = until_complete(ros_env, listed, lambda out: '/signal' in out.split())
+    typed = until_complete(ros_env, typed, lambda out: '/signal [' in out)
 
     assert {'/signal', '/command', '/parameter_events', '/rosout'} <= set(listed.stdout.split())
     assert '/signal [sensor_msgs/msg/JointState]' in typed.stdout.splitlines()
@@ -130,6 +133,9 @@ def test_node_and_service_verbs(graph, ros_env):
         ('service', 'call', 'fixture/enable', 'std_srvs/srv/SetBool', '{data: true}'))
     for result in (nodes, info, services, params, trigger, set_bool):
         assert result.returncode == 0, (result.args, result.stderr)
+    nodes = until_complete(ros_env, nodes, lambda out: '/fixture' in out.split())
+    services = until_complete(ros_env, services, lambda out: '/fixture/trigger [' in out)
+    params = until_complete(ros_env, params, lambda out: '/fixture:' in out.split())
     assert '/fixture' in nodes.stdout.splitlines()
     assert not any('_ros2cli' in line for line in nodes.stdout.splitlines())   # hidden
 

@@ -101,8 +101,7 @@ def test_dump_load_and_params_file(procs, probe, ros_env, tmp_path):
 
     # The dump is a valid --params-file: a restarted node starts with the dumped values.
     procs.stop('fixture')
-    procs.processes.pop('fixture')
-    assert probe.wait_for(lambda: 'fixture' not in probe.node.get_node_names(), 10)
-    _start(procs, probe, ros_env, 'fixture', '--params-file', str(dump_file))
-    got = ros2(ros_env, 'param', 'get', '/fixture', 'gain')
-    assert got.stdout.strip() == 'Double value is: 4.25'
+    restarted = procs.start('restarted', fixture_argv('fixture', '--params-file', str(dump_file)),
+                            env=ros_env)
+    got = ros2(ros_env, 'param', 'get', '/fixture', 'gain', '--timeout', '20')   # waits for it
+    assert got.stdout.strip() == 'Double value is: 4.25', (got.stderr, restarted.tail())

@@ -277,9 +277,10 @@ def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
         ParamSpec('clock_mode', 'wall', 'wall: publish every sample_time on a wall timer; '
                   'sim/lockstep (also implied by use_sim_time): answer every /clock tick, '
                   'stamped t_k', choices=('wall', 'sim', 'lockstep'), read_only=True),
-        ParamSpec('lockstep.anticipate', True, 'sim/lockstep: on /clock t_k also answer the '
-                  'next tick t_k + (t_k - t_k-1) ahead (same values and stamps; the '
-                  'controller then waits only for the measurement)', read_only=True),
+        ParamSpec('lockstep.anticipate', True, 'with clock_mode lockstep: on /clock t_k also '
+                  'answer the next tick t_k + (t_k - t_k-1) ahead (same values and stamps; the '
+                  'controller then waits only for the measurement). Never in sim (there the '
+                  'latest message is used, so it must be the current one)', read_only=True),
         # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)
         ParamSpec('setpoint.channels', list(reference.setpoint_names) or [''],
                   'setpoint channel names (= controlled outputs)', read_only=True),

@@ -314,13 +314,20 @@ class PlantNode(Node):
     # ----------------------------------------------------------- diagnostics
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
-        ignored = self.counters['ignored_inputs']
-        status.level = DiagnosticStatus.WARN if ignored else DiagnosticStatus.OK
-        status.message = (f'{ignored} ignored inputs' if ignored else 'ok')
+        model = dict(self.plant.status)
+        problems = []
+        if self.counters['ignored_inputs']:
+            problems.append(f"{self.counters['ignored_inputs']} ignored inputs")
+        if model.get('clipped_flows'):
+            problems.append(f"{model['clipped_flows']} clipped flows")
+        if model.get('overflow'):
+            problems.append('overflowing')
+        status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
+        status.message = ', '.join(problems) or 'ok'
         items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}', **self.counters}
         if self.mode == 'lockstep' and self._awaiting:
             items['waiting_for'] = ', '.join(self.inbox.missing(self.k * self.ts_ns))
-        for name, value in dict(self.plant.status).items():
+        for name, value in model.items():
             items[f'model.{name}'] = value
         for topic, flt in self.filters.items():
             items[f'ignored.{topic}'] = flt.ignored

@@ -11,11 +11,13 @@ wall timer every ``sample_time`` (schedule time = seconds since start, stamp =
 now); with ``clock_mode`` ``sim``/``lockstep`` or ``use_sim_time`` on every
 ``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
 re-sent tick gets the same messages again, nothing is recomputed). With
-``lockstep.anticipate`` (default) it also answers the next tick
+``clock_mode: lockstep`` and ``lockstep.anticipate`` (default) it also answers the next tick
 ``t_k + (t_k − t_{k−1})`` right away: the values are a function of time only,
 so the messages are the ones it would send on ``/clock t_{k+1}``, and the
 controller of tick k+1 then needs only the measurement — one DDS hop less per
-tick. (Live parameter changes then act from the next tick not yet answered.)
+tick. (Live parameter changes then act from the next tick not yet answered.) Not in
+``sim`` nor with ``use_sim_time`` alone: there plant and controller use the latest
+message, which must be the current tick's.
 
 Parameters: ``core/reference.py`` (layout and semantics). Runtime changes
 (``ros2 param set /reference setpoint.y.value 2.0``) are validated (limits,
@@ -72,7 +74,10 @@ class ReferenceNode(Node):
         self._last_t = 0.0
         self._answered: dict[int, tuple[JointState, JointState]] = {}
         self._last_clock: int | None = None
-        self._anticipate = bool(self.params.values['lockstep.anticipate'])
+        # Only in an explicit lockstep: in sim the others use the latest message, which
+        # must be the current tick's (use_sim_time alone does not tell sim from lockstep).
+        self._anticipate = (bool(self.params.values['lockstep.anticipate'])
+                            and self.params.values['clock_mode'] == 'lockstep')
         self.published = 0
         self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
                              or self.params.values['clock_mode'] != 'wall')
