@@ -13,6 +13,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/config/scenarios', glob('config/scenarios/*.yaml')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -27,6 +28,7 @@ setup(
             'controller_node = tank_control.nodes.controller_node:main',
             'reference_node = tank_control.nodes.reference_node:main',
             'ros2 = tank_control.ros2cli.main:main',
+            'tank-control = tank_control.harness.cli:main',
         ],
     },
 )

@@ -1,0 +1,121 @@
+"""``tank-control``: run and compare scenarios.
+
+    tank-control run SCENARIO.yaml --out DIR [--mode lockstep|sim|wall] [--rtf X]
+                     [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
+    tank-control compare A.yaml B.yaml ... --out DIR [same options]
+
+Exit status: 0 done, 1 the run failed (a node crashed, did not start or
+stalled: its last log lines are printed), 2 bad command line or scenario.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TextIO
+
+from tank_control.harness.scenario_file import CLOCK_MODES, ScenarioError
+
+
+class ProgressPrinter:
+    """A rewritten status line on a terminal; a plain line per 10 % in CI or a pipe."""
+
+    def __init__(self, stream: TextIO, label: str, tty: bool | None = None) -> None:
+        self.stream = stream
+        self.label = label
+        self.tty = (stream.isatty() and not os.environ.get('CI')) if tty is None else tty
+        self._last_decile = -1
+
+    def __call__(self, p) -> None:
+        eta = '?' if not math.isfinite(p.eta) else f'{p.eta:.0f} s'
+        text = (f'{self.label}: sim {p.sim_time:.1f}/{p.duration:g} s, '
+                f'{p.rate:.1f}x real time, {p.ticks_per_s:.0f} ticks/s, ETA {eta}')
+        if self.tty:
+            self.stream.write('\r' + text.ljust(100))
+            if p.sim_time >= p.duration:
+                self.stream.write('\n')
+        else:
+            decile = int(10 * p.sim_time / p.duration) if p.duration > 0 else 10
+            if decile == self._last_decile:
+                return
+            self._last_decile = decile
+            self.stream.write(text + '\n')
+        self.stream.flush()
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='tank-control', description=__doc__.split('\n\n')[0])
+    sub = parser.add_subparsers(dest='command', required=True)
+
+    def options(p: argparse.ArgumentParser) -> None:
+        p.add_argument('--out', required=True, type=Path, help='output directory')
+        p.add_argument('--mode', choices=CLOCK_MODES, help='clock mode (overrides the file)')
+        p.add_argument('--rtf', type=float, help='real-time factor (0 = as fast as possible)')
+        p.add_argument('--duration', type=float, help='simulated seconds to run')
+        p.add_argument('--set', dest='overrides', action='append', default=[],
+                       metavar='NODE.PARAM=VALUE', help='override a parameter (typed as YAML)')
+        p.add_argument('--in-process', action='store_true',
+                       help='run core/loop.py without ROS (same files written)')
+        p.add_argument('--quiet', action='store_true', help='no progress output')
+
+    run = sub.add_parser('run', help='run one scenario')
+    run.add_argument('scenario', type=Path)
+    options(run)
+    compare = sub.add_parser('compare', help='run several scenarios and compare their metrics')
+    compare.add_argument('scenarios', type=Path, nargs='+')
+    options(compare)
+    return parser
+
+
+def _run_one(path: Path, out: Path, args: argparse.Namespace):
+    from tank_control.harness import runner
+    progress = None if args.quiet else ProgressPrinter(sys.stderr, path.stem)
+    return runner.run(path, out, mode=args.mode, rtf=args.rtf, duration=args.duration,
+                      overrides=args.overrides, in_process=args.in_process, progress=progress)
+
+
+def _print_result(result) -> None:
+    from tank_control.harness.compare import markdown_table
+    claim = result.metrics.get('claim')
+    if claim:
+        print(f'documented claim: {claim}')
+    print(markdown_table([result]), end='')
+    for key in ('plot', 'trace', 'recording', 'metrics'):
+        print(f'{key}: {result.files[key]}')
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    from tank_control.harness.runner import RunFailed
+    try:
+        if args.command == 'run':
+            _print_result(_run_one(args.scenario, args.out, args))
+            return 0
+        from tank_control.harness.compare import write_comparison
+        results, used = [], set()
+        for path in args.scenarios:
+            name = path.stem
+            while name in used:
+                name += '_'
+            used.add(name)
+            results.append(_run_one(path, args.out / name, args))
+        files = write_comparison(results, args.out)
+        print(files['table'].read_text(), end='')
+        print(f'table: {files["table"]}\nplot: {files["plot"]}')
+        return 0
+    except ScenarioError as err:
+        print(f'tank-control: {err}', file=sys.stderr)
+        return 2
+    except RunFailed as err:
+        print(f'tank-control: run failed: {err}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print('tank-control: interrupted', file=sys.stderr)
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""Compare runs: a markdown table of their metrics and an overlay plot (as 003 compares
+controllers on the same tank)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tank_control.harness.plotting import plot_runs
+from tank_control.harness.runner import RunResult
+
+
+def _fmt(value: Any, digits: int = 4) -> str:
+    if value is None:
+        return '–'
+    if isinstance(value, float):
+        return f'{value:.{digits}g}'
+    return str(value)
+
+
+def metrics_rows(result: RunResult) -> list[dict[str, str]]:
+    """One row per output channel of a run (first setpoint change for the step columns)."""
+    rows = []
+    metrics = result.metrics
+    for name, out in metrics['outputs'].items():
+        steps = out['steps']
+        worst = max((s['overshoot_pct'] for s in steps if s['overshoot_pct'] is not None),
+                    default=None)
+        first = steps[0] if steps else {}
+        rows.append({
+            'scenario': result.name, 'output': name,
+            'IAE': _fmt(out['iae']), 'ISE': _fmt(out['ise']),
+            'steps': str(len(steps)),
+            'max overshoot %': _fmt(worst, 3),
+            'rise time s (1st)': _fmt(first.get('rise_time'), 3),
+            'settling 2 % s (1st)': _fmt(first.get('settling_time'), 3),
+            'ss error (last)': _fmt(steps[-1]['ss_error'], 3) if steps else '–',
+        })
+    run = metrics['run']
+    for row in rows:
+        row['ticks/s'] = _fmt(run.get('ticks_per_s'), 4)
+    return rows
+
+
+def markdown_table(results: Sequence[RunResult]) -> str:
+    """Metrics of several runs as one markdown table."""
+    rows = [row for result in results for row in metrics_rows(result)]
+    if not rows:
+        return '(no outputs with setpoints)\n'
+    header = list(rows[0])
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '|'.join('---' for _ in header) + '|']
+    lines += ['| ' + ' | '.join(row[h] for h in header) + ' |' for row in rows]
+    return '\n'.join(lines) + '\n'
+
+
+def write_comparison(results: Sequence[RunResult], out_dir: str | Path) -> dict[str, Path]:
+    """``comparison.md`` (table, and where each run's files are) and ``overlay.png``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    table = markdown_table(results)
+    runs = '\n'.join(f'- `{r.name}`: {r.out_dir}' for r in results)
+    md = out / 'comparison.md'
+    md.write_text(f'# Comparison\n\n{table}\nRuns:\n\n{runs}\n')
+    plot = plot_runs([(r.name, r.trace) for r in results], out / 'overlay.png',
+                     title='comparison: ' + ', '.join(r.name for r in results))
+    return {'table': md, 'plot': plot}

@@ -1,0 +1,215 @@
+"""The recorder node that lives in the harness process: it subscribes to every topic of
+the loop and keeps the serialized messages as they arrive (cheap callbacks, no
+deserialisation while the run goes), and reads the controller's final
+parameters through its parameter services."""
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable
+from typing import Any
+
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+
+from tank_control.harness.recording import RawMessage
+from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
+
+#: (topic, type) of everything recorded. Signal topics are relative names (remapping works).
+TOPICS: tuple[tuple[str, str], ...] = (
+    ('measurement', 'sensor_msgs/msg/JointState'),
+    ('setpoint', 'sensor_msgs/msg/JointState'),
+    ('manipulated', 'sensor_msgs/msg/JointState'),
+    ('disturbance', 'sensor_msgs/msg/JointState'),
+    ('/clock', 'rosgraph_msgs/msg/Clock'),
+    ('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
+)
+
+# Reliable like the publishers; a deep reader queue so a busy harness does not drop.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+
+GATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+_GATE_NEEDS = ('measurement', 'setpoint', 'manipulated', 'disturbance')
+
+
+def _message_class(type_name: str) -> type:
+    package, _, name = type_name.split('/')
+    module = __import__(f'{package}.msg', fromlist=[name])
+    return getattr(module, name)
+
+
+def cdr_stamp_ns(data: bytes) -> int:
+    """The first ``builtin_interfaces/Time`` of a CDR message (header.stamp of a JointState,
+    the clock of a Clock) without deserialising it."""
+    little = data[1] & 1
+    sec, nanosec = struct.unpack_from('<iI' if little else '>iI', data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+class Recorder:
+    """Subscriptions on a node of its own (in ``context``), spun by ``spin_once``."""
+
+    def __init__(self, context: Context, name: str = 'tank_control_recorder') -> None:
+        self.node = Node(name, context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.messages: list[RawMessage] = []
+        self.latest: dict[str, int] = {}        # topic → largest stamp seen [ns]
+        self.first: dict[str, int] = {}         # topic → first stamp seen [ns]
+        self.counts: dict[str, int] = {}
+        self._gate_pub: Any = None
+        self._gate_stamps: dict[str, set[int]] = {}
+        self._gate_disturbance: dict[int, bytes] = {}
+        self.relayed = 0
+        for topic, type_name in TOPICS:
+            self.node.create_subscription(_message_class(type_name), topic,
+                                          self._callback(topic, type_name), RECORD_QOS, raw=True)
+
+    def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
+        full = topic if topic.startswith('/') else '/' + topic
+        key = topic.lstrip('/')
+        stamped = type_name != 'diagnostic_msgs/msg/DiagnosticArray'
+
+        def record(data: bytes) -> None:
+            now = time.time_ns()
+            stamp = cdr_stamp_ns(data) if stamped else now
+            self.messages.append(RawMessage(full, type_name, bytes(data), now, stamp))
+            self.counts[key] = self.counts.get(key, 0) + 1
+            if stamped:
+                self.first.setdefault(key, stamp)
+                if stamp > self.latest.get(key, -1):
+                    self.latest[key] = stamp
+                if self._gate_pub is not None and key in _GATE_NEEDS:
+                    self._gate(key, stamp, data)
+        return record
+
+    def enable_gate(self) -> None:
+        """Lockstep back-pressure: the plant's ``disturbance`` input is remapped to
+        ``disturbance_gated``, and the recorder relays each tick's disturbance message there
+        (the same bytes) only once it has recorded that tick's measurement, setpoint,
+        manipulated and disturbance. The plant cannot start tick k+1 before the recording
+        holds all of tick k, so a busy machine slows the run instead of losing samples
+        (signal publishers keep only the last 10 messages for a slow reader)."""
+        from sensor_msgs.msg import JointState
+        self._gate_stamps = {topic: set() for topic in _GATE_NEEDS}
+        self._gate_pub = self.node.create_publisher(JointState, GATED_DISTURBANCE, GATE_QOS)
+
+    def _gate(self, topic: str, stamp: int, data: bytes) -> None:
+        self._gate_stamps[topic].add(stamp)
+        if topic == 'disturbance':
+            self._gate_disturbance[stamp] = bytes(data)
+        if all(stamp in seen for seen in self._gate_stamps.values()):
+            self._gate_pub.publish(self._gate_disturbance[stamp])
+            self.relayed += 1
+            for old in [s for s in self._gate_disturbance if s < stamp]:
+                del self._gate_disturbance[old]
+
+    def subscriber_count(self, topic: str) -> int:
+        return self.node.count_subscribers(topic)
+
+    def spin_once(self, timeout: float) -> None:
+        self.executor.spin_once(timeout_sec=timeout)
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float,
+                   check: Callable[[], None] = lambda: None) -> bool:
+        """Spin until ``condition()`` holds (True) or ``timeout`` wall seconds pass (False);
+        ``check()`` runs every iteration and may raise (a node died)."""
+        deadline = time.monotonic() + timeout
+        while not condition():
+            check()
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            self.spin_once(min(0.05, remaining))
+        return True
+
+    def node_names(self) -> set[str]:
+        return set(self.node.get_node_names())
+
+    def node_counts(self) -> dict[str, int]:
+        """How many nodes of each name the graph holds (two ``plant``s: two graphs on one domain)."""
+        counts: dict[str, int] = {}
+        for name, namespace in self.node.get_node_names_and_namespaces():
+            key = name if namespace == '/' else f'{namespace.rstrip("/")}/{name}'
+            counts[key] = counts.get(key, 0) + 1
+        return counts
+
+    def signal_messages(self) -> list[SignalMessage]:
+        """The recorded signal messages, deserialised (after the run)."""
+        from sensor_msgs.msg import JointState
+        out = []
+        for raw in self.messages:
+            topic = raw.topic.lstrip('/')
+            if topic not in TOPIC_PREFIX:
+                continue
+            msg = deserialize_message(raw.data, JointState)
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            out.append(SignalMessage(topic, stamp, tuple(msg.name), tuple(msg.position)))
+        return out
+
+    def node_parameters(self, node: str, timeout: float = 5.0,
+                        check: Callable[[], None] = lambda: None) -> dict[str, Any]:
+        """Every parameter of ``/node`` (through its list/get services); {} if it does not answer."""
+        lister = self.node.create_client(ListParameters, f'/{node}/list_parameters')
+        getter = self.node.create_client(GetParameters, f'/{node}/get_parameters')
+        try:
+            if not self.spin_until(lambda: lister.service_is_ready() and getter.service_is_ready(),
+                                   timeout, check):
+                return {}
+            listed = self._call(lister, ListParameters.Request(), timeout, check)
+            if listed is None:
+                return {}
+            names = list(listed.result.names)
+            got = self._call(getter, GetParameters.Request(names=names), timeout, check)
+            if got is None:
+                return {}
+            return {name: parameter_value_to_python(value) for name, value in zip(names, got.values)}
+        finally:
+            self.node.destroy_client(lister)
+            self.node.destroy_client(getter)
+
+    def set_parameters(self, node: str, values: dict[str, Any], timeout: float,
+                       check: Callable[[], None] = lambda: None) -> str | None:
+        """Set parameters of ``/node`` through its service; None on success, else the reason."""
+        client = self.node.create_client(SetParameters, f'/{node}/set_parameters')
+        try:
+            if not self.spin_until(client.service_is_ready, timeout, check):
+                return f'/{node}/set_parameters did not become available in {timeout:g} s'
+            request = SetParameters.Request(
+                parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+            response = self._call(client, request, timeout, check)
+            if response is None:
+                return f'/{node}/set_parameters did not answer in {timeout:g} s'
+            failed = [r.reason for r in response.results if not r.successful]
+            return '; '.join(failed) if failed else None
+        finally:
+            self.node.destroy_client(client)
+
+    def publisher_count(self, topic: str) -> int:
+        return self.node.count_publishers(topic)
+
+    def _call(self, client: Any, request: Any, timeout: float, check: Callable[[], None]) -> Any:
+        future = client.call_async(request)
+        if not self.spin_until(future.done, timeout, check):
+            return None
+        return future.result()
+
+    def destroy(self) -> None:
+        self.executor.remove_node(self.node)
+        self.node.destroy_node()
+        self.executor.shutdown()
+
+
+def deserialize_all(messages: list[RawMessage], type_name: str) -> list[Any]:
+    """Deserialise raw messages of one type (for tests and tools)."""
+    cls = _message_class(type_name)
+    return [deserialize_message(m.data, cls) for m in messages if m.type_name == type_name]

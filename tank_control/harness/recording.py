@@ -1,0 +1,172 @@
+"""``run.mcap``: every topic of a run in the MCAP ``ros2`` profile (CDR messages, ``ros2msg``
+schemas), readable by the ``mcap`` / ``mcap-ros2-support`` readers, Foxglove and PlotJuggler.
+
+A ROS run stores the serialized bytes exactly as they came off the wire. An
+in-process run (no ROS graph) writes the trace as the messages a ROS run would
+have carried: ``measurement``, ``setpoint``, ``manipulated``, ``disturbance``
+(``sensor_msgs/msg/JointState``, one per tick, stamped t_k) and ``/clock``.
+"""
+from __future__ import annotations
+
+import os
+import re
+import sys
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+
+from tank_control.harness.trace import TOPIC_PREFIX, TraceTable
+
+_PRIMITIVES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
+               'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'}
+_SEPARATOR = '=' * 80
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """A serialized message as received: topic, type (``pkg/msg/Name``), CDR bytes, times [ns]."""
+
+    topic: str
+    type_name: str
+    data: bytes
+    log_time_ns: int
+    publish_time_ns: int
+
+
+def message_definition(type_name: str) -> str:
+    """The ``ros2msg`` schema text of a type with its dependencies appended (rosbag2 style)."""
+    seen: list[str] = []
+    main = _read_msg(type_name)
+    parts = [main]
+    queue = _dependencies(type_name, main)
+    while queue:
+        dep = queue.pop(0)
+        if dep in seen:
+            continue
+        seen.append(dep)
+        text = _read_msg(dep)
+        parts.append(f'{_SEPARATOR}\nMSG: {dep}\n{text}')
+        queue += _dependencies(dep, text)
+    return '\n'.join(parts)
+
+
+def _msg_path(type_name: str) -> Path:
+    """Where the ``.msg`` file of a type is installed (ament prefixes, then this Python's)."""
+    package, _, name = type_name.split('/')
+    prefixes = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    for prefix in (*prefixes, sys.prefix, sys.base_prefix):
+        path = Path(prefix) / 'share' / package / 'msg' / f'{name}.msg'
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f'message definition of {type_name} not found under '
+                            + ', '.join((*prefixes, sys.prefix)))
+
+
+def _read_msg(type_name: str) -> str:
+    lines = []
+    for line in _msg_path(type_name).read_text().splitlines():
+        stripped = line.split('#', 1)[0].strip()
+        if stripped:
+            lines.append(stripped)
+    return '\n'.join(lines)
+
+
+def _dependencies(type_name: str, text: str) -> list[str]:
+    """Non-primitive field types of a ``.msg`` text, as ``pkg/msg/Name``."""
+    package = type_name.split('/')[0]
+    deps = []
+    for line in text.splitlines():
+        tokens = line.split()
+        if len(tokens) < 2 or '=' in tokens[1] or (len(tokens) > 2 and tokens[2].startswith('=')):
+            continue                                        # not a field, or a constant
+        field_type = re.sub(r'\[.*\]$', '', tokens[0])       # arrays
+        field_type = re.sub(r'<=\d+$', '', field_type)        # bounded strings
+        if field_type in _PRIMITIVES:
+            continue
+        if field_type == 'Header':
+            deps.append('std_msgs/msg/Header')
+        elif '/' in field_type:
+            deps.append(f'{field_type.split("/")[0]}/msg/{field_type.split("/")[-1]}')
+        else:
+            deps.append(f'{package}/msg/{field_type}')
+    return deps
+
+
+class McapRecording:
+    """Write raw CDR messages into an MCAP file (context manager)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._handle = open(self.path, 'wb')
+        self._writer = Writer(self._handle, compression=CompressionType.ZSTD)
+        self._writer.start(profile='ros2', library='tank_control harness')
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self.count = 0
+
+    def add(self, msg: RawMessage) -> None:
+        channel = self._channels.get(msg.topic)
+        if channel is None:
+            schema = self._schemas.get(msg.type_name)
+            if schema is None:
+                schema = self._writer.register_schema(
+                    name=msg.type_name, encoding=SchemaEncoding.ROS2,
+                    data=message_definition(msg.type_name).encode())
+                self._schemas[msg.type_name] = schema
+            channel = self._writer.register_channel(topic=msg.topic,
+                                                    message_encoding=MessageEncoding.CDR,
+                                                    schema_id=schema)
+            self._channels[msg.topic] = channel
+        self._writer.add_message(channel_id=channel, log_time=msg.log_time_ns,
+                                 publish_time=msg.publish_time_ns, data=msg.data, sequence=self.count)
+        self.count += 1
+
+    def close(self) -> None:
+        self._writer.finish()
+        self._handle.close()
+
+    def __enter__(self) -> McapRecording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def write_raw(path: str | Path, messages: Iterable[RawMessage]) -> Path:
+    """Write received messages, in the order given, to ``path``."""
+    with McapRecording(path) as recording:
+        for msg in messages:
+            recording.add(msg)
+    return Path(path)
+
+
+def write_trace(path: str | Path, trace: TraceTable, t0_ns: int = 0) -> Path:
+    """Write a trace as the signal messages (and ``/clock``) a lockstep run would carry."""
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    def stamp(msg_stamp, t_ns: int) -> None:
+        msg_stamp.sec, msg_stamp.nanosec = divmod(t_ns, 1_000_000_000)
+
+    with McapRecording(path) as recording:
+        for i, t in enumerate(trace.t):
+            t_ns = t0_ns + int(round(float(t) * 1e9))
+            clock = Clock()
+            stamp(clock.clock, t_ns)
+            recording.add(RawMessage('/clock', 'rosgraph_msgs/msg/Clock', serialize_message(clock),
+                                     t_ns, t_ns))
+            for topic, prefix in TOPIC_PREFIX.items():
+                names = trace.channels(prefix)
+                if not names and topic != 'disturbance':
+                    continue
+                msg = JointState()
+                stamp(msg.header.stamp, t_ns)
+                msg.name = names
+                msg.position = [float(trace.columns[f'{prefix}.{n}'][i]) for n in names]
+                recording.add(RawMessage('/' + topic, 'sensor_msgs/msg/JointState',
+                                         serialize_message(msg), t_ns, t_ns))
+    return Path(path)

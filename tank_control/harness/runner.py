@@ -1,0 +1,459 @@
+"""Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
+
+``run_scenario`` leaves in the output directory:
+
+* ``scenario.yaml`` — the merged parameters file the nodes were started with;
+* ``trace.csv``, ``run.mcap``, ``metrics.json``, ``plot.png``;
+* ``logs/<node>.log`` — each node's output (ROS runs).
+
+ROS run, step by step (no sleeps: every wait spins the recorder until an event):
+
+1. the recorder node starts in this process (its own rclpy context);
+2. every node starts as its own OS process (in sim mode the plant, whose
+   clock runs from its start, only once the others are up; ticks published
+   before the recorder has matched the plant — discovery takes 1–2 s of wall
+   time — are not recorded and are counted as missed samples)
+   (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
+   plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
+   ``-p lockstep.paused:=true`` for the plant in lockstep);
+3. wait until every node is in the graph and the recorder has matched every
+   publisher (measurement, /clock, setpoint, disturbance, manipulated);
+4. lockstep: un-pause the plant through its parameter service — tick 0 is
+   published only now, so the recorder sees every tick from the first. The
+   plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
+   recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
+   plant cannot run ahead of the recording, so no sample is lost on a busy
+   machine (the signal publishers keep only 10 messages for a slow reader);
+5. run until the simulated time reaches the duration (lockstep: until every
+   answer of the last tick ≤ duration is recorded), watching that every
+   process is alive and the clock is moving;
+6. read the controller's parameters (final gains) through its services;
+7. stop the processes: SIGINT, then SIGTERM, then SIGKILL.
+
+A process that exits early, a graph that does not come up in
+``harness.startup_timeout`` or a clock that stops for ``harness.stall_timeout``
+ends the run with ``RunFailed`` carrying the node's last log lines.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tank_control.harness import metrics as metrics_mod
+from tank_control.harness.plotting import plot_runs
+from tank_control.harness.processes import ProcessGroup
+from tank_control.harness.recording import write_raw, write_trace
+from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
+                                                load_scenario, write_params_file)
+from tank_control.harness.trace import (GATED_DISTURBANCE, TraceTable, from_core_trace,
+                                        from_messages)
+
+NS = 1_000_000_000
+OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
+GAIN_NAMES = re.compile(r'^(kp|ki|ti|td|b|c|n|d12|d21)(_\w+)?$')
+PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
+             'controller': ('manipulated',)}
+
+
+class RunFailed(RuntimeError):
+    """The run could not complete; the message says which node and shows its last log lines."""
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Where a run is: simulated seconds done, of how many, at what pace, and when it ends."""
+
+    sim_time: float
+    duration: float
+    rate: float          # simulated seconds per wall second
+    ticks_per_s: float
+    eta: float           # wall seconds left (inf while unknown)
+
+
+ProgressFn = Callable[[Progress], None]
+
+
+@dataclass
+class RunResult:
+    """What a run left behind."""
+
+    name: str
+    out_dir: Path
+    trace: TraceTable
+    metrics: dict[str, Any]
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+NodeCommand = Callable[[str], list[str]]
+"""Node name → the argv that starts it, before ``--ros-args``."""
+
+
+def node_module_command(node: str) -> list[str]:
+    """``python -m tank_control.nodes.<node>_node`` with this interpreter."""
+    return [sys.executable, '-m', f'tank_control.nodes.{node}_node']
+
+
+def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = None,
+        rtf: float | None = None, duration: float | None = None, overrides: Sequence[str] = (),
+        in_process: bool = False, env: Mapping[str, str] | None = None,
+        progress: ProgressFn | None = None) -> RunResult:
+    """Load ``scenario_path`` with ``overrides`` and the command-line settings, and run it."""
+    scenario = effective_harness(load_scenario(scenario_path, overrides), mode, rtf, duration)
+    return run_scenario(scenario, out_dir, in_process=in_process, env=env, progress=progress)
+
+
+def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
+                 env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
+                 node_command: NodeCommand = node_module_command) -> RunResult:
+    """Run a loaded scenario into ``out_dir`` (see the module docstring)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in OUTPUT_FILES:                    # a failed run must not leave old results
+        (out / stale).unlink(missing_ok=True)
+    params_file = write_params_file(scenario, out / 'scenario.yaml')
+    if in_process:
+        return _run_in_process(scenario, params_file, out, progress)
+    return _RosRun(scenario, params_file, out, env, progress, node_command).execute()
+
+
+# ----------------------------------------------------------------------------------------------
+# Results common to both kinds of run
+
+def input_limits(scenario: Scenario, controller_params: Mapping[str, Any]) -> dict[str, tuple]:
+    """[u_min, u_max] of every input, from the controller's parameters (live, else the file)."""
+    params = dict(scenario.params('controller'))
+    params.update(controller_params)
+    lo = params.get('u_min', -math.inf)
+    hi = params.get('u_max', math.inf)
+    lo = float(lo) if isinstance(lo, (int, float)) else -math.inf
+    hi = float(hi) if isinstance(hi, (int, float)) else math.inf
+    return {'*': (lo, hi)}
+
+
+def finish(scenario: Scenario, out: Path, trace: TraceTable, run_info: dict[str, Any],
+           controller_params: Mapping[str, Any], mcap_writer: Callable[[Path], Path]) -> RunResult:
+    """Write trace.csv, run.mcap, metrics.json and plot.png."""
+    limits = input_limits(scenario, controller_params)
+    body = metrics_mod.trace_metrics(trace, {name: limits['*'] for name in trace.channels('u')})
+    gains = {k: v for k, v in controller_params.items() if GAIN_NAMES.match(k.split('.')[-1])}
+    autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
+    metrics = {
+        'scenario': scenario.name,
+        'title': scenario.harness.title,
+        'claim': scenario.harness.claim,
+        'mode': run_info.get('mode'),
+        **body,
+        'run': run_info,
+        'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       'parameters': dict(controller_params)},
+    }
+    files = {
+        'trace': trace.write_csv(out / 'trace.csv'),
+        'recording': mcap_writer(out / 'run.mcap'),
+        'metrics': out / 'metrics.json',
+        'plot': plot_runs([(scenario.name, trace)], out / 'plot.png',
+                          title=scenario.harness.title or scenario.name),
+    }
+    files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
+    return RunResult(scenario.name, out, trace, metrics, files)
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+# ----------------------------------------------------------------------------------------------
+# In-process (core/loop.py, no ROS)
+
+def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
+                    progress: ProgressFn | None) -> RunResult:
+    from tank_control.core import scenario as core_scenario   # lands with the nodes branch
+
+    config = scenario.harness
+    start = time.monotonic()
+    try:
+        core_trace = core_scenario.run_in_process(params_file, config.duration)
+    except ValueError as exc:            # a parameter the core objects reject: one line
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
+    wall = time.monotonic() - start
+    trace = from_core_trace(core_trace).until(config.duration)
+    ticks = len(trace)
+    if progress:
+        progress(Progress(config.duration, config.duration, config.duration / max(wall, 1e-9),
+                          ticks / max(wall, 1e-9), 0.0))
+    run_info = {
+        'mode': 'in_process', 'sim_duration': float(trace.t[-1]) if ticks else 0.0,
+        'wall_time': wall, 'ticks': ticks, 'ticks_per_s': ticks / max(wall, 1e-9),
+        'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
+        'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
+    }
+    return finish(scenario, out, trace, run_info, _controller_values(scenario),
+                  lambda path: write_trace(path, trace))
+
+
+def _controller_values(scenario: Scenario) -> dict[str, Any]:
+    """The controller's parameters as controller_node would hold them: defaults filled in
+    and the gains a ``tuning.rule`` derives (what a ROS run reads from the node)."""
+    values = dict(scenario.params('controller'))
+    try:
+        from tank_control.core.control import registry
+        values = registry.complete_values(values)
+        values.update(registry.derive(values, frozenset(scenario.params('controller'))))
+    except (ImportError, ValueError):
+        pass                                   # report what the file says
+    return values
+
+
+# ----------------------------------------------------------------------------------------------
+# ROS run
+
+class _RosRun:
+    def __init__(self, scenario: Scenario, params_file: Path, out: Path,
+                 env: Mapping[str, str] | None, progress: ProgressFn | None,
+                 node_command: NodeCommand = node_module_command) -> None:
+        self.node_command = node_command
+        self.scenario = scenario
+        self.config = scenario.harness
+        self.params_file = params_file
+        self.out = out
+        self.env = dict(env if env is not None else os.environ)
+        self.env['PYTHONUNBUFFERED'] = '1'
+        self.progress = progress
+        self.group = ProcessGroup(out / 'logs')
+        self.duration_ns = int(round(self.config.duration * NS))
+        self.mode = self.config.clock_mode
+        self.t0_ns: int | None = 0 if self.mode != 'wall' else None
+        self.phase = 'while starting'
+        plant = scenario.params('plant')
+        self.gated = (self.mode == 'lockstep' and {'plant', 'reference'} <= set(self.config.nodes)
+                      and plant.get('lockstep.wait_for_reference', True) is True)
+
+    # -- processes --------------------------------------------------------------------------
+    def _argv(self, node: str) -> list[str]:
+        argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
+        if self.mode != 'wall' and node != 'plant':
+            argv += ['-p', 'use_sim_time:=true']
+        if self.mode == 'lockstep' and node == 'plant':
+            argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
+            if self.gated:
+                argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']   # through the recorder
+        return argv
+
+    def _check_alive(self) -> None:
+        for name, proc in self.group.processes.items():
+            code = proc.returncode
+            if code is not None:
+                raise RunFailed(f'node {name} exited with code {code} {self.phase}; '
+                                f'last lines of {proc.log_path}:\n{proc.tail(15)}')
+
+    # -- run ----------------------------------------------------------------------------------
+    def execute(self) -> RunResult:
+        import rclpy
+        from rclpy.context import Context
+
+        from tank_control.harness.recorder import Recorder
+
+        context = Context()
+        rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'])
+        recorder: Recorder | None = None
+        wall_start = time.monotonic()
+        try:
+            recorder = Recorder(context)
+            self.recorder = recorder
+            if self.gated:
+                recorder.enable_gate()
+            nodes = self.config.nodes
+            # sim: the plant's clock runs from its start, so it starts once the others are up
+            late = ('plant',) if self.mode == 'sim' and 'plant' in nodes else ()
+            for node in (n for n in nodes if n not in late):
+                self.group.start(node, self._argv(node), env=self.env)
+            self._await_graph([n for n in nodes if n not in late])
+            for node in late:
+                self.group.start(node, self._argv(node), env=self.env)
+            if late:
+                self._await_graph(nodes)
+            run_start = time.monotonic()
+            if self.mode == 'lockstep' and 'plant' in self.config.nodes:
+                self._unpause()
+            self.phase = 'during the run'
+            self._run_loop(run_start)
+            run_wall = time.monotonic() - run_start
+            self.phase = 'at the end of the run'
+            controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
+                                 if 'controller' in self.config.nodes else {})
+            plant_params = recorder.node_parameters('plant', 5.0, self._check_alive)
+        finally:
+            codes = self.group.stop_all()
+            if recorder is not None:
+                recorder.destroy()
+            rclpy.try_shutdown(context=context)
+        return self._results(recorder, controller_params, plant_params, codes, run_wall,
+                             time.monotonic() - wall_start)
+
+    def _await(self, condition: Callable[[], bool], what: str) -> None:
+        if not self.recorder.spin_until(condition, self.config.startup_timeout, self._check_alive):
+            details = '\n'.join(f'--- {name} ---\n{proc.tail(8)}'
+                                for name, proc in self.group.processes.items())
+            raise RunFailed(f'{what} within {self.config.startup_timeout:g} s '
+                            f'(harness.startup_timeout); node logs:\n{details}')
+
+    def _unpause(self) -> None:
+        """Lockstep: release tick 0. Set twice: plant_node's own post-set callback runs
+        before its parameter binding has stored the new value (rclpy calls the most
+        recently added callback first), so the first set only stores ``false`` and
+        the second publishes the tick; with that fixed, the second set is a no-op
+        (the plant is already waiting for the answers to tick 0)."""
+        for _ in range(2):
+            reason = self.recorder.set_parameters('plant', {'lockstep.paused': False},
+                                                  self.config.startup_timeout, self._check_alive)
+            if reason:
+                raise RunFailed(f'could not start the plant\'s clock: {reason}')
+
+    def _await_graph(self, nodes: Sequence[str]) -> None:
+        """Every node in the graph and every publisher the recorder needs matched
+        (in lockstep the plant holds tick 0 until it is un-paused); fail if the names are
+        taken twice (another run on the same ROS_DOMAIN_ID would mix into this one)."""
+        rec = self.recorder
+        topics = [topic for node in nodes for topic in PUBLISHES[node]
+                  if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
+        gate = self.gated and 'plant' in nodes
+        self._await(lambda: (set(nodes) <= rec.node_names()
+                             and all(rec.publisher_count(t) > 0 for t in topics)
+                             and (not gate or rec.subscriber_count(GATED_DISTURBANCE) > 0)),
+                    'the graph did not come up (nodes ' + ', '.join(nodes)
+                    + '; publishers of ' + ', '.join(topics) + ')')
+        self._check_no_other_graph()
+
+    def _check_no_other_graph(self) -> None:
+        counts = self.recorder.node_counts()
+        taken = [name for name in self.config.nodes if counts.get(name, 0) > (
+            1 if name in self.group.processes else 0)]
+        if taken:
+            domain = self.env.get('ROS_DOMAIN_ID', '0')
+            raise RunFailed(f'node name(s) {", ".join(taken)} already in use on ROS_DOMAIN_ID '
+                            f'{domain}: another graph is running there and would mix into this '
+                            'run; stop it or set a different ROS_DOMAIN_ID')
+
+    def _sim_ns(self) -> int | None:
+        stamp = self.recorder.latest.get('measurement')
+        if stamp is None:
+            return None
+        if self.t0_ns is None:
+            self.t0_ns = self.recorder.first['measurement']
+        return stamp - self.t0_ns
+
+    def _run_loop(self, run_start: float) -> None:
+        rec = self.recorder
+        last_progress = -math.inf
+        last_sim, last_move = -1, time.monotonic()
+        while True:
+            self._check_alive()
+            rec.spin_once(0.05)
+            now = time.monotonic()
+            sim = self._sim_ns()
+            if sim is not None and sim != last_sim:
+                last_sim, last_move = sim, now
+            elif now - last_move > self.config.stall_timeout:
+                raise RunFailed(self._stall_message())
+            if self.progress and now - last_progress >= 0.5 and sim is not None:
+                last_progress = now
+                self._report(sim, now - run_start)
+            if sim is not None and sim >= self.duration_ns:
+                break
+        if self.mode == 'lockstep':
+            self._await_last_answers()
+        if self.progress:
+            self._report(min(self._sim_ns() or 0, self.duration_ns), time.monotonic() - run_start)
+
+    def _await_last_answers(self) -> None:
+        """Lockstep: the plant moved past the duration, so every answer of the last tick
+        inside it exists; wait until the recorder holds them too."""
+        rec = self.recorder
+        last = self._last_tick_within()
+        answers = [t for t in ('setpoint', 'manipulated', 'disturbance') if t in rec.latest]
+        if not rec.spin_until(lambda: all(rec.latest.get(t, -1) >= last for t in answers),
+                              self.config.stall_timeout, self._check_alive):
+            raise RunFailed(f'answers for the last tick ({last / NS:g} s) did not reach the recorder '
+                            f'within {self.config.stall_timeout:g} s')
+
+    def _last_tick_within(self) -> int:
+        ts = self.scenario.params('plant').get('sample_time')
+        if isinstance(ts, (int, float)) and ts > 0:
+            ts_ns = int(round(ts * NS))
+            return (self.duration_ns // ts_ns) * ts_ns
+        return self.duration_ns
+
+    def _stall_message(self) -> str:
+        rec = self.recorder
+        latest = ', '.join(f'{t} {s / NS:g} s' for t, s in sorted(rec.latest.items())) or 'nothing'
+        tails = '\n'.join(f'--- {name} ---\n{proc.tail(8)}'
+                          for name, proc in self.group.processes.items())
+        return (f'simulated time stopped moving for {self.config.stall_timeout:g} s '
+                f'(harness.stall_timeout); latest stamps: {latest}; node logs:\n{tails}')
+
+    def _report(self, sim_ns: int, wall: float) -> None:
+        sim = sim_ns / NS
+        rate = sim / wall if wall > 0 else 0.0
+        ts = self.scenario.params('plant').get('sample_time')
+        ticks = sim / ts / wall if isinstance(ts, (int, float)) and ts > 0 and wall > 0 else 0.0
+        eta = (self.config.duration - sim) / rate if rate > 0 else math.inf
+        self.progress(Progress(sim, self.config.duration, rate, ticks, max(eta, 0.0)))
+
+    # -- results ------------------------------------------------------------------------------
+    def _results(self, recorder: Any, controller_params: dict[str, Any],
+                 plant_params: dict[str, Any], codes: Mapping[str, int], run_wall: float,
+                 total_wall: float) -> RunResult:
+        t0 = self.t0_ns or 0
+        trace = from_messages(recorder.signal_messages(), t0, self.duration_ns)  # deserialises
+        sample_time = plant_params.get('sample_time', self.scenario.params('plant').get('sample_time'))
+        signals = recorder.signal_messages()
+        stamps = np.array([s for s in sorted({m.stamp_ns for m in signals
+                                              if m.topic == 'measurement'})
+                           if s - t0 <= self.duration_ns], dtype=np.int64)
+        sampling = metrics_mod.sampling_metrics(stamps, sample_time,
+                                               None if self.mode == 'wall' else 0)
+        if self.mode == 'wall':
+            # Stamps of a wall-clock plant lie on its timer's grid; the jitter a consumer sees
+            # is in the arrival times (timer jitter plus transport), measured by the recorder.
+            arrivals = np.array([m.log_time_ns for m in recorder.messages
+                                 if m.topic == '/measurement'], dtype=np.int64)[:len(stamps)]
+            sampling['max_jitter'] = metrics_mod.sampling_metrics(arrivals, sample_time)['max_jitter']
+        ticks = len(trace)
+        run_info = {
+            'mode': self.mode,
+            'real_time_factor': self.config.real_time_factor,
+            'sim_duration': float(trace.t[-1]) if ticks else 0.0,
+            'wall_time': run_wall,
+            'wall_time_total': total_wall,
+            'ticks': ticks,
+            'ticks_per_s': ticks / run_wall if run_wall > 0 else 0.0,
+            'missed_samples': sampling['missed_samples'],
+            'late_samples': int(sum(trace.late.values())) if self.mode == 'lockstep' else 0,
+            'late_by_signal': trace.late,
+            'max_jitter': sampling['max_jitter'],
+            'messages': dict(recorder.counts),
+            'recorder_gate': self.gated,
+            'exit_codes': dict(codes),
+        }
+        messages = recorder.messages
+        return finish(self.scenario, self.out, trace, run_info, controller_params,
+                      lambda path: write_raw(path, messages))

