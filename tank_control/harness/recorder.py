@@ -107,8 +107,9 @@ class Recorder:
         self._gate_stamps[topic].add(stamp)
         if topic == 'disturbance':
             self._gate_disturbance[stamp] = bytes(data)
-        if all(stamp in seen for seen in self._gate_stamps.values()):
-            self._gate_pub.publish(self._gate_disturbance[stamp])
+        data = self._gate_disturbance.get(stamp)   # None: a late duplicate of a past tick
+        if data is not None and all(stamp in seen for seen in self._gate_stamps.values()):
+            self._gate_pub.publish(data)
             self.relayed += 1
             for old in [s for s in self._gate_disturbance if s < stamp]:
                 del self._gate_disturbance[old]

@@ -363,12 +363,15 @@ class _RosRun:
 
     def _run_loop(self, run_start: float) -> None:
         rec = self.recorder
-        last_progress = -math.inf
+        last_progress = last_graph_check = -math.inf
         last_sim, last_move = -1, time.monotonic()
         while True:
             self._check_alive()
             rec.spin_once(0.05)
             now = time.monotonic()
+            if now - last_graph_check >= 0.5:      # a graph that joins later mixes in too
+                last_graph_check = now
+                self._check_no_other_graph()
             sim = self._sim_ns()
             if sim is not None and sim != last_sim:
                 last_sim, last_move = sim, now

@@ -1,7 +1,9 @@
 """Start-up and clean shutdown shared by every node's ``main()``."""
 from __future__ import annotations
 
+import signal
 from collections.abc import Callable, Sequence
+from types import FrameType
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -11,10 +13,15 @@ from rclpy.node import Node
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shut down; return 0.
 
-    rclpy's default signal handlers cover SIGINT and SIGTERM: spinning ends with
-    ``KeyboardInterrupt`` or ``ExternalShutdownException``, both a clean stop;
-    a signal that arrives while the node is still being built is one too.
+    rclpy's signal handlers cover SIGINT and SIGTERM: rcl shuts the context
+    down and spinning ends with ``ExternalShutdownException`` (or the
+    ``KeyboardInterrupt`` of SIGINT), both a clean stop; a signal that arrives
+    while the node is still being built is one too. rclpy hands SIGINT on to
+    Python's handler *after* its own, at a moment Python chooses, which may be
+    after this function has returned; so the Python-level handler raises
+    ``KeyboardInterrupt`` only while rclpy is still running.
     """
+    signal.signal(signal.SIGINT, _interrupt_while_running)
     rclpy.init(args=args)
     node: Node | None = None
     try:
@@ -32,3 +39,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _interrupt_while_running(signum: int, frame: FrameType | None) -> None:
+    """SIGINT → ``KeyboardInterrupt`` unless rclpy has already shut down for it."""
+    if rclpy.ok():
+        raise KeyboardInterrupt
