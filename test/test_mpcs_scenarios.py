@@ -96,3 +96,16 @@ def test_mpcs_is_offset_free_within_limits_and_beats_the_two_loop_pi(name, horiz
     # IAE after the lead-in, both outputs, below the two-loop PI on the same sequence
     for out in TOL:
         assert _iae(trace, out, changes[0]) < pi_iae[out], (out, pi_iae[out])
+
+
+
+def test_harness_knows_the_mpcs_limits_for_its_constraint_column():
+    """`tank-control run` counts samples outside mpcs.u_min … mpcs.u_max (widest over the
+    inputs), not outside ±inf; live values win over the file."""
+    from tank_control.harness.runner import input_limits
+    from tank_control.harness.scenario_file import load_scenario
+    scenario = load_scenario(SCENARIOS / 'tank_mpcs_qp.yaml')
+    assert input_limits(scenario, {}) == {'*': (0.0, 100.0)}
+    assert input_limits(scenario, {'mpcs.u_max': [20.0, 60.0]}) == {'*': (0.0, 60.0)}
+    pi = load_scenario(SCENARIOS / 'tank_mpcs_two_loop.yaml')
+    assert input_limits(pi, {}) == {'*': (0.0, 300.0)}
