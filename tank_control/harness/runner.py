@@ -130,11 +130,18 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
 # Results common to both kinds of run
 
 def input_limits(scenario: Scenario, controller_params: Mapping[str, Any]) -> dict[str, tuple]:
-    """[u_min, u_max] of every input, from the controller's parameters (live, else the file)."""
+    """[u_min, u_max] of every input, from the controller's parameters (live, else the file).
+
+    ``mpcs`` names its per-input limits ``mpcs.u_min``/``mpcs.u_max`` (lists [F_H, F_Cin]):
+    the widest range over the inputs is used."""
     params = dict(scenario.params('controller'))
     params.update(controller_params)
-    lo = params.get('u_min', -math.inf)
-    hi = params.get('u_max', math.inf)
+    lo = params.get('u_min', params.get('mpcs.u_min', -math.inf))
+    hi = params.get('u_max', params.get('mpcs.u_max', math.inf))
+    if isinstance(lo, (list, tuple)) and lo:
+        lo = min(lo)
+    if isinstance(hi, (list, tuple)) and hi:
+        hi = max(hi)
     lo = float(lo) if isinstance(lo, (int, float)) else -math.inf
     hi = float(hi) if isinstance(hi, (int, float)) else math.inf
     return {'*': (lo, hi)}

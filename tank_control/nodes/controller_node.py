@@ -9,7 +9,11 @@ du_max``, ``anti_windup``, ``tracking_time``, ``mode``, ``manual_output``,
 is accepted (``nodes/params.py``) and applied at the next sample, bumplessly.
 
 Topics (relative names): subscribes ``measurement``, ``setpoint`` and, when the
-controller uses measured disturbances, ``disturbance``; publishes
+controller uses measured disturbances, ``disturbance`` (a channel the reference does
+not publish reaches the controller as NaN, and the controller keeps its own value —
+``mpcs``: the last measured one, initially its operating point ``mpcs.op.F_D``,
+``mpcs.op.T_D``; in lockstep the tick still waits for the reference's message, which may
+hold no channels); publishes
 ``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
 sample instant) and ``/diagnostics`` (mode, saturation, anti-windup, faults,
 counters, computation time and the controller's ``status`` as ``status.*``).
@@ -105,7 +109,9 @@ class ControllerNode(Node):
         # latest inputs (wall/sim) and fault bookkeeping
         self._y: dict[str, float] = {}
         self._r: dict[str, float] = {}
-        self._d: dict[str, float] = {name: 0.0 for name in self._disturbances}
+        # measured disturbances: a channel never received is passed as NaN, and the
+        # controller substitutes its own value (mpcs: the operating point mpcs.op.F_D/T_D)
+        self._d: dict[str, float] = {name: math.nan for name in self._disturbances}
         self._fresh = False
         self._since_measurement = 0
         self._fault = ''                 # '' | 'stale' | 'non-finite'
@@ -293,7 +299,7 @@ class ControllerNode(Node):
         """One controller sample (accepted changes take effect) — or hold on a fault."""
         y_vec = np.array([y[name] for name in self._outputs], dtype=float)
         r_vec = np.array([r[name] for name in self._outputs], dtype=float)
-        d_vec = np.array([d.get(name, 0.0) for name in self._disturbances], dtype=float)
+        d_vec = np.array([d.get(name, math.nan) for name in self._disturbances], dtype=float)
         self.counters['samples'] += 1
         fault = 'stale' if stale else ('' if np.all(np.isfinite(y_vec)) else 'non-finite')
         if fault:

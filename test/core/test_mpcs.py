@@ -325,3 +325,23 @@ def test_registered_kind_is_built_checked_and_reconfigured_by_the_registry():
     values['mpcs.horizon'] = 150
     same, u = registry.step_with_changes(ctl, values, frozenset({'mpcs.horizon'}), 0.0, y, r, D0)
     assert same is ctl and ctl.config.horizon == 150 and np.all(np.isfinite(u))
+
+
+def test_unmeasured_disturbance_channels_use_the_operating_point_then_the_last_value():
+    """A disturbance channel the reference does not publish arrives as NaN (controller_node):
+    MPCS uses mpcs.op.F_D / mpcs.op.T_D until a value is measured, then the last measured one;
+    the output is never NaN."""
+    op = MpcsConfig(op_F_D=12.0, op_T_D=33.0)
+    y, r = np.array([81.0, 33.6]), np.array([82.0, 34.0])
+    a, b = Mpcs(op), Mpcs(op)
+    for k in range(5):
+        ua = a.step(float(k), y, r, np.array([np.nan, np.nan]))
+        ub = b.step(float(k), y, r, np.array([12.0, 33.0]))
+        assert np.all(np.isfinite(ua)) and np.array_equal(ua, ub)
+    # F_D measured once (15), then missing again: 15 is kept, T_D stays at the operating point
+    ua = a.step(5.0, y, r, np.array([15.0, np.nan]))
+    ub = b.step(5.0, y, r, np.array([15.0, 33.0]))
+    assert np.array_equal(ua, ub)
+    ua = a.step(6.0, y, r, np.array([np.nan, np.nan]))
+    ub = b.step(6.0, y, r, np.array([15.0, 33.0]))
+    assert np.array_equal(ua, ub)

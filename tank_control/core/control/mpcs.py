@@ -409,9 +409,16 @@ class Mpcs:
         self._design.estimator.reset(self._y - m.y0, self._u - m.u0, self._d_dev(m))
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """One sample (``t`` [s]; ``y`` = [h, T_out]; ``r`` setpoints; ``d`` = [F_D, T_D])."""
+        """One sample (``t`` [s]; ``y`` = [h, T_out]; ``r`` setpoints; ``d`` = [F_D, T_D]).
+
+        A channel of ``d`` that is missing or non-finite (NaN: never measured, e.g. the
+        reference does not publish it) keeps its last measured value, initially the
+        operating point's ``mpcs.op.F_D`` [cm³/s] / ``mpcs.op.T_D`` [°C]: see
+        :meth:`_fill_d`.
+        """
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
+        d = self._fill_d(d)
         if self._needs_init and y.shape == self._y.shape and np.all(np.isfinite(y)):
             self.reset(y, self._u, d)   # bumpless from the operating point's inputs
         if self._design.cfg.relinearize and self._fixed_model is None:
@@ -522,6 +529,17 @@ class Mpcs:
         except ValueError:
             return                                  # outside the parameter ranges
         self._counters['relinearizations'] += 1
+
+    def _fill_d(self, d: np.ndarray | None) -> np.ndarray | None:
+        """Per channel: a finite measured value, else the last one used (``self._d``,
+        which starts at the operating point ``mpcs.op.F_D``, ``mpcs.op.T_D``). ``None``
+        or a wrongly sized ``d`` passes unchanged (no feed-forward update)."""
+        if d is None:
+            return None
+        d = np.asarray(d, dtype=float)
+        if d.shape != self._d.shape:
+            return d
+        return np.where(np.isfinite(d), d, self._d)
 
     def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> bool:
         return (self._design.cfg.feedforward and d is not None and len(d) == m.n_d
