@@ -76,6 +76,8 @@ def test_parameter_file_sections_and_coercion(tmp_path):
         == [1.0, 2.5]
     assert value_from_python(None, T.PARAMETER_INTEGER, raw='2.5').type == T.PARAMETER_DOUBLE
     assert value_from_python(None, T.PARAMETER_STRING, raw='12').string_value == '12'
+    assert value_from_python(None, T.PARAMETER_DOUBLE, raw='1e-3').double_value == 0.001
+    assert value_from_python(None, T.PARAMETER_STRING, raw='1e-3').string_value == '1e-3'
     assert list(value_from_python(None, T.PARAMETER_DOUBLE_ARRAY, raw='[1, 2.5]')
                 .double_array_value) == [1.0, 2.5]
     assert value_from_python([], T.PARAMETER_STRING_ARRAY).type == T.PARAMETER_STRING_ARRAY

@@ -151,9 +151,11 @@ def _python(value: Any) -> Any:
 def value_from_python(value: Any, declared_type: int, raw: str | None = None) -> Any:
     """A ParameterValue for ``value`` (or the YAML text ``raw``), fitted to the declared type.
 
-    An integer (list) is taken as a double (list) by a double parameter, an empty list
-    takes the declared array type, and a string parameter takes ``raw`` as text; anything
-    else keeps its YAML type and the node decides (and gives its reason when it refuses).
+    ``raw`` is typed as in a parameter file (``1e-3`` is a double, where ros2cli's plain
+    YAML would send the string '1e-3'). An integer (list) is taken as a double (list) by a
+    double parameter, an empty list takes the declared array type, and a string parameter
+    takes ``raw`` as text; anything else keeps its YAML type and the node decides (and
+    gives its reason when it refuses).
     """
     from rcl_interfaces.msg import ParameterType as T
     from rcl_interfaces.msg import ParameterValue
@@ -161,9 +163,14 @@ def value_from_python(value: Any, declared_type: int, raw: str | None = None) ->
     if raw is not None:
         msg = get_parameter_value(raw)
         try:
-            value = yaml.safe_load(raw)
+            value = ros_yaml.load(raw)       # as a params file would type it: 1e-3 is a number
         except yaml.YAMLError:
             value = raw
+        if msg.type == T.PARAMETER_STRING and not isinstance(value, str):
+            try:
+                msg = Parameter('p', value=value).get_parameter_value()
+            except TypeError:
+                pass
     else:
         try:
             msg = Parameter('p', value=value).get_parameter_value()
