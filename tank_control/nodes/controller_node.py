@@ -164,7 +164,7 @@ class ControllerNode(Node):
 
     def _cross_check(self, values: Mapping[str, Any]) -> str | None:
         kind_values = self._kind_values(values)
-        return registry.check_initial_output(kind_values) or self._kind.check(kind_values)
+        return self._kind.check(kind_values) or registry.check_initial_output(kind_values)
 
     def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
         extra = dict(self._kind.derive(self._kind_values(values), changed))

@@ -366,7 +366,8 @@ def initial_output_spec(default: list[float]) -> ParamSpec:
     """``initial_output``: the output the controller takes over with (see the module docstring)."""
     return ParamSpec('initial_output', list(default), 'output at the first sample when the '
                      'measurement equals the setpoint: the controller is reset(y, initial_output) '
-                     'there (bumpless take-over), one value per input_names channel [input units]',
+                     'there (bumpless take-over), one value per input_names channel, clipped '
+                     'to the output limits [input units]',
                      min=-1e12, max=1e12, read_only=True)
 
 
@@ -416,29 +417,18 @@ def check(values: Values) -> str | None:
     reasons = check_all(specs, {k: v for k, v in values.items() if k not in _IGNORED})
     if reasons:
         return '; '.join(reasons)
-    reason = check_initial_output(values)
-    if reason:
-        return reason
-    return get_kind(name).check(controller_values(values))
+    return get_kind(name).check(controller_values(values)) or check_initial_output(values)
 
 
 def check_initial_output(values: Values) -> str | None:
-    """``initial_output`` has one value per input channel, within scalar output limits."""
+    """``initial_output`` has one value per input channel (values outside the output limits
+    are clipped to them by the reset, so a limit change never invalidates the default)."""
     if 'initial_output' not in values or 'input_names' not in values:
         return None
     u0, inputs = list(values['initial_output']), list(values['input_names'])
     if len(u0) != len(inputs):
         return (f'initial_output: {u0} must hold {len(inputs)} value(s), one per input '
                 f'{inputs}')
-    lo = values.get('u_min', -math.inf)
-    hi = values.get('u_max', math.inf)
-    lows = list(lo) if isinstance(lo, (list, tuple)) else [lo] * len(u0)
-    highs = list(hi) if isinstance(hi, (list, tuple)) else [hi] * len(u0)
-    if len(lows) == len(u0) == len(highs):
-        for name, v, a, b in zip(inputs, u0, lows, highs):
-            if not a <= v <= b:
-                return (f'initial_output: {v:g} for {name} is outside the output limits '
-                        f'[{a:g}, {b:g}]')
     return None
 
 
