@@ -99,7 +99,8 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
     _start(procs, node_cmd, ros_env, 'use_sim_time:=true', f'sample_time:={ts}',
            'diagnostics_period:=0.1',
-           'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0')
+           'kp:=1.0', 'ti:=10.0', 'b:=0.5', 'u_min:=-5.0', 'u_max:=5.0',
+           'initial_output:=[-0.3]')
     loop = Loop(probe)
 
     # declared with descriptors: range, read-only, description
@@ -110,15 +111,16 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert ctrl_desc.read_only
 
     tick = to_ns(0.1)     # plant tick 0.1 s; controller samples every second tick
-    # tick 0: u = kp·(b·r − y) + I(0) = 1·(0.5 − 1) = −0.5 (000 eq. 19, I starts at 0)
-    assert loop.tick(0, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    # tick 0, y = r: the warm start (reset(y, initial_output)) gives u = initial_output
+    # exactly, not the cold start's kp·(b·r − y) = −0.5 (000 eq. 19 with I = 0)
+    assert loop.tick(0, 1.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
     # idempotent: tick 0 re-sent with another measurement gets the same answer again
     before = len(loop.answers)
     loop.meas.publish(to_joint_state(0, ['y'], [4.0]))
     assert probe.wait_for(lambda: len(loop.answers) > before, 5.0)
-    assert loop.answers[-1][0] == 0 and loop.answers[-1][2] == [-0.5]
+    assert loop.answers[-1][0] == 0 and loop.answers[-1][2] == [pytest.approx(-0.3, abs=1e-12)]
     # tick 1 is not a controller instant: held even though y changed
-    assert loop.tick(1 * tick, 3.0, 1.0) == -0.5
+    assert loop.tick(1 * tick, 3.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
 
     # rejected changes: reason names the parameter; the running controller is untouched
     result = loop.set('kp', -1.0)
@@ -129,17 +131,17 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert not result.successful and 'n' in result.reason and '50' in result.reason
     assert not loop.set('controller', 'smith_pi').successful
     assert loop.get('kp') == 1.0 and loop.get('u_min') == -5.0
-    assert loop.tick(2 * tick, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    assert loop.tick(2 * tick, 1.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
 
     # a valid change typed as an integer (ros2 param set /controller kp 3) is accepted
     result = loop.set('kp', 3)
     assert result.successful, result.reason
     assert loop.get('kp') == 3.0
-    # applied at the next sample without a bump (a recomputation would give 3·(0.5 − 1) = −1.5)
-    assert loop.tick(4 * tick, 1.0, 1.0) == pytest.approx(-0.5, abs=1e-12)
+    # applied at the next sample without a bump (a recomputation would give 3·(0.5 − 1) + 0.2)
+    assert loop.tick(4 * tick, 1.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
     # and in effect: a measurement step of 0.1 moves u by −kp_new·0.1 (P part)
     u6 = loop.tick(6 * tick, 1.1, 1.0)
-    assert u6 == pytest.approx(-0.5 - 3.0 * 0.1, abs=1e-12)
+    assert u6 == pytest.approx(-0.3 - 3.0 * 0.1, abs=1e-12)
 
     # non-finite measurement: last output held, counted; recovery without a jump
     assert loop.tick(8 * tick, math.nan, 1.0) == u6
@@ -224,7 +226,7 @@ def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, 
     from tank_control.nodes.messages import CLOCK_QOS, clock_msg
     ts = 0.5
     _start(procs, node_cmd, ros_env, 'clock_mode:=sim', 'use_sim_time:=true',
-           f'sample_time:={ts}', 'kp:=2.0')
+           f'sample_time:={ts}', 'kp:=2.0', 'initial_output:=[4.0]')
     loop = Loop(probe)
     clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
     t = {'ns': 0}
@@ -239,7 +241,8 @@ def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, 
     stamps = [a[0] for a in loop.answers]
     assert all(s % to_ns(ts) == 0 for s in stamps)            # on the k·ts grid
     assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)   # P only
+    # P only; the warm start's bias initial_output − kp·e is 0 here, so u = kp·e
+    assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)
 
 
 def test_two_loop_pi_on_tank_channels_in_lockstep(procs, node_cmd, ros_env, probe):
@@ -247,15 +250,16 @@ def test_two_loop_pi_on_tank_channels_in_lockstep(procs, node_cmd, ros_env, prob
     loop = Loop(probe)
     y, r = {'h': 80.0, 'T_out': 34.0, 'extra': 1.0}, {'h': 81.0, 'T_out': 33.57}
     u = loop.tick(0, y, r)
-    # 003 §2.1 gains from a zero integral: F_H = 0.9·1, F_Cin = −0.2·(−0.43)
-    assert u == pytest.approx({'F_H': 0.9, 'F_Cin': 0.086}, abs=1e-12)
+    # warm start: the first sample takes over at initial_output (default: 003's operating-point
+    # flows 14, 37 cm³/s) whatever the error (a cold start gave kp·e = 0.9, 0.086)
+    assert u == pytest.approx({'F_H': 14.0, 'F_Cin': 37.0}, abs=1e-12)
     result = loop.set('two_loop.kp_h', 2)
     assert result.successful, result.reason
     assert not loop.set('u_max', -1.0).successful
     # the change takes effect at this sample without a jump: still the old law's
     # output (integral of tick 0 added, ki·h·e), the new kp_h from the next sample
     u1 = loop.tick(to_ns(1.0), y, r)
-    assert u1['F_H'] == pytest.approx(0.9 + 0.01 * 1.0, abs=1e-12)
+    assert u1['F_H'] == pytest.approx(14.0 + 0.01 * 1.0, abs=1e-12)
     # h error 1 → 1.5: u moves by kp_new·0.5 plus the integral of tick 1 (ki·h·1)
     u2 = loop.tick(to_ns(2.0), {**y, 'h': 79.5}, r)
     assert u2['F_H'] == pytest.approx(u1['F_H'] + 2.0 * 0.5 + 0.01 * 1.0, abs=1e-12)

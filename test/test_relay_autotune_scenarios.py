@@ -105,12 +105,13 @@ def test_tank_temperature_loop_by_channel_names():
                        'output_names': ['T_out'], 'input_names': ['F_Cin'],
                        'autotune.relay_amplitude': 5.0, 'autotune.settle_time': 20.0,
                        'autotune.settle_band': 0.1, 'autotune.start_time': 10.0,
-                       'autotune.timeout': 20000.0, 'autotune.kind': 'pi'},
+                       'autotune.timeout': 20000.0, 'autotune.kind': 'pi',
+                       'initial_output': [37.0]},     # warm start at the operating point
         'reference': {'setpoint.channels': ['T_out'], 'setpoint.T_out.times': [0.0],
                       'setpoint.T_out.values': [t_op]},
     }
-    # the PI starts at the operating point (F_Cin = 37), as a bumpless hand-over would
-    trace, tuner, log = run_logged(params, 3300.0, reset=(t_op, 37.0))
+    # the PI takes over at the operating point (F_Cin = 37): the loop's warm start
+    trace, tuner, log = run_logged(params, 3300.0)
     assert log[-1][1] == 'running', tuner.status['reason']
     ku, tu = exact_fopdt_ultimate(gain, tau, 180.0 + 120.0)
     st = tuner.status

@@ -168,7 +168,7 @@ def test_003_coupling_visible_without_decoupling_and_reduced_by_the_decoupler(re
     step moves T_out by degrees while its setpoint is constant; §3: the decoupler has a
     positive effect there (the level step barely moves T_out)."""
     plain, decoupled = results('tank_pi'), results('tank_pi_decoupled')
-    for start in (4000.0, 8000.0):                       # level steps 81 → 90 and 90 → 75 cm
+    for start in (100.0, 4100.0):                        # level steps 81 → 90 and 90 → 75 cm
         coupled = window_max_abs(plain, 'y.T_out', 'r.T_out', start, start + 2000.0)
         reduced = window_max_abs(decoupled, 'y.T_out', 'r.T_out', start, start + 2000.0)
         assert coupled > 1.0
@@ -186,7 +186,7 @@ def test_003_disturbance_steps_compensated_and_decoupling_comparable(results):
     for output, scale in (('h', 81.0), ('T_out', 62.0 - 23.0)):   # level; T_C-T_H span
         ours = plain.metrics['outputs'][output]['disturbance_steps']
         theirs = decoupled.metrics['outputs'][output]['disturbance_steps']
-        assert [s['t'] for s in ours] == [4000.0, 6500.0]
+        assert [s['t'] for s in ours] == [100.0, 2600.0]
         for a, b in zip(ours, theirs):
             assert a['peak_error'] < 0.1 * scale                   # not large: < 10 % of scale
             assert abs(a['final_error']) < 0.05 * a['peak_error']  # compensated
@@ -198,7 +198,7 @@ def test_003_disturbance_steps_compensated_and_decoupling_comparable(results):
 def test_003_filling_the_tank_overshoots_in_temperature_less_with_decoupling(results):
     """003 §2.5: filling from a low level, the temperature overshoots significantly (the hot
     loop fills the tank while cold water arrives 180 s late); §3.5: with decoupling it
-    copes better. Measured: 199 % vs 160 % of the 10.6 °C change — better, but not the
+    copes better. Measured: 219 % vs 161 % of the 10.6 °C change — better, but not the
     "negligible" overshoot of the document (docs/scenarios.md)."""
     plain, decoupled = results('tank_fill_pi'), results('tank_fill_pi_decoupled')
     t_plain, t_dec = first_step(plain, 'T_out'), first_step(decoupled, 'T_out')

@@ -10,7 +10,9 @@ ROS. With ``ts_ns = to_ns(sample_time)`` (the plant's sample time), for tick
 3. ``y = plant.outputs() + noise()`` — one noise draw per tick, the same
    draws the plant node makes;
 4. ``u = controller.step(t, y, r, d)`` if ``t_k % controller_ts_ns == 0``
-   (the controller's sample instants), else the last ``u`` is held;
+   (the controller's sample instants), else the last ``u`` is held; at the
+   first sample whose measurement is finite the controller is first warm-started
+   (:func:`warm_start`: ``reset(y, initial_output)``), exactly as controller_node does;
 5. record ``t, y.*, r.*, u.*, d.*``;
 6. ``plant.step(u, d, sample_time)`` — zero-order hold over ``[t_k, t_k+1)``.
 
@@ -105,6 +107,38 @@ def _nominal(plant: Plant, attr: str, names: Sequence[str]) -> dict[str, float]:
     return {name: float(v) for name, v in zip(names, values)}
 
 
+def initial_output(controller: Controller) -> np.ndarray | None:
+    """The controller's documented first output (parameter ``initial_output``, one value per
+    input channel, set by ``registry.make_controller``), or None for a controller without one."""
+    value = getattr(controller, 'initial_output', None)
+    if value is None:
+        return None
+    u0 = np.asarray(value, dtype=float).reshape(-1)
+    if u0.size != len(controller.input_names) or not np.all(np.isfinite(u0)):
+        raise ValueError(f'initial_output: {u0.tolist()} must be {len(controller.input_names)} '
+                         f'finite values, one per input {list(controller.input_names)}')
+    return u0
+
+
+def warm_start(controller: Controller, y: np.ndarray) -> bool:
+    """Bumpless take-over at the first sample: ``controller.reset(y, initial_output)``.
+
+    ``y`` is the first (finite) measurement of the controller's outputs. Every kind
+    completes the reset at its next ``step`` (which knows ``r`` and ``d``): with
+    ``y = r`` that step returns ``initial_output`` (MPCS: its equilibrium move,
+    ``initial_output`` up to rounding), so a plant at its operating point with the
+    setpoints there stays there. Called identically by ``run_loop`` and
+    controller_node. Returns False (nothing done) for a controller without
+    ``initial_output`` or a non-finite ``y`` (the first good sample warm-starts).
+    """
+    u0 = initial_output(controller)
+    y = np.asarray(y, dtype=float)
+    if u0 is None or not np.all(np.isfinite(y)):
+        return False
+    controller.reset(y, u0)
+    return True
+
+
 def check_wiring(plant: Plant, controller: Controller, reference: Reference) -> None:
     """ValueError naming the first channel that cannot be connected."""
     for name in controller.output_names:
@@ -147,6 +181,7 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
              + [f'd.{n}' for n in reference.disturbance_names])
     rows = np.empty((n_ticks, len(names)))
     u_ctrl = np.array([u_all[n] for n in controller.input_names], dtype=float)
+    started = False
     for k in range(n_ticks):
         t_ns = k * ts_ns
         t = seconds(t_ns)
@@ -158,6 +193,9 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
             y = y + noise()
         if t_ns % cts_ns == 0:
             d_ctrl = np.array([d_all[n] for n in controller.disturbance_names], dtype=float)
+            if not started and np.all(np.isfinite(y[y_index])):
+                warm_start(controller, y[y_index])      # the first good sample: bumpless take-over
+                started = True
             u_ctrl = np.asarray(controller.step(t, y[y_index], r_all[r_index], d_ctrl), dtype=float)
             u_all.update(zip(controller.input_names, u_ctrl.tolist()))
         rows[k] = np.concatenate(([t], y, r_all, u_ctrl, d_ref))

@@ -42,6 +42,10 @@ Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
   answers every ``/clock`` tick in both, so each sample uses the measurement
   of exactly its instant), else ``wall``.
 
+Warm start: at the first sample with a finite measurement the controller is
+``reset(y, initial_output)`` (``core.loop.warm_start``, exactly as the in-process
+loop), so it takes over the plant bumplessly from ``initial_output``.
+
 Measurement faults: a non-finite measured value, or (wall/sim) no measurement
 for ``stale_samples`` samples, holds the last output — or sends
 ``fail_safe_output`` when ``fail_safe`` is ``output`` — without touching the
@@ -68,6 +72,7 @@ from std_srvs.srv import Trigger
 
 from tank_control.core.control import registry
 from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.loop import warm_start
 from tank_control.nodes.clock import Answers, StampedInbox, is_sample_instant, steady_clock
 from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
@@ -89,6 +94,7 @@ class ControllerNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('controller', **kwargs)
         self._u: np.ndarray | None = None          # last published output
+        self._started = False                      # warm start done (first good sample)
         kind_name = self._kind_from_overrides()
         self._kind = registry.get_kind(kind_name)
         self._kind_names = tuple(s.name for s in registry.controller_specs(kind_name))
@@ -163,7 +169,8 @@ class ControllerNode(Node):
         return {name: values[name] for name in self._kind_names if name in values}
 
     def _cross_check(self, values: Mapping[str, Any]) -> str | None:
-        return self._kind.check(self._kind_values(values))
+        kind_values = self._kind_values(values)
+        return self._kind.check(kind_values) or registry.check_initial_output(kind_values)
 
     def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
         extra = dict(self._kind.derive(self._kind_values(values), changed))
@@ -306,10 +313,14 @@ class ControllerNode(Node):
             return self._hold(fault)
         if self._fault and self._u is not None:
             self._controller.reset(y_vec, self._u)       # continue from what the plant got
+            self._started = True
             self.get_logger().info(f'measurement recovered after {self._fault} episode; '
                                    'control resumed bumplessly')
             self._fault = ''
             self._publish_diagnostics()
+        elif not self._started:      # first good sample: reset(y, initial_output), as core/loop.py
+            warm_start(self._controller, y_vec)
+            self._started = True
         start = time.perf_counter()
         u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start

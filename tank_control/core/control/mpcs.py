@@ -301,6 +301,7 @@ def controller_kind():
         name='mpcs', params=lambda: mpcs_params() + registry._channel_specs(
             Mpcs.output_names, Mpcs.input_names),
         check=check, build=build, update=update,
+        initial_output=(MpcsConfig().op_F_H, MpcsConfig().op_F_Cin),   # warm start (registry)
         description='offset-free MPCS for the mixing tank, analytic or QP (003 §4, §6)')
 
 

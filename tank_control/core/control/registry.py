@@ -27,6 +27,19 @@ returning a ``ControllerKind`` (usually in the controller's own module) and add
 one line to ``_KIND_FACTORIES``. The common parameters (``controller`` and the
 channel names) are added here; a kind's own specs win on a name clash.
 
+Warm start (every kind): parameter ``initial_output`` — one value per input
+channel, read-only — is the output the controller takes over with. At its first
+sample with a finite measurement, ``core/loop.py`` and controller_node call
+``controller.reset(y, initial_output)`` (``core.loop.warm_start``), so that
+sample returns ``initial_output`` when ``y = r`` (bumpless take-over of a plant
+running at its operating point). Defaults: the 003 operating-point flows
+``[F_H, F_Cin] = [14, 37]`` cm³/s for ``two_loop_pi`` and ``mpcs`` (the inflows
+that hold the tank at h = 81 cm, T_out = 2115/63 °C with F_D = 12 cm³/s); ``[0]``
+for the SISO kinds, which is the holding input of the shipped SISO plants at rest
+(IPDT/FOPDT with ``initial_output`` 0 and no load; an FOPDT started at y0 needs
+y0/gain, an IPDT with a load v needs −v — set it). A SISO kind started in
+``mode: manual`` takes over with ``manual_output`` instead.
+
 Parameter conventions of this package (ROS parameters cannot hold ``inf``):
 ``ti = 0`` no integral action, ``du_max = 0`` no rate limit, ``tracking_time
 = 0`` the default tracking time; tuning process values of 0 mean "not given".
@@ -70,6 +83,9 @@ class ControllerKind:
     """Operator commands by name; controller_node offers each as a ``std_srvs/Trigger``
     service ``~/<name>`` that calls ``commands[name](controller) -> (success, message)``,
     e.g. ``{'start_autotune': lambda c: c.start(), 'abort_autotune': lambda c: c.abort()}``."""
+    initial_output: tuple[float, ...] | None = None
+    """Default of the ``initial_output`` parameter when the kind's own specs do not define
+    it (None: 0 for every default input channel)."""
     state: str | None = None
     """Name of the ``results`` entry that is the controller's state-machine state (e.g.
     ``autotune.state``); controller_node publishes each change on ``~/<name, '.' → '_'>``
@@ -163,6 +179,10 @@ def _pid_kind() -> ControllerKind:
 
 
 # ---------------------------------------------------------- two_loop_pi
+#: 003 operating point of the mixing tank: F_H, F_Cin [cm³/s] that hold h = 81 cm and
+#: T_out = 2115/63 °C with F_D = 12 cm³/s at T_D = 33 °C (T_H = 62, T_C = 23 °C).
+OPERATING_POINT_FLOWS = (14.0, 37.0)
+
 def _two_loop_check(values: Values) -> str | None:
     from tank_control.core.control.multiloop import check_two_loop_relations
     reason = check_two_loop_relations(values)
@@ -202,6 +222,7 @@ def _two_loop_kind() -> ControllerKind:
         params=lambda: two_loop_pi_params() + fail_safe
         + _channel_specs(('h', 'T_out'), ('F_H', 'F_Cin')),
         check=_two_loop_check, build=_two_loop_build, update=None,
+        initial_output=OPERATING_POINT_FLOWS,
         description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)')
 
 
@@ -341,14 +362,29 @@ RUNTIME_SPECS: tuple[ParamSpec, ...] = (
 _IGNORED = frozenset({'use_sim_time'})   # ROS's own parameter, present in every node section
 
 
+def initial_output_spec(default: list[float]) -> ParamSpec:
+    """``initial_output``: the output the controller takes over with (see the module docstring)."""
+    return ParamSpec('initial_output', list(default), 'output at the first sample when the '
+                     'measurement equals the setpoint: the controller is reset(y, initial_output) '
+                     'there (bumpless take-over), one value per input_names channel, clipped '
+                     'to the output limits [input units]',
+                     min=-1e12, max=1e12, read_only=True)
+
+
 def controller_specs(name: str) -> tuple[ParamSpec, ...]:
-    """The parameters that describe the controller: ``controller`` (read-only) + the kind's own."""
+    """The parameters that describe the controller: ``controller`` (read-only) + the kind's own
+    (+ ``initial_output`` with the kind's default unless the kind defines it)."""
     kind = get_kind(name)
     common = ParamSpec('controller', name, 'controller kind (set at start-up)',
                        choices=kind_names(), read_only=True)
     own = kind.params()
     runtime = {spec.name for spec in RUNTIME_SPECS}
-    return (common,) + tuple(s for s in own if s.name != 'controller' and s.name not in runtime)
+    specs = tuple(s for s in own if s.name != 'controller' and s.name not in runtime)
+    if not any(s.name == 'initial_output' for s in specs):
+        inputs = next((s.default for s in specs if s.name == 'input_names'), ['u'])
+        default = kind.initial_output or (0.0,) * len(inputs)
+        specs += (initial_output_spec([float(v) for v in default]),)
+    return (common,) + specs
 
 
 def specs_for(name: str) -> tuple[ParamSpec, ...]:
@@ -381,7 +417,30 @@ def check(values: Values) -> str | None:
     reasons = check_all(specs, {k: v for k, v in values.items() if k not in _IGNORED})
     if reasons:
         return '; '.join(reasons)
-    return get_kind(name).check(controller_values(values))
+    return get_kind(name).check(controller_values(values)) or check_initial_output(values)
+
+
+def check_initial_output(values: Values) -> str | None:
+    """``initial_output`` has one value per input channel (values outside the output limits
+    are clipped to them by the reset, so a limit change never invalidates the default)."""
+    if 'initial_output' not in values or 'input_names' not in values:
+        return None
+    u0, inputs = list(values['initial_output']), list(values['input_names'])
+    if len(u0) != len(inputs):
+        return (f'initial_output: {u0} must hold {len(inputs)} value(s), one per input '
+                f'{inputs}')
+    return None
+
+
+def _set_initial_output(controller: Controller, values: Values) -> Controller:
+    """The warm-start value ``core.loop.warm_start`` uses: ``initial_output``, or
+    ``manual_output`` for a kind started in ``mode: manual`` (the operator's value wins)."""
+    if values.get('mode') == 'manual' and 'manual_output' in values:
+        u0 = [float(values['manual_output'])]
+    else:
+        u0 = [float(v) for v in values['initial_output']]
+    controller.initial_output = np.array(u0, dtype=float)   # type: ignore[attr-defined]
+    return controller
 
 
 def derive(values: Values, changed: frozenset[str] = frozenset()) -> dict[str, Any]:
@@ -400,7 +459,7 @@ def make_controller(values: Values) -> Controller:
     reason = check({**values, **merged})
     if reason:
         raise ValueError(reason)
-    return get_kind(merged['controller']).build(merged)
+    return _set_initial_output(get_kind(merged['controller']).build(merged), merged)
 
 
 def step_with_changes(controller: Controller, values: Values, changed: frozenset[str],
@@ -422,7 +481,8 @@ def step_with_changes(controller: Controller, values: Values, changed: frozenset
     if kind.update is not None and kind.update(controller, values, changed) is not False:
         return controller, np.asarray(controller.step(t, y, r, d), dtype=float)
     u = np.asarray(controller.step(t, y, r, d), dtype=float)
-    new = kind.build(complete_values(values))
+    complete = complete_values(values)
+    new = _set_initial_output(kind.build(complete), complete)
     new.reset(y, u)
     new.step(t, y, r, d)
     return new, u

@@ -306,11 +306,14 @@ class RelayAutotuner:
         }
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
-        """Bumpless (re)start of normal PID operation from ``u``; a running test is abandoned (aborted)."""
+        """Bumpless (re)start of normal PID operation from ``u``; a running test is abandoned
+        (aborted). A test started before its first sample (``autotune.start`` at start-up) is
+        kept: the warm start at the first sample (``core.loop.warm_start``) only sets the
+        output the PID starts from."""
         u0 = _scalar(u, 'u')
         if not math.isfinite(u0):
             raise ValueError(f'reset: u = {u0!r} is not finite')
-        if self._state in TESTING:
+        if self._state in TESTING and self._stepped_state in TESTING:
             self._end('aborted', 'reset during the test')
         self._pending = u0
         self._last_out = u0

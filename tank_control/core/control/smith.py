@@ -155,6 +155,7 @@ class SmithPredictor:
         u0 = float(np.asarray(u, dtype=float).reshape(-1)[0])
         if not math.isfinite(u0):
             raise ValueError(f'reset: u = {u0!r} is not finite')
+        u0 = min(max(u0, self.config.u_min), self.config.u_max)   # the output the primary gives
         for _ in range(self._hist.maxlen):
             self._hist.appendleft(u0)
         if self.config.model == 'fopdt':
