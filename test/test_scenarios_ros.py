@@ -73,7 +73,7 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
 
 
 def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
-    """The demo's scenario (003 two-loop PI with decoupling, delays of 180 s and 120 s):
+    """tank_pi_decoupled (003 two-loop PI with decoupling, delays of 180 s and 120 s):
     every signal of both outputs and inputs equal to 1e-9 over 1000 ticks."""
     scenario = CONFIG / 'scenarios' / 'tank_pi_decoupled.yaml'
     ros = run(scenario, tmp_path / 'ros', duration=1000.0, env=ros_env)
