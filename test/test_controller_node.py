@@ -229,16 +229,19 @@ def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, 
     clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
     t = {'ns': 0}
 
-    def advance():          # simulated time 10x faster than wall, 0.1 s ticks
-        t['ns'] += to_ns(0.1)
-        clock.publish(clock_msg(t['ns']))
+    def advance():
+        # The simulated clock moves in steps of 0.35 s, so the 0.5 s timer runs late by
+        # 0.2, 0.05, 0.25, 0.1, ... s — as it does on a loaded machine, where /clock
+        # messages queue up before the executor gets to the timer.
+        t['ns'] += to_ns(0.35)
         loop.meas.publish(to_joint_state(t['ns'], ['y'], [1.0]))
         loop.setp.publish(to_joint_state(t['ns'], ['y'], [3.0]))
+        clock.publish(clock_msg(t['ns']))
     probe.node.create_timer(0.01, advance)
-    assert probe.wait_for(lambda: len(loop.answers) >= 4, 15.0)
+    assert probe.wait_for(lambda: len(loop.answers) >= 8, 20.0)
     stamps = [a[0] for a in loop.answers]
     assert all(s % to_ns(ts) == 0 for s in stamps)            # on the k·ts grid
-    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert all(b > a for a, b in zip(stamps, stamps[1:])), stamps   # one sample per instant
     assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)   # P only
 
 
