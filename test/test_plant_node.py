@@ -7,11 +7,14 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, from_joint_state,
-                                         stamp_to_ns, to_joint_state)
+from tank_control.nodes.messages import SIGNAL_QOS, from_joint_state, stamp_to_ns, to_joint_state
+
+#: The probe keeps every sample: a plant on its timer does not wait for a slow test process.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def start_plant(procs, ros_env, node_cmd, tmp_path, **params):
@@ -31,9 +34,9 @@ class Recorder:
         node = probe.node
         self.meas_sub = node.create_subscription(
             JointState, 'measurement', lambda m: self.measurements.append(from_joint_state(m)),
-            SIGNAL_QOS)
-        node.create_subscription(Clock, '/clock', lambda m: self.clock.append(stamp_to_ns(m.clock)),
-                                 CLOCK_QOS)
+            RECORD_QOS)
+        self.clock_sub = node.create_subscription(
+            Clock, '/clock', lambda m: self.clock.append(stamp_to_ns(m.clock)), RECORD_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.manipulated = node.create_publisher(JointState, 'manipulated', SIGNAL_QOS)
         self.disturbance = node.create_publisher(JointState, 'disturbance', SIGNAL_QOS)
@@ -193,3 +196,39 @@ def test_tank_reports_clipped_negative_flows_on_diagnostics(procs, ros_env, node
     last = rec.diagnostics[-1]
     assert last['level'] == b'\x01' and 'clipped flows' in last['message']   # WARN
     assert last['ignored_inputs'] == '0'           # a negative flow is physics, not garbage
+
+
+def test_sim_mode_clock_stands_still_while_paused(procs, ros_env, node_cmd, probe, tmp_path):
+    """lockstep.paused holds the sim clock too: nothing before it is released (a recorder
+    can join first and see tick 0), and simulated time does not move while paused again."""
+    ts_ns = 100_000_000
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='fopdt', sample_time=0.1,
+                       clock_mode='sim', real_time_factor=10.0, diagnostics_period=0.05,
+                       **{'lockstep.paused': True})
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.meas_sub.get_publisher_count()
+                          and rec.clock_sub.get_publisher_count() and len(rec.diagnostics) >= 3,
+                          30), proc.tail()
+    assert all(d['ticks'] == '0' and d['paused'] == 'True' for d in rec.diagnostics)
+    assert rec.clock == [] and rec.measurements == []
+
+    assert rec.set_param('lockstep.paused', False).successful
+    assert probe.wait_for(lambda: len(rec.clock) >= 5, 10), proc.tail()
+    assert rec.set_param('lockstep.paused', True).successful
+    # The plant's report after the pause: ticks published so far; all of them arrive.
+    n = len(rec.diagnostics)
+    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 2, 10)
+    ticks = int(rec.diagnostics[-1]['ticks'])
+    assert rec.diagnostics[-1]['paused'] == 'True'
+    assert probe.wait_for(lambda: len(rec.clock) >= ticks, 10)
+    # ... and no more: three further reports later the count and the clock are unchanged.
+    n = len(rec.diagnostics)
+    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 3, 10)
+    assert int(rec.diagnostics[-1]['ticks']) == ticks
+    assert rec.clock == [k * ts_ns for k in range(ticks)]      # from tick 0, none missed
+
+    # Released again, the clock goes on from the next tick: no jump over the pause.
+    assert rec.set_param('lockstep.paused', False).successful
+    assert probe.wait_for(lambda: len(rec.clock) >= ticks + 5, 10), proc.tail()
+    assert rec.clock == [k * ts_ns for k in range(len(rec.clock))]
+    assert [s for s, _, _ in rec.measurements] == rec.clock[:len(rec.measurements)]
