@@ -39,7 +39,7 @@ class Loop:
         node.create_subscription(JointState, 'manipulated', self._on_u, SIGNAL_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(node, 'controller')
-        assert self.params.wait_for_services(timeout_sec=20.0), 'controller parameters not up'
+        assert self.params.wait_for_services(timeout_sec=30.0), 'controller parameters not up'
 
     def _on_u(self, msg: JointState) -> None:
         self.answers.append((stamp_to_ns(msg.header.stamp), list(msg.name), list(msg.position)))
@@ -60,7 +60,7 @@ class Loop:
         return Parameter.from_parameter_msg(
             _named(name, self.call(self.params.get_parameters([name])).values[0])).value
 
-    def tick(self, t_ns: int, y, r, resend_until: float = 10.0):
+    def tick(self, t_ns: int, y, r, resend_until: float = 30.0):
         """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
         ``y``, ``r``: a value for channel ``y`` or a {channel: value} map (then the
         answer is a {channel: value} map). Re-sends the tick while unanswered (the
@@ -115,7 +115,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     # idempotent: tick 0 re-sent with another measurement gets the same answer again
     before = len(loop.answers)
     loop.meas.publish(to_joint_state(0, ['y'], [4.0]))
-    assert probe.wait_for(lambda: len(loop.answers) > before, 5.0)
+    assert probe.wait_for(lambda: len(loop.answers) > before, 20.0)
     assert loop.answers[-1][0] == 0 and loop.answers[-1][2] == [-0.5]
     # tick 1 is not a controller instant: held even though y changed
     assert loop.tick(1 * tick, 3.0, 1.0) == -0.5
@@ -148,7 +148,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.set('fail_safe_output', 2.0).successful
     assert loop.set('fail_safe', 'output').successful
     assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
-    assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
+    assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 20.0)
     assert int(loop.diag['rejected_parameters']) >= 4
     for key in ('mode', 'saturated', 'anti_windup_active', 'stale_inputs', 'rejected_inputs',
                 'last_computation_time_us'):
@@ -193,26 +193,26 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
         loop.setp.publish(to_joint_state(now, ['y'], [1.0]))
     probe.node.create_timer(ts / 2, publish)
     assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
-    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 20.0)
 
     u_running = loop.answers[-1][2][0]
     # stale: no measurement for 3 samples → fail_safe_output sent (configured), reported
     assert loop.set('fail_safe_output', 5.0).successful
     assert loop.set('fail_safe', 'output').successful
     sending['y'] = False
-    assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 5.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 20.0)
     assert loop.diag['stale_inputs'] == 'True'
     n = len(loop.answers)
-    assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 5.0)
+    assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 20.0)
     assert [a[2][0] for a in loop.answers[n:]] == [5.0] * len(loop.answers[n:])
     assert u_running != 5.0
 
     # recovery: control resumes from the output the plant got (5.0), no jump; with
     # y = r the error is zero, so it stays there
     sending['y'] = True
-    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 20.0)
     m = len(loop.answers)
-    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 5.0)
+    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 20.0)
     assert [a[2][0] for a in loop.answers[m:]] == pytest.approx([5.0] * len(loop.answers[m:]),
                                                                 abs=1e-9)
     assert int(loop.diag['stale_samples']) >= 3
