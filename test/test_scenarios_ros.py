@@ -5,6 +5,7 @@ over ROS too. Durations are cut with --duration to keep CI short."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -19,9 +20,20 @@ CONFIG = Path(__file__).resolve().parents[1] / 'config'
 SIGNAL_TOPICS = {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'}
 
 
-def cli(*args: str, env=None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, '-m', 'tank_control.harness.cli', *args], env=env,
-                          capture_output=True, text=True, timeout=300)
+def cli(*args: str, env=None, timeout: float = 600.0) -> subprocess.CompletedProcess:
+    """`tank-control ARGS` to completion. Past ``timeout`` it is interrupted (SIGINT), so the
+    harness stops its node processes instead of leaving them behind, and the test fails."""
+    argv = [sys.executable, '-m', 'tank_control.harness.cli', *args]
+    with subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          text=True) as popen:
+        try:
+            stdout, stderr = popen.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            popen.send_signal(signal.SIGINT)
+            stdout, stderr = popen.communicate(timeout=60)
+            raise AssertionError(f'tank-control {" ".join(args)}: no end in {timeout:g} s\n'
+                                 + stderr[-3000:]) from None
+    return subprocess.CompletedProcess(argv, popen.returncode, stdout, stderr)
 
 
 def assert_equal_traces(ros_csv: Path, in_process_csv: Path) -> None:
