@@ -107,7 +107,7 @@ def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs,
 
     answer(2)
     assert [s for s, _, _ in rec.measurements][-3:] == [0, 100_000_000, 200_000_000]
-    assert probe.wait_for(lambda: rec.clock and rec.clock[-1] >= 200_000_000, 5)
+    assert probe.wait_for(lambda: rec.clock and rec.clock[-1] >= 200_000_000, 30)
     assert 200_000_000 in rec.clock and rec.clock == sorted(rec.clock)
     # Out of range for the model (above max_dead_time): rejected with the reason.
     result = rec.set_param('dead_time', 1e3)
@@ -119,7 +119,11 @@ def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs,
     for k in range(3, 15):
         expected = max(0.0, (k - 3) * 0.1 - 0.6)   # k1·(t − t_step − L), closed form
         assert rec.y_at(k * 100_000_000) == pytest.approx(expected, abs=1e-12), k
-    assert [s for s, _, _ in rec.measurements] == sorted({s for s, _, _ in rec.measurements})
+    # In order; a tick seen more than once was re-sent (unanswered for resend_period, e.g.
+    # before discovery matched the probe's answers) and is the identical message.
+    stamps = [s for s, _, _ in rec.measurements]
+    assert stamps == sorted(stamps)
+    assert all(a == b for a, b in zip(rec.measurements, rec.measurements[1:]) if a[0] == b[0])
 
 
 def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs, ros_env,
@@ -141,11 +145,11 @@ def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs,
     def counted():
         return rec.diagnostics and rec.diagnostics[-1].get('ignored.manipulated') == '3' \
             and rec.diagnostics[-1].get('ignored.disturbance') == '1'
-    assert probe.wait_for(counted, 10), (rec.diagnostics[-1:], proc.tail())
+    assert probe.wait_for(counted, 30), (rec.diagnostics[-1:], proc.tail())
     assert rec.diagnostics[-1]['ignored_inputs'] == '4'
     # The plant still integrates the last valid u = 2 (slope k1·u = 2 per second).
     n = len(rec.measurements)
-    assert probe.wait_for(lambda: len(rec.measurements) > n + 2, 5)
+    assert probe.wait_for(lambda: len(rec.measurements) > n + 2, 30)
     (_, _, (y0,)), (_, _, (y1,)) = rec.measurements[-2:]
     assert y1 - y0 == pytest.approx(2.0 * 0.05, abs=1e-12)
     log = proc.tail(50)
@@ -182,7 +186,7 @@ def test_unanswered_lockstep_tick_is_resent_unchanged_with_the_same_noise(procs,
     assert rec.measurements[0][0] == 0 and rec.measurements[0][2] != (0.0,)
     assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['resent_ticks']) >= 3
                           and rec.diagnostics[-1]['waiting_for'] == 'manipulated, disturbance'
-                          if rec.diagnostics else False, 5), rec.diagnostics[-1:]
+                          if rec.diagnostics else False, 30), rec.diagnostics[-1:]
 
 
 def test_tank_reports_clipped_negative_flows_on_diagnostics(procs, ros_env, node_cmd, probe,
@@ -197,7 +201,7 @@ def test_tank_reports_clipped_negative_flows_on_diagnostics(procs, ros_env, node
 
     def clipped():
         return rec.diagnostics and int(rec.diagnostics[-1].get('model.clipped_flows', 0)) > 0
-    assert probe.wait_for(clipped, 10), rec.diagnostics[-1:]
+    assert probe.wait_for(clipped, 30), rec.diagnostics[-1:]
     last = rec.diagnostics[-1]
     assert last['level'] == b'\x01' and 'clipped flows' in last['message']   # WARN
     assert last['ignored_inputs'] == '0'           # a negative flow is physics, not garbage
@@ -218,22 +222,22 @@ def test_sim_mode_clock_stands_still_while_paused(procs, ros_env, node_cmd, prob
     assert rec.clock == [] and rec.measurements == []
 
     assert rec.set_param('lockstep.paused', False).successful
-    assert probe.wait_for(lambda: len(rec.clock) >= 5, 10), proc.tail()
+    assert probe.wait_for(lambda: len(rec.clock) >= 5, 30), proc.tail()
     assert rec.set_param('lockstep.paused', True).successful
     # The plant's report after the pause: ticks published so far; all of them arrive.
     n = len(rec.diagnostics)
-    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 2, 10)
+    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 2, 30)
     ticks = int(rec.diagnostics[-1]['ticks'])
     assert rec.diagnostics[-1]['paused'] == 'True'
-    assert probe.wait_for(lambda: len(rec.clock) >= ticks, 10)
+    assert probe.wait_for(lambda: len(rec.clock) >= ticks, 30)
     # ... and no more: three further reports later the count and the clock are unchanged.
     n = len(rec.diagnostics)
-    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 3, 10)
+    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 3, 30)
     assert int(rec.diagnostics[-1]['ticks']) == ticks
     assert rec.clock == [k * ts_ns for k in range(ticks)]      # from tick 0, none missed
 
     # Released again, the clock goes on from the next tick: no jump over the pause.
     assert rec.set_param('lockstep.paused', False).successful
-    assert probe.wait_for(lambda: len(rec.clock) >= ticks + 5, 10), proc.tail()
+    assert probe.wait_for(lambda: len(rec.clock) >= ticks + 5, 30), proc.tail()
     assert rec.clock == [k * ts_ns for k in range(len(rec.clock))]
-    assert [s for s, _, _ in rec.measurements] == rec.clock[:len(rec.measurements)]
+    assert [s for s, _, _ in rec.measurements] == [k * ts_ns for k in range(len(rec.measurements))]
