@@ -239,10 +239,13 @@ def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running
 
 
 def _assert_loop_runs_at_setpoint(graph: Graph, t_event: float) -> None:
-    """Simulated time goes on (30 s after the event) and the restored PI holds y near the
-    setpoint 100 over 20…30 s after it: within the settle band (0.5), no relay oscillation
-    (its output amplitude is ≈ 2.6)."""
-    y = graph.measured(t_event + 20.0, t_event + 30.0)
+    """Simulated time goes on (50 s after the event) and the restored PI holds y near the
+    setpoint 100 over 40…50 s after it: within the settle band (0.5), no relay oscillation
+    (its output amplitude is ≈ 2.6). The loop runs freely, so the event lands at any phase
+    of the relay cycle (wall-clock dependent); core/loop.py with an abort at every 0.7 s of
+    150 s of measuring: worst |mean − 100| 0.86 over 20…30 s (40 % of the phases outside
+    the band), 0.47 over 30…40 s, 0.26 over 40…50 s."""
+    y = graph.measured(t_event + 40.0, t_event + 50.0)
     assert len(y) == 100 and abs(np.mean(y) - 100.0) < 0.5 and np.ptp(y) < 1.0, y
 
 
