@@ -28,5 +28,5 @@ def test_colcon_build_installs_runnable_executables(tmp_path: Path, procs, ros_e
     script = (f'source {tmp_path}/install/setup.bash && '
               f'exec {prefix}/lib/tank_control/plant_node')
     proc = procs.start('colcon_plant', [shutil.which('bash'), '-c', script], env=ros_env)
-    assert probe.wait_for(lambda: 'plant' in probe.node.get_node_names(), timeout=30), proc.tail()
+    assert probe.wait_for(lambda: 'plant' in probe.node.get_node_names(), timeout=60), proc.tail()
     assert procs.stop('colcon_plant') == 0, proc.tail()

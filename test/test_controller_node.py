@@ -39,7 +39,7 @@ class Loop:
         node.create_subscription(JointState, 'manipulated', self._on_u, SIGNAL_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(node, 'controller')
-        assert self.params.wait_for_services(timeout_sec=20.0), 'controller parameters not up'
+        assert self.params.wait_for_services(timeout_sec=30.0), 'controller parameters not up'
 
     def _on_u(self, msg: JointState) -> None:
         self.answers.append((stamp_to_ns(msg.header.stamp), list(msg.name), list(msg.position)))
@@ -60,7 +60,7 @@ class Loop:
         return Parameter.from_parameter_msg(
             _named(name, self.call(self.params.get_parameters([name])).values[0])).value
 
-    def tick(self, t_ns: int, y, r, resend_until: float = 10.0):
+    def tick(self, t_ns: int, y, r, resend_until: float = 30.0):
         """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
         ``y``, ``r``: a value for channel ``y`` or a {channel: value} map (then the
         answer is a {channel: value} map). Re-sends the tick while unanswered (the
@@ -117,7 +117,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     # idempotent: tick 0 re-sent with another measurement gets the same answer again
     before = len(loop.answers)
     loop.meas.publish(to_joint_state(0, ['y'], [4.0]))
-    assert probe.wait_for(lambda: len(loop.answers) > before, 5.0)
+    assert probe.wait_for(lambda: len(loop.answers) > before, 20.0)
     assert loop.answers[-1][0] == 0 and loop.answers[-1][2] == [pytest.approx(-0.3, abs=1e-12)]
     # tick 1 is not a controller instant: held even though y changed
     assert loop.tick(1 * tick, 3.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
@@ -150,7 +150,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.set('fail_safe_output', 2.0).successful
     assert loop.set('fail_safe', 'output').successful
     assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
-    assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 5.0)
+    assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 20.0)
     assert int(loop.diag['rejected_parameters']) >= 4
     for key in ('mode', 'saturated', 'anti_windup_active', 'stale_inputs', 'rejected_inputs',
                 'last_computation_time_us'):
@@ -195,26 +195,26 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
         loop.setp.publish(to_joint_state(now, ['y'], [1.0]))
     probe.node.create_timer(ts / 2, publish)
     assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
-    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 20.0)
 
     u_running = loop.answers[-1][2][0]
     # stale: no measurement for 3 samples → fail_safe_output sent (configured), reported
     assert loop.set('fail_safe_output', 5.0).successful
     assert loop.set('fail_safe', 'output').successful
     sending['y'] = False
-    assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 5.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'stale', 20.0)
     assert loop.diag['stale_inputs'] == 'True'
     n = len(loop.answers)
-    assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 5.0)
+    assert probe.wait_for(lambda: len(loop.answers) >= n + 3, 20.0)
     assert [a[2][0] for a in loop.answers[n:]] == [5.0] * len(loop.answers[n:])
     assert u_running != 5.0
 
     # recovery: control resumes from the output the plant got (5.0), no jump; with
     # y = r the error is zero, so it stays there
     sending['y'] = True
-    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 5.0)
+    assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 20.0)
     m = len(loop.answers)
-    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 5.0)
+    assert probe.wait_for(lambda: len(loop.answers) >= m + 2, 20.0)
     assert [a[2][0] for a in loop.answers[m:]] == pytest.approx([5.0] * len(loop.answers[m:]),
                                                                 abs=1e-9)
     assert int(loop.diag['stale_samples']) >= 3
@@ -231,16 +231,19 @@ def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, 
     clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
     t = {'ns': 0}
 
-    def advance():          # simulated time 10x faster than wall, 0.1 s ticks
-        t['ns'] += to_ns(0.1)
-        clock.publish(clock_msg(t['ns']))
+    def advance():
+        # The simulated clock moves in steps of 0.35 s, so the 0.5 s timer runs late by
+        # 0.2, 0.05, 0.25, 0.1, ... s — as it does on a loaded machine, where /clock
+        # messages queue up before the executor gets to the timer.
+        t['ns'] += to_ns(0.35)
         loop.meas.publish(to_joint_state(t['ns'], ['y'], [1.0]))
         loop.setp.publish(to_joint_state(t['ns'], ['y'], [3.0]))
+        clock.publish(clock_msg(t['ns']))
     probe.node.create_timer(0.01, advance)
-    assert probe.wait_for(lambda: len(loop.answers) >= 4, 15.0)
+    assert probe.wait_for(lambda: len(loop.answers) >= 8, 20.0)
     stamps = [a[0] for a in loop.answers]
     assert all(s % to_ns(ts) == 0 for s in stamps)            # on the k·ts grid
-    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert all(b > a for a, b in zip(stamps, stamps[1:])), stamps   # one sample per instant
     # P only; the warm start's bias initial_output − kp·e is 0 here, so u = kp·e
     assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)
 

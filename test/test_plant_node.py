@@ -2,16 +2,20 @@
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, from_joint_state,
-                                         stamp_to_ns, to_joint_state)
+from tank_control.nodes.messages import SIGNAL_QOS, from_joint_state, stamp_to_ns, to_joint_state
+
+#: The probe keeps every sample: a plant on its timer does not wait for a slow test process.
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def start_plant(procs, ros_env, node_cmd, tmp_path, **params):
@@ -27,16 +31,23 @@ class Recorder:
         self.probe = probe
         self.measurements: list[tuple[int, tuple, tuple]] = []
         self.clock: list[int] = []
+        self.arrived: dict[str, list[int]] = {'measurement': [], 'clock': []}   # system time [ns]
         self.diagnostics: list[dict[str, str]] = []
         node = probe.node
-        self.meas_sub = node.create_subscription(
-            JointState, 'measurement', lambda m: self.measurements.append(from_joint_state(m)),
-            SIGNAL_QOS)
-        node.create_subscription(Clock, '/clock', lambda m: self.clock.append(stamp_to_ns(m.clock)),
-                                 CLOCK_QOS)
+        self.meas_sub = node.create_subscription(JointState, 'measurement', self._on_measurement,
+                                                 RECORD_QOS)
+        self.clock_sub = node.create_subscription(Clock, '/clock', self._on_clock, RECORD_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.manipulated = node.create_publisher(JointState, 'manipulated', SIGNAL_QOS)
         self.disturbance = node.create_publisher(JointState, 'disturbance', SIGNAL_QOS)
+
+    def _on_measurement(self, msg: JointState) -> None:
+        self.arrived['measurement'].append(time.time_ns())
+        self.measurements.append(from_joint_state(msg))
+
+    def _on_clock(self, msg: Clock) -> None:
+        self.arrived['clock'].append(time.time_ns())
+        self.clock.append(stamp_to_ns(msg.clock))
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -61,15 +72,13 @@ def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, 
     proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
                        initial_output=2.5)
     rec = Recorder(probe)
-    assert probe.wait_for(lambda: len(rec.measurements) >= 3, 20), proc.tail()
-    first = len(rec.measurements)
-    t0 = probe.node.get_clock().now().nanoseconds
-    assert probe.wait_for(lambda: len(rec.measurements) >= first + 20, 5)
-    elapsed = (probe.node.get_clock().now().nanoseconds - t0) / 1e9
+    assert probe.wait_for(lambda: len(rec.measurements) >= 23, 30), proc.tail()
     stamps = [s for s, _, _ in rec.measurements]
-    # One message per sample, stamps exactly sample_time apart, at the sample rate.
+    # One message per sample, stamps exactly sample_time apart ...
     assert all(b - a == 50_000_000 for a, b in zip(stamps, stamps[1:]))
-    assert 0.5 < elapsed / (20 * 0.05) < 2.0   # loose: the test machine is shared
+    # ... on the wall clock, never ahead of it: sample k is published once its instant
+    # has come (a plant sampling faster than sample_time would stamp into the future).
+    assert all(s <= t for s, t in zip(stamps, rec.arrived['measurement']))
     assert all(names == ('y',) and values == (2.5,) for _, names, values in rec.measurements)
     assert rec.clock == []   # no /clock in wall mode
 
@@ -98,7 +107,7 @@ def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs,
 
     answer(2)
     assert [s for s, _, _ in rec.measurements][-3:] == [0, 100_000_000, 200_000_000]
-    assert probe.wait_for(lambda: rec.clock and rec.clock[-1] >= 200_000_000, 5)
+    assert probe.wait_for(lambda: rec.clock and rec.clock[-1] >= 200_000_000, 30)
     assert 200_000_000 in rec.clock and rec.clock == sorted(rec.clock)
     # Out of range for the model (above max_dead_time): rejected with the reason.
     result = rec.set_param('dead_time', 1e3)
@@ -110,7 +119,11 @@ def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs,
     for k in range(3, 15):
         expected = max(0.0, (k - 3) * 0.1 - 0.6)   # k1·(t − t_step − L), closed form
         assert rec.y_at(k * 100_000_000) == pytest.approx(expected, abs=1e-12), k
-    assert [s for s, _, _ in rec.measurements] == sorted({s for s, _, _ in rec.measurements})
+    # In order; a tick seen more than once was re-sent (unanswered for resend_period, e.g.
+    # before discovery matched the probe's answers) and is the identical message.
+    stamps = [s for s, _, _ in rec.measurements]
+    assert stamps == sorted(stamps)
+    assert all(a == b for a, b in zip(rec.measurements, rec.measurements[1:]) if a[0] == b[0])
 
 
 def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs, ros_env,
@@ -132,11 +145,11 @@ def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs,
     def counted():
         return rec.diagnostics and rec.diagnostics[-1].get('ignored.manipulated') == '3' \
             and rec.diagnostics[-1].get('ignored.disturbance') == '1'
-    assert probe.wait_for(counted, 10), (rec.diagnostics[-1:], proc.tail())
+    assert probe.wait_for(counted, 30), (rec.diagnostics[-1:], proc.tail())
     assert rec.diagnostics[-1]['ignored_inputs'] == '4'
     # The plant still integrates the last valid u = 2 (slope k1·u = 2 per second).
     n = len(rec.measurements)
-    assert probe.wait_for(lambda: len(rec.measurements) > n + 2, 5)
+    assert probe.wait_for(lambda: len(rec.measurements) > n + 2, 30)
     (_, _, (y0,)), (_, _, (y1,)) = rec.measurements[-2:]
     assert y1 - y0 == pytest.approx(2.0 * 0.05, abs=1e-12)
     log = proc.tail(50)
@@ -146,17 +159,16 @@ def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs,
 
 def test_sim_mode_publishes_clock_at_the_real_time_factor(procs, ros_env, node_cmd, probe,
                                                          tmp_path):
+    rec = Recorder(probe)
+    started = time.time_ns()
     proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='fopdt', sample_time=0.1,
                        clock_mode='sim', real_time_factor=5.0)
-    rec = Recorder(probe)
-    assert probe.wait_for(lambda: len(rec.clock) >= 3, 20), proc.tail()
-    n = len(rec.clock)
-    t0 = probe.node.get_clock().now().nanoseconds
-    assert probe.wait_for(lambda: len(rec.clock) >= n + 25, 10)
-    wall = (probe.node.get_clock().now().nanoseconds - t0) / 1e9
-    sim = (rec.clock[-1] - rec.clock[n - 1]) / 1e9
-    assert 0.5 < (sim / wall) / 5.0 < 2.0   # 5 × real time (loose: shared machine)
+    assert probe.wait_for(lambda: len(rec.clock) >= 28, 30), proc.tail()
     assert all(b - a == 100_000_000 for a, b in zip(rec.clock, rec.clock[1:]))
+    # Simulated time never runs ahead of 5 x the wall time since the plant was started
+    # (tick k is due k·ts/5 after its start); behind it only on a loaded machine.
+    assert all(t_k / 5.0 <= arrived - started
+               for t_k, arrived in zip(rec.clock, rec.arrived['clock']))
     stamps = [s for s, _, _ in rec.measurements]
     assert stamps and all(s % 100_000_000 == 0 for s in stamps)   # on the k·ts grid
 
@@ -174,7 +186,7 @@ def test_unanswered_lockstep_tick_is_resent_unchanged_with_the_same_noise(procs,
     assert rec.measurements[0][0] == 0 and rec.measurements[0][2] != (0.0,)
     assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['resent_ticks']) >= 3
                           and rec.diagnostics[-1]['waiting_for'] == 'manipulated, disturbance'
-                          if rec.diagnostics else False, 5), rec.diagnostics[-1:]
+                          if rec.diagnostics else False, 30), rec.diagnostics[-1:]
 
 
 def test_tank_reports_clipped_negative_flows_on_diagnostics(procs, ros_env, node_cmd, probe,
@@ -189,7 +201,43 @@ def test_tank_reports_clipped_negative_flows_on_diagnostics(procs, ros_env, node
 
     def clipped():
         return rec.diagnostics and int(rec.diagnostics[-1].get('model.clipped_flows', 0)) > 0
-    assert probe.wait_for(clipped, 10), rec.diagnostics[-1:]
+    assert probe.wait_for(clipped, 30), rec.diagnostics[-1:]
     last = rec.diagnostics[-1]
     assert last['level'] == b'\x01' and 'clipped flows' in last['message']   # WARN
     assert last['ignored_inputs'] == '0'           # a negative flow is physics, not garbage
+
+
+def test_sim_mode_clock_stands_still_while_paused(procs, ros_env, node_cmd, probe, tmp_path):
+    """lockstep.paused holds the sim clock too: nothing before it is released (a recorder
+    can join first and see tick 0), and simulated time does not move while paused again."""
+    ts_ns = 100_000_000
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='fopdt', sample_time=0.1,
+                       clock_mode='sim', real_time_factor=10.0, diagnostics_period=0.05,
+                       **{'lockstep.paused': True})
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.meas_sub.get_publisher_count()
+                          and rec.clock_sub.get_publisher_count() and len(rec.diagnostics) >= 3,
+                          30), proc.tail()
+    assert all(d['ticks'] == '0' and d['paused'] == 'True' for d in rec.diagnostics)
+    assert rec.clock == [] and rec.measurements == []
+
+    assert rec.set_param('lockstep.paused', False).successful
+    assert probe.wait_for(lambda: len(rec.clock) >= 5, 30), proc.tail()
+    assert rec.set_param('lockstep.paused', True).successful
+    # The plant's report after the pause: ticks published so far; all of them arrive.
+    n = len(rec.diagnostics)
+    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 2, 30)
+    ticks = int(rec.diagnostics[-1]['ticks'])
+    assert rec.diagnostics[-1]['paused'] == 'True'
+    assert probe.wait_for(lambda: len(rec.clock) >= ticks, 30)
+    # ... and no more: three further reports later the count and the clock are unchanged.
+    n = len(rec.diagnostics)
+    assert probe.wait_for(lambda: len(rec.diagnostics) >= n + 3, 30)
+    assert int(rec.diagnostics[-1]['ticks']) == ticks
+    assert rec.clock == [k * ts_ns for k in range(ticks)]      # from tick 0, none missed
+
+    # Released again, the clock goes on from the next tick: no jump over the pause.
+    assert rec.set_param('lockstep.paused', False).successful
+    assert probe.wait_for(lambda: len(rec.clock) >= ticks + 5, 30), proc.tail()
+    assert rec.clock == [k * ts_ns for k in range(len(rec.clock))]
+    assert [s for s, _, _ in rec.measurements] == [k * ts_ns for k in range(len(rec.measurements))]

@@ -135,7 +135,7 @@ class Graph:
         def later() -> bool:
             seen['t'] = self.get('autotune.state_time')['autotune.state_time']
             return seen['t'] > after
-        assert self.probe.wait_for(later, 10), (seen, self.logs())
+        assert self.probe.wait_for(later, 30), (seen, self.logs())
         return seen['t']
 
     def measured(self, t0: float, t1: float, channel: str = 'y') -> list[float]:
@@ -154,10 +154,10 @@ def _msg(name, value):
 def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env, node_cmd,
                                                                   probe, tmp_path):
     graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(paused=True))
-    graph.wait_state('idle', 10)                       # transient local: the current state
+    graph.wait_state('idle', 30)                       # transient local: the current state
     reply = graph.trigger(graph.start)                 # before tick 0 (the plant is paused)
     assert reply.success and 'settling' in reply.message
-    graph.wait_state('settling', 10)
+    graph.wait_state('settling', 30)
     graph.set(graph.plant, lockstep__paused=False)
     graph.wait_state('running', 60)
     assert graph.states == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
@@ -180,13 +180,17 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
         [Parameter('autotune.ku', value=1.0)])).results[0]
     assert not refused.successful
     # the node's own result writes are not counted as rejected changes: only that one
-    assert probe.wait_for(lambda: graph.diag.get('rejected_parameters') == '1', 5), graph.diag
+    assert probe.wait_for(lambda: graph.diag.get('rejected_parameters') == '1', 20), graph.diag
     assert probe.wait_for(lambda: any('autotune.state running' in m
-                                      for m in graph.diag_messages), 5), graph.diag_messages[-3:]
+                                      for m in graph.diag_messages), 20), graph.diag_messages[-3:]
 
     # the same objects in-process (core/loop.py): the service call before tick 0 is start()
-    last = graph.last_stamp()
-    assert probe.wait_for(lambda: last in graph.signals['manipulated'], 10)
+    # Up to a tick the recorder holds in full, at least the one that entered 'running' (the
+    # recorder may lag the loop: the state topic is not behind the signal backlog).
+    t_running = round(graph.get('autotune.state_time')['autotune.state_time'] * 1e9)
+    last = max(graph.last_stamp(), t_running)
+    assert probe.wait_for(lambda: last in graph.signals['measurement']
+                          and last in graph.signals['manipulated'], 60), graph.logs()
     built = build(graph.params)
     built.controller.start()
     trace = run_loop(built.plant, built.controller, built.reference,
@@ -205,7 +209,7 @@ def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running
         paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
     before = graph.get('kp', 'ti', 'td')
     assert before == {'kp': 20.0, 'ti': 12.0, 'td': 0.0}
-    graph.wait_state('idle', 10)
+    graph.wait_state('idle', 30)
     assert graph.trigger(graph.start).success
     graph.wait_state('measuring')
     t_measuring = graph.state_time(0.0)
@@ -213,7 +217,7 @@ def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running
     assert not again.success and 'already running' in again.message
     reply = graph.trigger(graph.abort)
     assert reply.success and 'restored' in reply.message
-    graph.wait_state('aborted', 10)
+    graph.wait_state('aborted', 30)
     got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
     assert got == {'autotune.state': 'aborted', 'autotune.reason': 'abort requested', **before}
     t_aborted = graph.state_time(t_measuring)
@@ -235,10 +239,13 @@ def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running
 
 
 def _assert_loop_runs_at_setpoint(graph: Graph, t_event: float) -> None:
-    """Simulated time goes on (30 s after the event) and the restored PI holds y near the
-    setpoint 100 over 20…30 s after it: within the settle band (0.5), no relay oscillation
-    (its output amplitude is ≈ 2.6)."""
-    y = graph.measured(t_event + 20.0, t_event + 30.0)
+    """Simulated time goes on (50 s after the event) and the restored PI holds y near the
+    setpoint 100 over 40…50 s after it: within the settle band (0.5), no relay oscillation
+    (its output amplitude is ≈ 2.6). The loop runs freely, so the event lands at any phase
+    of the relay cycle (wall-clock dependent); core/loop.py with an abort at every 0.7 s of
+    150 s of measuring: worst |mean − 100| 0.86 over 20…30 s (40 % of the phases outside
+    the band), 0.47 over 30…40 s, 0.26 over 40…50 s."""
+    y = graph.measured(t_event + 40.0, t_event + 50.0)
     assert len(y) == 100 and abs(np.mean(y) - 100.0) < 0.5 and np.ptp(y) < 1.0, y
 
 

@@ -13,7 +13,7 @@ SPEC = {spec.name: spec for spec in SPECS}
 
 def _start(procs, probe, ros_env, name='fixture', *ros_args):
     proc = procs.start(name, fixture_argv(name, *ros_args), env=ros_env)
-    assert probe.wait_for(lambda: name in probe.node.get_node_names(), 20), proc.tail()
+    assert probe.wait_for(lambda: name in probe.node.get_node_names(), 60), proc.tail()
     return proc
 
 

@@ -96,9 +96,9 @@ def test_run_passes_ros_args_and_signals(sig, procs, probe, ros_env, ament_prefi
     env = dict(ros_env, AMENT_PREFIX_PATH=str(ament_prefix))
     proc = procs.start('run', ros2_argv('run', 'fake_pkg', 'fixture_node', '--ros-args',
                                         '-r', '__node:=runner', '-p', 'gain:=2.5'), env=env)
-    assert probe.wait_for(lambda: 'runner' in probe.node.get_node_names(), 20), proc.tail()
+    assert probe.wait_for(lambda: 'runner' in probe.node.get_node_names(), 60), proc.tail()
     got = ros2(env, 'param', 'get', '/runner', 'gain')
     assert got.stdout.strip() == 'Double value is: 2.5', got.stderr
     # The signal to `ros2 run` (not to its process group) stops the node cleanly.
     proc.popen.send_signal(sig)
-    assert proc.popen.wait(timeout=10) == 0, proc.tail()
+    assert proc.popen.wait(timeout=30) == 0, proc.tail()

@@ -3,6 +3,13 @@
 Used by the scenario harness and by the tests: every process is a session
 leader (``start_new_session``), so stopping signals its whole group, and a stop
 escalates SIGINT → SIGTERM → SIGKILL.
+
+A process that has exited is not reaped until it is stopped: ``returncode``
+looks without reaping (``waitid`` with ``WNOWAIT``). While the exited leader
+is a zombie its pid — the group id — cannot be reused, so the final SIGKILL
+of the group can never reach an unrelated process that got the pid meanwhile
+(pids wrap around quickly on a busy host: ``pid_max`` is 32768 by default and
+every thread takes one).
 """
 from __future__ import annotations
 
@@ -26,13 +33,28 @@ class ManagedProcess:
 
     @property
     def returncode(self) -> int | None:
-        return self.popen.poll()
+        """The exit code (negative: killed by that signal), None while running; the
+        process is not reaped (see the module doc)."""
+        return exit_code(self.popen)
 
     def tail(self, lines: int = 20) -> str:
         """The last ``lines`` lines of the process's output."""
         self._log.flush()
         text = self.log_path.read_text(errors='replace')
         return '\n'.join(text.splitlines()[-lines:])
+
+
+def exit_code(popen: subprocess.Popen) -> int | None:
+    """Like ``popen.poll()`` but leaves an exited child a zombie (its pid stays reserved)."""
+    if popen.returncode is not None:
+        return popen.returncode
+    try:
+        info = os.waitid(os.P_PID, popen.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+    except ChildProcessError:          # reaped elsewhere (a direct popen.wait())
+        return popen.poll()
+    if info is None:
+        return None
+    return info.si_status if info.si_code == os.CLD_EXITED else -info.si_status
 
 
 def _signal_group(popen: subprocess.Popen, sig: signal.Signals) -> None:
@@ -44,18 +66,25 @@ def _signal_group(popen: subprocess.Popen, sig: signal.Signals) -> None:
 
 def stop_process(proc: ManagedProcess, grace: float = 5.0) -> int:
     """SIGINT the group, then SIGTERM, then SIGKILL; return the exit code."""
+    popen = proc.popen
+    if popen.returncode is None and exit_code(popen) is not None:
+        # Exited on its own and not reaped yet: its children (if any) go with the group
+        # while the zombie leader still holds the group id.
+        _signal_group(popen, signal.SIGKILL)
     for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, grace), (signal.SIGKILL, grace)):
-        if proc.popen.poll() is not None:
+        if exit_code(popen) is not None:
             break
-        _signal_group(proc.popen, sig)
+        _signal_group(popen, sig)
         try:
-            proc.popen.wait(timeout=wait)
+            popen.wait(timeout=wait)
         except subprocess.TimeoutExpired:
             continue
-    # Children that outlived their leader still belong to the group.
-    _signal_group(proc.popen, signal.SIGKILL)
+        # Children that outlived their leader still belong to the group (the group id
+        # was the leader's pid a moment ago; it cannot have been handed out again yet).
+        _signal_group(popen, signal.SIGKILL)
+    popen.wait()                       # reap (the group is gone)
     proc._log.close()
-    return proc.popen.returncode
+    return popen.returncode
 
 
 class ProcessGroup:

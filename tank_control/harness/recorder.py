@@ -117,6 +117,11 @@ class Recorder:
     def subscriber_count(self, topic: str) -> int:
         return self.node.count_subscribers(topic)
 
+    def subscriber_nodes(self, topic: str) -> set[str]:
+        """Names of the nodes subscribed to ``topic`` (relative names resolve to ``/topic``)."""
+        full = topic if topic.startswith('/') else '/' + topic
+        return {info.node_name for info in self.node.get_subscriptions_info_by_topic(full)}
+
     def spin_once(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 

@@ -9,18 +9,19 @@
 ROS run, step by step (no sleeps: every wait spins the recorder until an event):
 
 1. the recorder node starts in this process (its own rclpy context);
-2. every node starts as its own OS process (in sim mode the plant, whose
-   clock runs from its start, only once the others are up; ticks published
-   before the recorder has matched the plant — discovery takes 1–2 s of wall
-   time — are not recorded and are counted as missed samples)
+2. every node starts as its own OS process
    (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
    plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
-   ``-p lockstep.paused:=true`` for the plant in lockstep);
+   ``-p lockstep.paused:=true`` for the plant in sim/lockstep: its clock holds
+   tick 0);
 3. wait until every node is in the graph and the recorder has matched every
-   publisher (measurement, /clock, setpoint, disturbance, manipulated);
-4. lockstep: un-pause the plant through its parameter service — tick 0 is
-   published only now, so the recorder sees every tick from the first. The
-   plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
+   publisher (measurement, /clock, setpoint, disturbance, manipulated); in sim,
+   where the plant does not wait for answers, also every node's subscriptions
+   (the plant's inputs, the controller's measurement and setpoint, the
+   reference's /clock);
+4. sim/lockstep: un-pause the plant through its parameter service — tick 0 is
+   published only now, so the recorder sees every tick from the first. In
+   lockstep the plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
    recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
    plant cannot run ahead of the recording, so no sample is lost on a busy
    machine (the signal publishers keep only 10 messages for a slow reader);
@@ -63,6 +64,8 @@ OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
 GAIN_NAMES = re.compile(r'^(kp|ki|ti|td|b|c|n|d12|d21)(_\w+)?$')
 PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
              'controller': ('manipulated',)}
+SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
+              'controller': ('measurement', 'setpoint')}
 
 
 class RunFailed(RuntimeError):
@@ -259,7 +262,7 @@ class _RosRun:
         argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
         if self.mode != 'wall' and node != 'plant':
             argv += ['-p', 'use_sim_time:=true']
-        if self.mode == 'lockstep' and node == 'plant':
+        if self.mode != 'wall' and node == 'plant':
             argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
             if self.gated:
                 argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']   # through the recorder
@@ -289,17 +292,11 @@ class _RosRun:
             if self.gated:
                 recorder.enable_gate()
             nodes = self.config.nodes
-            # sim: the plant's clock runs from its start, so it starts once the others are up
-            late = ('plant',) if self.mode == 'sim' and 'plant' in nodes else ()
-            for node in (n for n in nodes if n not in late):
+            for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
-            self._await_graph([n for n in nodes if n not in late])
-            for node in late:
-                self.group.start(node, self._argv(node), env=self.env)
-            if late:
-                self._await_graph(nodes)
+            self._await_graph(nodes)
             run_start = time.monotonic()
-            if self.mode == 'lockstep' and 'plant' in self.config.nodes:
+            if self.mode != 'wall' and 'plant' in nodes:
                 self._unpause()
             self.phase = 'during the run'
             self._run_loop(run_start)
@@ -324,16 +321,12 @@ class _RosRun:
                             f'(harness.startup_timeout); node logs:\n{details}')
 
     def _unpause(self) -> None:
-        """Lockstep: release tick 0. Set twice: plant_node's own post-set callback runs
-        before its parameter binding has stored the new value (rclpy calls the most
-        recently added callback first), so the first set only stores ``false`` and
-        the second publishes the tick; with that fixed, the second set is a no-op
-        (the plant is already waiting for the answers to tick 0)."""
-        for _ in range(2):
-            reason = self.recorder.set_parameters('plant', {'lockstep.paused': False},
-                                                  self.config.startup_timeout, self._check_alive)
-            if reason:
-                raise RunFailed(f'could not start the plant\'s clock: {reason}')
+        """sim/lockstep: release tick 0 (``lockstep.paused`` false; plant_node acts on it
+        at once in both modes)."""
+        reason = self.recorder.set_parameters('plant', {'lockstep.paused': False},
+                                              self.config.startup_timeout, self._check_alive)
+        if reason:
+            raise RunFailed(f'could not start the plant\'s clock: {reason}')
 
     def _await_graph(self, nodes: Sequence[str]) -> None:
         """Every node in the graph and every publisher the recorder needs matched
@@ -343,11 +336,16 @@ class _RosRun:
         topics = [topic for node in nodes for topic in PUBLISHES[node]
                   if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
         gate = self.gated and 'plant' in nodes
+        # sim: the plant does not wait for answers, so the nodes' inputs must be there too
+        readers = [(node, topic) for node in nodes for topic in SUBSCRIBES.get(node, ())
+                   if self.mode == 'sim']
         self._await(lambda: (set(nodes) <= rec.node_names()
                              and all(rec.publisher_count(t) > 0 for t in topics)
+                             and all(node in rec.subscriber_nodes(t) for node, t in readers)
                              and (not gate or rec.subscriber_count(GATED_DISTURBANCE) > 0)),
                     'the graph did not come up (nodes ' + ', '.join(nodes)
-                    + '; publishers of ' + ', '.join(topics) + ')')
+                    + '; publishers of ' + ', '.join(topics)
+                    + ''.join(f'; {node} subscribed to {t}' for node, t in readers) + ')')
         self._check_no_other_graph()
 
     def _check_no_other_graph(self) -> None:

@@ -35,6 +35,19 @@ def is_sample_instant(t_ns: int, sample_time_ns: int) -> bool:
     return sample_time_ns > 0 and t_ns % sample_time_ns == 0
 
 
+def sim_sample_instant(now_ns: int, sample_time_ns: int) -> int:
+    """The latest sample instant ``k * sample_time_ns <= now_ns`` (sim-clock sampling).
+
+    A sim-time timer is due at ``k * sample_time_ns`` but runs when the executor
+    gets to it, possibly several ``/clock`` messages later; after it runs, the
+    next due instant lies beyond ``now_ns``. Stamping with the instant reached
+    (rounding down) therefore gives strictly increasing stamps on the grid;
+    rounding to the nearest instant would stamp a timer that runs more than half
+    a period late with the next instant, which the following sample repeats.
+    """
+    return (now_ns // sample_time_ns) * sample_time_ns
+
+
 def sample_ratio(sample_time_ns: int, tick_ns: int) -> int:
     """How many plant ticks one sample spans; ValueError unless an integer multiple."""
     if tick_ns <= 0 or sample_time_ns <= 0 or sample_time_ns % tick_ns:

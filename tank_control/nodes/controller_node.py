@@ -31,7 +31,9 @@ Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
 
 * ``wall`` — a wall timer every ``sample_time`` with the latest data;
 * ``sim`` — the same timer on the simulated clock (``use_sim_time:=true``),
-  stamps on the grid ``k·sample_time``, latest data;
+  latest data, stamped with the latest sample instant ``k·sample_time`` the
+  simulated clock has reached (``clock.sim_sample_instant``): strictly increasing
+  even when the timer fires late (a loaded machine, a ``/clock`` jump);
 * ``lockstep`` — no timer: once ``measurement`` and ``setpoint`` (and
   ``disturbance`` if used) stamped ``t_k`` are in, the node computes
   ``step(t_k, ...)`` if ``t_k`` is a multiple of its sample time (else holds its
@@ -73,7 +75,8 @@ from std_srvs.srv import Trigger
 from tank_control.core.control import registry
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import warm_start
-from tank_control.nodes.clock import Answers, StampedInbox, is_sample_instant, steady_clock
+from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
+                                      sim_sample_instant, steady_clock)
 from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          from_joint_state, to_joint_state)
@@ -296,7 +299,7 @@ class ControllerNode(Node):
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
             return          # nothing measured or no setpoint yet: nothing to control
         now = self.get_clock().now().nanoseconds
-        t_ns = round(now / self._ts_ns) * self._ts_ns if self._mode == 'sim' else now
+        t_ns = sim_sample_instant(now, self._ts_ns) if self._mode == 'sim' else now
         stale = self._since_measurement >= int(self._params.values['stale_samples'])
         u = self._sample(t_ns, self._y, self._r, self._d, stale=stale)
         self._pub.publish(to_joint_state(t_ns, self._inputs, u))

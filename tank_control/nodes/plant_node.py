@@ -24,9 +24,14 @@ Clock modes (parameter ``clock_mode``, BRIEF "Clock modes"):
   its wall time ``t_{k+1} / real_time_factor`` has come (a pacing timer).
   Tick k is re-sent unchanged (same noise draw) if no complete answer came
   within ``lockstep.resend_period`` — this also covers start-up before
-  discovery has matched the endpoints. ``lockstep.paused: true`` holds the
-  clock (no tick is published) until it is set to false — e.g. to let a
-  recorder match every publisher before tick 0.
+  discovery has matched the endpoints.
+
+``lockstep.paused: true`` (despite the name, in ``sim`` as well as in
+``lockstep``) holds the clock: no tick is published and simulated time stands
+still until it is set to false — e.g. to let a recorder match every publisher
+before tick 0 (the harness starts the plant paused in both modes). In ``sim``
+un-pausing publishes tick 0 (if it was not yet) and the next tick follows one
+``sample_time / real_time_factor`` later; pausing again stops the wall timer.
 
 In ``wall``/``sim`` each timer tick k first integrates ``[t_{k-1}, t_k)``
 with the latest inputs (the answers to tick k-1), then publishes tick k.
@@ -113,11 +118,13 @@ class PlantNode(Node):
         self._stamp_offset_ns = 0
         steady = steady_clock()
         rtf = float(values['real_time_factor'])
+        self._is_paused = bool(values['lockstep.paused'])
         if self.mode == 'wall':
             self._stamp_offset_ns = self.get_clock().now().nanoseconds
             self._timer = self.create_timer(self.ts, self._on_tick_timer, clock=steady)
         elif self.mode == 'sim':
-            self._timer = self.create_timer(self.ts / rtf, self._on_tick_timer, clock=steady)
+            self._timer = self.create_timer(self.ts / rtf, self._on_tick_timer, clock=steady,
+                                            autostart=not self._is_paused)
         else:
             period = float(values['lockstep.resend_period'])
             self._resend_timer = self.create_timer(min(period / 2, 0.05), self._on_resend,
@@ -126,11 +133,10 @@ class PlantNode(Node):
             self._set_pacing(rtf)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady)
-        self._is_paused = bool(values['lockstep.paused'])
         self._resend_period = float(values['lockstep.resend_period'])
         self.add_post_set_parameters_callback(self._on_params_set)
-        if self.mode == 'sim' or (self.mode == 'lockstep' and not self._paused()):
-            self._publish_tick()          # tick 0 right away (re-sent until answered)
+        if self.mode in ('sim', 'lockstep') and not self._paused():
+            self._publish_tick()          # tick 0 right away (lockstep: re-sent until answered)
         self.get_logger().info(
             f'plant {kind}: outputs {list(self.plant.output_names)}, inputs '
             f'{list(self.plant.input_names)}, disturbances {list(self.plant.disturbance_names)}; '
@@ -186,18 +192,32 @@ class PlantNode(Node):
         return self._is_paused
 
     def _on_params_set(self, parameters: list) -> None:
-        """Un-pausing lockstep acts at once (other changes wait for the next step)."""
+        """(Un-)pausing acts at once (other changes wait for the next step)."""
         # rclpy may run this before the binding's own post-set callback: read the new value.
+        was_paused = self._is_paused
         for p in parameters:
             if p.name == 'lockstep.paused':
                 self._is_paused = bool(p.value)
             elif p.name == 'lockstep.resend_period':
                 self._resend_period = float(p.value)
+        if self.mode == 'sim' and self._is_paused != was_paused:
+            self._pause_sim(self._is_paused)
+            return
         unpaused = any(p.name == 'lockstep.paused' and not p.value for p in parameters)
         if self.mode == 'lockstep' and unpaused and not self._awaiting:
             if self._pace_timer is not None:
                 self._wall_start = time.monotonic() - self._t() / self._rtf
             self._publish_tick()
+
+    def _pause_sim(self, paused: bool) -> None:
+        """sim: stop the tick timer, or publish tick 0 (first start) and restart the timer
+        so that the next tick comes one full period later."""
+        if paused:
+            self._timer.cancel()
+            return
+        if self._tick_msgs is None:
+            self._publish_tick()
+        self._timer.reset()
 
     # ----------------------------------------------------------------- ticks
     def _t(self) -> float:
@@ -238,6 +258,8 @@ class PlantNode(Node):
 
     def _on_tick_timer(self) -> None:
         """wall/sim: close the previous interval with the latest inputs, publish tick k."""
+        if self.mode == 'sim' and self._paused():
+            return                      # a call that was due when the pause came
         if self._tick_msgs is not None:
             self._step()
         self._publish_tick()
@@ -325,6 +347,8 @@ class PlantNode(Node):
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status.message = ', '.join(problems) or 'ok'
         items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}', **self.counters}
+        if self.mode != 'wall':
+            items['paused'] = self._is_paused
         if self.mode == 'lockstep' and self._awaiting:
             items['waiting_for'] = ', '.join(self.inbox.missing(self.k * self.ts_ns))
         for name, value in model.items():

@@ -78,8 +78,8 @@ def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | Non
         if not node.context.ok():      # the signal came between the check and here
             raise Interrupted() from None
         raise
-    executor.add_node(node)
     try:
+        executor.add_node(node)
         deadline = None if timeout is None else time.monotonic() + timeout
         while not condition():
             if deadline is None:
@@ -90,8 +90,15 @@ def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | Non
                 return False
             executor.spin_once(timeout_sec=min(0.05, remaining))
         return True
+    except Exception:
+        # Ctrl-C/SIGTERM shuts the context down under a running spin: rclpy then fails to
+        # create its wait set or timeout timer (RCLError) — a requested stop, not an error.
+        if not node.context.ok():
+            raise Interrupted() from None
+        raise
     finally:
-        executor.remove_node(node)
+        if node.context.ok():
+            executor.remove_node(node)
 
 
 def graph_snapshot(node: 'Node') -> tuple:
