@@ -14,19 +14,29 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shut down; return 0.
 
     rclpy's signal handlers cover SIGINT and SIGTERM: rcl shuts the context
-    down and spinning ends with ``ExternalShutdownException`` (or the
-    ``KeyboardInterrupt`` of SIGINT), both a clean stop; a signal that arrives
-    while the node is still being built is one too. rclpy hands SIGINT on to
-    Python's handler *after* its own, at a moment Python chooses, which may be
-    after this function has returned; so the Python-level handler raises
-    ``KeyboardInterrupt`` only while rclpy is still running.
+    down (asynchronously) and spinning ends with ``ExternalShutdownException``
+    (or the ``KeyboardInterrupt`` of SIGINT), both a clean stop; a signal that
+    arrives while the node is still being built is one too. rclpy hands SIGINT
+    on to Python's handler *after* its own, at a moment Python chooses — possibly
+    during the clean-up or after this function has returned — so the
+    Python-level handler raises ``KeyboardInterrupt`` only while the node is
+    being built or spun, never during the clean-up.
     """
-    signal.signal(signal.SIGINT, _interrupt_while_running)
+    running = [True]
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        if running[0]:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, interrupt)
     rclpy.init(args=args)
     node: Node | None = None
     try:
-        node = factory()
-        rclpy.spin(node)
+        try:
+            node = factory()
+            rclpy.spin(node)
+        finally:
+            running[0] = False
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
@@ -39,9 +49,3 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
-
-
-def _interrupt_while_running(signum: int, frame: FrameType | None) -> None:
-    """SIGINT → ``KeyboardInterrupt`` unless rclpy has already shut down for it."""
-    if rclpy.ok():
-        raise KeyboardInterrupt
