@@ -11,6 +11,7 @@ the harness, so everything here follows rcl's parser:
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from typing import Any
 
 import yaml
@@ -58,6 +59,18 @@ def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.Node:
 
 
 RosYamlDumper.add_representer(str, _represent_str)
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested ``ros__parameters`` maps → dotted parameter names, as rcl reads them."""
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            out.update(flatten(value, name + '.'))
+        else:
+            out[name] = value
+    return out
 
 
 def load(text: str) -> Any:

@@ -66,15 +66,6 @@ PLANT_NODE_SPECS: tuple[ParamSpec, ...] = (
 _WILDCARDS = ('/**', '/*')
 
 
-def _flatten(tree: Mapping[str, Any], prefix: str, out: dict[str, Any]) -> None:
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            _flatten(value, name + '.', out)
-        else:
-            out[name] = value
-
-
 def read_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
     """Node name → flat parameters that node receives from the file.
 
@@ -95,8 +86,7 @@ def read_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
     for raw, body in document.items():
         if not isinstance(body, dict) or not isinstance(body.get('ros__parameters', {}), dict):
             raise ValueError(f'{path}: section {raw!r} must hold a ros__parameters map')
-        flat: dict[str, Any] = {}
-        _flatten(body.get('ros__parameters') or {}, '', flat)
+        flat = ros_yaml.flatten(body.get('ros__parameters') or {})
         name = str(raw)
         if name in _WILDCARDS:
             wildcard.update(flat)

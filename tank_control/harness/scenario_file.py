@@ -237,20 +237,10 @@ def _sections(path: Path, document: Any) -> dict[str, dict[str, Any]]:
         params = body['ros__parameters'] or {}
         if not isinstance(params, dict):
             raise ScenarioError(f'{path}: {name}.ros__parameters must be a map')
-        flat: dict[str, Any] = {}
-        _flatten(params, '', flat)
+        flat = ros_yaml.flatten(params)
         sections[name] = {key: _check_value(f'{path}: {name}.{key}', value)
                           for key, value in flat.items()}
     return sections
-
-
-def _flatten(tree: Mapping[str, Any], prefix: str, out: dict[str, Any]) -> None:
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            _flatten(value, name + '.', out)
-        else:
-            out[name] = value
 
 
 def _nest(flat: Mapping[str, Any]) -> dict[str, Any]:

@@ -16,3 +16,9 @@ def test_dump_quotes_strings_that_would_change_type():
     document = {'reference': {'ros__parameters': {'setpoint.channels': ['y', 'h'], 'eps': '1e-3'}}}
     text = ros_yaml.dump(document)
     assert ros_yaml.load(text) == document
+
+
+def test_nested_parameter_maps_flatten_to_dotted_names():
+    params = ros_yaml.load('setpoint:\n  y:\n    times: [0.0, 5.0]\n  channels: [\'y\']\nkp: 2.0\n')
+    assert ros_yaml.flatten(params) == {'setpoint.y.times': [0.0, 5.0], 'setpoint.channels': ['y'],
+                                        'kp': 2.0}
