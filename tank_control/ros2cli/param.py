@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from tank_control.core import ros_yaml
+from tank_control.core.ros_yaml import flatten  # the inverse of ``nest``
 from tank_control.ros2cli.common import (
     CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
     client_node, is_hidden, settle_graph, spin_until, wait_for_node)
@@ -329,18 +330,6 @@ def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
         else:
             branch[parts[-1]] = flat[name]
     return tree
-
-
-def flatten(tree: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
-    """The inverse of ``nest``: nested dicts under ``ros__parameters`` → dotted names."""
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, Mapping):
-            flat.update(flatten(value, name + '.'))
-        else:
-            flat[name] = value
-    return flat
 
 
 def dump_verb(args: argparse.Namespace) -> int:
