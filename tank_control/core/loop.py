@@ -1,7 +1,6 @@
 """The discrete-time closed loop run in-process: the reference every ROS run must match.
 
-Exactly the arithmetic of the lockstep protocol (BRIEF "Clock modes"), without
-ROS. With ``ts_ns = to_ns(sample_time)`` (the plant's sample time), for tick
+Exactly the arithmetic of the lockstep protocol of the nodes, without ROS. With ``ts_ns = to_ns(sample_time)`` (the plant's sample time), for tick
 ``k = 0, 1, ..., K`` (``K = duration_ns // ts_ns``):
 
 1. ``t_k = k * ts_ns`` (integer ns), ``t = seconds(t_k)``;
@@ -23,68 +22,16 @@ value).
 """
 from __future__ import annotations
 
-import csv
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
 from tank_control.core.interfaces import Controller, Plant, seconds, to_ns
 from tank_control.core.reference import Reference
+from tank_control.core.trace import Trace
 
 Noise = Callable[[], np.ndarray]
 """One measurement-noise draw per call, ordered as the plant's outputs."""
-
-
-@dataclass
-class Trace:
-    """Recorded signals: ``t`` [s] and named columns ``y.*``, ``r.*``, ``u.*``, ``d.*``."""
-
-    columns: dict[str, np.ndarray] = field(default_factory=dict)
-
-    @classmethod
-    def from_rows(cls, names: Sequence[str], rows: Iterable[Sequence[float]]) -> Trace:
-        data = np.asarray(list(rows), dtype=float).reshape(-1, len(names))
-        return cls({name: data[:, i].copy() for i, name in enumerate(names)})
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(self.columns)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.columns[name]
-
-    def __len__(self) -> int:
-        return len(self.columns['t']) if 't' in self.columns else 0
-
-    def to_csv(self, path: str | Path) -> Path:
-        """Write a header line of column names, then one row per tick (full precision)."""
-        path = Path(path)
-        with path.open('w', newline='') as handle:
-            writer = csv.writer(handle)
-            writer.writerow(self.names)
-            for row in zip(*self.columns.values()):
-                writer.writerow([repr(float(v)) for v in row])
-        return path
-
-    @classmethod
-    def read_csv(cls, path: str | Path) -> Trace:
-        with Path(path).open(newline='') as handle:
-            reader = csv.reader(handle)
-            names = next(reader)
-            return cls.from_rows(names, ([float(v) for v in row] for row in reader))
-
-    def max_abs_difference(self, other: Trace, names: Iterable[str] | None = None) -> dict[str, float]:
-        """Per common column (or ``names``): the largest absolute difference over the
-        common length; ``inf`` if the lengths differ."""
-        names = [n for n in (names or self.names) if n in other.columns]
-        out = {}
-        for name in names:
-            a, b = self.columns[name], other.columns[name]
-            out[name] = float(np.max(np.abs(a - b))) if len(a) == len(b) and len(a) else (
-                0.0 if len(a) == len(b) else float('inf'))
-        return out
 
 
 def nominal_inputs(plant: Plant) -> dict[str, float]:
@@ -109,7 +56,7 @@ def _nominal(plant: Plant, attr: str, names: Sequence[str]) -> dict[str, float]:
 
 def initial_output(controller: Controller) -> np.ndarray | None:
     """The controller's documented first output (parameter ``initial_output``, one value per
-    input channel, set by ``registry.make_controller``), or None for a controller without one."""
+    input channel, set by ``kinds.registry.build``), or None for a controller without one."""
     value = getattr(controller, 'initial_output', None)
     if value is None:
         return None
@@ -139,6 +86,16 @@ def warm_start(controller: Controller, y: np.ndarray) -> bool:
     return True
 
 
+def sample_time_reason(plant_sample_time: float, controller_sample_time: float) -> str | None:
+    """The controller samples at plant ticks: its sample time must be a positive integer
+    multiple of the plant's (compared in integer nanoseconds, as the stamps are)."""
+    ts_ns, cts_ns = to_ns(plant_sample_time), to_ns(controller_sample_time)
+    if ts_ns <= 0 or cts_ns <= 0 or cts_ns % ts_ns:
+        return (f'sample_time: the controller sample time {controller_sample_time:g} s is not a '
+                f'positive integer multiple of the plant sample time {plant_sample_time:g} s')
+    return None
+
+
 def check_wiring(plant: Plant, controller: Controller, reference: Reference) -> None:
     """ValueError naming the first channel that cannot be connected."""
     for name in controller.output_names:
@@ -164,11 +121,11 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     must be an integer multiple of it.
     """
     check_wiring(plant, controller, reference)
+    reason = sample_time_reason(sample_time, controller.sample_time)
+    if reason:
+        raise ValueError(reason)
     ts_ns = to_ns(sample_time)
     cts_ns = to_ns(controller.sample_time)
-    if ts_ns <= 0 or cts_ns <= 0 or cts_ns % ts_ns:
-        raise ValueError(f'controller sample_time {controller.sample_time} s is not a positive '
-                         f'integer multiple of the plant sample_time {sample_time} s')
     n_ticks = to_ns(duration) // ts_ns + 1
 
     u_all = nominal_inputs(plant)

@@ -1,27 +1,39 @@
-"""Parameter specifications: the user interface of every node, kept free of rclpy.
+"""Settings declared once: dataclass fields that are also ROS 2 parameters (no rclpy here).
 
-A core module describes its parameters as ``ParamSpec`` records; the nodes
-turn them into ROS 2 parameter descriptors, and the in-process loop validates
-scenario files with the same records, so both reject the same values with the
-same one-line reason.
+A configuration dataclass declares each setting with :func:`param` (default, description, unit,
+range, read-only, the ROS encoding of ``inf``/``None``, source equation). From it follow the
+``ParamSpec`` records the nodes declare (:func:`specs_of`), the validated configuration built from
+parameter values (:func:`config_from`, errors named by parameter) and the parameter values of a
+configuration (:func:`values_of`). ROS parameters cannot hold ``inf``: a field declared with
+``zero=math.inf`` (or ``zero=None``) is written as 0 and read back as ``inf`` (``None``).
 """
 from __future__ import annotations
 
+import array
+import dataclasses
+import difflib
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 ParamValue = bool | int | float | str | list[float] | list[str] | list[int] | list[bool]
 
+_META = 'tank_control.param'
+_UNSET: Any = object()
+
+
+class ConfigError(ValueError):
+    """Parameter values that cannot make a configuration; the message names the parameter."""
+
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: name, default, description (with units) and allowed values.
+    """One parameter: name, default (ROS value), description (with units) and allowed values.
 
-    ``min``/``max`` bound numbers (inclusive), ``choices`` restricts strings,
-    ``read_only`` parameters can be set at start-up only. Integer defaults make
-    an integer parameter; float defaults a float one (integers are accepted).
+    ``min``/``max`` bound numbers (inclusive), ``choices`` restricts strings, ``read_only``
+    parameters are set at start-up only. The type is the default's (ints are accepted for floats).
     """
 
     name: str
@@ -33,7 +45,7 @@ class ParamSpec:
     read_only: bool = False
 
     def allowed(self) -> str:
-        """Human-readable allowed range, used in rejection messages."""
+        """Human-readable allowed values, used in rejection messages."""
         if self.choices is not None:
             return 'one of ' + ', '.join(self.choices)
         if self.min is not None or self.max is not None:
@@ -43,11 +55,10 @@ class ParamSpec:
         return f'any {type(self.default).__name__}'
 
     def check(self, value: Any) -> str | None:
-        """Return ``None`` if ``value`` is acceptable, else a one-line reason."""
+        """``None`` if ``value`` is acceptable, else a one-line reason naming the parameter."""
         reason = _type_reason(self.default, value)
         if reason is None:
-            items = value if isinstance(value, list) else [value]
-            for item in items:
+            for item in value if isinstance(value, list) else [value]:
                 reason = self._range_reason(item)
                 if reason:
                     break
@@ -87,9 +98,39 @@ def _scalar_ok(default: Any, value: Any) -> bool:
     return type(value) is type(default)
 
 
-def defaults(specs: Iterable[ParamSpec]) -> dict[str, ParamValue]:
-    """Name → default for a list of specs."""
-    return {spec.name: spec.default for spec in specs}
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def coerce(spec: ParamSpec, value: Any) -> Any:
+    """``value`` converted as a ROS user expects, else unchanged: integers become doubles where
+    the parameter is a double (``kp 2`` → ``2.0``), also in lists; a scalar given for a list of
+    doubles becomes a one-item list; rclpy's ``array.array``/tuples become lists."""
+    if isinstance(value, (array.array, tuple)):
+        value = list(value)
+    default = spec.default
+    if isinstance(default, float) and _is_int(value):
+        return float(value)
+    if isinstance(default, list) and default and isinstance(default[0], float):
+        if _is_int(value) or isinstance(value, float):
+            return [float(value)]
+        if isinstance(value, list) and all(_is_int(v) or isinstance(v, float) for v in value):
+            return [float(v) for v in value]
+    return value
+
+
+def nearest(name: str, known: Iterable[str]) -> str | None:
+    """The known name closest to a misspelt ``name`` (None if nothing is close)."""
+    matches = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return matches[0] if matches else None
+
+
+def unknown_reason(name: str, known: Iterable[str], what: str = 'parameter') -> str:
+    """``'kpp: unknown parameter; did you mean kp?'`` (or the list of known names)."""
+    known = sorted(known)
+    guess = nearest(name, known)
+    hint = f'did you mean {guess}?' if guess else 'known: ' + ', '.join(known)
+    return f'{name}: unknown {what}; {hint}'
 
 
 def check_all(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> list[str]:
@@ -98,10 +139,149 @@ def check_all(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> list[str
     reasons = []
     for name, value in values.items():
         spec = by_name.get(name)
-        if spec is None:
-            reasons.append(f'{name}: unknown parameter')
-            continue
-        reason = spec.check(value)
+        reason = unknown_reason(name, by_name) if spec is None else spec.check(value)
         if reason:
             reasons.append(reason)
     return reasons
+
+
+# ----------------------------------------------------------------------------------- fields
+@dataclass(frozen=True)
+class _Meta:
+    description: str
+    unit: str
+    min: float | None
+    max: float | None
+    choices: tuple[str, ...] | None
+    read_only: bool
+    zero: Any
+    name: str | None
+    source: str
+
+
+def param(default: Any, description: str, *, unit: str = '', min: float | None = None,
+          max: float | None = None, choices: Iterable[str] | None = None,
+          read_only: bool = False, zero: Any = _UNSET, name: str | None = None,
+          source: str = '') -> Any:
+    """A dataclass field that is also a ROS 2 parameter.
+
+    ``default`` is the field's value (a tuple for a list parameter); ``name`` the parameter name
+    when it differs from the field's (``'two_loop.kp_h'``); ``zero`` the field value written as
+    0 because ROS cannot hold it (``math.inf``: "0 = none"; ``None``: "0 = default");
+    ``min``/``max`` bound the parameter value; ``source`` cites the document ("000 eq. 19").
+    """
+    meta = _Meta(description, unit, min, max, tuple(choices) if choices else None, read_only,
+                 zero, name, source)
+    return dataclasses.field(default=default, metadata={_META: meta})
+
+
+@dataclass(frozen=True)
+class _Param:
+    field: str
+    spec: ParamSpec
+    zero: Any
+
+
+def _encode(p: _Param, value: Any) -> Any:
+    if p.zero is not _UNSET and (value is p.zero or value == p.zero):
+        return 0 if _is_int(p.spec.default) else 0.0
+    if isinstance(value, tuple):
+        return list(value)
+    return value
+
+
+def _decode(p: _Param, value: Any) -> Any:
+    if p.zero is not _UNSET and value == 0:
+        return p.zero
+    if isinstance(value, list):
+        return tuple(value)
+    return value
+
+
+@cache
+def _params(cls: type) -> dict[str, _Param]:
+    out: dict[str, _Param] = {}
+    for f in dataclasses.fields(cls):
+        meta = f.metadata.get(_META)
+        if meta is None:
+            continue
+        name = meta.name or f.name
+        text = meta.description + (f' [{meta.unit}]' if meta.unit else '') + (
+            f' ({meta.source})' if meta.source else '')
+        probe = _Param(f.name, ParamSpec(name, 0.0, ''), meta.zero)
+        spec = ParamSpec(name, _encode(probe, f.default), text, meta.min, meta.max,
+                         meta.choices, meta.read_only)
+        out[name] = _Param(f.name, spec, meta.zero)
+    return out
+
+
+def specs_of(cls: type, prefix: str = '', **defaults: Any) -> tuple[ParamSpec, ...]:
+    """The parameters declared on dataclass ``cls``, names prefixed with ``prefix``;
+    ``defaults`` (by field name) replace the declared defaults (e.g. a kind's channel names)."""
+    out = []
+    for p in _params(cls).values():
+        spec = p.spec
+        if p.field in defaults:
+            spec = dataclasses.replace(spec, default=_encode(p, defaults[p.field]))
+        if prefix:
+            spec = dataclasses.replace(spec, name=prefix + spec.name)
+        out.append(spec)
+    return tuple(out)
+
+
+def names_of(cls: type) -> tuple[str, ...]:
+    """Parameter names declared on ``cls``."""
+    return tuple(_params(cls))
+
+
+def param_name(cls: type, field_name: str) -> str:
+    """The parameter name of field ``field_name`` of ``cls``."""
+    return next(name for name, p in _params(cls).items() if p.field == field_name)
+
+
+def config_from(cls: type, values: Mapping[str, Any], base: Any = None, *, live: bool = False,
+                **defaults: Any) -> Any:
+    """``cls`` from parameter values by parameter name; missing ones keep ``base``'s values (or
+    ``defaults``, by field name, or the declared defaults). Checks every value against its spec
+    and the relations in ``cls.reason()``; ``live`` (a change of a running object) refuses
+    read-only parameters. Raises :class:`ConfigError` naming the parameter (an unknown name with
+    the nearest known one)."""
+    params = _params(cls)
+    changes: dict[str, Any] = dict(defaults) if base is None else {}
+    for name, value in values.items():
+        p = params.get(name)
+        if p is None:
+            raise ConfigError(unknown_reason(name, params))
+        if live and p.spec.read_only:
+            raise ConfigError(f'{name}: read-only, set at start-up only')
+        spec = p.spec
+        if p.field in defaults:   # a kind's own default may change the type (float → list)
+            spec = dataclasses.replace(spec, default=_encode(p, defaults[p.field]))
+        value = coerce(spec, value)
+        reason = spec.check(value)
+        if reason:
+            raise ConfigError(reason)
+        changes[p.field] = _decode(p, value)
+    config = dataclasses.replace(base, **changes) if base is not None else cls(**changes)
+    reason = relations_reason(config)
+    if reason:
+        raise ConfigError(reason)
+    return config
+
+
+def check_config(config: Any) -> Any:
+    """``config`` if every parameter field is within its declared range and the relations hold,
+    else :class:`ConfigError` naming the parameter (for configurations built in Python)."""
+    config_from(type(config), values_of(config))
+    return config
+
+
+def relations_reason(config: Any) -> str | None:
+    """``config.reason()`` if the class defines relations between its fields, else None."""
+    check = getattr(config, 'reason', None)
+    return check() if callable(check) else None
+
+
+def values_of(config: Any) -> dict[str, ParamValue]:
+    """Parameter name → ROS value of every parameter field of ``config``."""
+    return {name: _encode(p, getattr(config, p.field)) for name, p in _params(type(config)).items()}

@@ -1,4 +1,4 @@
-"""Setpoint and disturbance schedules per channel (issue 4, reference publisher).
+"""Setpoint and disturbance schedules per channel (the reference publisher's arithmetic).
 
 A channel is a piecewise-constant *target* — ``values[i]`` from ``times[i]``
 on (``values[0]`` also before ``times[0]``) — optionally followed at a limited
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.params import ParamSpec
+from tank_control.core.params import ParamSpec, unknown_reason
 
 KINDS = ('setpoint', 'disturbance')
 FIELDS = ('value', 'times', 'values', 'ramp_rate', 'min', 'max')
@@ -243,15 +243,21 @@ def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedul
 
 def reference_from_params(values: Mapping[str, Any]) -> Reference:
     """Build a ``Reference`` from the flat parameters of a params file (ValueError with the
-    reasons). Channel fields not listed in ``*.channels`` are an error (a typo guard)."""
+    reasons). Names under ``setpoint.``/``disturbance.`` must be ``<kind>.channels`` or a field
+    of a listed channel (a typo is refused with the nearest known name); other names are the
+    node's own and left to it."""
     setpoint_channels, disturbance_channels = channel_lists(values)
     built: dict[str, dict[str, ChannelSchedule]] = {'setpoint': {}, 'disturbance': {}}
     listed = {('setpoint', c) for c in setpoint_channels} | {('disturbance', c) for c in disturbance_channels}
+    known = [f'{kind}.channels' for kind in KINDS] + [
+        f'{kind}.{ch}.{name}' for kind, ch in sorted(listed) for name in FIELDS]
     reasons = []
     for key in values:
         parts = split_param_name(key)
         if parts and (parts[0], parts[1]) not in listed:
             reasons.append(f'{key}: channel {parts[1]!r} is not in {parts[0]}.channels')
+        elif not parts and key.split('.')[0] in KINDS and key not in known:
+            reasons.append(unknown_reason(key, known))
     for kind, names in (('setpoint', setpoint_channels), ('disturbance', disturbance_channels)):
         for ch in names:
             prefix = f'{kind}.{ch}.'
@@ -265,22 +271,13 @@ def reference_from_params(values: Mapping[str, Any]) -> Reference:
     return Reference(built['setpoint'], built['disturbance'])
 
 
-def reference_params(reference: Reference) -> tuple[ParamSpec, ...]:
-    """ParamSpecs of the reference node; defaults are the given reference's schedules.
+def channel_specs(reference: Reference) -> tuple[ParamSpec, ...]:
+    """ParamSpecs of the reference's channels; defaults are the given reference's schedules.
 
     ``value`` is declared with the channel's value at t = 0 and acts as the
     runtime override (layout and semantics: module doc).
     """
     specs = [
-        ParamSpec('sample_time', 1.0, 'publishing period in wall mode [s]; in sim/lockstep '
-                  'the reference answers every /clock tick instead', min=1e-6, max=3600.0),
-        ParamSpec('clock_mode', 'wall', 'wall: publish every sample_time on a wall timer; '
-                  'sim/lockstep (also implied by use_sim_time): answer every /clock tick, '
-                  'stamped t_k', choices=('wall', 'sim', 'lockstep'), read_only=True),
-        ParamSpec('lockstep.anticipate', True, 'with clock_mode lockstep: on /clock t_k also '
-                  'answer the next tick t_k + (t_k - t_k-1) ahead (same values and stamps; the '
-                  'controller then waits only for the measurement). Never in sim (there the '
-                  'latest message is used, so it must be the current one)', read_only=True),
         # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)
         ParamSpec('setpoint.channels', list(reference.setpoint_names) or [''],
                   'setpoint channel names (= controlled outputs)', read_only=True),

@@ -1,194 +1,216 @@
-"""Core objects from the flat parameters the nodes receive, and the in-process run.
+"""A scenario file as core objects: the plant, controller and reference the nodes would build.
 
-A scenario is a standard ROS 2 parameters file::
-
-    /**:                       # parameters for every node (optional)
-      ros__parameters: {...}
-    plant:
-      ros__parameters: {plant: ipdt, sample_time: 0.1, gain: 0.05, dead_time: 5.0, ...}
-    controller:
-      ros__parameters: {controller: pid, sample_time: 0.1, kp: 3.14, ...}
-    reference:
-      ros__parameters: {setpoint.channels: [y], setpoint.y.value: 1.0, ...}
-    harness:                   # read by the harness only (duration, clock mode, ...)
-      ros__parameters: {duration: 100.0}
-
-``read_params_file`` gives, per node name, the flat parameters that node sees
-(``/**`` first, then its own section; nested maps flattened to dotted names, as
-ROS 2 does). ``build_plant``, ``build_noise``, ``make_controller`` and
-``reference_from_params`` turn them into the very objects ``plant_node``,
-``controller_node`` and ``reference_node`` construct, so
-``run_in_process(path)`` reproduces a lockstep ROS run (core/loop.py).
+A scenario is a ROS 2 parameter file (``core/params_file.py``) with a section per node
+(``plant``, ``controller``, ``reference``), optionally ``/**`` for every node and ``harness``
+for the harness. :func:`plant_setup`, :func:`controller_setup` and :func:`reference_setup`
+validate one node's values exactly as that node does at start-up (unknown names refused with
+the nearest known one) and build its core objects; :func:`build` and :func:`run_in_process`
+run the whole loop through ``core/loop.py``, which a lockstep ROS run reproduces.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from tank_control.core import ros_yaml
+from tank_control.core import node_specs, params_file
+from tank_control.core.control.kinds import registry as controllers
+from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.interfaces import Controller, Plant
-from tank_control.core.loop import Noise, Trace, run_loop
-from tank_control.core.params import ParamSpec, check_all
-from tank_control.core.plants import (NOISE_PARAMS, PLANT_KIND_SPEC, PLANT_KINDS, make_plant,
-                                      plant_params)
-from tank_control.core.plants.noise import MeasurementNoise
-from tank_control.core.reference import Reference, reference_from_params
+from tank_control.core.loop import run_loop, sample_time_reason
+from tank_control.core.trace import Trace
+from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNode
+from tank_control.core.params import ConfigError, config_from, names_of, unknown_reason
+from tank_control.core.plants.kinds import registry as plants
+from tank_control.core.plants.kinds.base import PlantKind
+from tank_control.core.plants.noise import MeasurementNoise, NoiseConfig
+from tank_control.core.reference import Reference, channel_specs, reference_from_params
 
-CLOCK_MODES = ('wall', 'sim', 'lockstep')
-
-#: Parameters of plant_node besides the model's own (``plant_params(kind)``):
-#: the kind, the tick, the measurement noise (``NOISE_PARAMS``) and the clock.
-PLANT_NODE_SPECS: tuple[ParamSpec, ...] = (
-    PLANT_KIND_SPEC,
-    ParamSpec('sample_time', 0.1, 'plant tick: measurements are published every sample_time; '
-              'in sim/lockstep tick k is at k * sample_time [s]', min=1e-4, max=3600.0,
-              read_only=True),
-) + NOISE_PARAMS + (
-    ParamSpec('clock_mode', 'wall', 'wall: real time; sim: the plant publishes /clock at '
-              'real_time_factor x real time; lockstep: /clock advances when every answer of a '
-              'tick arrived', choices=CLOCK_MODES, read_only=True),
-    ParamSpec('real_time_factor', 1.0, 'simulated seconds per wall second in sim/lockstep '
-              '(lockstep: 0 = as fast as possible)', min=0.0, max=1e6),
-    ParamSpec('lockstep.resend_period', 0.5, 'lockstep: re-send the current tick when its '
-              'answers have not come within this wall time [s]', min=0.01, max=60.0),
-    ParamSpec('lockstep.paused', False, 'sim and lockstep: hold the current tick (simulated '
-              'time stops) until set to false; lets a recorder join before tick 0'),
-    ParamSpec('lockstep.wait_for_reference', True, 'lockstep: also wait for the reference '
-              'disturbance message of each tick'),
-    ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [wall s]', min=0.05, max=3600.0),
-)
+HARNESS = 'harness'
+SECTIONS = (*node_specs.NODES, HARNESS, params_file.WILDCARD)
 
 
-_WILDCARDS = ('/**', '/*')
+def _own(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+    names = names_of(cls)
+    return {k: v for k, v in values.items() if k in names}
 
 
-def read_params_file(path: str | Path) -> dict[str, dict[str, Any]]:
-    """Node name → flat parameters that node receives from the file.
+# ----------------------------------------------------------------------------------- plant
+@dataclass(frozen=True)
+class PlantSetup:
+    """plant_node's settings: its own, the noise, the model kind and the model's config."""
 
-    Sections may be named ``plant``, ``/plant`` or ``/**/plant``; the wildcard
-    sections ``/**`` and ``/*`` apply to every node and are overridden by a
-    node's own section. The result holds every named section plus ``/**``
-    (the wildcard values alone). ValueError with the file name on bad input.
-    """
-    path = Path(path)
+    node: PlantNode
+    noise: NoiseConfig
+    kind: PlantKind
+    model: Any
+
+    def build_plant(self) -> Plant:
+        return self.kind.build(self.model)
+
+    def build_noise(self, n_outputs: int) -> MeasurementNoise:
+        """The seeded measurement noise (one ``sample()`` per tick)."""
+        try:
+            return MeasurementNoise(n_outputs, self.noise.noise_std, seed=self.noise.seed)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+
+
+def plant_setup(values: Mapping[str, Any]) -> PlantSetup:
+    """plant_node's settings from its parameter values; ``ConfigError`` with the reason."""
+    kind = plants.get_kind(node_specs.kind_of('plant', dict(values)))
+    node_specs.unknown_names(node_specs.plant_specs(kind.name), dict(values))
+    model_names = {s.name for s in kind.specs()}
+    return PlantSetup(
+        node=config_from(PlantNode, _own(PlantNode, values)),
+        noise=config_from(NoiseConfig, _own(NoiseConfig, values)),
+        kind=kind,
+        model=config_from(kind.config, {k: v for k, v in values.items() if k in model_names}))
+
+
+# ------------------------------------------------------------------------------ controller
+@dataclass(frozen=True)
+class ControllerSetup:
+    """controller_node's settings: its own, the controller kind and the kind's settings."""
+
+    node: ControllerNode
+    kind: ControllerKind
+    settings: Settings
+
+    def build_controller(self) -> Controller:
+        return controllers.build(self.kind, self.settings)
+
+
+def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = None
+                     ) -> ControllerSetup:
+    """controller_node's settings from its parameter values (``given``: the names the user set,
+    default all; a tuning rule's gains among them must agree with the rule)."""
+    kind = controllers.get_kind(node_specs.kind_of('controller', dict(values)))
+    node_specs.unknown_names(node_specs.controller_specs(kind.name), dict(values))
+    node_names = set(names_of(ControllerNode)) | set(node_specs.ROS_OWN)
+    own = {k: v for k, v in values.items() if k not in node_names}
+    return ControllerSetup(
+        node=config_from(ControllerNode, _own(ControllerNode, values)), kind=kind,
+        settings=controllers.settings(kind, own, given))
+
+
+# ------------------------------------------------------------------------------- reference
+@dataclass(frozen=True)
+class ReferenceSetup:
+    node: ReferenceNode
+    reference: Reference
+
+
+def reference_setup(values: Mapping[str, Any]) -> ReferenceSetup:
+    """reference_node's settings (its own and the channel schedules)."""
     try:
-        document = ros_yaml.load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f'{path}: cannot read a ROS 2 params file ({exc})') from None
-    if not isinstance(document, dict):
-        raise ValueError(f'{path}: expected a map of node sections with ros__parameters')
-    wildcard: dict[str, Any] = {}
-    own: dict[str, dict[str, Any]] = {}
-    for raw, body in document.items():
-        if not isinstance(body, dict) or not isinstance(body.get('ros__parameters', {}), dict):
-            raise ValueError(f'{path}: section {raw!r} must hold a ros__parameters map')
-        flat = ros_yaml.flatten(body.get('ros__parameters') or {})
-        name = str(raw)
-        if name in _WILDCARDS:
-            wildcard.update(flat)
-            continue
-        name = name.removeprefix('/**/').lstrip('/')
-        own.setdefault(name, {}).update(flat)
-    result = {name: {**wildcard, **values} for name, values in own.items()}
-    result['/**'] = dict(wildcard)
-    return result
+        reference = reference_from_params(values)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    known = set(names_of(ReferenceNode)) | {s.name for s in channel_specs(reference)}
+    for name in values:
+        if name not in known and name not in node_specs.ROS_OWN \
+                and name.split('.')[0] not in ('setpoint', 'disturbance'):
+            raise ConfigError(unknown_reason(name, known))
+    return ReferenceSetup(config_from(ReferenceNode, _own(ReferenceNode, values)), reference)
 
 
-def node_values(params: Mapping[str, Mapping[str, Any]], node: str) -> dict[str, Any]:
-    """The flat parameters of ``node`` (the wildcard values if it has no section)."""
-    return dict(params.get(node, params.get('/**', {})))
+# -------------------------------------------------------------------------------- scenario
+def check_sections(sections: Mapping[str, Any], where: str = '') -> None:
+    """Section names of a scenario: the nodes, ``harness`` and ``/**`` (a misspelt one is
+    refused with the nearest name)."""
+    for name in sections:
+        if name not in SECTIONS:
+            raise ConfigError(f'{where}{unknown_reason(name, SECTIONS, "section")}')
 
-
-# ------------------------------------------------------------------------ plant
-
-def plant_specs(kind: str) -> tuple[ParamSpec, ...]:
-    """Every plant_node parameter for model ``kind``: node specs + the model's own."""
-    own = plant_params(kind)
-    names = {s.name for s in own}
-    return tuple(s for s in PLANT_NODE_SPECS if s.name not in names) + tuple(own)
-
-
-def complete_plant_values(values: Mapping[str, Any]) -> dict[str, Any]:
-    """``values`` with every default filled in; ValueError with the reasons if invalid."""
-    kind = str(values.get('plant', PLANT_KIND_SPEC.default))
-    if kind not in PLANT_KINDS:
-        raise ValueError(f'plant: {kind!r} is not a choice; allowed one of {", ".join(PLANT_KINDS)}')
-    specs = plant_specs(kind)
-    known = {s.name for s in specs}
-    merged = {s.name: s.default for s in specs}
-    merged.update({k: v for k, v in values.items() if k in known})
-    reasons = check_all(specs, {k: v for k, v in values.items() if k in known})
-    if reasons:
-        raise ValueError('; '.join(reasons))
-    return merged
-
-
-def model_values(values: Mapping[str, Any]) -> dict[str, Any]:
-    """The model's own parameters (those of ``plant_params(kind)``) out of plant_node values."""
-    return {s.name: values[s.name] for s in plant_params(str(values['plant'])) if s.name in values}
-
-
-def build_plant(values: Mapping[str, Any]) -> Plant:
-    """The plant model of complete plant_node ``values`` (``make_plant(kind, model values)``)."""
-    return make_plant(str(values['plant']), model_values(values))
-
-
-def build_noise(values: Mapping[str, Any], output_names: tuple[str, ...]) -> MeasurementNoise:
-    """The seeded measurement noise of plant_node ``values`` (one ``sample()`` per tick)."""
-    return MeasurementNoise(len(output_names), values['noise_std'], seed=int(values['seed']))
-
-
-# ------------------------------------------------------------------- controller
-
-def make_controller(values: Mapping[str, Any]) -> Controller:
-    """The controller of controller_node ``values`` (the registry controller_node uses;
-    the node's own parameters such as ``clock_mode`` are left out)."""
-    from tank_control.core.control.registry import make_controller as registry_make
-    from tank_control.core.control.registry import specs_for
-    # Node-level parameters (clock_mode, stale_samples, ...) are not the controller's.
-    own = {spec.name for spec in specs_for(str(values.get('controller', 'pid')))}
-    return registry_make({k: v for k, v in values.items() if k in own})
-
-
-# --------------------------------------------------------------------- scenario
 
 @dataclass
 class Built:
-    """The core objects of one scenario."""
+    """The core objects of one scenario (and the settings they were built from)."""
 
     plant: Plant
     controller: Controller
     reference: Reference
-    noise: Noise | None
-    sample_time: float
-    plant_values: dict[str, Any]
+    noise: MeasurementNoise
+    plant_setup: PlantSetup
+    controller_setup: ControllerSetup
+
+    @property
+    def sample_time(self) -> float:
+        return self.plant_setup.node.sample_time
+
+    def controller_values(self) -> dict[str, Any]:
+        """The controller's parameter values as controller_node holds them after the run: the
+        settings (derived gains included) updated by what the controller produced."""
+        values = dict(self.controller_setup.settings.values)
+        results = self.controller_setup.kind.results
+        if results is not None:
+            values.update(results(self.controller))
+        return values
 
 
-def build(params: Mapping[str, Mapping[str, Any]]) -> Built:
-    """Plant, controller, reference and noise from node name → flat parameters."""
-    plant_values = complete_plant_values(node_values(params, 'plant'))
-    plant = build_plant(plant_values)
-    noise_src = build_noise(plant_values, plant.output_names)
-    return Built(plant=plant,
-                 controller=make_controller(node_values(params, 'controller')),
-                 reference=reference_from_params(node_values(params, 'reference')),
-                 noise=noise_src.sample, sample_time=float(plant_values['sample_time']),
-                 plant_values=plant_values)
+def node_values(sections: Mapping[str, Mapping[str, Any]], node: str) -> dict[str, Any]:
+    """What ``node`` takes from a scenario: its own section, and the entries of ``/**`` that it
+    declares (``/**`` may hold parameters of other nodes; a name no node declares is refused)."""
+    wildcard = sections.get(params_file.WILDCARD, {})
+    own = dict(sections.get(node, {}))
+    for name in wildcard:
+        if not node_specs.declared_anywhere(name):
+            raise ConfigError(f'{params_file.WILDCARD}.'
+                              + unknown_reason(name, node_specs.all_names()))
+    probe = {**wildcard, **own}
+    if node == 'plant':
+        known = {s.name for s in node_specs.plant_specs(node_specs.kind_of('plant', probe))}
+    elif node == 'controller':
+        known = {s.name for s in node_specs.controller_specs(
+            node_specs.kind_of('controller', probe))}
+    else:
+        known = set(names_of(ReferenceNode))
+        known |= {k for k in wildcard if k.split('.')[0] in ('setpoint', 'disturbance')}
+    return {**{k: v for k, v in wildcard.items() if k in known}, **own}
 
 
-def run_in_process(params_file: str | Path | Mapping[str, Mapping[str, Any]],
-                   duration: float | None = None) -> Trace:
-    """Run a scenario through ``core/loop.py`` (no ROS). ``duration`` [s] defaults to
-    ``harness.duration`` of the file."""
-    params = params_file if isinstance(params_file, Mapping) else read_params_file(params_file)
+def build(sections: Mapping[str, Mapping[str, Any]]) -> Built:
+    """Plant, controller, reference and noise from a scenario's sections."""
+    check_sections(sections)
+    setup = plant_setup(node_values(sections, 'plant'))
+    control = controller_setup(node_values(sections, 'controller'))
+    reason = sample_time_reason(setup.node.sample_time,
+                                           control.settings.values['sample_time'])
+    if reason:
+        raise ConfigError(f'controller.{reason}')
+    plant = setup.build_plant()
+    return Built(plant=plant, controller=control.build_controller(),
+                 reference=reference_setup(node_values(sections, 'reference')).reference,
+                 noise=setup.build_noise(len(plant.output_names)), plant_setup=setup,
+                 controller_setup=control)
+
+
+def sections_of(scenario: str | Path | Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The sections of a scenario given as a file path or already read."""
+    if isinstance(scenario, Mapping):
+        return {name: dict(values) for name, values in scenario.items()}
+    return params_file.read(scenario)
+
+
+def duration_of(sections: Mapping[str, Mapping[str, Any]], duration: float | None) -> float:
     if duration is None:
-        duration = params.get('harness', {}).get('duration')
+        duration = sections.get(HARNESS, {}).get('duration')
         if duration is None:
-            raise ValueError('duration: not given and the file has no harness.duration')
-    built = build(params)
+            raise ConfigError('duration: not given and the file has no harness.duration')
+    return float(duration)
+
+
+def run(built: Built, duration: float) -> Trace:
+    """Run built objects through ``core/loop.py`` for ``duration`` simulated seconds."""
     return run_loop(built.plant, built.controller, built.reference,
-                    sample_time=built.sample_time, duration=float(duration), noise=built.noise)
+                    sample_time=built.sample_time, duration=duration, noise=built.noise.sample)
+
+
+def run_in_process(scenario: str | Path | Mapping[str, Mapping[str, Any]],
+                   duration: float | None = None) -> Trace:
+    """Run a scenario through ``core/loop.py`` (no ROS); ``duration`` [s] defaults to the
+    file's ``harness.duration``."""
+    sections = sections_of(scenario)
+    return run(build(sections), duration_of(sections, duration))

@@ -56,57 +56,101 @@ import numpy as np
 
 from tank_control.core.control.mpcs_estimator import (DISTURBANCE_MODELS, EstimatorConfig,
                                                       KalmanEstimator, take_over)
-from tank_control.core.control.mpcs_model import (DelayedModel, TankOperatingPoint,
-                                                  equilibrium_inputs, tank_model)
+from tank_control.core.control.mpcs_model import DelayedModel, equilibrium_inputs, tank_model
 from tank_control.core.control.mpcs_prediction import CostConfig, Prediction
 from tank_control.core.control.mpcs_qp import DenseQp
-from tank_control.core.params import ParamSpec
+from tank_control.core.control.pid import sample_time_param
+from tank_control.core.params import check_config, config_from, param, param_name
+from tank_control.core.plants.mixing_tank import OPERATING_POINT, TankOperatingPoint
 
 SOLVERS = ('analytic', 'qp')
 
 
+_UNITS_IN = 'cm³/s'
+_OP = OPERATING_POINT
+
+
+def _m(default: Any, description: str, name: str, lo: float | None = None,
+       hi: float | None = None, **meta: Any) -> Any:
+    return param(default, description, name='mpcs.' + name, min=lo, max=hi, **meta)
+
+
 @dataclass(frozen=True)
 class MpcsConfig:
-    """All settings of :class:`Mpcs`.
+    """All settings of :class:`Mpcs`; field ``x_y`` is the parameter ``mpcs.x.y`` (``lam`` is
+    ``mpcs.lambda``, ``sample_time`` the common ``sample_time``). Lists are one value for both
+    inputs [F_H, F_Cin] (outputs [h, T_out]) or one per channel."""
 
-    Field ``x_y`` is parameter ``mpcs.x.y`` (``lam`` is ``mpcs.lambda``,
-    ``sample_time`` is the common ``sample_time``); see :func:`mpcs_params`.
-    """
-
-    sample_time: float = 1.0
-    horizon: int = 100
-    control_horizon: int = 50
-    lam: tuple[float, ...] = (0.5,)
-    output_weights: tuple[float, ...] = (1.0, 1.0)
-    terminal_weight: float = 100.0
-    block: int = 1
-    align: bool = True
-    solver: str = 'analytic'
-    u_min: tuple[float, ...] = (0.0, 0.0)
-    u_max: tuple[float, ...] = (100.0, 100.0)
-    du_max: tuple[float, ...] = (0.2, 0.2)
-    soft_bounds: bool = False
-    y_min: tuple[float, ...] = (0.0, 0.0)
-    y_max: tuple[float, ...] = (200.0, 100.0)
-    soft_weight: float = 1e4
-    feedforward: bool = True
-    disturbance_model: str = 'input'
-    disturbance_noise: float = 1e-4
-    state_noise: float = 1e-4
-    qp_iter_limit: int = 1000
-    relinearize: bool = True
-    relinearize_h: float = 5.0
-    relinearize_T: float = 1.0
-    op_F_H: float = 14.0
-    op_F_Cin: float = 37.0
-    op_F_D: float = 12.0
-    op_T_H: float = 62.0
-    op_T_C: float = 23.0
-    op_T_D: float = 33.0
-    model_C: float = 0.7
-    model_alpha: float = 7.0
-    model_tau: float = 120.0
-    model_tau_c: float = 180.0
+    sample_time: float = sample_time_param(1.0, 0.01, 60.0, ' (003: 1 s); the dead times must '
+                                           'be multiples of it')
+    horizon: int = _m(100, 'prediction horizon N [samples] (003: 50…500)', 'horizon', 1, 2000)
+    control_horizon: int = _m(50, 'control horizon Nu [samples], <= N (003: 10…100)',
+                              'control_horizon', 1, 2000)
+    lam: tuple[float, ...] = _m((0.5,), 'move weight λ on ||Δu||², one value or one per input '
+                                '[F_H, F_Cin] ((cm/(cm³/s))² scale; 003: 0.1…1)', 'lambda',
+                                1e-6, 1e6)
+    output_weights: tuple[float, ...] = _m((1.0, 1.0), 'output weights W_y on [h (per cm), '
+                                           'T_out (per °C)], one value or one per output',
+                                           'output_weights', 0.0, 1e3)
+    terminal_weight: float = _m(100.0, 'weight w_∞ of the predicted steady-state error (lets a '
+                                'horizon shorter than the 180 s F_Cin dead time use F_Cin; 0 = '
+                                "the document's cost)", 'terminal_weight', 0.0, 1e6)
+    block: int = _m(1, 'move blocking: one free move every `block` samples within Nu (1 = '
+                    'every sample)', 'block', 1, 100)
+    align: bool = _m(True, 'count the horizon of T_out from its 120 s dead time (predict '
+                     'T_out(k+τ+p) = T(k+p)); false = literal p = 1..N', 'align')
+    solver: str = _m('analytic', 'analytic = precomputed unconstrained gain, clipped; qp = '
+                     'constrained QP each sample (DAQP)', 'solver', choices=SOLVERS)
+    u_min: tuple[float, ...] = _m((0.0, 0.0), f'lower limits of [F_H, F_Cin] [{_UNITS_IN}]',
+                                  'u_min', 0.0, 1e4)
+    u_max: tuple[float, ...] = _m((100.0, 100.0), f'upper limits of [F_H, F_Cin] '
+                                  f'[{_UNITS_IN}]', 'u_max', 0.0, 1e4)
+    du_max: tuple[float, ...] = _m((0.2, 0.2), 'rate limits |Δu| per sample of [F_H, F_Cin] '
+                                   f'[{_UNITS_IN} per sample] (003: 0.2)', 'du_max', 1e-6, 1e4)
+    soft_bounds: bool = _m(False, 'qp only: keep the predicted outputs within mpcs.y_min … '
+                           'mpcs.y_max as soft constraints (penalised slack)', 'soft_bounds')
+    y_min: tuple[float, ...] = _m((0.0, 0.0), 'soft lower bounds on predicted [h [cm], T_out '
+                                  '[°C]]', 'y_min', -1e4, 1e4)
+    y_max: tuple[float, ...] = _m((200.0, 100.0), 'soft upper bounds on predicted [h [cm], '
+                                  'T_out [°C]]', 'y_max', -1e4, 1e4)
+    soft_weight: float = _m(1e4, 'quadratic weight of the soft-bound slack', 'soft_weight', 0.0,
+                            1e9)
+    feedforward: bool = _m(True, 'use measured F_D, T_D in the prediction', 'feedforward')
+    disturbance_model: str = _m('input', 'offset-free disturbance model: input = unknown loads '
+                                'on the tank states, output = output biases',
+                                'disturbance_model', choices=DISTURBANCE_MODELS)
+    disturbance_noise: float = _m(1e-4, 'Kalman: variance of the disturbance random walk per '
+                                  'sample, relative to a unit measurement-noise variance '
+                                  '(larger = faster offset removal, more noise)',
+                                  'disturbance_noise', 1e-12, 1e6)
+    state_noise: float = _m(1e-4, 'Kalman: relative variance of the state noise', 'state_noise',
+                            1e-12, 1e6)
+    qp_iter_limit: int = _m(1000, 'QP iteration limit (beyond: fall back to the clipped analytic '
+                            'move)', 'qp_iter_limit', 1, 100000)
+    relinearize: bool = _m(True, 'rebuild the model at the equilibrium of the setpoint (and the '
+                           'measured F_D, T_D) when it is farther than relinearize_h / '
+                           "relinearize_T from the model's operating point", 'relinearize')
+    relinearize_h: float = _m(5.0, 'level distance that triggers a re-linearisation [cm]',
+                              'relinearize_h', 0.1, 1e3)
+    relinearize_T: float = _m(1.0, 'temperature distance that triggers a re-linearisation [°C]',
+                              'relinearize_T', 0.01, 100.0)
+    op_F_H: float = _m(_OP.F_H, f'operating point: hot inflow [{_UNITS_IN}]', 'op.F_H', 0.0, 1e4)
+    op_F_Cin: float = _m(_OP.F_C, f'operating point: cold inflow [{_UNITS_IN}]', 'op.F_Cin', 0.0,
+                         1e4)
+    op_F_D: float = _m(_OP.F_D, f'operating point: disturbance inflow [{_UNITS_IN}]', 'op.F_D',
+                       0.0, 1e4)
+    op_T_H: float = _m(_OP.T_H, 'operating point: hot water temperature [°C]', 'op.T_H', 0.0,
+                       100.0)
+    op_T_C: float = _m(_OP.T_C, 'operating point: cold water temperature [°C]', 'op.T_C', 0.0,
+                       100.0)
+    op_T_D: float = _m(_OP.T_D, 'operating point: disturbance temperature [°C]', 'op.T_D', 0.0,
+                       100.0)
+    model_C: float = _m(_OP.C, 'tank constant C in V = C·h² [cm]', 'model.C', 1e-3, 1e3)
+    model_alpha: float = _m(_OP.alpha, 'outflow constant α in F = α·√h [cm^2.5/s]',
+                            'model.alpha', 1e-3, 1e3)
+    model_tau: float = _m(_OP.tau, 'output dead time on T_out [s]', 'model.tau', 0.0, 3600.0)
+    model_tau_c: float = _m(_OP.tau_c, 'input dead time on F_Cin [s]', 'model.tau_c', 0.0,
+                            3600.0)
 
     def operating_point(self) -> TankOperatingPoint:
         return TankOperatingPoint(F_H=self.op_F_H, F_C=self.op_F_Cin, F_D=self.op_F_D,
@@ -114,195 +158,35 @@ class MpcsConfig:
                                   C=self.model_C, alpha=self.model_alpha,
                                   tau=self.model_tau, tau_c=self.model_tau_c)
 
-
-_UNITS_IN = 'cm³/s'
-
-
-def mpcs_params() -> tuple[ParamSpec, ...]:
-    """User-facing parameters of MPCS (ROS 2 names ``mpcs.*``); defaults = :class:`MpcsConfig`."""
-    c = MpcsConfig()
-    lst = list
-    return (
-        ParamSpec('sample_time', c.sample_time, 'controller sample time Ts [s] (003: 1 s); the '
-                  'dead times must be multiples of it', 0.01, 60.0, read_only=True),
-        ParamSpec('mpcs.horizon', c.horizon, 'prediction horizon N [samples] (003: 50…500)',
-                  1, 2000),
-        ParamSpec('mpcs.control_horizon', c.control_horizon, 'control horizon Nu [samples], '
-                  '<= N (003: 10…100)', 1, 2000),
-        ParamSpec('mpcs.lambda', lst(c.lam), 'move weight λ on ||Δu||², one value or one per '
-                  'input [F_H, F_Cin] ((cm/(cm³/s))² scale; 003: 0.1…1)', 1e-6, 1e6),
-        ParamSpec('mpcs.output_weights', lst(c.output_weights), 'output weights W_y on '
-                  '[h (per cm), T_out (per °C)], one value or one per output', 0.0, 1e3),
-        ParamSpec('mpcs.terminal_weight', c.terminal_weight, 'weight w_∞ of the predicted '
-                  'steady-state error (lets a horizon shorter than the 180 s F_Cin dead time '
-                  'use F_Cin; 0 = the document\'s cost)', 0.0, 1e6),
-        ParamSpec('mpcs.block', c.block, 'move blocking: one free move every `block` samples '
-                  'within Nu (1 = every sample)', 1, 100),
-        ParamSpec('mpcs.align', c.align, 'count the horizon of T_out from its 120 s dead time '
-                  '(predict T_out(k+τ+p) = T(k+p)); false = literal p = 1..N'),
-        ParamSpec('mpcs.solver', c.solver, 'analytic = precomputed unconstrained gain, clipped; '
-                  'qp = constrained QP each sample (DAQP)', choices=SOLVERS),
-        ParamSpec('mpcs.u_min', lst(c.u_min), f'lower limits of [F_H, F_Cin] [{_UNITS_IN}]',
-                  0.0, 1e4),
-        ParamSpec('mpcs.u_max', lst(c.u_max), f'upper limits of [F_H, F_Cin] [{_UNITS_IN}]',
-                  0.0, 1e4),
-        ParamSpec('mpcs.du_max', lst(c.du_max), f'rate limits |Δu| per sample of [F_H, F_Cin] '
-                  f'[{_UNITS_IN} per sample] (003: 0.2)', 1e-6, 1e4),
-        ParamSpec('mpcs.soft_bounds', c.soft_bounds, 'qp only: keep the predicted outputs '
-                  'within mpcs.y_min … mpcs.y_max as soft constraints (penalised slack)'),
-        ParamSpec('mpcs.y_min', lst(c.y_min), 'soft lower bounds on predicted [h [cm], '
-                  'T_out [°C]]', -1e4, 1e4),
-        ParamSpec('mpcs.y_max', lst(c.y_max), 'soft upper bounds on predicted [h [cm], '
-                  'T_out [°C]]', -1e4, 1e4),
-        ParamSpec('mpcs.soft_weight', c.soft_weight, 'quadratic weight of the soft-bound slack',
-                  0.0, 1e9),
-        ParamSpec('mpcs.feedforward', c.feedforward, 'use measured F_D, T_D in the prediction'),
-        ParamSpec('mpcs.disturbance_model', c.disturbance_model, 'offset-free disturbance '
-                  'model: input = unknown loads on the tank states, output = output biases',
-                  choices=DISTURBANCE_MODELS),
-        ParamSpec('mpcs.disturbance_noise', c.disturbance_noise, 'Kalman: variance of the '
-                  'disturbance random walk per sample, relative to a unit measurement-noise '
-                  'variance (larger = faster offset removal, more noise)', 1e-12, 1e6),
-        ParamSpec('mpcs.state_noise', c.state_noise, 'Kalman: relative variance of the state '
-                  'noise', 1e-12, 1e6),
-        ParamSpec('mpcs.qp_iter_limit', c.qp_iter_limit, 'QP iteration limit (beyond: fall back '
-                  'to the clipped analytic move)', 1, 100000),
-        ParamSpec('mpcs.relinearize', c.relinearize, 'rebuild the model at the equilibrium of '
-                  'the setpoint (and the measured F_D, T_D) when it is farther than '
-                  'relinearize_h / relinearize_T from the model\'s operating point'),
-        ParamSpec('mpcs.relinearize_h', c.relinearize_h, 'level distance that triggers a '
-                  're-linearisation [cm]', 0.1, 1e3),
-        ParamSpec('mpcs.relinearize_T', c.relinearize_T, 'temperature distance that triggers '
-                  'a re-linearisation [°C]', 0.01, 100.0),
-        ParamSpec('mpcs.op.F_H', c.op_F_H, f'operating point: hot inflow [{_UNITS_IN}]', 0.0, 1e4),
-        ParamSpec('mpcs.op.F_Cin', c.op_F_Cin, f'operating point: cold inflow [{_UNITS_IN}]',
-                  0.0, 1e4),
-        ParamSpec('mpcs.op.F_D', c.op_F_D, f'operating point: disturbance inflow [{_UNITS_IN}]',
-                  0.0, 1e4),
-        ParamSpec('mpcs.op.T_H', c.op_T_H, 'operating point: hot water temperature [°C]',
-                  0.0, 100.0),
-        ParamSpec('mpcs.op.T_C', c.op_T_C, 'operating point: cold water temperature [°C]',
-                  0.0, 100.0),
-        ParamSpec('mpcs.op.T_D', c.op_T_D, 'operating point: disturbance temperature [°C]',
-                  0.0, 100.0),
-        ParamSpec('mpcs.model.C', c.model_C, 'tank constant C in V = C·h² [cm]', 1e-3, 1e3),
-        ParamSpec('mpcs.model.alpha', c.model_alpha, 'outflow constant α in F = α·√h '
-                  '[cm^2.5/s]', 1e-3, 1e3),
-        ParamSpec('mpcs.model.tau', c.model_tau, 'output dead time on T_out [s]', 0.0, 3600.0),
-        ParamSpec('mpcs.model.tau_c', c.model_tau_c, 'input dead time on F_Cin [s]',
-                  0.0, 3600.0),
-    )
+    def reason(self) -> str | None:
+        """Relations between the settings (one-line reason naming the parameters), or None."""
+        if self.control_horizon > self.horizon:
+            return (f'mpcs.control_horizon: {self.control_horizon} must be <= mpcs.horizon '
+                    f'({self.horizon})')
+        for name in ('u_min', 'u_max', 'du_max', 'lam'):
+            if len(getattr(self, name)) not in (1, 2):
+                return f'{param_name(MpcsConfig, name)}: 1 or 2 values ([F_H, F_Cin])'
+        if np.any(_two(self.u_min) >= _two(self.u_max)):
+            return 'mpcs.u_min/mpcs.u_max: each lower limit must be below its upper limit'
+        if len(self.y_min) != 2 or len(self.y_max) != 2 or any(
+                a >= b for a, b in zip(self.y_min, self.y_max)):
+            return 'mpcs.y_min/mpcs.y_max: 2 values each ([h, T_out]), min below max'
+        if self.op_F_H + self.op_F_Cin + self.op_F_D <= 0.0:
+            return ('mpcs.op.F_H/F_Cin/F_D: the total inflow of the operating point must be > 0 '
+                    'cm³/s')
+        if len(self.output_weights) not in (1, 2):
+            return 'mpcs.output_weights: 1 or 2 values ([h, T_out])'
+        return None
 
 
-_FIELD_OF = {'lambda': 'lam'}
-_TUPLE_FIELDS = {'lam', 'output_weights', 'u_min', 'u_max', 'du_max', 'y_min', 'y_max'}
 _ESTIMATOR_FIELDS = {'sample_time', 'disturbance_model', 'disturbance_noise', 'state_noise',
                      'op_F_H', 'op_F_Cin', 'op_F_D', 'op_T_H', 'op_T_C', 'op_T_D', 'model_C',
                      'model_alpha', 'model_tau', 'model_tau_c'}
 
 
-def field_name(param: str) -> str:
-    """``'mpcs.op.F_H'`` → ``'op_F_H'``; ``'mpcs.lambda'`` → ``'lam'``; field names pass."""
-    name = param[5:] if param.startswith('mpcs.') else param
-    name = _FIELD_OF.get(name, name)
-    return name.replace('.', '_')
-
-
-def config_from_params(values: Mapping[str, Any], base: MpcsConfig | None = None) -> MpcsConfig:
-    """Validated :class:`MpcsConfig` from parameter values (``mpcs.*`` or field names).
-
-    Raises ``ValueError`` with one line per rejected value (name and allowed range).
-    """
-    base = base or MpcsConfig()
-    specs = {field_name(s.name): s for s in mpcs_params()}
-    known = {f.name for f in fields(MpcsConfig)}
-    changes: dict[str, Any] = {}
-    reasons = []
-    for key, value in values.items():
-        name = field_name(key)
-        if name not in known:
-            reasons.append(f'{key}: unknown parameter')
-            continue
-        if isinstance(value, (tuple, np.ndarray)):
-            value = list(np.asarray(value).tolist())
-        spec = specs.get(name)
-        if spec is not None:
-            if isinstance(spec.default, list) and isinstance(value, (int, float)) \
-                    and not isinstance(value, bool):
-                value = [float(value)]
-            reason = spec.check(value)
-            if reason:
-                reasons.append(reason)
-                continue
-        changes[name] = tuple(float(v) for v in value) if name in _TUPLE_FIELDS else value
-    if reasons:
-        raise ValueError('; '.join(reasons))
-    cfg = replace(base, **changes)
-    _check_consistency(cfg)
-    return cfg
-
-
-def _check_consistency(cfg: MpcsConfig) -> None:
-    """Cross-parameter checks (one-line reasons naming the parameters)."""
-    if cfg.control_horizon > cfg.horizon:
-        raise ValueError(f'mpcs.control_horizon: {cfg.control_horizon} must be <= '
-                         f'mpcs.horizon ({cfg.horizon})')
-    for name in ('u_min', 'u_max', 'du_max', 'lam'):
-        if len(getattr(cfg, name)) not in (1, 2):
-            raise ValueError(f'mpcs.{"lambda" if name == "lam" else name}: 1 or 2 values '
-                             f'([F_H, F_Cin])')
-    lo, hi = _two(cfg.u_min), _two(cfg.u_max)
-    if np.any(lo >= hi):
-        raise ValueError('mpcs.u_min/mpcs.u_max: each lower limit must be below its upper limit')
-    if len(cfg.y_min) != 2 or len(cfg.y_max) != 2 or any(
-            a >= b for a, b in zip(cfg.y_min, cfg.y_max)):
-        raise ValueError('mpcs.y_min/mpcs.y_max: 2 values each ([h, T_out]), min below max')
-    if cfg.op_F_H + cfg.op_F_Cin + cfg.op_F_D <= 0.0:
-        raise ValueError('mpcs.op.F_H/F_Cin/F_D: the total inflow of the operating point '
-                         'must be > 0 cm³/s')
-    if len(cfg.output_weights) not in (1, 2):
-        raise ValueError('mpcs.output_weights: 1 or 2 values ([h, T_out])')
-
-
 def _two(values: tuple[float, ...]) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     return np.full(2, arr[0]) if arr.size == 1 else arr
-
-
-def _own(values: Mapping[str, Any]) -> dict[str, Any]:
-    """The MPCS entries of flat parameter values (``mpcs.*`` and ``sample_time``)."""
-    return {k: v for k, v in values.items() if k.startswith('mpcs.') or k == 'sample_time'}
-
-
-def controller_kind():
-    """The ``mpcs`` kind for ``core/control/registry.py`` (controller_node, in-process loop).
-
-    Register it with one line in ``registry._KIND_FACTORIES``:
-    ``'mpcs': ('tank_control.core.control.mpcs', 'controller_kind')``.
-    Live parameter changes go through :meth:`Mpcs.configure` (bumpless, the new
-    matrices are built before the swap; ``sample_time`` is read-only).
-    """
-    from tank_control.core.control import registry
-
-    def check(values: Mapping[str, Any]) -> str | None:
-        try:
-            config_from_params(_own(values))
-        except ValueError as exc:
-            return str(exc)
-        return None
-
-    def build(values: Mapping[str, Any]) -> Mpcs:
-        return Mpcs(config_from_params(_own(values)))
-
-    def update(controller: Mpcs, values: Mapping[str, Any], changed: frozenset[str]) -> None:
-        controller.configure(**{k: values[k] for k in _own({k: None for k in changed})})
-
-    return registry.ControllerKind(
-        name='mpcs', params=lambda: mpcs_params() + registry._channel_specs(
-            Mpcs.output_names, Mpcs.input_names),
-        check=check, build=build, update=update,
-        initial_output=(MpcsConfig().op_F_H, MpcsConfig().op_F_Cin),   # warm start (registry)
-        description='offset-free MPCS for the mixing tank, analytic or QP (003 §4, §6)')
 
 
 class _Design:
@@ -360,8 +244,7 @@ class Mpcs:
                  ) -> None:
         """``model``: a prediction model to use instead of the tank built from the config
         (e.g. from a plant's ``linearize``); it is kept across ``configure`` calls."""
-        cfg = config or MpcsConfig()
-        _check_consistency(cfg)
+        cfg = check_config(config or MpcsConfig())
         self._fixed_model = model
         self._design = _Design(cfg, model)
         self._reset_counters()
@@ -492,7 +375,9 @@ class Mpcs:
         the estimator at the equilibrium that explains the last measurement.
         """
         old = self._design
-        cfg = config_from_params(changes, old.cfg)
+        fields_ = {f.name for f in fields(MpcsConfig)}
+        cfg = config_from(MpcsConfig, {param_name(MpcsConfig, k) if k in fields_ else k: v
+                                       for k, v in changes.items()}, old.cfg)
         if cfg == old.cfg:
             return cfg
         changed = {f.name for f in fields(MpcsConfig)

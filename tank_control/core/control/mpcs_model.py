@@ -27,50 +27,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import expm
 
+from tank_control.core.plants.mixing_tank import TankOperatingPoint
+
 # Column order of the document's B matrix (003 eq. 5).
 TANK_INPUTS = ('F_H', 'F_C', 'F_D', 'T_H', 'T_C', 'T_D')
-
-
-@dataclass(frozen=True)
-class TankOperatingPoint:
-    """Operating point and constants of the mixing tank (SPEC §1.3, 003 §1).
-
-    The equilibrium level and temperature follow from the inflows:
-    ``h0 = ((F_H + F_C + F_D)/alpha)²`` [cm] and
-    ``T0 = (F_H·T_H + F_C·T_C + F_D·T_D)/(F_H + F_C + F_D)`` [°C].
-    Defaults are the document's point: h0 = 81 cm, T0 = 33.5714 °C.
-    """
-
-    F_H: float = 14.0      # hot inflow [cm³/s]
-    F_C: float = 37.0      # cold inflow (= F_Cin in steady state) [cm³/s]
-    F_D: float = 12.0      # disturbance inflow [cm³/s]
-    T_H: float = 62.0      # [°C]
-    T_C: float = 23.0      # [°C]
-    T_D: float = 33.0      # [°C]
-    C: float = 0.7         # V = C·h² [cm]
-    alpha: float = 7.0     # F = alpha·√h [cm^2.5/s]
-    tau: float = 120.0     # output dead time on T_out [s]
-    tau_c: float = 180.0   # input dead time on F_Cin [s]
-
-    @property
-    def inflow(self) -> float:
-        """Total inflow = outflow at equilibrium [cm³/s]."""
-        return self.F_H + self.F_C + self.F_D
-
-    @property
-    def h(self) -> float:
-        """Equilibrium level [cm] (F(h) = alpha·√h = inflow)."""
-        return (self.inflow / self.alpha) ** 2
-
-    @property
-    def V(self) -> float:
-        """Equilibrium volume [cm³] (V = C·h²)."""
-        return self.C * self.h ** 2
-
-    @property
-    def T(self) -> float:
-        """Equilibrium (mixed) temperature [°C]."""
-        return (self.F_H * self.T_H + self.F_C * self.T_C + self.F_D * self.T_D) / self.inflow
 
 
 def equilibrium_inputs(op: TankOperatingPoint, h: float, temperature: float

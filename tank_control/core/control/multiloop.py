@@ -52,17 +52,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from tank_control.core.params import ParamSpec
+from tank_control.core.control.pid import ANTI_WINDUP_CHOICES, anti_windup_param, sample_time_param
+from tank_control.core.params import param
+from tank_control.core.plants.mixing_tank import OPERATING_POINT
 
 DECOUPLING_CHOICES = ('none', 'static', 'dynamic')
-ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
 D21_NUM = (0.00619, 2.122e-5)        # 003 eq. 2, numerator in z: b0·z + b1
 D21_DEN = (0.002301, 7.897e-6)       # denominator: a0·z + a1
+_GAIN = 1e6
 
 
 @dataclass
@@ -78,17 +80,17 @@ class PiLoop:
 @dataclass
 class SetpointGuard:
     """Steady-state feasibility of the setpoints (003 §1 balance at nominal disturbances).
-    Flows cm³/s, temperatures °C, levels cm, alpha cm^2.5/s."""
+    Flows cm³/s, temperatures °C, levels cm, alpha cm^2.5/s; defaults: 003's operating point."""
 
     enabled: bool = True
     h_min: float = 1.0
     h_max: float = 190.0
     margin: float = 0.5
-    alpha: float = 7.0
-    F_D: float = 12.0
-    T_D: float = 33.0
-    T_H: float = 62.0
-    T_C: float = 23.0
+    alpha: float = OPERATING_POINT.alpha
+    F_D: float = OPERATING_POINT.F_D
+    T_D: float = OPERATING_POINT.T_D
+    T_H: float = OPERATING_POINT.T_H
+    T_C: float = OPERATING_POINT.T_C
 
     def limit(self, r: np.ndarray) -> np.ndarray:
         """Setpoints [h, T_out] limited to what the tank can hold at steady state."""
@@ -105,19 +107,58 @@ class SetpointGuard:
 
 @dataclass
 class TwoLoopPiConfig:
-    """Settings of :class:`TwoLoopPi` (003 §2–3); flows in cm³/s, time in s."""
+    """Settings of :class:`TwoLoopPi` (003 §2–3); flows in cm³/s, time in s. Defaults: 003 §2.1
+    without decoupling. ``v_limit`` (not a parameter): |PI output| limit with decoupling,
+    None → u_max."""
 
-    h_loop: PiLoop = field(default_factory=lambda: PiLoop(0.9, 0.01))
-    t_loop: PiLoop = field(default_factory=lambda: PiLoop(-0.2, -0.002))
-    decoupling: str = 'none'
-    d12: float = -1.0
-    d21: float = 2.69                 # static gain (003 eq. 2, right-hand side)
-    u_min: float = 0.0
-    u_max: float = 300.0
-    v_limit: float | None = None      # |PI output| limit with decoupling; None → u_max
-    sample_time: float = 1.0
-    anti_windup: str = 'back_calculation'
-    guard: SetpointGuard = field(default_factory=SetpointGuard)
+    sample_time: float = sample_time_param(note=' (003 used 1 s)')
+    decoupling: str = param('none', 'decoupler: none (003 §2), static D21 = 2.69 or dynamic D21 '
+                            'filter (003 eqs. 1-3)', choices=DECOUPLING_CHOICES, read_only=True,
+                            name='two_loop.decoupling')
+    kp_h: float = param(0.9, 'h ← F_H proportional gain', unit='cm³/s per cm', min=-_GAIN,
+                        max=_GAIN, name='two_loop.kp_h')
+    ki_h: float = param(0.01, 'h ← F_H integral gain kp/ti', unit='cm³/s per cm·s', min=-_GAIN,
+                        max=_GAIN, name='two_loop.ki_h')
+    kp_T: float = param(-0.2, 'T_out ← F_Cin proportional gain', unit='cm³/s per °C',
+                        min=-_GAIN, max=_GAIN, name='two_loop.kp_T')
+    ki_T: float = param(-0.002, 'T_out ← F_Cin integral gain', unit='cm³/s per °C·s',
+                        min=-_GAIN, max=_GAIN, name='two_loop.ki_T')
+    d12: float = param(-1.0, 'decoupler D12 (v_T into F_H)', unit='-', min=-100.0, max=100.0,
+                       name='two_loop.d12', source='003 eq. 1')
+    d21: float = param(2.69, 'static decoupler D21 (v_h into F_Cin); ignored with decoupling = '
+                       'dynamic', unit='-', min=-100.0, max=100.0, name='two_loop.d21',
+                       source='003 eq. 2')
+    u_min: float = param(0.0, 'lower flow limit for F_H and F_Cin', unit='cm³/s', min=0.0,
+                         max=1e4)
+    u_max: float = param(300.0, 'upper flow limit for F_H and F_Cin', unit='cm³/s', min=0.0,
+                         max=1e4)
+    anti_windup: str = anti_windup_param()
+    setpoint_guard: bool = param(True, 'limit setpoints to what the tank can reach at steady '
+                                 'state (nominal disturbance inflow), see 003 §2.2',
+                                 name='two_loop.setpoint_guard')
+    h_min: float = param(1.0, 'lowest level setpoint used', unit='cm', min=0.1, max=1e4,
+                         name='two_loop.h_min')
+    h_max: float = param(190.0, 'highest level setpoint used', unit='cm', min=0.1, max=1e4,
+                         name='two_loop.h_max')
+    guard_margin: float = param(0.5, 'distance kept from the reachable T_out limits', unit='°C',
+                                min=0.0, max=20.0, name='two_loop.guard_margin')
+    v_limit: float | None = None
+
+    @property
+    def h_loop(self) -> PiLoop:
+        return PiLoop(self.kp_h, self.ki_h)
+
+    @property
+    def t_loop(self) -> PiLoop:
+        return PiLoop(self.kp_T, self.ki_T)
+
+    @property
+    def guard(self) -> SetpointGuard:
+        return SetpointGuard(self.setpoint_guard, self.h_min, self.h_max, self.guard_margin)
+
+    def reason(self) -> str | None:
+        """One-line reason naming the invalid parameter, or None."""
+        return config_reason(self)
 
 
 def document_config(decoupling: str = 'none', **changes: Any) -> TwoLoopPiConfig:
@@ -125,27 +166,29 @@ def document_config(decoupling: str = 'none', **changes: Any) -> TwoLoopPiConfig
     if decoupling == 'none':
         cfg = TwoLoopPiConfig()
     else:
-        cfg = TwoLoopPiConfig(h_loop=PiLoop(0.04, 0.0004), t_loop=PiLoop(0.0, -0.01), decoupling=decoupling)
+        cfg = TwoLoopPiConfig(kp_h=0.04, ki_h=0.0004, kp_T=0.0, ki_T=-0.01, decoupling=decoupling)
     return replace(cfg, **changes)
 
 
 def config_reason(cfg: TwoLoopPiConfig) -> str | None:
-    """One-line reason naming the invalid setting, or None."""
-    for name, loop in (('h_loop', cfg.h_loop), ('t_loop', cfg.t_loop)):
+    """One-line reason naming the invalid parameter, or None."""
+    for name, loop in (('h', cfg.h_loop), ('T', cfg.t_loop)):
         for attr in ('kp', 'ki'):
             value = getattr(loop, attr)
             if not _finite(value):
-                return f'{name}.{attr}: {value!r} is not a finite number'
+                return f'two_loop.{attr}_{name}: {value!r} is not a finite number'
         if loop.kp == 0.0 and loop.ki == 0.0:
-            return f'{name}: kp and ki are both 0; at least one must be non-zero'
+            return f'two_loop.kp_{name}, two_loop.ki_{name}: both 0; at least one must be non-zero'
         if loop.kp * loop.ki < 0:
-            return f'{name}: kp {loop.kp:g} and ki {loop.ki:g} must have the same sign'
-        tt = loop.tracking_time
-        if tt is not None and (not _finite(tt) or tt <= 0):
-            return f'{name}.tracking_time: {tt!r} is out of range; allowed (0, inf) s or None'
+            return (f'two_loop.ki_{name}: {loop.ki:g} must have the sign of two_loop.kp_{name} '
+                    f'({loop.kp:g})')
     if cfg.decoupling not in DECOUPLING_CHOICES:
-        return f'decoupling: {cfg.decoupling!r} is not one of ' + ', '.join(DECOUPLING_CHOICES)
-    for name in ('d12', 'd21', 'u_min', 'u_max', 'sample_time'):
+        return (f'two_loop.decoupling: {cfg.decoupling!r} is not one of '
+                + ', '.join(DECOUPLING_CHOICES))
+    for name in ('d12', 'd21'):
+        if not _finite(getattr(cfg, name)):
+            return f'two_loop.{name}: {getattr(cfg, name)!r} is not a finite number'
+    for name in ('u_min', 'u_max', 'sample_time'):
         if not _finite(getattr(cfg, name)):
             return f'{name}: {getattr(cfg, name)!r} is not a finite number'
     if not cfg.u_min < cfg.u_max:
@@ -155,14 +198,12 @@ def config_reason(cfg: TwoLoopPiConfig) -> str | None:
     if cfg.v_limit is not None and (not _finite(cfg.v_limit) or cfg.v_limit <= 0):
         return f'v_limit: {cfg.v_limit!r} is out of range; allowed (0, inf) or None'
     if cfg.decoupling != 'none' and abs(1.0 - cfg.d12 * _d21_gain(cfg)) < 1e-9:
-        return 'd12, d21: 1 − d12·d21 = 0 makes the decoupler singular'
+        return 'two_loop.d12, two_loop.d21: 1 − d12·d21 = 0 makes the decoupler singular'
     if cfg.anti_windup not in ANTI_WINDUP_CHOICES:
         return f'anti_windup: {cfg.anti_windup!r} is not one of ' + ', '.join(ANTI_WINDUP_CHOICES)
-    g = cfg.guard
-    if not (0.0 < g.h_min < g.h_max):
-        return f'guard.h_min: {g.h_min:g} must satisfy 0 < h_min < h_max = {g.h_max:g}'
-    if not (g.margin >= 0 and g.alpha > 0 and g.F_D >= 0 and g.T_C < g.T_H):
-        return 'guard: needs margin >= 0, alpha > 0, F_D >= 0 and T_C < T_H'
+    if not (0.0 < cfg.h_min < cfg.h_max):
+        return (f'two_loop.h_min: {cfg.h_min:g} must satisfy 0 < h_min < two_loop.h_max = '
+                f'{cfg.h_max:g}')
     return None
 
 
@@ -338,63 +379,3 @@ class TwoLoopPi:
     @property
     def status(self) -> Mapping[str, Any]:
         return dict(self._status)
-
-
-def two_loop_pi_params() -> tuple[ParamSpec, ...]:
-    """ParamSpecs of the two-loop PI (prefix ``two_loop.``); 003 §2–3 defaults
-    are those of the variant without decoupling."""
-    big = 1e6
-    return (
-        ParamSpec('sample_time', 1.0, 'controller sample time [s] (003 used 1 s)', min=1e-3, max=3600.0,
-                  read_only=True),
-        ParamSpec('two_loop.decoupling', 'none', "decoupler: none (003 §2), static D21 = 2.69 or "
-                  "dynamic D21 filter (003 eqs. 1-3)", choices=DECOUPLING_CHOICES, read_only=True),
-        ParamSpec('two_loop.kp_h', 0.9, 'h ← F_H proportional gain [cm³/s per cm]', min=-big, max=big),
-        ParamSpec('two_loop.ki_h', 0.01, 'h ← F_H integral gain kp/ti [cm³/s per cm·s]', min=-big, max=big),
-        ParamSpec('two_loop.kp_T', -0.2, 'T_out ← F_Cin proportional gain [cm³/s per °C]',
-                  min=-big, max=big),
-        ParamSpec('two_loop.ki_T', -0.002, 'T_out ← F_Cin integral gain [cm³/s per °C·s]',
-                  min=-big, max=big),
-        ParamSpec('two_loop.d12', -1.0, 'decoupler D12 (v_T into F_H) [-], 003 eq. 1', min=-100.0, max=100.0),
-        ParamSpec('two_loop.d21', 2.69, "static decoupler D21 (v_h into F_Cin) [-], 003 eq. 2; "
-                  "ignored with decoupling = dynamic", min=-100.0, max=100.0),
-        ParamSpec('u_min', 0.0, 'lower flow limit for F_H and F_Cin [cm³/s]', min=0.0, max=1e4),
-        ParamSpec('u_max', 300.0, 'upper flow limit for F_H and F_Cin [cm³/s]', min=0.0, max=1e4),
-        ParamSpec('anti_windup', 'back_calculation', 'integrator anti-windup method',
-                  choices=ANTI_WINDUP_CHOICES),
-        ParamSpec('two_loop.setpoint_guard', True, 'limit setpoints to what the tank can reach at '
-                  'steady state (nominal disturbance inflow), see 003 §2.2'),
-        ParamSpec('two_loop.h_min', 1.0, 'lowest level setpoint used [cm]', min=0.1, max=1e4),
-        ParamSpec('two_loop.h_max', 190.0, 'highest level setpoint used [cm]', min=0.1, max=1e4),
-        ParamSpec('two_loop.guard_margin', 0.5, 'distance kept from the reachable T_out limits [°C]',
-                  min=0.0, max=20.0),
-    )
-
-
-def two_loop_config_from_params(values: Mapping[str, Any]) -> TwoLoopPiConfig:
-    """TwoLoopPiConfig from parameter values (defaults for missing names); ValueError if invalid."""
-    merged = {spec.name: spec.default for spec in two_loop_pi_params()}
-    merged.update(values)
-    cfg = TwoLoopPiConfig(
-        h_loop=PiLoop(float(merged['two_loop.kp_h']), float(merged['two_loop.ki_h'])),
-        t_loop=PiLoop(float(merged['two_loop.kp_T']), float(merged['two_loop.ki_T'])),
-        decoupling=str(merged['two_loop.decoupling']), d12=float(merged['two_loop.d12']),
-        d21=float(merged['two_loop.d21']), u_min=float(merged['u_min']), u_max=float(merged['u_max']),
-        sample_time=float(merged['sample_time']), anti_windup=str(merged['anti_windup']),
-        guard=SetpointGuard(enabled=bool(merged['two_loop.setpoint_guard']),
-                            h_min=float(merged['two_loop.h_min']), h_max=float(merged['two_loop.h_max']),
-                            margin=float(merged['two_loop.guard_margin'])),
-    )
-    reason = config_reason(cfg)
-    if reason:
-        raise ValueError(reason)
-    return cfg
-
-
-def check_two_loop_relations(values: Mapping[str, Any]) -> str | None:
-    """Cross-parameter checks (u_min < u_max, gain signs, ...): a one-line reason or None."""
-    try:
-        two_loop_config_from_params(values)
-    except ValueError as exc:
-        return str(exc)
-    return None

@@ -59,31 +59,63 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.params import ParamSpec
+from tank_control.core.params import param
 
 ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
 N_MIN, N_MAX = 2.0, 50.0
+BIG = 1e12
+"""Largest magnitude of a gain, time or output limit parameter."""
+
+
+def sample_time_param(default: float = 1.0, minimum: float = 1e-3, maximum: float = 3600.0,
+                      note: str = '') -> Any:
+    """``sample_time``: the controller sample time h [s] (read-only)."""
+    return param(default, 'controller sample time h' + note, unit='s', min=minimum, max=maximum,
+                 read_only=True)
+
+
+def anti_windup_param() -> Any:
+    """``anti_windup``: the integrator anti-windup method."""
+    return param('back_calculation', 'integrator anti-windup method', choices=ANTI_WINDUP_CHOICES)
 
 
 @dataclass
 class PidConfig:
-    """Settings of :class:`Pid2Dof` (000 eq. 19). Units: time in seconds,
-    ``kp`` in output units per measurement unit, limits in output units,
-    ``du_max`` in output units per second."""
+    """Settings of :class:`Pid2Dof` (000 eq. 19); every field is a parameter of the same name.
 
-    kp: float
-    ti: float = math.inf
-    td: float = 0.0
-    n: float = 10.0
-    b: float = 1.0
-    c: float = 1.0
-    sample_time: float = 1.0
-    u_min: float = -math.inf
-    u_max: float = math.inf
-    du_max: float = math.inf
-    anti_windup: str = 'back_calculation'
-    tracking_time: float | None = None
-    direct_action: bool = False
+    ``kp`` in output units per measurement unit (a negative kp reverses the sign, as
+    ``direct_action`` does; the parameter takes kp > 0), times in seconds, limits in output
+    units, ``du_max`` in output units per second. As parameters ``ti = 0`` means no integral
+    action (``inf``), ``du_max = 0`` no rate limit, ``tracking_time = 0`` the default Tt.
+    """
+
+    kp: float = param(1.0, 'proportional gain kp; > 0, use direct_action for the opposite '
+                      'sign', unit='u units per y unit', min=0.0, max=BIG, source='000 eq. 19')
+    ti: float = param(math.inf, 'integral time Ti (0 = no integral action)', unit='s', min=0.0,
+                      max=BIG, zero=math.inf, source='000 eq. 19')
+    td: float = param(0.0, 'derivative time Td (0 = no derivative action)', unit='s', min=0.0,
+                      max=BIG, source='000 eq. 19')
+    n: float = param(10.0, 'derivative filter ratio n = Td/Tf', unit='-', min=N_MIN, max=N_MAX,
+                     source='000 eq. 14')
+    b: float = param(1.0, 'setpoint weight in the P term', unit='-', min=0.0, max=1.0,
+                     source='000 eq. 19')
+    c: float = param(1.0, 'setpoint weight in the D term', unit='-', min=0.0, max=1.0,
+                     source='000 eq. 19')
+    sample_time: float = sample_time_param()
+    u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
+    u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
+    du_max: float = param(math.inf, 'output rate limit (0 = none)', unit='u units/s', min=0.0,
+                          max=BIG, zero=math.inf)
+    anti_windup: str = anti_windup_param()
+    tracking_time: float | None = param(None, 'back-calculation tracking time Tt (0 = default '
+                                        'sqrt(Ti*Td) for PID, Ti for PI)', unit='s', min=0.0,
+                                        max=BIG, zero=None)
+    direct_action: bool = param(False, 'true: output rises when the measurement rises '
+                                '(equivalent to a negative kp)')
+
+    def reason(self) -> str | None:
+        """One-line reason why the settings are invalid, naming the parameter, or None."""
+        return config_reason(self)
 
 
 def config_reason(config: PidConfig) -> str | None:
@@ -112,7 +144,7 @@ def config_reason(config: PidConfig) -> str | None:
         if not _is_number(number(name)) or math.isnan(number(name)):
             return f'{name}: {number(name)!r} is not a number'
     if not config.u_min < config.u_max:
-        return f'u_min: {config.u_min!r} must be below u_max {config.u_max!r}'
+        return f'u_min: {config.u_min:g} must be below u_max {config.u_max:g}'
     if not _is_number(config.du_max) or math.isnan(config.du_max) or config.du_max <= 0.0:
         return f'du_max: {config.du_max!r} is out of range; allowed (0, inf] units/s (inf = no rate limit)'
     if config.anti_windup not in ANTI_WINDUP_CHOICES:
@@ -398,153 +430,3 @@ def _scalar(value: Any, name: str) -> float:
     if arr.size != 1:
         raise ValueError(f'{name}: expected 1 value for a SISO PID, got {arr.size}')
     return float(arr[0])
-
-
-# ------------------------------------------------------------- parameters
-BIG = 1e12
-TUNING_RULES = ('none', 'mdp', 'experimental', 'zn_001', 'zn_004_q0', 'zn_004_q1',
-                'oppelt', 'cohen_coon', 'smith_pi')
-
-
-def pid_params() -> tuple[ParamSpec, ...]:
-    """ParamSpecs of the PID for controller_node (units in the descriptions).
-
-    ROS parameters cannot hold inf, so: ``ti = 0`` means no integral action,
-    ``du_max = 0`` no rate limit, ``tracking_time = 0`` the default Tt;
-    tuning process values of 0 mean "not given".
-    """
-    return (
-        ParamSpec('sample_time', 1.0, 'controller sample time h [s]', min=1e-3, max=3600.0,
-                  read_only=True),
-        ParamSpec('kp', 1.0, 'proportional gain kp [u units per y unit], 000 eq. 19; > 0, '
-                  'use direct_action for the opposite sign', min=0.0, max=BIG),
-        ParamSpec('ti', 0.0, 'integral time ti [s]; 0 = no integral action', min=0.0, max=BIG),
-        ParamSpec('td', 0.0, 'derivative time td [s]; 0 = no derivative action', min=0.0, max=BIG),
-        ParamSpec('n', 10.0, 'derivative filter ratio n = td/Tf [-], 000 eq. 14', min=N_MIN, max=N_MAX),
-        ParamSpec('b', 1.0, 'setpoint weight in the P term [-], 000 eq. 19', min=0.0, max=1.0),
-        ParamSpec('c', 1.0, 'setpoint weight in the D term [-], 000 eq. 19', min=0.0, max=1.0),
-        ParamSpec('u_min', -1e9, 'lower output limit [u units]', min=-BIG, max=BIG),
-        ParamSpec('u_max', 1e9, 'upper output limit [u units]', min=-BIG, max=BIG),
-        ParamSpec('du_max', 0.0, 'output rate limit [u units/s]; 0 = none', min=0.0, max=BIG),
-        ParamSpec('anti_windup', 'back_calculation', 'integrator anti-windup method',
-                  choices=ANTI_WINDUP_CHOICES),
-        ParamSpec('tracking_time', 0.0, 'back-calculation tracking time Tt [s]; 0 = default '
-                  'sqrt(ti*td) for PID, ti for PI', min=0.0, max=BIG),
-        ParamSpec('direct_action', False, 'true: output rises when the measurement rises '
-                  '(equivalent to a negative kp)'),
-        ParamSpec('mode', 'auto', 'auto = closed loop; manual = output is manual_output '
-                  '(bumpless both ways)', choices=('auto', 'manual')),
-        ParamSpec('manual_output', 0.0, 'output in manual mode [u units]', min=-BIG, max=BIG),
-        ParamSpec('fail_safe', 'hold', 'on stale or non-finite measurement: hold the last output '
-                  'or send fail_safe_output', choices=('hold', 'output')),
-        ParamSpec('fail_safe_output', 0.0, 'output sent on a measurement fault when '
-                  "fail_safe = 'output' [u units]", min=-BIG, max=BIG),
-        ParamSpec('tuning.rule', 'none', 'tuning rule; not none: kp, ti, td, b, c come from it',
-                  choices=TUNING_RULES),
-        ParamSpec('tuning.kind', 'pid', 'controller type the rule designs', choices=('p', 'pi', 'pd', 'pid')),
-        ParamSpec('tuning.gain', 0.0, 'process gain K or k1 [y units per u unit (per s for IPDT)]; '
-                  '0 = not given', min=0.0, max=BIG),
-        ParamSpec('tuning.dead_time', 0.0, 'process dead time L or To [s]; 0 = not given',
-                  min=0.0, max=BIG),
-        ParamSpec('tuning.time_constant', 0.0, 'process time constant T [s]; 0 = not given',
-                  min=0.0, max=BIG),
-        ParamSpec('tuning.ku', 0.0, 'ultimate gain Ku [u units per y unit]; 0 = not given',
-                  min=0.0, max=BIG),
-        ParamSpec('tuning.tu', 0.0, 'ultimate period Tu [s]; 0 = not given', min=0.0, max=BIG),
-        ParamSpec('tuning.te', 0.0, 'smith_pi n=1: desired closed-loop time constant Te [s] '
-                  '(0.2...1)*T, 004 eq. 3.6.7; 0 = not given', min=0.0, max=BIG),
-        ParamSpec('tuning.xi', 0.0, 'smith_pi n=2: damping xi [-] in [0.5, 1], 004 eq. 3.6.9; '
-                  '0 = not given', min=0.0, max=1.0),
-        ParamSpec('tuning.order', 1, 'smith_pi model order n (1 or 2)', min=1, max=2),
-    )
-
-
-def tuned_gains(values: Mapping[str, Any]) -> dict[str, float | None] | None:
-    """Gains from the tuning.* parameters (None when tuning.rule is 'none').
-
-    Raises ValueError naming the missing/invalid process argument.
-    """
-    rule = values.get('tuning.rule', 'none')
-    kind = values.get('tuning.kind', 'pid')
-    if rule == 'none':
-        return None
-    from tank_control.core.tuning.rules import tune   # local: tuning is a sibling package
-
-    process: dict[str, float] = {}
-    for key in ('gain', 'dead_time', 'time_constant', 'ku', 'tu', 'te', 'xi'):
-        value = values.get('tuning.' + key, 0.0)
-        if value:
-            process[key] = float(value)
-    if rule == 'smith_pi':
-        process['n'] = int(values.get('tuning.order', 1))
-    try:
-        return tune(rule, kind, **process)
-    except ValueError as exc:     # name the ROS parameters: 'gain' is tuning.gain, ...
-        message = str(exc).removeprefix('tune: ').replace("process argument '", "parameter 'tuning.")
-        raise ValueError(f'tuning.rule {rule!r} with tuning.kind {kind!r}: {message}') from None
-
-
-def pid_config_from_params(values: Mapping[str, Any]) -> PidConfig:
-    """PidConfig from parameter values (missing names take their defaults).
-
-    Applies the parameter conventions (ti = 0 → inf, du_max = 0 → inf,
-    tracking_time = 0 → default) and, with a tuning rule, the tuned kp, ti,
-    td, b, c (a negative tuned kp becomes direct_action). Raises ValueError.
-    """
-    merged = {spec.name: spec.default for spec in pid_params()}
-    merged.update(values)
-    kp, ti, td, b, c = (float(merged[k]) for k in ('kp', 'ti', 'td', 'b', 'c'))
-    direct = bool(merged['direct_action'])
-    gains = tuned_gains(merged)
-    if gains is not None:
-        kp = gains['kp']
-        ti = gains['ti'] if gains['ti'] is not None else 0.0
-        td = gains['td'] if gains['td'] is not None else 0.0
-        b = gains['b'] if gains['b'] is not None else 1.0
-        c = gains['c'] if gains['c'] is not None else 1.0
-        if kp < 0:
-            kp, direct = -kp, not direct
-    config = PidConfig(
-        kp=kp, ti=ti if ti > 0 else math.inf, td=td, n=float(merged['n']), b=b, c=c,
-        sample_time=float(merged['sample_time']),
-        u_min=float(merged['u_min']), u_max=float(merged['u_max']),
-        du_max=float(merged['du_max']) if merged['du_max'] > 0 else math.inf,
-        anti_windup=str(merged['anti_windup']),
-        tracking_time=float(merged['tracking_time']) if merged['tracking_time'] > 0 else None,
-        direct_action=direct,
-    )
-    reason = config_reason(config)
-    if reason:
-        raise ValueError(reason)
-    return config
-
-
-def check_pid_relations(values: Mapping[str, Any]) -> str | None:
-    """Cross-parameter checks on a full or partial set of PID parameter values
-    (missing names take their defaults): u_min < u_max, kp > 0 without a
-    tuning rule, manual/fail-safe outputs inside the limits, and a tuning rule
-    that has every process argument it needs. Returns a one-line reason."""
-    merged = {spec.name: spec.default for spec in pid_params()}
-    merged.update(values)
-    reason = limit_relations_reason(merged, ' (use direct_action for a reverse sign)')
-    if reason:
-        return reason
-    try:
-        pid_config_from_params(merged)
-    except ValueError as exc:
-        return str(exc)
-    return None
-
-
-def limit_relations_reason(merged: Mapping[str, Any], kp_hint: str = '') -> str | None:
-    """Relations shared by the PI/PID-based kinds, on complete values: u_min < u_max,
-    kp > 0 without a tuning rule, manual/fail-safe outputs inside the limits."""
-    lo, hi = merged['u_min'], merged['u_max']
-    if not lo < hi:
-        return f'u_min: {lo:g} must be below u_max {hi:g}'
-    if merged['tuning.rule'] == 'none' and not merged['kp'] > 0:
-        return f"kp: {merged['kp']:g} must be > 0{kp_hint}; allowed (0, {BIG:g}]"
-    for name in ('manual_output', 'fail_safe_output'):
-        if not lo <= merged[name] <= hi:
-            return f'{name}: {merged[name]:g} is outside the output limits [{lo:g}, {hi:g}]'
-    return None

@@ -56,13 +56,13 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tank_control.core.control.pid import PidConfig, Pid2Dof
-from tank_control.core.params import ParamSpec, check_all
+from tank_control.core.params import check_config, param
 from tank_control.core.tuning import identification as ident
 
 STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'failed', 'aborted')
@@ -73,130 +73,101 @@ RULES_FOPDT = ('oppelt', 'cohen_coon')
 RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT
 
 
+_BIG = 1e12
+
+
+def _at(default: Any, description: str, field_name: str, **meta: Any) -> Any:
+    return param(default, description, name='autotune.' + field_name, **meta)
+
+
 @dataclass(frozen=True)
 class AutotuneConfig:
-    """Settings of the relay test; the ``autotune.*`` parameters without the prefix (see :func:`autotune_params`)."""
+    """Settings of the relay test; each field is the parameter ``autotune.<field>``."""
 
-    relay_amplitude: float = 1.0
-    hysteresis: float = 0.0
-    noise_band: float = 4.0
-    bias_correction: bool = True
-    asymmetry_tol: float = 0.1
-    min_cycles: int = 4
-    stationarity_tol: float = 0.05
-    timeout: float = 600.0
-    settle_time: float = 10.0
-    settle_band: float = 1.0
-    settle_timeout: float = 300.0
-    max_amplitude: float = 0.0
-    method: str = 'first_harmonic'
-    model: str = 'auto'
-    process_gain: float = 0.0
-    rule: str = 'zn_001'
-    kind: str = 'pid'
-    start_time: float = 0.0
-
-    @classmethod
-    def from_params(cls, values: Mapping[str, Any]) -> AutotuneConfig:
-        """From ``autotune.*`` parameter values (missing ones take their defaults); ValueError with the reasons."""
-        specs = autotune_params()
-        reasons = check_all(specs, values)
-        if reasons:
-            raise ValueError('; '.join(reasons))
-        merged = {s.name: s.default for s in specs}
-        merged.update(values)
-        names = {f.name for f in fields(cls)}
-        return cls(**{k.split('.', 1)[1]: v for k, v in merged.items()
-                      if k.split('.', 1)[1] in names})
-
-    def params(self) -> dict[str, Any]:
-        """The ``autotune.*`` parameter values of this configuration."""
-        return {'autotune.' + f.name: getattr(self, f.name) for f in fields(self)}
-
-
-def autotune_params() -> tuple[ParamSpec, ...]:
-    """ParamSpecs of every ``autotune.*`` parameter (units in the descriptions; SPEC §2.5, issue 6)."""
-    big = 1e12
-    return (
-        ParamSpec('autotune.start', False, 'set true to start a relay test (the node resets it to '
-                  'false; same as the ~/start_autotune service)'),
-        ParamSpec('autotune.relay_amplitude', 1.0, 'relay amplitude d around the bias u0 '
-                  '[u units], 001 eq. 6.22 / 004 eq. 3.2.1', min=1e-9, max=big),
-        ParamSpec('autotune.hysteresis', 0.0, 'relay hysteresis ε [y units] (noise band, 004 '
-                  'Fig. 3.3); the larger of this and noise_band·σ is used', min=0.0, max=big),
-        ParamSpec('autotune.noise_band', 4.0, 'automatic hysteresis in units of the noise '
-                  'standard deviation σ estimated while settling [-]; 0 = off', min=0.0, max=100.0),
-        ParamSpec('autotune.bias_correction', True, 'move the relay bias u0 to the mean input '
-                  'of a cycle whose half-periods are asymmetric'),
-        ParamSpec('autotune.asymmetry_tol', 0.1, '|Tu1 − Tu2|/period above which the bias is '
-                  'corrected [-]', min=0.0, max=1.0),
-        ParamSpec('autotune.min_cycles', 4, 'stationary relay periods used for identification '
-                  '[-] (004 §3.3: at least four)', min=2, max=100),
-        ParamSpec('autotune.stationarity_tol', 0.05, 'relative spread of periods and '
-                  'first-harmonic amplitudes allowed among the measured cycles [-]',
-                  min=1e-4, max=1.0),
-        ParamSpec('autotune.timeout', 600.0, 'longest relay + measuring time before the test '
-                  'fails [s]', min=1e-3, max=big),
-        ParamSpec('autotune.settle_time', 10.0, 'the output must stay within settle_band of the '
-                  'setpoint this long before the relay starts [s]', min=0.0, max=big),
-        ParamSpec('autotune.settle_band', 1.0, 'steady band around the setpoint for settling '
-                  '[y units]', min=0.0, max=big),
-        ParamSpec('autotune.settle_timeout', 300.0, 'after this long in settling the relay '
-                  'starts anyway [s]', min=0.0, max=big),
-        ParamSpec('autotune.max_amplitude', 0.0, 'largest |y − setpoint| allowed during the test '
-                  '[y units]; exceeding it fails the test; 0 = no limit', min=0.0, max=big),
-        ParamSpec('autotune.method', 'first_harmonic', 'ultimate point used for tuning: '
-                  'first_harmonic (004 eqs. 3.3.19–3.3.21, corrected to −180°) or '
-                  'describing_function (001 eq. 6.22)',
-                  choices=('first_harmonic', 'describing_function')),
-        ParamSpec('autotune.model', 'auto', 'model identified from the relay data (004 §3.3, '
-                  '3.6.2)', choices=('auto', 'fopdt', 'ipdt')),
-        ParamSpec('autotune.process_gain', 0.0, 'known static gain kP for the FOPDT model '
-                  '(004 eq. 3.6.2) [y units per u unit]; 0 = identify', min=0.0, max=big),
-        ParamSpec('autotune.rule', 'zn_001', 'tuning rule: zn_001 / zn_004_q0 / zn_004_q1 from '
-                  'ku, tu; mdp / experimental from the IPDT model; oppelt / cohen_coon from the '
-                  'FOPDT model', choices=RULES),
-        ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
-                  choices=('p', 'pi', 'pid')),
-        ParamSpec('autotune.start_time', 0.0, 'start a test at the first sample at or after '
-                  'this time [s, the loop\'s (simulated) time], once; 0 = no scheduled start. '
-                  'Lets an in-process run (core/loop.py) and a lockstep ROS run start at the '
-                  'same sample', min=0.0, max=big),
-    ) + autotune_result_params()
+    relay_amplitude: float = _at(1.0, 'relay amplitude d around the bias u0', 'relay_amplitude',
+                                 unit='u units', min=1e-9, max=_BIG,
+                                 source='001 eq. 6.22, 004 eq. 3.2.1')
+    hysteresis: float = _at(0.0, 'relay hysteresis ε (noise band, 004 Fig. 3.3); the larger of '
+                            'this and noise_band·σ is used', 'hysteresis', unit='y units',
+                            min=0.0, max=_BIG)
+    noise_band: float = _at(4.0, 'automatic hysteresis in units of the noise standard deviation '
+                            'σ estimated while settling; 0 = off', 'noise_band', unit='-',
+                            min=0.0, max=100.0)
+    bias_correction: bool = _at(True, 'move the relay bias u0 to the mean input of a cycle whose '
+                                'half-periods are asymmetric', 'bias_correction')
+    asymmetry_tol: float = _at(0.1, '|Tu1 − Tu2|/period above which the bias is corrected',
+                               'asymmetry_tol', unit='-', min=0.0, max=1.0)
+    min_cycles: int = _at(4, 'stationary relay periods used for identification (004 §3.3: at '
+                          'least four)', 'min_cycles', min=2, max=100)
+    stationarity_tol: float = _at(0.05, 'relative spread of periods and first-harmonic '
+                                  'amplitudes allowed among the measured cycles',
+                                  'stationarity_tol', unit='-', min=1e-4, max=1.0)
+    timeout: float = _at(600.0, 'longest relay + measuring time before the test fails',
+                         'timeout', unit='s', min=1e-3, max=_BIG)
+    settle_time: float = _at(10.0, 'the output must stay within settle_band of the setpoint this '
+                             'long before the relay starts', 'settle_time', unit='s', min=0.0,
+                             max=_BIG)
+    settle_band: float = _at(1.0, 'steady band around the setpoint for settling', 'settle_band',
+                             unit='y units', min=0.0, max=_BIG)
+    settle_timeout: float = _at(300.0, 'after this long in settling the relay starts anyway',
+                                'settle_timeout', unit='s', min=0.0, max=_BIG)
+    max_amplitude: float = _at(0.0, 'largest |y − setpoint| allowed during the test; exceeding '
+                               'it fails the test; 0 = no limit', 'max_amplitude',
+                               unit='y units', min=0.0, max=_BIG)
+    method: str = _at('first_harmonic', 'ultimate point used for tuning: first_harmonic (004 '
+                      'eqs. 3.3.19–3.3.21, corrected to −180°) or describing_function (001 eq. '
+                      '6.22)', 'method', choices=('first_harmonic', 'describing_function'))
+    model: str = _at('auto', 'model identified from the relay data (004 §3.3, 3.6.2)', 'model',
+                     choices=('auto', 'fopdt', 'ipdt'))
+    process_gain: float = _at(0.0, 'known static gain kP for the FOPDT model (004 eq. 3.6.2); '
+                              '0 = identify', 'process_gain', unit='y units per u unit',
+                              min=0.0, max=_BIG)
+    rule: str = _at('zn_001', 'tuning rule: zn_001 / zn_004_q0 / zn_004_q1 from ku, tu; mdp / '
+                    'experimental from the IPDT model; oppelt / cohen_coon from the FOPDT model',
+                    'rule', choices=RULES)
+    kind: str = _at('pid', 'controller type the rule designs', 'kind', choices=('p', 'pi', 'pid'))
+    start_time: float = _at(0.0, "start a test at the first sample at or after this time (the "
+                            "loop's simulated time), once; 0 = no scheduled start. Lets an "
+                            'in-process run and a lockstep ROS run start at the same sample',
+                            'start_time', unit='s', min=0.0, max=_BIG)
 
 
-def autotune_result_params() -> tuple[ParamSpec, ...]:
-    """Read-only ``autotune.*`` parameters that report the test (written by the node from
-    :meth:`RelayAutotuner.results`); 0 means "no successful test yet"."""
-    big = 1e12
-    return (
-        ParamSpec('autotune.state', 'idle', 'state of the auto-tuner (read-only)', choices=STATES,
-                  read_only=True),
-        ParamSpec('autotune.reason', '', 'why the last test failed or was aborted (read-only)',
-                  read_only=True),
-        ParamSpec('autotune.state_time', 0.0, 'loop time of the first sample in the current '
-                  'state [s] (simulated time in sim/lockstep; read-only)', min=0.0, max=1e12,
-                  read_only=True),
-        ParamSpec('autotune.cycles', 0, 'complete relay cycles counted since the relay started '
-                  'or the bias was last corrected (read-only)', min=0, max=1_000_000,
-                  read_only=True),
-        ParamSpec('autotune.ku', 0.0, 'identified ultimate gain Ku, first harmonic corrected to '
-                  '−180° [u units per y unit] (read-only)', min=0.0, max=big, read_only=True),
-        ParamSpec('autotune.tu', 0.0, 'identified ultimate period Tu [s] (read-only)', min=0.0,
-                  max=big, read_only=True),
-        ParamSpec('autotune.ku_df', 0.0, 'describing-function Ku = 4d/(πa), 001 eq. 6.22 '
-                  '(read-only)', min=0.0, max=big, read_only=True),
-        ParamSpec('autotune.tu_df', 0.0, 'mean relay period [s] (read-only)', min=0.0, max=big,
-                  read_only=True),
-        ParamSpec('autotune.model_kind', 'none', 'identified model (read-only)',
-                  choices=('none', 'fopdt', 'ipdt'), read_only=True),
-        ParamSpec('autotune.model_gain', 0.0, 'model gain K (FOPDT) or k1 (IPDT, per s) '
-                  '(read-only)', min=-big, max=big, read_only=True),
-        ParamSpec('autotune.model_time_constant', 0.0, 'model time constant T [s] (read-only)',
-                  min=0.0, max=big, read_only=True),
-        ParamSpec('autotune.model_dead_time', 0.0, 'model dead time L or To [s] (read-only)',
-                  min=0.0, max=big, read_only=True),
-    )
+@dataclass(frozen=True)
+class AutotuneCommand:
+    """``autotune.start``: set true to start a test (the node sets it back to false)."""
+
+    start: bool = _at(False, 'set true to start a relay test (the node resets it to false; same '
+                      'as the ~/start_autotune service)', 'start')
+
+
+@dataclass(frozen=True)
+class AutotuneResults:
+    """What the last test found (read-only parameters written from :meth:`RelayAutotuner.results`);
+    0 / ``none`` before a successful test."""
+
+    state: str = _at('idle', 'state of the auto-tuner', 'state', choices=STATES, read_only=True)
+    reason: str = _at('', 'why the last test failed or was aborted', 'reason', read_only=True)
+    state_time: float = _at(0.0, 'loop time of the first sample in the current state (simulated '
+                            'time in sim/lockstep)', 'state_time', unit='s', min=0.0, max=_BIG,
+                            read_only=True)
+    cycles: int = _at(0, 'complete relay cycles counted since the relay started or the bias was '
+                      'last corrected', 'cycles', min=0, max=1_000_000, read_only=True)
+    ku: float = _at(0.0, 'identified ultimate gain Ku, first harmonic corrected to −180°', 'ku',
+                    unit='u units per y unit', min=0.0, max=_BIG, read_only=True)
+    tu: float = _at(0.0, 'identified ultimate period Tu', 'tu', unit='s', min=0.0, max=_BIG,
+                    read_only=True)
+    ku_df: float = _at(0.0, 'describing-function Ku = 4d/(πa) (001 eq. 6.22)', 'ku_df', min=0.0,
+                       max=_BIG, read_only=True)
+    tu_df: float = _at(0.0, 'mean relay period', 'tu_df', unit='s', min=0.0, max=_BIG,
+                       read_only=True)
+    model_kind: str = _at('none', 'identified model', 'model_kind', choices=('none', 'fopdt', 'ipdt'),
+                          read_only=True)
+    model_gain: float = _at(0.0, 'model gain K (FOPDT) or k1 (IPDT, per s)', 'model_gain',
+                            min=-_BIG, max=_BIG, read_only=True)
+    model_time_constant: float = _at(0.0, 'model time constant T', 'model_time_constant',
+                                     unit='s', min=0.0, max=_BIG, read_only=True)
+    model_dead_time: float = _at(0.0, 'model dead time L or To', 'model_dead_time', unit='s',
+                                 min=0.0, max=_BIG, read_only=True)
 
 
 class RelayAutotuner:
@@ -281,7 +252,7 @@ class RelayAutotuner:
         raise ValueError(f'command: {name!r} is unknown; allowed start_autotune, abort_autotune')
 
     def results(self) -> dict[str, Any]:
-        """Parameter values the tuner produced (see :func:`autotune_result_params`), the PID's
+        """Parameter values the tuner produced (see :class:`AutotuneResults`), the PID's
         gains in parameter convention (ti = 0: no integral action) and ``autotune.start`` = False
         (so a node re-arms its start parameter)."""
         res = self._result
@@ -373,9 +344,7 @@ class RelayAutotuner:
     # ------------------------------------------------------------ internals
     @staticmethod
     def _check_config(cfg: AutotuneConfig) -> None:
-        reasons = check_all(autotune_params(), cfg.params())
-        if reasons:
-            raise ValueError('; '.join(reasons))
+        check_config(cfg)
 
     def _clear_test(self) -> None:
         self._t_start = math.nan       # start of the current phase [s]
@@ -589,95 +558,3 @@ def _scalar(value: Any, name: str) -> float:
     if arr.size != 1:
         raise ValueError(f'{name}: expected 1 value for the SISO relay auto-tuner, got {arr.size}')
     return float(arr[0])
-
-
-# ------------------------------------------------- controller_node plumbing
-AUTOTUNE_COMMANDS = ('start_autotune', 'abort_autotune')
-_RESULT_NAMES = frozenset(s.name for s in autotune_result_params())
-
-
-def _autotune_values(values: Mapping[str, Any]) -> dict[str, Any]:
-    """The settable ``autotune.*`` values (results and the start trigger left out)."""
-    return {k: v for k, v in values.items()
-            if k.startswith('autotune.') and k not in _RESULT_NAMES and k != 'autotune.start'}
-
-
-def build_relay_autotuner(values: Mapping[str, Any], output_name: str = 'y',
-                          input_name: str = 'u') -> RelayAutotuner:
-    """A :class:`RelayAutotuner` from flat parameter values: the PID's (``pid_params()``:
-    kp, ti, ..., limits, tuning.*) and ``autotune.*``. ValueError with the reasons."""
-    from tank_control.core.control.pid import pid_config_from_params
-    tuner = RelayAutotuner(pid_config_from_params(values),
-                           AutotuneConfig.from_params(_autotune_values(values)),
-                           output_name=output_name, input_name=input_name)
-    if values.get('mode') == 'manual':
-        tuner.pid.set_manual(float(values['manual_output']))
-    if values.get('autotune.start'):
-        tuner.start()
-    return tuner
-
-
-def update_relay_autotuner(tuner: RelayAutotuner, values: Mapping[str, Any],
-                           changed: frozenset[str]) -> bool:
-    """Apply accepted parameter changes in place, bumplessly; always True (never rebuild).
-
-    A change of a PID or test setting while a test runs aborts the test first (reason
-    'parameters changed during the test') — the settings are never accepted and ignored.
-    ``autotune.start`` = True starts a test. Only PID settings named in ``changed`` are
-    applied (so tuned gains are not reverted by an unrelated change before the node has
-    written them back); result parameters (``autotune.state`` …) change nothing.
-    """
-    from dataclasses import asdict
-
-    from tank_control.core.control.pid import pid_config_from_params
-    config = asdict(pid_config_from_params(values))
-    # only PID settings named in `changed`: the running gains may be tuned ones that the
-    # parameters show only once the node has written the results back
-    pid_changes = {k: v for k, v in config.items()
-                   if k in changed and getattr(tuner.pid.config, k) != v}
-    new_cfg = AutotuneConfig.from_params(_autotune_values(values))
-    if (pid_changes or new_cfg != tuner.config) and tuner.state in TESTING:
-        tuner.abort('parameters changed during the test')
-    if pid_changes:
-        tuner.pid.set_gains(**pid_changes)
-    if new_cfg != tuner.config:
-        tuner.configure(new_cfg)
-    if values.get('mode') == 'manual' and tuner.pid.mode != 'manual':
-        tuner.pid.set_manual(float(values['manual_output']))
-    elif values.get('mode', 'auto') == 'auto' and tuner.pid.mode != 'auto':
-        tuner.pid.set_auto()
-    if 'autotune.start' in changed and values.get('autotune.start'):
-        tuner.start()
-    return True
-
-
-def relay_autotune_kind():
-    """The ``relay_autotune`` controller kind for ``core/control/registry.py``
-    (one line there: ``'relay_autotune': ('tank_control.core.control.relay_autotune',
-    'relay_autotune_kind')``). Operator commands ``~/start_autotune``, ``~/abort_autotune``;
-    results written back to the read-only ``autotune.*`` parameters and the gains."""
-    from tank_control.core.control import registry
-    from tank_control.core.control.pid import check_pid_relations, pid_params
-
-    def build(values: Mapping[str, Any]) -> RelayAutotuner:
-        return build_relay_autotuner(values, output_name=str(list(values['output_names'])[0]),
-                                     input_name=str(list(values['input_names'])[0]))
-
-    def check(values: Mapping[str, Any]) -> str | None:
-        if values.get('tuning.rule', 'none') != 'none':
-            return ("tuning.rule: must be 'none' for relay_autotune (the test sets the gains); "
-                    'allowed none')
-        return check_pid_relations(values)
-
-    def channels() -> tuple[ParamSpec, ...]:
-        return (ParamSpec('output_names', ['y'], 'measured channel read (and its setpoint)',
-                          read_only=True),
-                ParamSpec('input_names', ['u'], 'manipulated channel written', read_only=True))
-
-    return registry.ControllerKind(
-        name='relay_autotune', params=lambda: pid_params() + autotune_params() + channels(),
-        check=check, build=build, update=update_relay_autotuner,
-        description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3; issue 6)',
-        results=lambda tuner: tuner.results(), state='autotune.state',
-        commands={name: (lambda tuner, name=name: tuner.command(name))
-                  for name in AUTOTUNE_COMMANDS})

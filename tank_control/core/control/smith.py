@@ -35,53 +35,44 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.pid import Pid2Dof, PidConfig, limit_relations_reason, pid_params
-from tank_control.core.params import ParamSpec
+from tank_control.core.control.pid import Pid2Dof, PidConfig
+from tank_control.core.params import param
 
 MODELS = ('fopdt', 'ipdt')
 
 
-@dataclass
-class SmithConfig:
-    """Internal model (gain [y/u units, 1/s for ipdt], time_constant [s], dead_time [s])
-    and the PI primary (kp, ti [s], setpoint weight b, limits, anti-windup)."""
+@dataclass(frozen=True)
+class SmithModel:
+    """The internal model (004 eqs. 3.6.3–3.6.4): ``fopdt`` K/(T·s+1)·e^(−L·s) or ``ipdt``
+    k1/s·e^(−L·s)."""
 
-    model: str
-    gain: float
-    dead_time: float
-    kp: float
-    ti: float
-    time_constant: float | None = None
-    b: float = 1.0
-    sample_time: float = 1.0
-    u_min: float = -math.inf
-    u_max: float = math.inf
-    du_max: float = math.inf
-    anti_windup: str = 'back_calculation'
-    tracking_time: float | None = None
+    model: str = param('fopdt', 'internal model: fopdt K/(T s+1) e^(-L s) or ipdt k1/s e^(-L s)',
+                       choices=MODELS, read_only=True, name='smith.model')
+    gain: float = param(1.0, 'model gain K (ipdt: k1)', unit='y units per u unit (ipdt: per s)',
+                        min=-1e9, max=1e9, name='smith.gain')
+    time_constant: float = param(1.0, 'model time constant T (fopdt)', unit='s', min=1e-6,
+                                 max=1e9, name='smith.time_constant')
+    dead_time: float = param(0.0, 'model dead time L', unit='s', min=0.0, max=1e6,
+                             name='smith.dead_time')
 
-
-def config_reason(cfg: SmithConfig) -> str | None:
-    """One-line reason naming the invalid setting, or None."""
-    if cfg.model not in MODELS:
-        return f'model: {cfg.model!r} is not one of ' + ', '.join(MODELS)
-    if not _finite(cfg.gain) or cfg.gain == 0.0:
-        return f'gain: {cfg.gain!r} must be a finite non-zero number'
-    if not _finite(cfg.dead_time) or cfg.dead_time < 0.0:
-        return f'dead_time: {cfg.dead_time!r} is out of range; allowed [0, inf) s'
-    if cfg.model == 'fopdt':
-        if cfg.time_constant is None or not _finite(cfg.time_constant) or cfg.time_constant <= 0:
-            return f'time_constant: {cfg.time_constant!r} is out of range; allowed (0, inf) s for fopdt'
-    if not _finite(cfg.sample_time) or cfg.sample_time <= 0.0:
-        return f'sample_time: {cfg.sample_time!r} is out of range; allowed (0, inf) s'
-    if cfg.dead_time / cfg.sample_time > 1e6:
-        return f'dead_time: {cfg.dead_time:g} s is more than 1e6 samples'
-    return None
+    def reason(self) -> str | None:
+        """One-line reason naming the invalid parameter, or None."""
+        if self.model not in MODELS:
+            return f'smith.model: {self.model!r} is not one of ' + ', '.join(MODELS)
+        if not _finite(self.gain) or self.gain == 0.0:
+            return f'smith.gain: {self.gain!r} must be a finite non-zero number'
+        if not _finite(self.dead_time) or self.dead_time < 0.0:
+            return f'smith.dead_time: {self.dead_time!r} is out of range; allowed [0, inf) s'
+        if self.model == 'fopdt' and (not _finite(self.time_constant)
+                                      or self.time_constant <= 0):
+            return (f'smith.time_constant: {self.time_constant!r} is out of range; allowed '
+                    '(0, inf) s for fopdt')
+        return None
 
 
 def _finite(value: Any) -> bool:
@@ -99,24 +90,24 @@ class SmithPredictor:
 
     disturbance_names: tuple[str, ...] = ()
 
-    def __init__(self, config: SmithConfig, output_name: str = 'y', input_name: str = 'u') -> None:
-        reason = config_reason(config)
+    def __init__(self, model: SmithModel, primary: PidConfig, output_name: str = 'y',
+                 input_name: str = 'u') -> None:
+        reason = model.reason()
         if reason:
             raise ValueError(reason)
-        self.config = config
+        self.model = model
         self.output_names = (output_name,)
         self.input_names = (input_name,)
-        self.primary = Pid2Dof(PidConfig(
-            kp=config.kp, ti=config.ti, td=0.0, b=config.b, c=0.0, sample_time=config.sample_time,
-            u_min=config.u_min, u_max=config.u_max, du_max=config.du_max,
-            anti_windup=config.anti_windup, tracking_time=config.tracking_time))
-        h = config.sample_time
-        ratio = config.dead_time / h
+        self.primary = Pid2Dof(replace(primary, td=0.0, c=0.0))
+        h = primary.sample_time
+        if model.dead_time / h > 1e6:
+            raise ValueError(f'smith.dead_time: {model.dead_time:g} s is more than 1e6 samples')
+        ratio = model.dead_time / h
         self._d = int(math.floor(ratio + 1e-9))
         self._f = max(0.0, ratio - self._d) if ratio - self._d > 1e-9 else 0.0
         self._hist: deque[float] = deque([0.0] * (self._d + 2), maxlen=self._d + 2)   # u(k−1) … u(k−d−2)
-        if config.model == 'fopdt':
-            t = config.time_constant
+        if model.model == 'fopdt':
+            t = model.time_constant
             self._a = math.exp(-h / t)
             self._c_old = math.exp(-(1 - self._f) * h / t) * (1 - math.exp(-self._f * h / t))
             self._c_new = 1 - math.exp(-(1 - self._f) * h / t)
@@ -128,7 +119,7 @@ class SmithPredictor:
 
     @property
     def sample_time(self) -> float:
-        return self.config.sample_time
+        return self.primary.config.sample_time
 
     def _u_ago(self, j: int) -> float:
         """u(k − j) for j ≥ 1 (the history holds the most recent first)."""
@@ -136,15 +127,15 @@ class SmithPredictor:
 
     def _difference(self) -> float:
         """ŷ*(k) − ŷ_L(k), the prediction correction."""
-        if self.config.model == 'ipdt':
+        if self.model.model == 'ipdt':
             total = sum(self._u_ago(j) for j in range(1, self._d + 1)) + self._f * self._u_ago(self._d + 1)
-            return self.config.gain * self.config.sample_time * total
+            return self.model.gain * self.sample_time * total
         return self._y_free - self._y_del
 
     def _advance(self, u: float) -> None:
         """Advance the internal model by one sample with input u(k) = u."""
-        if self.config.model == 'fopdt':
-            k = self.config.gain
+        if self.model.model == 'fopdt':
+            k = self.model.gain
             self._y_free = self._a * self._y_free + k * (1 - self._a) * u
             u_new = u if self._d == 0 else self._u_ago(self._d)     # u(k − d)
             u_old = self._u_ago(self._d + 1)                         # u(k − d − 1)
@@ -155,11 +146,12 @@ class SmithPredictor:
         u0 = float(np.asarray(u, dtype=float).reshape(-1)[0])
         if not math.isfinite(u0):
             raise ValueError(f'reset: u = {u0!r} is not finite')
-        u0 = min(max(u0, self.config.u_min), self.config.u_max)   # the output the primary gives
+        limits = self.primary.config
+        u0 = min(max(u0, limits.u_min), limits.u_max)   # the output the primary gives
         for _ in range(self._hist.maxlen):
             self._hist.appendleft(u0)
-        if self.config.model == 'fopdt':
-            self._y_free = self._y_del = self.config.gain * u0
+        if self.model.model == 'fopdt':
+            self._y_free = self._y_del = self.model.gain * u0
         self._pending = u0
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -203,7 +195,7 @@ class SmithPredictor:
     def status(self) -> Mapping[str, Any]:
         st = dict(self.primary.status)
         st['prediction'] = self._last_pred
-        st['model'] = self.config.model
+        st['model'] = self.model.model
         return st
 
 
@@ -212,73 +204,3 @@ def _scalar(value: Any, name: str) -> float:
     if arr.size != 1:
         raise ValueError(f'{name}: expected 1 value for the SISO Smith predictor, got {arr.size}')
     return float(arr[0])
-
-
-_PRIMARY_NAMES = ('sample_time', 'kp', 'ti', 'b', 'u_min', 'u_max', 'du_max', 'anti_windup',
-                  'tracking_time', 'mode', 'manual_output', 'fail_safe', 'fail_safe_output',
-                  'tuning.te', 'tuning.xi', 'tuning.order')
-
-
-def smith_params() -> tuple[ParamSpec, ...]:
-    """ParamSpecs: the PI primary (same names as the PID's) and the internal model ``smith.*``.
-
-    With ``tuning.rule = smith_pi`` the primary's kp, ti come from 004 eqs.
-    3.6.7/3.6.9 using smith.gain and smith.time_constant (fopdt only).
-    """
-    primary = tuple(s for s in pid_params() if s.name in _PRIMARY_NAMES)
-    return primary + (
-        ParamSpec('tuning.rule', 'none', 'none: kp, ti by hand; smith_pi: from the model '
-                  '(004 eqs. 3.6.7 with tuning.te, 3.6.9 with tuning.xi)', choices=('none', 'smith_pi')),
-        ParamSpec('smith.model', 'fopdt', 'internal model: fopdt K/(T s+1) e^(-L s) or ipdt k1/s e^(-L s)',
-                  choices=MODELS, read_only=True),
-        ParamSpec('smith.gain', 1.0, 'model gain K [y/u units] (ipdt: k1 [1/s])', min=-1e9, max=1e9),
-        ParamSpec('smith.time_constant', 1.0, 'model time constant T [s] (fopdt)', min=1e-6, max=1e9),
-        ParamSpec('smith.dead_time', 0.0, 'model dead time L [s]', min=0.0, max=1e6),
-    )
-
-
-def smith_config_from_params(values: Mapping[str, Any]) -> SmithConfig:
-    """SmithConfig from parameter values (defaults for missing names); ValueError if invalid."""
-    merged = {spec.name: spec.default for spec in smith_params()}
-    merged.update(values)
-    kp, ti = float(merged['kp']), float(merged['ti'])
-    rule = merged['tuning.rule']
-    if rule == 'smith_pi':
-        from tank_control.core.tuning.rules import tune
-        order = int(merged['tuning.order'])
-        extra = {'te': float(merged['tuning.te'])} if order == 1 else {'xi': float(merged['tuning.xi'])}
-        extra = {k: v for k, v in extra.items() if v > 0}
-        g = tune('smith_pi', 'pi', gain=float(merged['smith.gain']),
-                 time_constant=float(merged['smith.time_constant']), n=order, **extra)
-        kp, ti = g['kp'], g['ti']
-    elif rule != 'none':
-        raise ValueError(f"tuning.rule: {rule!r} does not apply to the Smith predictor; allowed none, smith_pi")
-    cfg = SmithConfig(
-        model=str(merged['smith.model']), gain=float(merged['smith.gain']),
-        dead_time=float(merged['smith.dead_time']), time_constant=float(merged['smith.time_constant']),
-        kp=kp, ti=ti if ti > 0 else math.inf, b=float(merged['b']),
-        sample_time=float(merged['sample_time']),
-        u_min=float(merged['u_min']), u_max=float(merged['u_max']),
-        du_max=float(merged['du_max']) if merged['du_max'] > 0 else math.inf,
-        anti_windup=str(merged['anti_windup']),
-        tracking_time=float(merged['tracking_time']) if merged['tracking_time'] > 0 else None)
-    reason = config_reason(cfg)
-    if reason:
-        raise ValueError(reason)
-    SmithPredictor(cfg)        # validates the primary as well
-    return cfg
-
-
-def check_smith_relations(values: Mapping[str, Any]) -> str | None:
-    """Cross-parameter checks (u_min < u_max, kp > 0, outputs within limits, model
-    complete, a tuning rule with what it needs): a one-line reason or None."""
-    merged = {spec.name: spec.default for spec in smith_params()}
-    merged.update(values)
-    reason = limit_relations_reason(merged)
-    if reason:
-        return reason
-    try:
-        smith_config_from_params(merged)
-    except ValueError as exc:
-        return str(exc)
-    return None

@@ -10,33 +10,29 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tank_control.core.params import ParamSpec
-from tank_control.core.plants.ipdt import dead_time_specs
-from tank_control.core.plants.siso import DeadTimePlant
-
-FOPDT_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('gain', 0.05, 'static gain K [output units/input unit] (001 eq. 6.14)',
-              min=-1e6, max=1e6),
-    ParamSpec('time_constant', 10.0, 'time constant T [s] (0 = pure gain with delay)',
-              min=0.0, max=1e6),
-) + dead_time_specs(3.0)
+from tank_control.core.params import param
+from tank_control.core.plants.siso import (DeadTimePlant, dead_time_param, dead_time_reason,
+                                           max_dead_time_param, output_offset_param)
 
 
 @dataclass(frozen=True)
 class FopdtConfig:
     """Parameters of ``Fopdt`` (defaults: 001's example K = 0.05, T = 10 s, L = 3 s)."""
 
-    gain: float = 0.05
-    time_constant: float = 10.0
-    dead_time: float = 3.0
-    initial_output: float = 0.0
-    max_dead_time: float = 100.0
+    gain: float = param(0.05, 'static gain K', unit='output units/input unit', min=-1e6,
+                        max=1e6, source='001 eq. 6.14')
+    time_constant: float = param(10.0, 'time constant T (0 = pure gain with delay)', unit='s',
+                                 min=0.0, max=1e6)
+    dead_time: float = dead_time_param(3.0)
+    output_offset: float = output_offset_param()
+    max_dead_time: float = max_dead_time_param()
+
+    def reason(self) -> str | None:
+        return dead_time_reason(self)
 
 
 class Fopdt(DeadTimePlant):
     """``K/(T·s + 1) · e^(−L·s)`` with input load disturbance (001 eq. 6.14)."""
-
-    PARAMS = FOPDT_PARAMS
 
     def __init__(self, config: FopdtConfig | None = None) -> None:
         super().__init__(config if config is not None else FopdtConfig())

@@ -39,8 +39,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from tank_control.core.interfaces import StatusValue, seconds
-from tank_control.core.params import ParamSpec
-from tank_control.core.plants.config import changed_config, checked_config
+from tank_control.core.params import check_config, config_from, param
 from tank_control.core.plants.delay_line import DelayLine, HermiteDelayLine
 from tank_control.core.plants.siso import as_vector, checked_dt
 
@@ -50,71 +49,104 @@ T_MIN, T_MAX = 0.0, 100.0
 _MAX_SUBSTEPS = 64          # sub-steps of one RK4 step near an empty tank
 _RK4_STABLE = 2.5           # |λ·δ| below which RK4 is used (its stability limit is 2.78)
 
-TANK_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('C', 0.7, 'volume constant C in V = C·h² [cm] (003 §1)', min=1e-6, max=1e6),
-    ParamSpec('alpha', 7.0, 'outflow constant α in F(h) = α·√h [cm^2.5/s] (003 §1)',
-              min=0.0, max=1e6),
-    ParamSpec('F_H', 14.0, 'operating point: hot inflow F_H [cm³/s] (003 §1)', min=0.0, max=1e6),
-    ParamSpec('F_C', 37.0, 'operating point: cold inflow F_C [cm³/s] (003 §1); also fills the '
-              'τ_C delay line at reset', min=0.0, max=1e6),
-    ParamSpec('F_D', 12.0, 'operating point: disturbance inflow F_D [cm³/s] (003 §1)',
-              min=0.0, max=1e6),
-    ParamSpec('T_H', 62.0, 'operating point: hot water temperature T_H [°C]', min=T_MIN, max=T_MAX),
-    ParamSpec('T_C', 23.0, 'operating point: cold water temperature T_C [°C]', min=T_MIN, max=T_MAX),
-    ParamSpec('T_D', 33.0, 'operating point: disturbance temperature T_D [°C]',
-              min=T_MIN, max=T_MAX),
-    ParamSpec('h_op', 81.0, 'operating point: level h for linearize [cm] (003 §1)',
-              min=1e-6, max=1e6),
-    ParamSpec('T_op', 33.57, 'operating point: temperature T for linearize [°C] (003 §1 prints '
-              '33.57; the exact steady state is 2115/63 = 33.5714)', min=T_MIN, max=T_MAX),
-    ParamSpec('tau_cold', 180.0, 'transport delay τ_C from F_Cin to F_C [s] (003 §1)',
-              min=0.0, max=1e4),
-    ParamSpec('tau_out', 120.0, 'transport delay τ from T to T_out [s] (003 §1)',
-              min=0.0, max=1e4),
-    ParamSpec('h_max', 200.0, 'overflow height [cm]: above it the tank spills (not in 003)',
-              min=1e-6, max=1e6),
-    ParamSpec('integration_step', 0.1, 'RK4 step inside each sample [s]', min=1e-6, max=1e3),
-    ParamSpec('initial_h', 81.0, 'level at reset [cm]', min=0.0, max=1e6),
-    ParamSpec('initial_T', 2115.0 / 63.0, 'temperature at reset and before t = 0 (T_out '
-              'history) [°C]; default: the steady state 2115/63 of the operating point',
-              min=T_MIN, max=T_MAX),
-    ParamSpec('max_dead_time', 600.0, 'history kept by the delay lines [s]; the largest '
-              'tau_cold and tau_out allowed', min=0.0, max=1e4, read_only=True),
-)
+
+@dataclass(frozen=True)
+class TankOperatingPoint:
+    """Operating point and constants of the mixing tank (003 §1, SPEC §1.3).
+
+    The equilibrium level and temperature follow from the inflows:
+    ``h = ((F_H + F_C + F_D)/alpha)²`` [cm] and
+    ``T = (F_H·T_H + F_C·T_C + F_D·T_D)/(F_H + F_C + F_D)`` [°C].
+    Defaults are the document's point: h = 81 cm, T = 2115/63 = 33.5714 °C.
+    """
+
+    F_H: float = 14.0      # hot inflow [cm³/s]
+    F_C: float = 37.0      # cold inflow (= F_Cin in steady state) [cm³/s]
+    F_D: float = 12.0      # disturbance inflow [cm³/s]
+    T_H: float = 62.0      # [°C]
+    T_C: float = 23.0      # [°C]
+    T_D: float = 33.0      # [°C]
+    C: float = 0.7         # V = C·h² [cm]
+    alpha: float = 7.0     # F = alpha·√h [cm^2.5/s]
+    tau: float = 120.0     # output dead time on T_out [s]
+    tau_c: float = 180.0   # input dead time on F_Cin [s]
+
+    @property
+    def inflow(self) -> float:
+        """Total inflow = outflow at equilibrium [cm³/s]."""
+        return self.F_H + self.F_C + self.F_D
+
+    @property
+    def h(self) -> float:
+        """Equilibrium level [cm] (F(h) = alpha·√h = inflow)."""
+        return (self.inflow / self.alpha) ** 2
+
+    @property
+    def V(self) -> float:
+        """Equilibrium volume [cm³] (V = C·h²)."""
+        return self.C * self.h ** 2
+
+    @property
+    def T(self) -> float:
+        """Equilibrium (mixed) temperature [°C]."""
+        return (self.F_H * self.T_H + self.F_C * self.T_C + self.F_D * self.T_D) / self.inflow
+
+
+OPERATING_POINT = TankOperatingPoint()
+"""003's operating point: F_H 14, F_C 37, F_D 12 cm³/s; T_H 62, T_C 23, T_D 33 °C; h 81 cm."""
+_OP = OPERATING_POINT
 
 
 @dataclass(frozen=True)
 class MixingTankConfig:
     """Parameters of ``MixingTank``; defaults are 003's constants and operating point."""
 
-    C: float = 0.7
-    alpha: float = 7.0
-    F_H: float = 14.0
-    F_C: float = 37.0
-    F_D: float = 12.0
-    T_H: float = 62.0
-    T_C: float = 23.0
-    T_D: float = 33.0
-    h_op: float = 81.0
-    T_op: float = 33.57
-    tau_cold: float = 180.0
-    tau_out: float = 120.0
-    h_max: float = 200.0
-    integration_step: float = 0.1
-    initial_h: float = 81.0
-    initial_T: float = 2115.0 / 63.0
-    max_dead_time: float = 600.0
+    C: float = param(_OP.C, 'volume constant C in V = C·h²', unit='cm', min=1e-6, max=1e6,
+                     source='003 §1')
+    alpha: float = param(_OP.alpha, 'outflow constant α in F(h) = α·√h', unit='cm^2.5/s',
+                         min=0.0, max=1e6, source='003 §1')
+    F_H: float = param(_OP.F_H, 'operating point: hot inflow F_H', unit='cm³/s', min=0.0,
+                       max=1e6, source='003 §1')
+    F_C: float = param(_OP.F_C, 'operating point: cold inflow F_C; also fills the τ_C delay '
+                       'line at reset', unit='cm³/s', min=0.0, max=1e6, source='003 §1')
+    F_D: float = param(_OP.F_D, 'operating point: disturbance inflow F_D', unit='cm³/s',
+                       min=0.0, max=1e6, source='003 §1')
+    T_H: float = param(_OP.T_H, 'operating point: hot water temperature T_H', unit='°C',
+                       min=T_MIN, max=T_MAX)
+    T_C: float = param(_OP.T_C, 'operating point: cold water temperature T_C', unit='°C',
+                       min=T_MIN, max=T_MAX)
+    T_D: float = param(_OP.T_D, 'operating point: disturbance temperature T_D', unit='°C',
+                       min=T_MIN, max=T_MAX)
+    h_op: float = param(_OP.h, 'operating point: level h for linearize', unit='cm', min=1e-6,
+                        max=1e6, source='003 §1')
+    T_op: float = param(33.57, 'operating point: temperature T for linearize (003 §1 prints '
+                        '33.57; the exact steady state is 2115/63 = 33.5714)', unit='°C',
+                        min=T_MIN, max=T_MAX)
+    tau_cold: float = param(_OP.tau_c, 'transport delay τ_C from F_Cin to F_C', unit='s',
+                            min=0.0, max=1e4, source='003 §1')
+    tau_out: float = param(_OP.tau, 'transport delay τ from T to T_out', unit='s', min=0.0,
+                           max=1e4, source='003 §1')
+    h_max: float = param(200.0, 'overflow height: above it the tank spills (not in 003)',
+                         unit='cm', min=1e-6, max=1e6)
+    integration_step: float = param(0.1, 'RK4 step inside each sample', unit='s', min=1e-6,
+                                    max=1e3)
+    initial_h: float = param(_OP.h, 'level at reset', unit='cm', min=0.0, max=1e6)
+    initial_T: float = param(_OP.T, 'temperature at reset and before t = 0 (T_out history); '
+                             'default: the steady state 2115/63 of the operating point',
+                             unit='°C', min=T_MIN, max=T_MAX)
+    max_dead_time: float = param(600.0, 'history kept by the delay lines; the largest '
+                                 'tau_cold and tau_out allowed', unit='s', min=0.0, max=1e4,
+                                 read_only=True)
 
-
-def _cross_check(config: MixingTankConfig) -> str | None:
-    for name in ('tau_cold', 'tau_out'):
-        value = getattr(config, name)
-        if value > config.max_dead_time:
-            return (f'{name}: {value:g} is above max_dead_time; '
-                    f'allowed [0, {config.max_dead_time:g}]')
-    if config.initial_h > config.h_max:
-        return f'initial_h: {config.initial_h:g} is above h_max; allowed [0, {config.h_max:g}]'
-    return None
+    def reason(self) -> str | None:
+        for name in ('tau_cold', 'tau_out'):
+            value = getattr(self, name)
+            if value > self.max_dead_time:
+                return (f'{name}: {value:g} is above max_dead_time; '
+                        f'allowed [0, {self.max_dead_time:g}]')
+        if self.initial_h > self.h_max:
+            return f'initial_h: {self.initial_h:g} is above h_max; allowed [0, {self.h_max:g}]'
+        return None
 
 
 class _Inflow(NamedTuple):
@@ -138,11 +170,8 @@ class MixingTank:
     output_names: tuple[str, ...] = ('h', 'T_out')
     input_names: tuple[str, ...] = ('F_H', 'F_Cin')
     disturbance_names: tuple[str, ...] = ('F_D', 'T_D', 'T_H', 'T_C')
-    PARAMS = TANK_PARAMS
-
     def __init__(self, config: MixingTankConfig | None = None) -> None:
-        config = config if config is not None else MixingTankConfig()
-        self._config = checked_config(self.PARAMS, config, _cross_check)
+        self._config = check_config(config if config is not None else MixingTankConfig())
         self._cold = DelayLine(self._config.max_dead_time, initial=self._config.F_C)
         self._temperature = HermiteDelayLine(self._config.max_dead_time)
         self.reset()
@@ -162,8 +191,7 @@ class MixingTank:
         ``linearize`` and ``nominal_*``. ``max_dead_time`` is read-only.
         Raises ``ValueError`` with a one-line reason.
         """
-        self._config = changed_config(self.PARAMS, self._config, changes, live=True,
-                                      cross_check=_cross_check)
+        self._config = config_from(MixingTankConfig, changes, self._config, live=True)
 
     # ---- Plant protocol ------------------------------------------------------------
     def reset(self) -> None:

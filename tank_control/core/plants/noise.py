@@ -15,18 +15,23 @@ Draw order (the contract shared by ``core/loop.py`` and ``plant_node``):
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from tank_control.core.params import ParamSpec
+from tank_control.core.params import param
 
-NOISE_PARAMS: tuple[ParamSpec, ...] = (
-    ParamSpec('noise_std', [0.0], 'standard deviation of the Gaussian measurement noise per '
-              'output channel, in the channel\'s units; one value applies to every channel',
-              min=0.0, max=1e6),
-    ParamSpec('seed', 0, 'seed of the measurement-noise generator (numpy PCG64)',
-              min=0, max=2 ** 63 - 1, read_only=True),
-)
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """The plant node's measurement noise (parameters ``noise_std``, ``seed``)."""
+
+    noise_std: tuple[float, ...] = param((0.0,), 'standard deviation of the Gaussian '
+                                         'measurement noise per output channel; one value '
+                                         'applies to every channel', unit='output units',
+                                         min=0.0, max=1e6)
+    seed: int = param(0, 'seed of the measurement-noise generator (numpy PCG64)', min=0,
+                      max=2 ** 63 - 1, read_only=True)
 
 
 def _std_vector(std: float | Sequence[float], n: int) -> np.ndarray:

@@ -7,8 +7,8 @@ the delay-free part ``G0`` is advanced in closed form over every constant piece
 of the delayed input, so the outputs at the sample instants do not depend on
 the step size (exact discretisation, no integration error).
 
-``y0 = initial_output`` is an output offset: the output the plant holds at rest
-with ``u + v = 0``. Changing it live shifts the output by the difference.
+``y0 = output_offset`` is the output the plant holds at rest with ``u + v = 0``;
+changing it live shifts the output by the difference.
 """
 from __future__ import annotations
 
@@ -19,12 +19,32 @@ from typing import Any
 import numpy as np
 
 from tank_control.core.interfaces import StatusValue, seconds, to_ns
-from tank_control.core.params import ParamSpec
-from tank_control.core.plants.config import changed_config, checked_config
+from tank_control.core.params import check_config, config_from, param
 from tank_control.core.plants.delay_line import DelayLine
 
+MAX_DEAD_TIME_LIMIT = 1e4
+"""Largest ``max_dead_time`` [s] a plant may be built with."""
 
-def dead_time_cross_check(config: Any) -> str | None:
+
+def dead_time_param(default: float) -> Any:
+    """``dead_time``: the transport delay L [s] of the SISO plants."""
+    return param(default, 'transport delay L (To in 000); changes live, history is kept up to '
+                 'max_dead_time', unit='s', min=0.0, max=MAX_DEAD_TIME_LIMIT)
+
+
+def output_offset_param() -> Any:
+    """``output_offset``: y0, the output at rest with u + v = 0."""
+    return param(0.0, 'output y0 at rest with u + v = 0; a live change shifts y',
+                 unit='output units', min=-1e12, max=1e12)
+
+
+def max_dead_time_param(default: float = 100.0) -> Any:
+    """``max_dead_time``: the input history kept by the delay line (read-only)."""
+    return param(default, 'input history kept by the delay line; the largest dead_time allowed',
+                 unit='s', min=0.0, max=MAX_DEAD_TIME_LIMIT, read_only=True)
+
+
+def dead_time_reason(config: Any) -> str | None:
     """``dead_time`` must fit in the stored history (``max_dead_time``)."""
     if config.dead_time > config.max_dead_time:
         return (f'dead_time: {config.dead_time:g} is above max_dead_time; '
@@ -52,18 +72,16 @@ def checked_dt(dt: float) -> int:
 class DeadTimePlant:
     """Base of IPDT/FOPDT: channels ``y``/``u``/``v``, delay line, live configuration.
 
-    Subclasses set ``PARAMS`` (their ``ParamSpec`` tuple) and implement
-    ``_advance(x, w, duration)``: the delay-free state after ``duration``
-    seconds of constant delayed input ``w``.
+    Subclasses implement ``_advance(x, w, duration)``: the delay-free state after
+    ``duration`` seconds of constant delayed input ``w``.
     """
 
     output_names: tuple[str, ...] = ('y',)
     input_names: tuple[str, ...] = ('u',)
     disturbance_names: tuple[str, ...] = ('v',)
-    PARAMS: tuple[ParamSpec, ...] = ()
 
     def __init__(self, config: Any) -> None:
-        self._config = checked_config(self.PARAMS, config, dead_time_cross_check)
+        self._config = check_config(config)
         self._line = DelayLine(self._config.max_dead_time, initial=0.0)
         self.reset()
 
@@ -78,11 +96,10 @@ class DeadTimePlant:
         Raises ``ValueError`` with a one-line reason naming the parameter and the
         allowed range; ``max_dead_time`` is read-only (fixed at construction).
         """
-        self._config = changed_config(self.PARAMS, self._config, changes, live=True,
-                                      cross_check=dead_time_cross_check)
+        self._config = config_from(type(self._config), changes, self._config, live=True)
 
     def reset(self) -> None:
-        """Back to rest at t = 0: delay line empty (input history 0), y = initial_output."""
+        """Back to rest at t = 0: delay line empty (input history 0), y = output_offset."""
         self._line.reset(0.0)
         self._x = 0.0
         self._t_ns = 0
@@ -95,7 +112,7 @@ class DeadTimePlant:
 
     def outputs(self) -> np.ndarray:
         """``[y]`` at the current instant (noise-free)."""
-        return np.array([self._config.initial_output + self._x])
+        return np.array([self._config.output_offset + self._x])
 
     def nominal_inputs(self) -> np.ndarray:
         """Inputs at rest: ``[u] = [0]``."""

@@ -1,0 +1,1 @@
+"""Controller kinds: one module each (exporting ``KIND``), listed in ``registry.KINDS``."""

@@ -1,0 +1,42 @@
+"""Controller kind ``mpcs``: offset-free MPCS of the mixing tank, analytic or QP (003 §4, §6).
+Live changes go through :meth:`Mpcs.configure` (bumpless; ``sample_time`` is read-only)."""
+from __future__ import annotations
+
+from tank_control.core.control.kinds import base
+from tank_control.core.control.kinds.base import ControllerKind, Settings
+from tank_control.core.control.mpcs import Mpcs, MpcsConfig
+from tank_control.core.params import names_of, values_of
+
+
+def build(settings: Settings) -> Mpcs:
+    controller = Mpcs(settings.config)
+    controller.output_names = settings.channels.output_names
+    controller.input_names = settings.channels.input_names
+    return controller
+
+
+def update(controller: Mpcs, settings: Settings, changed: frozenset[str]) -> bool:
+    own = set(names_of(MpcsConfig))
+    values = values_of(settings.config)
+    controller.configure(**{name: values[name] for name in changed if name in own})
+    return True
+
+
+def input_limits(settings: Settings) -> dict[str, tuple[float, float]]:
+    cfg, names = settings.config, settings.channels.input_names
+    lo = list(cfg.u_min) * (2 if len(cfg.u_min) == 1 else 1)
+    hi = list(cfg.u_max) * (2 if len(cfg.u_max) == 1 else 1)
+    return {name: (lo[i], hi[i]) for i, name in enumerate(names)}
+
+
+KIND = ControllerKind(
+    name='mpcs',
+    description='offset-free MPCS for the mixing tank, analytic or QP (003 §4, §6)',
+    config=MpcsConfig,
+    groups=(base.channels(Mpcs.output_names, Mpcs.input_names),
+            base.warm_start((MpcsConfig().op_F_H, MpcsConfig().op_F_Cin))),
+    build=build, update=update,
+    gains=('mpcs.horizon', 'mpcs.control_horizon', 'mpcs.lambda', 'mpcs.output_weights',
+           'mpcs.terminal_weight'),
+    input_limits=input_limits,
+)

@@ -1,0 +1,135 @@
+"""The node-level parameters of plant_node, controller_node and reference_node, declared once.
+
+Besides its model's or controller's own parameters (the kinds' configurations) each node has
+these: the clock, the tick and the diagnostics period. ``node_specs(node, kind)`` lists every
+parameter a node declares; the in-process loop and the harness validate parameter files with
+the same lists, so a misspelt name is refused alike everywhere.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from tank_control.core.control.kinds import registry as controllers
+from tank_control.core.params import ConfigError, ParamSpec, param, specs_of, unknown_reason
+from tank_control.core.plants.kinds import registry as plants
+from tank_control.core.plants.noise import NoiseConfig
+
+CLOCK_MODES = ('wall', 'sim', 'lockstep')
+NODES = ('plant', 'controller', 'reference')
+ROS_OWN = ('use_sim_time',)
+"""Parameters rclpy declares itself; accepted in every node section and left to rclpy."""
+
+
+def diagnostics_period_param() -> Any:
+    return param(1.0, 'period of /diagnostics', unit='s, wall clock', min=0.05, max=60.0,
+                 read_only=True)
+
+
+@dataclass(frozen=True)
+class PlantNode:
+    """plant_node's own parameters (the clock master)."""
+
+    plant: str = param('fopdt', 'plant model (one of the plant kinds)', choices=tuple(plants.KINDS),
+                       read_only=True)
+    sample_time: float = param(0.1, 'plant tick: measurements are published every sample_time; '
+                               'in sim/lockstep tick k is at k * sample_time', unit='s',
+                               min=1e-4, max=3600.0, read_only=True)
+    clock_mode: str = param('wall', 'wall: real time; sim: the plant publishes /clock at '
+                            'real_time_factor x real time; lockstep: /clock advances when every '
+                            'answer of a tick arrived', choices=CLOCK_MODES, read_only=True)
+    real_time_factor: float = param(1.0, 'simulated seconds per wall second in sim/lockstep '
+                                    '(lockstep: 0 = as fast as possible)', min=0.0, max=1e6)
+    resend_period: float = param(0.5, 'lockstep: re-send the current tick when its answers have '
+                                 'not come within this wall time', unit='s', min=0.01, max=60.0,
+                                 name='lockstep.resend_period')
+    paused: bool = param(False, 'sim and lockstep: hold the current tick (simulated time stops) '
+                         'until set to false; lets a recorder join before tick 0',
+                         name='lockstep.paused')
+    wait_for_reference: bool = param(True, 'lockstep: also wait for the reference disturbance '
+                                     'message of each tick', name='lockstep.wait_for_reference',
+                                     read_only=True)
+    diagnostics_period: float = diagnostics_period_param()
+
+    def reason(self) -> str | None:
+        if self.clock_mode == 'sim' and self.real_time_factor <= 0:
+            return (f'real_time_factor: {self.real_time_factor:g} with clock_mode sim; allowed '
+                    '(0, 1e6] (0 = as fast as possible exists in lockstep only)')
+        return None
+
+
+@dataclass(frozen=True)
+class ControllerNode:
+    """controller_node's own parameters."""
+
+    controller: str = param('pid', 'controller kind (set at start-up)',
+                            choices=tuple(controllers.KINDS), read_only=True)
+    clock_mode: str = param('auto', 'auto: lockstep answering with use_sim_time, else wall; '
+                            'wall: wall timer every sample_time; sim: timer on /clock; lockstep: '
+                            'answer each plant tick stamped t_k once measurement and setpoint of '
+                            't_k are in', choices=('auto', *CLOCK_MODES), read_only=True)
+    stale_samples: int = param(3, 'wall/sim: samples without a measurement after which it is '
+                               'stale (hold or fail-safe output)', min=1, max=1000)
+    diagnostics_period: float = diagnostics_period_param()
+
+
+@dataclass(frozen=True)
+class ReferenceNode:
+    """reference_node's own parameters (its channels: ``core/reference.py``)."""
+
+    sample_time: float = param(1.0, 'publishing period in wall mode; in sim/lockstep the '
+                               'reference answers every /clock tick instead', unit='s',
+                               min=1e-6, max=3600.0)
+    clock_mode: str = param('wall', 'wall: publish every sample_time on a wall timer; '
+                            'sim/lockstep (also implied by use_sim_time): answer every /clock '
+                            'tick, stamped t_k', choices=CLOCK_MODES, read_only=True)
+    anticipate: bool = param(True, 'with clock_mode lockstep: on /clock t_k also answer the '
+                             'next tick t_k + (t_k - t_k-1) ahead (same values and stamps; the '
+                             'controller then waits only for the measurement). Never in sim '
+                             '(there the latest message is used, so it must be the current '
+                             'one)', name='lockstep.anticipate', read_only=True)
+
+
+def plant_specs(kind: str) -> tuple[ParamSpec, ...]:
+    """Every parameter of a plant_node simulating ``kind``."""
+    return specs_of(PlantNode) + specs_of(NoiseConfig) + plants.get_kind(kind).specs()
+
+
+def controller_specs(kind: str) -> tuple[ParamSpec, ...]:
+    """Every parameter of a controller_node running ``kind``."""
+    return specs_of(ControllerNode) + controllers.get_kind(kind).specs()
+
+
+def kind_of(node: str, values: dict[str, Any]) -> str:
+    """The plant or controller kind the values select (the declared default if absent)."""
+    name = 'plant' if node == 'plant' else 'controller'
+    cls = PlantNode if node == 'plant' else ControllerNode
+    value = values.get(name, cls.__dataclass_fields__[name].default)
+    (plants if node == 'plant' else controllers).get_kind(value)   # ConfigError if unknown
+    return str(value)
+
+
+def unknown_names(specs: tuple[ParamSpec, ...], values: dict[str, Any]) -> None:
+    """``ConfigError`` for the first name in ``values`` that no spec declares (ROS's own
+    parameters such as ``use_sim_time`` pass), with the nearest known name."""
+    known = {s.name for s in specs}
+    for name in values:
+        if name not in known and name not in ROS_OWN:
+            raise ConfigError(unknown_reason(name, known))
+
+
+def all_names() -> set[str]:
+    """Every parameter name some node of this package declares (any plant or controller kind,
+    the reference's own; not the reference's channel fields, which depend on its channels)."""
+    specs = specs_of(PlantNode) + specs_of(NoiseConfig) + specs_of(ControllerNode) + specs_of(
+        ReferenceNode)
+    specs += tuple(s for kind in plants.KINDS.values() for s in kind.specs())
+    specs += tuple(s for kind in controllers.KINDS.values() for s in kind.specs())
+    return {s.name for s in specs}
+
+
+def declared_anywhere(name: str) -> bool:
+    """True if some node of this package declares ``name``: a value a node does not know may
+    then come from a ``/**`` section meant for another node, not from a typo."""
+    return (name in ROS_OWN or name.split('.')[0] in ('setpoint', 'disturbance')
+            or name in all_names())

@@ -1,0 +1,128 @@
+"""ROS 2 parameter files: the one reader and writer (harness, in-process loop, ``ros2 param``).
+
+A file maps node names to ``ros__parameters``::
+
+    /**:                         # every node (also ``/*``)
+      ros__parameters: {clock_mode: lockstep}
+    plant:                       # also /plant or /**/plant
+      ros__parameters: {plant: ipdt, tuning: {rule: mdp}}   # nested maps = dotted names
+
+:func:`read`/:func:`parse` give each section's flat parameters (dotted names, as rcl reads
+them), keyed ``/**`` for the wildcard and by the bare node name otherwise; :func:`node_values`
+is what one node receives (wildcard overlaid by its own section); :func:`dumps`/:func:`write`
+write sections back nested, in the dialect of :mod:`ros_yaml`. Values must be ROS 2 parameter
+values: bool, int, float, string or a non-empty list of one of them, finite numbers.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tank_control.core import ros_yaml
+from tank_control.core.params import ConfigError
+
+WILDCARD = '/**'
+_WILDCARDS = ('/**', '/*')
+
+
+def read(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Sections of the file at ``path`` (see the module docstring); ``ConfigError`` naming the
+    file and the entry on bad input."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot read ({exc.strerror})') from None
+    return parse(text, str(path))
+
+
+def parse(text: str, where: str = '<text>') -> dict[str, dict[str, Any]]:
+    """Sections of a parameter file's text; ``where`` names it in errors."""
+    try:
+        document = ros_yaml.load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{where}: not valid YAML: {str(exc).splitlines()[0]}') from None
+    if document is None:
+        return {}
+    if not isinstance(document, dict):
+        raise ConfigError(f'{where}: expected a map of node sections with ros__parameters')
+    sections: dict[str, dict[str, Any]] = {}
+    for raw, body in document.items():
+        name = section_name(str(raw))
+        if not isinstance(body, dict) or set(body) != {'ros__parameters'}:
+            raise ConfigError(f'{where}: section {raw!r} must hold exactly one key, '
+                              'ros__parameters')
+        params = body['ros__parameters'] or {}
+        if not isinstance(params, dict):
+            raise ConfigError(f'{where}: {name}.ros__parameters must be a map')
+        flat = ros_yaml.flatten(params)
+        sections.setdefault(name, {}).update(
+            {key: check_value(f'{where}: {name}.{key}', value) for key, value in flat.items()})
+    return sections
+
+
+def section_name(raw: str) -> str:
+    """``/plant``, ``/**/plant`` → ``plant``; the wildcards ``/**``, ``/*`` → ``/**``."""
+    if raw in _WILDCARDS:
+        return WILDCARD
+    return raw.removeprefix('/**/').lstrip('/')
+
+
+def node_values(sections: Mapping[str, Mapping[str, Any]], node: str) -> dict[str, Any]:
+    """The flat parameters ``node`` receives: the wildcard section overlaid by its own."""
+    return {**sections.get(WILDCARD, {}), **sections.get(node, {})}
+
+
+def check_value(where: str, value: Any) -> Any:
+    """``value`` if it is a ROS 2 parameter value (ints and floats in one list become floats),
+    else ``ConfigError`` naming ``where``."""
+    if isinstance(value, (bool, int, str)):
+        return value
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ConfigError(f'{where}: {value} is not finite; ROS 2 parameter files need '
+                              'finite numbers (leave the parameter out for "no limit")')
+        return value
+    if isinstance(value, list):
+        if not value:
+            raise ConfigError(f'{where}: empty list (ROS 2 cannot type it); leave it out')
+        items = [check_value(where, item) if not isinstance(item, list) else None
+                 for item in value]
+        kinds = {type(item) for item in items}
+        if kinds <= {int, float} and float in kinds:
+            return [float(item) for item in items]   # ROS 2 lists are homogeneous
+        if len(kinds) != 1 or None in items:
+            raise ConfigError(f'{where}: list mixes types; ROS 2 lists hold one type')
+        return items
+    raise ConfigError(f'{where}: {value!r} is not a ROS 2 parameter value (bool, int, float, '
+                      'string or a list of one of them)')
+
+
+def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted names → nested maps (the inverse of ``ros_yaml.flatten``)."""
+    tree: dict[str, Any] = {}
+    for name, value in flat.items():
+        *parents, leaf = name.split('.')
+        node = tree
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
+
+
+def dumps(sections: Mapping[str, Mapping[str, Any]]) -> str:
+    """The text of a parameter file holding ``sections`` (flat values by node name)."""
+    return ros_yaml.dump({name: {'ros__parameters': nest(values)}
+                          for name, values in sections.items()})
+
+
+def write(sections: Mapping[str, Mapping[str, Any]], path: str | Path) -> Path:
+    """Write ``sections`` as a parameter file at ``path`` (folders created)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dumps(sections))
+    return path

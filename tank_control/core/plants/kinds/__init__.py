@@ -1,0 +1,1 @@
+"""Plant kinds: one module each (exporting ``KIND``), listed in ``registry.KINDS``."""

@@ -1,0 +1,32 @@
+"""What a plant kind is: its configuration (the parameters) and the model it builds."""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from tank_control.core.interfaces import Plant
+from tank_control.core.params import ParamSpec, config_from, specs_of
+
+
+@dataclass(frozen=True)
+class PlantKind:
+    """One plant model as plant_node and the in-process loop see it.
+
+    ``config`` is the model's configuration dataclass (its fields are the parameters);
+    ``build`` makes the model from a configuration. Live changes go through the model's
+    ``configure(**changes)``.
+    """
+
+    name: str
+    description: str
+    config: type
+    build: Callable[[Any], Plant]
+
+    def specs(self) -> tuple[ParamSpec, ...]:
+        """The model's parameters."""
+        return specs_of(self.config)
+
+    def make(self, values: Mapping[str, Any]) -> Plant:
+        """The model from parameter values (missing ones take defaults); ``ConfigError``."""
+        return self.build(config_from(self.config, values))

@@ -1,0 +1,20 @@
+"""The plant kinds by name: a plain table."""
+from __future__ import annotations
+
+from tank_control.core.params import ConfigError, unknown_reason
+from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank
+from tank_control.core.plants.kinds.base import PlantKind
+
+KINDS: dict[str, PlantKind] = {kind.name: kind for kind in (
+    ipdt.KIND,
+    fopdt.KIND,
+    mixing_tank.KIND,
+)}
+
+
+def get_kind(name: str) -> PlantKind:
+    """The plant kind ``name``; ``ConfigError`` with the nearest known name if unknown."""
+    try:
+        return KINDS[name]
+    except (KeyError, TypeError):
+        raise ConfigError('plant: ' + unknown_reason(str(name), KINDS, 'plant kind')) from None
