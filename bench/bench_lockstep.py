@@ -30,7 +30,7 @@ def one_run(config: Path, window: float, warmup: float, domain: int,
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from tank_control.core.scenario import read_params_file
+    from tank_control.core.params_file import read as read_params_file
     from tank_control.harness.processes import ProcessGroup
 
     params = read_params_file(config)

@@ -90,12 +90,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _start_text(scenario: Path) -> str:
     """How the run starts: the controller's bumpless take-over value (``initial_output``)."""
-    from tank_control.core.control import registry
-    from tank_control.core.scenario import node_values, read_params_file
+    from tank_control.core import scenario as core_scenario
     try:
-        values = registry.complete_values(node_values(read_params_file(scenario), 'controller'))
+        _, control = core_scenario.validate(core_scenario.sections_of(scenario))
     except ValueError:
         return ''            # the run reports a bad file with its reason
+    values = control.settings.values
     flows = ', '.join(f'{name} {value:g}' for name, value in
                       zip(values['input_names'], values['initial_output']))
     return (f'start: the controller takes over bumplessly at initial_output ({flows}); '

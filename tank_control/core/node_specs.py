@@ -17,8 +17,14 @@ from tank_control.core.plants.noise import NoiseConfig
 
 CLOCK_MODES = ('wall', 'sim', 'lockstep')
 NODES = ('plant', 'controller', 'reference')
-ROS_OWN = ('use_sim_time',)
-"""Parameters rclpy declares itself; accepted in every node section and left to rclpy."""
+ROS_OWN = ('use_sim_time', 'start_type_description_service')
+"""Parameters rclpy declares itself; accepted in every node section and left to rclpy (also
+``qos_overrides.*``)."""
+
+
+def is_ros_own(name: str) -> bool:
+    """True for a parameter rclpy itself reads (``use_sim_time``, ``qos_overrides.*``, ...)."""
+    return name in ROS_OWN or name.startswith('qos_overrides.')
 
 
 def diagnostics_period_param() -> Any:
@@ -114,7 +120,7 @@ def unknown_names(specs: tuple[ParamSpec, ...], values: dict[str, Any]) -> None:
     parameters such as ``use_sim_time`` pass), with the nearest known name."""
     known = {s.name for s in specs}
     for name in values:
-        if name not in known and name not in ROS_OWN:
+        if name not in known and not is_ros_own(name):
             raise ConfigError(unknown_reason(name, known))
 
 
@@ -131,5 +137,5 @@ def all_names() -> set[str]:
 def declared_anywhere(name: str) -> bool:
     """True if some node of this package declares ``name``: a value a node does not know may
     then come from a ``/**`` section meant for another node, not from a typo."""
-    return (name in ROS_OWN or name.split('.')[0] in ('setpoint', 'disturbance')
+    return (is_ros_own(name) or name.split('.')[0] in ('setpoint', 'disturbance')
             or name in all_names())

@@ -229,6 +229,11 @@ def specs_of(cls: type, prefix: str = '', **defaults: Any) -> tuple[ParamSpec, .
     return tuple(out)
 
 
+def defaults_of(cls: type) -> dict[str, ParamValue]:
+    """Parameter name → default (ROS value) of every parameter declared on ``cls``."""
+    return {name: p.spec.default for name, p in _params(cls).items()}
+
+
 def names_of(cls: type) -> tuple[str, ...]:
     """Parameter names declared on ``cls``."""
     return tuple(_params(cls))

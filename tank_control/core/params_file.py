@@ -16,6 +16,7 @@ values: bool, int, float, string or a non-empty list of one of them, finite numb
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -66,7 +67,8 @@ def parse(text: str, where: str = '<text>') -> dict[str, dict[str, Any]]:
 
 
 def section_name(raw: str) -> str:
-    """``/plant``, ``/**/plant`` → ``plant``; the wildcards ``/**``, ``/*`` → ``/**``."""
+    """``/plant``, ``/**/plant`` → ``plant``; the wildcards ``/**``, ``/*`` → ``/**``; other
+    patterns (``/ns/*``) and namespaced names (``ns/plant``) are kept."""
     if raw in _WILDCARDS:
         return WILDCARD
     return raw.removeprefix('/**/').lstrip('/')
@@ -75,6 +77,29 @@ def section_name(raw: str) -> str:
 def node_values(sections: Mapping[str, Mapping[str, Any]], node: str) -> dict[str, Any]:
     """The flat parameters ``node`` receives: the wildcard section overlaid by its own."""
     return {**sections.get(WILDCARD, {}), **sections.get(node, {})}
+
+
+def values_for(sections: Mapping[str, Mapping[str, Any]], target: str,
+               use_wildcards: bool = True) -> dict[str, Any] | None:
+    """What the node with the absolute name ``target`` (``/controller``, ``/ns/controller``)
+    receives, as rcl matches sections: wildcard patterns (``/**``, ``/ns/*``) first, then its
+    own section; None if no section matches."""
+    own = target.lstrip('/')
+    patterns = [k for k in sections if '*' in k and use_wildcards
+                and re.fullmatch(_pattern(k), '/' + own)]
+    exact = [k for k in sections if '*' not in k and k == own]
+    if not patterns + exact:
+        return None
+    out: dict[str, Any] = {}
+    for key in patterns + exact:
+        out.update(sections[key])
+    return out
+
+
+def _pattern(key: str) -> str:
+    key = '/' + key.lstrip('/')
+    return ''.join('.*' if part == '**' else '[^/]*' if part == '*' else re.escape(part)
+                   for part in re.split(r'(\*\*|\*)', key))
 
 
 def check_value(where: str, value: Any) -> Any:
@@ -103,14 +128,23 @@ def check_value(where: str, value: Any) -> Any:
 
 
 def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """Dotted names → nested maps (the inverse of ``ros_yaml.flatten``)."""
+    """Dotted names → nested maps (the inverse of ``ros_yaml.flatten``): ``{'a.b': 1, 'c': 2}``
+    → ``{'a': {'b': 1}, 'c': 2}``; a name that clashes with a value (``a`` and ``a.b``) stays
+    dotted."""
     tree: dict[str, Any] = {}
     for name, value in flat.items():
-        *parents, leaf = name.split('.')
-        node = tree
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = value
+        parts = name.split('.')
+        branch: dict[str, Any] | None = tree
+        for part in parts[:-1]:
+            child = branch.setdefault(part, {})
+            if not isinstance(child, dict):
+                branch = None
+                break
+            branch = child
+        if branch is None or isinstance(branch.get(parts[-1]), dict):
+            tree[name] = value
+        else:
+            branch[parts[-1]] = value
     return tree
 
 

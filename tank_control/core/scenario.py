@@ -21,7 +21,7 @@ from tank_control.core.interfaces import Controller, Plant
 from tank_control.core.loop import run_loop, sample_time_reason
 from tank_control.core.trace import Trace
 from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNode
-from tank_control.core.params import ConfigError, config_from, names_of, unknown_reason
+from tank_control.core.params import ConfigError, config_from, names_of, unknown_reason, values_of
 from tank_control.core.plants.kinds import registry as plants
 from tank_control.core.plants.kinds.base import PlantKind
 from tank_control.core.plants.noise import MeasurementNoise, NoiseConfig
@@ -81,6 +81,10 @@ class ControllerSetup:
     def build_controller(self) -> Controller:
         return controllers.build(self.kind, self.settings)
 
+    def values(self) -> dict[str, Any]:
+        """Every parameter value of the node (its own and the kind's, derived ones included)."""
+        return {**values_of(self.node), **self.settings.values}
+
 
 def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = None
                      ) -> ControllerSetup:
@@ -88,8 +92,8 @@ def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = No
     default all; a tuning rule's gains among them must agree with the rule)."""
     kind = controllers.get_kind(node_specs.kind_of('controller', dict(values)))
     node_specs.unknown_names(node_specs.controller_specs(kind.name), dict(values))
-    node_names = set(names_of(ControllerNode)) | set(node_specs.ROS_OWN)
-    own = {k: v for k, v in values.items() if k not in node_names}
+    node_names = set(names_of(ControllerNode))
+    own = {k: v for k, v in values.items() if k not in node_names and not node_specs.is_ros_own(k)}
     return ControllerSetup(
         node=config_from(ControllerNode, _own(ControllerNode, values)), kind=kind,
         settings=controllers.settings(kind, own, given))
@@ -110,7 +114,7 @@ def reference_setup(values: Mapping[str, Any]) -> ReferenceSetup:
         raise ConfigError(str(exc)) from None
     known = set(names_of(ReferenceNode)) | {s.name for s in channel_specs(reference)}
     for name in values:
-        if name not in known and name not in node_specs.ROS_OWN \
+        if name not in known and not node_specs.is_ros_own(name) \
                 and name.split('.')[0] not in ('setpoint', 'disturbance'):
             raise ConfigError(unknown_reason(name, known))
     return ReferenceSetup(config_from(ReferenceNode, _own(ReferenceNode, values)), reference)
@@ -143,7 +147,7 @@ class Built:
     def controller_values(self) -> dict[str, Any]:
         """The controller's parameter values as controller_node holds them after the run: the
         settings (derived gains included) updated by what the controller produced."""
-        values = dict(self.controller_setup.settings.values)
+        values = self.controller_setup.values()
         results = self.controller_setup.kind.results
         if results is not None:
             values.update(results(self.controller))
@@ -171,15 +175,36 @@ def node_values(sections: Mapping[str, Mapping[str, Any]], node: str) -> dict[st
     return {**{k: v for k, v in wildcard.items() if k in known}, **own}
 
 
+def _in_section(node: str, error: ConfigError) -> ConfigError:
+    return ConfigError(f'{node}.{error}')
+
+
+def validate(sections: Mapping[str, Mapping[str, Any]],
+             nodes: Iterable[str] = node_specs.NODES) -> tuple[PlantSetup, ControllerSetup]:
+    """Check a scenario as its nodes would (each section, ``/**``), and that the controller
+    samples at plant ticks; the plant's and controller's settings. ``ConfigError`` prefixed
+    with the section (``controller.kpp: unknown parameter; did you mean kp?``)."""
+    check_sections(sections)
+    setups: dict[str, Any] = {}
+    for node, setup in (('plant', plant_setup), ('controller', controller_setup),
+                        ('reference', reference_setup)):
+        try:
+            setups[node] = setup(node_values(sections, node))
+        except ConfigError as exc:
+            if node in sections or node in nodes:
+                raise _in_section(node, exc) from None
+            setups[node] = None
+    plant, control = setups['plant'], setups['controller']
+    if plant is not None and control is not None:
+        reason = sample_time_reason(plant.node.sample_time, control.settings.values['sample_time'])
+        if reason:
+            raise _in_section('controller', ConfigError(reason))
+    return plant, control
+
+
 def build(sections: Mapping[str, Mapping[str, Any]]) -> Built:
     """Plant, controller, reference and noise from a scenario's sections."""
-    check_sections(sections)
-    setup = plant_setup(node_values(sections, 'plant'))
-    control = controller_setup(node_values(sections, 'controller'))
-    reason = sample_time_reason(setup.node.sample_time,
-                                           control.settings.values['sample_time'])
-    if reason:
-        raise ConfigError(f'controller.{reason}')
+    setup, control = validate(sections)
     plant = setup.build_plant()
     return Built(plant=plant, controller=control.build_controller(),
                  reference=reference_setup(node_values(sections, 'reference')).reference,

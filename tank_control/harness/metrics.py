@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from tank_control.core.analysis import step_metrics as sm
-from tank_control.harness.trace import TraceTable
+from tank_control.core.trace import Trace
 
 SS_WINDOW = 0.05
 
@@ -93,7 +93,7 @@ def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
             'final_error': float(np.mean(e[-tail:]))}
 
 
-def disturbance_change_indices(trace: TraceTable, rel_tol: float = 1e-9) -> list[int]:
+def disturbance_change_indices(trace: Trace, rel_tol: float = 1e-9) -> list[int]:
     """Sample indices where any disturbance column changes (first sample of a ramp)."""
     indices: set[int] = set()
     for name in trace.channels('d'):
@@ -166,7 +166,7 @@ def input_metrics(u: np.ndarray, u_min: float = -math.inf,
     }
 
 
-def trace_metrics(trace: TraceTable,
+def trace_metrics(trace: Trace,
                   input_limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
     """``outputs`` and ``inputs`` sections of ``metrics.json`` for a trace."""
     limits = input_limits or {}

@@ -15,7 +15,7 @@ import matplotlib
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (the backend is chosen first)
 
-from tank_control.harness.trace import TraceTable  # noqa: E402
+from tank_control.core.trace import Trace  # noqa: E402
 
 UNITS = {'h': 'cm', 'T_out': '°C', 'T_D': '°C', 'T_H': '°C', 'T_C': '°C',
          'F_H': 'cm³/s', 'F_Cin': 'cm³/s', 'F_C': 'cm³/s', 'F_D': 'cm³/s'}
@@ -26,7 +26,7 @@ def unit(channel: str) -> str:
     return UNITS.get(channel, DEFAULT_UNIT)
 
 
-def _panels(trace: TraceTable) -> list[tuple[str, str, list[str]]]:
+def _panels(trace: Trace) -> list[tuple[str, str, list[str]]]:
     """(kind, unit, channels) per panel: each output alone, inputs and disturbances by unit."""
     panels = [('y', unit(name), [name]) for name in trace.channels('y')]
     for prefix in ('u', 'd'):
@@ -40,7 +40,7 @@ def _panels(trace: TraceTable) -> list[tuple[str, str, list[str]]]:
 _TITLES = {'y': 'output', 'u': 'manipulated input', 'd': 'disturbance'}
 
 
-def plot_runs(traces: Sequence[tuple[str, TraceTable]], path: str | Path, title: str = '') -> Path:
+def plot_runs(traces: Sequence[tuple[str, Trace]], path: str | Path, title: str = '') -> Path:
     """Plot one run, or several overlaid (same channels), to a PNG file."""
     path = Path(path)
     first = traces[0][1]

@@ -18,7 +18,8 @@ from pathlib import Path
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
-from tank_control.harness.trace import TOPIC_PREFIX, TraceTable
+from tank_control.core.trace import Trace
+from tank_control.harness.trace import TOPIC_PREFIX
 
 _PRIMITIVES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
                'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'}
@@ -143,7 +144,7 @@ def write_raw(path: str | Path, messages: Iterable[RawMessage]) -> Path:
     return Path(path)
 
 
-def write_trace(path: str | Path, trace: TraceTable, t0_ns: int = 0) -> Path:
+def write_trace(path: str | Path, trace: Trace, t0_ns: int = 0) -> Path:
     """Write a trace as the signal messages (and ``/clock``) a lockstep run would carry."""
     from rclpy.serialization import serialize_message
     from rosgraph_msgs.msg import Clock

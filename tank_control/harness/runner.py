@@ -40,7 +40,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import re
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -50,18 +49,19 @@ from typing import Any
 
 import numpy as np
 
+from tank_control.core import scenario as core_scenario
+from tank_control.core.params import ConfigError
+from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
 from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
                                                 load_scenario, write_params_file)
-from tank_control.harness.trace import (GATED_DISTURBANCE, TraceTable, from_core_trace,
-                                        from_messages)
+from tank_control.harness.trace import GATED_DISTURBANCE, from_messages
 
 NS = 1_000_000_000
 OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
-GAIN_NAMES = re.compile(r'^(kp|ki|ti|td|b|c|n|d12|d21)(_\w+)?$')
 PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
              'controller': ('manipulated',)}
 SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
@@ -92,7 +92,7 @@ class RunResult:
 
     name: str
     out_dir: Path
-    trace: TraceTable
+    trace: Trace
     metrics: dict[str, Any]
     files: dict[str, Path] = field(default_factory=dict)
 
@@ -132,30 +132,25 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
 # ----------------------------------------------------------------------------------------------
 # Results common to both kinds of run
 
-def input_limits(scenario: Scenario, controller_params: Mapping[str, Any]) -> dict[str, tuple]:
-    """[u_min, u_max] of every input, from the controller's parameters (live, else the file).
-
-    ``mpcs`` names its per-input limits ``mpcs.u_min``/``mpcs.u_max`` (lists [F_H, F_Cin]):
-    the widest range over the inputs is used."""
-    params = dict(scenario.params('controller'))
-    params.update(controller_params)
-    lo = params.get('u_min', params.get('mpcs.u_min', -math.inf))
-    hi = params.get('u_max', params.get('mpcs.u_max', math.inf))
-    if isinstance(lo, (list, tuple)) and lo:
-        lo = min(lo)
-    if isinstance(hi, (list, tuple)) and hi:
-        hi = max(hi)
-    lo = float(lo) if isinstance(lo, (int, float)) else -math.inf
-    hi = float(hi) if isinstance(hi, (int, float)) else math.inf
-    return {'*': (lo, hi)}
+def controller_report(scenario: Scenario, controller_params: Mapping[str, Any]
+                      ) -> tuple[dict[str, tuple[float, float]], dict[str, Any]]:
+    """Input limits ``{channel: (min, max)}`` and final gains of the controller that ran, from
+    its parameter values (read from the node, or from the in-process controller) through its
+    kind."""
+    if 'controller' not in scenario.harness.nodes:
+        return {}, {}
+    setup = core_scenario.controller_setup(controller_params, given=())
+    kind, settings = setup.kind, setup.settings
+    limits = dict(kind.input_limits(settings)) if kind.input_limits is not None else {}
+    return limits, {name: settings.values[name] for name in kind.gains}
 
 
-def finish(scenario: Scenario, out: Path, trace: TraceTable, run_info: dict[str, Any],
+def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
            controller_params: Mapping[str, Any], mcap_writer: Callable[[Path], Path]) -> RunResult:
     """Write trace.csv, run.mcap, metrics.json and plot.png."""
-    limits = input_limits(scenario, controller_params)
-    body = metrics_mod.trace_metrics(trace, {name: limits['*'] for name in trace.channels('u')})
-    gains = {k: v for k, v in controller_params.items() if GAIN_NAMES.match(k.split('.')[-1])}
+    limits, gains = controller_report(scenario, controller_params)
+    body = metrics_mod.trace_metrics(
+        trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
     metrics = {
         'scenario': scenario.name,
@@ -196,16 +191,15 @@ def _jsonable(value: Any) -> Any:
 
 def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
                     progress: ProgressFn | None) -> RunResult:
-    from tank_control.core import scenario as core_scenario   # lands with the nodes branch
 
     config = scenario.harness
     start = time.monotonic()
     try:
-        core_trace = core_scenario.run_in_process(params_file, config.duration)
-    except ValueError as exc:            # a parameter the core objects reject: one line
+        built = core_scenario.build(core_scenario.sections_of(params_file))
+        trace = core_scenario.run(built, config.duration).until(config.duration)
+    except ConfigError as exc:            # a parameter the core objects reject: one line
         raise ScenarioError(f'{scenario.path}: {exc}') from None
     wall = time.monotonic() - start
-    trace = from_core_trace(core_trace).until(config.duration)
     ticks = len(trace)
     if progress:
         progress(Progress(config.duration, config.duration, config.duration / max(wall, 1e-9),
@@ -216,21 +210,8 @@ def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
         'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
     }
-    return finish(scenario, out, trace, run_info, _controller_values(scenario),
+    return finish(scenario, out, trace, run_info, built.controller_values(),
                   lambda path: write_trace(path, trace))
-
-
-def _controller_values(scenario: Scenario) -> dict[str, Any]:
-    """The controller's parameters as controller_node would hold them: defaults filled in
-    and the gains a ``tuning.rule`` derives (what a ROS run reads from the node)."""
-    values = dict(scenario.params('controller'))
-    try:
-        from tank_control.core.control import registry
-        values = registry.complete_values(values)
-        values.update(registry.derive(values, frozenset(scenario.params('controller'))))
-    except (ImportError, ValueError):
-        pass                                   # report what the file says
-    return values
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,32 +1,26 @@
-"""The run's table: one row per plant tick, columns ``t``, ``y.*``, ``r.*``, ``u.*``, ``d.*``.
+"""A ROS run's table (``core/trace.py``) from the recorded signal messages.
 
-The same table comes from the in-process loop (``core/loop.py``) and from a
-ROS run (the recorded ``measurement``, ``setpoint``, ``manipulated`` and
-``disturbance`` messages joined on their stamps), so both write the same
-``trace.csv`` and can be compared column by column.
-
-Join rule for recorded messages (``from_messages``): the rows are the stamps of
+The ``measurement``, ``setpoint``, ``manipulated`` and ``disturbance`` messages are joined
+on their stamps into the table the in-process loop writes. Join rule for recorded messages (``from_messages``): the rows are the stamps of
 the ``measurement`` messages; each other signal takes its latest message stamped
 at or before the row's stamp (zero-order hold). In lockstep every answer is
 stamped exactly ``t_k``, so the join is exact; an answer that is missing for a
-row's stamp is counted (``TraceTable.late``) and its value carried from the
+row's stamp is counted (``Trace.late``) and its value carried from the
 previous one, or NaN before the first.
 """
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
 from tank_control.core.interfaces import NS_PER_S
+from tank_control.core.trace import Trace
 
 #: Topic → column prefix.
 TOPIC_PREFIX = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
-PREFIX_ORDER = ('y', 'r', 'u', 'd')
 #: The plant's ``disturbance`` input in a gated lockstep run (see ``Recorder.enable_gate``).
 GATED_DISTURBANCE = 'disturbance_gated'
 
@@ -41,79 +35,8 @@ class SignalMessage:
     values: tuple[float, ...]
 
 
-@dataclass
-class TraceTable:
-    """Columns by name (``t`` first), all the same length; ``late`` counts per prefix
-    how many rows had no message stamped exactly at the row's stamp."""
-
-    columns: dict[str, np.ndarray]
-    late: dict[str, int] = field(default_factory=dict)
-
-    @property
-    def t(self) -> np.ndarray:
-        return self.columns['t']
-
-    def __len__(self) -> int:
-        return len(self.columns['t'])
-
-    def channels(self, prefix: str) -> list[str]:
-        """Channel names with a column ``<prefix>.<name>``, in column order."""
-        return [name.split('.', 1)[1] for name in self.columns if name.startswith(prefix + '.')]
-
-    def until(self, t_end: float) -> TraceTable:
-        """Rows with ``t <= t_end`` (plus a 1 ns tolerance)."""
-        keep = self.t <= t_end + 1e-9
-        return TraceTable({k: v[keep] for k, v in self.columns.items()}, dict(self.late))
-
-    def write_csv(self, path: str | Path) -> Path:
-        """``trace.csv``: a header row of column names, values with full float64 precision."""
-        path = Path(path)
-        names = list(self.columns)
-        data = np.column_stack([self.columns[n] for n in names]) if len(self) else np.empty((0, 0))
-        with open(path, 'w', newline='') as handle:
-            writer = csv.writer(handle)
-            writer.writerow(names)
-            for row in data:
-                writer.writerow([repr(float(v)) for v in row])
-        return path
-
-
-def read_csv(path: str | Path) -> TraceTable:
-    """Read a ``trace.csv`` written by ``TraceTable.write_csv``."""
-    with open(path, newline='') as handle:
-        reader = csv.reader(handle)
-        names = next(reader)
-        rows = [[float(v) for v in row] for row in reader]
-    data = np.array(rows, dtype=float).reshape(len(rows), len(names))
-    return TraceTable({name: data[:, i] for i, name in enumerate(names)})
-
-
-def ordered(columns: Mapping[str, Sequence[float]]) -> TraceTable:
-    """A table with columns sorted as ``t``, ``y.*``, ``r.*``, ``u.*``, ``d.*`` (others after)."""
-    def rank(name: str) -> tuple[int, str]:
-        if name == 't':
-            return (0, '')
-        prefix = name.split('.', 1)[0]
-        return (1 + PREFIX_ORDER.index(prefix) if prefix in PREFIX_ORDER else 9, '')
-    names = sorted(columns, key=rank)   # stable: keeps channel order within a prefix
-    return TraceTable({n: np.asarray(columns[n], dtype=float) for n in names})
-
-
-def from_core_trace(trace: object) -> TraceTable:
-    """Adapt the in-process loop's result (a mapping of columns, or an object with
-    ``columns``/``as_dict()``/``to_dict()``) to a ``TraceTable``."""
-    for attr in ('as_dict', 'to_dict'):
-        if hasattr(trace, attr):
-            return ordered(getattr(trace, attr)())
-    if hasattr(trace, 'columns') and isinstance(trace.columns, Mapping):
-        return ordered(trace.columns)
-    if isinstance(trace, Mapping):
-        return ordered(trace)
-    raise TypeError(f'cannot read a trace from {type(trace).__name__}')
-
-
 def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
-                  t_end_ns: int | None = None) -> TraceTable:
+                  t_end_ns: int | None = None) -> Trace:
     """Join recorded signal messages into a table (see the module docstring).
 
     ``t0_ns`` is subtracted from the stamps (0 in sim/lockstep, where the sim
@@ -140,7 +63,7 @@ def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
             columns[f'{prefix}.{name}'] = held[name]
         if topic != 'measurement' and by_topic[topic]:
             late[prefix] = sum(1 for s in stamps if s not in by_topic[topic])
-    table = ordered(columns)
+    table = Trace.ordered(columns)
     table.late = late
     return table
 
@@ -159,16 +82,3 @@ def _zoh_join(stamps: Sequence[int], messages: Mapping[int, Mapping[str, float]]
         for name, value in current.items():
             out[name][i] = value
     return out
-
-
-def max_abs_difference(a: TraceTable, b: TraceTable) -> tuple[float, str]:
-    """Largest |a − b| over the columns both tables have (rows aligned by index), and where."""
-    worst, where = 0.0, ''
-    n = min(len(a), len(b))
-    for name in a.columns:
-        if name in b.columns:
-            diff = np.abs(a.columns[name][:n] - b.columns[name][:n])
-            if diff.size and (np.nanmax(diff) > worst or np.isnan(diff).any()):
-                worst = math.inf if np.isnan(diff).any() else float(np.nanmax(diff))
-                where = name
-    return worst, where

@@ -72,8 +72,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from tank_control.core.control import registry
+from tank_control.core import node_specs
+from tank_control.core.control.kinds import registry
 from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.params import ConfigError
+from tank_control.core.scenario import controller_setup
 from tank_control.core.loop import warm_start
 from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
                                       sim_sample_instant, steady_clock)
@@ -95,16 +98,16 @@ class ControllerNode(Node):
     """Thin adapter: parameters → core controller → timer/lockstep → messages."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('controller', **kwargs)
+        super().__init__('controller', allow_undeclared_parameters=True, **kwargs)
         self._u: np.ndarray | None = None          # last published output
         self._started = False                      # warm start done (first good sample)
         kind_name = self._kind_from_overrides()
         self._kind = registry.get_kind(kind_name)
-        self._kind_names = tuple(s.name for s in registry.controller_specs(kind_name))
-        self._params = ParameterBinding(self, registry.specs_for(kind_name),
+        self._kind_names = frozenset(s.name for s in self._kind.specs())
+        self._params = ParameterBinding(self, node_specs.controller_specs(kind_name),
                                         cross_check=self._cross_check, derive=self._derive)
         values = self._params.values
-        self._controller = registry.make_controller(self._kind_values(values))
+        self._controller = controller_setup(values).build_controller()
         self._params.take_pending()
         self._outputs = tuple(self._controller.output_names)
         self._inputs = tuple(self._controller.input_names)
@@ -162,21 +165,24 @@ class ControllerNode(Node):
     # ------------------------------------------------------------ parameters
     def _kind_from_overrides(self) -> str:
         override = getattr(self, '_parameter_overrides', {}).get('controller')
-        name = 'pid' if override is None else override.value
-        if name not in registry.kind_names():
-            raise ParameterError(f'controller: {name!r} is not available; allowed one of '
-                                 + ', '.join(registry.kind_names()))
-        return name
+        try:
+            return node_specs.kind_of('controller', {} if override is None
+                                      else {'controller': override.value})
+        except ConfigError as exc:
+            raise ParameterError(str(exc)) from None
 
-    def _kind_values(self, values: Mapping[str, Any]) -> dict[str, Any]:
-        return {name: values[name] for name in self._kind_names if name in values}
-
-    def _cross_check(self, values: Mapping[str, Any]) -> str | None:
-        kind_values = self._kind_values(values)
-        return self._kind.check(kind_values) or registry.check_initial_output(kind_values)
+    def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
+        try:
+            controller_setup(values, given=changed)
+        except ConfigError as exc:
+            return str(exc)
+        return None
 
     def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
-        extra = dict(self._kind.derive(self._kind_values(values), changed))
+        extra = {}
+        if self._kind.derive is not None:
+            kind_values = {k: v for k, v in values.items() if k in self._kind_names}
+            extra = {k: v for k, v in self._kind.derive(kind_values).items() if k not in changed}
         # auto → manual without a manual_output: keep the current output (bumpless)
         if ('mode' in changed and values.get('mode') == 'manual' and 'manual_output' not in changed
                 and isinstance(values.get('manual_output'), float) and self._u is not None
@@ -190,9 +196,9 @@ class ControllerNode(Node):
         changed = [name for name in self._params.take_pending() if name in self._kind_names]
         if changed:
             try:
+                settings = controller_setup(self._params.values, given=()).settings
                 self._controller, u = registry.step_with_changes(
-                    self._controller, self._kind_values(self._params.values), frozenset(changed),
-                    t, y, r, d)
+                    self._kind, self._controller, settings, frozenset(changed), t, y, r, d)
                 return u
             except ValueError as exc:    # validated before acceptance; never expected
                 self.counters['update_errors'] += 1

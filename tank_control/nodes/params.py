@@ -39,7 +39,6 @@ nameless type error. Stored values therefore always have the spec's type.
 """
 from __future__ import annotations
 
-import array
 import math
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
@@ -49,10 +48,12 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from tank_control.core.params import ParamSpec, ParamValue
+from tank_control.core.node_specs import declared_anywhere, is_ros_own
+from tank_control.core.params import ParamSpec, ParamValue, coerce, unknown_reason
 
-CrossCheck = Callable[[Mapping[str, Any]], 'str | None']
-"""Relations between parameters: full candidate values → one-line reason or None."""
+CrossCheck = Callable[[Mapping[str, Any], frozenset[str]], 'str | None']
+"""Relations between parameters: (full candidate values, names set in this request or the
+params file) → one-line reason or None."""
 
 Derive = Callable[[Mapping[str, Any], frozenset[str]], Mapping[str, Any]]
 """Derived values: (candidate values, names the user set) → extra name → value to set."""
@@ -73,27 +74,6 @@ def ros_type(spec: ParamSpec) -> Parameter.Type:
     if isinstance(default, list) and not default:
         raise ValueError(f'{spec.name}: a list parameter needs a non-empty default to have a type')
     return Parameter.Type.from_parameter_value(default)
-
-
-def coerce(spec: ParamSpec, value: Any) -> Any:
-    """``value`` converted as a ROS user expects, else unchanged.
-
-    Integers become doubles where the spec is a double (``kp 2`` → ``2.0``),
-    also inside arrays; rclpy's ``array.array``/tuple values become lists.
-    """
-    if isinstance(value, (array.array, tuple)):
-        value = list(value)
-    default = spec.default
-    if isinstance(default, float) and _is_int(value):
-        return float(value)
-    if (isinstance(default, list) and default and isinstance(default[0], float)
-            and isinstance(value, list) and all(_is_int(v) or isinstance(v, float) for v in value)):
-        return [float(v) for v in value]
-    return value
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
@@ -129,8 +109,10 @@ class ParameterBinding:
     """
 
     def __init__(self, node: Node, specs: Iterable[ParamSpec], *,
-                 cross_check: CrossCheck | None = None, derive: Derive | None = None) -> None:
+                 cross_check: CrossCheck | None = None, derive: Derive | None = None,
+                 strict: bool = True) -> None:
         self._node = node
+        self._strict = strict
         self._specs = {spec.name: spec for spec in specs}
         self._cross_check = cross_check
         self._derive = derive
@@ -149,6 +131,8 @@ class ParameterBinding:
         overrides = getattr(self._node, '_parameter_overrides', {})   # rclpy has no public getter
         values: dict[str, Any] = {}
         reasons: list[str] = []
+        if self._strict:
+            reasons += self._unknown_overrides(overrides)
         for name, spec in self._specs.items():
             ros_type(spec)   # fail early on an untypable default
             value = spec.default
@@ -166,7 +150,7 @@ class ParameterBinding:
             else:
                 values.update({k: coerce(self._specs[k], v) for k, v in extra.items()})
         if not reasons and self._cross_check is not None:
-            reason = self._cross_check(values)
+            reason = self._cross_check(values, frozenset(n for n in self._specs if n in overrides))
             if reason:
                 reasons.append(reason)
         if reasons:
@@ -174,6 +158,21 @@ class ParameterBinding:
         for name, spec in self._specs.items():
             self._node.declare_parameter(name, values[name], descriptor(spec), ignore_override=True)
         self._values = values
+
+    def _unknown_overrides(self, overrides: Mapping[str, Any]) -> list[str]:
+        """A start-up value for a name this node does not declare is a typo (refused with the
+        nearest known name) unless another node of the package declares it: then it comes from
+        a ``/**`` section meant for that node and is ignored (logged)."""
+        reasons = []
+        for name in overrides:
+            if name in self._specs or is_ros_own(name):
+                continue
+            if declared_anywhere(name):
+                self._node.get_logger().info(f'parameter {name} ignored: not one of this node '
+                                             "(another node's, e.g. from a /** section)")
+            else:
+                reasons.append(unknown_reason(name, self._specs))
+        return reasons
 
     # ------------------------------------------------------------ callbacks
     def _pre_set(self, parameters: list[Parameter]) -> list[Parameter]:
@@ -225,6 +224,8 @@ class ParameterBinding:
         for param in parameters:
             spec = self._specs.get(param.name)
             if spec is None:
+                if self._strict and not self._node.has_parameter(param.name):
+                    return self._reject(unknown_reason(param.name, self._specs))
                 continue   # not ours (use_sim_time, ...): leave it to its owner
             # rclpy retypes a dynamically typed descriptor to the incoming value's
             # type before this check; keep it at the spec's type (only that is accepted).
@@ -236,7 +237,7 @@ class ParameterBinding:
                 return self._reject(reason)
             changes[param.name] = value
         if changes and self._cross_check is not None:
-            reason = self._cross_check({**self._values, **changes})
+            reason = self._cross_check({**self._values, **changes}, frozenset(changes))
             if reason:
                 return self._reject(reason)
         return SetParametersResult(successful=True)

@@ -1,4 +1,4 @@
-"""plant_node: simulates a core plant model and is the clock master (issue 4).
+"""plant_node: simulates a core plant model and is the clock master.
 
 Topics (``sensor_msgs/JointState`` signals, see ``nodes/messages.py``):
 
@@ -11,7 +11,7 @@ Topics (``sensor_msgs/JointState`` signals, see ``nodes/messages.py``):
 * publishes ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): ticks,
   ignored inputs, re-sent ticks, the model's status (clipped flows, overflow).
 
-Clock modes (parameter ``clock_mode``, BRIEF "Clock modes"):
+Clock modes (parameter ``clock_mode``):
 
 * ``wall``: a wall timer every ``sample_time``; stamps ``start + k·ts``.
 * ``sim``: a wall timer every ``sample_time / real_time_factor``; tick k is
@@ -41,7 +41,6 @@ step.
 """
 from __future__ import annotations
 
-import copy
 import sys
 import time
 from typing import Any
@@ -52,20 +51,22 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
+from tank_control.core import node_specs
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import nominal_disturbances, nominal_inputs
-from tank_control.core.params import ParamSpec
-from tank_control.core.scenario import PLANT_NODE_SPECS, build_noise, build_plant, plant_specs
+from tank_control.core.node_specs import PlantNode as PlantNodeConfig
+from tank_control.core.params import ConfigError, names_of, specs_of
+from tank_control.core.plants.noise import NoiseConfig
+from tank_control.core.scenario import plant_setup
 from tank_control.nodes.clock import StampedInbox, steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
                                          ChannelFilter, clock_msg, quiet_publisher_events,
                                          quiet_subscription_events, to_joint_state)
-from tank_control.nodes.params import ParameterBinding
+from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
 
-_KIND_SPEC: ParamSpec = PLANT_NODE_SPECS[0]
-_NODE_ONLY = {s.name for s in PLANT_NODE_SPECS}
+_NODE_ONLY = frozenset(names_of(PlantNodeConfig)) | frozenset(names_of(NoiseConfig))
 _LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
 
 
@@ -73,15 +74,20 @@ class PlantNode(Node):
     """The plant simulation node (see module doc)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('plant', **kwargs)
+        super().__init__('plant', allow_undeclared_parameters=True, **kwargs)
         # The model kind decides which parameters exist: bind it first, then the rest.
-        kind = ParameterBinding(self, (_KIND_SPEC,)).values['plant']
+        kind_spec = next(s for s in specs_of(PlantNodeConfig) if s.name == 'plant')
+        kind = ParameterBinding(self, (kind_spec,), strict=False).values['plant']
         self.params = ParameterBinding(
-            self, tuple(s for s in plant_specs(str(kind)) if s.name != 'plant'),
+            self, tuple(s for s in node_specs.plant_specs(str(kind)) if s.name != 'plant'),
             cross_check=self._cross_check)
         values = {**self.params.values, 'plant': kind}
-        self.plant = build_plant(values)
-        self.noise = build_noise(values, self.plant.output_names)
+        try:
+            setup = plant_setup(values)
+            self.plant = setup.build_plant()
+            self.noise = setup.build_noise(len(self.plant.output_names))
+        except ConfigError as exc:
+            raise ParameterError(str(exc)) from None
         self.mode = str(values['clock_mode'])
         self.ts = float(values['sample_time'])
         self.ts_ns = to_ns(self.ts)
@@ -143,27 +149,16 @@ class PlantNode(Node):
             f'{self.mode} clock, sample_time {self.ts:g} s')
 
     # ------------------------------------------------------------- parameters
-    def _cross_check(self, values: dict[str, Any]) -> str | None:
-        """sim needs real_time_factor > 0; noise_std needs 1 or one value per output;
-        model relations (dead_time <= max_dead_time, ...) are checked by the model on a
-        trial copy."""
-        if values['clock_mode'] == 'sim' and values['real_time_factor'] <= 0:
-            return (f"real_time_factor: {values['real_time_factor']:g} with clock_mode sim; "
-                    'allowed (0, 1e6] (0 = as fast as possible exists in lockstep only)')
-        if not hasattr(self, 'plant'):
-            return None   # start-up: make_plant/MeasurementNoise check the values
-        n = len(self.plant.output_names)
-        if len(values['noise_std']) not in (1, n):
-            return (f"noise_std: {len(values['noise_std'])} values for {n} outputs "
-                    f'{list(self.plant.output_names)}; give 1 or {n}')
-        config = getattr(self.plant, 'config', None)
-        changes = {k: v for k, v in values.items()
-                   if k not in _NODE_ONLY and getattr(config, k, v) != v}
-        if changes:
-            try:   # the model's own relations, on a throw-away copy
-                copy.deepcopy(self.plant).configure(**changes)
-            except ValueError as exc:
-                return str(exc)
+    def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
+        """The whole candidate set as at start-up (node relations, the model's configuration
+        and its relations such as dead_time <= max_dead_time) and noise_std: 1 value or one
+        per output."""
+        try:
+            setup = plant_setup({**values, 'plant': self.get_parameter('plant').value})
+            if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next
+                setup.build_noise(len(self.plant.output_names))
+        except ConfigError as exc:
+            return str(exc)
         return None
 
     def _apply_pending(self) -> None:

@@ -1,4 +1,4 @@
-"""reference_node: publishes setpoints and disturbances per channel (issue 4).
+"""reference_node: publishes setpoints and disturbances per channel.
 
 Topics (``sensor_msgs/JointState``, see ``nodes/messages.py``):
 
@@ -35,9 +35,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import seconds, to_ns
-from tank_control.core.reference import (KINDS, Reference, channel_lists,
-                                         reference_from_params, reference_params,
-                                         split_param_name)
+from tank_control.core.node_specs import ReferenceNode as ReferenceNodeConfig
+from tank_control.core.params import ConfigError, specs_of
+from tank_control.core.reference import Reference, channel_lists, channel_specs, split_param_name
+from tank_control.core.scenario import reference_setup
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
                                          TOPIC_SETPOINT, quiet_publisher_events,
@@ -46,26 +47,25 @@ from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import run_node
 
 
-def _file_values(node: Node) -> dict[str, Any]:
-    """The node's start-up values from the params file / command line (flat)."""
+def _channel_values(node: Node) -> dict[str, Any]:
+    """The node's start-up channel values from the params file / command line (flat)."""
     overrides = getattr(node, '_parameter_overrides', {})   # rclpy has no public getter
-    return {name: param.value for name, param in overrides.items()
-            if name.split('.')[0] in KINDS}
+    return {name: (list(p.value) if not isinstance(p.value, (str, bytes))
+                   and hasattr(p.value, '__len__') else p.value)
+            for name, p in overrides.items() if name.split('.')[0] in ('setpoint', 'disturbance')}
 
 
 class ReferenceNode(Node):
     """Setpoint/disturbance publisher around a core ``Reference``."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('reference', **kwargs)
+        super().__init__('reference', allow_undeclared_parameters=True, **kwargs)
         try:
-            reference = reference_from_params({k: (list(v) if not isinstance(v, (str, bytes))
-                                                   and hasattr(v, '__len__') else v)
-                                               for k, v in _file_values(self).items()})
-        except ValueError as exc:
+            reference = reference_setup(_channel_values(self)).reference
+        except ConfigError as exc:
             raise ParameterError(str(exc)) from None
         self.reference: Reference = reference
-        self.params = ParameterBinding(self, reference_params(reference),
+        self.params = ParameterBinding(self, specs_of(ReferenceNodeConfig) + channel_specs(reference),
                                        cross_check=self._cross_check)
         self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, SIGNAL_QOS,
                                                   event_callbacks=quiet_publisher_events())
@@ -95,7 +95,7 @@ class ReferenceNode(Node):
             f'{"answering /clock ticks" if self.use_sim_time else f"every {period:g} s"}')
 
     # ------------------------------------------------------------- parameters
-    def _cross_check(self, values: dict[str, Any]) -> str | None:
+    def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
         """The change must leave every schedule valid: it is tried on a copy of the
         running reference (which includes earlier overrides), so nothing accepted
         here can be refused when it is applied."""

@@ -10,13 +10,12 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from tank_control.core import ros_yaml
-from tank_control.core.ros_yaml import flatten  # the inverse of ``nest``
+from tank_control.core import params_file, ros_yaml
+from tank_control.core.params import ConfigError
 from tank_control.ros2cli.common import (
     CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
     client_node, is_hidden, settle_graph, spin_until, wait_for_node)
@@ -313,71 +312,28 @@ def describe_text(descriptor: Any) -> str:
     return '\n'.join(lines)
 
 
-def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """``{'a.b': 1, 'c': 2}`` → ``{'a': {'b': 1}, 'c': 2}``; clashing names stay dotted."""
-    tree: dict[str, Any] = {}
-    for name in sorted(flat):
-        parts = name.split('.')
-        branch = tree
-        for part in parts[:-1]:
-            child = branch.setdefault(part, {})
-            if not isinstance(child, dict):
-                branch = None
-                break
-            branch = child
-        if branch is None or (parts[-1] in branch and isinstance(branch[parts[-1]], dict)):
-            tree[name] = flat[name]
-        else:
-            branch[parts[-1]] = flat[name]
-    return tree
-
-
 def dump_verb(args: argparse.Namespace) -> int:
     with client_node() as node:
         target = _connect(node, args.node_name, args.timeout)
         names = _list_names(node, target, args.timeout)
         values = _get_values(node, target, names, args.timeout) if names else []
-    flat = {n: _python(v) for n, v in zip(names, values) if v is not None and v.type != 0}
-    document = {target: {'ros__parameters': nest(flat)}}
-    sys.stdout.write(yaml.safe_dump(document, default_flow_style=False, sort_keys=False,
-                                    width=1000))
+    flat = {n: _python(v) for n, v in sorted(zip(names, values), key=lambda item: item[0])
+            if v is not None and v.type != 0}
+    sys.stdout.write(params_file.dumps({target: flat}))   # the dialect the loader reads
     return 0
 
 
-def _key_matches(key: str, target: str) -> bool:
-    """Parameter-file node keys: exact, relative (``plant``) or wildcards (``/**``, ``/*``)."""
-    if '*' not in key:
-        return absolute_name(key) == target
-    regex = ''.join('.*' if part == '**' else '[^/]*' if part == '*' else re.escape(part)
-                    for part in re.split(r'(\*\*|\*)', absolute_name(key)))
-    return re.fullmatch(regex, target) is not None
-
-
 def parameters_from_file(path: str, target: str, use_wildcard: bool = True) -> dict[str, Any]:
-    """Flat name → value for ``target`` from a parameter file (wildcards first, then exact)."""
+    """Flat name → value for ``target`` from a parameter file (wildcards first, then exact),
+    read by the package's one parameter-file reader."""
     try:
-        with open(path, encoding='utf-8') as stream:
-            document = ros_yaml.load(stream.read())   # as --params-file reads it
-    except OSError as exc:
-        raise CliError(f"Cannot read parameter file '{path}': {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise CliError(f"Parameter file '{path}' is not valid YAML: "
-                       f'{str(exc).splitlines()[0]}') from None
-    if not isinstance(document, Mapping):
-        raise CliError(f"Parameter file '{path}' is not a mapping of node names")
-    wild = [k for k in document if '*' in str(k) and use_wildcard and _key_matches(str(k), target)]
-    exact = [k for k in document if '*' not in str(k) and _key_matches(str(k), target)]
-    if not wild + exact:
+        sections = params_file.read(path)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+    flat = params_file.values_for(sections, target, use_wildcard)
+    if flat is None:
         raise CliError(f"Param file does not contain parameters for {target}, only for nodes: "
-                       f"{', '.join(map(str, document))}")
-    flat: dict[str, Any] = {}
-    for key in wild + exact:
-        section = document[key]
-        if not isinstance(section, Mapping) or not isinstance(section.get('ros__parameters'),
-                                                               Mapping):
-            raise CliError(f"Invalid structure of parameter file '{path}' for node {key}: "
-                           "expected 'ros__parameters:' mapping")
-        flat.update(flatten(section['ros__parameters']))
+                       f"{', '.join(sections)}")
     return flat
 
 

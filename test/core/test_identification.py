@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tank_control.core.tuning import identification as ident
-from test_relay_autotune_helpers import (ExactDelayPlant, exact_fopdt_ultimate,
+from support.relay import (ExactDelayPlant, exact_fopdt_ultimate,
                                          exact_ipdt_ultimate, relay_record)
 
 LT_RATIOS = (0.1, 0.3, 1.0, 3.0)

@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from tank_control.core.control import mpcs_qp
-from tank_control.core.control.mpcs import Mpcs, MpcsConfig, config_from_params, mpcs_params
+from tank_control.core.control.kinds import mpcs as mpcs_kind
+from tank_control.core.control.kinds.base import resolve
+from tank_control.core.control.mpcs import Mpcs, MpcsConfig
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import check_all, defaults
+from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
 
 from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
 
@@ -261,16 +263,16 @@ def test_soft_output_bound_limits_the_level():
 
 
 def test_params_describe_the_config_and_reject_with_reasons():
-    specs = mpcs_params()
+    specs = specs_of(MpcsConfig)
     names = {s.name for s in specs}
     assert {'mpcs.horizon', 'mpcs.control_horizon', 'mpcs.lambda', 'mpcs.solver',
             'mpcs.u_min', 'mpcs.u_max', 'mpcs.du_max', 'mpcs.output_weights',
             'mpcs.op.F_H', 'mpcs.op.F_Cin'} <= names
-    assert all(s.description for s in specs)
-    assert check_all(specs, defaults(specs)) == []
-    assert config_from_params(defaults(specs)) == MpcsConfig()
-    with pytest.raises(ValueError, match=r'mpcs\.lambda.*below the minimum'):
-        config_from_params({'mpcs.lambda': [-1.0]})
+    assert all(s.description and s.check(s.default) is None for s in specs)
+    assert config_from(MpcsConfig, defaults_of(MpcsConfig)) == MpcsConfig()
+    with pytest.raises(ConfigError, match=r'mpcs\.lambda.*below the minimum'):
+        config_from(MpcsConfig, {'mpcs.lambda': [-1.0]})
+    assert config_from(MpcsConfig, {'mpcs.lambda': 0.3}).lam == (0.3,)   # one value for both
 
 
 def test_is_a_controller():
@@ -280,19 +282,16 @@ def test_is_a_controller():
     assert ctl.disturbance_names == ('F_D', 'T_D') and ctl.sample_time == 1.0
 
 
-def test_controller_kind_for_the_registry():
-    """build/check/update from flat parameter values, as controller_node drives them."""
-    from tank_control.core.control.mpcs import controller_kind
-    kind = controller_kind()
-    values = defaults(kind.params())
-    values.update({'mpcs.solver': 'qp', 'mpcs.horizon': 80})
-    assert kind.check(values) is None
-    ctl = kind.build(values)
+def test_controller_kind_builds_checks_and_updates_from_parameter_values():
+    """resolve/build/update from flat parameter values, as controller_node drives them."""
+    kind = mpcs_kind.KIND
+    values = {'mpcs.solver': 'qp', 'mpcs.horizon': 80}
+    ctl = kind.build(resolve(kind, values))
     assert ctl.config.solver == 'qp' and ctl.config.horizon == 80
-    values['mpcs.control_horizon'] = 90
-    assert 'mpcs.control_horizon' in kind.check(values)
+    with pytest.raises(ConfigError, match='mpcs.control_horizon'):
+        resolve(kind, {**values, 'mpcs.control_horizon': 90})
     values.update({'mpcs.control_horizon': 20, 'mpcs.lambda': [0.3]})
-    kind.update(ctl, values, frozenset({'mpcs.control_horizon', 'mpcs.lambda'}))
+    kind.update(ctl, resolve(kind, values), frozenset({'mpcs.control_horizon', 'mpcs.lambda'}))
     assert ctl.config.control_horizon == 20 and ctl.config.lam == (0.3,)
 
 
@@ -313,17 +312,18 @@ def test_runs_in_the_project_loop_from_an_off_nominal_start():
 
 
 def test_registered_kind_is_built_checked_and_reconfigured_by_the_registry():
-    """``controller: mpcs`` is a registered kind: make_controller / check /
-    step_with_changes (what controller_node and the in-process loop call) drive MPCS."""
-    from tank_control.core.control import registry
-    assert 'mpcs' in registry.kind_names()
-    values = registry.complete_values({'controller': 'mpcs', 'mpcs.solver': 'qp'})
-    ctl = registry.make_controller(values)
+    """``controller: mpcs`` is a registered kind: resolve / build / step_with_changes (what
+    controller_node and the in-process loop call) drive MPCS."""
+    from tank_control.core.control.kinds import registry
+    kind = registry.get_kind('mpcs')
+    values = {'mpcs.solver': 'qp'}
+    ctl = registry.build(kind, resolve(kind, values))
     assert isinstance(ctl, Mpcs) and ctl.config.solver == 'qp'
-    assert 'mpcs.horizon' in registry.check({**values, 'mpcs.horizon': 0})
+    with pytest.raises(ConfigError, match='mpcs.horizon'):
+        resolve(kind, {**values, 'mpcs.horizon': 0})
     y, r = np.array([81.0, T0]), np.array([82.0, T0])
-    values['mpcs.horizon'] = 150
-    same, u = registry.step_with_changes(ctl, values, frozenset({'mpcs.horizon'}), 0.0, y, r, D0)
+    same, u = registry.step_with_changes(kind, ctl, resolve(kind, {**values, 'mpcs.horizon': 150}),
+                                         frozenset({'mpcs.horizon'}), 0.0, y, r, D0)
     assert same is ctl and ctl.config.horizon == 150 and np.all(np.isfinite(u))
 
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from tank_control.core.control.multiloop import (
-    D21_DEN, D21_NUM, D21Filter, SetpointGuard, TwoLoopPi, check_two_loop_relations, document_config,
-    two_loop_config_from_params, two_loop_pi_params,
-)
+from tank_control.core.control.kinds import two_loop_pi
+from tank_control.core.control.kinds.base import resolve
+from tank_control.core.control.multiloop import (D21_DEN, D21_NUM, D21Filter, TwoLoopPi,
+                                                 document_config)
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import defaults
+from tank_control.core.params import ConfigError
 
 C, ALPHA, TC, TH, TD = 0.7, 7.0, 23.0, 62.0, 33.0      # 003 §1
 T0 = 2115.0 / 63.0                                    # operating-point temperature 33.571 °C
@@ -142,14 +142,20 @@ def test_protocol_params_and_validation():
     ctl = TwoLoopPi()
     assert isinstance(ctl, Controller)
     assert ctl.output_names == ('h', 'T_out') and ctl.input_names == ('F_H', 'F_Cin')
-    specs = two_loop_pi_params()
-    for spec in specs:
+    kind = two_loop_pi.KIND
+    for spec in kind.specs():
         assert spec.description and spec.check(spec.default) is None
-    assert check_two_loop_relations(defaults(specs)) is None
-    assert 'u_min' in check_two_loop_relations({'u_min': 300.0, 'u_max': 100.0})
-    assert 'same sign' in check_two_loop_relations({'two_loop.kp_T': 0.2})
-    cfg = two_loop_config_from_params({'two_loop.decoupling': 'dynamic'})
-    assert cfg.decoupling == 'dynamic'
+
+    def reason(values: dict) -> str:
+        with pytest.raises(ConfigError) as info:
+            resolve(kind, values)
+        return str(info.value)
+
+    assert resolve(kind, {}).config == document_config('none')
+    assert reason({'u_min': 300.0, 'u_max': 100.0}).startswith('u_min')
+    assert reason({'two_loop.kp_T': 0.2}).startswith('two_loop.ki_T: ')   # named by parameter
+    assert reason({'fail_safe_output': [14.0, 400.0]}).startswith('fail_safe_output')
+    assert resolve(kind, {'two_loop.decoupling': 'dynamic'}).config.decoupling == 'dynamic'
     with pytest.raises(ValueError, match='decoupling'):
         TwoLoopPi(document_config('sideways'))
 
@@ -164,6 +170,6 @@ def test_setpoint_guard_prevents_the_unreachable_temperature_failure_of_003():
     reachable = (51.0 * TC + 12.0 * TD) / 63.0 + 0.5                  # 25.40 °C at h = 81 cm
     assert guarded.status['setpoint_limited'] and guarded.status['r.T_out'] == pytest.approx(reachable)
     assert abs(out[-1, 0] - 81.0) < 0.2 and abs(out[-1, 1] - reachable) < 0.1
-    unguarded = TwoLoopPi(document_config('none', guard=SetpointGuard(enabled=False)))
+    unguarded = TwoLoopPi(document_config('none', setpoint_guard=False))
     out = tank_run(unguarded, r_fn, 3000)
     assert out[-1, 0] - 81.0 > 3.0 and out[-1, 2] == 0.0             # F_H shut, level drifting up

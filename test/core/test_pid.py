@@ -6,12 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from tank_control.core.control.pid import (
-    Pid2Dof, PidConfig, PidController, check_pid_relations, default_tracking_time,
-    pid_config_from_params, pid_params,
-)
+from tank_control.core.control.kinds import pid as pid_kind
+from tank_control.core.control.kinds.base import resolve
+from tank_control.core.control.pid import Pid2Dof, PidConfig, PidController, default_tracking_time
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import defaults
+from tank_control.core.params import ConfigError
 
 
 def make(**kw) -> Pid2Dof:
@@ -250,36 +249,77 @@ def test_pid_controller_follows_the_controller_protocol():
 
 
 # ------------------------------------------------------------ parameters
+def reason(values: dict) -> str | None:
+    """Why the pid kind refuses parameter ``values`` (None: accepted)."""
+    try:
+        resolve(pid_kind.KIND, values)
+    except ConfigError as exc:
+        return str(exc)
+    return None
+
+
 def test_param_specs_are_described_and_self_consistent():
-    specs = pid_params()
+    specs = pid_kind.KIND.specs()
     names = [s.name for s in specs]
     for required in ('sample_time', 'kp', 'ti', 'td', 'n', 'b', 'c', 'u_min', 'u_max', 'du_max',
                      'anti_windup', 'tracking_time', 'mode', 'manual_output', 'fail_safe_output',
                      'tuning.rule', 'tuning.kind', 'tuning.gain', 'tuning.dead_time',
-                     'tuning.time_constant', 'tuning.ku', 'tuning.tu'):
+                     'tuning.time_constant', 'tuning.ku', 'tuning.tu', 'initial_output',
+                     'output_names', 'input_names'):
         assert required in names
+    assert len(names) == len(set(names))
     for spec in specs:
         assert spec.description and spec.check(spec.default) is None
-    assert check_pid_relations(defaults(specs)) is None
+    assert reason({}) is None
     assert next(s for s in specs if s.name == 'kp').check(-1.0) is not None
 
 
 def test_relations_are_checked_with_reasons():
-    assert 'u_min' in check_pid_relations({'u_min': 5.0, 'u_max': 1.0})
-    assert 'kp' in check_pid_relations({'kp': 0.0})
-    assert 'manual_output' in check_pid_relations({'u_min': 0.0, 'u_max': 10.0, 'manual_output': 20.0})
+    assert reason({'u_min': 5.0, 'u_max': 1.0}).startswith('u_min')
+    assert reason({'kp': 0.0}).startswith('kp')
+    assert reason({'u_min': 0.0, 'u_max': 10.0, 'manual_output': 20.0}).startswith('manual_output')
+    assert reason({'u_min': 0.0, 'u_max': 10.0, 'fail_safe_output': 20.0}).startswith(
+        'fail_safe_output')          # refused whether or not fail_safe = output is selected
+    assert reason({'kpp': 2.0}) == 'kpp: unknown parameter; did you mean kp?'
+    assert reason({'kp': 'abc'}).startswith("kp: 'abc' is a str")
 
 
 def test_param_conventions_map_to_config():
-    cfg = pid_config_from_params({'kp': 3.0, 'ti': 0.0, 'du_max': 0.0, 'tracking_time': 0.0})
+    cfg = resolve(pid_kind.KIND, {'kp': 3.0, 'ti': 0.0, 'du_max': 0.0, 'tracking_time': 0.0}).config
     assert cfg.kp == 3.0 and math.isinf(cfg.ti) and math.isinf(cfg.du_max) and cfg.tracking_time is None
 
 
+MDP = {'tuning.rule': 'mdp', 'tuning.kind': 'pid', 'tuning.gain': 0.05, 'tuning.dead_time': 5.0}
+
+
 def test_tuning_parameters_give_the_gains_and_name_missing_ones():
-    cfg = pid_config_from_params({'tuning.rule': 'mdp', 'tuning.kind': 'pid', 'tuning.gain': 0.05,
-                                  'tuning.dead_time': 5.0, 'kp': 1.0})
+    settings = resolve(pid_kind.KIND, MDP)
+    cfg = settings.config
     assert cfg.kp == pytest.approx(3.134, abs=1e-3) and cfg.b == pytest.approx(0.423, abs=1e-3)
-    reason = check_pid_relations({'tuning.rule': 'mdp', 'tuning.kind': 'pi', 'tuning.gain': 0.05})
-    assert 'tuning.dead_time' in reason
-    assert 'kind' in check_pid_relations({'tuning.rule': 'mdp', 'tuning.kind': 'p',
-                                          'tuning.gain': 0.05, 'tuning.dead_time': 5.0})
+    assert settings.values['kp'] == cfg.kp                    # derived values are the parameters'
+    assert 'tuning.dead_time' in reason({'tuning.rule': 'mdp', 'tuning.kind': 'pi',
+                                         'tuning.gain': 0.05})
+    assert 'kind' in reason({**MDP, 'tuning.kind': 'p'})
+
+
+def test_a_gain_given_with_a_rule_must_agree_with_it_in_every_path():
+    """One rule for files, --set and live changes: a gain the rule sets may be given only with
+    the rule's value (a dump loads back); another value is refused, naming the gain and the
+    rule, instead of being silently replaced."""
+    kp = resolve(pid_kind.KIND, MDP).config.kp
+    assert resolve(pid_kind.KIND, {**MDP, 'kp': kp}).config.kp == kp
+    refused = reason({**MDP, 'kp': 1.0})
+    assert refused.startswith('kp: 1 conflicts with tuning.rule') and 'mdp' in refused
+    assert reason({**MDP, 'b': 1.0}).startswith('b: 1 conflicts')
+    # a value given earlier and kept (not set in this change) is replaced by the derived one
+    assert resolve(pid_kind.KIND, {**MDP, 'kp': 1.0}, given=('tuning.gain',)).config.kp == kp
+
+
+def test_setpoint_weights_can_be_set_by_hand_with_the_rule_gains():
+    """000 Figs. 4-5: the MDP gains with b = c = 0 (tuning.setpoint_weights false)."""
+    settings = resolve(pid_kind.KIND, {**MDP, 'tuning.setpoint_weights': False, 'b': 0.0,
+                                       'c': 0.0})
+    tuned = resolve(pid_kind.KIND, MDP).config
+    assert (settings.config.b, settings.config.c) == (0.0, 0.0)
+    assert (settings.config.kp, settings.config.ti, settings.config.td) == (
+        tuned.kp, tuned.ti, tuned.td)

@@ -7,7 +7,7 @@ import numpy as np
 from tank_control.core.analysis.step_metrics import step_metrics
 from tank_control.core.control.multiloop import TwoLoopPi, document_config
 from tank_control.core.control.pid import PidConfig, PidController
-from tank_control.core.plants import make_plant
+from tank_control.core.plants.kinds.registry import make_plant
 from tank_control.tuning import tune
 
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tank_control.core.plants.noise import NOISE_PARAMS, MeasurementNoise
+from tank_control.core.params import specs_of
+from tank_control.core.plants.noise import MeasurementNoise, NoiseConfig
 
 
 def test_same_seed_same_noise_and_reset_restarts_the_stream():
@@ -65,7 +66,7 @@ def test_bad_noise_settings_are_rejected(kwargs, words):
 
 
 def test_noise_parameters_are_described():
-    names = {spec.name: spec for spec in NOISE_PARAMS}
+    names = {spec.name: spec for spec in specs_of(NoiseConfig)}
     assert names['noise_std'].check([0.1, 0.2]) is None
     assert 'below the minimum' in names['noise_std'].check([-0.1])
     assert names['seed'].read_only

@@ -68,7 +68,7 @@ def test_plants_satisfy_the_protocol():
 def test_fopdt_relay_limit_cycle_matches_closed_form():
     # SPEC §1.2: a = K·d·(1 − e^(−L/T)), P = 2T·ln(2·e^(L/T) − 1); L not a multiple of ts.
     K, T, L, d, y0 = 0.05, 10.0, 2.7183, 1.0, 1.5
-    plant = Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, initial_output=y0))
+    plant = Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, output_offset=y0))
     crossings, times, ys = relay_loop(plant, d, y0, L, ts=0.01, t_end=45.0)
     period, amplitude, centre = _cycle_measures(crossings, times, ys, skip_time=15.0)
     a = K * d * (1 - math.exp(-L / T))
@@ -100,7 +100,7 @@ def _run(plant, u_of_t, dts, v_of_t=lambda t: 0.0):
 
 def test_fopdt_step_response_is_exact_with_a_fractional_dead_time():
     K, T, L, y0, step = 0.05, 10.0, 3.3, -2.0, 4.0
-    trace = _run(Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, initial_output=y0)),
+    trace = _run(Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, output_offset=y0)),
                  lambda t: step, [0.4] * 100)
     t = trace[:, 0]
     expected = y0 + K * step * np.where(t > L, 1 - np.exp(-(t - L) / T), 0.0)
@@ -109,7 +109,7 @@ def test_fopdt_step_response_is_exact_with_a_fractional_dead_time():
 
 def test_ipdt_step_response_is_exact_with_a_fractional_dead_time():
     k1, To, y0, step = 0.05, 5.0, 1.0, 3.0
-    trace = _run(Ipdt(IpdtConfig(gain=k1, dead_time=To, initial_output=y0)),
+    trace = _run(Ipdt(IpdtConfig(gain=k1, dead_time=To, output_offset=y0)),
                  lambda t: step, [0.3] * 60)          # 5 / 0.3 is not an integer
     t = trace[:, 0]
     np.testing.assert_allclose(trace[:, 1], y0 + k1 * step * np.maximum(t - To, 0.0),
@@ -157,9 +157,9 @@ def test_runtime_dead_time_change_keeps_history(kind):
         return u_of_t(s - (L1 if s < t_change else L2))
 
     if kind == 'ipdt':
-        plant, gain, T = Ipdt(IpdtConfig(dead_time=L1, initial_output=0.5)), 0.05, None
+        plant, gain, T = Ipdt(IpdtConfig(dead_time=L1, output_offset=0.5)), 0.05, None
     else:
-        plant, gain, T = Fopdt(FopdtConfig(dead_time=L1, initial_output=0.5)), 0.05, 10.0
+        plant, gain, T = Fopdt(FopdtConfig(dead_time=L1, output_offset=0.5)), 0.05, 10.0
     t = 0.0
     for k in range(200):
         if abs(t - t_change) < 1e-9:
@@ -189,7 +189,7 @@ def test_live_gain_and_offset_changes_act_from_now_on():
     for _ in range(50):
         plant.step([1.0], [0.0], 1.0)
     y = plant.outputs()[0]
-    plant.configure(gain=3.0, initial_output=10.0)
+    plant.configure(gain=3.0, output_offset=10.0)
     assert plant.outputs()[0] == pytest.approx(y + 10.0)
     plant.step([1.0], [0.0], 2.0)
     expected = 10.0 + 3.0 + (y - 3.0) * math.exp(-1.0)
@@ -208,7 +208,7 @@ def test_bad_configuration_is_rejected_with_a_reason_and_changes_nothing(changes
     plant = Fopdt()
     before = plant.config
     with pytest.raises(ValueError, match=words):
-        plant.configure(initial_output=1.0, **changes)
+        plant.configure(output_offset=1.0, **changes)
     assert plant.config == before
 
 
@@ -229,7 +229,7 @@ def test_bad_step_input_is_rejected_and_never_reaches_the_plant(u, d, dt, words)
 
 
 def test_reset_returns_to_rest():
-    plant = Ipdt(IpdtConfig(initial_output=3.0))
+    plant = Ipdt(IpdtConfig(output_offset=3.0))
     for _ in range(20):
         plant.step([1.0], [], 1.0)
     plant.reset()

@@ -12,12 +12,15 @@ import math
 import numpy as np
 import pytest
 
+from support.relay import (ExactDelayPlant, closed_loop, exact_fopdt_ultimate,
+                           exact_ipdt_ultimate)
+from tank_control.core.control.kinds import relay_autotune as relay_kind
+from tank_control.core.control.kinds.base import resolve
 from tank_control.core.control.pid import PidConfig
-from tank_control.core.control.relay_autotune import AutotuneConfig, RelayAutotuner, autotune_params
+from tank_control.core.control.relay_autotune import (AutotuneConfig, AutotuneResults,
+                                                      RelayAutotuner)
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import defaults
-from test_relay_autotune_helpers import (ExactDelayPlant, closed_loop, exact_fopdt_ultimate,
-                                         exact_ipdt_ultimate)
+from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
 
 # 001 §1.2.2: K = 0.05, T = 10 s, L = 3 s, setpoint 100 (u = 2000 at rest)
 K, T, L, R, U0 = 0.05, 10.0, 3.0, 100.0, 2000.0
@@ -187,16 +190,14 @@ def test_a_tuned_loop_can_be_tuned_again_and_start_is_refused_during_a_test():
 
 
 def test_params_describe_every_setting_and_reject_bad_values():
-    specs = autotune_params()
+    specs = specs_of(AutotuneConfig) + specs_of(AutotuneResults)
     assert all(s.name.startswith('autotune.') and s.description for s in specs)
     assert not [s.name for s in specs if s.check(s.default)]
-    values = defaults(specs)
-    values.pop('autotune.start')
-    assert AutotuneConfig.from_params(values) == AutotuneConfig()
+    assert config_from(AutotuneConfig, defaults_of(AutotuneConfig)) == AutotuneConfig()
     with pytest.raises(ValueError, match='autotune.min_cycles.*allowed'):
-        AutotuneConfig.from_params({'autotune.min_cycles': 1})
+        config_from(AutotuneConfig, {'autotune.min_cycles': 1})
     with pytest.raises(ValueError, match='autotune.rule'):
-        AutotuneConfig.from_params({'autotune.rule': 'guess'})
+        config_from(AutotuneConfig, {'autotune.rule': 'guess'})
     tuner = _tuner()
     tuner.start()
     with pytest.raises(ValueError, match='while a test is running'):
@@ -301,58 +302,52 @@ def test_describing_function_method_tunes_from_the_classical_estimate():
 
 
 # ------------------------------------------------------ node plumbing (no ROS)
-def _param_values(**changes):
-    from tank_control.core.control.pid import pid_params
-    values = defaults(pid_params() + autotune_params())
-    values.update({'kp': 20.0, 'ti': 12.0, 'sample_time': 0.1, 'u_min': 0.0, 'u_max': 1e4,
-                   'autotune.relay_amplitude': D, 'autotune.settle_time': 5.0,
-                   'autotune.settle_band': 0.5, 'output_names': ['y'], 'input_names': ['u']})
-    values.update(changes)
-    return values
+BASE = {'kp': 20.0, 'ti': 12.0, 'sample_time': 0.1, 'u_min': 0.0, 'u_max': 1e4,
+        'autotune.relay_amplitude': D, 'autotune.settle_time': 5.0, 'autotune.settle_band': 0.5}
 
 
-def test_kind_for_the_registry_builds_commands_and_reports_valid_parameters():
-    from tank_control.core.control.relay_autotune import autotune_result_params, relay_autotune_kind
-    kind = relay_autotune_kind()
-    assert kind.name == 'relay_autotune'
-    values = _param_values()
-    assert kind.check(values) is None
-    assert 'tuning.rule' in kind.check({**values, 'tuning.rule': 'mdp'})
-    tuner = kind.build(values)
+def test_kind_builds_offers_commands_and_reports_valid_parameters():
+    kind = relay_kind.KIND
+    assert kind.name == 'relay_autotune' and set(kind.commands) == {'start_autotune',
+                                                                      'abort_autotune'}
+    settings = resolve(kind, BASE)
+    with pytest.raises(ConfigError, match='tuning.rule: unknown parameter'):
+        resolve(kind, {**BASE, 'tuning.rule': 'mdp'})          # the test sets the gains
+    tuner = kind.build(settings)
     tuner.reset(np.array([R]), np.array([U0]))
-    assert tuner.command('start_autotune')[0] and tuner.state == 'settling'
-    assert tuner.command('abort_autotune')[0] and tuner.state == 'aborted'
+    assert kind.commands['start_autotune'](tuner)[0] and tuner.state == 'settling'
+    assert kind.commands['abort_autotune'](tuner)[0] and tuner.state == 'aborted'
     with pytest.raises(ValueError, match='allowed start_autotune, abort_autotune'):
         tuner.command('tune_harder')
     tuner.command('start_autotune')
     closed_loop(tuner, _plant(), R, 800, 0.01 * AMP, seed=1)
-    results = tuner.results()
+    results = kind.results(tuner)
     assert results['autotune.state'] == 'running' and results['autotune.start'] is False
-    specs = {s.name: s for s in autotune_params() + autotune_result_params()}
-    from tank_control.core.control.pid import pid_params
-    specs.update({s.name: s for s in pid_params()})
+    specs = {s.name: s for s in kind.specs()}
     assert not [specs[k].check(v) for k, v in results.items() if specs[k].check(v)]
     assert results['autotune.ku'] == pytest.approx(117.8, rel=0.03)
     assert results['kp'] == pytest.approx(tuner.pid.config.kp)
+    resolve(kind, {**BASE, **results}, given=())        # results written back stay valid
 
 
 def test_update_starts_aborts_on_changed_settings_and_keeps_tuned_gains():
-    from tank_control.core.control.relay_autotune import build_relay_autotuner, update_relay_autotuner
-    values = _param_values()
-    tuner = build_relay_autotuner(values)
+    kind = relay_kind.KIND
+
+    def update(changes: dict) -> None:
+        kind.update(tuner, resolve(kind, {**BASE, **changes}), frozenset(changes))
+
+    tuner = kind.build(resolve(kind, BASE))
     tuner.reset(np.array([R]), np.array([U0]))
-    update_relay_autotuner(tuner, {**values, 'autotune.start': True}, frozenset({'autotune.start'}))
+    update({'autotune.start': True})
     assert tuner.state == 'settling'
-    update_relay_autotuner(tuner, {**values, 'autotune.relay_amplitude': 100.0},
-                           frozenset({'autotune.relay_amplitude'}))
+    update({'autotune.relay_amplitude': 100.0})
     assert tuner.state == 'aborted' and 'parameters changed' in tuner.status['reason']
     assert tuner.config.relay_amplitude == 100.0
     tuner.start()
     closed_loop(tuner, _plant(), R, 1000, 0.01 * AMP, seed=2)
     assert tuner.state == 'running'
     tuned_kp = tuner.pid.config.kp
-    update_relay_autotuner(tuner, {**values, 'autotune.relay_amplitude': 150.0},
-                           frozenset({'autotune.relay_amplitude'}))   # kp=20 still in values
+    update({'autotune.relay_amplitude': 150.0})        # kp = 20 still in the parameters
     assert tuner.pid.config.kp == tuned_kp
-    update_relay_autotuner(tuner, {**values, 'kp': 30.0}, frozenset({'kp'}))
+    update({'kp': 30.0})
     assert tuner.pid.config.kp == 30.0

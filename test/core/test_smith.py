@@ -8,11 +8,12 @@ import pytest
 
 from tank_control.core.analysis.step_metrics import ise, step_metrics
 from tank_control.core.control.pid import Pid2Dof, PidConfig
-from tank_control.core.control.smith import (
-    SmithConfig, SmithPredictor, check_smith_relations, smith_config_from_params, smith_params,
-)
+from tank_control.core.control.kinds import registry
+from tank_control.core.control.kinds import smith_pi as smith_kind
+from tank_control.core.control.kinds.base import resolve
+from tank_control.core.control.smith import SmithModel, SmithPredictor
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import defaults
+from tank_control.core.params import ConfigError
 from tank_control.tuning import tune
 
 SUB = 10      # plant substeps per controller sample (the plant's dead time is on this finer grid)
@@ -44,8 +45,16 @@ def run(controller_step, h, t_end, model, gain, dead_time, time_constant=None, w
     return np.array(ts), np.array(ys)
 
 
+def smith_config(model: str, gain: float, dead_time: float, kp: float, ti: float,
+                 time_constant: float | None = None, sample_time: float = 1.0
+                 ) -> tuple[SmithModel, PidConfig]:
+    """The internal model and the PI primary of a Smith predictor."""
+    return (SmithModel(model, gain, time_constant or 1.0, dead_time),
+            PidConfig(kp=kp, ti=ti, sample_time=sample_time))
+
+
 def smith_step(cfg):
-    sp = SmithPredictor(cfg)
+    sp = SmithPredictor(*cfg)
     sp.reset(np.array([0.0]), np.array([0.0]))
     return lambda t, y, r: float(sp.step(t, np.array([y]), np.array([r]), np.array([]))[0])
 
@@ -60,7 +69,7 @@ def pi_step(kp, ti, h, b=1.0):
 def test_fopdt_perfect_model_equals_delayed_delay_free_loop(dead_time):
     k, t_c, h = 0.05, 10.0, 1.0
     g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=4.0, n=1)
-    cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead_time,
+    cfg = smith_config(model='fopdt', gain=k, time_constant=t_c, dead_time=dead_time,
                       kp=g['kp'], ti=g['ti'], sample_time=h)
     ts, y_sp = run(smith_step(cfg), h, 60.0, 'fopdt', k, dead_time, t_c)
     _, y_free = run(pi_step(g['kp'], g['ti'], h), h, 60.0, 'fopdt', k, 0.0, t_c)
@@ -73,7 +82,7 @@ def test_fopdt_perfect_model_equals_delayed_delay_free_loop(dead_time):
 def test_ipdt_perfect_model_equals_delayed_delay_free_loop(dead_time):
     k1, h = 0.05, 0.5
     kp, ti = 4.0, 20.0
-    cfg = SmithConfig(model='ipdt', gain=k1, dead_time=dead_time, kp=kp, ti=ti, sample_time=h)
+    cfg = smith_config(model='ipdt', gain=k1, dead_time=dead_time, kp=kp, ti=ti, sample_time=h)
     ts, y_sp = run(smith_step(cfg), h, 80.0, 'ipdt', k1, dead_time)
     _, y_free = run(pi_step(kp, ti, h), h, 80.0, 'ipdt', k1, 0.0)
     shift = int(round(dead_time / (h / SUB)))
@@ -84,7 +93,7 @@ def test_smith_pi_design_gives_first_order_like_response():
     """004 eq. 3.6.6–7: closed loop ≈ e^(−L s)/(te·s + 1): no overshoot, 2 % settling ≈ L + 3.9·te."""
     k, t_c, dead, te, h = 0.05, 10.0, 3.0, 4.0, 0.1
     g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=te, n=1)
-    cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
+    cfg = smith_config(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
                       kp=g['kp'], ti=g['ti'], sample_time=h)
     ts, y = run(smith_step(cfg), h, 60.0, 'fopdt', k, dead, t_c)
     m = step_metrics(ts, y, 1.0)
@@ -95,7 +104,7 @@ def test_smith_pi_design_gives_first_order_like_response():
 def test_beats_plain_pi_on_a_dead_time_dominant_process():
     k, t_c, dead, h = 1.0, 5.0, 10.0, 0.5
     g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=3.0, n=1)
-    cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
+    cfg = smith_config(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
                       kp=g['kp'], ti=g['ti'], sample_time=h)
     ts, y_sp = run(smith_step(cfg), h, 150.0, 'fopdt', k, dead, t_c)
     # plain PI tuned by Cohen–Coon for the same FOPDT (a fair, documented rule)
@@ -111,11 +120,11 @@ def test_plus_20_percent_dead_time_mismatch_stays_stable(model):
     if model == 'fopdt':
         k, t_c, dead = 0.05, 10.0, 3.0
         g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=5.0, n=1)
-        cfg = SmithConfig(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
+        cfg = smith_config(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
                           kp=g['kp'], ti=g['ti'], sample_time=h)
     else:
         k, t_c, dead = 0.05, None, 5.0
-        cfg = SmithConfig(model='ipdt', gain=k, dead_time=dead, kp=2.0, ti=40.0, sample_time=h)
+        cfg = smith_config(model='ipdt', gain=k, dead_time=dead, kp=2.0, ti=40.0, sample_time=h)
     ts, y = run(smith_step(cfg), h, 200.0, model, k, 1.2 * dead, t_c)
     m = step_metrics(ts, y, 1.0)
     assert m.overshoot <= 20.0 and abs(m.steady_state_error) < 0.01
@@ -124,15 +133,15 @@ def test_plus_20_percent_dead_time_mismatch_stays_stable(model):
 def test_ipdt_load_step_leaves_the_known_offset():
     """Documented limitation: constant input load v0 → steady error k1·L·v0 (classical SP, IPDT)."""
     k1, dead, h, v0 = 0.05, 5.0, 0.5, 0.2
-    cfg = SmithConfig(model='ipdt', gain=k1, dead_time=dead, kp=2.0, ti=40.0, sample_time=h)
+    cfg = smith_config(model='ipdt', gain=k1, dead_time=dead, kp=2.0, ti=40.0, sample_time=h)
     ts, y = run(smith_step(cfg), h, 600.0, 'ipdt', k1, dead, w=lambda t: 0.0, v=lambda t: v0)
     assert (0.0 - y[-1]) == pytest.approx(-k1 * dead * v0, rel=1e-3)
 
 
 def test_reset_is_bumpless_and_protocol():
-    cfg = SmithConfig(model='fopdt', gain=2.0, time_constant=10.0, dead_time=3.0, kp=1.0, ti=10.0,
+    cfg = smith_config(model='fopdt', gain=2.0, time_constant=10.0, dead_time=3.0, kp=1.0, ti=10.0,
                       sample_time=1.0)
-    sp = SmithPredictor(cfg, output_name='T', input_name='Q')
+    sp = SmithPredictor(*cfg, output_name='T', input_name='Q')
     assert isinstance(sp, Controller) and sp.output_names == ('T',) and sp.input_names == ('Q',)
     sp.reset(np.array([8.0]), np.array([4.0]))
     assert sp.step(0.0, np.array([8.0]), np.array([9.0]), np.array([]))[0] == pytest.approx(4.0)
@@ -142,47 +151,58 @@ def test_reset_is_bumpless_and_protocol():
 
 
 def test_params_and_validation():
-    specs = smith_params()
-    for spec in specs:
+    kind = smith_kind.KIND
+    for spec in kind.specs():
         assert spec.description and spec.check(spec.default) is None
-    values = defaults(specs)
-    assert check_smith_relations(values) is None
-    tuned = smith_config_from_params({'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
-                                      'smith.time_constant': 10.0, 'smith.dead_time': 3.0})
-    assert tuned.kp == pytest.approx(10.0 / (0.05 * 4.0)) and tuned.ti == 10.0
-    assert 'u_min' in check_smith_relations({'u_min': 1.0, 'u_max': 0.0})
-    assert 'tuning.rule' in check_smith_relations({'tuning.rule': 'mdp'})
+
+    def reason(values: dict) -> str:
+        with pytest.raises(ConfigError) as info:
+            resolve(kind, values)
+        return str(info.value)
+
+    assert resolve(kind, {}).config == SmithModel()
+    tuned = resolve(kind, {'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
+                           'smith.time_constant': 10.0, 'smith.dead_time': 3.0}).primary
+    assert tuned.kp == pytest.approx(10.0 / (0.05 * 4.0)) and tuned.ti == 10.0   # 004 eq. 3.6.7
+    assert reason({'u_min': 1.0, 'u_max': 0.0}).startswith('u_min')
+    assert reason({'tuning.rule': 'mdp'}).startswith('tuning.rule')
+    # the internal model is first order: a rule for a second-order model is refused, not ignored
+    assert reason({'tuning.rule': 'smith_pi', 'tuning.order': 2, 'tuning.xi': 0.7,
+                   'smith.gain': 0.05, 'smith.time_constant': 10.0}).startswith('tuning.order')
     for bad, name in ((dict(model='x'), 'model'), (dict(gain=0.0), 'gain'),
-                      (dict(dead_time=-1.0), 'dead_time'), (dict(time_constant=None), 'time_constant')):
-        base = dict(model='fopdt', gain=1.0, time_constant=1.0, dead_time=1.0, kp=1.0, ti=1.0)
+                      (dict(dead_time=-1.0), 'dead_time'), (dict(time_constant=0.0), 'time_constant')):
+        base = dict(model='fopdt', gain=1.0, time_constant=1.0, dead_time=1.0)
         base.update(bad)
         with pytest.raises(ValueError, match=name):
-            SmithPredictor(SmithConfig(**base))
+            SmithPredictor(SmithModel(**base), PidConfig(kp=1.0, ti=1.0))
 
 
 def test_registered_as_smith_pi_kind_with_derived_gains_and_bumpless_rebuild():
-    from tank_control.core.control import registry
-    assert 'smith_pi' in registry.kind_names()
-    values = registry.complete_values({
-        'controller': 'smith_pi', 'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
-        'smith.time_constant': 10.0, 'smith.dead_time': 3.0, 'output_names': ['T'], 'input_names': ['Q']})
-    values.update(registry.derive(values))
-    assert values['kp'] == pytest.approx(10.0 / (0.05 * 4.0)) and values['ti'] == 10.0   # 004 eq. 3.6.7
-    ctl = registry.make_controller(values)
+    kind = registry.get_kind('smith_pi')
+    values = {'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
+              'smith.time_constant': 10.0, 'smith.dead_time': 3.0, 'output_names': ['T'],
+              'input_names': ['Q']}
+    settings = resolve(kind, values)
+    assert settings.values['kp'] == pytest.approx(10.0 / (0.05 * 4.0))    # 004 eq. 3.6.7
+    assert settings.values['ti'] == 10.0
+    ctl = registry.build(kind, settings)
     assert ctl.output_names == ('T',) and ctl.input_names == ('Q',)
     y, r = np.array([0.0]), np.array([1.0])
     u = [ctl.step(float(k), y, r, np.array([]))[0] for k in range(3)]
-    new, u3 = registry.step_with_changes(ctl, {**values, 'smith.dead_time': 4.0},
-                                         frozenset({'smith.dead_time'}), 3.0, y, r, np.array([]))
-    twin = registry.make_controller(values)
+    changed = resolve(kind, {**values, 'smith.dead_time': 4.0})
+    new, u3 = registry.step_with_changes(kind, ctl, changed, frozenset({'smith.dead_time'}), 3.0,
+                                         y, r, np.array([]))
+    twin = registry.build(kind, settings)
     for k in range(4):
         u_twin = twin.step(float(k), y, r, np.array([]))[0]
+    assert u[-1] is not None
     assert new is not ctl and u3[0] == pytest.approx(u_twin, abs=1e-12)   # old law at this sample
     # the rebuilt predictor starts from the steady state of u3 (prediction 0 here), so the next
     # output is u3 plus one integral increment kp·h/ti·e = 50·1/10·1
     assert new.step(4.0, y, r, np.array([]))[0] == pytest.approx(u3[0] + 5.0, abs=1e-9)
-    assert 'tuning.rule' in (registry.check({**values, 'tuning.rule': 'mdp'}) or '')
-    manual, _ = registry.step_with_changes(new, {**values, 'smith.dead_time': 4.0, 'mode': 'manual',
-                                                 'manual_output': 7.0},
-                                           frozenset({'mode', 'manual_output'}), 5.0, y, r, np.array([]))
+    manual_settings = resolve(kind, {**values, 'smith.dead_time': 4.0, 'mode': 'manual',
+                                     'manual_output': 7.0})
+    manual, _ = registry.step_with_changes(kind, new, manual_settings,
+                                           frozenset({'mode', 'manual_output'}), 5.0, y, r,
+                                           np.array([]))
     assert manual.step(6.0, y, r, np.array([]))[0] == 7.0

@@ -6,10 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tank_control.core.control import registry
+from tank_control.core import node_specs
+from tank_control.core.control.kinds.registry import KINDS
 from tank_control.core.loop import run_loop, warm_start
+from tank_control.core.params import ConfigError
 from tank_control.core.reference import reference_from_params
-from tank_control.core.scenario import run_in_process
+from tank_control.core.scenario import controller_setup, run_in_process
+
+
+def make_controller(values: dict):
+    """The controller controller_node builds from these parameter values."""
+    return controller_setup(values).build_controller()
 
 T0 = 2115.0 / 63.0          # 003 operating-point temperature [°C]
 H0 = 81.0                   # [cm]
@@ -29,8 +36,8 @@ def operating_point_flows() -> tuple[float, float]:
 
 
 def test_defaults_documented_per_kind():
-    defaults = {name: next(s for s in registry.controller_specs(name) if s.name == 'initial_output')
-                for name in registry.kind_names()}
+    defaults = {name: next(s for s in node_specs.controller_specs(name)
+                           if s.name == 'initial_output') for name in KINDS}
     for spec in defaults.values():
         assert spec.read_only and 'initial_output' in spec.name and spec.description
     flows = operating_point_flows()
@@ -41,7 +48,7 @@ def test_defaults_documented_per_kind():
 
 
 def first_output(values: dict, y: np.ndarray, r: np.ndarray, d=()) -> np.ndarray:
-    controller = registry.make_controller(values)
+    controller = make_controller(values)
     assert warm_start(controller, y)
     return controller.step(0.0, y, r, np.asarray(d, dtype=float))
 
@@ -85,17 +92,17 @@ def test_manual_mode_starts_at_manual_output_and_limits_clip():
 
 
 def test_bad_initial_output_rejected_naming_the_parameter():
-    reason = registry.check(registry.complete_values(
-        {'controller': 'two_loop_pi', 'initial_output': [14.0]}))
-    assert reason and reason.startswith('initial_output') and '2' in reason
+    with pytest.raises(ConfigError) as info:
+        make_controller({'controller': 'two_loop_pi', 'initial_output': [14.0]})
+    assert str(info.value).startswith('initial_output') and '2' in str(info.value)
     with pytest.raises(ValueError, match='initial_output'):
-        registry.make_controller({'controller': 'pid', 'initial_output': [1.0, 2.0]})
+        make_controller({'controller': 'pid', 'initial_output': [1.0, 2.0]})
 
 
 def test_relay_test_requested_at_start_up_survives_the_warm_start():
     values = {'controller': 'relay_autotune', 'kp': 2.0, 'ti': 5.0, 'autotune.start': True,
               'initial_output': [0.5]}
-    tuner = registry.make_controller(values)
+    tuner = make_controller(values)
     assert tuner.state == 'settling'
     warm_start(tuner, np.array([1.0]))
     u = tuner.step(0.0, np.array([1.0]), np.array([1.0]), np.array([]))

@@ -308,7 +308,7 @@ class Mpcs:
         if self._design.cfg.relinearize and self._fixed_model is None:
             self._relinearize(r, d)
         des = self._design
-        m, pred, est, cfg = des.model, des.pred, des.estimator, des.cfg
+        m, pred, est = des.model, des.pred, des.estimator
         if self._valid_d(d, m):
             self._d = np.asarray(d, dtype=float).copy()
             if self._pending_d:         # reset(y, u) without d: equilibrium with this d

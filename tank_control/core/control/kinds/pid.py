@@ -34,5 +34,5 @@ KIND = ControllerKind(
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             base.TUNING),
     build=build, update=update, derive=base.tuned_gains, reason=base.siso_reason,
-    gains=('kp', 'ti', 'td', 'b', 'c'), input_limits=base.scalar_limits,
+    gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
 )

@@ -1,6 +1,10 @@
 """The plant kinds by name: a plain table."""
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
+from tank_control.core.interfaces import Plant
 from tank_control.core.params import ConfigError, unknown_reason
 from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank
 from tank_control.core.plants.kinds.base import PlantKind
@@ -18,3 +22,8 @@ def get_kind(name: str) -> PlantKind:
         return KINDS[name]
     except (KeyError, TypeError):
         raise ConfigError('plant: ' + unknown_reason(str(name), KINDS, 'plant kind')) from None
+
+
+def make_plant(name: str, values: Mapping[str, Any] | None = None) -> Plant:
+    """The plant of kind ``name`` from parameter values (missing ones take defaults)."""
+    return get_kind(name).make(values or {})

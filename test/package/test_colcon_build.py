@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import REPO
+from support import REPO
 
 
 def test_colcon_build_installs_runnable_executables(tmp_path: Path, procs, ros_env, probe):

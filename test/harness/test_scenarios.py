@@ -15,7 +15,7 @@ import pytest
 
 from tank_control.harness.runner import RunResult, run
 
-CONFIG = Path(__file__).resolve().parents[1] / 'config'
+CONFIG = CONFIG
 SCENARIOS = CONFIG / 'scenarios'         # the documents' experiments (docs/scenarios.md)
 T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1, SPEC §1.3)
 

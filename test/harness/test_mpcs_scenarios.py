@@ -22,7 +22,7 @@ import pytest
 
 from tank_control.core.scenario import read_params_file, run_in_process
 
-SCENARIOS = Path(__file__).resolve().parents[1] / 'config' / 'scenarios'
+SCENARIOS = SCENARIOS
 SETTLED_WINDOW = 300.0     # [s] before the next change (or the end) that must be settled
 TOL = {'h': 0.05, 'T_out': 0.02}      # issue 8: [cm], [°C]
 

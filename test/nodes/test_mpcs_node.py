@@ -29,7 +29,6 @@ from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build, node_values, read_params_file
 from tank_control.nodes.messages import from_joint_state, to_joint_state
 
-REPO = Path(__file__).resolve().parents[1]
 NODES = ('plant', 'controller', 'reference')
 TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
 #: The recorder keeps every sample: the lockstep loop runs faster than the probe spins.

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tank_control.core.loop import Trace, run_loop
+from tank_control.core.loop import run_loop
+from tank_control.core.trace import Trace
 from tank_control.core.reference import reference_from_params
 
 
@@ -107,6 +108,6 @@ def test_bad_wiring_and_sample_times_are_rejected():
 def test_trace_csv_round_trip_is_exact(tmp_path):
     trace = run_loop(Integrator(0.3), PController(0.7, 0.1), reference(), sample_time=0.1,
                      duration=1.0)
-    again = Trace.read_csv(trace.to_csv(tmp_path / 'trace.csv'))
+    again = Trace.read_csv(trace.write_csv(tmp_path / 'trace.csv'))
     assert again.names == trace.names
     assert max(trace.max_abs_difference(again).values()) == 0.0

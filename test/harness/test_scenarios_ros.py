@@ -16,7 +16,7 @@ import pytest
 from tank_control.harness.runner import run
 from tank_control.harness.trace import read_csv
 
-CONFIG = Path(__file__).resolve().parents[1] / 'config'
+CONFIG = CONFIG
 SIGNAL_TOPICS = {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'}
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from tank_control.core.reference import (ChannelSchedule, Reference, reference_from_params,
-                                         reference_params)
+                                         channel_specs)
 
 
 def ramp_001() -> Reference:
@@ -86,7 +86,7 @@ def test_new_schedule_replaces_the_old_one():
 
 
 def test_param_specs_describe_every_channel_field_with_the_schedule_as_default():
-    specs = {s.name: s for s in reference_params(ramp_001())}
+    specs = {s.name: s for s in channel_specs(ramp_001())}
     assert specs['setpoint.y.values'].default == [0.0, 100.0]
     assert specs['setpoint.y.ramp_rate'].default == 4.0
     assert specs['disturbance.v.value'].default == -0.1
@@ -104,3 +104,13 @@ def test_limit_changes_are_judged_on_the_present_and_future_not_the_past():
     # The ramp and the later scheduled change are unaffected.
     assert [ref.setpoints(t)[0] for t in (10.0, 15.0, 30.0, 40.0)] == [10.0, 20.0, 50.0, 60.0]
     assert ref.update('setpoint', 'y', {'max': 55.0}, t=12.0).startswith('setpoint.y.values: 60')
+
+
+def test_a_misspelt_channel_field_is_refused_with_the_nearest_name():
+    with pytest.raises(ValueError, match='setpoint.y.valeus: unknown parameter; did you mean '
+                                         'setpoint.y.values'):
+        reference_from_params({'setpoint.channels': ['y'], 'setpoint.y.times': [0.0],
+                               'setpoint.y.valeus': [1.0]})
+    with pytest.raises(ValueError, match='setpoint.chanels: unknown parameter; did you mean '
+                                         'setpoint.channels'):
+        reference_from_params({'setpoint.chanels': ['y']})

@@ -8,7 +8,7 @@ import sys
 import textwrap
 
 import pytest
-from fixtures.ros2cli_support import FIXTURE_NODE, ros2, ros2_argv, ros2_parallel
+from support.ros2cli import FIXTURE_NODE, ros2, ros2_argv, ros2_parallel
 
 VERBS = [('run',), ('param',), ('param', 'list'), ('param', 'get'), ('param', 'set'),
          ('param', 'describe'), ('param', 'dump'), ('param', 'load'), ('topic',),

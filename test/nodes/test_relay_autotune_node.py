@@ -27,9 +27,7 @@ from tank_control.core.scenario import build, read_params_file
 from tank_control.nodes.controller_node import STATE_QOS
 from tank_control.nodes.messages import from_joint_state
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / 'test' / 'core'))
-from test_relay_autotune_helpers import exact_fopdt_ultimate  # noqa: E402
+from support.relay import exact_fopdt_ultimate
 
 KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
 NODES = ('plant', 'controller', 'reference')

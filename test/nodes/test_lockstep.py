@@ -17,7 +17,6 @@ from tank_control.core.scenario import read_params_file, run_in_process
 from tank_control.harness.recorder import Recorder
 from tank_control.harness.trace import GATED_DISTURBANCE
 
-REPO = Path(__file__).resolve().parents[1]
 TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
 
 

@@ -6,8 +6,8 @@ import signal
 
 import pytest
 import yaml
-from fixtures.param_node import SPECS
-from fixtures.ros2cli_support import (Streaming, fixture_argv, ros2, ros2_parallel,
+from support.param_node import SPECS
+from support.ros2cli import (Streaming, fixture_argv, ros2, ros2_parallel,
                                       until_complete)
 
 from tank_control.harness.processes import ProcessGroup

@@ -5,8 +5,8 @@ Independent commands run in parallel (``ros2_parallel``) so their discovery wait
 from __future__ import annotations
 
 import yaml
-from fixtures.param_node import SPECS
-from fixtures.ros2cli_support import fixture_argv, ros2, ros2_parallel
+from support.param_node import SPECS
+from support.ros2cli import fixture_argv, ros2, ros2_parallel
 
 SPEC = {spec.name: spec for spec in SPECS}
 

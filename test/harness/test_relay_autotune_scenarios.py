@@ -14,9 +14,7 @@ import pytest
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build, read_params_file, run_in_process
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / 'test' / 'core'))
-from test_relay_autotune_helpers import exact_fopdt_ultimate, exact_ipdt_ultimate  # noqa: E402
+from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
 
 def run_logged(params, duration: float, reset: tuple[float, float] | None = None):

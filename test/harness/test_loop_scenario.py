@@ -8,7 +8,6 @@ import pytest
 
 from tank_control.core.scenario import build, read_params_file, run_in_process
 
-REPO = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((REPO / 'config').glob('*.yaml'))
 
 
