@@ -36,8 +36,7 @@ def diagnostics_period_param() -> Any:
 class PlantNode:
     """plant_node's own parameters (the clock master)."""
 
-    plant: str = param('fopdt', 'plant model (one of the plant kinds)', choices=tuple(plants.KINDS),
-                       read_only=True)
+    plant: str = param('fopdt', 'plant model: ' + ', '.join(plants.KINDS), read_only=True)
     sample_time: float = param(0.1, 'plant tick: measurements are published every sample_time; '
                                'in sim/lockstep tick k is at k * sample_time', unit='s',
                                min=1e-4, max=3600.0, read_only=True)
@@ -68,8 +67,8 @@ class PlantNode:
 class ControllerNode:
     """controller_node's own parameters."""
 
-    controller: str = param('pid', 'controller kind (set at start-up)',
-                            choices=tuple(controllers.KINDS), read_only=True)
+    controller: str = param('pid', 'controller kind (set at start-up): '
+                            + ', '.join(controllers.KINDS), read_only=True)
     clock_mode: str = param('auto', 'auto: lockstep answering with use_sim_time, else wall; '
                             'wall: wall timer every sample_time; sim: timer on /clock; lockstep: '
                             'answer each plant tick stamped t_k once measurement and setpoint of '

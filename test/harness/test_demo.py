@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tank_control.core import params_file
 from tank_control import demo
-from tank_control.core.scenario import read_params_file
 from tank_control.harness.runner import run
-from tank_control.harness.trace import read_csv
+from tank_control.core.trace import Trace
 
 DURATION = 150.0    # [s] covers the take-over at the operating point and the h step at 100 s
 
@@ -24,7 +24,7 @@ DURATION = 150.0    # [s] covers the take-over at the operating point and the h 
 def test_default_scenario_is_mpcs_qp_within_the_documents_constraints():
     path = demo.config_dir() / demo.DEFAULT_SCENARIO
     assert path.name == 'tank_mpcs_qp.yaml'
-    ctrl = read_params_file(path)['controller']
+    ctrl = params_file.read(path)['controller']
     assert (ctrl['controller'], ctrl['mpcs.solver']) == ('mpcs', 'qp')
     # 003 §6 / SPEC §2.8: (N, Nu, λ) = (100, 50, 0.5), 0 <= u <= 100, |Δu| <= 0.2
     assert (ctrl['mpcs.horizon'], ctrl['mpcs.control_horizon'], ctrl['mpcs.lambda']) == (100, 50, [0.5])
@@ -49,8 +49,8 @@ def test_demo_default_runs_in_lockstep_over_ros_and_prints_table_and_paths(tmp_p
         assert (out / name).stat().st_size > 0
 
     # the ROS run is the in-process loop (core/loop.py), tick for tick
-    ros = read_csv(out / 'trace.csv')
-    ref = read_csv(run(demo.config_dir() / demo.DEFAULT_SCENARIO, tmp_path / 'ref',
+    ros = Trace.read_csv(out / 'trace.csv')
+    ref = Trace.read_csv(run(demo.config_dir() / demo.DEFAULT_SCENARIO, tmp_path / 'ref',
                        duration=DURATION, in_process=True).files['trace'])
     assert len(ros) == len(ref) == int(DURATION) + 1
     for name in ref.columns:

@@ -9,7 +9,8 @@ import pytest
 
 from tank_control.harness import metrics
 from tank_control.harness.recording import write_trace
-from tank_control.harness.trace import SignalMessage, from_messages, ordered, read_csv
+from tank_control.core.trace import Trace
+from tank_control.harness.trace import SignalMessage, from_messages
 
 MS = 1_000_000
 
@@ -119,14 +120,14 @@ def read_mcap(path):
 
 def _trace():
     t = np.arange(6) * 0.5
-    return ordered({'t': t, 'u.F_H': t * 2, 'y.h': np.sin(t) + 1e-13, 'r.h': np.ones(6),
+    return Trace.ordered({'t': t, 'u.F_H': t * 2, 'y.h': np.sin(t) + 1e-13, 'r.h': np.ones(6),
                     'd.F_D': np.full(6, 12.0)})
 
 
 def test_trace_csv_round_trip_is_exact_and_ordered(tmp_path):
     trace = _trace()
     assert list(trace.columns) == ['t', 'y.h', 'r.h', 'u.F_H', 'd.F_D']
-    again = read_csv(trace.write_csv(tmp_path / 'trace.csv'))
+    again = Trace.read_csv(trace.write_csv(tmp_path / 'trace.csv'))
     for name, column in trace.columns.items():
         np.testing.assert_array_equal(again.columns[name], column)
 
@@ -156,7 +157,7 @@ def test_a_disturbance_change_ends_the_setpoint_window_and_is_measured():
     bump = np.where(t >= 150, 0.3 * (t - 150) / 10 * np.exp(-(t - 150) / 10), 0.0)  # peak 0.3/e at 10 s
     y = y - bump
     d = np.where(t < 150, 0.0, -0.1)
-    trace = ordered({'t': t, 'y.y': y, 'r.y': r, 'u.u': np.zeros_like(t), 'd.v': d})
+    trace = Trace.ordered({'t': t, 'y.y': y, 'r.y': r, 'u.u': np.zeros_like(t), 'd.v': d})
     out = metrics.trace_metrics(trace)['outputs']['y']
     (step,) = out['steps']
     assert step['settling_time'] == pytest.approx(tau * math.log(50), abs=0.5)   # not the load

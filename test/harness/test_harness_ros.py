@@ -13,7 +13,7 @@ import pytest
 from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.harness.runner import RunFailed, run_scenario
 from tank_control.harness.scenario_file import load_scenario
-from tank_control.harness.trace import read_csv
+from tank_control.core.trace import Trace
 
 STANDINS = Path(__file__).parent / 'harness_standins' / 'standin_nodes.py'
 
@@ -62,7 +62,7 @@ def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_pa
     progress = []
     result = run_scenario(load_scenario(scenario_path), tmp_path / 'out', env=ros_env,
                           node_command=standin_command, progress=progress.append)
-    trace = read_csv(result.files['trace'])
+    trace = Trace.read_csv(result.files['trace'])
     assert list(trace.columns) == ['t', 'y.y', 'r.y', 'u.u']
     expected = expected_trace()
     assert len(trace) == len(expected) == 61

@@ -6,9 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tank_control.core.scenario import build, read_params_file, run_in_process
+from support import CONFIG
+from tank_control.core import params_file
+from tank_control.core.scenario import build, run_in_process
 
-CONFIGS = sorted((REPO / 'config').glob('*.yaml'))
+CONFIGS = sorted((CONFIG).glob('*.yaml'))
 
 
 def test_wildcard_and_node_sections_merge_as_ros_does(tmp_path):
@@ -25,7 +27,7 @@ def test_wildcard_and_node_sections_merge_as_ros_does(tmp_path):
   ros__parameters:
     setpoint: {channels: ['y'], y: {value: 1e-3}}
 """)
-    params = read_params_file(path)
+    params = params_file.read(path)
     assert params['plant'] == {'clock_mode': 'lockstep', 'seed': 5, 'plant': 'ipdt',
                                'lockstep.resend_period': 0.2}
     assert params['reference']['setpoint.y.value'] == 0.001      # 1e-3 is a float, as in ROS
@@ -35,7 +37,7 @@ def test_wildcard_and_node_sections_merge_as_ros_does(tmp_path):
 def test_an_unquoted_y_channel_is_rejected_as_ros_would_read_it(tmp_path):
     path = tmp_path / 's.yaml'
     path.write_text("reference:\n  ros__parameters:\n    setpoint.channels: [y]\n")
-    params = read_params_file(path)
+    params = params_file.read(path)
     assert params['reference']['setpoint.channels'] == [True]
     with pytest.raises(ValueError, match="quote names such as 'y'"):
         build({'reference': params['reference']})
@@ -43,7 +45,7 @@ def test_an_unquoted_y_channel_is_rejected_as_ros_would_read_it(tmp_path):
 
 @pytest.mark.parametrize('config', CONFIGS, ids=[c.stem for c in CONFIGS])
 def test_shipped_scenarios_run_in_process_and_reach_their_final_setpoints(config):
-    params = read_params_file(config)
+    params = params_file.read(config)
     trace = run_in_process(config)
     duration = params['harness']['duration']
     ts = params['plant']['sample_time']
@@ -57,8 +59,8 @@ def test_shipped_scenarios_run_in_process_and_reach_their_final_setpoints(config
 
 def test_the_001_ramp_cuts_the_zn_overshoot_of_the_step(tmp_path):
     """001 Fig. 1.15: the same ZN PID overshoots far less with a 25 s setpoint ramp."""
-    step = run_in_process(REPO / 'config' / 'fopdt_zn.yaml')
-    ramp = run_in_process(REPO / 'config' / 'fopdt_zn_ramp.yaml')
+    step = run_in_process(CONFIG / 'fopdt_zn.yaml')
+    ramp = run_in_process(CONFIG / 'fopdt_zn_ramp.yaml')
     over_step = step['y.y'].max() / 100.0 - 1.0
     over_ramp = ramp['y.y'].max() / 100.0 - 1.0
     assert over_step > 0.3 and over_ramp < over_step / 4

@@ -20,15 +20,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tank_control.core.scenario import read_params_file, run_in_process
+from support import SCENARIOS
+from tank_control.core import params_file
+from tank_control.core.scenario import run_in_process
 
-SCENARIOS = SCENARIOS
 SETTLED_WINDOW = 300.0     # [s] before the next change (or the end) that must be settled
 TOL = {'h': 0.05, 'T_out': 0.02}      # issue 8: [cm], [°C]
 
 
 def _params(name: str) -> dict:
-    return read_params_file(SCENARIOS / f'{name}.yaml')
+    return params_file.read(SCENARIOS / f'{name}.yaml')
 
 
 def _changes(reference: dict) -> list[float]:

@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from support import CONFIG
+from tank_control.core import params_file
 from tank_control.core.loop import run_loop
-from tank_control.core.scenario import build, read_params_file, run_in_process
+from tank_control.core.scenario import build, run_in_process
 
 from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
@@ -33,12 +35,12 @@ def run_logged(params, duration: float, reset: tuple[float, float] | None = None
         return u
     tuner.step = logged
     trace = run_loop(built.plant, tuner, built.reference, sample_time=built.sample_time,
-                     duration=duration, noise=built.noise)
+                     duration=duration, noise=built.noise.sample)
     return trace, tuner, log
 
 
 def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
-    params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
+    params = params_file.read(CONFIG / 'fopdt_autotune.yaml')
     duration = float(params['harness']['duration'])
     trace, tuner, log = run_logged(params, duration)
     states = [s for _, s in log]
@@ -58,7 +60,7 @@ def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
     res = tuner.results()
     assert res['autotune.state'] == 'running' and res['kp'] == pytest.approx(0.6 * st['ku'])
     # run_in_process(file) runs the same objects: the same trace
-    again = run_in_process(REPO / 'config' / 'fopdt_autotune.yaml')
+    again = run_in_process(CONFIG / 'fopdt_autotune.yaml')
     assert max(again.max_abs_difference(trace).values()) == 0.0
 
 

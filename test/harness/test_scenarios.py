@@ -13,10 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from support import CONFIG, SCENARIOS
 from tank_control.harness.runner import RunResult, run
 
-CONFIG = CONFIG
-SCENARIOS = CONFIG / 'scenarios'         # the documents' experiments (docs/scenarios.md)
 T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1, SPEC §1.3)
 
 

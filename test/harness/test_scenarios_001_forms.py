@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from support import CONFIG
 from tank_control.harness.runner import run
 
-CONFIG = CONFIG
 KP = 70.92                                  # 001 Table 6.2 with Ku = 118.2: 0.6·Ku
 SIMULINK_FORM = ('controller.tuning.rule=none', f'controller.kp={KP}',
                  f'controller.ti={KP / 5.5}', f'controller.td={1.32 / KP}')

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from support import CONFIG
 from tank_control.harness.runner import run
-from tank_control.harness.trace import read_csv
+from tank_control.core.trace import Trace
 
-CONFIG = CONFIG
 SIGNAL_TOPICS = {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'}
 
 
@@ -37,7 +37,7 @@ def cli(*args: str, env=None, timeout: float = 600.0) -> subprocess.CompletedPro
 
 
 def assert_equal_traces(ros_csv: Path, in_process_csv: Path) -> None:
-    ros, ref = read_csv(ros_csv), read_csv(in_process_csv)
+    ros, ref = Trace.read_csv(ros_csv), Trace.read_csv(in_process_csv)
     assert list(ros.columns) == list(ref.columns)
     assert len(ros) == len(ref)
     for name in ref.columns:

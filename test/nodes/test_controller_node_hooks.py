@@ -3,14 +3,17 @@ as Trigger services and controller results written back to parameters. The node 
 test process (so a test-only kind can be registered) on the probe's executor."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from tank_control.core.control import registry
-from tank_control.core.params import ParamSpec
+from tank_control.core.control.kinds import registry
+from tank_control.core.control.kinds.base import ControllerKind, group
+from tank_control.core.params import param
 from tank_control.nodes.messages import SIGNAL_QOS, stamp_to_ns, to_joint_state
 
 
@@ -20,7 +23,7 @@ class _Counting:
     output_names, input_names, disturbance_names = ('y',), ('u',), ()
     sample_time = 1.0
 
-    def __init__(self, values):
+    def __init__(self):
         self.running = False
         self.count = 0
 
@@ -43,21 +46,29 @@ class _Counting:
         return {'state': 'running' if self.running else 'idle'}
 
 
-def counting_kind():
-    return registry.ControllerKind(
-        name='counting', params=lambda: (
-            ParamSpec('sample_time', 1.0, 'sample time [s]', min=0.1, max=10.0, read_only=True),
-            ParamSpec('counting.count', 0, 'samples counted (result)', min=0, read_only=True),
-            ParamSpec('counting.state', 'idle', 'state (result)', read_only=True)),
-        check=lambda values: None, build=_Counting, update=None,
-        results=lambda c: {'counting.count': c.count, 'counting.state': c.status['state']},
-        commands={'start': lambda c: c.start()})
+@dataclass(frozen=True)
+class SampleTime:
+    sample_time: float = param(1.0, 'sample time', unit='s', min=0.1, max=10.0, read_only=True)
+
+
+@dataclass(frozen=True)
+class CountingResults:
+    count: int = param(0, 'samples counted (result)', min=0, max=10**6, read_only=True,
+                       name='counting.count')
+    state: str = param('idle', 'state (result)', read_only=True, name='counting.state')
+
+
+COUNTING = ControllerKind(
+    name='counting', description='counts samples after start', config=SampleTime,
+    groups=(group('results', CountingResults),), build=lambda settings: _Counting(),
+    results=lambda c: {'counting.count': c.count, 'counting.state': c.status['state']},
+    commands={'start': lambda c: c.start()})
 
 
 @pytest.fixture
 def node(probe, monkeypatch):
     from tank_control.nodes.controller_node import ControllerNode
-    monkeypatch.setitem(registry._KIND_FACTORIES, 'counting', (__name__, 'counting_kind'))
+    monkeypatch.setitem(registry.KINDS, 'counting', COUNTING)
     ctrl = ControllerNode(parameter_overrides=[Parameter('controller', value='counting'),
                                                Parameter('clock_mode', value='lockstep')])
     probe.executor.add_node(ctrl)
@@ -104,9 +115,6 @@ class _FeedForward:
     sample_time = 1.0
     status = {'mode': 'auto'}
 
-    def __init__(self, values):
-        pass
-
     def reset(self, y, u):
         pass
 
@@ -114,16 +122,13 @@ class _FeedForward:
         return np.array([-float(d[0])])
 
 
-def feedforward_kind():
-    return registry.ControllerKind(
-        name='feedforward',
-        params=lambda: (ParamSpec('sample_time', 1.0, 'sample time [s]', min=0.1, max=10.0),),
-        check=lambda values: None, build=_FeedForward, update=None)
+FEEDFORWARD = ControllerKind(name='feedforward', description='u = -v', config=SampleTime,
+                             build=lambda settings: _FeedForward())
 
 
 def test_lockstep_waits_for_the_disturbance_of_the_tick(probe, monkeypatch):
     from tank_control.nodes.controller_node import ControllerNode
-    monkeypatch.setitem(registry._KIND_FACTORIES, 'feedforward', (__name__, 'feedforward_kind'))
+    monkeypatch.setitem(registry.KINDS, 'feedforward', FEEDFORWARD)
     ctrl = ControllerNode(parameter_overrides=[Parameter('controller', value='feedforward'),
                                                Parameter('clock_mode', value='lockstep')])
     probe.executor.add_node(ctrl)

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 from rclpy.utilities import get_default_context
 
-from tank_control.core.scenario import read_params_file, run_in_process
+from support import CONFIG
+from tank_control.core import params_file
+from tank_control.core.scenario import run_in_process
 from tank_control.harness.recorder import Recorder
 from tank_control.harness.trace import GATED_DISTURBANCE
 
@@ -22,7 +24,7 @@ TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance'
 
 def scenario(tmp_path: Path) -> tuple[dict, Path]:
     """config/ipdt_pid.yaml, shortened, with measurement noise (same seeded draws in both)."""
-    params = read_params_file(REPO / 'config' / 'ipdt_pid.yaml')
+    params = params_file.read(CONFIG / 'ipdt_pid.yaml')
     params['plant'].update({'noise_std': [0.01], 'seed': 7, 'lockstep.paused': True,
                             'real_time_factor': 0.0})
     params['reference'].update({'setpoint.y.times': [0.0, 1.0], 'setpoint.y.values': [0.0, 1.0],

@@ -24,9 +24,12 @@ from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from tank_control.core.control import registry
+from support import SCENARIOS
+from tank_control.core import params_file
+from tank_control.core.control.kinds import registry
+from tank_control.core.control.kinds.base import resolve
 from tank_control.core.loop import run_loop
-from tank_control.core.scenario import build, node_values, read_params_file
+from tank_control.core.scenario import build
 from tank_control.nodes.messages import from_joint_state, to_joint_state
 
 NODES = ('plant', 'controller', 'reference')
@@ -38,7 +41,7 @@ TS_NS = 1_000_000_000
 
 def short_params() -> dict:
     """config/scenarios/tank_mpcs_qp.yaml, shortened to a few hundred ticks, with noise."""
-    params = read_params_file(REPO / 'config' / 'scenarios' / 'tank_mpcs_qp.yaml')
+    params = params_file.read(SCENARIOS / 'tank_mpcs_qp.yaml')
     params['plant'].update({'noise_std': [0.02, 0.01], 'seed': 3, 'lockstep.paused': True,
                             'real_time_factor': 0.0, 'diagnostics_period': 0.1})
     ref = params['reference']
@@ -129,10 +132,9 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
 
     # in-process: the same objects; the change applied at k_change as the node applies it
     built = build(params)
-    values = registry.complete_values(
-        {k: v for k, v in node_values(params, 'controller').items()
-         if k in {s.name for s in registry.specs_for('mpcs')}})
-    changed = {**values, 'mpcs.horizon': 150}
+    kind = built.controller_setup.kind
+    changed = resolve(kind, {**built.controller_setup.settings.values, 'mpcs.horizon': 150},
+                      given=())
     inner = built.controller
 
     class AtTick:
@@ -141,12 +143,12 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
 
         def step(self, t, y, r, d):
             if round(t) == k_change:
-                _, u = registry.step_with_changes(inner, changed, frozenset({'mpcs.horizon'}),
-                                                  t, y, r, d)
+                _, u = registry.step_with_changes(kind, inner, changed,
+                                                  frozenset({'mpcs.horizon'}), t, y, r, d)
                 return u
             return inner.step(t, y, r, d)
     trace = run_loop(built.plant, AtTick(), built.reference, sample_time=built.sample_time,
-                     duration=float(last_tick), noise=built.noise)
+                     duration=float(last_tick), noise=built.noise.sample)
     assert inner.config.horizon == 150
 
     worst: dict[str, float] = {}

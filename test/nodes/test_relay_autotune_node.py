@@ -22,8 +22,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from support import CONFIG
+from tank_control.core import params_file
 from tank_control.core.loop import run_loop
-from tank_control.core.scenario import build, read_params_file
+from tank_control.core.scenario import build
 from tank_control.nodes.controller_node import STATE_QOS
 from tank_control.nodes.messages import from_joint_state
 
@@ -37,7 +39,7 @@ RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityP
 
 def fopdt_params(paused: bool, **controller) -> dict:
     """config/fopdt_autotune.yaml, lockstep as fast as possible, no scheduled start."""
-    params = read_params_file(REPO / 'config' / 'fopdt_autotune.yaml')
+    params = params_file.read(CONFIG / 'fopdt_autotune.yaml')
     params['plant'].update({'real_time_factor': 0.0, 'lockstep.paused': paused})
     params['controller'].update({'autotune.start_time': 0.0, **controller})
     return params
@@ -192,7 +194,7 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
     built = build(graph.params)
     built.controller.start()
     trace = run_loop(built.plant, built.controller, built.reference,
-                     sample_time=built.sample_time, duration=last / 1e9, noise=built.noise)
+                     sample_time=built.sample_time, duration=last / 1e9, noise=built.noise.sample)
     ticks = np.arange(len(trace)) * 100_000_000
     y = np.array([graph.signals['measurement'][int(k)]['y'] for k in ticks])
     u = np.array([graph.signals['manipulated'][int(k)]['u'] for k in ticks])

@@ -41,11 +41,14 @@ def settings(kind: ControllerKind, values: Mapping[str, Any],
     return resolve(kind, values, given)
 
 
-def initial_output(settings_: Settings) -> np.ndarray:
+def initial_output(settings_: Settings) -> np.ndarray | None:
     """The output the controller takes over with: ``initial_output``, or ``manual_output`` for
-    a kind started in ``mode: manual`` (the operator's value wins)."""
+    a kind started in ``mode: manual`` (the operator's value wins); None for a kind without a
+    warm start."""
     if settings_.has('mode') and settings_.mode.mode == 'manual':
         return np.array([float(settings_.mode.manual_output)])
+    if not settings_.has('warm_start'):
+        return None
     return np.array(settings_.warm_start.initial_output, dtype=float)
 
 
