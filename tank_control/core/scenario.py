@@ -21,7 +21,8 @@ from tank_control.core.interfaces import Controller, Plant
 from tank_control.core.loop import run_loop, sample_time_reason
 from tank_control.core.trace import Trace
 from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNode
-from tank_control.core.params import ConfigError, config_from, names_of, unknown_reason, values_of
+from tank_control.core.params import (ConfigError, coerce, config_from, names_of, specs_of,
+                                      unknown_reason, values_of)
 from tank_control.core.plants.kinds import registry as plants
 from tank_control.core.plants.kinds.base import PlantKind
 from tank_control.core.plants.noise import MeasurementNoise, NoiseConfig
@@ -200,6 +201,27 @@ def validate(sections: Mapping[str, Mapping[str, Any]],
         if reason:
             raise _in_section('controller', ConfigError(reason))
     return plant, control
+
+
+def typed(sections: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``sections`` with every node value converted to its parameter's type as the node does
+    (an integer given for a float parameter becomes a float), so a written file means the same
+    to any ROS 2 tool; call it on validated sections."""
+    out = {name: dict(values) for name, values in sections.items()}
+    for node in node_specs.NODES:
+        values = out.get(node)
+        if not values:
+            continue
+        probe = node_values(sections, node)
+        if node == 'plant':
+            specs = node_specs.plant_specs(node_specs.kind_of('plant', probe))
+        elif node == 'controller':
+            specs = node_specs.controller_specs(node_specs.kind_of('controller', probe))
+        else:
+            specs = specs_of(ReferenceNode) + channel_specs(reference_setup(probe).reference)
+        by_name = {s.name: s for s in specs}
+        out[node] = {k: coerce(by_name[k], v) if k in by_name else v for k, v in values.items()}
+    return out
 
 
 def build(sections: Mapping[str, Mapping[str, Any]]) -> Built:

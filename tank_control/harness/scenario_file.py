@@ -155,9 +155,9 @@ def validate(scenario: Scenario) -> Scenario:
             if node in ('plant', 'controller') and node not in scenario.sections:
                 raise ConfigError(f'harness.nodes: {node!r} has no section in the file')
         core_scenario.validate(scenario.sections, config.nodes)
+        return Scenario(scenario.path, core_scenario.typed(scenario.sections))
     except ConfigError as exc:
         raise ScenarioError(where + str(exc)) from None
-    return scenario
 
 
 def effective_harness(scenario: Scenario, mode: str | None = None, rtf: float | None = None,

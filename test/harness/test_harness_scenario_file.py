@@ -59,7 +59,8 @@ def test_overrides_are_typed_as_yaml(text, expected):
 
 @pytest.mark.parametrize('text, words', [
     ('kp=2', 'NODE.PARAM=VALUE'),
-    ('robot.kp=2', "node 'robot' unknown"),
+    ('robot.kp=2', 'robot: unknown node; known: controller, harness, plant, reference'),
+    ('contoller.kp=2', 'contoller: unknown node; did you mean controller'),
     ('controller.kp', 'NODE.PARAM=VALUE'),
     ('controller.k p=1', 'not a parameter name'),
     ('controller.kp={a: 1}', 'map'),
@@ -98,7 +99,8 @@ def test_sim_mode_needs_a_positive_real_time_factor(scenario_path):
 
 @pytest.mark.parametrize('text, words', [
     ('- 1\n- 2\n', 'map of node sections'),
-    ('robot:\n  ros__parameters: {a: 1}\n', "section 'robot' unknown"),
+    ('robot:\n  ros__parameters: {a: 1}\n', 'robot: unknown section'),
+    ('contoller:\n  ros__parameters: {kp: 1}\n', 'contoller: unknown section; did you mean controller'),
     ('plant:\n  a: 1\n', 'ros__parameters'),
     ('plant: {ros__parameters: {a: [1, [2]]}}', 'mixes types'),
     ('plant: [', 'not valid YAML'),

@@ -28,8 +28,8 @@ def test_wildcard_and_node_sections_merge_as_ros_does(tmp_path):
     setpoint: {channels: ['y'], y: {value: 1e-3}}
 """)
     params = params_file.read(path)
-    assert params['plant'] == {'clock_mode': 'lockstep', 'seed': 5, 'plant': 'ipdt',
-                               'lockstep.resend_period': 0.2}
+    assert params_file.node_values(params, 'plant') == {
+        'clock_mode': 'lockstep', 'seed': 5, 'plant': 'ipdt', 'lockstep.resend_period': 0.2}
     assert params['reference']['setpoint.y.value'] == 0.001      # 1e-3 is a float, as in ROS
     assert params['/**'] == {'clock_mode': 'lockstep', 'seed': 3}
 

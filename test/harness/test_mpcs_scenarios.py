@@ -109,13 +109,17 @@ def test_mpcs_is_offset_free_within_limits_and_beats_the_two_loop_pi(name, horiz
 
 
 
-def test_harness_knows_the_mpcs_limits_for_its_constraint_column():
-    """`tank-control run` counts samples outside mpcs.u_min … mpcs.u_max (widest over the
-    inputs), not outside ±inf; live values win over the file."""
-    from tank_control.harness.runner import input_limits
+def test_harness_knows_the_controllers_limits_for_its_constraint_column():
+    """`tank-control run` counts samples outside each input's limits (mpcs.u_min … mpcs.u_max,
+    per input) from the controller that ran, through its kind; not outside ±inf."""
+    from tank_control.harness.runner import controller_report
     from tank_control.harness.scenario_file import load_scenario
     scenario = load_scenario(SCENARIOS / 'tank_mpcs_qp.yaml')
-    assert input_limits(scenario, {}) == {'*': (0.0, 100.0)}
-    assert input_limits(scenario, {'mpcs.u_max': [20.0, 60.0]}) == {'*': (0.0, 60.0)}
+    values = {'controller': 'mpcs', **scenario.params('controller')}
+    assert controller_report(scenario, values)[0] == {'F_H': (0.0, 100.0), 'F_Cin': (0.0, 100.0)}
+    limits, _ = controller_report(scenario, {**values, 'mpcs.u_max': [20.0, 60.0]})
+    assert limits == {'F_H': (0.0, 20.0), 'F_Cin': (0.0, 60.0)}
     pi = load_scenario(SCENARIOS / 'tank_mpcs_two_loop.yaml')
-    assert input_limits(pi, {}) == {'*': (0.0, 300.0)}
+    limits, gains = controller_report(pi, pi.params('controller'))
+    assert limits == {'F_H': (0.0, 300.0), 'F_Cin': (0.0, 300.0)}
+    assert gains['two_loop.kp_h'] == pi.params('controller').get('two_loop.kp_h', 0.9)

@@ -125,11 +125,10 @@ def test_tank_temperature_loop_by_channel_names():
 
 
 def test_scheduled_start_fires_once_and_is_rearmed_by_a_new_start_time():
-    from tank_control.core.control.registry import complete_values, make_controller
-    from tank_control.core.control.relay_autotune import update_relay_autotuner
-    values = complete_values({'controller': 'relay_autotune', 'kp': 1.0, 'ti': 10.0,
-                              'autotune.start_time': 1.0})
-    tuner = make_controller(values)
+    from tank_control.core.control.kinds.base import resolve
+    from tank_control.core.control.kinds.relay_autotune import KIND
+    values = {'kp': 1.0, 'ti': 10.0, 'autotune.start_time': 1.0}
+    tuner = KIND.build(resolve(KIND, values))
     y = r = np.array([0.0])
 
     def state_after(t):
@@ -138,6 +137,6 @@ def test_scheduled_start_fires_once_and_is_rearmed_by_a_new_start_time():
     assert state_after(0.0) == 'idle' and state_after(0.9) == 'idle'
     assert state_after(1.0) == 'settling'
     assert tuner.abort()[0] and state_after(2.0) == 'aborted'     # not started again
-    update_relay_autotuner(tuner, {**values, 'autotune.start_time': 3.0},
-                           frozenset({'autotune.start_time'}))
+    KIND.update(tuner, resolve(KIND, {**values, 'autotune.start_time': 3.0}),
+                frozenset({'autotune.start_time'}))
     assert state_after(2.5) == 'aborted' and state_after(3.0) == 'settling'
