@@ -13,7 +13,6 @@ and the last one of the window.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
@@ -31,6 +30,7 @@ def one_run(config: Path, window: float, warmup: float, domain: int,
     from diagnostic_msgs.msg import DiagnosticArray
 
     from tank_control.core.params_file import read as read_params_file
+    from tank_control.core.params_file import write as write_params_file
     from tank_control.harness.processes import ProcessGroup
 
     params = read_params_file(config)
@@ -39,8 +39,8 @@ def one_run(config: Path, window: float, warmup: float, domain: int,
     params['reference']['lockstep.anticipate'] = anticipate
     nodes = ('plant', 'controller', 'reference')
     tmp = Path(tempfile.mkdtemp(prefix='bench_lockstep_'))
-    path = tmp / 'scenario.yaml'
-    path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in nodes}))
+    path = write_params_file({n: params[n] for n in ('/**', *nodes) if n in params},
+                             tmp / 'scenario.yaml')
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                PYTHONUNBUFFERED='1')
     os.environ.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')

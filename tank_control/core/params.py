@@ -133,6 +133,15 @@ def unknown_reason(name: str, known: Iterable[str], what: str = 'parameter') -> 
     return f'{name}: unknown {what}; {hint}'
 
 
+def lookup(table: Mapping[str, Any], name: str, what: str) -> Any:
+    """``table[name]``; else :class:`ConfigError` ``'<what>: <name>: unknown ...; did you mean
+    ...?'`` (e.g. a plant kind in the parameter ``plant``)."""
+    try:
+        return table[name]
+    except (KeyError, TypeError):
+        raise ConfigError(f'{what.split()[0]}: ' + unknown_reason(str(name), table, what)) from None
+
+
 def check_all(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> list[str]:
     """Reasons for every value in ``values`` that its spec rejects (unknown names too)."""
     by_name = {spec.name: spec for spec in specs}

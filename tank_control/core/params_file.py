@@ -85,15 +85,23 @@ def values_for(sections: Mapping[str, Mapping[str, Any]], target: str,
     receives, as rcl matches sections: wildcard patterns (``/**``, ``/ns/*``) first, then its
     own section; None if no section matches."""
     own = target.lstrip('/')
-    patterns = [k for k in sections if '*' in k and use_wildcards
-                and re.fullmatch(_pattern(k), '/' + own)]
-    exact = [k for k in sections if '*' not in k and k == own]
-    if not patterns + exact:
+    keys = [k for k in sections if use_wildcards and _matches(k, target)]
+    keys += [k for k in sections if '*' not in k and k == own]
+    if not keys:
         return None
     out: dict[str, Any] = {}
-    for key in patterns + exact:
+    for key in keys:
         out.update(sections[key])
     return out
+
+
+def wildcard_names(sections: Mapping[str, Mapping[str, Any]], target: str) -> set[str]:
+    """Names the node ``target`` receives from wildcard sections (``/**``, ``/ns/*``) only."""
+    return {name for key in sections if _matches(key, target) for name in sections[key]}
+
+
+def _matches(key: str, target: str) -> bool:
+    return '*' in key and re.fullmatch(_pattern(key), '/' + target.lstrip('/')) is not None
 
 
 def _pattern(key: str) -> str:

@@ -84,7 +84,7 @@ from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DI
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          from_joint_state, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
-from tank_control.nodes.runtime import run_node
+from tank_control.nodes.runtime import main as run_node_main
 
 #: State topic of a kind with a state machine: reliable, transient local, keep-last 10 (a
 #: one-sample state such as ``tuned`` is not overwritten before delivery); a late subscriber
@@ -428,11 +428,7 @@ class ControllerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point controller_node; exit 2 with a one-line reason on bad parameters."""
-    try:
-        return run_node(ControllerNode, args if args is not None else sys.argv)
-    except (ParameterError, ValueError) as exc:
-        sys.stderr.write(f'controller_node: {exc}\n')
-        return 2
+    return run_node_main('controller_node', ControllerNode, args)
 
 
 if __name__ == '__main__':

@@ -40,6 +40,7 @@ nameless type error. Stored values therefore always have the spec's type.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -48,8 +49,9 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from tank_control.core import params_file
 from tank_control.core.node_specs import declared_anywhere, is_ros_own
-from tank_control.core.params import ParamSpec, ParamValue, coerce, unknown_reason
+from tank_control.core.params import ConfigError, ParamSpec, ParamValue, coerce, unknown_reason
 
 CrossCheck = Callable[[Mapping[str, Any], frozenset[str]], 'str | None']
 """Relations between parameters: (full candidate values, names set in this request or the
@@ -59,6 +61,27 @@ Derive = Callable[[Mapping[str, Any], frozenset[str]], Mapping[str, Any]]
 """Derived values: (candidate values, names the user set) → extra name → value to set."""
 
 _INT64_MIN, _INT64_MAX = -(2 ** 63), 2 ** 63 - 1
+
+
+def _wildcard_names(node_name: str, argv: list[str] | None = None) -> set[str]:
+    """Names given to ``node_name`` by wildcard sections of the ``--params-file`` files on the
+    command line (and not by its own section)."""
+    argv = sys.argv if argv is None else argv
+    names: set[str] = set()
+    ros = False
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            ros = True
+        elif arg == '--':
+            ros = False
+        elif ros and arg == '--params-file' and i + 1 < len(argv):
+            try:
+                sections = params_file.read(argv[i + 1])
+            except ConfigError:
+                continue          # rcl reports an unreadable file itself
+            own = params_file.values_for(sections, node_name, use_wildcards=False) or {}
+            names |= params_file.wildcard_names(sections, node_name) - set(own)
+    return names
 
 
 class ParameterError(ValueError):
@@ -160,16 +183,18 @@ class ParameterBinding:
         self._values = values
 
     def _unknown_overrides(self, overrides: Mapping[str, Any]) -> list[str]:
-        """A start-up value for a name this node does not declare is a typo (refused with the
-        nearest known name) unless another node of the package declares it: then it comes from
-        a ``/**`` section meant for that node and is ignored (logged)."""
+        """A start-up value for a name this node does not declare is refused with the nearest
+        known name, unless it comes only from a wildcard section (``/**``) of a parameter file
+        and another node of the package declares it: such a value is meant for that node and is
+        ignored (logged)."""
+        shared = _wildcard_names(self._node.get_fully_qualified_name())
         reasons = []
         for name in overrides:
             if name in self._specs or is_ros_own(name):
                 continue
-            if declared_anywhere(name):
-                self._node.get_logger().info(f'parameter {name} ignored: not one of this node '
-                                             "(another node's, e.g. from a /** section)")
+            if name in shared and declared_anywhere(name):
+                self._node.get_logger().info(f'parameter {name} from a wildcard section ignored: '
+                                             "another node's")
             else:
                 reasons.append(unknown_reason(name, self._specs))
         return reasons

@@ -55,7 +55,7 @@ from tank_control.core import node_specs
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import nominal_disturbances, nominal_inputs
 from tank_control.core.node_specs import PlantNode as PlantNodeConfig
-from tank_control.core.params import ConfigError, names_of, specs_of
+from tank_control.core.params import ConfigError, names_of
 from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
 from tank_control.nodes.clock import StampedInbox, steady_clock
@@ -64,7 +64,7 @@ from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOP
                                          ChannelFilter, clock_msg, quiet_publisher_events,
                                          quiet_subscription_events, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
-from tank_control.nodes.runtime import run_node
+from tank_control.nodes.runtime import main as run_node_main
 
 _NODE_ONLY = frozenset(names_of(PlantNodeConfig)) | frozenset(names_of(NoiseConfig))
 _LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
@@ -75,13 +75,15 @@ class PlantNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', allow_undeclared_parameters=True, **kwargs)
-        # The model kind decides which parameters exist: bind it first, then the rest.
-        kind_spec = next(s for s in specs_of(PlantNodeConfig) if s.name == 'plant')
-        kind = ParameterBinding(self, (kind_spec,), strict=False).values['plant']
-        self.params = ParameterBinding(
-            self, tuple(s for s in node_specs.plant_specs(str(kind)) if s.name != 'plant'),
-            cross_check=self._cross_check)
-        values = {**self.params.values, 'plant': kind}
+        # The model kind decides which parameters exist.
+        override = getattr(self, '_parameter_overrides', {}).get('plant')
+        try:
+            kind = node_specs.kind_of('plant', {} if override is None else {'plant': override.value})
+        except ConfigError as exc:
+            raise ParameterError(str(exc)) from None
+        self.params = ParameterBinding(self, node_specs.plant_specs(kind),
+                                       cross_check=self._cross_check)
+        values = self.params.values
         try:
             setup = plant_setup(values)
             self.plant = setup.build_plant()
@@ -154,7 +156,7 @@ class PlantNode(Node):
         and its relations such as dead_time <= max_dead_time) and noise_std: 1 value or one
         per output."""
         try:
-            setup = plant_setup({**values, 'plant': self.get_parameter('plant').value})
+            setup = plant_setup(values)
             if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next
                 setup.build_noise(len(self.plant.output_names))
         except ConfigError as exc:
@@ -357,8 +359,8 @@ class PlantNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console entry point plant_node."""
-    return run_node(PlantNode, args if args is not None else sys.argv)
+    """Console entry point plant_node; exit 2 with a one-line reason on bad parameters."""
+    return run_node_main('plant_node', PlantNode, args)
 
 
 if __name__ == '__main__':

@@ -44,7 +44,7 @@ from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOP
                                          TOPIC_SETPOINT, quiet_publisher_events,
                                          quiet_subscription_events, stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
-from tank_control.nodes.runtime import run_node
+from tank_control.nodes.runtime import main as run_node_main
 
 
 def _channel_values(node: Node) -> dict[str, Any]:
@@ -175,8 +175,8 @@ class ReferenceNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console entry point reference_node."""
-    return run_node(ReferenceNode, args if args is not None else sys.argv)
+    """Console entry point reference_node; exit 2 with a one-line reason on bad parameters."""
+    return run_node_main('reference_node', ReferenceNode, args)
 
 
 if __name__ == '__main__':

@@ -2,12 +2,23 @@
 from __future__ import annotations
 
 import signal
+import sys
 from collections.abc import Callable, Sequence
 from types import FrameType
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+
+
+def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+    """A node's console entry point: :func:`run_node`, and exit status 2 with one line on
+    stderr (``<name>: <reason>``) when its parameters are refused at start-up."""
+    try:
+        return run_node(factory, sys.argv if args is None else args)
+    except ValueError as exc:           # ParameterError, ConfigError: one line, no traceback
+        sys.stderr.write(f'{name}: {exc}\n')
+        return 2
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:

@@ -7,8 +7,7 @@ import signal
 import pytest
 import yaml
 from support.param_node import SPECS
-from support.ros2cli import (Streaming, fixture_argv, ros2, ros2_parallel,
-                                      until_complete)
+from support.ros2cli import Streaming, fixture_argv, ros2, ros2_parallel, until_complete
 
 from tank_control.harness.processes import ProcessGroup
 

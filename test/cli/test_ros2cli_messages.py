@@ -6,10 +6,10 @@ import statistics
 import pytest
 import yaml
 
-from tank_control.ros2cli.common import CliError
-from tank_control.ros2cli.messages import from_yaml, resolve_type, to_python, to_yaml
 from tank_control.core.params_file import nest
 from tank_control.core.ros_yaml import flatten
+from tank_control.ros2cli.common import CliError
+from tank_control.ros2cli.messages import from_yaml, resolve_type, to_python, to_yaml
 from tank_control.ros2cli.param import parameters_from_file, value_from_python
 from tank_control.ros2cli.topic import hz_report
 

@@ -9,9 +9,9 @@ import pytest
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.control.pid import Pid2Dof, PidConfig
-from tank_control.core.plants.kinds.registry import make_plant
 from tank_control.core.plants.fopdt import FopdtConfig
 from tank_control.core.plants.ipdt import IpdtConfig
+from tank_control.core.plants.kinds.registry import make_plant
 from tank_control.core.tuning.identification import FopdtModel, IpdtModel
 from tank_control.tuning import tune
 

@@ -10,10 +10,14 @@ import math
 
 import numpy as np
 import pytest
+from support.relay import (
+    ExactDelayPlant,
+    exact_fopdt_ultimate,
+    exact_ipdt_ultimate,
+    relay_record,
+)
 
 from tank_control.core.tuning import identification as ident
-from support.relay import (ExactDelayPlant, exact_fopdt_ultimate,
-                                         exact_ipdt_ultimate, relay_record)
 
 LT_RATIOS = (0.1, 0.3, 1.0, 3.0)
 

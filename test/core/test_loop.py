@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from tank_control.core.loop import run_loop
-from tank_control.core.trace import Trace
 from tank_control.core.reference import reference_from_params
+from tank_control.core.trace import Trace
 
 
 class Integrator:

@@ -13,7 +13,6 @@ from tank_control.core.control.kinds.base import resolve
 from tank_control.core.control.mpcs import Mpcs, MpcsConfig
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
-
 from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
 
 T0 = 2115.0 / 63.0     # document's operating temperature (SPEC §1.3)

@@ -5,8 +5,11 @@ import numpy as np
 import pytest
 
 from tank_control.core.control.mpcs_estimator import AugmentedSystem
-from tank_control.core.control.mpcs_model import (TankOperatingPoint, linearize_mixing_tank,
-                                                  tank_model)
+from tank_control.core.control.mpcs_model import (
+    TankOperatingPoint,
+    linearize_mixing_tank,
+    tank_model,
+)
 from tank_control.core.control.mpcs_prediction import CostConfig, Prediction
 
 
@@ -152,7 +155,11 @@ def test_equilibrium_inputs_reproduce_the_steady_state():
 
 def test_estimate_taken_over_by_a_model_at_another_operating_point():
     """After take_over both models predict the same physical next state and delayed T."""
-    from tank_control.core.control.mpcs_estimator import EstimatorConfig, KalmanEstimator, take_over
+    from tank_control.core.control.mpcs_estimator import (
+        EstimatorConfig,
+        KalmanEstimator,
+        take_over,
+    )
     old_m = tank_model(TankOperatingPoint(), 1.0)
     new_m = tank_model(TankOperatingPoint(F_H=20.0, F_C=30.0, F_D=15.0), 1.0)
     old = KalmanEstimator(old_m, EstimatorConfig())

@@ -9,8 +9,13 @@ from scipy.signal import lfilter
 
 from tank_control.core.control.kinds import two_loop_pi
 from tank_control.core.control.kinds.base import resolve
-from tank_control.core.control.multiloop import (D21_DEN, D21_NUM, D21Filter, TwoLoopPi,
-                                                 document_config)
+from tank_control.core.control.multiloop import (
+    D21_DEN,
+    D21_NUM,
+    D21Filter,
+    TwoLoopPi,
+    document_config,
+)
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError
 

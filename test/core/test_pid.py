@@ -8,7 +8,12 @@ import pytest
 
 from tank_control.core.control.kinds import pid as pid_kind
 from tank_control.core.control.kinds.base import resolve
-from tank_control.core.control.pid import Pid2Dof, PidConfig, PidController, default_tracking_time
+from tank_control.core.control.pid import (
+    Pid2Dof,
+    PidConfig,
+    PidController,
+    default_tracking_time,
+)
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError
 

@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import pytest
 
-from tank_control.core.reference import (ChannelSchedule, Reference, reference_from_params,
-                                         channel_specs)
+from tank_control.core.reference import (
+    ChannelSchedule,
+    Reference,
+    channel_specs,
+    reference_from_params,
+)
 
 
 def ramp_001() -> Reference:

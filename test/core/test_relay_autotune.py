@@ -11,14 +11,21 @@ import math
 
 import numpy as np
 import pytest
+from support.relay import (
+    ExactDelayPlant,
+    closed_loop,
+    exact_fopdt_ultimate,
+    exact_ipdt_ultimate,
+)
 
-from support.relay import (ExactDelayPlant, closed_loop, exact_fopdt_ultimate,
-                           exact_ipdt_ultimate)
 from tank_control.core.control.kinds import relay_autotune as relay_kind
 from tank_control.core.control.kinds.base import resolve
 from tank_control.core.control.pid import PidConfig
-from tank_control.core.control.relay_autotune import (AutotuneConfig, AutotuneResults,
-                                                      RelayAutotuner)
+from tank_control.core.control.relay_autotune import (
+    AutotuneConfig,
+    AutotuneResults,
+    RelayAutotuner,
+)
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
 

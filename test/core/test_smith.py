@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from tank_control.core.analysis.step_metrics import ise, step_metrics
-from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds import smith_pi as smith_kind
 from tank_control.core.control.kinds.base import resolve
+from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.control.smith import SmithModel, SmithPredictor
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError

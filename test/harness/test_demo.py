@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tank_control.core import params_file
 from tank_control import demo
-from tank_control.harness.runner import run
+from tank_control.core import params_file
 from tank_control.core.trace import Trace
+from tank_control.harness.runner import run
 
 DURATION = 150.0    # [s] covers the take-over at the operating point and the h step at 100 s
 

@@ -6,10 +6,11 @@ import math
 
 import numpy as np
 import pytest
+from support.mcap import read_mcap
 
+from tank_control.core.trace import Trace
 from tank_control.harness import metrics
 from tank_control.harness.recording import write_trace
-from tank_control.core.trace import Trace
 from tank_control.harness.trace import SignalMessage, from_messages
 
 MS = 1_000_000
@@ -104,18 +105,6 @@ def test_sampling_metrics_count_gaps_and_jitter():
     m = metrics.sampling_metrics(stamps, 0.1)
     assert m['missed_samples'] == 1
     assert m['max_jitter'] == pytest.approx(0.1)
-
-
-def read_mcap(path):
-    """topic → decoded messages, with the mcap reader and the ROS 2 decoder."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    seen: dict[str, list] = {}
-    with open(path, 'rb') as handle:
-        reader = make_reader(handle, decoder_factories=[DecoderFactory()])
-        for _, channel, _, msg in reader.iter_decoded_messages():
-            seen.setdefault(channel.topic, []).append(msg)
-    return seen
 
 
 def _trace():

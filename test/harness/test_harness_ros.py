@@ -1,5 +1,5 @@
 """The harness over a real ROS 2 graph, with small stand-in plant and reference nodes
-(test/harness_standins) and the real controller_node: lockstep trace against an
+(test/support/standin_nodes.py) and the real controller_node: lockstep trace against an
 independent computation, files written, final gains read back, failures reported."""
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from tank_control.core.control.pid import Pid2Dof, PidConfig
+from tank_control.core.trace import Trace
 from tank_control.harness.runner import RunFailed, run_scenario
 from tank_control.harness.scenario_file import load_scenario
-from tank_control.core.trace import Trace
 
-STANDINS = Path(__file__).parent / 'harness_standins' / 'standin_nodes.py'
+STANDINS = REPO / 'test' / 'support' / 'standin_nodes.py'
 
 SCENARIO = """
 plant:

@@ -6,8 +6,13 @@ import math
 import pytest
 import yaml
 
-from tank_control.harness.scenario_file import (ScenarioError, effective_harness, load_scenario,
-                                                parse_override, write_params_file)
+from tank_control.harness.scenario_file import (
+    ScenarioError,
+    effective_harness,
+    load_scenario,
+    parse_override,
+    write_params_file,
+)
 
 SCENARIO = """
 plant:

@@ -1,12 +1,10 @@
 """core/scenario.py: ROS 2 params files → core objects → the in-process run."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-
 from support import CONFIG
+
 from tank_control.core import params_file
 from tank_control.core.scenario import build, run_in_process
 

@@ -15,12 +15,10 @@ file itself; the claims are issue 8's:
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-
 from support import SCENARIOS
+
 from tank_control.core import params_file
 from tank_control.core.scenario import run_in_process
 

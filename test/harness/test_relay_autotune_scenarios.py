@@ -5,18 +5,15 @@ here independently of the tuner."""
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
 from support import CONFIG
+from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
+
 from tank_control.core import params_file
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build, run_in_process
-
-from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
 
 def run_logged(params, duration: float, reset: tuple[float, float] | None = None):

@@ -8,12 +8,11 @@ also runs a representative few of these claims over the ROS graph.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
-
 from support import CONFIG, SCENARIOS
+
 from tank_control.harness.runner import RunResult, run
 
 T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1, SPEC §1.3)

@@ -9,11 +9,9 @@ far more (test_scenarios.py, docs/scenarios.md).
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
-
 from support import CONFIG
+
 from tank_control.harness.runner import run
 
 KP = 70.92                                  # 001 Table 6.2 with Ku = 118.2: 0.6·Ku

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from support import CONFIG
-from tank_control.harness.runner import run
+from support.mcap import read_mcap
+
 from tank_control.core.trace import Trace
+from tank_control.harness.runner import run
 
 SIGNAL_TOPICS = {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'}
 
@@ -45,17 +46,6 @@ def assert_equal_traces(ros_csv: Path, in_process_csv: Path) -> None:
                                    err_msg=name)
 
 
-def mcap_topics(path: Path) -> dict[str, list]:
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    seen: dict[str, list] = {}
-    with open(path, 'rb') as handle:
-        reader = make_reader(handle, decoder_factories=[DecoderFactory()])
-        for _, channel, _, msg in reader.iter_decoded_messages():
-            seen.setdefault(channel.topic, []).append(msg)
-    return seen
-
-
 def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_path, ros_env):
     """Through the command line: 000 MDP PID 2-DOF (config/ipdt_pid.yaml), 200 s with the
     setpoint step at 10 s and the load step at 150 s."""
@@ -77,7 +67,7 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
     gains = metrics['controller']['final_gains']                              # from the node
     assert round(gains['kp'], 2) == 3.13 and round(gains['b'], 2) == 0.42
 
-    topics = mcap_topics(tmp_path / 'ros' / 'run.mcap')
+    topics = read_mcap(tmp_path / 'ros' / 'run.mcap')
     assert SIGNAL_TOPICS <= set(topics)
     assert len({m.header.stamp.nanosec + m.header.stamp.sec * 10**9
                 for m in topics['/manipulated']}) >= 2001
@@ -93,7 +83,7 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     assert ros.metrics['controller']['final_gains']['two_loop.ki_T'] == -0.01
-    topics = mcap_topics(ros.files['recording'])
+    topics = read_mcap(ros.files['recording'])
     assert SIGNAL_TOPICS <= set(topics)
     assert set(topics['/measurement'][0].name) == {'h', 'T_out'}
     assert set(topics['/manipulated'][0].name) == {'F_H', 'F_Cin'}

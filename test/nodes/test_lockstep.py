@@ -7,13 +7,12 @@ recording, and every tick is compared.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from rclpy.utilities import get_default_context
-
 from support import CONFIG
+
 from tank_control.core import params_file
 from tank_control.core.scenario import run_in_process
 from tank_control.harness.recorder import Recorder
@@ -32,10 +31,7 @@ def scenario(tmp_path: Path) -> tuple[dict, Path]:
                                 'disturbance.v.times': [0.0, 7.0],
                                 'disturbance.v.values': [0.0, -0.1]})
     params['controller']['sample_time'] = 0.2     # every second plant tick: holds in between
-    path = tmp_path / 'scenario.yaml'
-    nodes = ('plant', 'controller', 'reference')
-    # JSON is YAML with quoted strings (ROS 2 reads an unquoted y as a boolean).
-    path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in nodes}))
+    path = params_file.write(params, tmp_path / 'scenario.yaml')
     return params, path
 
 

@@ -14,8 +14,6 @@ fast as possible), controller (MPCS, QP) and reference in three processes.
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -23,8 +21,8 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-
 from support import SCENARIOS
+
 from tank_control.core import params_file
 from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds.base import resolve
@@ -56,10 +54,9 @@ def short_params() -> dict:
 def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ros_env, node_cmd,
                                                                         probe, tmp_path):
     params = short_params()
-    path = tmp_path / 'mpcs.yaml'
     # the file's clock mode is the harness's; here every node is told lockstep directly
-    path.write_text(json.dumps({'/**': {'ros__parameters': {'clock_mode': 'lockstep'}},
-                                **{n: {'ros__parameters': params[n]} for n in NODES}}))
+    path = params_file.write({'/**': {'clock_mode': 'lockstep'}, **{n: params[n] for n in NODES}},
+                             tmp_path / 'mpcs.yaml')
     node = probe.node
     seen: dict[str, dict[int, tuple]] = {topic: {} for topic in TOPICS}
 

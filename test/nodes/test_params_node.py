@@ -22,7 +22,7 @@ SPECS = (
 )
 
 
-def limits_ordered(values):
+def limits_ordered(values, changed=frozenset()):
     if not values['u_min'] < values['u_max']:
         return f"u_min: {values['u_min']:g} must be below u_max {values['u_max']:g}"
     return None

@@ -12,7 +12,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.nodes.messages import SIGNAL_QOS, from_joint_state, stamp_to_ns, to_joint_state
+from tank_control.nodes.messages import (
+    SIGNAL_QOS,
+    from_joint_state,
+    stamp_to_ns,
+    to_joint_state,
+)
 
 #: The probe keeps every sample: a plant on its timer does not wait for a slow test process.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -70,7 +75,7 @@ class Recorder:
 def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, node_cmd, probe,
                                                                  tmp_path):
     proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
-                       initial_output=2.5)
+                       output_offset=2.5)
     rec = Recorder(probe)
     assert probe.wait_for(lambda: len(rec.measurements) >= 23, 30), proc.tail()
     stamps = [s for s, _, _ in rec.measurements]

@@ -6,10 +6,9 @@ import time
 
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from tank_control.nodes.messages import CLOCK_QOS, clock_msg, from_joint_state
 

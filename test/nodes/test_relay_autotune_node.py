@@ -8,8 +8,6 @@ Tu = 10.82 s (SPEC §1.2); the tuner must find them within 3 % and 2 %.
 """
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,15 +19,14 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
-
 from support import CONFIG
+from support.relay import exact_fopdt_ultimate
+
 from tank_control.core import params_file
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build
 from tank_control.nodes.controller_node import STATE_QOS
 from tank_control.nodes.messages import from_joint_state
-
-from support.relay import exact_fopdt_ultimate
 
 KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
 NODES = ('plant', 'controller', 'reference')
@@ -52,9 +49,8 @@ class Graph:
     def __init__(self, procs, ros_env, node_cmd, probe, tmp_path: Path, params: dict,
                  extra: tuple[str, ...] = ()) -> None:
         self.params = params
-        path = tmp_path / 'autotune.yaml'
-        # JSON is YAML with quoted strings (ROS 2 reads an unquoted y as a boolean).
-        path.write_text(json.dumps({n: {'ros__parameters': params[n]} for n in NODES + extra}))
+        path = params_file.write({n: params[n] for n in ('/**', *NODES, *extra) if n in params},
+                                 tmp_path / 'autotune.yaml')
         self.probe, self.procs = probe, procs
         node = probe.node
         self.states: list[str] = []

@@ -15,14 +15,18 @@ from __future__ import annotations
 
 import sys
 
-import rclpy
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.nodes.clock import steady_clock
-from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, clock_msg, stamp_to_ns,
-                                         to_joint_state)
+from tank_control.nodes.messages import (
+    CLOCK_QOS,
+    SIGNAL_QOS,
+    clock_msg,
+    stamp_to_ns,
+    to_joint_state,
+)
 from tank_control.nodes.runtime import run_node
 
 

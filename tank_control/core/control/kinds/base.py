@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from types import MappingProxyType
 from typing import Any
 
@@ -321,6 +321,17 @@ def outputs_within_limits(settings: Settings, limits: list[tuple[float, float]])
 def scalar_limits(settings: Settings) -> dict[str, tuple[float, float]]:
     """``input_limits`` of a SISO kind: its config's ``u_min``, ``u_max``."""
     return {settings.channels.input_names[0]: (settings.config.u_min, settings.config.u_max)}
+
+
+def set_changed_gains(pid: Any, config: Any, names: Iterable[str] | None = None) -> None:
+    """``pid.set_gains`` (bumpless) with the fields of ``config`` (a ``PidConfig``) that differ
+    from the running ones, among ``names`` (default all)."""
+    new = asdict(config)
+    running = pid.config
+    changes = {k: v for k, v in new.items()
+               if (names is None or k in names) and getattr(running, k) != v}
+    if changes:
+        pid.set_gains(**changes)
 
 
 def apply_mode(target: Any, mode_now: str, settings: Settings, changed: frozenset[str]) -> None:

@@ -1,8 +1,6 @@
 """Controller kind ``pid``: the SISO 2-DOF PID of 000 eq. 19 with limits, anti-windup, tuning."""
 from __future__ import annotations
 
-from dataclasses import asdict
-
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.control.pid import PidConfig, PidController
@@ -20,9 +18,7 @@ def update(controller: PidController, settings: Settings, changed: frozenset[str
     """Gains and limits through ``Pid2Dof.set_gains`` (the integral absorbs the change), then
     the mode (manual output / bumpless return to auto)."""
     pid = controller.pid
-    changes = {k: v for k, v in asdict(settings.config).items() if getattr(pid.config, k) != v}
-    if changes:
-        pid.set_gains(**changes)
+    base.set_changed_gains(pid, settings.config)
     base.apply_mode(pid, pid.mode, settings, changed)
     return True
 

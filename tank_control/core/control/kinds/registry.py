@@ -14,7 +14,7 @@ import numpy as np
 from tank_control.core.control.kinds import mpcs, pid, relay_autotune, smith_pi, two_loop_pi
 from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import ConfigError, unknown_reason
+from tank_control.core.params import lookup
 
 KINDS: dict[str, ControllerKind] = {kind.name: kind for kind in (
     pid.KIND,
@@ -27,11 +27,7 @@ KINDS: dict[str, ControllerKind] = {kind.name: kind for kind in (
 
 def get_kind(name: str) -> ControllerKind:
     """The kind ``name``; ``ConfigError`` with the nearest known name if unknown."""
-    try:
-        return KINDS[name]
-    except (KeyError, TypeError):
-        raise ConfigError('controller: ' + unknown_reason(str(name), KINDS,
-                                                          'controller kind')) from None
+    return lookup(KINDS, name, 'controller kind')
 
 
 def settings(kind: ControllerKind, values: Mapping[str, Any],

@@ -34,13 +34,12 @@ def update(tuner: RelayAutotuner, settings: Settings, changed: frozenset[str]) -
     parameters show only once the node has written the results back. Result parameters
     (``autotune.state`` …) change nothing.
     """
-    pid_changes = {k: v for k, v in asdict(settings.config).items()
-                   if k in changed and getattr(tuner.pid.config, k) != v}
+    pid_changed = any(k in changed and getattr(tuner.pid.config, k) != v
+                      for k, v in asdict(settings.config).items())
     new_cfg = settings.autotune
-    if (pid_changes or new_cfg != tuner.config) and tuner.state in TESTING:
+    if (pid_changed or new_cfg != tuner.config) and tuner.state in TESTING:
         tuner.abort('parameters changed during the test')
-    if pid_changes:
-        tuner.pid.set_gains(**pid_changes)
+    base.set_changed_gains(tuner.pid, settings.config, changed)
     if new_cfg != tuner.config:
         tuner.configure(new_cfg)
     base.apply_mode(tuner.pid, tuner.pid.mode, settings, changed)

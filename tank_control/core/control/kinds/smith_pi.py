@@ -1,8 +1,6 @@
 """Controller kind ``smith_pi``: Smith predictor with a PI primary (004 §3.6.1)."""
 from __future__ import annotations
 
-from dataclasses import replace
-
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, Settings, Tuning
 from tank_control.core.control.pid import PidConfig
@@ -55,10 +53,7 @@ def update(controller: SmithPredictor, settings: Settings, changed: frozenset[st
     if any(name.startswith('smith.') for name in changed):
         return False
     primary = controller.primary
-    new = replace(settings.primary, td=0.0, c=0.0)
-    changes = {k: getattr(new, k) for k in PRIMARY if getattr(primary.config, k) != getattr(new, k)}
-    if changes:
-        primary.set_gains(**changes)
+    base.set_changed_gains(primary, settings.primary, PRIMARY)
     base.apply_mode(controller, primary.mode, settings, changed)
     return True
 

@@ -5,7 +5,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from tank_control.core.interfaces import Plant
-from tank_control.core.params import ConfigError, unknown_reason
+from tank_control.core.params import lookup
 from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank
 from tank_control.core.plants.kinds.base import PlantKind
 
@@ -17,11 +17,8 @@ KINDS: dict[str, PlantKind] = {kind.name: kind for kind in (
 
 
 def get_kind(name: str) -> PlantKind:
-    """The plant kind ``name``; ``ConfigError`` with the nearest known name if unknown."""
-    try:
-        return KINDS[name]
-    except (KeyError, TypeError):
-        raise ConfigError('plant: ' + unknown_reason(str(name), KINDS, 'plant kind')) from None
+    """The kind ``name``; ``ConfigError`` with the nearest known name if unknown."""
+    return lookup(KINDS, name, 'plant kind')
 
 
 def make_plant(name: str, values: Mapping[str, Any] | None = None) -> Plant:

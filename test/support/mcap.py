@@ -1,0 +1,16 @@
+"""Reading a run's ``run.mcap`` back in tests, with the mcap reader and the ROS 2 decoder."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def read_mcap(path: str | Path) -> dict[str, list]:
+    """topic → decoded messages, in file order."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    seen: dict[str, list] = {}
+    with open(path, 'rb') as handle:
+        reader = make_reader(handle, decoder_factories=[DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages():
+            seen.setdefault(channel.topic, []).append(msg)
+    return seen
