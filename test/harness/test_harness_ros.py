@@ -15,7 +15,7 @@ from tank_control.core.trace import Trace
 from tank_control.harness.runner import RunFailed, run_scenario
 from tank_control.harness.scenario_file import load_scenario
 
-STANDINS = REPO / 'test' / 'support' / 'standin_nodes.py'
+STANDINS = Path(__file__).parents[1] / 'support' / 'standin_nodes.py'
 
 SCENARIO = """
 plant:
