@@ -10,10 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from support import CONFIG
+from support.mcap import read_mcap
 from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.trace import Trace
 from tank_control.harness.runner import RunFailed, run_scenario
-from tank_control.harness.scenario_file import load_scenario
+from tank_control.harness.scenario_file import ScenarioError, load_scenario
 
 STANDINS = Path(__file__).parents[1] / 'support' / 'standin_nodes.py'
 
@@ -34,6 +36,11 @@ def standin_command(node: str) -> list[str]:
     if node == 'controller':
         return [sys.executable, '-m', 'tank_control.nodes.controller_node']
     return [sys.executable, str(STANDINS), node]
+
+
+def standin_scenario(path: Path, overrides: tuple[str, ...] = ()):
+    """The stand-ins have parameters of their own: only the harness section is checked."""
+    return load_scenario(path, overrides, check_nodes=False)
 
 
 @pytest.fixture
@@ -60,7 +67,7 @@ def expected_trace(duration=6.0, ts=0.1, cts=0.2):
 def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_path, tmp_path,
                                                                       ros_env):
     progress = []
-    result = run_scenario(load_scenario(scenario_path), tmp_path / 'out', env=ros_env,
+    result = run_scenario(standin_scenario(scenario_path), tmp_path / 'out', env=ros_env,
                           node_command=standin_command, progress=progress.append)
     trace = Trace.read_csv(result.files['trace'])
     assert list(trace.columns) == ['t', 'y.y', 'r.y', 'u.u']
@@ -81,7 +88,6 @@ def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_pa
     assert u['max'] == pytest.approx(expected[:, 3].max()) and u['constraint_violations'] == 0
     assert progress and progress[-1].sim_time == pytest.approx(6.0)
 
-    from test_harness_outputs import read_mcap
     topics = read_mcap(result.files['recording'])
     assert {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'} <= set(topics)
     stamps = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in topics['/manipulated']}
@@ -91,7 +97,7 @@ def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_pa
 
 
 def test_a_crashing_node_ends_the_run_with_its_last_log_lines(scenario_path, tmp_path, ros_env):
-    scenario = load_scenario(scenario_path, ['plant.crash_at=2.0'])
+    scenario = standin_scenario(scenario_path, ('plant.crash_at=2.0',))
     with pytest.raises(RunFailed, match='node plant exited with code 3') as info:
         run_scenario(scenario, tmp_path / 'out', env=ros_env, node_command=standin_command)
     assert 'crashing on purpose' in str(info.value)
@@ -99,10 +105,14 @@ def test_a_crashing_node_ends_the_run_with_its_last_log_lines(scenario_path, tmp
 
 
 def test_a_node_that_refuses_its_parameters_fails_the_start(scenario_path, tmp_path, ros_env):
-    scenario = load_scenario(scenario_path, ['controller.n=100.0'])
+    """The harness refuses a value the real controller_node would refuse before anything
+    starts; a node that refuses at start-up all the same ends the run with its reason."""
+    with pytest.raises(ScenarioError, match=r'controller\.n: 100 is above the maximum'):
+        load_scenario(CONFIG / 'ipdt_pid.yaml', ['controller.n=100.0'])
+    scenario = standin_scenario(scenario_path, ('controller.n=100.0',))
     with pytest.raises(RunFailed, match='controller') as info:
         run_scenario(scenario, tmp_path / 'out', env=ros_env, node_command=standin_command)
-    assert 'n' in str(info.value)
+    assert 'n: 100 is above the maximum' in str(info.value)
 
 
 def test_another_graph_on_the_same_domain_is_refused(scenario_path, tmp_path, ros_env, procs,
@@ -112,5 +122,5 @@ def test_another_graph_on_the_same_domain_is_refused(scenario_path, tmp_path, ro
                                       'step_value:=5.0'], env=ros_env)
     assert probe.wait_for(lambda: 'reference' in probe.node.get_node_names(), 30), foreign.tail()
     with pytest.raises(RunFailed, match='reference already in use on ROS_DOMAIN_ID'):
-        run_scenario(load_scenario(scenario_path), tmp_path / 'out', env=ros_env,
+        run_scenario(standin_scenario(scenario_path), tmp_path / 'out', env=ros_env,
                      node_command=standin_command)
