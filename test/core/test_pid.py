@@ -328,3 +328,11 @@ def test_tuning_parameters_give_the_gains_and_name_missing_ones():
     assert 'tuning.dead_time' in reason
     assert 'kind' in check_pid_relations({'tuning.rule': 'mdp', 'tuning.kind': 'p',
                                           'tuning.gain': 0.05, 'tuning.dead_time': 5.0})
+
+
+def test_classical_zn_rule_is_a_tuning_parameter_choice():
+    """tuning.rule 'zn' (Ziegler–Nichols 1942: 0.6·Ku, Tu/2, Tu/8) through the parameters."""
+    cfg = pid_config_from_params({'tuning.rule': 'zn', 'tuning.kind': 'pid', 'tuning.ku': 10.0,
+                                  'tuning.tu': 4.0})
+    assert (cfg.kp, cfg.ti, cfg.td, cfg.b, cfg.c) == pytest.approx((6.0, 2.0, 0.5, 1.0, 1.0))
+    assert 'tuning.tu' in check_pid_relations({'tuning.rule': 'zn', 'tuning.ku': 10.0})

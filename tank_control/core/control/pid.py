@@ -416,7 +416,7 @@ def _scalar(value: Any, name: str) -> float:
 
 # ------------------------------------------------------------- parameters
 BIG = 1e12
-TUNING_RULES = ('none', 'mdp', 'experimental', 'zn_001', 'zn_004_q0', 'zn_004_q1',
+TUNING_RULES = ('none', 'mdp', 'experimental', 'zn', 'zn_001', 'zn_004_q0', 'zn_004_q1',
                 'oppelt', 'cohen_coon', 'smith_pi')
 
 

@@ -67,7 +67,7 @@ from tank_control.core.tuning import identification as ident
 
 STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'failed', 'aborted')
 TESTING = ('settling', 'relay', 'measuring')
-RULES_ULTIMATE = ('zn_001', 'zn_004_q0', 'zn_004_q1')
+RULES_ULTIMATE = ('zn', 'zn_001', 'zn_004_q0', 'zn_004_q1')
 RULES_IPDT = ('mdp', 'experimental')
 RULES_FOPDT = ('oppelt', 'cohen_coon')
 RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT
@@ -153,7 +153,7 @@ def autotune_params() -> tuple[ParamSpec, ...]:
                   '3.6.2)', choices=('auto', 'fopdt', 'ipdt')),
         ParamSpec('autotune.process_gain', 0.0, 'known static gain kP for the FOPDT model '
                   '(004 eq. 3.6.2) [y units per u unit]; 0 = identify', min=0.0, max=big),
-        ParamSpec('autotune.rule', 'zn_001', 'tuning rule: zn_001 / zn_004_q0 / zn_004_q1 from '
+        ParamSpec('autotune.rule', 'zn_001', 'tuning rule: zn / zn_001 / zn_004_q0 / zn_004_q1 from '
                   'ku, tu; mdp / experimental from the IPDT model; oppelt / cohen_coon from the '
                   'FOPDT model', choices=RULES),
         ParamSpec('autotune.kind', 'pid', 'controller type the rule designs',
