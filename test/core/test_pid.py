@@ -25,12 +25,31 @@ def make(**kw) -> Pid2Dof:
 
 
 # ------------------------------------------------------------ setpoint kick
-def test_standard_pid_initial_output_is_kp_1_plus_n_w0():
-    """000 eq. 16 with Td/Tf = n: u(0) = kp·(1 + n)·w0 for b = c = 1."""
+def _backward_difference_d(kp: float, td: float, n: float, h: float, e: list[float]) -> list[float]:
+    """Tf·dD/dt + D = kp·td·de/dt with backward differences, Tf = td/n, written out
+    directly: (Tf/h)·(D(k) − D(k−1)) + D(k) = (kp·td/h)·(e(k) − e(k−1)), starting at
+    rest (D(−1) = 0, e(−1) = e(0): no kick on the first sample)."""
+    tf, d, prev, out = td / n, 0.0, e[0], []
+    for ek in e:
+        d = (tf / h * d + kp * td / h * (ek - prev)) / (tf / h + 1.0)
+        prev = ek
+        out.append(d)
+    return out
+
+
+@pytest.mark.parametrize('h', [0.5, 0.05, 1e-4])
+def test_standard_pid_initial_output_of_a_setpoint_step(h):
+    """u(0) = kp·(b + c·td/(Tf + h))·w0 with Tf = td/n (backward-difference filter from
+    rest); as h → 0 it tends to kp·(1 + n)·w0, 000 eq. 16 with Td/Tf = n, b = c = 1."""
+    kp, td, w0 = 2.0, 2.0, 3.0
     for n in (5.0, 10.0, 20.0):
-        pid = make(n=n)
-        pid.reset(0.0, 0.0, 0.0)
-        assert pid.update(3.0, 0.0) == pytest.approx(2.0 * (1 + n) * 3.0, rel=1e-12)
+        for b, c in ((1.0, 1.0), (0.4, 0.6)):
+            pid = make(n=n, b=b, c=c, sample_time=h)
+            pid.reset(0.0, 0.0, 0.0)
+            assert pid.update(w0, 0.0) == pytest.approx(kp * (b + c * td / (td / n + h)) * w0, rel=1e-12)
+    pid = make(n=10.0, sample_time=h)
+    pid.reset(0.0, 0.0, 0.0)
+    assert pid.update(w0, 0.0) == pytest.approx(kp * (1 + 10.0) * w0, rel=2 * h / (td / 10.0))
 
 
 def test_c_zero_removes_the_derivative_kick():
@@ -40,24 +59,50 @@ def test_c_zero_removes_the_derivative_kick():
     assert pid.update(3.0, 0.0) == pytest.approx(2.0 * 0.4 * 3.0, rel=1e-12)
 
 
-def test_derivative_decays_as_the_continuous_filter():
-    """Step response of kp·td·s/(Tf·s + 1): kp·(td/Tf)·w0·exp(−t/Tf) at the samples (exact ZOH)."""
-    kp, td, n, h, w0 = 2.0, 2.0, 10.0, 0.05, 1.0
+@pytest.mark.parametrize('h', [0.05, 0.5, 3.0])
+def test_derivative_is_the_backward_difference_filter(h):
+    """The D term (b = 0, no integral) follows the backward-difference equation of
+    kp·td·s/(Tf·s + 1) for an arbitrary error sequence, also with h ≫ Tf = 0.2 s."""
+    kp, td, n = 2.0, 2.0, 10.0
+    rng = np.random.default_rng(3)
+    e = [0.0] + list(np.cumsum(rng.normal(size=60)))
     pid = make(kp=kp, ti=math.inf, td=td, n=n, b=0.0, c=1.0, sample_time=h)
     pid.reset(0.0, 0.0, 0.0)
-    tf = td / n
-    for k in range(40):
-        u = pid.update(w0, 0.0)
-        assert u == pytest.approx(kp * n * w0 * math.exp(-k * h / tf), rel=1e-9, abs=1e-12)
+    u = [pid.update(ek, 0.0) for ek in e]
+    assert u == pytest.approx(_backward_difference_d(kp, td, n, h, e), rel=1e-9, abs=1e-12)
 
 
-def test_derivative_filter_is_stable_for_tiny_tf():
-    """Tf = 0.001 s with h = 1 s: still bounded and decaying (no explicit-Euler blow-up)."""
-    pid = make(ti=math.inf, td=0.01, n=10.0, sample_time=1.0, b=0.0)
+@pytest.mark.parametrize('h', [0.01, 0.3, 1.0, 5.0])
+def test_derivative_gain_at_low_frequency_is_exactly_kp_td(h):
+    """A ramp error of slope a gives, once the filter has settled, D = kp·td·a — the
+    continuous derivative's value — for any h, also h ≫ Tf (the step-invariant
+    discretisation gave kp·td·a·x/(1 − e^(−x)), x = h/Tf). And the response to an error
+    step has the area kp·td·w0 of the continuous filter's impulse kp·td·δ."""
+    kp, td, n, a, w0 = 2.0, 1.3, 10.0, 0.7, 1.5
+    pid = make(kp=kp, ti=math.inf, td=td, n=n, b=0.0, c=1.0, sample_time=h)
+    pid.reset(0.0, 0.0, 0.0)
+    steps = int(50 * (td / n + h) / h) + 2      # 50 filter time constants in samples
+    u = [pid.update(a * k * h, 0.0) for k in range(steps)]
+    assert u[-1] == pytest.approx(kp * td * a, rel=1e-9)
+    pid = make(kp=kp, ti=math.inf, td=td, n=n, b=0.0, c=1.0, sample_time=h)
+    pid.reset(0.0, 0.0, 0.0)
+    area = sum(pid.update(w0, 0.0) for _ in range(steps)) * h
+    assert area == pytest.approx(kp * td * w0, rel=1e-9)
+
+
+def test_derivative_filter_is_stable_and_does_not_ring_for_tiny_tf():
+    """Tf = 0.001 s with h = 1 s: the kick kp·td/(Tf + h)·w0 decays monotonically by
+    β = Tf/(Tf + h) per sample, without changing sign (Tustin would ring here)."""
+    kp, td, n, h = 2.0, 0.01, 10.0, 1.0
+    pid = make(kp=kp, ti=math.inf, td=td, n=n, sample_time=h, b=0.0)
     pid.reset(0.0, 0.0, 0.0)
     outs = [pid.update(1.0, 0.0) for _ in range(5)]
-    assert abs(outs[0]) == pytest.approx(2.0 * 10.0, rel=1e-12)
-    assert all(abs(u) < 1e-6 for u in outs[1:])
+    tf = td / n
+    assert outs[0] == pytest.approx(kp * td / (tf + h), rel=1e-12)
+    beta = tf / (tf + h)
+    for k, u in enumerate(outs):
+        assert u == pytest.approx(outs[0] * beta ** k, rel=1e-6, abs=1e-12)
+        assert u >= -1e-12
 
 
 # ----------------------------------------------------------------- integral
@@ -328,3 +373,11 @@ def test_setpoint_weights_can_be_set_by_hand_with_the_rule_gains():
     assert (settings.config.b, settings.config.c) == (0.0, 0.0)
     assert (settings.config.kp, settings.config.ti, settings.config.td) == (
         tuned.kp, tuned.ti, tuned.td)
+
+
+def test_classical_zn_rule_is_a_tuning_parameter_choice():
+    """tuning.rule 'zn' (Ziegler–Nichols 1942: 0.6·Ku, Tu/2, Tu/8) through the parameters."""
+    cfg = resolve(pid_kind.KIND, {'tuning.rule': 'zn', 'tuning.kind': 'pid', 'tuning.ku': 10.0,
+                                  'tuning.tu': 4.0}).config
+    assert (cfg.kp, cfg.ti, cfg.td, cfg.b, cfg.c) == pytest.approx((6.0, 2.0, 0.5, 1.0, 1.0))
+    assert 'tuning.tu' in reason({'tuning.rule': 'zn', 'tuning.ku': 10.0})

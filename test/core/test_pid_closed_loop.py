@@ -3,8 +3,9 @@
 The plants are simulated exactly at the controller sample time h (ZOH input,
 dead time a whole number of samples): IPDT y(k+1) = y(k) + k1·h·u(k − d),
 FOPDT y(k+1) = a·y(k) + K·(1 − a)·u(k − d), a = exp(−h/T).
-Measured with h = 0.05 s, n = 10 (numbers in the report of the control branch):
-MDP PID 2-DOF 0.66 %, MDP PI 2-DOF 0.00 %, b = c = 1: PI 34.9 %, PID 40.0 %.
+Measured with h = 0.05 s, n = 10: MDP PID 2-DOF 0.02 %, MDP PI 2-DOF 0.00 %,
+b = c = 1: PI 34.9 %, PID 45.3 % (the continuous loop: 0.02 %, 0 %, 34.6 %, 44.7 %,
+SPEC-supplement §1.1).
 """
 from __future__ import annotations
 
@@ -109,9 +110,9 @@ def test_zn_pid_on_001_fopdt_step_versus_ramp():
     """001 §1.2.2: the ZN PID (Ku = 118.2, Tu = 11 s) overshoots a step of 100 strongly
     (the document: ~40 %); ramping the setpoint over 25 s cuts that to a few %.
 
-    Measured here with the ideal-form PID, b = c = 1, n = 10, h = 0.05 s: 62 % with the
-    step, 7.4 % with the ramp (see the report: the document's figures are not reproducible
-    exactly with the table gains in this form)."""
+    Measured here with the ideal-form PID, b = c = 1, n = 10, h = 0.05 s: 55.0 % with the
+    step, 7.9 % with the ramp (the continuous loop: 54.0 % and 7.5–7.7 %, SPEC-supplement
+    §1.10; docs/scenarios.md on the gap to the document's figures)."""
     g = tune('zn_001', 'pid', ku=118.2, tu=11.0)
     t, y = fopdt_loop(_pid(g), 150.0, w=lambda t: 100.0)
     step = step_metrics(t, y, 100.0)

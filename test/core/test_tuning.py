@@ -71,6 +71,25 @@ def test_001_ziegler_nichols_example():
     _printed(tune('zn_001', 'pi', ku=118.2, tu=11.0), kp=53.19, ti=9.35)
 
 
+def test_classical_ziegler_nichols_1942():
+    """Ziegler & Nichols (1942), ultimate-point rule: P Ku/2; PI 0.45·Ku, Tu/1.2;
+    PID 0.6·Ku, Tu/2, Tu/8 (SPEC-supplement §1.9)."""
+    ku, tu = 118.2, 11.0
+    assert tune('zn', 'p', ku=ku, tu=tu) == dict(kp=59.1, ti=None, td=None, b=None, c=None)
+    pi = tune('zn', 'pi', ku=ku, tu=tu)
+    assert (pi['kp'], pi['ti'], pi['td']) == pytest.approx((53.19, 11.0 / 1.2, None))
+    pid = tune('zn', 'pid', ku=ku, tu=tu)
+    assert (pid['kp'], pid['ti'], pid['td']) == pytest.approx((70.92, 5.5, 1.375))
+    assert pid['b'] is None and pid['c'] is None
+    # 001 Table 6.2 and 004's q = 1 column differ from it only in td = 0.12·Tu
+    for rule in ('zn_001', 'zn_004_q1'):
+        assert tune(rule, 'pid', ku=ku, tu=tu)['td'] == pytest.approx(1.32)
+    with pytest.raises(ValueError, match="kind 'pd'"):
+        tune('zn', 'pd', ku=ku, tu=tu)
+    with pytest.raises(ValueError, match="'tu'"):
+        tune('zn', 'pid', ku=ku)
+
+
 def test_004_table_3_1():
     ku, tu = 10.0, 4.0
     assert tune('zn_004_q0', 'p', ku=ku, tu=tu) == dict(kp=5.0, ti=None, td=None, b=None, c=None)

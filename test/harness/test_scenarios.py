@@ -46,8 +46,8 @@ def load_step(result: RunResult, output: str = 'y') -> dict:
 # --------------------------------------------------------------------------------- 000 (IPDT)
 
 @pytest.mark.parametrize('scenario, limit', [
-    ('ipdt_pid', 3.0),            # MDP PID 2-DOF: SPEC §2.2 ≈ 2.7 %, issue 5: ≤ 3 %
-    ('ipdt_mdp_pi', 0.5),         # MDP PI 2-DOF: ≈ 0 %, issue 5: ≤ 0.5 %
+    ('ipdt_pid', 0.5),            # MDP PID 2-DOF: aperiodic, SPEC-supplement §1.1: 0.02 %
+    ('ipdt_mdp_pi', 0.5),         # MDP PI 2-DOF: aperiodic, SPEC-supplement §1.1: 0.00 %
     ('ipdt_exp_pid', 5.0),        # experimental PID 2-DOF: "nearly aperiodic"
     ('ipdt_exp_pi', 5.0),         # experimental PI 2-DOF: "nearly aperiodic"
 ])
@@ -59,8 +59,8 @@ def test_000_two_dof_setpoint_response_is_nearly_aperiodic(results, scenario, li
 
 
 @pytest.mark.parametrize('scenario, low, high', [
-    ('ipdt_mdp_pi_1dof', 30.0, 40.0),    # SPEC §2.2: ≈ 35 %
-    ('ipdt_mdp_pid_1dof', 30.0, 60.0),   # SPEC §2.2: ≈ 50 %; issue 5: ≥ 30 % (we measure 35 %)
+    ('ipdt_mdp_pi_1dof', 30.0, 40.0),    # SPEC-supplement §1.1: 34.6 %
+    ('ipdt_mdp_pid_1dof', 30.0, 60.0),   # SPEC-supplement §1.1: 44.7 % (we measure 45.8 %)
 ])
 def test_000_one_dof_controller_overshoots_a_setpoint_step(results, scenario, low, high):
     """000 eq. 9: with b = c = 1 the integral of the setpoint error is 0, so y must overshoot."""
@@ -117,9 +117,9 @@ def test_000_controller_gains_are_those_of_table_1(results):
 
 def test_001_zn_pid_overshoots_a_step_and_a_25_s_ramp_cuts_it(results):
     """001 §1.2.2, Figs. 1.13/1.15: the ZN PID overshoots a step of 100 by "about 40 %";
-    ramping the setpoint over 25 s cuts it to "about 3 %". We measure 71 % and 7.3 %
-    (docs/scenarios.md): the claim asserted is a large step overshoot (≥ 30 %), a few %
-    with the ramp (≤ 10 %), at least five times less."""
+    ramping the setpoint over 25 s cuts it to "about 3 %". We measure 56.6 % and 8.0 %
+    (docs/scenarios.md; test_scenarios_001_forms.py on the gap): the claim asserted is a
+    large step overshoot (≥ 30 %), a few % with the ramp (≤ 10 %), at least five times less."""
     step = first_step(results('fopdt_zn'))
     ramp = first_step(results('fopdt_zn_ramp'))
     assert step['overshoot_pct'] >= 30.0

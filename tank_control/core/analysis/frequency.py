@@ -24,7 +24,7 @@ Models
   (exact step-invariant models, also with a fractional dead time),
   :func:`rational_discrete`, and :func:`pid_feedback_discrete` /
   :func:`pid_setpoint_discrete`, the transfer functions of the implemented
-  ``Pid2Dof`` (forward-Euler integral, step-invariant filtered derivative).
+  ``Pid2Dof`` (forward-Euler integral, backward-difference filtered derivative).
 
 Analysis
 --------
@@ -390,14 +390,14 @@ def rational_discrete(num: Sequence[float], den: Sequence[float], sample_time: f
 
 def _pid_law_discrete(kp: float, ti: float, td: float, n: float, b: float, c: float,
                       h: float) -> Rational:
-    a = math.exp(-h * n / td) if td > 0 else 0.0
+    beta = td / (td + n * h)           # Tf/(Tf + h), Tf = td/n
 
     def law(z: np.ndarray) -> np.ndarray:
         out = np.full(np.shape(z), b, dtype=complex)
         if math.isfinite(ti):
             out = out + h / (ti * (z - 1.0))
         if td > 0:
-            out = out + c * n * (z - 1.0) / (z - a)
+            out = out + c * n * beta * (z - 1.0) / (z - beta)
         return kp * out
     return law
 
@@ -405,9 +405,10 @@ def _pid_law_discrete(kp: float, ti: float, td: float, n: float, b: float, c: fl
 def pid_feedback_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0,
                           sample_time: float = 1.0) -> FrequencyResponse:
     """Transfer function −U/Y of the implemented ``Pid2Dof`` (core/control/pid.py):
-    ``C(z) = kp·(1 + h/(ti·(z − 1)) + n·(z − 1)/(z − a))``, ``a = e^(−h·n/td)``:
-    forward-Euler integral and the step-invariant discretisation of
-    ``td·s/(td/n·s + 1)`` (000 eq. 13, 19), ``h`` = ``sample_time`` [s]."""
+    ``C(z) = kp·(1 + h/(ti·(z − 1)) + n·β·(z − 1)/(z − β))``, ``β = Tf/(Tf + h)``,
+    ``Tf = td/n``: forward-Euler integral and the backward-difference
+    discretisation of ``td·s/(td/n·s + 1)`` (000 eq. 13, 19), whose gain at low
+    frequency is exactly ``td·s``; ``h`` = ``sample_time`` [s]."""
     kp, ti, td, n = _pid_args(kp, ti, td, n)
     h = _sample_time(sample_time)
     return FrequencyResponse(_pid_law_discrete(kp, ti, td, n, 1.0, 1.0, h), 0.0, h,
@@ -417,7 +418,7 @@ def pid_feedback_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: f
 def pid_setpoint_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0,
                           b: float = 1.0, c: float = 1.0, sample_time: float = 1.0) -> FrequencyResponse:
     """Transfer function U/R of the implemented ``Pid2Dof``:
-    ``kp·(b + h/(ti·(z − 1)) + c·n·(z − 1)/(z − a))`` (000 eq. 19)."""
+    ``kp·(b + h/(ti·(z − 1)) + c·n·β·(z − 1)/(z − β))`` (000 eq. 19)."""
     kp, ti, td, n = _pid_args(kp, ti, td, n)
     b, c = _weight('b', b), _weight('c', c)
     h = _sample_time(sample_time)

@@ -11,13 +11,20 @@ gives PI, ``ti = inf`` removes integral action.
 Discretisation (sample time ``h`` = ``sample_time`` [s]):
 
 * P: static, ``P(k) = kp·(b·r(k) − y(k))``.
-* D: **step-invariant (exact ZOH) discretisation** of ``td·s/(Tf·s + 1)``.
-  The filter is written ``n·(1 − 1/(Tf·s + 1))``; its low-pass state ``x``
-  follows ``x(k+1) = a·x(k) + (1 − a)·e_d(k)`` with ``a = exp(−h/Tf)`` and
-  ``D(k) = kp·n·(e_d(k) − x(k))``, ``e_d = c·r − y``. ``0 < a < 1`` for every
-  ``Tf > 0``, so it is stable for any filter constant (also ``Tf ≪ h``), and a
-  setpoint step ``w0`` gives exactly ``u(0) = kp·(b + c·n)·w0`` — with
-  ``b = c = 1`` the ``kp·(1 + td/Tf)·w0`` of 000 eq. 16; with ``c = 0`` no kick.
+* D: **backward difference on the filter**, the discretisation Åström and
+  Hägglund recommend: ``Tf·dD/dt + D = kp·td·de_d/dt`` with backward
+  differences, i.e. ``D(k) = kp·n·(e_d(k) − x(k))`` with the low-pass state
+  ``x(k) = β·x(k−1) + (1 − β)·e_d(k)``, ``β = Tf/(Tf + h)``, ``e_d = c·r − y``;
+  in z: ``kp·n·β·(z − 1)/(z − β)``. ``0 < β < 1`` for every ``Tf/h``: stable
+  and, the pole being positive, free of ringing (Tustin rings when
+  ``h > 2·Tf``); the gain at low frequency is exactly ``kp·td·s`` and the area
+  of the response to an error step exactly ``kp·td``, for any ``h`` (a
+  step-invariant filter held for a sample realises ``kp·td·x/(1 − e^(−x))``,
+  ``x = h/Tf``); it tends to the continuous filter as ``h → 0``.
+  A setpoint step ``w0`` gives ``u(0) = kp·(b + c·td/(Tf + h))·w0
+  = kp·(b + c·n·β)·w0`` — ``kp·(1 + td/Tf)·w0`` of 000 eq. 16 in the limit
+  ``h → 0`` with ``b = c = 1``; no kick with ``c = 0``. The kick then decays
+  as ``β^k``.
 * I: forward (explicit) Euler, ``I(k+1) = I(k) + kp·h/ti·(r(k) − y(k))``, so
   the integral acts from the sample after a change (``u(0)`` above holds).
   ``I`` is stored in output units, which makes ``ti`` changes bumpless.
@@ -169,6 +176,12 @@ def default_tracking_time(ti: float, td: float) -> float:
     return math.sqrt(ti * td) if td > 0.0 else ti
 
 
+def _beta(cfg: PidConfig) -> float:
+    """Pole ``β = Tf/(Tf + h)`` of the backward-difference derivative filter, Tf = td/n."""
+    tf = cfg.td / cfg.n
+    return tf / (tf + cfg.sample_time)
+
+
 class Pid2Dof:
     """Discrete 2-DOF PID with filtered derivative (000 eq. 19, eqs. 13–14).
 
@@ -307,9 +320,9 @@ class Pid2Dof:
         p = k * (cfg.b * r - y)
         ed = cfg.c * r - y
         if cfg.td > 0.0:
-            a = math.exp(-h * cfg.n / cfg.td)          # exp(−h/Tf)
-            d = k * cfg.n * (ed - self._x)
-            x_next = a * self._x + (1.0 - a) * ed
+            beta = _beta(cfg)                          # Tf/(Tf + h), backward difference
+            x_next = beta * self._x + (1.0 - beta) * ed
+            d = k * cfg.n * (ed - x_next)
         else:
             d = 0.0
             x_next = ed
@@ -361,9 +374,10 @@ class Pid2Dof:
             r, y = self._last
             x_new = self._x + (new.c - old.c) * r     # keeps c·r − y − x unchanged
             p_old = self._gain(old) * (old.b * r - y)
-            d_old = self._gain(old) * old.n * (old.c * r - y - self._x) if old.td > 0 else 0.0
+            # D of the next sample at unchanged inputs: kp·n·β·(c·r − y − x)
+            d_old = self._gain(old) * old.n * _beta(old) * (old.c * r - y - self._x) if old.td > 0 else 0.0
             p_new = self._gain(new) * (new.b * r - y)
-            d_new = self._gain(new) * new.n * (new.c * r - y - x_new) if new.td > 0 else 0.0
+            d_new = self._gain(new) * new.n * _beta(new) * (new.c * r - y - x_new) if new.td > 0 else 0.0
             self._x = x_new
             self._i += (p_old + d_old) - (p_new + d_new)
         self._cfg = new

@@ -67,7 +67,7 @@ from tank_control.core.tuning import identification as ident
 
 STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'failed', 'aborted')
 TESTING = ('settling', 'relay', 'measuring')
-RULES_ULTIMATE = ('zn_001', 'zn_004_q0', 'zn_004_q1')
+RULES_ULTIMATE = ('zn', 'zn_001', 'zn_004_q0', 'zn_004_q1')
 RULES_IPDT = ('mdp', 'experimental')
 RULES_FOPDT = ('oppelt', 'cohen_coon')
 RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT
@@ -122,7 +122,7 @@ class AutotuneConfig:
     process_gain: float = _at(0.0, 'known static gain kP for the FOPDT model (004 eq. 3.6.2); '
                               '0 = identify', 'process_gain', unit='y units per u unit',
                               min=0.0, max=_BIG)
-    rule: str = _at('zn_001', 'tuning rule: zn_001 / zn_004_q0 / zn_004_q1 from ku, tu; mdp / '
+    rule: str = _at('zn_001', 'tuning rule: zn / zn_001 / zn_004_q0 / zn_004_q1 from ku, tu; mdp / '
                     'experimental from the IPDT model; oppelt / cohen_coon from the FOPDT model',
                     'rule', choices=RULES)
     kind: str = _at('pid', 'controller type the rule designs', 'kind', choices=('p', 'pi', 'pid'))

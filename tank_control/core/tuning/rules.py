@@ -22,12 +22,17 @@ Rules
 ``experimental``  IPDT, experimental (000 eqs. 35–36): PI, PID. For the PI, eq. 36
                   gives kp = 0.6/(k1·To) = 2.4 for the example; 000's Table 1 prints
                   2.5. We follow the equation.
+``zn``            Classical Ziegler–Nichols ultimate-point rule (Ziegler & Nichols,
+                  "Optimum settings for automatic controllers", Trans. ASME 64, 1942;
+                  SPEC-supplement §1.9): P 0.5·Ku; PI 0.45·Ku, Tu/1.2; PID 0.6·Ku,
+                  Tu/2, Tu/8.
 ``zn_001``        Ziegler–Nichols ultimate point, 001 Table 6.2: P, PI, PID.
 ``zn_004_q0``     Ziegler–Nichols, 004 Table 3.1, PID column q = 0 (P, PI shared).
 ``zn_004_q1``     Ziegler–Nichols, 004 Table 3.1, PID column q = 1 (P, PI shared).
                   The table values are returned as printed (the PID form 3.2.2 is
-                  garbled in our copy of 004; the q = 1 column equals the
-                  classical ZN PID for the ideal parallel form used here).
+                  garbled in our copy of 004). The q = 1 column equals 001's
+                  Table 6.2 (Td = 0.12·Tu); neither is the classical rule ``zn``
+                  (Td = Tu/8 = 0.125·Tu).
 ``oppelt``        FOPDT step response, 001 Table 6.1 with a = K·L/T (eq. 6.15):
                   P, PI, PID.
 ``cohen_coon``    FOPDT, classical Cohen–Coon formulas (P, PI, PD, PID), which 004
@@ -103,6 +108,7 @@ def experimental(kind: str, process: Mapping[str, float]) -> Gains:
 
 # --------------------------------------------------- ultimate point (001, 004)
 # kind → (kp/ku, ti/tu, td/tu)
+_ZN = {'p': (0.5, None, None), 'pi': (0.45, 1.0 / 1.2, None), 'pid': (0.6, 0.5, 0.125)}    # 1942
 _ZN_001 = {'p': (0.45, None, None), 'pi': (0.45, 0.85, None), 'pid': (0.6, 0.5, 0.12)}   # 001 Table 6.2
 _ZN_004 = {'p': (0.5, None, None), 'pi': (0.45, 0.8, None)}                              # 004 Table 3.1
 _ZN_004_PID = {'zn_004_q0': (0.75, 0.6, 0.1), 'zn_004_q1': (0.6, 0.5, 0.12)}
@@ -116,6 +122,13 @@ def _ultimate(rule: str, table: Mapping[str, tuple], kind: str, process: Mapping
     return _gains(kp=fk * ku, ti=None if fi is None else fi * tu, td=None if fd is None else fd * tu)
 
 
+def zn(kind: str, process: Mapping[str, float]) -> Gains:
+    """Classical Ziegler–Nichols ultimate-point rule (Ziegler & Nichols, Trans. ASME 64,
+    1942; SPEC-supplement §1.9): P kp = 0.5·Ku; PI 0.45·Ku, ti = Tu/1.2; PID 0.6·Ku,
+    ti = Tu/2, td = Tu/8."""
+    return _ultimate('zn', _ZN, kind, process)
+
+
 def zn_001(kind: str, process: Mapping[str, float]) -> Gains:
     """Ziegler–Nichols ultimate-point table, 001 Table 6.2."""
     return _ultimate('zn_001', _ZN_001, kind, process)
@@ -127,7 +140,8 @@ def zn_004_q0(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def zn_004_q1(kind: str, process: Mapping[str, float]) -> Gains:
-    """Ziegler–Nichols, 004 Table 3.1 (PID column q = 1)."""
+    """Ziegler–Nichols as printed in 004 Table 3.1, PID column q = 1 (td = 0.12·Tu as in
+    001 Table 6.2; not the classical Tu/8 of :func:`zn`)."""
     return _ultimate('zn_004_q1', {**_ZN_004, 'pid': _ZN_004_PID['zn_004_q1']}, kind, process)
 
 
@@ -179,7 +193,7 @@ def smith_pi(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 RULES: dict[str, Callable[[str, Mapping[str, float]], Gains]] = {
-    'mdp': mdp, 'experimental': experimental, 'zn_001': zn_001, 'zn_004_q0': zn_004_q0,
+    'mdp': mdp, 'experimental': experimental, 'zn': zn, 'zn_001': zn_001, 'zn_004_q0': zn_004_q0,
     'zn_004_q1': zn_004_q1, 'oppelt': oppelt, 'cohen_coon': cohen_coon, 'smith_pi': smith_pi,
 }
 
