@@ -209,6 +209,27 @@ def test_003_filling_the_tank_overshoots_in_temperature_less_with_decoupling(res
         assert abs(result.trace.columns['y.T_out'][-1] - T0) < 0.1
 
 
+def _tank_files_at_the_operating_point() -> list[Path]:
+    """Shipped files with the mixing tank that start at its operating point (no initial_T)."""
+    from tank_control.core.scenario import read_params_file
+    files = []
+    for path in sorted(CONFIG.glob('*.yaml')) + sorted(SCENARIOS.glob('*.yaml')):
+        plant = read_params_file(path).get('plant', {})
+        if plant.get('plant') == 'mixing_tank' and 'initial_T' not in plant:
+            files.append(path)
+    return files
+
+
+@pytest.mark.parametrize('path', _tank_files_at_the_operating_point(), ids=lambda p: p.stem)
+def test_003_tank_files_start_the_temperature_setpoint_exactly_at_the_operating_point(path):
+    """Such a file sets T_out's first setpoint to 2115/63 itself, not a rounding of it
+    (33.5714 made a −0.00003 °C "step")."""
+    from tank_control.core.scenario import read_params_file
+    reference = read_params_file(path)['reference']
+    first = reference.get('setpoint.T_out.values', [reference.get('setpoint.T_out.value')])[0]
+    assert first == T0
+
+
 def test_003_unreachable_temperature_setpoint_winds_up_and_raises_the_level(results):
     """003 §2.2: with T_out set near T_C while warm F_D flows in, the temperature error stays
     and the level rises (the cold-water integrator keeps opening F_Cin)."""
