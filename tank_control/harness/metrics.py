@@ -43,9 +43,9 @@ window): ``peak_error`` max |e| and ``peak_signed`` e there, ``peak_time`` after
 event [s]; ``iae`` ∫|e| dt and the signed ``integral_error`` ∫e dt (000 eq. 10 gives
 it in closed form for a load step on an integrating plant); ``recovery_time``: time
 after which |e| stays within 2 % of ``peak_error`` [s], None if not within the window;
-``final_error``: mean e over the last 5 % of the window. The deviation is measured
-from the output's setpoint, so an output still moving from an earlier event at the
-start of the window carries that into these numbers.
+``final_error``: mean e over the last 5 % of the window; ``initial_error``: e at the
+event. The deviation is measured from the output's setpoint, so an output still
+moving from an earlier event carries that into these numbers (``initial_error`` ≠ 0).
 
 Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
 and ``constraint_violations`` (samples outside the controller's
@@ -187,7 +187,8 @@ def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
     finite = np.isfinite(e)
     if finite.sum() < 2:
         return {'peak_error': None, 'peak_signed': None, 'peak_time': None, 'iae': None,
-                'integral_error': None, 'recovery_time': None, 'final_error': None}
+                'integral_error': None, 'recovery_time': None, 'final_error': None,
+                'initial_error': None}
     m = sm.deviation_metrics(t[finite], e[finite], final_window=SS_WINDOW)
     return _clean(m.as_dict())
 

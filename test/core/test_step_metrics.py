@@ -90,14 +90,15 @@ def test_deviation_metrics_of_a_load_bump_match_closed_forms():
     assert m.integral_error == pytest.approx(-amp * math.e * tau, rel=1e-6)
     x = brentq(lambda x: x * math.exp(1 - x) - 0.02, 1.0, 50.0)
     assert m.recovery_time == pytest.approx(x * tau, abs=1e-3)
-    assert abs(m.final_error) < 1e-9
+    assert abs(m.final_error) < 1e-9 and m.initial_error == 0.0
 
 
 def test_deviation_metrics_without_recovery_and_without_deviation():
     assert math.isnan(deviation_metrics(T, 0.5 * np.sin(T)).recovery_time)     # still swinging
     still = deviation_metrics(T, np.zeros_like(T))
     assert (still.peak_error, still.iae, still.recovery_time) == (0.0, 0.0, 0.0)
-    assert deviation_metrics(T, np.full_like(T, 0.3)).final_error == pytest.approx(0.3)
+    offset = deviation_metrics(T, np.full_like(T, 0.3))
+    assert offset.final_error == pytest.approx(0.3) and offset.initial_error == 0.3
 
 
 def test_bad_input_is_rejected():

@@ -11,7 +11,7 @@ either direction (the response is normalised by the signed step size).
 * :func:`deviation_metrics` — response of an error that should stay at 0 (a load
   change, or the coupling from another output's setpoint step): peak error
   [unit] and its time [s], IAE, ∫e dt [unit·s] (000 eq. 10 for a load step),
-  recovery time into ±2 % of the peak [s], final error [unit].
+  recovery time into ±2 % of the peak [s], final and initial error [unit].
 """
 from __future__ import annotations
 
@@ -160,7 +160,8 @@ class DeviationMetrics:
     ``iae`` ∫|e| dt and ``integral_error`` ∫e dt [unit·s] (trapezoidal).
     ``recovery_time``: time after ``t[0]`` after which |e| stays within
     ``band``·peak_error [s]; 0 if e never leaves it, NaN if it has not by the end.
-    ``final_error``: mean e over the final window [unit].
+    ``final_error``: mean e over the final window [unit]; ``initial_error``: e at ``t[0]``
+    [unit] (an output still moving from an earlier event carries that into the window).
     """
 
     peak_error: float
@@ -170,6 +171,7 @@ class DeviationMetrics:
     integral_error: float
     recovery_time: float
     final_error: float
+    initial_error: float
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
@@ -193,4 +195,5 @@ def deviation_metrics(t, e, band: float = 0.02, final_window: float = 0.1) -> De
     n_final = max(1, int(round(final_window * len(e))))
     return DeviationMetrics(peak_error=peak, peak_signed=float(e[i]), peak_time=float(t[i] - t[0]),
                             iae=_trapz(t, np.abs(e)), integral_error=_trapz(t, e),
-                            recovery_time=recovery, final_error=float(np.mean(e[-n_final:])))
+                            recovery_time=recovery, final_error=float(np.mean(e[-n_final:])),
+                            initial_error=float(e[0]))
