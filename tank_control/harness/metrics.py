@@ -11,8 +11,9 @@ run starts away from its setpoint (|r(0) − y(0)| above that tolerance), t = 0 
 as a setpoint change from y(0). Each event's window runs from its first sample to
 the next event of any kind (any output, any disturbance; exclusive) or the end of
 the run, so one response is never mixed with the response to another event.
-``events`` lists them in time order: ``t``, ``t_end`` [s], ``kind``
-(``setpoint``/``disturbance``), ``channel``, ``from``, ``to``.
+``events`` lists them in time order: ``t``, ``t_end`` [s] (the next event's instant,
+not part of the window, or the run's last sample), ``kind`` (``setpoint``/
+``disturbance``), ``channel``, ``from``, ``to``.
 
 Per output channel (one with a setpoint column ``r.<name>``), with e = r − y (e > 0:
 the output is below its setpoint):
@@ -35,8 +36,8 @@ the output is below its setpoint):
   - ``coincident``: other events starting at the same sample (they share the window).
 
 * ``disturbance_steps``: one entry per instant where a disturbance changes, over its
-  window: ``t``, ``t_end``, ``changes`` ({channel: [from, to]}), ``coincident``, and
-  the deviation metrics of this output.
+  window: ``t``, ``t_end``, ``changes`` ({channel: [from, to]}), ``coincident``
+  (setpoint changes at the same sample), and the deviation metrics of this output.
 
 Deviation metrics (``core.analysis.step_metrics.deviation_metrics`` of e over the
 window): ``peak_error`` max |e| and ``peak_signed`` e there, ``peak_time`` after the
@@ -60,8 +61,8 @@ the exact tick grid), of their arrival times at the recorder in wall mode.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -153,11 +154,8 @@ def find_events(outputs: Mapping[str, tuple[np.ndarray, np.ndarray]],
     found += [Event('disturbance', name, *c)
               for name, d in disturbances.items() for c in column_changes(d, None, step_tol)]
     starts = sorted({e.start for e in found})
-    out = []
-    for e in sorted(found, key=lambda e: (e.start, e.kind != 'setpoint')):
-        stop = next((s for s in starts if s > e.start), n)
-        out.append(Event(e.kind, e.channel, e.start, e.settled, e.value_from, e.value_to, stop))
-    return out
+    return [replace(e, stop=next((s for s in starts if s > e.start), n))
+            for e in sorted(found, key=lambda e: (e.start, e.kind != 'setpoint'))]
 
 
 def _clean(entry: dict[str, Any]) -> dict[str, Any]:
