@@ -19,10 +19,15 @@ def _fmt(value: Any, digits: int = 4) -> str:
 
 
 def metrics_rows(result: RunResult) -> list[dict[str, str]]:
-    """One row per output channel of a run (first setpoint change for the step columns)."""
+    """One row per output channel of a run (first setpoint change for the step columns;
+    ``coupling peak``: the largest |r − y| of this output within the window of another
+    output's setpoint step)."""
     rows = []
     metrics = result.metrics
     for name, out in metrics['outputs'].items():
+        coupling = [s['interaction'][name]['peak_error']
+                    for other in metrics['outputs'].values() for s in other['steps']
+                    if s.get('interaction', {}).get(name, {}).get('peak_error') is not None]
         steps = out['steps']
         worst = max((s['overshoot_pct'] for s in steps if s['overshoot_pct'] is not None),
                     default=None)
@@ -35,6 +40,7 @@ def metrics_rows(result: RunResult) -> list[dict[str, str]]:
             'rise time s (1st)': _fmt(first.get('rise_time'), 3),
             'settling 2 % s (1st)': _fmt(first.get('settling_time'), 3),
             'ss error (last)': _fmt(steps[-1]['ss_error'], 3) if steps else '–',
+            'coupling peak': _fmt(max(coupling), 3) if coupling else '–',
         })
     run = metrics['run']
     for row in rows:

@@ -1,27 +1,52 @@
 """Metrics of a run, computed from its trace (``metrics.json``).
 
-Per output channel (one with a setpoint column ``r.<name>``):
+Events and windows. An event is a setpoint change of any output (``r.<name>``) or a
+change of any disturbance (``d.<name>``). A change is a run of consecutive samples
+where the signal moves in one direction (a step is one sample, a reference ramp
+several); it goes from the value before to the value once the signal is constant.
+A change smaller than ``STEP_TOL`` (0.1 %) of the channel's magnitude — the largest
+|value| of the column over the run (and |y(0)| for a setpoint) — is not an event
+(e.g. a setpoint written as 33.5714 for the tank's 2115/63 = 33.571428… °C). When the
+run starts away from its setpoint (|r(0) − y(0)| above that tolerance), t = 0 counts
+as a setpoint change from y(0). Each event's window runs from its first sample to
+the next event of any kind (any output, any disturbance; exclusive) or the end of
+the run, so one response is never mixed with the response to another event.
+``events`` lists them in time order: ``t``, ``t_end`` [s] (the next event's instant,
+not part of the window, or the run's last sample), ``kind`` (``setpoint``/
+``disturbance``), ``channel``, ``from``, ``to``.
 
-* ``iae`` = ∫|e| dt and ``ise`` = ∫e² dt with e = r − y (trapezoidal rule,
+Per output channel (one with a setpoint column ``r.<name>``), with e = r − y (e > 0:
+the output is below its setpoint):
+
+* ``iae`` = ∫|e| dt and ``ise`` = ∫e² dt over the whole run (trapezoidal rule,
   ``core.analysis.step_metrics``). Units: channel unit·s and unit²·s.
-* ``steps``: one entry per setpoint change. A change is a run of consecutive
-  samples where r moves (a step is one sample, a ramp several); it goes from
-  ``r_from`` (the value before) to ``r_to`` (the value once r is constant) and
-  its window lasts until the next change or the end of the run. When the run
-  starts away from its setpoint (|r(0) − y(0)| > 0), t = 0 counts as a change
-  from y(0). Per change (Δ = r_to − r_from, t from the change's start):
+* ``steps``: one entry per setpoint change of this output, over its window
+  (Δ = r_to − r_from, times from the change's start): ``t``, ``t_end``, ``r_from``,
+  ``r_to``;
 
   - ``overshoot_pct``: max(0, max sign(Δ)·(y − r_to)) / |Δ| · 100;
   - ``rise_time``: time from 10 % to 90 % of Δ, None if 90 % is never reached;
   - ``settling_time``: time after which |y − r_to| stays within 2 % of |Δ|,
     None if it never does within the window;
   - ``ss_error``: r_to − mean(y) over the last 5 % of the window;
-  - ``peak``, ``peak_time`` (computed by ``core.analysis.step_metrics``).
+  - ``peak``, ``peak_time`` (computed by ``core.analysis.step_metrics``);
+  - ``interaction``: per other output (one without a setpoint change at the same
+    instant) what this step does to it over the window — the deviation metrics
+    below;
+  - ``coincident``: other events starting at the same sample (they share the window).
 
-  A disturbance change also ends the window of a setpoint change. Per
-  disturbance change (``disturbance_steps``): ``peak_error`` |r − y| and
-  ``peak_signed``, ``peak_time`` after the change, ``iae`` and signed
-  ``integral_error`` over its window, and ``final_error`` (mean over the last 5 %).
+* ``disturbance_steps``: one entry per instant where a disturbance changes, over its
+  window: ``t``, ``t_end``, ``changes`` ({channel: [from, to]}), ``coincident``
+  (setpoint changes at the same sample), and the deviation metrics of this output.
+
+Deviation metrics (``core.analysis.step_metrics.deviation_metrics`` of e over the
+window): ``peak_error`` max |e| and ``peak_signed`` e there, ``peak_time`` after the
+event [s]; ``iae`` ∫|e| dt and the signed ``integral_error`` ∫e dt (000 eq. 10 gives
+it in closed form for a load step on an integrating plant); ``recovery_time``: time
+after which |e| stays within 2 % of ``peak_error`` [s], None if not within the window;
+``final_error``: mean e over the last 5 % of the window; ``initial_error``: e at the
+event. The deviation is measured from the output's setpoint, so an output still
+moving from an earlier event carries that into these numbers (``initial_error`` ≠ 0).
 
 Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
 and ``constraint_violations`` (samples outside the controller's
@@ -36,7 +61,8 @@ the exact tick grid), of their arrival times at the recorder in wall mode.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -45,64 +71,97 @@ from tank_control.core.analysis import step_metrics as sm
 from tank_control.core.trace import Trace
 
 SS_WINDOW = 0.05
+#: A change smaller than this fraction of the channel's magnitude is not an event.
+STEP_TOL = 1e-3
+#: Sample-to-sample differences below this fraction of the magnitude (at least of 1
+#: unit) are floating-point rounding, not movement.
+MOVE_TOL = 1e-9
 
 
-def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray,
-                   disturbance_changes: Sequence[int] = ()) -> dict[str, Any]:
-    """IAE, ISE, per-setpoint-change and per-disturbance-change metrics of one output.
+@dataclass(frozen=True)
+class Event:
+    """One change of a setpoint or disturbance channel: samples ``start`` (first moved)
+    to ``settled`` (new value reached), ``value_from`` → ``value_to``; ``stop`` is the
+    window's end (exclusive sample index)."""
 
-    ``disturbance_changes``: sample indices where a disturbance changes; they also
-    end the window of a setpoint change (its response is not mixed with a load
-    response)."""
-    e = r - y
-    finite = np.isfinite(e)
-    enough = int(finite.sum()) >= 2
-    result: dict[str, Any] = {
-        'iae': sm.iae(t[finite], e[finite]) if enough else 0.0,
-        'ise': sm.ise(t[finite], e[finite]) if enough else 0.0,
-        'steps': [],
-        'disturbance_steps': [],
-    }
-    changes = setpoint_changes(t, y, r)
-    starts = sorted({c[0] for c in changes} | set(disturbance_changes))
-    for start, _, stop, r_from, r_to in changes:
-        stop = min([stop] + [i for i in starts if i > start])
-        result['steps'].append(change_metrics(t[start:stop], y[start:stop], r_from, r_to))
-    for start in disturbance_changes:
-        stop = min([len(t)] + [i for i in starts if i > start])
-        result['disturbance_steps'].append(load_metrics(t[start:stop], e[start:stop]))
-    return result
+    kind: str            # 'setpoint' | 'disturbance'
+    channel: str
+    start: int
+    settled: int
+    value_from: float
+    value_to: float
+    stop: int = -1
 
 
-def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
-    """Response of an output to a disturbance change over its window: the largest error
-    |r − y| (``peak_error``, signed ``peak_signed``) and when (``peak_time`` after the
-    change), IAE and the signed ∫e dt (``integral_error``, trapezoidal; 000 eq. 10 gives it
-    in closed form for integrating plants) over the window, and the mean error over its
-    last 5 % (``final_error``)."""
-    finite = np.isfinite(e)
-    if finite.sum() < 2:
-        return {'t': float(t[0]) if len(t) else None, 'peak_error': None, 'peak_signed': None,
-                'peak_time': None, 'iae': None, 'integral_error': None, 'final_error': None}
-    t, e = t[finite], e[finite]
-    i = int(np.argmax(np.abs(e)))
-    tail = max(1, int(math.ceil(SS_WINDOW * len(e))))
-    integral = float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t)))
-    return {'t': float(t[0]), 'peak_error': float(abs(e[i])), 'peak_signed': float(e[i]),
-            'peak_time': float(t[i] - t[0]), 'iae': sm.iae(t, e), 'integral_error': integral,
-            'final_error': float(np.mean(e[-tail:]))}
+def column_changes(v: np.ndarray, initial: float | None = None,
+                   step_tol: float = STEP_TOL) -> list[tuple[int, int, float, float]]:
+    """``(start, settled, from, to)`` of each change of the column ``v``: consecutive
+    samples moving in one direction are one change (a ramp); a change smaller than
+    ``step_tol`` × max(|v|, |initial|) is dropped. ``initial``: the value before the
+    first sample (a setpoint's output y(0)); if it differs from v[0], sample 0 is a
+    change from it."""
+    v = np.asarray(v, dtype=float)
+    n = len(v)
+    if n == 0:
+        return []
+    magnitudes = [float(np.nanmax(np.abs(v)))] if np.isfinite(v).any() else [0.0]
+    if initial is not None and math.isfinite(initial):
+        magnitudes.append(abs(initial))
+    scale = max(magnitudes)
+    tol_move = MOVE_TOL * max(1.0, scale)
+    tol_step = max(tol_move, step_tol * scale)
+    diff = np.zeros(n)
+    diff[1:] = np.diff(v)
+    direction = np.where(np.abs(diff) > tol_move, np.sign(diff), 0.0)   # NaN → 0
+    changes: list[tuple[int, int, float, float]] = []
+    if (initial is not None and math.isfinite(initial) and math.isfinite(v[0])
+            and abs(v[0] - initial) > tol_step):
+        changes.append((0, 0, float(initial), float(v[0])))
+    i = 1
+    while i < n:
+        if direction[i] != 0.0:
+            j = i
+            while j + 1 < n and direction[j + 1] == direction[i]:
+                j += 1
+            if abs(v[j] - v[i - 1]) > tol_step:
+                changes.append((i, j, float(v[i - 1]), float(v[j])))
+            i = j + 1
+        else:
+            i += 1
+    return changes
 
 
-def disturbance_change_indices(trace: Trace, rel_tol: float = 1e-9) -> list[int]:
-    """Sample indices where any disturbance column changes (first sample of a ramp)."""
-    indices: set[int] = set()
-    for name in trace.channels('d'):
-        d = trace.columns[f'd.{name}']
-        scale = max(1.0, float(np.nanmax(np.abs(d)))) if np.isfinite(d).any() else 1.0
-        moving = np.zeros(len(d), dtype=bool)
-        moving[1:] = np.abs(np.diff(d)) > rel_tol * scale
-        indices |= {int(i) for i in np.nonzero(moving & ~np.roll(moving, 1))[0]}
-    return sorted(indices)
+def setpoint_changes(t: np.ndarray, y: np.ndarray, r: np.ndarray, step_tol: float = STEP_TOL
+                     ) -> list[tuple[int, int, int, float, float]]:
+    """``(start, settled, stop, r_from, r_to)`` of each setpoint change of one output;
+    ``stop`` is the next change of this setpoint (or the end), not of other events."""
+    y0 = float(y[0]) if len(y) else None
+    changes = column_changes(r, y0, step_tol)
+    stops = [c[0] for c in changes[1:]] + [len(r)]
+    return [(start, settled, stop, r_from, r_to)
+            for (start, settled, r_from, r_to), stop in zip(changes, stops)]
+
+
+def find_events(outputs: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                disturbances: Mapping[str, np.ndarray], n: int,
+                step_tol: float = STEP_TOL) -> list[Event]:
+    """Every setpoint change of ``outputs`` (name → (y, r)) and every change of
+    ``disturbances`` (name → d), in time order, each with its window end ``stop``:
+    the first sample of the next event of any kind, or ``n``."""
+    found = [Event('setpoint', name, *c)
+             for name, (y, r) in outputs.items()
+             for c in column_changes(r, float(y[0]) if len(y) else None, step_tol)]
+    found += [Event('disturbance', name, *c)
+              for name, d in disturbances.items() for c in column_changes(d, None, step_tol)]
+    starts = sorted({e.start for e in found})
+    return [replace(e, stop=next((s for s in starts if s > e.start), n))
+            for e in sorted(found, key=lambda e: (e.start, e.kind != 'setpoint'))]
+
+
+def _clean(entry: dict[str, Any]) -> dict[str, Any]:
+    """NaN/inf → None (JSON has no NaN)."""
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in entry.items()}
 
 
 def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> dict[str, Any]:
@@ -118,38 +177,78 @@ def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> 
     entry.update(overshoot_pct=m.overshoot, rise_time=m.rise_time,
                  settling_time=m.settling_time, ss_error=m.steady_state_error,
                  peak=m.peak, peak_time=m.peak_time)
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-            for k, v in entry.items()}
+    return _clean(entry)
 
 
-def setpoint_changes(t: np.ndarray, y: np.ndarray, r: np.ndarray,
-                     rel_tol: float = 1e-9) -> list[tuple[int, int, int, float, float]]:
-    """``(start, constant_from, stop, r_from, r_to)`` index ranges of each setpoint change."""
-    n = len(r)
-    if n == 0:
-        return []
-    scale = max(1.0, float(np.nanmax(np.abs(r))) if np.isfinite(r).any() else 1.0)
-    tol = rel_tol * scale
-    moving = np.zeros(n, dtype=bool)
-    moving[1:] = np.abs(np.diff(r)) > tol
-    changes: list[list[Any]] = []
-    if math.isfinite(y[0]) and math.isfinite(r[0]) and abs(r[0] - y[0]) > tol:
-        changes.append([0, 0, float(y[0])])
-    i = 1
-    while i < n:
-        if moving[i]:
-            j = i
-            while j + 1 < n and moving[j + 1]:
-                j += 1
-            changes.append([i, j, float(r[i - 1])])
-            i = j + 1
-        else:
-            i += 1
-    out = []
-    for k, (start, last_move, r_from) in enumerate(changes):
-        stop = changes[k + 1][0] if k + 1 < len(changes) else n
-        out.append((start, last_move, stop, r_from, float(r[last_move])))
-    return out
+def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
+    """Deviation metrics (module docstring) of the error ``e`` over a window starting at t[0]."""
+    finite = np.isfinite(e)
+    if finite.sum() < 2:
+        return {'peak_error': None, 'peak_signed': None, 'peak_time': None, 'iae': None,
+                'integral_error': None, 'recovery_time': None, 'final_error': None,
+                'initial_error': None}
+    m = sm.deviation_metrics(t[finite], e[finite], final_window=SS_WINDOW)
+    return _clean(m.as_dict())
+
+
+def signal_metrics(t: np.ndarray, outputs: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                   disturbances: Mapping[str, np.ndarray] | None = None,
+                   step_tol: float = STEP_TOL) -> dict[str, Any]:
+    """``events`` and ``outputs`` sections (module docstring) for outputs name → (y, r) and
+    disturbances name → d sampled at ``t``."""
+    t = np.asarray(t, dtype=float)
+    n = len(t)
+    events = find_events(outputs, disturbances or {}, n, step_tol)
+    errors = {name: r - y for name, (y, r) in outputs.items()}
+    t_end = [float(t[min(ev.stop, n - 1)]) if n else None for ev in events]
+
+    def label(ev: Event) -> str:
+        return ('r.' if ev.kind == 'setpoint' else 'd.') + ev.channel
+
+    def coincident(ev: Event) -> list[str]:
+        return [label(o) for o in events if o.start == ev.start and o is not ev]
+
+    result: dict[str, Any] = {}
+    for name, (y, r) in outputs.items():
+        e = errors[name]
+        finite = np.isfinite(e)
+        enough = int(finite.sum()) >= 2
+        result[name] = {'iae': sm.iae(t[finite], e[finite]) if enough else 0.0,
+                        'ise': sm.ise(t[finite], e[finite]) if enough else 0.0,
+                        'steps': [], 'disturbance_steps': []}
+    load_instants: dict[int, list[int]] = {}
+    for k, ev in enumerate(events):
+        window = slice(ev.start, ev.stop)
+        if ev.kind == 'disturbance':
+            load_instants.setdefault(ev.start, []).append(k)
+            continue
+        y = outputs[ev.channel][0]
+        entry = change_metrics(t[window], y[window], ev.value_from, ev.value_to)
+        own_steps = {o.channel for o in events if o.start == ev.start and o.kind == 'setpoint'}
+        entry = {'t': entry.pop('t'), 't_end': t_end[k], **entry,
+                 'interaction': {other: load_metrics(t[window], errors[other][window])
+                                 for other in outputs if other not in own_steps},
+                 'coincident': coincident(ev)}
+        result[ev.channel]['steps'].append(entry)
+    for start, ks in load_instants.items():
+        first = events[ks[0]]
+        window = slice(start, first.stop)
+        changes = {events[k].channel: [events[k].value_from, events[k].value_to] for k in ks}
+        others = [label(o) for o in events if o.start == start and o.kind == 'setpoint']
+        for name in outputs:
+            result[name]['disturbance_steps'].append(
+                {'t': float(t[start]), 't_end': t_end[ks[0]], 'changes': changes,
+                 'coincident': others, **load_metrics(t[window], errors[name][window])})
+    return {'events': [{'t': float(t[ev.start]), 't_end': t_end[k], 'kind': ev.kind,
+                        'channel': ev.channel, 'from': ev.value_from, 'to': ev.value_to}
+                       for k, ev in enumerate(events)],
+            'outputs': result}
+
+
+def output_metrics(t: np.ndarray, y: np.ndarray, r: np.ndarray,
+                   step_tol: float = STEP_TOL) -> dict[str, Any]:
+    """IAE, ISE and per-setpoint-change metrics of a single output without disturbances."""
+    return signal_metrics(t, {'y': (y, r)}, {}, step_tol)['outputs']['y']
 
 
 def input_metrics(u: np.ndarray, u_min: float = -math.inf,
@@ -167,16 +266,17 @@ def input_metrics(u: np.ndarray, u_min: float = -math.inf,
 
 
 def trace_metrics(trace: Trace,
-                  input_limits: Mapping[str, tuple[float, float]] | None = None) -> dict[str, Any]:
-    """``outputs`` and ``inputs`` sections of ``metrics.json`` for a trace."""
+                  input_limits: Mapping[str, tuple[float, float]] | None = None,
+                  step_tol: float = STEP_TOL) -> dict[str, Any]:
+    """``events``, ``outputs`` and ``inputs`` sections of ``metrics.json`` for a trace."""
     limits = input_limits or {}
-    loads = disturbance_change_indices(trace)
-    outputs = {name: output_metrics(trace.t, trace.columns[f'y.{name}'], trace.columns[f'r.{name}'],
-                                    loads)
+    outputs = {name: (trace.columns[f'y.{name}'], trace.columns[f'r.{name}'])
                for name in trace.channels('y') if f'r.{name}' in trace.columns}
+    disturbances = {name: trace.columns[f'd.{name}'] for name in trace.channels('d')}
+    body = signal_metrics(trace.t, outputs, disturbances, step_tol)
     inputs = {name: input_metrics(trace.columns[f'u.{name}'], *limits.get(name, (-math.inf, math.inf)))
               for name in trace.channels('u')}
-    return {'outputs': outputs, 'inputs': inputs}
+    return {'outputs': body['outputs'], 'inputs': inputs, 'events': body['events']}
 
 
 def sampling_metrics(stamps_ns: np.ndarray, sample_time: float | None,

@@ -6,7 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from tank_control.core.analysis.step_metrics import iae, ise, step_metrics
+from scipy.optimize import brentq
+
+from tank_control.core.analysis.step_metrics import deviation_metrics, iae, ise, step_metrics
 
 TAU = 2.0
 T = np.linspace(0.0, 40.0, 40001)
@@ -72,6 +74,31 @@ def test_error_integrals():
     assert iae(T, e) == pytest.approx(TAU, rel=1e-6)
     assert iae(T, -e) == pytest.approx(TAU, rel=1e-6)
     assert ise(T, e) == pytest.approx(TAU / 2, rel=1e-6)
+
+
+def test_deviation_metrics_of_a_load_bump_match_closed_forms():
+    """e(t) = −A·(t/τ)·e^(1 − t/τ): peak −A at t = τ, ∫e dt = −A·e·τ, and |e| stays within
+    2 % of A after the root x > 1 of x·e^(1 − x) = 0.02 (x = t/τ)."""
+    amp, tau = 0.7, 3.0
+    t = np.linspace(0.0, 100.0, 200001)
+    e = -amp * (t / tau) * np.exp(1 - t / tau)
+    m = deviation_metrics(t, e)
+    assert m.peak_error == pytest.approx(amp, rel=1e-9)
+    assert m.peak_signed == pytest.approx(-amp, rel=1e-9)
+    assert m.peak_time == pytest.approx(tau, abs=1e-3)
+    assert m.iae == pytest.approx(amp * math.e * tau, rel=1e-6)
+    assert m.integral_error == pytest.approx(-amp * math.e * tau, rel=1e-6)
+    x = brentq(lambda x: x * math.exp(1 - x) - 0.02, 1.0, 50.0)
+    assert m.recovery_time == pytest.approx(x * tau, abs=1e-3)
+    assert abs(m.final_error) < 1e-9 and m.initial_error == 0.0
+
+
+def test_deviation_metrics_without_recovery_and_without_deviation():
+    assert math.isnan(deviation_metrics(T, 0.5 * np.sin(T)).recovery_time)     # still swinging
+    still = deviation_metrics(T, np.zeros_like(T))
+    assert (still.peak_error, still.iae, still.recovery_time) == (0.0, 0.0, 0.0)
+    offset = deviation_metrics(T, np.full_like(T, 0.3))
+    assert offset.final_error == pytest.approx(0.3) and offset.initial_error == 0.3
 
 
 def test_bad_input_is_rejected():

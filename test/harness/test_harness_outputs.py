@@ -155,3 +155,150 @@ def test_a_disturbance_change_ends_the_setpoint_window_and_is_measured():
     assert load['peak_error'] == pytest.approx(0.3 / math.e, rel=1e-3)
     assert load['peak_time'] == pytest.approx(10.0, abs=0.5)
     assert abs(load['final_error']) < 1e-3
+
+
+# ------------------------------------------------- events of a multi-output run and their windows
+
+def _bump(t, t0, tau, amp):
+    """amp·(s/τ)·e^(1 − s/τ) for s = t − t0 ≥ 0: peak amp at s = τ, ∫ over [0, X·τ] is
+    amp·e·τ·(1 − (1 + X)·e^(−X))."""
+    s = np.maximum(t - t0, 0.0) / tau
+    return amp * s * np.exp(1 - s)
+
+
+def _bump_integral(amp, tau, length):
+    x = length / tau
+    return amp * math.e * tau * (1 - (1 + x) * math.exp(-x))
+
+
+def _bump_recovery(tau, band=0.02):
+    """Time after which amp·x·e^(1 − x) stays below band·amp (root x > 1)."""
+    from scipy.optimize import brentq
+    return tau * brentq(lambda x: x * math.exp(1 - x) - band, 1.0, 50.0)
+
+
+def _first_order(t, t0, tau, r0, r1):
+    return np.where(t < t0, r0, r1 + (r0 - r1) * np.exp(-np.maximum(t - t0, 0.0) / tau))
+
+
+def _two_output_trace(dt=0.05):
+    """Output a: setpoint 0 → 1 at 10 s (first order, τ 5 s); output b: 2 → 3 at 150 s
+    (τ 6 s); disturbance v 0 → −0.1 at 300 s; end 400 s. Each event moves the other
+    output(s) by a known bump (``_bump``): a's step pushes b down by 0.1 (τ 4 s), b's step
+    pushes a up by 0.25 (τ 8 s), the load pushes a down by 0.05 (τ 10 s) and b up by
+    0.02 (τ 5 s)."""
+    t = np.arange(0.0, 400.0, dt)
+    r_a = np.where(t < 10.0, 0.0, 1.0)
+    r_b = np.where(t < 150.0, 2.0, 3.0)
+    y_a = (_first_order(t, 10.0, 5.0, 0.0, 1.0) + _bump(t, 150.0, 8.0, 0.25)
+           - _bump(t, 300.0, 10.0, 0.05))
+    y_b = (_first_order(t, 150.0, 6.0, 2.0, 3.0) - _bump(t, 10.0, 4.0, 0.1)
+           + _bump(t, 300.0, 5.0, 0.02))
+    d = np.where(t < 300.0, 0.0, -0.1)
+    return Trace.ordered({'t': t, 'y.a': y_a, 'y.b': y_b, 'r.a': r_a, 'r.b': r_b,
+                    'u.u': np.zeros_like(t), 'd.v': d})
+
+
+def test_a_step_window_ends_at_the_other_outputs_setpoint_change():
+    """a's step is measured over 10…150 s, where b's step begins: its overshoot is 0 and
+    its settling time τ·ln 50, not the 25 % bump that b's step causes on a afterwards."""
+    trace = _two_output_trace()
+    m = metrics.trace_metrics(trace)
+    assert [(e['t'], e['t_end'], e['kind'], e['channel']) for e in m['events']] == [
+        (10.0, 150.0, 'setpoint', 'a'), (150.0, 300.0, 'setpoint', 'b'),
+        (300.0, pytest.approx(399.95), 'disturbance', 'v')]
+    (step_a,) = m['outputs']['a']['steps']
+    assert step_a['t_end'] == 150.0
+    assert step_a['overshoot_pct'] == pytest.approx(0.0, abs=1e-9)
+    assert step_a['settling_time'] == pytest.approx(5.0 * math.log(50), abs=0.1)
+    assert step_a['rise_time'] == pytest.approx(5.0 * math.log(9), abs=0.1)
+    (step_b,) = m['outputs']['b']['steps']
+    assert step_b['t_end'] == 300.0                                      # ended by the load
+    assert step_b['overshoot_pct'] == pytest.approx(0.0, abs=1e-9)
+    assert step_b['settling_time'] == pytest.approx(6.0 * math.log(50), abs=0.1)
+
+
+def test_a_step_reports_the_interaction_on_the_other_output():
+    """Peak deviation (signed e = r − y), its time, IAE and recovery of the other output
+    over the step's window, against the closed forms of the bumps built into the trace."""
+    m = metrics.trace_metrics(_two_output_trace())['outputs']
+    (step_a,) = m['a']['steps']
+    on_b = step_a['interaction']['b']              # b pushed down 0.1: e_b > 0
+    assert set(step_a['interaction']) == {'b'}
+    assert on_b['peak_signed'] == pytest.approx(0.1, rel=1e-4)
+    assert on_b['peak_error'] == pytest.approx(0.1, rel=1e-4)
+    assert on_b['peak_time'] == pytest.approx(4.0, abs=0.05)
+    assert on_b['iae'] == pytest.approx(_bump_integral(0.1, 4.0, 140.0), rel=1e-4)
+    assert on_b['recovery_time'] == pytest.approx(_bump_recovery(4.0), abs=0.05)
+    (step_b,) = m['b']['steps']
+    on_a = step_b['interaction']['a']              # a pushed up 0.25: e_a < 0
+    assert on_a['peak_signed'] == pytest.approx(-0.25, rel=1e-4)
+    assert on_a['peak_time'] == pytest.approx(8.0, abs=0.05)
+    assert on_a['iae'] == pytest.approx(_bump_integral(0.25, 8.0, 150.0), rel=1e-4)
+    assert on_a['integral_error'] == pytest.approx(-on_a['iae'], rel=1e-9)
+    assert on_a['recovery_time'] == pytest.approx(_bump_recovery(8.0), abs=0.05)
+
+
+def test_a_disturbance_change_is_attributed_within_its_own_window():
+    """The load at 300 s pushes a down by 0.05 (e > 0) and b up by 0.02 (e < 0); the larger
+    coupling bumps before it are not credited to it."""
+    m = metrics.trace_metrics(_two_output_trace())['outputs']
+    (load_a,) = m['a']['disturbance_steps']
+    (load_b,) = m['b']['disturbance_steps']
+    for load in (load_a, load_b):
+        assert (load['t'], load['t_end']) == (300.0, pytest.approx(399.95))
+        assert load['changes'] == {'v': [0.0, -0.1]}
+        assert load['coincident'] == []
+    assert load_a['peak_signed'] == pytest.approx(0.05, rel=1e-4)
+    assert load_a['peak_time'] == pytest.approx(10.0, abs=0.05)
+    assert load_a['iae'] == pytest.approx(_bump_integral(0.05, 10.0, 99.95), rel=1e-4)
+    assert load_a['recovery_time'] == pytest.approx(_bump_recovery(10.0), abs=0.05)
+    assert load_b['peak_signed'] == pytest.approx(-0.02, rel=1e-4)
+    assert load_b['peak_time'] == pytest.approx(5.0, abs=0.05)
+    assert load_b['iae'] == pytest.approx(_bump_integral(0.02, 5.0, 99.95), rel=1e-4)
+
+
+def test_setpoint_changes_below_the_tolerance_are_not_steps():
+    """A setpoint written as 33.5714 for an output at 2115/63 = 33.571428… °C (−0.00003 °C)
+    is no step at t = 0, and such a change later neither is a step nor ends a window; a
+    change of 0.2 % of the magnitude is one."""
+    t = np.arange(0.0, 200.0, 1.0)
+    t0 = 2115.0 / 63.0
+    r = np.where(t < 50, 33.5714, 35.0)
+    y = np.full_like(t, t0)
+    assert [(c[0], c[3], c[4]) for c in metrics.setpoint_changes(t, y, r)] == [(50, 33.5714, 35.0)]
+    small = np.where(t < 120, 33.5714, t0)                 # later −0.00003 … +0.00003 °C
+    big = np.where(t < 120, t0, t0 + 0.002 * 35.0)         # 0.2 % of the magnitude
+    assert metrics.setpoint_changes(t, y, small) == []
+    assert [c[0] for c in metrics.setpoint_changes(t, y, big)] == [120]
+    trace = Trace.ordered({'t': t, 'y.h': np.where(t < 10, 81.0, 90.0), 'y.T_out': y,
+                     'r.h': np.where(t < 10, 81.0, 90.0), 'r.T_out': small})
+    m = metrics.trace_metrics(trace)
+    assert [(e['t'], e['t_end']) for e in m['events']] == [(10.0, 199.0)]
+    assert m['outputs']['T_out']['steps'] == []
+
+
+def test_a_ramp_is_one_change_and_a_reversal_starts_another():
+    """A reference ramp (several samples moving one way) is one change, as 001's 25 s ramp
+    needs; a setpoint that goes up and straight back down is two."""
+    t = np.arange(0.0, 100.0, 1.0)
+    ramp = np.clip((t - 10.0) * 4.0, 0.0, 100.0)           # 0 → 100 at 4 /s from 10 s
+    assert [c[:2] + c[3:] for c in metrics.setpoint_changes(t, np.zeros_like(t), ramp)] == [
+        (11, 35, 0.0, 100.0)]
+    pulse = np.where((t >= 40) & (t < 41), 1.0, 0.0)
+    assert [(c[0], c[3], c[4]) for c in metrics.setpoint_changes(t, np.zeros_like(t), pulse)] == [
+        (40, 0.0, 1.0), (41, 1.0, 0.0)]
+
+
+def test_simultaneous_events_share_a_window_and_say_so():
+    """Steps on both outputs at one instant: each lists the other as coincident and
+    reports no interaction on an output that has its own step then."""
+    t = np.arange(0.0, 100.0, 1.0)
+    r_a, r_b = np.where(t < 20, 0.0, 1.0), np.where(t < 20, 5.0, 4.0)
+    d = np.where(t < 20, 0.0, 1.0)
+    trace = Trace.ordered({'t': t, 'y.a': r_a, 'y.b': r_b, 'r.a': r_a, 'r.b': r_b, 'd.v': d})
+    out = metrics.trace_metrics(trace)['outputs']
+    (step_a,) = out['a']['steps']
+    assert step_a['interaction'] == {}
+    assert step_a['coincident'] == ['r.b', 'd.v']
+    assert out['b']['disturbance_steps'][0]['coincident'] == ['r.a', 'r.b']

@@ -12,6 +12,9 @@ file itself; the claims are issue 8's:
 * IAE on both outputs (over the whole run: every controller takes over bumplessly at its
   initial_output, so there is no lead-in to leave out) is lower than the two-loop PI of 003,
   with and without the dynamic decoupler, on the same plant and reference sections.
+
+On the same runs, metrics.json must attribute each deviation to the event in whose window (up
+to the next change of any setpoint or disturbance) it occurs.
 """
 from __future__ import annotations
 
@@ -105,6 +108,32 @@ def test_mpcs_is_offset_free_within_limits_and_beats_the_two_loop_pi(name, horiz
     for out in TOL:
         assert _iae(trace, out) < pi_iae[out], (out, pi_iae[out])
 
+    # metrics.json attributes each output's deviation to the event whose window it falls
+    # in: every window ends at the next change of any setpoint or of F_D, and the peak
+    # reported for each event (the step itself, its interaction on the other output, the
+    # F_D change) is the largest |r - y| of the trace in that window
+    _assert_attributed_per_window(trace, changes, duration)
+
+
+def _assert_attributed_per_window(trace, changes: list[float], duration: float) -> None:
+    from tank_control.harness.metrics import trace_metrics
+    metrics = trace_metrics(trace)
+    ends = changes[1:] + [duration]
+    assert [(e['t'], e['t_end']) for e in metrics['events']] == list(zip(changes, ends))
+    reported = {}                    # (event time, output) -> reported peak |r - y|
+    for out, section in metrics['outputs'].items():
+        for step in section['steps']:
+            for other, effect in step['interaction'].items():
+                reported[(step['t'], other)] = effect['peak_error']
+        for load in section['disturbance_steps']:
+            reported[(load['t'], out)] = load['peak_error']
+    own = {(e['t'], e['channel']) for e in metrics['events'] if e['kind'] == 'setpoint'}
+    assert set(reported) == {(c, out) for c in changes for out in TOL} - own
+    t = trace['t']
+    for (start, out), peak in reported.items():
+        end = ends[changes.index(start)]
+        w = (t >= start) & ((t < end) | (end == duration))       # the last window: to the end
+        assert peak == np.max(np.abs(trace[f'r.{out}'][w] - trace[f'y.{out}'][w])), (start, out)
 
 
 def test_harness_knows_the_controllers_limits_for_its_constraint_column():

@@ -8,6 +8,10 @@ either direction (the response is normalised by the signed step size).
 * :func:`ise` — ∫e² dt [unit²·s], trapezoidal rule.
 * :func:`step_metrics` — overshoot [%], rise time 10–90 % [s], settling time
   into a ±2 % band [s], steady-state error [unit], peak value and time.
+* :func:`deviation_metrics` — response of an error that should stay at 0 (a load
+  change, or the coupling from another output's setpoint step): peak error
+  [unit] and its time [s], IAE, ∫e dt [unit·s] (000 eq. 10 for a load step),
+  recovery time into ±2 % of the peak [s], final and initial error [unit].
 """
 from __future__ import annotations
 
@@ -145,3 +149,51 @@ def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | 
     return StepMetrics(overshoot=overshoot, rise_time=rise, settling_time=settling,
                        steady_state_error=sse, peak=float(y[i_peak]),
                        peak_time=float(t[i_peak] - t_step))
+
+
+@dataclass(frozen=True)
+class DeviationMetrics:
+    """Response of an error e = r − y to an event that should leave it at 0.
+
+    ``peak_error``: max |e| [unit]; ``peak_signed``: e at that instant (e > 0: output
+    below its setpoint); ``peak_time``: when, after ``t[0]`` [s].
+    ``iae`` ∫|e| dt and ``integral_error`` ∫e dt [unit·s] (trapezoidal).
+    ``recovery_time``: time after ``t[0]`` after which |e| stays within
+    ``band``·peak_error [s]; 0 if e never leaves it, NaN if it has not by the end.
+    ``final_error``: mean e over the final window [unit]; ``initial_error``: e at ``t[0]``
+    [unit] (an output still moving from an earlier event carries that into the window).
+    """
+
+    peak_error: float
+    peak_signed: float
+    peak_time: float
+    iae: float
+    integral_error: float
+    recovery_time: float
+    final_error: float
+    initial_error: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def deviation_metrics(t, e, band: float = 0.02, final_window: float = 0.1) -> DeviationMetrics:
+    """Peak, integrals and recovery of the error ``e`` [unit] over ``t`` [s] (from ``t[0]``,
+    the event). ``band``: recovery band as a fraction of the peak |e| (default 2 %, the
+    settling band of :func:`step_metrics`); ``final_window``: fraction of the record
+    averaged for ``final_error``. Read on the raw record, like the settling time."""
+    t, e = _as_arrays(t, e)
+    i = int(np.argmax(np.abs(e)))
+    peak = float(abs(e[i]))
+    outside = np.nonzero(np.abs(e) > band * peak)[0]
+    if outside.size == 0:
+        recovery = 0.0
+    elif outside[-1] == len(e) - 1:
+        recovery = math.nan
+    else:
+        recovery = float(t[outside[-1] + 1] - t[0])
+    n_final = max(1, int(round(final_window * len(e))))
+    return DeviationMetrics(peak_error=peak, peak_signed=float(e[i]), peak_time=float(t[i] - t[0]),
+                            iae=_trapz(t, np.abs(e)), integral_error=_trapz(t, e),
+                            recovery_time=recovery, final_error=float(np.mean(e[-n_final:])),
+                            initial_error=float(e[0]))
