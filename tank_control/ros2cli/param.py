@@ -3,7 +3,9 @@
 Uses the rcl_interfaces services every rclpy/rclcpp node offers
 (``<node>/list_parameters``, ``get_parameters``, ``set_parameters``,
 ``describe_parameters``). ``dump`` writes the standard parameter file layout
-(``/node: ros__parameters: ...``) that ``load`` and ``--params-file`` accept.
+(``/node: ros__parameters: ...``) in the dialect of ``core/ros_yaml`` (strings
+such as ``y`` or ``on`` quoted), which ``load`` and ``--params-file`` read back
+as the same values.
 """
 from __future__ import annotations
 
@@ -339,8 +341,7 @@ def dump_verb(args: argparse.Namespace) -> int:
         values = _get_values(node, target, names, args.timeout) if names else []
     flat = {n: _python(v) for n, v in zip(names, values) if v is not None and v.type != 0}
     document = {target: {'ros__parameters': nest(flat)}}
-    sys.stdout.write(yaml.safe_dump(document, default_flow_style=False, sort_keys=False,
-                                    width=1000))
+    sys.stdout.write(ros_yaml.dump(document))   # quotes y, on, inf, ...: loads back the same
     return 0
 
 
