@@ -18,6 +18,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
@@ -27,7 +28,7 @@ from sensor_msgs.msg import JointState
 from tank_control.core.control import registry
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build, node_values, read_params_file
-from tank_control.nodes.messages import from_joint_state, to_joint_state
+from tank_control.nodes.messages import ORIGIN_QOS, from_joint_state, ns_to_stamp, to_joint_state
 
 REPO = Path(__file__).resolve().parents[1]
 NODES = ('plant', 'controller', 'reference')
@@ -188,6 +189,9 @@ def test_wall_mode_horizon_change_rebuilds_without_missing_a_sample(procs, ros_e
         meas.publish(to_joint_state(now, ['h', 'T_out'], [81.0, 2115.0 / 63.0]))
         setp.publish(to_joint_state(now, ['h', 'T_out'], [82.0, 34.0]))
     node.create_timer(0.05, feed)
+    # the probe is the plant: its time origin (latched), the controller's loop time base
+    node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(
+        ns_to_stamp(node.get_clock().now().nanoseconds))
     controller = AsyncParameterClient(node, 'controller')
     assert probe.wait_for(lambda: len(answers) >= 2, 30), \
         '\n'.join(p.tail() for p in procs.processes.values())
