@@ -86,7 +86,7 @@ from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import warm_start
 from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
                                       sim_sample_instant, steady_clock)
-from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
+from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN, from_joint_state, stamp_to_ns,
@@ -146,7 +146,7 @@ class ControllerNode(Node):
         self._compute_s = math.nan
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS)
-        self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, SIGNAL_QOS)
+        self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
         if self._mode == 'wall':
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)

@@ -46,6 +46,11 @@ SIGNAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+#: ``~/late_inputs``: reliable and deep, so that a burst of reports on a loaded machine reaches a
+#: slow reader (the harness's recorder) whole.
+LATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
 #: ``time_origin`` (``builtin_interfaces/msg/Time``): the plant's time origin, latched —
 #: reliable, transient local, keep-last 1, so a node that starts later still gets it.
 ORIGIN_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,

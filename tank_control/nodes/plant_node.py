@@ -73,8 +73,8 @@ from tank_control.core.loop import nominal_disturbances, nominal_inputs
 from tank_control.core.params import ParamSpec
 from tank_control.core.scenario import PLANT_NODE_SPECS, build_noise, build_plant, plant_specs
 from tank_control.nodes.clock import StampedInbox, steady_clock
-from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_CLOCK,
-                                         TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
+from tank_control.nodes.messages import (CLOCK_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
+                                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_LATE_INPUTS, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
                                          TOPIC_TIME_ORIGIN, ChannelFilter, clock_msg,
                                          ns_to_stamp, quiet_publisher_events,
@@ -117,7 +117,7 @@ class PlantNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10,
                                                event_callbacks=quiet_publisher_events())
         self.origin_pub = self.create_publisher(Time, TOPIC_TIME_ORIGIN, ORIGIN_QOS)
-        self.late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, SIGNAL_QOS)
+        self.late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
         # sim/wall: stamp of the input message held per topic, and the inputs each recent
         # tick was integrated with (for ~/late_inputs)
         self._held_stamp: dict[str, int] = {}
