@@ -56,7 +56,8 @@ PLANT_NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec('lockstep.resend_period', 0.5, 'lockstep: re-send the current tick when its '
               'answers have not come within this wall time [s]', min=0.01, max=60.0),
     ParamSpec('lockstep.paused', False, 'sim and lockstep: hold the current tick (simulated '
-              'time stops) until set to false; lets a recorder join before tick 0'),
+              'time stops) until set to false; wall: hold the first tick only; lets a recorder '
+              'join before tick 0'),
     ParamSpec('lockstep.wait_for_reference', True, 'lockstep: also wait for the reference '
               'disturbance message of each tick'),
     ParamSpec('diagnostics_period', 1.0, 'period of /diagnostics [wall s]', min=0.05, max=3600.0),
