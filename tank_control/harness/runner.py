@@ -225,6 +225,7 @@ def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
         'mode': 'in_process', 'sim_duration': float(trace.t[-1]) if ticks else 0.0,
         'wall_time': wall, 'ticks': ticks, 'ticks_per_s': ticks / max(wall, 1e-9),
         'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
+        'late_by_signal': {prefix: 0 for prefix in ('r', 'u', 'd') if trace.channels(prefix)},
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
     }
     return finish(scenario, out, trace, run_info, _controller_values(scenario),
