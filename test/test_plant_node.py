@@ -5,6 +5,7 @@ import json
 import time
 
 import pytest
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
@@ -12,7 +13,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.nodes.messages import SIGNAL_QOS, from_joint_state, stamp_to_ns, to_joint_state
+from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, from_joint_state, stamp_to_ns,
+                                         to_joint_state)
 
 #: The probe keeps every sample: a plant on its timer does not wait for a slow test process.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -81,6 +83,15 @@ def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, 
     assert all(s <= t for s, t in zip(stamps, rec.arrived['measurement']))
     assert all(names == ('y',) and values == (2.5,) for _, names, values in rec.measurements)
     assert rec.clock == []   # no /clock in wall mode
+    # The time base: tick k is stamped origin + k·ts, origin (tick 0) latched on time_origin.
+    origins: list[int] = []
+    probe.node.create_subscription(Time, 'time_origin', lambda m: origins.append(stamp_to_ns(m)),
+                                   ORIGIN_QOS)
+    assert probe.wait_for(lambda: origins, 20)
+    assert all((s - origins[0]) % 50_000_000 == 0 and s >= origins[0] for s in stamps)
+    # A running wall clock cannot be paused (only its first tick can be held).
+    result = rec.set_param('lockstep.paused', True)
+    assert not result.successful and 'wall' in result.reason
 
 
 def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs, ros_env,
