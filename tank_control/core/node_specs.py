@@ -49,8 +49,8 @@ class PlantNode:
                                  'not come within this wall time', unit='s', min=0.01, max=60.0,
                                  name='lockstep.resend_period')
     paused: bool = param(False, 'sim and lockstep: hold the current tick (simulated time stops) '
-                         'until set to false; lets a recorder join before tick 0',
-                         name='lockstep.paused')
+                         'until set to false; wall: hold the first tick only; lets a recorder '
+                         'join before tick 0', name='lockstep.paused')
     wait_for_reference: bool = param(True, 'lockstep: also wait for the reference disturbance '
                                      'message of each tick', name='lockstep.wait_for_reference',
                                      read_only=True)

@@ -26,7 +26,9 @@ same dotted names)::
         disturbance.v.value: 0.0        # shorthand for a constant (instead of times/values)
 
 ``<kind>.<ch>.value`` in a file is a constant (``times: [0.0]``,
-``values: [value]``); giving it together with ``times``/``values`` is an error.
+``values: [value]``); together with ``times``/``values`` it must equal the
+schedule's value at t = 0 (the node declares ``value`` so, and ``ros2 param
+dump`` writes all three), any other value is an error.
 At runtime ``ros2 param set /reference setpoint.y.value 2.0`` is an operator
 override applied at the next published instant ``t``: the target becomes 2.0
 from ``t`` on and later scheduled entries are dropped (the ramp rate still
@@ -223,10 +225,10 @@ def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedul
     unknown = set(fields) - set(FIELDS)
     if unknown:
         raise ValueError(f'{name}: unknown field(s) {sorted(unknown)}; allowed {", ".join(FIELDS)}')
-    if 'value' in fields:
-        if 'times' in fields or 'values' in fields:
-            raise ValueError(f'{name}.value: give either value (a constant) or times/values, not both')
-        fields['times'], fields['values'] = [0.0], [fields.pop('value')]
+    value = fields.pop('value', None)
+    if value is not None and 'times' not in fields and 'values' not in fields:
+        fields['times'], fields['values'] = [0.0], [value]
+        value = None
     try:
         kw = {k: (tuple(float(v) for v in val) if k in ('times', 'values') else float(val))
               for k, val in fields.items()}
@@ -238,6 +240,10 @@ def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedul
     reason = schedule.check(name)
     if reason:
         raise ValueError(reason)
+    if value is not None and value != schedule.at(0.0):
+        raise ValueError(f'{name}.value: {value!r} with times/values; give either value (a '
+                         'constant) or times/values, not both (with both, value must be the '
+                         f'schedule\'s value at t = 0, {schedule.at(0.0):g}, as a dump writes it)')
     return schedule
 
 

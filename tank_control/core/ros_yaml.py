@@ -5,7 +5,10 @@ its own; a file must mean the same to the nodes and to the in-process loop and
 the harness, so everything here follows rcl's parser:
 
 * ``1e-3`` is a float (PyYAML's YAML 1.1 resolver would read a string);
-* ``y``/``Y``/``n``/``N`` are booleans as values (quote channel names: ``['y']``);
+* ``y``/``Y``/``n``/``N`` are booleans as values (quote channel names: ``['y']``),
+  like YAML 1.1's ``yes``/``no``/``on``/``off``/``true``/``false``;
+* ``dump`` quotes every string that either reader (this one or rcl's, which
+  also reads ``inf``/``nan`` as numbers) would not read back as that string.
 * map keys are names and always strings (a key ``y`` stays ``'y'``).
 """
 from __future__ import annotations
@@ -49,12 +52,40 @@ RosYamlLoader.add_constructor('tag:yaml.org,2002:map', _construct_mapping)
 
 class RosYamlDumper(yaml.SafeDumper):
     """Quotes every string that ROS 2 would read as another type (``y``, ``n``,
-    ``1e-3``, ...), so names survive a round trip through a written file."""
+    ``yes``, ``on``, ``1e-3``, ``inf``, ...), so names survive a round trip through a
+    written file."""
+
+
+def _c_number(text: str) -> bool:
+    """True if rcl's ``strtol(text, 0)``/``strtod`` could read ``text`` as a number
+    (checked generously: ``inf``, ``nan``, hex floats, octal, ...)."""
+    parsers = [lambda s: int(s, 0), float]
+    if '0x' in text.lower():                    # strtod reads hex floats (with the prefix only)
+        parsers.append(float.fromhex)
+    for parse in parsers:
+        try:
+            parse(text)
+        except ValueError:
+            continue
+        return True
+    return False
+
+
+def reads_back_as_string(value: str) -> bool:
+    """True if ``value`` written as a plain scalar is read back as the same string
+    by ``load`` and by rcl's parser (its booleans ``y``, ``yes``, ``on``, ... and
+    numbers as strtol/strtod see them)."""
+    if not value.strip() or _c_number(value):
+        return False
+    try:
+        plain = load(value)
+    except yaml.YAMLError:
+        return False
+    return isinstance(plain, str) and plain == value
 
 
 def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.Node:
-    plain = load(value) if value.strip() else value
-    style = "'" if not isinstance(plain, str) or plain != value else None
+    style = None if reads_back_as_string(value) else "'"
     return dumper.represent_scalar('tag:yaml.org,2002:str', value, style=style)
 
 

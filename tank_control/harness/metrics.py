@@ -56,7 +56,10 @@ Run (``sampling_metrics``): ``missed_samples`` — plant ticks without a recorde
 measurement (gaps, and before the first one when the clock starts at 0);
 ``max_jitter`` [s] — largest deviation of the spacing of successive
 measurements from the plant sample time: of their stamps in sim/lockstep (0 on
-the exact tick grid), of their arrival times at the recorder in wall mode.
+the exact tick grid), of their arrival times at the recorder in wall mode;
+``late_samples`` — the sum of ``late_by_signal`` (``Trace.late``: per
+answer signal the due instants whose answer was not recorded or was reported
+late by its consumer; ``harness/trace.py``), by the same rule in every clock mode.
 """
 from __future__ import annotations
 

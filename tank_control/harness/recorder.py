@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
@@ -28,12 +28,20 @@ TOPICS: tuple[tuple[str, str], ...] = (
     ('disturbance', 'sensor_msgs/msg/JointState'),
     ('/clock', 'rosgraph_msgs/msg/Clock'),
     ('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
+    ('time_origin', 'builtin_interfaces/msg/Time'),
+    ('plant/late_inputs', 'sensor_msgs/msg/JointState'),
+    ('controller/late_inputs', 'sensor_msgs/msg/JointState'),
 )
 
 # Reliable like the publishers; a deep reader queue so a busy harness does not drop.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+
+#: ``time_origin`` is latched by the plant (transient local): a late joiner still gets it.
+ORIGIN_RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                               reliability=ReliabilityPolicy.RELIABLE,
+                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 GATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE,
@@ -49,7 +57,7 @@ def _message_class(type_name: str) -> type:
 
 def cdr_stamp_ns(data: bytes) -> int:
     """The first ``builtin_interfaces/Time`` of a CDR message (header.stamp of a JointState,
-    the clock of a Clock) without deserialising it."""
+    the clock of a Clock, a Time itself) without deserialising it."""
     little = data[1] & 1
     sec, nanosec = struct.unpack_from('<iI' if little else '>iI', data, 4)
     return sec * 1_000_000_000 + nanosec
@@ -71,8 +79,9 @@ class Recorder:
         self._gate_disturbance: dict[int, bytes] = {}
         self.relayed = 0
         for topic, type_name in TOPICS:
+            qos = ORIGIN_RECORD_QOS if topic == 'time_origin' else RECORD_QOS
             self.node.create_subscription(_message_class(type_name), topic,
-                                          self._callback(topic, type_name), RECORD_QOS, raw=True)
+                                          self._callback(topic, type_name), qos, raw=True)
 
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
         full = topic if topic.startswith('/') else '/' + topic
@@ -149,13 +158,15 @@ class Recorder:
             counts[key] = counts.get(key, 0) + 1
         return counts
 
-    def signal_messages(self) -> list[SignalMessage]:
-        """The recorded signal messages, deserialised (after the run)."""
+    def signal_messages(self, topics: Iterable[str] = TOPIC_PREFIX) -> list[SignalMessage]:
+        """The recorded messages of JointState ``topics`` (default: the signals), deserialised
+        (after the run)."""
         from sensor_msgs.msg import JointState
+        wanted = set(topics)
         out = []
         for raw in self.messages:
             topic = raw.topic.lstrip('/')
-            if topic not in TOPIC_PREFIX:
+            if topic not in wanted:
                 continue
             msg = deserialize_message(raw.data, JointState)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

@@ -12,15 +12,17 @@ ROS run, step by step (no sleeps: every wait spins the recorder until an event):
 2. every node starts as its own OS process
    (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
    plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
-   ``-p lockstep.paused:=true`` for the plant in sim/lockstep: its clock holds
-   tick 0);
+   ``-p lockstep.paused:=true`` for the plant: its clock holds tick 0);
 3. wait until every node is in the graph and the recorder has matched every
-   publisher (measurement, /clock, setpoint, disturbance, manipulated); in sim,
-   where the plant does not wait for answers, also every node's subscriptions
-   (the plant's inputs, the controller's measurement and setpoint, the
-   reference's /clock);
-4. sim/lockstep: un-pause the plant through its parameter service — tick 0 is
-   published only now, so the recorder sees every tick from the first. In
+   publisher (measurement, /clock, setpoint, disturbance, manipulated); in sim
+   and wall, where the plant does not wait for answers, also every node's
+   subscriptions (the plant's inputs, the controller's measurement and
+   setpoint, the reference's /clock — in wall the time_origin of reference
+   and controller);
+4. un-pause the plant through its parameter service — tick 0 is published
+   only now (in wall mode its wall time is the time origin, which the
+   reference and the controller schedule on), so the recorder sees every tick
+   from the first. In
    lockstep the plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
    recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
    plant cannot run ahead of the recording, so no sample is lost on a busy
@@ -34,6 +36,12 @@ ROS run, step by step (no sleeps: every wait spins the recorder until an event):
 A process that exits early, a graph that does not come up in
 ``harness.startup_timeout`` or a clock that stops for ``harness.stall_timeout``
 ends the run with ``RunFailed`` carrying the node's last log lines.
+
+Times in the results are plant time (stamp − the plant's ``time_origin``).
+``late_samples`` in ``metrics.json`` (every clock mode) is the sum of
+``late_by_signal``: per answer signal (``r``, ``u``, ``d``) the due instants
+whose answer was not the value used that tick — none recorded, or reported
+late by its consumer (definition: ``harness/trace.py``).
 """
 from __future__ import annotations
 
@@ -58,7 +66,7 @@ from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
                                                 load_scenario, write_params_file)
-from tank_control.harness.trace import GATED_DISTURBANCE, from_messages
+from tank_control.harness.trace import GATED_DISTURBANCE, LATE_TOPICS, from_messages
 
 NS = 1_000_000_000
 OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
@@ -66,6 +74,9 @@ PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'dist
              'controller': ('manipulated',)}
 SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
               'controller': ('measurement', 'setpoint')}
+#: wall: the reference and the controller schedule on the plant's time origin instead of /clock
+SUBSCRIBES_WALL = {**SUBSCRIBES, 'reference': ('time_origin',),
+                   'controller': ('measurement', 'setpoint', 'time_origin')}
 
 
 class RunFailed(RuntimeError):
@@ -208,6 +219,7 @@ def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
         'mode': 'in_process', 'sim_duration': float(trace.t[-1]) if ticks else 0.0,
         'wall_time': wall, 'ticks': ticks, 'ticks_per_s': ticks / max(wall, 1e-9),
         'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
+        'late_by_signal': {prefix: 0 for prefix in ('r', 'u', 'd') if trace.channels(prefix)},
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
     }
     return finish(scenario, out, trace, run_info, built.controller_values(),
@@ -243,7 +255,7 @@ class _RosRun:
         argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
         if self.mode != 'wall' and node != 'plant':
             argv += ['-p', 'use_sim_time:=true']
-        if self.mode != 'wall' and node == 'plant':
+        if node == 'plant':
             argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
             if self.gated:
                 argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']   # through the recorder
@@ -277,7 +289,7 @@ class _RosRun:
                 self.group.start(node, self._argv(node), env=self.env)
             self._await_graph(nodes)
             run_start = time.monotonic()
-            if self.mode != 'wall' and 'plant' in nodes:
+            if 'plant' in nodes:
                 self._unpause()
             self.phase = 'during the run'
             self._run_loop(run_start)
@@ -286,13 +298,15 @@ class _RosRun:
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
                                  if 'controller' in self.config.nodes else {})
             plant_params = recorder.node_parameters('plant', 5.0, self._check_alive)
+            reference_params = (recorder.node_parameters('reference', 5.0, self._check_alive)
+                                if 'reference' in self.config.nodes else {})
         finally:
             codes = self.group.stop_all()
             if recorder is not None:
                 recorder.destroy()
             rclpy.try_shutdown(context=context)
-        return self._results(recorder, controller_params, plant_params, codes, run_wall,
-                             time.monotonic() - wall_start)
+        return self._results(recorder, controller_params, plant_params, reference_params, codes,
+                             run_wall, time.monotonic() - wall_start)
 
     def _await(self, condition: Callable[[], bool], what: str) -> None:
         if not self.recorder.spin_until(condition, self.config.startup_timeout, self._check_alive):
@@ -302,8 +316,7 @@ class _RosRun:
                             f'(harness.startup_timeout); node logs:\n{details}')
 
     def _unpause(self) -> None:
-        """sim/lockstep: release tick 0 (``lockstep.paused`` false; plant_node acts on it
-        at once in both modes)."""
+        """Release tick 0 (``lockstep.paused`` false; plant_node acts on it at once)."""
         reason = self.recorder.set_parameters('plant', {'lockstep.paused': False},
                                               self.config.startup_timeout, self._check_alive)
         if reason:
@@ -317,9 +330,10 @@ class _RosRun:
         topics = [topic for node in nodes for topic in PUBLISHES[node]
                   if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
         gate = self.gated and 'plant' in nodes
-        # sim: the plant does not wait for answers, so the nodes' inputs must be there too
-        readers = [(node, topic) for node in nodes for topic in SUBSCRIBES.get(node, ())
-                   if self.mode == 'sim']
+        # sim/wall: the plant does not wait for answers, so the nodes' inputs must be there too
+        subscribes = SUBSCRIBES_WALL if self.mode == 'wall' else SUBSCRIBES
+        readers = [(node, topic) for node in nodes for topic in subscribes.get(node, ())
+                   if self.mode in ('sim', 'wall')]
         self._await(lambda: (set(nodes) <= rec.node_names()
                              and all(rec.publisher_count(t) > 0 for t in topics)
                              and all(node in rec.subscriber_nodes(t) for node, t in readers)
@@ -340,11 +354,14 @@ class _RosRun:
                             'run; stop it or set a different ROS_DOMAIN_ID')
 
     def _sim_ns(self) -> int | None:
+        """Plant time of the latest measurement (wall: from the plant's time origin, or the
+        first measurement for a plant that publishes none)."""
         stamp = self.recorder.latest.get('measurement')
         if stamp is None:
             return None
         if self.t0_ns is None:
-            self.t0_ns = self.recorder.first['measurement']
+            self.t0_ns = self.recorder.latest.get('time_origin',
+                                                  self.recorder.first['measurement'])
         return stamp - self.t0_ns
 
     def _run_loop(self, run_start: float) -> None:
@@ -408,18 +425,47 @@ class _RosRun:
         self.progress(Progress(sim, self.config.duration, rate, ticks, max(eta, 0.0)))
 
     # -- results ------------------------------------------------------------------------------
+    def _due_periods(self, tick_ns: int | None, controller_params: Mapping[str, Any],
+                     reference_params: Mapping[str, Any]) -> dict[str, int]:
+        """Prefix → the period [ns] at which an answer is due (see ``harness/trace.py``)."""
+        def period(params: Mapping[str, Any], node: str) -> int | None:
+            value = params.get('sample_time', self.scenario.params(node).get('sample_time'))
+            ns = int(round(value * NS)) if isinstance(value, (int, float)) and value > 0 else None
+            return ns if ns and tick_ns and ns % tick_ns == 0 else tick_ns
+        due = {'u': period(controller_params, 'controller')}
+        reference = period(reference_params, 'reference') if self.mode == 'wall' else tick_ns
+        due.update(r=reference, d=reference)
+        return {k: v for k, v in due.items() if v}
+
+    def _late_stamps(self, recorder: Any, signals: Sequence[Any]) -> dict[str, list[int]]:
+        """Stamps reported late by their consumers, per prefix (plant: u or d by channel)."""
+        inputs = {n for m in signals if m.topic == 'manipulated' for n in m.names}
+        out: dict[str, list[int]] = {'r': [], 'u': [], 'd': []}
+        for m in recorder.signal_messages(LATE_TOPICS):
+            if m.topic.startswith('controller'):
+                out['r'].append(m.stamp_ns)
+            else:
+                out['u' if set(m.names) <= inputs else 'd'].append(m.stamp_ns)
+        return out
+
     def _results(self, recorder: Any, controller_params: dict[str, Any],
-                 plant_params: dict[str, Any], codes: Mapping[str, int], run_wall: float,
-                 total_wall: float) -> RunResult:
+                 plant_params: dict[str, Any], reference_params: dict[str, Any],
+                 codes: Mapping[str, int], run_wall: float, total_wall: float) -> RunResult:
         t0 = self.t0_ns or 0
-        trace = from_messages(recorder.signal_messages(), t0, self.duration_ns)  # deserialises
         sample_time = plant_params.get('sample_time', self.scenario.params('plant').get('sample_time'))
-        signals = recorder.signal_messages()
+        tick_ns = (int(round(sample_time * NS)) if isinstance(sample_time, (int, float))
+                   and sample_time > 0 else None)
+        signals = recorder.signal_messages()                                      # deserialises
+        trace = from_messages(signals, t0, self.duration_ns, tick_ns=tick_ns,
+                              due_ns=self._due_periods(tick_ns, controller_params,
+                                                       reference_params),
+                              late_stamps=self._late_stamps(recorder, signals))
         stamps = np.array([s for s in sorted({m.stamp_ns for m in signals
                                               if m.topic == 'measurement'})
                            if s - t0 <= self.duration_ns], dtype=np.int64)
+        has_origin = 'time_origin' in recorder.latest
         sampling = metrics_mod.sampling_metrics(stamps, sample_time,
-                                               None if self.mode == 'wall' else 0)
+                                               t0 if self.mode != 'wall' or has_origin else None)
         if self.mode == 'wall':
             # Stamps of a wall-clock plant lie on its timer's grid; the jitter a consumer sees
             # is in the arrival times (timer jitter plus transport), measured by the recorder.
@@ -436,7 +482,7 @@ class _RosRun:
             'ticks': ticks,
             'ticks_per_s': ticks / run_wall if run_wall > 0 else 0.0,
             'missed_samples': sampling['missed_samples'],
-            'late_samples': int(sum(trace.late.values())) if self.mode == 'lockstep' else 0,
+            'late_samples': int(sum(trace.late.values())),
             'late_by_signal': trace.late,
             'max_jitter': sampling['max_jitter'],
             'messages': dict(recorder.counts),

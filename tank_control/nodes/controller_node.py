@@ -29,7 +29,10 @@ and in ``/diagnostics`` at once (message ``<state name> <state>[: reason]``).
 
 Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
 
-* ``wall`` — a wall timer every ``sample_time`` with the latest data;
+* ``wall`` — a wall timer every ``sample_time`` with the latest data, stamped
+  with the wall time; the loop time ``t`` given to the controller (e.g. for
+  ``autotune.start_time``) is plant time, ``stamp − origin`` with the plant's
+  latched ``time_origin`` (``nodes/messages.py``): no sample before it is known;
 * ``sim`` — the same timer on the simulated clock (``use_sim_time:=true``),
   latest data, stamped with the latest sample instant ``k·sample_time`` the
   simulated clock has reached (``clock.sim_sample_instant``): strictly increasing
@@ -43,6 +46,11 @@ Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
   (the harness passes it in the plant's sim and lockstep modes; the reference
   answers every ``/clock`` tick in both, so each sample uses the measurement
   of exactly its instant), else ``wall``.
+
+Late setpoints (sim, wall): a ``setpoint`` message stamped at or before the
+latest sample instant (plant time) arrived after that sample had used an
+older one; its stamp and the setpoint values used instead are published on
+``~/late_inputs``. (An older message than the one held is not taken.)
 
 Warm start: at the first sample with a finite measurement the controller is
 ``reset(y, initial_output)`` (``core.loop.warm_start``, exactly as the in-process
@@ -65,6 +73,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -80,9 +89,11 @@ from tank_control.core.scenario import controller_setup
 from tank_control.core.loop import warm_start
 from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
                                       sim_sample_instant, steady_clock)
-from tank_control.nodes.messages import (SIGNAL_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
+from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
+                                         TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
-                                         from_joint_state, to_joint_state)
+                                         TOPIC_TIME_ORIGIN, from_joint_state, stamp_to_ns,
+                                         to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -129,10 +140,18 @@ class ControllerNode(Node):
         self._fault = ''                 # '' | 'stale' | 'non-finite'
         self._logged: set[str] = set()
         self.counters = {'samples': 0, 'stale_samples': 0, 'nonfinite_measurements': 0,
-                         'rejected_inputs': 0, 'fault_episodes': 0, 'update_errors': 0}
+                         'rejected_inputs': 0, 'late_setpoints': 0, 'fault_episodes': 0,
+                         'update_errors': 0}
+        # plant time base: origin of the stamps (wall: from the plant, None until then)
+        self._origin_ns: int | None = None if self._mode == 'wall' else 0
+        self._r_stamp: int | None = None           # stamp of the setpoint held (wall/sim)
+        self._last_sample: tuple[int, dict[str, float]] | None = None   # (plant time, r used)
         self._compute_s = math.nan
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS)
+        self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
+        if self._mode == 'wall':
+            self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS)
         self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS)
@@ -255,11 +274,37 @@ class ControllerNode(Node):
 
     def _on_setpoint(self, msg: JointState) -> None:
         parsed = self._parse(TOPIC_SETPOINT, msg)
-        if parsed is not None:
-            values = self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs, self._r)
-            if self._mode == 'lockstep':
-                self._inbox.put('setpoint', parsed[0], values)
-                self._maybe_answer(parsed[0])
+        if parsed is None:
+            return
+        t_ns = parsed[0]
+        if self._mode != 'lockstep':
+            self._check_late_setpoint(t_ns, parsed[1])
+            if self._r_stamp is not None and t_ns < self._r_stamp:
+                return          # older than the setpoint held (out of order): not taken
+            self._r_stamp = t_ns
+        values = self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs, self._r)
+        if self._mode == 'lockstep':
+            self._inbox.put('setpoint', t_ns, values)
+            self._maybe_answer(t_ns)
+
+    def _check_late_setpoint(self, t_ns: int, values: Mapping[str, float]) -> None:
+        """wall/sim: a setpoint stamped at or before the latest sample came too late for it."""
+        if self._last_sample is None or self._origin_ns is None:
+            return
+        sampled_at, r_used = self._last_sample
+        if t_ns - self._origin_ns <= sampled_at:
+            self.counters['late_setpoints'] += 1
+            names = [n for n in self._outputs if n in values]
+            self._late_pub.publish(to_joint_state(t_ns, names,
+                                                  [r_used.get(n, math.nan) for n in names]))
+
+    def _on_origin(self, msg: Time) -> None:
+        """wall: the plant's time origin (a new one when the plant restarted)."""
+        origin = stamp_to_ns(msg)
+        if origin != self._origin_ns:
+            self.get_logger().info(f'plant time origin {origin} ns: loop time = stamp - origin')
+            self._origin_ns = origin
+            self._last_sample = None
 
     def _on_disturbance(self, msg: JointState) -> None:
         parsed = self._parse(TOPIC_DISTURBANCE, msg)
@@ -304,15 +349,19 @@ class ControllerNode(Node):
         self._fresh = False
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
             return          # nothing measured or no setpoint yet: nothing to control
+        if self._origin_ns is None:
+            return          # wall: the plant's time origin is not known yet
         now = self.get_clock().now().nanoseconds
         t_ns = sim_sample_instant(now, self._ts_ns) if self._mode == 'sim' else now
         stale = self._since_measurement >= int(self._params.values['stale_samples'])
-        u = self._sample(t_ns, self._y, self._r, self._d, stale=stale)
+        self._last_sample = (t_ns - self._origin_ns, dict(self._r))
+        u = self._sample(t_ns - self._origin_ns, self._y, self._r, self._d, stale=stale)
         self._pub.publish(to_joint_state(t_ns, self._inputs, u))
 
     def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
                 d: Mapping[str, float], stale: bool) -> np.ndarray:
-        """One controller sample (accepted changes take effect) — or hold on a fault."""
+        """One controller sample at plant time ``t_ns`` (accepted changes take effect) — or
+        hold on a fault."""
         y_vec = np.array([y[name] for name in self._outputs], dtype=float)
         r_vec = np.array([r[name] for name in self._outputs], dtype=float)
         d_vec = np.array([d.get(name, math.nan) for name in self._disturbances], dtype=float)
@@ -399,7 +448,9 @@ class ControllerNode(Node):
         level = DiagnosticStatus.WARN if self._fault else DiagnosticStatus.OK
         waiting = len(self._y) < len(self._outputs) and self._mode != 'lockstep'
         message = (f'measurement {self._fault}: holding' if self._fault
-                   else 'waiting for measurement' if waiting else 'running')
+                   else 'waiting for measurement' if waiting
+                   else "waiting for the plant's time_origin" if self._origin_ns is None
+                   else 'running')
         if self._kind.state is not None:
             message += f'; {self._state_text()}'
         fields = {

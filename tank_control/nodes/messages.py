@@ -6,6 +6,19 @@ the sample instant (integer nanoseconds, exactly ``k * ts_ns`` in sim and
 lockstep), ``name[]`` the channel names and ``position[]`` the values
 (float64, units of the channel); ``velocity``/``effort`` stay empty.
 
+Time base: the plant is the clock master. Its tick k is at plant time
+``t_k = k * ts``; a stamp is ``origin + t_k`` where ``origin`` is published
+(latched) on ``time_origin`` — 0 in sim and lockstep (the simulated clock
+starts at tick 0), the ROS (wall) time of tick 0 in wall mode. Every node
+schedules on plant time (``stamp - origin``).
+
+An answer (``setpoint``, ``manipulated``, ``disturbance``) that reaches its
+consumer after the consumer has used its tick (sim and wall: nobody waits) is
+*late*; the consumer keeps the value it used and publishes the answer's stamp
+with the values it used instead on ``~/late_inputs`` (``/plant/late_inputs``
+for ``manipulated``/``disturbance``, ``/controller/late_inputs`` for
+``setpoint``).
+
 JointState is chosen because it is in common_interfaces, has a header and
 carries named float64 values, so every standard tool (``ros2 topic echo``,
 rosbag/MCAP, PlotJuggler, Foxglove) shows the channels by name.
@@ -33,7 +46,16 @@ SIGNAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
-
+#: ``~/late_inputs``: reliable and deep, so that a burst of reports on a loaded machine reaches a
+#: slow reader (the harness's recorder) whole.
+LATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+#: ``time_origin`` (``builtin_interfaces/msg/Time``): the plant's time origin, latched —
+#: reliable, transient local, keep-last 1, so a node that starts later still gets it.
+ORIGIN_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def quiet_publisher_events() -> PublisherEventCallbacks:
@@ -59,6 +81,10 @@ TOPIC_SETPOINT = 'setpoint'
 TOPIC_DISTURBANCE = 'disturbance'
 TOPIC_CLOCK = '/clock'
 TOPIC_DIAGNOSTICS = '/diagnostics'
+#: The ROS time of the plant's tick 0 (0 in sim/lockstep): plant time = stamp − origin.
+TOPIC_TIME_ORIGIN = 'time_origin'
+#: Per node (``~/late_inputs``): answers that came after the node had used their tick.
+TOPIC_LATE_INPUTS = '~/late_inputs'
 
 
 def ns_to_stamp(t_ns: int) -> Time:

@@ -8,12 +8,24 @@ Topics (``sensor_msgs/JointState`` signals, see ``nodes/messages.py``):
   name; a malformed message, an unknown channel or a non-finite value is
   ignored (the last valid value is kept), logged once per kind and counted;
 * publishes ``/clock`` (``rosgraph_msgs/Clock``) in ``sim`` and ``lockstep``;
+* publishes ``time_origin`` (``builtin_interfaces/Time``, latched): the ROS
+  time of tick 0 — 0 in ``sim``/``lockstep``, the wall time of its first tick
+  in ``wall``. Plant time is ``stamp − origin`` in every mode, and the other
+  nodes schedule on it (the reference's schedule, the controller's loop time);
+* publishes ``~/late_inputs`` (``sensor_msgs/JointState``): in ``sim`` and
+  ``wall``, an input message that arrived after the plant had integrated the
+  tick it is stamped in (``stamp − origin < t_k``, tick k being the latest
+  published): its stamp and channels, with the values the plant integrated
+  that tick with instead (it held the previous ones). It is still taken as
+  the latest value unless an answer with a later stamp is already held;
 * publishes ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): ticks,
-  ignored inputs, re-sent ticks, the model's status (clipped flows, overflow).
+  ignored inputs, late inputs, re-sent ticks, the time origin, the model's
+  status (clipped flows, overflow).
 
 Clock modes (parameter ``clock_mode``):
 
-* ``wall``: a wall timer every ``sample_time``; stamps ``start + k·ts``.
+* ``wall``: a wall timer every ``sample_time``; tick 0 at start (the time
+  origin), tick k stamped ``origin + k·ts``, published at that wall time.
 * ``sim``: a wall timer every ``sample_time / real_time_factor``; tick k is
   ``t_k = k·ts_ns`` on ``/clock`` (measurement first, then ``/clock``).
 * ``lockstep``: tick k publishes ``/clock`` and ``measurement`` stamped
@@ -26,12 +38,14 @@ Clock modes (parameter ``clock_mode``):
   within ``lockstep.resend_period`` — this also covers start-up before
   discovery has matched the endpoints.
 
-``lockstep.paused: true`` (despite the name, in ``sim`` as well as in
-``lockstep``) holds the clock: no tick is published and simulated time stands
-still until it is set to false — e.g. to let a recorder match every publisher
-before tick 0 (the harness starts the plant paused in both modes). In ``sim``
-un-pausing publishes tick 0 (if it was not yet) and the next tick follows one
-``sample_time / real_time_factor`` later; pausing again stops the wall timer.
+``lockstep.paused: true`` (despite the name, in every mode) holds the clock:
+no tick is published and simulated time stands still until it is set to
+false — e.g. to let a recorder match every publisher before tick 0 (the
+harness starts the plant paused in every mode). In ``sim`` and ``wall``
+un-pausing publishes tick 0 (if it was not yet; in ``wall`` its wall time is
+the time origin) and the next tick follows one ``sample_time /
+real_time_factor`` (``wall``: ``sample_time``) later; in ``sim`` pausing again
+stops the timer, a running ``wall`` clock cannot be paused (refused).
 
 In ``wall``/``sim`` each timer tick k first integrates ``[t_{k-1}, t_k)``
 with the latest inputs (the answers to tick k-1), then publishes tick k.
@@ -41,11 +55,13 @@ step.
 """
 from __future__ import annotations
 
+import math
 import sys
 import time
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -59,9 +75,11 @@ from tank_control.core.params import ConfigError, names_of
 from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
 from tank_control.nodes.clock import StampedInbox, steady_clock
-from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DIAGNOSTICS,
-                                         TOPIC_DISTURBANCE, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
-                                         ChannelFilter, clock_msg, quiet_publisher_events,
+from tank_control.nodes.messages import (CLOCK_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
+                                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
+                                         TOPIC_LATE_INPUTS, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
+                                         TOPIC_TIME_ORIGIN, ChannelFilter, clock_msg,
+                                         ns_to_stamp, quiet_publisher_events,
                                          quiet_subscription_events, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
@@ -96,7 +114,7 @@ class PlantNode(Node):
         self.k = 0
         self.u = nominal_inputs(self.plant)
         self.d = nominal_disturbances(self.plant)
-        self.counters = {'ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
+        self.counters = {'ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0, 'late_inputs': 0,
                          'rejected_changes': 0}
 
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
@@ -106,6 +124,12 @@ class PlantNode(Node):
                           if self.mode in ('sim', 'lockstep') else None)
         self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10,
                                                event_callbacks=quiet_publisher_events())
+        self.origin_pub = self.create_publisher(Time, TOPIC_TIME_ORIGIN, ORIGIN_QOS)
+        self.late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
+        # sim/wall: stamp of the input message held per topic, and the inputs each recent
+        # tick was integrated with (for ~/late_inputs)
+        self._held_stamp: dict[str, int] = {}
+        self._integrated: dict[int, dict[str, float]] = {}
         self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names),
                         TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names)}
         self.create_subscription(JointState, TOPIC_MANIPULATED,
@@ -123,13 +147,13 @@ class PlantNode(Node):
         self._awaiting = False
         self._sent_at = 0.0
         self._wall_start = time.monotonic()
-        self._stamp_offset_ns = 0
+        self._stamp_offset_ns = 0          # the time origin (wall: set at tick 0)
         steady = steady_clock()
         rtf = float(values['real_time_factor'])
         self._is_paused = bool(values['lockstep.paused'])
         if self.mode == 'wall':
-            self._stamp_offset_ns = self.get_clock().now().nanoseconds
-            self._timer = self.create_timer(self.ts, self._on_tick_timer, clock=steady)
+            self._timer = self.create_timer(self.ts, self._on_tick_timer, clock=steady,
+                                            autostart=False)
         elif self.mode == 'sim':
             self._timer = self.create_timer(self.ts / rtf, self._on_tick_timer, clock=steady,
                                             autostart=not self._is_paused)
@@ -143,7 +167,11 @@ class PlantNode(Node):
                           clock=steady)
         self._resend_period = float(values['lockstep.resend_period'])
         self.add_post_set_parameters_callback(self._on_params_set)
-        if self.mode in ('sim', 'lockstep') and not self._paused():
+        if self.mode != 'wall':
+            self.origin_pub.publish(ns_to_stamp(0))   # the simulated clock starts at 0
+        if not self._paused() and self.mode == 'wall':
+            self._start_timer()           # tick 0 now: the time origin
+        elif not self._paused():
             self._publish_tick()          # tick 0 right away (lockstep: re-sent until answered)
         self.get_logger().info(
             f'plant {kind}: outputs {list(self.plant.output_names)}, inputs '
@@ -155,6 +183,10 @@ class PlantNode(Node):
         """The whole candidate set as at start-up (node relations, the model's configuration
         and its relations such as dead_time <= max_dead_time) and noise_std: 1 value or one
         per output."""
+        if (values['clock_mode'] == 'wall' and values['lockstep.paused']
+                and getattr(self, '_tick_msgs', None) is not None):
+            return ('lockstep.paused: true refused, a running wall clock cannot be paused '
+                    '(only held before its first tick); allowed false')
         try:
             setup = plant_setup(values)
             if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next
@@ -197,8 +229,8 @@ class PlantNode(Node):
                 self._is_paused = bool(p.value)
             elif p.name == 'lockstep.resend_period':
                 self._resend_period = float(p.value)
-        if self.mode == 'sim' and self._is_paused != was_paused:
-            self._pause_sim(self._is_paused)
+        if self.mode in ('sim', 'wall') and self._is_paused != was_paused:
+            self._pause_timer(self._is_paused)
             return
         unpaused = any(p.name == 'lockstep.paused' and not p.value for p in parameters)
         if self.mode == 'lockstep' and unpaused and not self._awaiting:
@@ -206,13 +238,19 @@ class PlantNode(Node):
                 self._wall_start = time.monotonic() - self._t() / self._rtf
             self._publish_tick()
 
-    def _pause_sim(self, paused: bool) -> None:
-        """sim: stop the tick timer, or publish tick 0 (first start) and restart the timer
-        so that the next tick comes one full period later."""
+    def _pause_timer(self, paused: bool) -> None:
+        """sim: stop the tick timer; sim/wall: publish tick 0 (first start) and restart the
+        timer so that the next tick comes one full period later."""
         if paused:
             self._timer.cancel()
             return
+        self._start_timer()
+
+    def _start_timer(self) -> None:
         if self._tick_msgs is None:
+            if self.mode == 'wall':        # tick 0 is now: the origin of plant time
+                self._stamp_offset_ns = self.get_clock().now().nanoseconds
+                self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
             self._publish_tick()
         self._timer.reset()
 
@@ -249,16 +287,18 @@ class PlantNode(Node):
     def _step(self) -> None:
         """Integrate [t_k, t_k+1) with the held inputs, k += 1."""
         self._apply_pending()
+        if self.mode != 'lockstep':        # remembered for ~/late_inputs
+            self._integrated[self.k * self.ts_ns] = {**self.u, **self.d}
+            self._integrated.pop((self.k - _LOOKAHEAD) * self.ts_ns, None)
         self.plant.step(np.array([self.u[n] for n in self.plant.input_names]),
                         np.array([self.d[n] for n in self.plant.disturbance_names]), self.ts)
         self.k += 1
 
     def _on_tick_timer(self) -> None:
         """wall/sim: close the previous interval with the latest inputs, publish tick k."""
-        if self.mode == 'sim' and self._paused():
+        if self._paused() or self._tick_msgs is None:
             return                      # a call that was due when the pause came
-        if self._tick_msgs is not None:
-            self._step()
+        self._step()
         self._publish_tick()
 
     # --------------------------------------------------------------- inputs
@@ -269,7 +309,7 @@ class PlantNode(Node):
             self.get_logger().warning(reason + ' (logged once)')
         self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
         if self.mode != 'lockstep':
-            (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
+            self._take_latest(topic, t_ns, accepted)
             return
         current = self.k * self.ts_ns
         if t_ns is None or not current <= t_ns <= current + _LOOKAHEAD * self.ts_ns:
@@ -282,6 +322,22 @@ class PlantNode(Node):
         self.inbox.put(topic, t_ns, answered)
         if t_ns == current and self._awaiting and self.inbox.complete(t_ns):
             self._advance(t_ns)
+
+    def _take_latest(self, topic: str, t_ns: int | None, accepted: dict[str, float]) -> None:
+        """sim/wall: hold the newest values; report an answer that came after its tick
+        was integrated (``~/late_inputs``, see module doc)."""
+        if t_ns is None:
+            return                      # malformed (counted by the filter)
+        if self._tick_msgs is not None and t_ns - self._stamp_offset_ns < self.k * self.ts_ns:
+            self.counters['late_inputs'] += 1
+            tick = (t_ns - self._stamp_offset_ns) // self.ts_ns * self.ts_ns
+            used = self._integrated.get(tick, {})
+            self.late_pub.publish(to_joint_state(t_ns, list(accepted),
+                                                 [used.get(n, math.nan) for n in accepted]))
+        if t_ns < self._held_stamp.get(topic, t_ns):
+            return                      # older than the values held: out of order
+        self._held_stamp[topic] = t_ns
+        (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
 
     def _advance(self, t_ns: int) -> None:
         self.u.update(self.inbox.values(t_ns, TOPIC_MANIPULATED))
@@ -343,9 +399,9 @@ class PlantNode(Node):
             problems.append('overflowing')
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status.message = ', '.join(problems) or 'ok'
-        items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}', **self.counters}
-        if self.mode != 'wall':
-            items['paused'] = self._is_paused
+        items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}',
+                 'time_origin_ns': self._stamp_offset_ns, **self.counters}
+        items['paused'] = self._is_paused
         if self.mode == 'lockstep' and self._awaiting:
             items['waiting_for'] = ', '.join(self.inbox.missing(self.k * self.ts_ns))
         for name, value in model.items():

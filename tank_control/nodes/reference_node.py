@@ -6,9 +6,15 @@ Topics (``sensor_msgs/JointState``, see ``nodes/messages.py``):
 * ``disturbance`` — the disturbance channels (may be empty; in lockstep it is
   the reference's answer for the tick and the plant waits for it).
 
-Timing: with ``clock_mode: wall`` (default) and without ``use_sim_time`` on a
-wall timer every ``sample_time`` (schedule time = seconds since start, stamp =
-now); with ``clock_mode`` ``sim``/``lockstep`` or ``use_sim_time`` on every
+Time base: the plant's (``nodes/messages.py``). With ``clock_mode: wall``
+(default) and without ``use_sim_time`` the schedule time is plant time: the
+node waits for the plant's ``time_origin`` (latched; nothing is published
+before it) and publishes at the instants ``origin + j·sample_time`` — stamped
+with that instant, schedule time ``j·sample_time`` — on a wall timer re-armed
+for each instant (the latest instant reached is published, so a late timer
+skips instants rather than stamping the future); a new origin (the plant
+restarted) starts the grid again. With ``clock_mode`` ``sim``/``lockstep`` or
+``use_sim_time`` on every
 ``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
 re-sent tick gets the same messages again, nothing is recomputed). With
 ``clock_mode: lockstep`` and ``lockstep.anticipate`` (default) it also answers the next tick
@@ -30,6 +36,7 @@ import copy
 import sys
 from typing import Any
 
+from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -40,9 +47,10 @@ from tank_control.core.params import ConfigError, specs_of
 from tank_control.core.reference import Reference, channel_lists, channel_specs, split_param_name
 from tank_control.core.scenario import reference_setup
 from tank_control.nodes.clock import steady_clock
-from tank_control.nodes.messages import (CLOCK_QOS, SIGNAL_QOS, TOPIC_CLOCK, TOPIC_DISTURBANCE,
-                                         TOPIC_SETPOINT, quiet_publisher_events,
-                                         quiet_subscription_events, stamp_to_ns, to_joint_state)
+from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_CLOCK,
+                                         TOPIC_DISTURBANCE, TOPIC_SETPOINT, TOPIC_TIME_ORIGIN,
+                                         quiet_publisher_events, quiet_subscription_events,
+                                         stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -86,13 +94,16 @@ class ReferenceNode(Node):
                                      event_callbacks=quiet_subscription_events())
         else:
             period = float(self.params.values['sample_time'])
-            self._start_ns = self.get_clock().now().nanoseconds
-            self._timer = self.create_timer(period, self._on_timer, clock=steady_clock())
-            self._on_timer()
+            self._origin_ns: int | None = None
+            self._last_t_ns = -1
+            self._timer = self.create_timer(period, self._on_timer, clock=steady_clock(),
+                                            autostart=False)
+            self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         sp, dist = channel_lists(self.params.values)
         self.get_logger().info(
             f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, '
-            f'{"answering /clock ticks" if self.use_sim_time else f"every {period:g} s"}')
+            + ('answering /clock ticks' if self.use_sim_time else
+               f'every {period:g} s of plant time (waiting for the plant\'s {TOPIC_TIME_ORIGIN})'))
 
     # ------------------------------------------------------------- parameters
     def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
@@ -117,9 +128,7 @@ class ReferenceNode(Node):
 
     def _apply_pending(self, t: float) -> None:
         """Accepted parameter changes take effect at instant ``t`` [s]."""
-        pending = self.params.take_pending()
-        if 'sample_time' in pending and not self.use_sim_time:
-            self._timer.timer_period_ns = to_ns(float(pending['sample_time']))
+        pending = self.params.take_pending()   # (wall: a new sample_time acts at re-arming)
         by_channel: dict[tuple[str, str], dict[str, Any]] = {}
         for name, value in pending.items():
             parts = split_param_name(name)
@@ -169,9 +178,32 @@ class ReferenceNode(Node):
             if ahead not in self._answered:
                 self._publish(ahead, seconds(ahead))
 
+    def _on_origin(self, msg: Time) -> None:
+        """wall: the plant's time origin; (re)start the grid of instants from it."""
+        origin = stamp_to_ns(msg)
+        if origin == self._origin_ns:
+            return
+        if self._origin_ns is not None:
+            self.get_logger().info('new plant time origin (the plant restarted): schedule '
+                                   'restarts at 0')
+        self._origin_ns, self._last_t_ns = origin, -1
+        self._on_timer()
+
     def _on_timer(self) -> None:
-        now_ns = self.get_clock().now().nanoseconds
-        self._publish(now_ns, seconds(now_ns - self._start_ns))
+        """wall: publish the latest instant reached (if not yet), re-arm for the next."""
+        self._timer.cancel()
+        period_ns = to_ns(float(self.params.values['sample_time']))
+        elapsed = self.get_clock().now().nanoseconds - self._origin_ns
+        if elapsed < 0:                  # before the plant's tick 0: wait for instant 0
+            self._timer.timer_period_ns = -elapsed
+            self._timer.reset()
+            return
+        t_ns = elapsed // period_ns * period_ns      # the latest instant reached
+        if t_ns > self._last_t_ns:
+            self._last_t_ns = t_ns
+            self._publish(self._origin_ns + t_ns, seconds(t_ns))
+        self._timer.timer_period_ns = t_ns + period_ns - elapsed
+        self._timer.reset()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,7 +3,9 @@
 Uses the rcl_interfaces services every rclpy/rclcpp node offers
 (``<node>/list_parameters``, ``get_parameters``, ``set_parameters``,
 ``describe_parameters``). ``dump`` writes the standard parameter file layout
-(``/node: ros__parameters: ...``) that ``load`` and ``--params-file`` accept.
+(``/node: ros__parameters: ...``) in the dialect of ``core/ros_yaml`` (strings
+such as ``y`` or ``on`` quoted), which ``load`` and ``--params-file`` read back
+as the same values.
 """
 from __future__ import annotations
 

@@ -4,9 +4,14 @@ Independent commands run in parallel (``ros2_parallel``) so their discovery wait
 """
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import yaml
 from support.param_node import SPECS
 from support.ros2cli import fixture_argv, ros2, ros2_parallel
+
+from tank_control.core import ros_yaml
 
 SPEC = {spec.name: spec for spec in SPECS}
 
@@ -105,3 +110,84 @@ def test_dump_load_and_params_file(procs, probe, ros_env, tmp_path):
                             env=ros_env)
     got = ros2(ros_env, 'param', 'get', '/fixture', 'gain', '--timeout', '20')   # waits for it
     assert got.stdout.strip() == 'Double value is: 4.25', (got.stderr, restarted.tail())
+
+
+def _round_trip_nodes() -> dict[str, tuple[str, tuple[str, ...]]]:
+    """Label (= namespace) → (node module, extra ros args) for every node and kind."""
+    from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
+    from tank_control.core.plants.kinds.registry import KINDS as PLANT_KINDS
+    nodes = {f'rt_plant_{kind}': ('plant_node', ('-p', f'plant:={kind}')) for kind in PLANT_KINDS}
+    nodes.update({f'rt_controller_{kind}': ('controller_node', ('-p', f'controller:={kind}'))
+                  for kind in CONTROLLER_KINDS})
+    nodes['rt_reference'] = ('reference_node', ())
+    return nodes
+
+
+#: Channel names that YAML 1.1 or rcl read as booleans or numbers when unquoted.
+TRICKY_CHANNELS = {'setpoint.channels': ['y', 'on'], 'disturbance.channels': ['n', 'inf'],
+                   'setpoint.on.times': [0.0, 2.0], 'setpoint.on.values': [0.0, 1.0]}
+
+
+def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env, node_cmd,
+                                                           tmp_path):
+    """dump → --params-file of a fresh node (rcl's parser) and `ros2 param load` (ours) →
+    dump again: the same text, for the plant of every kind, the controller of every kind
+    and the reference (with channel names such as y, on, n, inf)."""
+    nodes = _round_trip_nodes()
+    tricky = tmp_path / 'tricky.yaml'
+    tricky.write_text(json.dumps({'/**': {'ros__parameters': TRICKY_CHANNELS}}))  # JSON: quoted
+
+    def start(phase: str, params_file: Path | None = None, label: str = '') -> None:
+        module, extra = nodes[label]
+        if params_file is None and module == 'reference_node':
+            params_file = tricky
+        args = ['-r', f'__ns:=/{label}', *extra]
+        if params_file is not None:
+            args += ['--params-file', str(params_file)]
+        procs.start(f'{phase}_{label}', node_cmd(module, *args), env=ros_env)
+
+    def running() -> set[str]:
+        return {f'{ns.strip("/")}' for _, ns in probe.node.get_node_names_and_namespaces()}
+
+    def full_name(label: str) -> str:
+        return f'/{label}/{nodes[label][0].removesuffix("_node")}'
+
+    for label in nodes:                                  # all at once: start-ups overlap
+        start('first', label=label)
+    assert probe.wait_for(lambda: set(nodes) <= running(), 90), \
+        {n: p.tail() for n, p in procs.processes.items()}
+    first = dict(zip(nodes, ros2_parallel(
+        ros_env, *[('param', 'dump', full_name(label), '--timeout', '30') for label in nodes],
+        timeout=120)))
+    for label, dumped in first.items():
+        assert dumped.returncode == 0, (label, dumped.stderr)
+
+    # The values a reader needs to be strings are written so that every reader agrees.
+    reference = ros_yaml.load(first['rt_reference'].stdout)
+    channels = reference['/rt_reference/reference']['ros__parameters']
+    assert channels['setpoint']['channels'] == ['y', 'on']
+    assert channels['disturbance']['channels'] == ['n', 'inf']
+    pid = ros_yaml.load(first['rt_controller_pid'].stdout)['/rt_controller_pid/controller']
+    assert pid['ros__parameters']['output_names'] == ['y']
+
+    files = {}
+    for label, dumped in first.items():
+        files[label] = tmp_path / f'{label}.yaml'
+        files[label].write_text(dumped.stdout)
+        procs.stop(f'first_{label}')
+    assert probe.wait_for(lambda: not set(nodes) & running(), 60)   # no stale graph entries
+    for label in nodes:
+        start('second', files[label], label=label)
+    assert probe.wait_for(lambda: set(nodes) <= running(), 90), \
+        {n: p.tail() for n, p in procs.processes.items() if n.startswith('second')}
+    loaded = dict(zip(nodes, ros2_parallel(
+        ros_env, *[('param', 'load', full_name(label), str(files[label]), '--timeout', '30')
+                   for label in nodes], timeout=120)))
+    for label, result in loaded.items():
+        assert result.returncode == 0, (label, result.stderr)
+    second = dict(zip(nodes, ros2_parallel(
+        ros_env, *[('param', 'dump', full_name(label), '--timeout', '30') for label in nodes],
+        timeout=120)))
+    for label in nodes:
+        assert second[label].returncode == 0, (label, second[label].stderr)
+        assert second[label].stdout == first[label].stdout, label

@@ -55,7 +55,7 @@ def test_out_of_range_values_are_rejected_with_the_channel_and_range():
 @pytest.mark.parametrize('params, fragment', [
     ({'setpoint.y.times': [0.0, 1.0], 'setpoint.y.values': [1.0]}, 'equal lengths'),
     ({'setpoint.y.times': [2.0, 1.0], 'setpoint.y.values': [1.0, 2.0]}, 'non-decreasing'),
-    ({'setpoint.y.value': 1.0, 'setpoint.y.values': [1.0]}, 'not both'),
+    ({'setpoint.y.value': 2.0, 'setpoint.y.values': [1.0]}, 'not both'),
     ({'setpoint.y.ramp_rate': -1.0}, 'ramp_rate'),
     ({'setpoint.z.value': 1.0}, "channel 'z' is not in setpoint.channels"),
 ])
@@ -96,6 +96,16 @@ def test_param_specs_describe_every_channel_field_with_the_schedule_as_default()
     assert specs['disturbance.v.value'].default == -0.1
     assert specs['setpoint.channels'].read_only
     assert specs['setpoint.y.ramp_rate'].check(-1.0) is not None
+
+
+def test_declared_parameters_of_a_reference_build_the_same_reference():
+    """What the node declares (value = the schedule at t = 0 beside times/values, as
+    `ros2 param dump` writes it) reads back as the same schedules."""
+    ref = ramp_001()
+    declared = {s.name: s.default for s in channel_specs(ref)}
+    again = reference_from_params(declared)
+    for kind, names in (('setpoint', ref.setpoint_names), ('disturbance', ref.disturbance_names)):
+        assert [again.schedule(kind, n) for n in names] == [ref.schedule(kind, n) for n in names]
 
 
 def test_limit_changes_are_judged_on_the_present_and_future_not_the_past():

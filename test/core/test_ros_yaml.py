@@ -22,3 +22,19 @@ def test_nested_parameter_maps_flatten_to_dotted_names():
     params = ros_yaml.load('setpoint:\n  y:\n    times: [0.0, 5.0]\n  channels: [\'y\']\nkp: 2.0\n')
     assert ros_yaml.flatten(params) == {'setpoint.y.times': [0.0, 5.0], 'setpoint.channels': ['y'],
                                         'kp': 2.0}
+
+
+#: Strings that rcl's parser (booleans y/yes/on/true/..., strtol/strtod numbers) or YAML 1.1
+#: read as something else when written plain.
+NOT_PLAIN = ['y', 'Y', 'n', 'N', 'yes', 'No', 'ON', 'off', 'true', 'False', 'inf', 'nan',
+             'Infinity', '.inf', '1e5', '0x10', '0x1p3', '010', '1_000', '1:30', '~', 'null',
+             '2001-01-01', '', '[', 'a: b']
+
+
+def test_dump_quotes_every_string_another_reader_would_retype():
+    for word in NOT_PLAIN:
+        text = ros_yaml.dump({'p': [word]})
+        assert f"'{word}'" in text or f"''{word}''" in text, (word, text)
+        assert ros_yaml.load(text) == {'p': [word]}, word
+    for name in ('T_out', 'F_Cin', 'h', 'b', 'idle', 'first_harmonic'):
+        assert ros_yaml.dump({'p': [name]}) == f'p: [{name}]\n'     # names stay plain

@@ -54,6 +54,38 @@ def test_wall_stamps_start_at_first_measurement():
     assert math.isnan(u[0]) and math.isnan(u[1]) and u[2] == 5.0
 
 
+def test_wall_row_holds_the_answer_computed_within_its_tick():
+    """Row k is what acts over [t_k, t_k+1): the controller's answer sampled in that tick
+    (wall mode stamps it when it sampled), which the plant integrates the tick with."""
+    t0 = 1_700_000_000 * 1_000_000_000
+    messages = [SignalMessage('measurement', t0 + k * 50 * MS, ('y',), (k,)) for k in range(4)]
+    messages += [SignalMessage('manipulated', t0 + 60 * MS, ('u',), (5.0,)),
+                 SignalMessage('manipulated', t0 + 110 * MS, ('u',), (6.0,))]
+    table = from_messages(messages, t0_ns=t0, tick_ns=50 * MS)
+    u = table.columns['u.u']
+    assert math.isnan(u[0]) and list(u[1:]) == [5.0, 6.0, 6.0]
+    assert table.late['u'] == 2            # ticks 0 and 3 had no answer of their own
+
+
+def test_late_samples_count_due_instants_without_an_answer_and_reported_ones():
+    """u due every 2nd tick (controller sample time 0.2 s, plant tick 0.1 s), r and d every
+    tick; a due answer is late when missing or when its consumer reported it late."""
+    messages = []
+    for k in range(8):
+        t = k * 100 * MS
+        messages.append(SignalMessage('measurement', t, ('y',), (0.0,)))
+        if k != 5:
+            messages.append(SignalMessage('setpoint', t, ('y',), (1.0,)))
+        messages.append(SignalMessage('disturbance', t, ('v',), (0.0,)))
+        if k % 2 == 0 and k != 4:
+            messages.append(SignalMessage('manipulated', t, ('u',), (float(k),)))
+    table = from_messages(messages, tick_ns=100 * MS, due_ns={'u': 200 * MS},
+                          late_stamps={'u': [200 * MS, 300 * MS, 400 * MS], 'd': [700 * MS]})
+    np.testing.assert_array_equal(table.columns['u.u'], [0, 0, 2, 2, 2, 2, 6, 6])
+    # u: instant 0.4 missing, 0.2 reported late (0.3 lies in 0.2's window, 0.4 counts once)
+    assert table.late == {'r': 1, 'u': 2, 'd': 1}
+
+
 def test_setpoint_changes_find_steps_ramps_and_an_initial_offset():
     t = np.arange(0, 100.0, 1.0)
     r = np.where(t < 10, 0.0, 1.0)

@@ -8,6 +8,7 @@ also runs a representative few of these claims over the ROS graph.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -181,11 +182,11 @@ def test_003_coupling_visible_without_decoupling_and_reduced_by_the_decoupler(re
     coupled, reduced = ([s['interaction']['T_out']['peak_error']
                          for s in run.metrics['outputs']['h']['steps']]
                         for run in (plain, decoupled))
-    for run, peaks in ((plain, coupled), (decoupled, reduced)):
-        steps = run.metrics['outputs']['h']['steps']
+    for result, peaks in ((plain, coupled), (decoupled, reduced)):
+        steps = result.metrics['outputs']['h']['steps']
         assert [(s['t'], s['t_end']) for s in steps] == [(100.0, 2100.0), (4100.0, 6100.0)]
         for step, peak in zip(steps, peaks):
-            assert peak == window_max_abs(run, 'y.T_out', 'r.T_out', step['t'], step['t_end'])
+            assert peak == window_max_abs(result, 'y.T_out', 'r.T_out', step['t'], step['t_end'])
     for a, b in zip(coupled, reduced):
         assert a > 1.0
         assert b < a / 2

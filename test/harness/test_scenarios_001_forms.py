@@ -16,6 +16,8 @@ from its figure.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from support import CONFIG
 

@@ -101,6 +101,38 @@ def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
     assert np.allclose(np.diff(trace.t), 0.1)                     # on the sim-time grid
     assert run_info['missed_samples'] == 0 and run_info['ticks'] == 301
     assert run_info['max_jitter'] < 1e-9
+    # lateness is reported as in lockstep: per answer signal, summed
+    assert set(run_info['late_by_signal']) == {'r', 'u', 'd'}
+    assert run_info['late_samples'] == sum(run_info['late_by_signal'].values())
+
+
+WALL_STEP = 1.5        # [s] of plant time
+
+
+def test_wall_mode_setpoint_step_appears_at_its_time_on_the_plant_time_base(tmp_path, ros_env):
+    """wall: the reference schedules on the plant's time origin (its tick 0), so a step
+    scheduled at t = 1.5 s is in the trace at 1.5 s of plant time (within one sample), however
+    much earlier or later than the plant the reference process started."""
+    scenario = tmp_path / 'wall.yaml'
+    scenario.write_text(json.dumps({   # JSON: strings quoted (an unquoted y is a boolean)
+        'plant': {'ros__parameters': {'plant': 'ipdt', 'sample_time': 0.1, 'gain': 0.05,
+                                      'dead_time': 0.5}},
+        'controller': {'ros__parameters': {'controller': 'pid', 'sample_time': 0.1, 'kp': 2.0,
+                                           'output_names': ['y'], 'input_names': ['u']}},
+        'reference': {'ros__parameters': {'sample_time': 0.1, 'setpoint.channels': ['y'],
+                                          'setpoint.y.times': [0.0, WALL_STEP],
+                                          'setpoint.y.values': [0.0, 1.0]}},
+        'harness': {'ros__parameters': {'duration': 3.0, 'clock_mode': 'wall',
+                                        'startup_timeout': 60.0}}}))
+    result = run(scenario, tmp_path / 'out', env=ros_env)
+    trace, run_info = result.trace, result.metrics['run']
+    # plant time: tick 0 (held until the graph was up) is t = 0; rows one tick apart
+    assert trace.t[0] == 0.0 and np.allclose(np.diff(trace.t), 0.1, atol=1e-9)
+    r = trace.columns['r.y']
+    first = trace.t[np.flatnonzero(r == 1.0)[0]]
+    assert WALL_STEP - 1e-9 <= first <= WALL_STEP + 0.1 + 1e-9, first
+    assert not np.any(r[trace.t < WALL_STEP - 1e-9] == 1.0)
+    assert run_info['late_samples'] == sum(run_info['late_by_signal'].values())
 
 
 def test_compare_writes_a_table_and_an_overlay(tmp_path):

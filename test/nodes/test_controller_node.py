@@ -8,13 +8,15 @@ from __future__ import annotations
 import math
 
 import pytest
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import to_ns
-from tank_control.nodes.messages import SIGNAL_QOS, stamp_to_ns, to_joint_state
+from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, ns_to_stamp, stamp_to_ns,
+                                         to_joint_state)
 
 K1 = 0.05      # 000's worked example, SPEC §1.1
 
@@ -36,6 +38,7 @@ class Loop:
         self.setp = node.create_publisher(JointState, 'setpoint', SIGNAL_QOS)
         self.answers: list[tuple[int, list[str], list[float]]] = []
         self.diag: dict[str, str] = {}
+        self.diag_message = ''
         node.create_subscription(JointState, 'manipulated', self._on_u, SIGNAL_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(node, 'controller')
@@ -48,6 +51,7 @@ class Loop:
         for status in msg.status:
             if status.name.startswith('controller'):
                 self.diag = {kv.key: kv.value for kv in status.values}
+                self.diag_message = status.message
 
     def call(self, future, timeout: float = 10.0):
         assert self.probe.wait_for(future.done, timeout)
@@ -194,6 +198,13 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
             loop.meas.publish(to_joint_state(now, ['y'], [1.0]))
         loop.setp.publish(to_joint_state(now, ['y'], [1.0]))
     probe.node.create_timer(ts / 2, publish)
+    # No sample before the plant's time origin is known (the loop time is plant time) ...
+    assert probe.wait_for(lambda: loop.diag_message == "waiting for the plant's time_origin",
+                          20.0), loop.diag_message
+    assert loop.answers == []
+    # ... then every sample_time, once the probe (the plant) has published it (latched).
+    probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(
+        ns_to_stamp(probe.node.get_clock().now().nanoseconds))
     assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 20.0)
 
@@ -246,6 +257,48 @@ def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, 
     assert all(b > a for a, b in zip(stamps, stamps[1:])), stamps   # one sample per instant
     # P only; the warm start's bias initial_output − kp·e is 0 here, so u = kp·e
     assert loop.answers[-1][2][0] == pytest.approx(2.0 * (3.0 - 1.0), abs=1e-12)
+
+
+def test_sim_mode_reports_a_setpoint_that_came_after_its_sample(procs, node_cmd, ros_env,
+                                                                 probe):
+    """The setpoint of t_k is sent only after the controller answered t_k: it came too
+    late for that sample, which used the previous one; both go on ~/late_inputs."""
+    from rosgraph_msgs.msg import Clock
+
+    from tank_control.nodes.messages import CLOCK_QOS, clock_msg, from_joint_state
+    ts_ns = to_ns(0.5)
+    _start(procs, node_cmd, ros_env, 'clock_mode:=sim', 'use_sim_time:=true',
+           'sample_time:=0.5', 'diagnostics_period:=0.1')
+    loop = Loop(probe)
+    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    late: list[tuple[int, tuple, tuple]] = []
+    probe.node.create_subscription(JointState, '/controller/late_inputs',
+                                   lambda m: late.append(from_joint_state(m)), SIGNAL_QOS)
+
+    def sample(k: int) -> bool:
+        """Measurement and /clock of t_k; True once the controller answered t_k."""
+        loop.meas.publish(to_joint_state(k * ts_ns, ['y'], [0.0]))
+        clock.publish(clock_msg(k * ts_ns))
+        return probe.wait_for(lambda: any(a[0] == k * ts_ns for a in loop.answers), 5.0)
+    # Start: the first setpoint (stamped 0) and ticks until discovery lets an answer through.
+    k0 = 1
+    while not loop.answers:
+        assert k0 < 60, loop.diag_message
+        loop.setp.publish(to_joint_state(0, ['y'], [10.0]))
+        probe.wait_for(lambda: bool(loop.answers), 0.5)
+        sample(k0)
+        k0 += 1
+    k0 = loop.answers[-1][0] // ts_ns
+
+    def reported():           # (a re-sent start-up setpoint may be reported late too)
+        return [r for r in late if r[0] > k0 * ts_ns]
+    for k in range(k0 + 1, k0 + 5):
+        assert sample(k), loop.diag_message
+        loop.setp.publish(to_joint_state(k * ts_ns, ['y'], [10.0 + k]))    # after the sample
+        sample_used = 10.0 + k - 1 if k > k0 + 1 else 10.0
+        assert probe.wait_for(lambda: len(reported()) == k - k0, 20.0), late
+        assert reported()[-1] == (k * ts_ns, ('y',), (sample_used,))
+    assert probe.wait_for(lambda: int(loop.diag.get('late_setpoints', 0)) >= 4, 20.0), loop.diag
 
 
 def test_two_loop_pi_on_tank_channels_in_lockstep(procs, node_cmd, ros_env, probe):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
@@ -28,7 +29,7 @@ from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds.base import resolve
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build
-from tank_control.nodes.messages import from_joint_state, to_joint_state
+from tank_control.nodes.messages import ORIGIN_QOS, from_joint_state, ns_to_stamp, to_joint_state
 
 NODES = ('plant', 'controller', 'reference')
 TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
@@ -186,6 +187,9 @@ def test_wall_mode_horizon_change_rebuilds_without_missing_a_sample(procs, ros_e
         meas.publish(to_joint_state(now, ['h', 'T_out'], [81.0, 2115.0 / 63.0]))
         setp.publish(to_joint_state(now, ['h', 'T_out'], [82.0, 34.0]))
     node.create_timer(0.05, feed)
+    # the probe is the plant: its time origin (latched), the controller's loop time base
+    node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(
+        ns_to_stamp(node.get_clock().now().nanoseconds))
     controller = AsyncParameterClient(node, 'controller')
     assert probe.wait_for(lambda: len(answers) >= 2, 30), \
         '\n'.join(p.tail() for p in procs.processes.values())

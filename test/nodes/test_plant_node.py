@@ -5,6 +5,7 @@ import json
 import time
 
 import pytest
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
@@ -12,12 +13,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.nodes.messages import (
-    SIGNAL_QOS,
-    from_joint_state,
-    stamp_to_ns,
-    to_joint_state,
-)
+from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, from_joint_state, stamp_to_ns,
+                                         to_joint_state)
 
 #: The probe keeps every sample: a plant on its timer does not wait for a slow test process.
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -86,6 +83,15 @@ def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, 
     assert all(s <= t for s, t in zip(stamps, rec.arrived['measurement']))
     assert all(names == ('y',) and values == (2.5,) for _, names, values in rec.measurements)
     assert rec.clock == []   # no /clock in wall mode
+    # The time base: tick k is stamped origin + k·ts, origin (tick 0) latched on time_origin.
+    origins: list[int] = []
+    probe.node.create_subscription(Time, 'time_origin', lambda m: origins.append(stamp_to_ns(m)),
+                                   ORIGIN_QOS)
+    assert probe.wait_for(lambda: origins, 20)
+    assert all((s - origins[0]) % 50_000_000 == 0 and s >= origins[0] for s in stamps)
+    # A running wall clock cannot be paused (only its first tick can be held).
+    result = rec.set_param('lockstep.paused', True)
+    assert not result.successful and 'wall' in result.reason
 
 
 def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs, ros_env,
@@ -111,7 +117,11 @@ def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs,
             probe.wait_for(lambda: rec.measurements[-1][0] > stamp, 1.0)
 
     answer(2)
-    assert [s for s, _, _ in rec.measurements][-3:] == [0, 100_000_000, 200_000_000]
+    # Ticks 0, 1, 2 in order; a tick may come more than once (re-sent while its answer was
+    # on the way, e.g. on a loaded machine), so the distinct stamps are compared.
+    stamps = [s for s, _, _ in rec.measurements]
+    assert stamps == sorted(stamps)
+    assert sorted(set(stamps)) == [0, 100_000_000, 200_000_000]
     assert probe.wait_for(lambda: rec.clock and rec.clock[-1] >= 200_000_000, 30)
     assert 200_000_000 in rec.clock and rec.clock == sorted(rec.clock)
     # Out of range for the model (above max_dead_time): rejected with the reason.
@@ -246,3 +256,36 @@ def test_sim_mode_clock_stands_still_while_paused(procs, ros_env, node_cmd, prob
     assert probe.wait_for(lambda: len(rec.clock) >= ticks + 5, 30), proc.tail()
     assert rec.clock == [k * ts_ns for k in range(len(rec.clock))]
     assert [s for s, _, _ in rec.measurements] == [k * ts_ns for k in range(len(rec.measurements))]
+
+
+def test_sim_mode_reports_inputs_that_came_after_their_tick_was_integrated(procs, ros_env,
+                                                                           node_cmd, probe,
+                                                                           tmp_path):
+    """The probe answers tick k only once tick k+1 is out — after the plant integrated
+    [t_k, t_k+1) with what it held: every answer is reported late, once, with the values
+    the plant used instead."""
+    ts_ns = 100_000_000
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.1,
+                       clock_mode='sim', real_time_factor=2.0, diagnostics_period=0.1)
+    rec = Recorder(probe)
+    late: list[tuple[int, tuple, tuple]] = []
+    probe.node.create_subscription(JointState, '/plant/late_inputs',
+                                   lambda m: late.append(from_joint_state(m)), RECORD_QOS)
+    assert probe.wait_for(lambda: rec.manipulated.get_subscription_count(), 20), proc.tail()
+    answered: dict[int, float] = {}
+    while len(answered) < 8:
+        assert probe.wait_for(lambda: len(rec.measurements) >= 2, 20), proc.tail()
+        newest = rec.measurements[-1][0]
+        for stamp, _, _ in rec.measurements:
+            if stamp < newest and stamp not in answered:      # tick k+1 is out: answer k
+                answered[stamp] = stamp / ts_ns + 1.0
+                rec.manipulated.publish(to_joint_state(stamp, ['u'], [answered[stamp]]))
+        probe.wait_for(lambda: rec.measurements[-1][0] > newest, 5)
+    assert probe.wait_for(lambda: {s for s, _, _ in late} >= set(answered), 20), (late, answered)
+    assert len({s for s, _, _ in late}) == len(late)            # each once
+    held = [0.0, *answered.values()]                             # the plant starts at u = 0
+    for stamp, names, values in late:
+        assert names == ('u',) and values[0] in held, (stamp, values)
+        assert values[0] != answered.get(stamp)                  # not this tick's answer
+    assert probe.wait_for(lambda: rec.diagnostics and
+                          int(rec.diagnostics[-1]['late_inputs']) >= len(answered), 20)

@@ -4,13 +4,16 @@ from __future__ import annotations
 import json
 import time
 
+from builtin_interfaces.msg import Time
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.nodes.messages import CLOCK_QOS, clock_msg, from_joint_state
+
+from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, clock_msg, from_joint_state,
+                                         ns_to_stamp)
 
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -53,15 +56,22 @@ def set_param(probe, name, value):
     return future.result().results[0]
 
 
-def test_wall_mode_publishes_the_schedule_and_applies_runtime_changes(procs, ros_env, node_cmd,
-                                                                      probe, tmp_path):
+def test_wall_mode_publishes_the_schedule_on_the_plant_time_base_and_applies_changes(
+        procs, ros_env, node_cmd, probe, tmp_path):
     arrivals: list[int] = []
     setpoints = collect(probe, 'setpoint', arrivals)
-    started = time.time_ns()
     proc = procs.start('reference', node_cmd('reference_node', '--params-file',
                                              params_file(tmp_path, sample_time=0.05)), env=ros_env)
+    # The probe plays the plant: its tick 0 (the time origin) 0.2 s from now, latched.
+    origin = time.time_ns() + 200_000_000
+    probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(ns_to_stamp(origin))
     assert probe.wait_for(lambda: any(v == (2.0,) for _, _, v in setpoints), 20), proc.tail()
     assert all(names == ('y',) for _, names, _ in setpoints)
+    # Stamped at the instants origin + j·sample_time of plant time, none before tick 0, and
+    # the schedule runs on plant time: 1.0 before t = 0.3 s, 2.0 from it.
+    stamps = [s for s, _, _ in setpoints]
+    assert all(s >= origin and (s - origin) % 50_000_000 == 0 for s in stamps)
+    assert all(v == ((1.0,) if s - origin < 300_000_000 else (2.0,)) for s, _, v in setpoints)
     # Out of range: rejected with the reason, nothing changes.
     result = set_param(probe, 'setpoint.y.value', 11.0)
     assert not result.successful
@@ -81,11 +91,10 @@ def test_wall_mode_publishes_the_schedule_and_applies_runtime_changes(procs, ros
     assert not result.successful
     assert result.reason == 'setpoint.y.values: 7.5 is out of range; allowed [8, 10]'
     assert set_param(probe, 'setpoint.y.min', 5.0).successful
-    # Stamped with the wall clock when published: increasing, after the start, never ahead of
-    # their arrival here.
+    # Published when their instant has come: increasing, never ahead of their arrival here.
     stamps = [s for s, _, _ in setpoints]
     assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    assert started < stamps[0] and all(s <= t for s, t in zip(stamps, arrivals))
+    assert all(s <= t for s, t in zip(stamps, arrivals))
 
 
 def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
