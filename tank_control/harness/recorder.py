@@ -224,9 +224,3 @@ class Recorder:
         self.executor.remove_node(self.node)
         self.node.destroy_node()
         self.executor.shutdown()
-
-
-def deserialize_all(messages: list[RawMessage], type_name: str) -> list[Any]:
-    """Deserialise raw messages of one type (for tests and tools)."""
-    cls = _message_class(type_name)
-    return [deserialize_message(m.data, cls) for m in messages if m.type_name == type_name]

@@ -48,14 +48,6 @@ def sim_sample_instant(now_ns: int, sample_time_ns: int) -> int:
     return (now_ns // sample_time_ns) * sample_time_ns
 
 
-def sample_ratio(sample_time_ns: int, tick_ns: int) -> int:
-    """How many plant ticks one sample spans; ValueError unless an integer multiple."""
-    if tick_ns <= 0 or sample_time_ns <= 0 or sample_time_ns % tick_ns:
-        raise ValueError(f'sample_time: {sample_time_ns} ns is not a positive integer multiple '
-                         f'of the plant tick {tick_ns} ns')
-    return sample_time_ns // tick_ns
-
-
 @dataclass
 class _Slot:
     arrived: set[str] = field(default_factory=set)

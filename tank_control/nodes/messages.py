@@ -26,7 +26,7 @@ rosbag/MCAP, PlotJuggler, Foxglove) shows the channels by name.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 from builtin_interfaces.msg import Time
@@ -167,8 +167,3 @@ class ChannelFilter:
         if reason not in self.reasons:
             self.reasons.add(reason)
             new.append(reason)
-
-
-def values_in_order(names: Sequence[str], values: Mapping[str, float]) -> list[float]:
-    """Values of ``names`` from a mapping (KeyError if one is missing)."""
-    return [values[name] for name in names]
