@@ -177,7 +177,7 @@ class ControllerNode(Node):
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
         self.get_logger().info(
-            f'{kind_name} controller, {self._mode} clock, sample_time '
+            f'{kind_name} controller ({self._kind.description}), {self._mode} clock, sample_time '
             f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '
             f'writes {list(self._inputs)}')
 
