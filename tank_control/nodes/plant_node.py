@@ -174,7 +174,7 @@ class PlantNode(Node):
         elif not self._paused():
             self._publish_tick()          # tick 0 right away (lockstep: re-sent until answered)
         self.get_logger().info(
-            f'plant {kind}: outputs {list(self.plant.output_names)}, inputs '
+            f'plant {kind} ({setup.kind.description}): outputs {list(self.plant.output_names)}, inputs '
             f'{list(self.plant.input_names)}, disturbances {list(self.plant.disturbance_names)}; '
             f'{self.mode} clock, sample_time {self.ts:g} s')
 
