@@ -155,12 +155,13 @@ def validate(scenario: Scenario, check_nodes: bool = True) -> Scenario:
             config = scenario.harness
         except ConfigError as exc:
             raise ConfigError(f'harness.{exc}') from None
+        if check_nodes:
+            core_scenario.validate(scenario.sections, config.nodes)
         for node in config.nodes:
             if node in ('plant', 'controller') and node not in scenario.sections:
                 raise ConfigError(f'harness.nodes: {node!r} has no section in the file')
         if not check_nodes:
             return scenario
-        core_scenario.validate(scenario.sections, config.nodes)
         return Scenario(scenario.path, core_scenario.typed(scenario.sections))
     except ConfigError as exc:
         raise ScenarioError(where + str(exc)) from None

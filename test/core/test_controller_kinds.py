@@ -237,3 +237,14 @@ def test_every_kind_resolves_its_defaults_and_names_every_parameter_once():
         settings = resolve(kind, {})
         assert set(settings.values) == {s.name for s in kind.specs()}
         assert make({'controller': name}) is not None
+
+
+def test_every_kind_module_is_in_the_table_and_an_error_in_one_surfaces():
+    """A kind is a module of core/control/kinds plus its table line: the table lists every such
+    module (imported at the top of the registry, so an error inside one fails loudly instead of
+    making the kind vanish from the choices)."""
+    import pkgutil
+
+    import tank_control.core.control.kinds as package
+    modules = {m.name for m in pkgutil.iter_modules(package.__path__)} - {'base', 'registry'}
+    assert modules == {name for name in registry.KINDS}

@@ -66,3 +66,11 @@ def test_every_plant_changes_live_through_configure_and_keeps_read_only_ones(kin
         if spec.read_only:
             with pytest.raises(ValueError, match=f'{spec.name}: read-only'):
                 plant.configure(**{spec.name: spec.default})
+
+
+def test_every_plant_kind_module_is_in_the_table():
+    import pkgutil
+
+    import tank_control.core.plants.kinds as package
+    modules = {m.name for m in pkgutil.iter_modules(package.__path__)} - {'base', 'registry'}
+    assert modules == set(KINDS)

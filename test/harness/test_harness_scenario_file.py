@@ -140,3 +140,50 @@ def test_merged_file_is_a_standard_params_file_with_the_clock_mode_for_every_nod
     again = load_scenario(out)
     assert again.params('controller') == {**scenario.params('controller'), 'clock_mode': 'lockstep'}
     assert math.isclose(again.harness.duration, 5.0)
+
+
+@pytest.mark.parametrize('override, reason', [
+    ('controller.kpp=2', 'controller.kpp: unknown parameter; did you mean kp?'),
+    ('plant.dead_tme=3.0', 'plant.dead_tme: unknown parameter; did you mean dead_time?'),
+    ('controller.kp=abc', "controller.kp: 'abc' is a str, expected float"),
+    ('controller.sample_time=0.15', 'controller.sample_time: the controller sample time 0.15 s '
+                                    'is not a positive integer multiple of the plant sample time '
+                                    '0.1 s'),
+])
+def test_a_value_a_node_would_refuse_is_refused_before_anything_runs(scenario_path, override,
+                                                                      reason):
+    """The file and --set overrides are checked as the nodes check them, in a ROS run and
+    --in-process alike (both load the scenario this way), with the node's reason."""
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(scenario_path, [override])
+    assert reason in str(info.value)
+
+
+def test_the_in_process_loop_and_the_loop_refuse_a_sample_time_with_the_same_reason():
+    from tank_control.core.loop import sample_time_reason
+    from tank_control.core.params import ConfigError
+    from tank_control.core.scenario import build
+    from tank_control.harness.scenario_file import Scenario
+    sections = {'plant': {'plant': 'ipdt', 'sample_time': 0.1},
+                'controller': {'controller': 'pid', 'kp': 1.0, 'sample_time': 0.15}}
+    with pytest.raises(ConfigError) as info:
+        build(sections)
+    assert str(info.value) == 'controller.' + sample_time_reason(0.1, 0.15)
+    assert isinstance(Scenario, type)
+
+
+@pytest.mark.parametrize('text, reason', [
+    ('contoller:\n  ros__parameters: {kp: 1.0}\n', 'contoller: unknown section; did you mean '
+                                                   'controller?'),
+    ('plant:\n  ros__parameters: {plant: ipdt, dead_tme: 3.0}\n', 'plant.dead_tme: unknown '
+                                                                 'parameter; did you mean '
+                                                                 'dead_time?'),
+    ('/**:\n  ros__parameters: {sample_tme: 0.1}\n', '/**.sample_tme: unknown parameter; did '
+                                                      'you mean sample_time?'),
+])
+def test_misspelt_sections_and_names_in_a_file_are_refused(tmp_path, text, reason):
+    path = tmp_path / 'typo.yaml'
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert reason in str(info.value)

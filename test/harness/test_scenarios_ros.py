@@ -89,6 +89,23 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     assert set(topics['/manipulated'][0].name) == {'F_H', 'F_Cin'}
 
 
+def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, ros_env):
+    """fopdt_autotune: the relay test at 60 s tunes the PID. Both runs report the values the
+    controller ended with (the node's parameters; in-process the controller object's), not
+    the file's: the same tuned gains, Ku, Tu and state in both metrics.json."""
+    scenario = CONFIG / 'fopdt_autotune.yaml'
+    ros = run(scenario, tmp_path / 'ros', rtf=0.0, env=ros_env)
+    ref = run(scenario, tmp_path / 'ref', in_process=True)
+    assert_equal_traces(ros.files['trace'], ref.files['trace'])
+    a, b = (r.metrics['controller'] for r in (ros, ref))
+    assert a['autotune']['autotune.state'] == b['autotune']['autotune.state'] == 'running'
+    assert a['final_gains']['kp'] != 20.0                      # not the file's kp
+    for key in ('kp', 'ti', 'td', 'b', 'c'):
+        assert a['final_gains'][key] == pytest.approx(b['final_gains'][key], rel=1e-9), key
+    for key in ('autotune.ku', 'autotune.tu', 'autotune.model_gain', 'autotune.cycles'):
+        assert a['autotune'][key] == pytest.approx(b['autotune'][key], rel=1e-9), key
+
+
 def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
     """sim: the plant publishes /clock at 5x real time; the others answer each /clock tick.
     The plant starts paused and the harness releases it once the graph is up, so the

@@ -133,6 +133,8 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert not result.successful and 'u_min' in result.reason and 'u_max' in result.reason
     result = loop.set('n', 100.0)
     assert not result.successful and 'n' in result.reason and '50' in result.reason
+    result = loop.set('kpp', 1.0)                 # a misspelt name: refused, nearest suggested
+    assert not result.successful and result.reason == 'kpp: unknown parameter; did you mean kp?'
     assert not loop.set('controller', 'smith_pi').successful
     assert loop.get('kp') == 1.0 and loop.get('u_min') == -5.0
     assert loop.tick(2 * tick, 1.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
@@ -155,7 +157,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.set('fail_safe', 'output').successful
     assert loop.tick(12 * tick, math.inf, 1.0) == 2.0
     assert probe.wait_for(lambda: int(loop.diag.get('nonfinite_measurements', 0)) >= 2, 20.0)
-    assert int(loop.diag['rejected_parameters']) >= 4
+    assert int(loop.diag['rejected_parameters']) >= 5
     for key in ('mode', 'saturated', 'anti_windup_active', 'stale_inputs', 'rejected_inputs',
                 'last_computation_time_us'):
         assert key in loop.diag

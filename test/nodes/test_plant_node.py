@@ -127,6 +127,13 @@ def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs,
     # Out of range for the model (above max_dead_time): rejected with the reason.
     result = rec.set_param('dead_time', 1e3)
     assert not result.successful and 'dead_time' in result.reason and 'max_dead_time' in result.reason
+    # Settings that only act at start-up are read-only: a live change is refused, not ignored.
+    for name, value in (('diagnostics_period', 2.0), ('lockstep.wait_for_reference', True)):
+        result = rec.set_param(name, value)
+        assert not result.successful and 'read-only' in result.reason, (name, result.reason)
+    result = rec.set_param('dead_tme', 0.6)
+    assert not result.successful and result.reason == 'dead_tme: unknown parameter; did you ' \
+                                                       'mean dead_time?'
     assert rec.set_param('dead_time', 0.6).successful
     # Step u = 1 from tick 3: with the new dead time y rises from t = 0.3 + 0.6 s on.
     u_of_tick.update({k: 1.0 for k in range(3, 40)})
