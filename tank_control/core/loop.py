@@ -22,7 +22,7 @@ value).
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -113,6 +113,19 @@ def check_wiring(plant: Plant, controller: Controller, reference: Reference) -> 
                              f'{plant.disturbance_names}')
 
 
+def loop_columns(plant: Plant, controller: Controller, reference: Reference) -> list[str]:
+    """The column names of the rows ``iter_loop`` yields (``t`` first)."""
+    return (['t'] + [f'y.{n}' for n in plant.output_names]
+            + [f'r.{n}' for n in reference.setpoint_names]
+            + [f'u.{n}' for n in controller.input_names]
+            + [f'd.{n}' for n in reference.disturbance_names])
+
+
+def loop_ticks(sample_time: float, duration: float) -> int:
+    """How many ticks (rows) a run of ``duration`` seconds has: 0..K inclusive."""
+    return to_ns(duration) // to_ns(sample_time) + 1
+
+
 def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
              sample_time: float, duration: float, noise: Noise | None = None) -> Trace:
     """Run the closed loop for ``duration`` seconds of simulated time (ticks 0..K inclusive).
@@ -120,23 +133,38 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     ``sample_time`` is the plant's tick [s]; the controller's ``sample_time``
     must be an integer multiple of it.
     """
+    rows_iter = iter_loop(plant, controller, reference, sample_time=sample_time,
+                          duration=duration, noise=noise)
+    names = loop_columns(plant, controller, reference)
+    rows = np.empty((loop_ticks(sample_time, duration), len(names)))
+    for k, row in enumerate(rows_iter):
+        rows[k] = row
+    return Trace.from_rows(names, rows)
+
+
+def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
+              sample_time: float, duration: float, noise: Noise | None = None
+              ) -> Iterator[np.ndarray]:
+    """``run_loop`` one row at a time (columns ``loop_columns``), for a caller that writes
+    the rows as they come instead of holding them. The wiring and sample times are checked
+    before the first row."""
     check_wiring(plant, controller, reference)
     reason = sample_time_reason(sample_time, controller.sample_time)
     if reason:
         raise ValueError(reason)
+    return _rows(plant, controller, reference, sample_time, duration, noise)
+
+
+def _rows(plant: Plant, controller: Controller, reference: Reference, sample_time: float,
+          duration: float, noise: Noise | None) -> Iterator[np.ndarray]:
     ts_ns = to_ns(sample_time)
     cts_ns = to_ns(controller.sample_time)
-    n_ticks = to_ns(duration) // ts_ns + 1
+    n_ticks = loop_ticks(sample_time, duration)
 
     u_all = nominal_inputs(plant)
     d_all = nominal_disturbances(plant)
     y_index = [plant.output_names.index(n) for n in controller.output_names]
     r_index = [reference.setpoint_names.index(n) for n in controller.output_names]
-    names = (['t'] + [f'y.{n}' for n in plant.output_names]
-             + [f'r.{n}' for n in reference.setpoint_names]
-             + [f'u.{n}' for n in controller.input_names]
-             + [f'd.{n}' for n in reference.disturbance_names])
-    rows = np.empty((n_ticks, len(names)))
     u_ctrl = np.array([u_all[n] for n in controller.input_names], dtype=float)
     started = False
     for k in range(n_ticks):
@@ -155,8 +183,7 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
                 started = True
             u_ctrl = np.asarray(controller.step(t, y[y_index], r_all[r_index], d_ctrl), dtype=float)
             u_all.update(zip(controller.input_names, u_ctrl.tolist()))
-        rows[k] = np.concatenate(([t], y, r_all, u_ctrl, d_ref))
+        yield np.concatenate(([t], y, r_all, u_ctrl, d_ref))
         plant.step(np.array([u_all[n] for n in plant.input_names], dtype=float),
                    np.array([d_all[n] for n in plant.disturbance_names], dtype=float),
                    sample_time)
-    return Trace.from_rows(names, rows)

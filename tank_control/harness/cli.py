@@ -5,7 +5,11 @@
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
 
 Exit status: 0 done, 1 the run failed (a node crashed, did not start or
-stalled: its last log lines are printed), 2 bad command line or scenario.
+stalled: its last log lines are printed; another run or graph on the
+ROS_DOMAIN_ID; nothing recorded), 2 bad command line or scenario,
+128 + N stopped by signal N (130 SIGINT, 143 SIGTERM, 129 SIGHUP). A failed or
+stopped run leaves what it recorded, with ``"complete": false`` and the reason
+in metrics.json.
 """
 from __future__ import annotations
 
@@ -89,7 +93,7 @@ def _print_result(result) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from tank_control.harness.runner import RunFailed
+    from tank_control.harness.runner import RunFailed, RunInterrupted
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))
@@ -112,6 +116,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RunFailed as err:
         print(f'tank-control: run failed: {err}', file=sys.stderr)
         return 1
+    except RunInterrupted as stop:
+        print(f'tank-control: {stop}; the results so far are in {args.out} '
+              '("complete": false)', file=sys.stderr)
+        return stop.exit_code
     except KeyboardInterrupt:
         print('tank-control: interrupted', file=sys.stderr)
         return 130
