@@ -14,6 +14,7 @@ from array import array
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -104,23 +105,34 @@ class Trace:
         return out
 
 
+#: Line end of ``csv.writer`` (``write_csv``), so both write the same bytes.
+_EOL = '\r\n'
+
+
 def _csv_row(values: Iterable[float]) -> list[str]:
     return [repr(float(v)) for v in values]
 
 
 class TraceWriter:
-    """``trace.csv`` written as the rows come (the file is valid after every ``flush``), with
-    the columns kept in memory for the metrics (8 bytes per value).
+    """``trace.csv`` written as the rows come, with the columns kept in memory for the
+    metrics (8 bytes per value).
+
+    Rows are buffered as text and written whole by ``flush`` (and every ``BUFFER_ROWS``
+    rows), one ``write`` per batch, so the file always ends at the end of a row: a
+    process killed between flushes leaves a valid table of the rows flushed so far.
 
     The header is the names of the first row. A row with a column not seen before (a channel
     whose first message came late) adds it, NaN in the earlier rows; ``close`` then rewrites
     the file with every column.
     """
 
+    #: Rows buffered before they are written even without a ``flush``.
+    BUFFER_ROWS = 4096
+
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self._handle = self.path.open('w', newline='')
-        self._csv = csv.writer(self._handle)
+        self._handle: IO[str] | None = self.path.open('w', newline='')
+        self._pending: list[str] = []
         self._names: tuple[str, ...] | None = None
         self._columns: dict[str, array] = {}
         self._rows = 0
@@ -135,7 +147,7 @@ class TraceWriter:
         if self._names is None:
             self._names = names
             self._columns = {name: array('d') for name in names}
-            self._csv.writerow(names)
+            self._pending.append(','.join(names) + _EOL)
         if names != self._names:
             self._add_columns(names)
             row = dict(zip(names, values))
@@ -143,7 +155,9 @@ class TraceWriter:
         for column, value in zip(self._columns.values(), values):
             column.append(value)
         if not self._rewrite:
-            self._csv.writerow(_csv_row(values))
+            self._pending.append(','.join(_csv_row(values)) + _EOL)
+            if len(self._pending) >= self.BUFFER_ROWS:
+                self.flush()
         self._rows += 1
 
     def _add_columns(self, names: Sequence[str]) -> None:
@@ -158,8 +172,12 @@ class TraceWriter:
         self._rewrite = True
 
     def flush(self) -> None:
-        if self._handle is not None:
-            self._handle.flush()
+        """Write the buffered rows to the file (whole rows, one write)."""
+        if self._handle is None or not self._pending:
+            return
+        self._handle.write(''.join(self._pending))
+        self._pending.clear()
+        self._handle.flush()
 
     def trace(self) -> Trace:
         """The rows so far as a table (a copy)."""
@@ -168,8 +186,11 @@ class TraceWriter:
     def close(self) -> Trace:
         """Finish the file (rewritten if columns were added) and return the table."""
         if self._handle is not None:
-            self._handle.close()
-            self._handle = None
+            try:
+                self.flush()
+            finally:
+                self._handle.close()
+                self._handle = None
         table = Trace({name: np.frombuffer(column, dtype=float)    # no copy: no more rows
                        for name, column in self._columns.items()} or {'t': np.empty(0)})
         if self._names is None:

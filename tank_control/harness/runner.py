@@ -589,7 +589,7 @@ class _RosRun:
         """Finish trace.csv and run.mcap with everything received, write metrics.json and
         plot.png; raise the failure (or ``RunFailed`` for a run that recorded nothing) after."""
         stream = self.stream
-        trace = stream.close()
+        trace = stream.close(complete=failure is None)
         ticks = len(trace)
         if failure is None and ticks == 0:
             failure = RunFailed(f'the recording holds no measurement within the '

@@ -83,6 +83,7 @@ class RecordingStream:
         self.arrivals = SamplingStats(sample_time)       # of their measurements' arrivals
         self.arrival_of: dict[int, int] = {}             # measurement stamp → arrival [ns]
         self.unreadable = 0
+        self.last_measurement: int | None = None         # largest measurement stamp [ns]
         self.trace: Trace | None = None
 
     @property
@@ -102,6 +103,7 @@ class RecordingStream:
             return
         self.joiner.add(msg)
         if topic == 'measurement':
+            self.last_measurement = max(msg.stamp_ns, self.last_measurement or msg.stamp_ns)
             self.measurements.append((self.clock(), msg.stamp_ns))
             self.arrival_of.setdefault(msg.stamp_ns, raw.log_time_ns)
 
@@ -122,11 +124,19 @@ class RecordingStream:
         self.joiner.advance(self.horizon)
         self.outputs.flush_now_and_then()
 
-    def close(self) -> Trace:
-        """Write every row still held, close both files, return the table (with ``late``)."""
+    def close(self, complete: bool = True) -> Trace:
+        """Write the rows still held, close both files, return the table (with ``late``).
+
+        A run that did not complete (``complete=False``) leaves out the row of its last
+        measurement: the answers to it may never have come (a lockstep plant publishes
+        tick k + 1 only after the answers to tick k), so only rows known whole are written.
+        """
         if self.trace is None:
             try:
-                self.joiner.flush()
+                if complete:
+                    self.joiner.flush()
+                elif self.last_measurement is not None:
+                    self.joiner.advance(self.last_measurement)
             finally:
                 self.trace = self.outputs.close()
             self.trace.late = self.joiner.late
