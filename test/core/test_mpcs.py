@@ -127,7 +127,11 @@ def test_unreachable_temperature_setpoint_does_not_wind_up():
     ref = lambda t: np.array([81.0, 24.0 if t < 1200 else 30.0])
     y, r, u = run(Mpcs(MpcsConfig(solver='qp')), make_tank(), 2600, ref, lambda t: D0)
     assert y[:1200, 0].max() < 81.2 and abs(y[1199, 0] - 81.0) < 0.05   # the level never rises
-    assert u[1199, 0] == 0.0 and abs(y[1199, 1] - (51 * 23 + 12 * 33) / 63) < 0.05
+    # F_H sits at its lower limit 0: never below it (the output is clipped to the limit), and
+    # above it only by the QP's rounding of its active constraint — the QP works in deviations
+    # from the operating point (14 cm³/s), where a few ulp are ~1e-15 cm³/s
+    assert np.all(u[:, 0] >= 0.0)
+    assert 0.0 <= u[1199, 0] <= 1e-12 and abs(y[1199, 1] - (51 * 23 + 12 * 33) / 63) < 0.05
     e = np.abs(y[-150:] - r[-150:])
     assert e[:, 0].max() <= 0.05 and e[:, 1].max() <= 0.02
 
