@@ -77,6 +77,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name, m in inputs.items():
         print(f'input {name}: min {m["min"]:.4g}, max {m["max"]:.4g}, total variation '
               f'{m["total_variation"]:.4g}, constraint violations {m["constraint_violations"]}')
+    for warning in result.metrics.get('controller', {}).get('warnings', []):
+        print(f'controller warning: {warning}')
     print(f'run: {run_info["ticks"]} ticks, {run_info["sim_duration"]:g} s simulated in '
           f'{run_info["wall_time"]:.1f} s wall ({run_info["ticks_per_s"]:.0f} ticks/s), '
           f'missed samples {run_info["missed_samples"]}, late samples {run_info["late_samples"]}')

@@ -83,6 +83,8 @@ def _print_result(result) -> None:
     if claim:
         print(f'documented claim: {claim}')
     print(markdown_table([result]), end='')
+    for warning in result.metrics.get('controller', {}).get('warnings', []):
+        print(f'controller warning: {warning}')
     for key in ('plot', 'trace', 'recording', 'metrics'):
         print(f'{key}: {result.files[key]}')
 
