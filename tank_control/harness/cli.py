@@ -106,6 +106,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             results.append(_run_one(path, args.out / name, args))
         files = write_comparison(results, args.out)
         print(files['table'].read_text(), end='')
+        for result in results:
+            for warning in result.metrics.get('controller', {}).get('warnings', []):
+                print(f'{result.name}: controller warning: {warning}')
         print(f'table: {files["table"]}\nplot: {files["plot"]}')
         return 0
     except ScenarioError as err:

@@ -36,13 +36,13 @@ both on by default and both switchable:
   (the document's literal cost) F_Cin is never moved and F_H alone cannot hold
   two setpoints.
 
-With either of them (and a positive weight on each output) the steady state
-the loop settles at is offset-free, but a horizon that does not reach past the
-delays leaves one direction of the
+With the terminal term (or a horizon beyond 180 samples) and a positive weight
+on each output the steady state the loop settles at is offset-free, but a
+horizon that does not reach past the delays leaves one direction of the
 outputs (the level at a fixed temperature, or the temperature at a fixed
-level, which needs F_H and F_Cin moved together) to the terminal term and
-the tank's own time constant: with a large weight on one output the other
-creeps to its setpoint over thousands of seconds (docs/mpcs.md). The defaults
+level, which needs F_H and F_Cin moved together) to the terminal term and the
+tank's own time constant: with a large weight on one output the other creeps
+to its setpoint over thousands of seconds (docs/mpcs.md). The defaults
 (N, Nu, block) = (600, 200, 10) plan moves beyond the 180 s F_Cin dead time,
 so the undelayed F_H can be planned for when the cold water arrives, and
 predict over the dead time plus the model's settling; :func:`horizon_warning`
