@@ -171,6 +171,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         **body,
         'run': run_info,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       'warnings': controller_warnings(controller_params),
                        'parameters': dict(controller_params)},
     }
     files = {
@@ -182,6 +183,21 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     }
     files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
     return RunResult(scenario.name, out, trace, metrics, files)
+
+
+def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
+    """The configuration warning the controller gives for its final parameters (its
+    ``warning``, which controller_node logs and shows in /diagnostics; e.g. MPCS horizons
+    shorter than the plant's dead times), as a list: empty when there is none."""
+    if 'controller' not in controller_params:
+        return []
+    try:
+        from tank_control.core import scenario as core_scenario
+        controller = core_scenario.make_controller(controller_params)
+    except (ImportError, ValueError):
+        return []                          # a rejected configuration is reported elsewhere
+    warning = str(getattr(controller, 'warning', '') or '')
+    return [warning] if warning else []
 
 
 def _jsonable(value: Any) -> Any:

@@ -16,7 +16,10 @@ not publish reaches the controller as NaN, and the controller keeps its own valu
 hold no channels); publishes
 ``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
 sample instant) and ``/diagnostics`` (mode, saturation, anti-windup, faults,
-counters, computation time and the controller's ``status`` as ``status.*``).
+counters, computation time and the controller's ``status`` as ``status.*``). A
+configuration warning of the controller (its ``warning``, e.g. MPCS horizons shorter
+than the dead times) is logged when it appears and shown in ``/diagnostics`` (level
+WARN) while it lasts.
 A kind's operator commands are ``std_srvs/Trigger`` services ``~/<command>``;
 values a kind produces while running (``results``) are written back to its
 parameters after each sample and after each command. A kind with a state machine
@@ -180,6 +183,8 @@ class ControllerNode(Node):
             f'{kind_name} controller ({self._kind.description}), {self._mode} clock, sample_time '
             f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '
             f'writes {list(self._inputs)}')
+        self._warning = ''
+        self._check_warning()
 
     # ------------------------------------------------------------ parameters
     def _kind_from_overrides(self) -> str:
@@ -383,6 +388,7 @@ class ControllerNode(Node):
         u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start
         self._u = u
+        self._check_warning()
         self._write_results()
         return u
 
@@ -443,9 +449,22 @@ class ControllerNode(Node):
         return u
 
     # ----------------------------------------------------------- diagnostics
+    def _check_warning(self) -> None:
+        """The controller's configuration warning (its ``warning`` attribute, '' for none;
+        e.g. MPCS horizons shorter than its dead times): logged when it appears or
+        changes, and shown in ``/diagnostics`` (level WARN, in the message) while it lasts."""
+        warning = str(getattr(self._controller, 'warning', '') or '')
+        if warning == self._warning:
+            return
+        self._warning = warning
+        if warning:
+            self.get_logger().warning(warning)
+        self._publish_diagnostics()
+
     def _publish_diagnostics(self) -> None:
         status = dict(self._controller.status)
-        level = DiagnosticStatus.WARN if self._fault else DiagnosticStatus.OK
+        level = (DiagnosticStatus.WARN if self._fault or self._warning
+                 else DiagnosticStatus.OK)
         waiting = len(self._y) < len(self._outputs) and self._mode != 'lockstep'
         message = (f'measurement {self._fault}: holding' if self._fault
                    else 'waiting for measurement' if waiting
@@ -453,6 +472,8 @@ class ControllerNode(Node):
                    else 'running')
         if self._kind.state is not None:
             message += f'; {self._state_text()}'
+        if self._warning:
+            message += f'; warning: {self._warning}'
         fields = {
             'controller': self._params.values['controller'],
             'clock_mode': self._mode,

@@ -90,23 +90,6 @@ class Prediction:
         self.i_d = idx + nu
         self.n_z = idx + nu + nd
         nv = self.n_z + self.n_dec           # columns: [z, ΔU]
-        # --- input trajectories u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}, rows over [z, ΔU]
-        def u_row(mi: int, i: int) -> np.ndarray:
-            row = np.zeros(nv)
-            row[self.i_uprev + mi] = 1.0
-            nj = int(np.searchsorted(self.move_times, i, side='right'))
-            row[self.n_z + mi + nu * np.arange(nj)] = 1.0
-            return row
-
-        def u_eff_rows(j: int) -> np.ndarray:
-            rows = np.zeros((nu, nv))
-            for mi, dm in enumerate(m.input_delays):
-                if j < dm:
-                    rows[mi, self.i_buf[mi] + j] = 1.0    # known past input
-                else:
-                    rows[mi] = u_row(mi, j - dm)
-            return rows
-
         w_sel = np.zeros((sys.n_w, nv))
         w_sel[:, n + np.arange(sys.n_w)] = np.eye(sys.n_w)
         d_sel = np.zeros((nd, nv))
@@ -120,21 +103,22 @@ class Prediction:
         n_steps = max(max(steps), 0)
         xs = np.zeros((n_steps + 1, n, nv))
         xs[0, :, :n] = np.eye(n)
+        drive = np.matmul(m.b_u, self._input_rows(m, n_steps, nv))     # B_u u_eff(k+j)
         for j in range(n_steps):
-            xs[j + 1] = m.a @ xs[j] + m.b_u @ u_eff_rows(j) + const
+            xs[j + 1] = m.a @ xs[j] + drive[j] + const
         # --- outputs, ordered p-major: row (p−1)·ny + i
         y_rows = np.zeros((big_n * ny, nv))
+        p = np.arange(1, big_n + 1)
         for i in range(ny):
-            for p in range(1, big_n + 1):
-                s = p + offsets[i] - m.output_delays[i]
-                if s >= 0:
-                    row = m.c[i] @ xs[s]
-                else:                                   # still in the register: known past
-                    row = np.zeros(nv)
-                    row[sys.reg_start[i] + (-s) - 1] = 1.0
-                if sys.kind == 'output':
-                    row = row + w_sel[i]
-                y_rows[(p - 1) * ny + i] = row
+            s = p + offsets[i] - m.output_delays[i]
+            rows = np.zeros((big_n, nv))
+            ahead = s >= 0
+            rows[ahead] = m.c[i] @ xs[s[ahead]]
+            known = np.flatnonzero(~ahead)                # still in the register: known past
+            rows[known, sys.reg_start[i] - s[known] - 1] = 1.0
+            if sys.kind == 'output':
+                rows = rows + w_sel[i]
+            y_rows[i::ny] = rows
         # --- steady state reached when the last planned inputs are held
         u_last = np.zeros((nu, nv))
         u_last[:, self.i_uprev:self.i_uprev + nu] = np.eye(nu)
@@ -173,6 +157,23 @@ class Prediction:
         self.k_r = first @ self.f_r
         # cumulative-sum matrix: u(k+t_j) − u_prev = L ΔU
         self.cum = np.kron(np.tril(np.ones((self.n_moves, self.n_moves))), np.eye(nu))
+
+    def _input_rows(self, m, n_steps: int, nv: int) -> np.ndarray:
+        """``u_eff(k+j)`` for ``j < n_steps`` as rows over ``[z, ΔU]``, shape
+        ``(n_steps, n_u, nv)``: a value still in input m's delay line (``j < d_m``) is a
+        known past input; later ``u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}``, ``i = j − d_m``."""
+        nu = m.n_u
+        rows = np.zeros((n_steps, nu, nv))
+        j = np.arange(n_steps)
+        move_cols = self.n_z + nu * np.arange(self.n_moves)
+        for mi, dm in enumerate(m.input_delays):
+            past = j[j < dm]
+            rows[past, mi, self.i_buf[mi] + past] = 1.0
+            ahead = j[j >= dm]
+            rows[ahead, mi, self.i_uprev + mi] = 1.0
+            made = self.move_times[None, :] <= (ahead - dm)[:, None]
+            rows[ahead[:, None], mi, (move_cols + mi)[None, :]] = made
+        return rows
 
     def z_vector(self, xi: np.ndarray, buffers: list[np.ndarray], u_prev: np.ndarray,
                  d: np.ndarray) -> np.ndarray:
