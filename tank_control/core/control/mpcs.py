@@ -1,49 +1,11 @@
-"""MPCS: offset-free predictive control of the mixing tank (003 §4, §6; SPEC §2.8; issue 8).
+"""MPCS: offset-free predictive control of the mixing tank (003 §4 analytic, §6 QP; SPEC §2.8).
 
-Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured
-disturbances ``F_D`` [cm³/s], ``T_D`` [°C] used as feed-forward.
-
-Per sample ``k`` (:meth:`Mpcs.step`):
-
-1. the Kalman estimator (:mod:`mpcs_estimator`) corrects the augmented state
-   (model state, integrating disturbances, ``T_out`` delay register) with
-   ``y(k)``;
-2. the prediction (:mod:`mpcs_prediction`) — linear in the estimate, the
-   ``F_Cin`` values still in the 180 s delay line, ``u(k−1)`` and ``d(k)`` —
-   gives the cost of SPEC §2.8;
-3. ``solver='analytic'``: the unconstrained optimum's first move, a constant
-   gain (003 §4), then clipped to ``|Δu| ≤ du_max`` and ``u_min ≤ u ≤ u_max``;
-   ``solver='qp'``: the constrained QP (003 §6, :mod:`mpcs_qp`); a failed or
-   infeasible QP falls back to the clipped analytic move (counted in
-   ``status['fallbacks']``);
-4. the estimator is advanced with the input that acts on the tank over
-   ``[k, k+1)`` (``F_H(k)``, ``F_Cin(k−180)``) and ``d(k)``.
-
-The output is never NaN: non-finite measurements skip the estimator
-correction, non-finite setpoints hold the last input.
-
-Horizons and dead times (why the defaults are what they are)
-------------------------------------------------------------
-Input→output dead times at Ts = 1 s: F_H→h 0, F_H→T_out 120, F_Cin→h 180,
-F_Cin→T_out 300 samples. With the document's cost taken literally and its
-numeric horizons (N, Nu) = (100, 50), no move can change any predicted T_out
-and F_Cin changes no predicted output at all: its columns of the dynamic
-matrix are zero, so the optimiser never moves F_Cin, and F_H alone cannot hold
-two setpoints — the T loop is left to a slow drift of the disturbance
-estimate (IAE on T about 2.7× worse, see bench/RESULTS.md). Two remedies, both
-on by default and both switchable:
-
-* ``mpcs.align`` counts T_out's horizon from its own 120 s dead time
-  (T_out(k+120+p) = T(k+p)), so (N, Nu) = (100, 50) sees F_H's effect on T;
-* ``mpcs.terminal_weight`` adds the error of the steady state the model
-  reaches if the last planned inputs are held (cost of 2 rows, exact for the
-  stable linear model); it is what tells a horizon shorter than 180 samples
-  what F_Cin is for, and makes the unconstrained fixed point offset-free
-  (the steady-state gain matrix is invertible).
-
-A horizon N ≥ ~300 sees F_Cin's full effect inside the horizon (better IAE,
-still ≤ 0.2 ms per QP sample); move blocking (``mpcs.block``) keeps the QP
-small for long control horizons.
+Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured disturbances
+``F_D`` [cm³/s], ``T_D`` [°C] as feed-forward; time in s (sample time 1 s in 003). Per sample:
+Kalman correction (:mod:`mpcs_estimator`), prediction over the delayed model
+(:mod:`mpcs_prediction`), the analytic move clipped to the limits or the constrained QP
+(:mod:`mpcs_qp`, clipped analytic fallback), estimator time update. The algorithm and why the
+defaults align T_out's horizon and weight the steady state: docs/mpcs.md ("The algorithm").
 """
 from __future__ import annotations
 
@@ -298,7 +260,8 @@ class Mpcs:
         A channel of ``d`` that is missing or non-finite (NaN: never measured, e.g. the
         reference does not publish it) keeps its last measured value, initially the
         operating point's ``mpcs.op.F_D`` [cm³/s] / ``mpcs.op.T_D`` [°C]: see
-        :meth:`_fill_d`.
+        :meth:`_fill_d`. The output is never NaN: a non-finite measurement skips the
+        estimator correction, a non-finite setpoint holds the last input.
         """
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
