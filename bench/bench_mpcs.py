@@ -6,8 +6,8 @@ a one-hour tank scenario run in-process, design rebuild times and IAE.
 
 QP problems are recorded along a closed-loop run on the nonlinear tank (setpoint
 steps on h and T, an F_D step; re-linearisation off so that H and the constraint
-matrix stay fixed) so that the rate limits are active in the transients, then replayed on each library (same H, f, bounds) to compare the
-solvers on identical data. Results go to stdout as Markdown; copy them to
+matrix stay fixed) so that the rate limits are active in the transients, then replayed on
+each library (same H, f, bounds) to compare the solvers on identical data. Results go to stdout as Markdown; copy them to
 bench/RESULTS.md.
 """
 from __future__ import annotations

@@ -1,47 +1,9 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
-``run_scenario`` leaves in the output directory:
-
-* ``scenario.yaml`` — the merged parameters file the nodes were started with;
-* ``trace.csv``, ``run.mcap``, ``metrics.json``, ``plot.png``;
-* ``logs/<node>.log`` — each node's output (ROS runs).
-
-ROS run, step by step (no sleeps: every wait spins the recorder until an event):
-
-1. the recorder node starts in this process (its own rclpy context);
-2. every node starts as its own OS process
-   (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
-   plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
-   ``-p lockstep.paused:=true`` for the plant: its clock holds tick 0);
-3. wait until every node is in the graph and the recorder has matched every
-   publisher (measurement, /clock, setpoint, disturbance, manipulated); in sim
-   and wall, where the plant does not wait for answers, also every node's
-   subscriptions (the plant's inputs, the controller's measurement and
-   setpoint, the reference's /clock — in wall the time_origin of reference
-   and controller);
-4. un-pause the plant through its parameter service — tick 0 is published
-   only now (in wall mode its wall time is the time origin, which the
-   reference and the controller schedule on), so the recorder sees every tick
-   from the first. In
-   lockstep the plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
-   recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
-   plant cannot run ahead of the recording, so no sample is lost on a busy
-   machine (the signal publishers keep only 10 messages for a slow reader);
-5. run until the simulated time reaches the duration (lockstep: until every
-   answer of the last tick ≤ duration is recorded), watching that every
-   process is alive and the clock is moving;
-6. read the controller's parameters (final gains) through its services;
-7. stop the processes: SIGINT, then SIGTERM, then SIGKILL.
-
-A process that exits early, a graph that does not come up in
-``harness.startup_timeout`` or a clock that stops for ``harness.stall_timeout``
-ends the run with ``RunFailed`` carrying the node's last log lines.
-
+``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
+``plot.png`` and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds
+(start paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
 Times in the results are plant time (stamp − the plant's ``time_origin``).
-``late_samples`` in ``metrics.json`` (every clock mode) is the sum of
-``late_by_signal``: per answer signal (``r``, ``u``, ``d``) the due instants
-whose answer was not the value used that tick — none recorded, or reported
-late by its consumer (definition: ``harness/trace.py``).
 """
 from __future__ import annotations
 
@@ -129,7 +91,7 @@ def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = No
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
                  node_command: NodeCommand = node_module_command) -> RunResult:
-    """Run a loaded scenario into ``out_dir`` (see the module docstring)."""
+    """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for stale in OUTPUT_FILES:                    # a failed run must not leave old results

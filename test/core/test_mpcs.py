@@ -1,5 +1,5 @@
 """MPCS controller on the nonlinear tank: offset-free tracking, constraints, fallback,
-bumpless reset and runtime reconfiguration (issue 8 acceptance, in-process)."""
+bumpless reset and runtime reconfiguration (in-process)."""
 from __future__ import annotations
 
 import math
@@ -22,7 +22,7 @@ D0 = np.array([12.0, 33.0])
 
 
 class Tank(MixingTank):
-    """The plants branch's nonlinear tank; d = [F_D, T_D] as MPCS measures them."""
+    """The nonlinear tank of core/plants; d = [F_D, T_D] as MPCS measures them."""
 
     def step(self, u, d, dt):
         super().step(u, [d[0], d[1], 62.0, 23.0], dt)

@@ -1,4 +1,4 @@
-"""``make demo``: its default path, cut short with ``--duration``.
+"""``make demo`` (the main job): its default path, cut short with ``--duration``.
 
 The default scenario is the mixing tank of 003 under the constrained, offset-free MPCS-QP
 with the default horizons and the document's own constraints (003 §6: 0 <= F <= 100 cm³/s, |ΔF| <= 0.2 cm³/s per

@@ -1,9 +1,9 @@
-"""Acceptance on the shipped MPCS scenarios (config/scenarios/tank_mpcs_*.yaml), in-process.
+"""docs/mpcs.md's claims on the shipped MPCS scenarios (config/scenarios/tank_mpcs_*.yaml), in-process.
 
 Each scenario runs through ``core/scenario.run_in_process`` (core/loop.py: the same objects
 and arithmetic as a lockstep ROS run, asserted in test_mpcs_node.py). The sequence
 (setpoints on h and T_out, F_D steps of ±25 %) is read from the reference section of the
-file itself; the claims are issue 8's:
+file itself; the claims:
 
 * after every setpoint or disturbance change settles — here: over the last 300 s before
   the next change — |e_T| <= 0.02 °C and |e_h| <= 0.05 cm;
@@ -26,7 +26,7 @@ from tank_control.core import params_file
 from tank_control.core.scenario import run_in_process
 
 SETTLED_WINDOW = 300.0     # [s] before the next change (or the end) that must be settled
-TOL = {'h': 0.05, 'T_out': 0.02}      # issue 8: [cm], [°C]
+TOL = {'h': 0.05, 'T_out': 0.02}      # settled |e| [cm], [°C]
 
 
 def _params(name: str) -> dict:

@@ -1,4 +1,4 @@
-"""controller: mpcs in controller_node over real DDS (issue 8): plant (mixing_tank, lockstep as
+"""controller: mpcs in controller_node over real DDS: plant (mixing_tank, lockstep as
 fast as possible), controller (MPCS, QP) and reference in three processes.
 
 * The recorded lockstep run equals ``core/loop.py`` in-process to 1e-9 on every signal,

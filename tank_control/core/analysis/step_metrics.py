@@ -1,17 +1,12 @@
 """Step-response and error-integral metrics of recorded (sampled) signals.
 
-Conventions: ``t`` in seconds (strictly increasing samples), signals in the
-units of the measured output. Every function accepts noisy data and steps in
-either direction (the response is normalised by the signed step size).
-
-* :func:`iae` — ∫|e| dt [unit·s], trapezoidal rule over the samples.
-* :func:`ise` — ∫e² dt [unit²·s], trapezoidal rule.
-* :func:`step_metrics` — overshoot [%], rise time 10–90 % [s], settling time
-  into a ±2 % band [s], steady-state error [unit], peak value and time.
-* :func:`deviation_metrics` — response of an error that should stay at 0 (a load
-  change, or the coupling from another output's setpoint step): peak error
-  [unit] and its time [s], IAE, ∫e dt [unit·s] (000 eq. 10 for a load step),
-  recovery time into ±2 % of the peak [s], final and initial error [unit].
+``t`` in s (strictly increasing), signals in the units of the measured output; noisy data and
+steps in either direction are accepted (responses are normalised by the signed step size).
+:func:`iae` ∫|e| dt [unit·s] and :func:`ise` ∫e² dt [unit²·s] (trapezoidal rule);
+:func:`step_metrics` overshoot [%], 10–90 % rise time [s], ±2 % settling time [s],
+steady-state error, peak; :func:`deviation_metrics` for an error that should stay at 0 (a load
+change, a coupling): peak error and time, IAE, ∫e dt (000 eq. 10 for a load step), recovery
+time into ±2 % of the peak, final and initial error.
 """
 from __future__ import annotations
 

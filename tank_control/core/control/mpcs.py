@@ -1,54 +1,11 @@
-"""MPCS: offset-free predictive control of the mixing tank (003 §4, §6; SPEC §2.8).
+"""MPCS: offset-free predictive control of the mixing tank (003 §4 analytic, §6 QP; SPEC §2.8).
 
-Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured
-disturbances ``F_D`` [cm³/s], ``T_D`` [°C] used as feed-forward.
-
-Per sample ``k`` (:meth:`Mpcs.step`):
-
-1. the Kalman estimator (:mod:`mpcs_estimator`) corrects the augmented state
-   (model state, integrating disturbances, ``T_out`` delay register) with
-   ``y(k)``;
-2. the prediction (:mod:`mpcs_prediction`) — linear in the estimate, the
-   ``F_Cin`` values still in the 180 s delay line, ``u(k−1)`` and ``d(k)`` —
-   gives the cost of SPEC §2.8;
-3. ``solver='analytic'``: the unconstrained optimum's first move, a constant
-   gain (003 §4), then clipped to ``|Δu| ≤ du_max`` and ``u_min ≤ u ≤ u_max``;
-   ``solver='qp'``: the constrained QP (003 §6, :mod:`mpcs_qp`); a failed or
-   infeasible QP falls back to the clipped analytic move (counted in
-   ``status['fallbacks']``);
-4. the estimator is advanced with the input that acts on the tank over
-   ``[k, k+1)`` (``F_H(k)``, ``F_Cin(k−180)``) and ``d(k)``.
-
-The output is never NaN: non-finite measurements skip the estimator
-correction, non-finite setpoints hold the last input.
-
-Horizons and dead times (why the defaults are what they are)
-------------------------------------------------------------
-Input→output dead times at Ts = 1 s: F_H→h 0, F_H→T_out 120, F_Cin→h 180,
-F_Cin→T_out 300 samples. Two parts of the cost make short horizons usable,
-both on by default and both switchable:
-
-* ``mpcs.align`` counts T_out's horizon from its own 120 s dead time
-  (T_out(k+120+p) = T(k+p)), so F_H's effect on T is inside any horizon;
-* ``mpcs.terminal_weight`` adds the error of the steady state the model
-  reaches if the last planned inputs are held (exact for the stable linear
-  model). With a horizon N ≤ 180 it is the only term F_Cin acts on; without it
-  (the document's literal cost) F_Cin is never moved and F_H alone cannot hold
-  two setpoints.
-
-With the terminal term (or a horizon beyond 180 samples) and a positive weight
-on each output the steady state the loop settles at is offset-free, but a
-horizon that does not reach past the delays leaves one direction of the
-outputs (the level at a fixed temperature, or the temperature at a fixed
-level, which needs F_H and F_Cin moved together) to the terminal term and the
-tank's own time constant: with a large weight on one output the other creeps
-to its setpoint over thousands of seconds (docs/mpcs.md). The defaults
-(N, Nu, block) = (600, 200, 10) plan moves beyond the 180 s F_Cin dead time,
-so the undelayed F_H can be planned for when the cold water arrives, and
-predict over the dead time plus the model's settling; :func:`horizon_warning`
-names a horizon that does not (the document's (100, 50) and (50, 10) do not;
-they stay usable as reproductions). Move blocking (``mpcs.block``) keeps the
-QP small: 20 moves per input for Nu = 200.
+Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured disturbances
+``F_D`` [cm³/s], ``T_D`` [°C] as feed-forward; time in s (sample time 1 s in 003). Per sample:
+Kalman correction (:mod:`mpcs_estimator`), prediction over the delayed model
+(:mod:`mpcs_prediction`), the analytic move clipped to the limits or the constrained QP
+(:mod:`mpcs_qp`, clipped analytic fallback), estimator time update. The algorithm and why the
+defaults align T_out's horizon and weight the steady state: docs/mpcs.md ("The algorithm").
 """
 from __future__ import annotations
 
@@ -349,7 +306,8 @@ class Mpcs:
         A channel of ``d`` that is missing or non-finite (NaN: never measured, e.g. the
         reference does not publish it) keeps its last measured value, initially the
         operating point's ``mpcs.op.F_D`` [cm³/s] / ``mpcs.op.T_D`` [°C]: see
-        :meth:`_fill_d`.
+        :meth:`_fill_d`. The output is never NaN: a non-finite measurement skips the
+        estimator correction, a non-finite setpoint holds the last input.
         """
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)

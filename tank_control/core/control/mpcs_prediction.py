@@ -1,32 +1,12 @@
-"""Condensed MPCS prediction and cost (SPEC §2.8, 003 §4 and §6) with dead times.
+"""Condensed MPCS prediction and cost with dead times (003 §4 and §6, SPEC §2.8).
 
-Predicted outputs are linear in the *known* vector
-
-    z = [ξ̂(k|k), past inputs still in the input delay lines, u(k−1), d(k)]
-
-(deviations; ``ξ̂`` from :mod:`mpcs_estimator`) and in the decision vector of
-future moves ``ΔU = [Δu(k+t_0), Δu(k+t_1), …]`` (``t_j = j·block``, ``j < ⌈Nu/block⌉``;
-``block = 1`` is the document's ``Nu`` free moves):
-
-    Ŷ = M_z z + G ΔU,        ŷ_∞ = M∞ z + G∞ ΔU.
-
-Cost (SPEC §2.8 plus an optional steady-state term):
-
-    J = Σ_{p=1..N} ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||²
-        + Σ_j λ·||Δu(k+t_j)||²
-
-* Dead-time alignment (``align``): the prediction of an output with dead time
-  ``d_i`` is counted from the first sample the inputs can move it, i.e. the
-  p-th prediction of ``T_out`` is ``T_out(k+d_i+p) = T(k+p)``. Without it
-  (the document's literal cost) and ``N ≤ 120`` no move can change any
-  predicted ``T_out``, so the T loop is blind.
-* ``F_Cin`` acts on both outputs only after 180 samples; with ``N ≤ 180`` its
-  columns of ``G`` are zero and only the steady-state term ``ŷ_∞`` (the
-  output the model settles at if the last planned inputs are held, ``w_∞ > 0``)
-  tells the controller what ``F_Cin`` is for. Without it a short horizon
-  leaves one input unused and the two outputs cannot both be tracked.
-* ``w`` (estimated disturbance) is held constant over the horizon; measured
-  disturbances ``d`` are held at their current value (feed-forward).
+``Ŷ = M_z z + G ΔU`` and ``ŷ_∞ = M∞ z + G∞ ΔU`` with the known vector
+``z = [ξ̂(k|k), inputs still in the delay lines, u(k−1), d(k)]`` (deviations) and the future
+moves ``ΔU`` (one every ``block`` samples); cost
+``J = Σ_p ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||² + Σ_j λ·||Δu(k+t_j)||²``.
+``align`` counts a delayed output's horizon from its dead time; ``w_∞`` tells a horizon shorter
+than F_Cin's 180 samples what F_Cin is for (docs/mpcs.md, "Horizons and dead times").
+Units: cm, °C, cm³/s.
 """
 from __future__ import annotations
 
@@ -64,7 +44,8 @@ class Prediction:
     """The condensed prediction matrices and the cost's Hessian/linear terms.
 
     ``z`` layout: ``[ξ̂ (sys.n), delay-line inputs (Σ input_delays), u_prev (n_u), d (n_d)]``,
-    each delay line oldest first (``u_m(k−d_m) … u_m(k−1)``).
+    each delay line oldest first (``u_m(k−d_m) … u_m(k−1)``). The estimated disturbance ``w`` is
+    held constant over the horizon, the measured ``d`` at its current value (feed-forward).
     """
 
     def __init__(self, sys: AugmentedSystem, cost: CostConfig) -> None:
