@@ -9,11 +9,15 @@ import pytest
 from scipy import signal
 from scipy.integrate import solve_ivp
 
-from tank_control.core.analysis.frequency import rational, rational_discrete
+from support import CONFIG
+
+from tank_control.core import params_file
+from tank_control.core.analysis.frequency import rational, rational_discrete, ultimate_point
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import ConfigError
 from tank_control.core.plants.kinds.registry import KINDS, get_kind, make_plant
 from tank_control.core.plants.sopdt import Sopdt, SopdtConfig
+from tank_control.core.scenario import run_in_process
 
 
 # ------------------------------------------------------------------ independent references
@@ -27,9 +31,9 @@ def step_response(times: np.ndarray, gain: float, dead_time: float, case: dict) 
         elif zeta == 1.0:
             shape = 1 - (1 + s / big_t) * np.exp(-s / big_t)
         else:
-            wd = math.sqrt(1 - zeta**2) / big_t
-            shape = 1 - np.exp(-zeta * s / big_t) * (np.cos(wd * s)
-                                                       + zeta / math.sqrt(1 - zeta**2) * np.sin(wd * s))
+            root = math.sqrt(1 - zeta**2)
+            wd = root / big_t
+            shape = 1 - np.exp(-zeta * s / big_t) * (np.cos(wd * s) + zeta / root * np.sin(wd * s))
     else:
         t1, t2 = case['time_constant_1'], case['time_constant_2']
         if t1 == 0.0 and t2 == 0.0:
@@ -278,7 +282,8 @@ def test_adding_a_lag_to_a_first_order_form_starts_from_its_output_and_slope():
     ({'damping': -0.1}, r'damping: -0\.1 is below the minimum'),
     ({'time_constant_1': -1.0}, r'time_constant_1: -1 is below the minimum'),
     ({'time_constant': float('inf')}, 'time_constant: inf is not finite'),
-    ({'form': 'critical'}, "form: 'critical' is not a choice; allowed one of time_constants, damping"),
+    ({'form': 'critical'},
+     "form: 'critical' is not a choice; allowed one of time_constants, damping"),
     ({'gain': float('nan')}, 'gain: nan is not finite'),
     ({'dead_time': 150.0}, 'dead_time: 150 is above max_dead_time; allowed'),
     ({'max_dead_time': 200.0}, 'max_dead_time: read-only'),
@@ -312,3 +317,23 @@ def test_reset_returns_to_rest():
     assert (plant.outputs()[0], plant.rate, plant.status['time']) == (3.0, 0.0, 0.0)
     plant.step([0.0], [], 20.0)              # the old input history is gone
     assert plant.outputs()[0] == 3.0
+
+
+def test_a_scenario_with_plant_sopdt_runs_in_process_through_the_kind_table():
+    # 001's ZN scenario with the plant replaced by K/(T²s² + 2ζTs + 1)·e^(−Ls), K = 0.05,
+    # T = 10 s, ζ = 0.7, L = 3 s, and the ZN PID from this plant's ultimate point.
+    sections = params_file.read(CONFIG / 'fopdt_zn.yaml')
+    sections['plant'].update(plant='sopdt', form='damping', time_constant=10.0, damping=0.7)
+    den = [100.0, 14.0, 1.0]
+    ku, tu, _ = ultimate_point(rational([0.05], den, 3.0))
+    sections['controller'].update({'tuning.ku': ku, 'tuning.tu': tu})
+    trace = run_in_process(sections, duration=150.0)
+    y, u, r = trace['y.y'], trace['u.u'], trace['r.y']
+    assert abs(y[-1] - r[-1]) <= 0.01 * r[-1]
+    # The plant's output is the ZOH discretisation of G (scipy) driven by the recorded u,
+    # u[k] held on [t_k, t_k+1) and delayed by L = 30 samples.
+    ts = sections['plant']['sample_time']
+    numd, dend, _ = signal.cont2discrete(([0.05], den), ts, method='zoh')
+    delayed = np.concatenate([np.zeros(30), u])[:u.size]
+    np.testing.assert_allclose(y, signal.lfilter(np.ravel(numd), dend, delayed), rtol=0,
+                               atol=1e-10 * np.max(np.abs(y)))
