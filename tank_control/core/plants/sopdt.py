@@ -5,9 +5,10 @@ Two forms of the same model ``y = y0 + G(s)·(u + v)`` (load ``v`` at the input,
 * ``time_constants``: ``G(s) = K/((T1·s + 1)(T2·s + 1)) · e^(−L·s)``, ``T1, T2 ≥ 0``
   (overdamped, critically damped for ``T1 = T2``; a zero time constant drops that lag);
 * ``damping``: ``G(s) = K/(T²·s² + 2ζ·T·s + 1) · e^(−L·s)``, ``0 ≤ ζ ≤ 1``, ``T = 1/ω_n``
-  (underdamped; 004 eq. 3.5.1 writes it with ``ω_n``).
+  (underdamped, critically damped at ζ = 1; 004 eq. 3.5.1 writes it with ``ω_n``).
 
-Defaults: 002's plant ``2/((s + 1)(0.5·s + 1))`` (K = 2, T1 = 1 s, T2 = 0.5 s, no delay).
+Defaults: 002's plant ``2/((s + 1)(0.5·s + 1))`` (K = 2, T1 = 1 s, T2 = 0.5 s, no delay;
+reconstructed in SPEC-supplement §3).
 State: the delay-free output ``x`` and its rate ``ẋ`` [output units, per s], so a live
 change of any parameter (the form too) keeps the output and its slope continuous.
 Exact discretisation: over a piece of constant delayed input ``w`` lasting ``τ`` seconds,
@@ -69,15 +70,6 @@ class SopdtConfig:
 
     def reason(self) -> str | None:
         return dead_time_reason(self)
-
-    @property
-    def denominator(self) -> tuple[float, float, float]:
-        """``(a2, a1, 1)``: the denominator ``a2·s² + a1·s + 1`` of ``G`` (highest power first)."""
-        if self.form == 'damping':
-            t = self.time_constant
-            return (t * t, 2.0 * self.damping * t, 1.0)
-        t1, t2 = self.time_constant_1, self.time_constant_2
-        return (t1 * t2, t1 + t2, 1.0)
 
 
 def _psi(z: float) -> float:
