@@ -6,13 +6,14 @@ from typing import Any
 
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import lookup
-from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank
+from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank, sopdt
 from tank_control.core.plants.kinds.base import PlantKind
 
 KINDS: dict[str, PlantKind] = {kind.name: kind for kind in (
     ipdt.KIND,
     fopdt.KIND,
     mixing_tank.KIND,
+    sopdt.KIND,
 )}
 
 
