@@ -12,22 +12,24 @@ degrees at the API.
 
 Discretisation (sample time ``h``):
 
-* lead: backward difference ``s → (z − 1)/(h·z)``, the discretisation of the PID's derivative
-  filter (core/control/pid.py)::
+* lead: matched pole-zero, its zero ``−1/td`` and pole ``−1/(alpha·td)`` mapped by
+  ``z = e^(s·h)``, the gain matched at ``z = 1``::
 
-      L(z) = ((td + h)·z − td)/((alpha·td + h)·z − alpha·td) = 1 + nl·beta·(z − 1)/(z − beta)
+      L(z) = g·(z − z0)/(z − p0) = 1 + gd·(z − 1)/(z − p0),
+      z0 = e^(−h/td), p0 = e^(−h/(alpha·td)), g = (1 − p0)/(1 − z0), gd = g − 1
 
-  with ``beta = alpha·td/(alpha·td + h)`` and ``nl = (1 − alpha)/alpha``. Its pole ``beta``
-  lies in (0, 1) for every ``h``: stable and free of ringing; ``L(1) = 1`` exactly; its
-  high-frequency gain is ``(2·td + h)/(2·alpha·td + h) <= 1/alpha``; it tends to the
-  continuous network as ``h → 0``. Realised as ``e_f = e + nl·(e − x)``, the low-pass state
-  ``x ← beta·x + (1 − beta)·e``.
+  Its pole ``p0`` lies in (0, 1) for every ``h``: stable and free of ringing (Tustin rings
+  once ``h > 2·alpha·td``); ``L(1) = 1`` exactly; it tends to the continuous network as
+  ``h → 0`` (``gd → (1 − alpha)/alpha``). At the crossover it keeps the lead's phase to within
+  a small part of the hold's half sample, where the backward difference (the PID's derivative
+  filter) would cost about another ``ω·h/2``. Realised as ``e_f = e + gd·(e − x)`` with the
+  low-pass state ``x ← p0·x + (1 − p0)·e`` updated after.
 * PI after the lead, forward Euler in output units: ``v = kp·e_f + I``,
   ``I ← I + kp·h/ti·e_f`` (so ``ti`` changes are bumpless), i.e. ``1 + h/(ti·(z − 1))``.
 
 So the implemented law is exactly (:func:`discrete_polynomials`, :func:`discrete_response`)::
 
-    C(z) = kp · (1 + h/(ti·(z − 1))) · ((td + h)·z − td)/((alpha·td + h)·z − alpha·td)
+    C(z) = kp · (1 + h/(ti·(z − 1))) · g·(z − z0)/(z − p0)
 
 Behaviour users rely on (as the PID's): output limits ``[u_min, u_max]``; anti-windup of the
 integral (``back_calculation`` with tracking time ``Tt``, default ``ti``, ``h/Tt`` capped at 1;
@@ -103,9 +105,13 @@ class LeadLagConfig:
         return None
 
 
-def lead_pole(td: float, alpha: float, h: float) -> float:
-    """Pole ``beta = alpha·td/(alpha·td + h)`` of the backward-difference lead (0 without)."""
-    return alpha * td / (alpha * td + h) if td > 0.0 else 0.0
+def lead_constants(td: float, alpha: float, h: float) -> tuple[float, float]:
+    """``(p0, gd)`` of the matched pole-zero lead: pole ``p0 = e^(−h/(alpha·td))`` and
+    ``gd = (z0 − p0)/(1 − z0)``, ``z0 = e^(−h/td)``; ``(0, 0)`` without a lead (``td = 0``)."""
+    if td <= 0.0:
+        return 0.0, 0.0
+    a, b = -h / td, -h / (alpha * td)
+    return math.exp(b), (math.expm1(a) - math.expm1(b)) / -math.expm1(a)
 
 
 class LeadLag:
@@ -161,9 +167,8 @@ class LeadLag:
 
     def _next_v(self, cfg: LeadLagConfig, e: float) -> float:
         """The output before limits of the next sample at error ``e`` from the current state."""
-        beta = lead_pole(cfg.td, cfg.alpha, cfg.sample_time)
-        nl = (1.0 - cfg.alpha) / cfg.alpha if cfg.td > 0.0 else 0.0
-        return self._gain(cfg) * (e + nl * beta * (e - self._x)) + self._i
+        gd = lead_constants(cfg.td, cfg.alpha, cfg.sample_time)[1]
+        return self._gain(cfg) * (e + gd * (e - self._x)) + self._i
 
     # ------------------------------------------------------------ operation
     def reset(self, r: float, y: float, u: float) -> None:
@@ -217,9 +222,9 @@ class LeadLag:
         cfg = self._cfg
         k, h, e = self._gain(), cfg.sample_time, r - y
         if cfg.td > 0.0:
-            beta = lead_pole(cfg.td, cfg.alpha, h)
-            x_next = beta * self._x + (1.0 - beta) * e
-            e_f = e + (1.0 - cfg.alpha) / cfg.alpha * (e - x_next)
+            p0, gd = lead_constants(cfg.td, cfg.alpha, h)
+            e_f = e + gd * (e - self._x)
+            x_next = p0 * self._x + (1.0 - p0) * e
         else:
             x_next, e_f = e, e
         v = k * e_f + self._i
@@ -326,13 +331,16 @@ def _scalar(value: Any, name: str) -> float:
 def discrete_polynomials(kp: float, td: float, alpha: float, ti: float,
                          sample_time: float) -> tuple[np.ndarray, np.ndarray]:
     """``(num, den)`` in z, highest power first, of the implemented ``C(z) = −U/Y = U/W``:
-    ``kp·(ti·z − ti + h)/(ti·(z − 1)) · ((td + h)·z − td)/((alpha·td + h)·z − alpha·td)``
-    (lead: backward difference; PI: forward Euler; ``ti = inf``/``td = 0``: that part is 1)."""
+    ``kp·(ti·z − ti + h)/(ti·(z − 1)) · g·(z − z0)/(z − p0)`` with ``z0 = e^(−h/td)``,
+    ``p0 = e^(−h/(alpha·td))``, ``g = (1 − p0)/(1 − z0)`` (lead: matched pole-zero; PI:
+    forward Euler; ``ti = inf``/``td = 0``: that part is 1)."""
     h = sample_time
     num, den = np.array([float(kp)]), np.array([1.0])
     if td > 0.0:
-        num = np.convolve(num, [td + h, -td])
-        den = np.convolve(den, [alpha * td + h, -alpha * td])
+        z0, p0 = math.exp(-h / td), math.exp(-h / (alpha * td))
+        g = math.expm1(-h / (alpha * td)) / math.expm1(-h / td)      # (1 − p0)/(1 − z0)
+        num = np.convolve(num, [g, -g * z0])
+        den = np.convolve(den, [1.0, -p0])
     if math.isfinite(ti):
         num = np.convolve(num, [ti, h - ti])
         den = np.convolve(den, [ti, -ti])
@@ -343,7 +351,8 @@ def discrete_response(kp: float, td: float, alpha: float, ti: float,
                       sample_time: float) -> fr.FrequencyResponse:
     """Frequency response ``C(e^(jωh))`` of the implemented law (:func:`discrete_polynomials`)."""
     num, den = discrete_polynomials(kp, td, alpha, ti, sample_time)
-    return fr.rational_discrete(num, den, sample_time)
+    with np.errstate(invalid='ignore'):   # the PI's zero 1 − h/ti < 0 (h > ti): no corner
+        return fr.rational_discrete(num, den, sample_time)
 
 
 def continuous_response(kp: float, td: float, alpha: float,
