@@ -260,6 +260,20 @@ def test_002_step_responses_of_the_documents_designs():
     assert y.max() <= 1.0 and settled_after(t, y, 1.0, 0.05) == pytest.approx(0.32, abs=0.01)
 
 
+def test_peaks_differ_from_the_documents_continuous_ones_by_the_hold():
+    """Where the sampled loop's peaks differ from the continuous simulation (P: 1.3912,
+    SPEC-supplement §3), the excess is the hold's: it grows in proportion to h."""
+    num = 9.5 * np.array([4.0])
+    t = np.linspace(0.0, 20.0, 200001)
+    _, y_cont = signal.step((num, np.polyadd([1.0, 3.0, 2.0], num)), T=t)
+    assert y_cont.max() == pytest.approx(1.3912, abs=1e-4)
+    excess = [simulate_002(9.5, 0.0, math.inf, h=h, t_end=5.0)[1].max() - y_cont.max()
+              for h in (0.001, 0.002, 0.004)]
+    assert excess[0] > 0.0
+    assert excess[1] / excess[0] == pytest.approx(2.0, rel=0.1)
+    assert excess[2] / excess[1] == pytest.approx(2.0, rel=0.1)
+
+
 def test_our_002_designs_meet_the_specification_in_time():
     """Our P/PD/PI/PID designs in the implemented loop: PD final error 5 % and overshoot
     (against the setpoint) < 5 %; PI and PID no steady-state error and < 5 % overshoot."""

@@ -39,11 +39,13 @@ output ``u``; bumpless gain changes (the integral, or without integral action th
 ``I``, absorbs them); manual/auto bumpless both ways; a non-finite ``r`` or ``y`` holds the
 last output and leaves the state untouched; ``direct_action`` reverses the sign.
 
-Design (:func:`design`, 002): P for the steady-state error ``1/(1 + kp·K) <= e``; the lead's
-``w_max`` at the P loop's gain crossover, moved to the mean of itself and the new crossover
-until the phase margin reaches its target; PI: the gain and ``ti = ratio/w_c`` (the integral
-corner a decade below the P loop's crossover) for the target phase margin; series PID: the
-PD's ``td``, the PI's ``ti``, the mean of the two gains. Continuous-time, exact dead time.
+Design (:func:`design`, 002): P for the steady-state error ``1/(1 + kp·K) <= e`` (§1.1); PD:
+the lead's ``w_max`` at the P loop's gain crossover, moved to the mean of itself and the new
+crossover until the phase margin reaches its target (§1.2; no lead if the P loop has it);
+PI: the gain and ``ti = ratio/w_c`` (the integral corner a decade below the P loop's
+crossover) that give the target phase margin (§1.3); series PID: the PD's ``td``, the PI's
+``ti``, the mean of the two gains (§1.4). The design is continuous (exact dead time); the
+sampled loop loses about ``w_c·h/2`` of phase to the hold.
 """
 from __future__ import annotations
 
@@ -577,8 +579,7 @@ def _p_gain(tuning: LeadLagTuning, process: ProcessModel) -> float:
         raise ConfigError(f'tuning.kind: {tuning.kind!r} takes its gain from the steady-state '
                           'error (002 §1.1), and an integrating process (tuning.model ipdt) has '
                           'none at any gain; allowed pi')
-    e = tuning.steady_state_error
-    return (1.0 - e) / (e * process.static_gain)
+    return (1.0 / tuning.steady_state_error - 1.0) / process.static_gain
 
 
 def _design_p(tuning: LeadLagTuning, process: ProcessModel, alpha: float,
