@@ -50,7 +50,7 @@ sampled loop loses about ``w_c·h/2`` of phase to the hold.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -509,7 +509,11 @@ class Design:
 _MAX_LEAD_STEPS = 60
 
 
-def _loop(process: ProcessModel, kp: float, td: float, alpha: float, ti: float):
+Curve = Callable[[float], float]
+
+
+def _loop(process: ProcessModel, kp: float, td: float, alpha: float,
+          ti: float) -> tuple[Curve, Curve]:
     """Closed-form magnitude and continuous phase [rad] of ``C(jω)·G(jω)``."""
     def magnitude(w: float) -> float:
         m = kp * process.magnitude(w)
@@ -529,10 +533,10 @@ def _loop(process: ProcessModel, kp: float, td: float, alpha: float, ti: float):
     return magnitude, phase
 
 
-def _crossovers(magnitude, corners: list[float], monotone: bool) -> list[float]:
+def _crossovers(magnitude: Curve, corners: list[float], monotone: bool) -> list[float]:
     """Every ω [rad/s] with |L(jω)| = 1: brentq on log|L| between grid points where it changes
     sign (a log grid five decades beyond the corners; ``monotone``: |L| strictly decreasing,
-    so the bracket is found by halving/doubling instead)."""
+    so one bracket, widened by factors of 4, suffices)."""
     def f(x: float) -> float:
         return math.log(magnitude(x))
     if monotone:
