@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.kinds import mpcs, pid, relay_autotune, smith_pi, two_loop_pi
+from tank_control.core.control.kinds import lead_lag, mpcs, pid, relay_autotune, smith_pi, two_loop_pi
 from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import lookup
@@ -22,6 +22,7 @@ KINDS: dict[str, ControllerKind] = {kind.name: kind for kind in (
     smith_pi.KIND,
     relay_autotune.KIND,
     mpcs.KIND,
+    lead_lag.KIND,
 )}
 
 
