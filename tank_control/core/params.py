@@ -142,6 +142,11 @@ def lookup(table: Mapping[str, Any], name: str, what: str) -> Any:
         raise ConfigError(f'{what.split()[0]}: ' + unknown_reason(str(name), table, what)) from None
 
 
+def by_name(*items: Any) -> dict[str, Any]:
+    """A table of ``items`` keyed by their ``name`` (a kind registry)."""
+    return {item.name: item for item in items}
+
+
 # ----------------------------------------------------------------------------------- fields
 @dataclass(frozen=True)
 class _Meta:

@@ -18,7 +18,6 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -34,17 +33,15 @@ from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
 from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
-                                         TOPIC_TIME_ORIGIN, from_joint_state, stamp_to_ns,
-                                         to_joint_state)
+                                         TOPIC_TIME_ORIGIN, from_joint_state, reliable_qos,
+                                         stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
 #: State topic of a kind with a state machine: reliable, transient local, keep-last 10 (a
 #: one-sample state such as ``tuned`` is not overwritten before delivery); a late subscriber
 #: gets the recent states, the last one is the current state.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE_QOS = reliable_qos(10, latched=True)
 
 
 class ControllerNode(Node):

@@ -18,25 +18,26 @@ from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import NS_PER_S
 
+def reliable_qos(depth: int, latched: bool = False) -> QoSProfile:
+    """Reliable keep-last ``depth``; ``latched``: transient local (a late joiner gets the
+    last ``depth`` messages), else volatile."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))
+
+
 #: Signal topics: reliable, keep-last 10, volatile.
-SIGNAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
+SIGNAL_QOS = reliable_qos(10)
 #: ``/clock`` published by the plant (reliable keep-last 10; a best-effort
 #: subscriber such as rclpy's own TimeSource still matches it).
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
+CLOCK_QOS = reliable_qos(10)
 #: ``~/late_inputs``: reliable and deep, so that a burst of reports on a loaded machine reaches a
 #: slow reader (the harness's recorder) whole.
-LATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+LATE_QOS = reliable_qos(1000)
 #: ``time_origin`` (``builtin_interfaces/msg/Time``): the plant's time origin, latched —
 #: reliable, transient local, keep-last 1, so a node that starts later still gets it.
-ORIGIN_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+ORIGIN_QOS = reliable_qos(1, latched=True)
 
 
 def quiet_publisher_events() -> PublisherEventCallbacks:

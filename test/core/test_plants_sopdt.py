@@ -10,6 +10,7 @@ from scipy import signal
 from scipy.integrate import solve_ivp
 
 from support import CONFIG
+from support.plant_runs import run
 
 from tank_control.core import params_file
 from tank_control.core.analysis.frequency import rational, rational_discrete, ultimate_point
@@ -53,16 +54,6 @@ def denominator(case: dict) -> list[float]:
         big_t, zeta = case['time_constant'], case['damping']
         return [big_t**2, 2 * zeta * big_t, 1.0]
     return list(np.convolve([case['time_constant_1'], 1.0], [case['time_constant_2'], 1.0]))
-
-
-def run(plant, u_of_t, dts, v_of_t=lambda t: 0.0) -> np.ndarray:
-    """(t, y) before the first step and after every step (u, v held over each step)."""
-    t, out = 0.0, [(0.0, plant.outputs()[0])]
-    for dt in dts:
-        plant.step([u_of_t(t)], [v_of_t(t)], dt)
-        t += dt
-        out.append((t, plant.outputs()[0]))
-    return np.array(out)
 
 
 DISTINCT = {'form': 'time_constants', 'time_constant_1': 4.0, 'time_constant_2': 1.5}

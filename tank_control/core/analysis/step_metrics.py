@@ -47,8 +47,14 @@ def ise(t, e) -> float:
     return _trapz(t, e * e)
 
 
+class _Metrics:
+    def as_dict(self) -> dict[str, float]:
+        """The metrics by field name."""
+        return asdict(self)  # type: ignore[call-overload]
+
+
 @dataclass(frozen=True)
-class StepMetrics:
+class StepMetrics(_Metrics):
     """Metrics of a response to a setpoint step (units in the field comments).
 
     ``overshoot``: (peak beyond the final setpoint) / |step| · 100 [%], ≥ 0.
@@ -65,9 +71,6 @@ class StepMetrics:
     steady_state_error: float
     peak: float
     peak_time: float
-
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
 
 
 def _interp(t: np.ndarray, z: np.ndarray, level: float, i: int) -> float:
@@ -147,7 +150,7 @@ def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | 
 
 
 @dataclass(frozen=True)
-class DeviationMetrics:
+class DeviationMetrics(_Metrics):
     """Response of an error e = r − y to an event that should leave it at 0.
 
     ``peak_error``: max |e| [unit]; ``peak_signed``: e at that instant (e > 0: output
@@ -167,9 +170,6 @@ class DeviationMetrics:
     recovery_time: float
     final_error: float
     initial_error: float
-
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
 
 
 def deviation_metrics(t, e, band: float = 0.02, final_window: float = 0.1) -> DeviationMetrics:
