@@ -153,11 +153,8 @@ def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
     shorter than the plant's dead times), as a list: empty when there is none."""
     if 'controller' not in controller_params:
         return []
-    try:
-        from tank_control.core import scenario as core_scenario
-        controller = core_scenario.make_controller(controller_params)
-    except (ImportError, ValueError):
-        return []                          # a rejected configuration is reported elsewhere
+    setup = core_scenario.controller_setup(controller_params, given=())
+    controller = setup.kind.build(setup.settings)
     warning = str(getattr(controller, 'warning', '') or '')
     return [warning] if warning else []
 
