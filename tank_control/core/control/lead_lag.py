@@ -50,8 +50,8 @@ sampled loop loses about ``w_c·h/2`` of phase to the hold.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -60,6 +60,7 @@ from scipy.optimize import brentq
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.control.pid import (ANTI_WINDUP_CHOICES, BIG, anti_windup_param,
                                            sample_time_param)
+from tank_control.core.control.siso_law import SisoController, SisoLaw
 from tank_control.core.params import ConfigError, check_config, param
 
 ALPHA_MIN, ALPHA_MAX = 0.01, 0.99
@@ -116,109 +117,39 @@ def lead_constants(td: float, alpha: float, h: float) -> tuple[float, float]:
     return math.exp(b), (math.expm1(a) - math.expm1(b)) / -math.expm1(a)
 
 
-class LeadLag:
+class LeadLag(SisoLaw[LeadLagConfig]):
     """Discrete lead-lag compensator (002 §1.2–1.4); see the module docstring.
 
-    ``update(r, y)`` once per sample (every ``sample_time`` seconds) returns the output."""
+    ``update(r, y)`` once per sample (every ``sample_time`` seconds) returns the output.
+    Modes, limits, faults and the integral: :class:`SisoLaw`."""
+
+    unknown_setting = 'unknown lead-lag setting'
 
     def __init__(self, config: LeadLagConfig) -> None:
+        super().__init__(config)
+        self._e_f = 0.0         # lead output (filtered error) [units of e = r − y]
+
+    def _check(self, config: LeadLagConfig) -> None:
         check_config(config)
-        self._cfg = replace(config)
-        self._mode = 'auto'
-        self._manual_u: float | None = None
-        self._x = 0.0           # lead low-pass state [units of e = r − y]
-        self._i = 0.0           # integral (without integral action: bias) [u units]
-        self._u: float | None = None
-        self._v = 0.0
-        self._e_f = 0.0
-        self._i_out = 0.0
-        self._last: tuple[float, float] | None = None
-        self._initialised = False
-        self._fault = False
-        self._saturated = False
-        self._aw_active = False
 
-    # ---------------------------------------------------------------- state
-    @property
-    def config(self) -> LeadLagConfig:
-        return replace(self._cfg)
+    def _terms(self) -> dict[str, float]:
+        """The lead's output ``lead`` (filtered error) and the integral ``i``."""
+        return {'lead': self._e_f, 'i': self._i_out}
 
-    @property
-    def output(self) -> float | None:
-        return self._u
-
-    @property
-    def mode(self) -> str:
-        return self._mode
-
-    @property
-    def status(self) -> dict[str, Any]:
-        """mode, saturated, anti_windup_active, input_fault, the lead's output ``lead``
-        (filtered error), the integral ``i``, the unlimited ``v`` and applied ``u``."""
-        return {'mode': self._mode, 'saturated': self._saturated,
-                'anti_windup_active': self._aw_active, 'input_fault': self._fault,
-                'lead': self._e_f, 'i': self._i_out, 'v': self._v,
-                'u': math.nan if self._u is None else self._u}
-
-    def _gain(self, cfg: LeadLagConfig | None = None) -> float:
-        cfg = cfg or self._cfg
-        return -cfg.kp if cfg.direct_action else cfg.kp
-
-    def _clip(self, u: float) -> float:
-        return min(max(u, self._cfg.u_min), self._cfg.u_max)
+    def _default_tracking_time(self) -> float:
+        return self._cfg.ti
 
     def _next_v(self, cfg: LeadLagConfig, e: float) -> float:
         """The output before limits of the next sample at error ``e`` from the current state."""
         gd = lead_constants(cfg.td, cfg.alpha, cfg.sample_time)[1]
         return self._gain(cfg) * (e + gd * (e - self._x)) + self._i
 
-    # ------------------------------------------------------------ operation
-    def reset(self, r: float, y: float, u: float) -> None:
-        """Initialise bumplessly: with the same ``r`` and ``y`` the next ``update`` returns
-        ``u`` (clipped to the limits); the lead starts at rest (no kick)."""
-        for name, value in (('r', r), ('y', y), ('u', u)):
-            if not math.isfinite(value):
-                raise ValueError(f'reset: {name} = {value!r} is not finite')
-        u = self._clip(float(u))
-        self._track(float(r), float(y), u)
-        self._u = self._v = u
-        self._fault = False
-        if self._mode == 'manual':
-            self._manual_u = u
-
-    def _track(self, r: float, y: float, u: float) -> None:
-        """States such that the output at (r, y) is ``u`` with the lead at rest."""
+    def _rest(self, r: float, y: float) -> float:
+        """The lead at rest at ``e = r − y`` (no kick); returns ``kp·e``."""
         e = r - y
         self._x = e
         self._e_f = e
-        self._i = u - self._gain() * e
-        self._i_out = self._i
-        self._last = (r, y)
-        self._initialised = True
-
-    def update(self, r: float, y: float) -> float:
-        """One sample: setpoint ``r`` and measurement ``y`` → output ``u``."""
-        if not (math.isfinite(r) and math.isfinite(y)):
-            self._fault = True
-            return self._hold()
-        r, y = float(r), float(y)
-        if self._fault:
-            self._fault = False
-            self._track(r, y, self._hold())
-        if not self._initialised:
-            self._track(r, y, 0.0)
-            self._i = self._i_out = 0.0
-        if self._mode == 'manual':
-            target = self._manual_u if self._manual_u is not None else self._hold()
-            u = self._clip(target)
-            self._track(r, y, u)
-            self._u = self._v = u
-            self._saturated, self._aw_active = u != target, False
-            return u
-        return self._update_auto(r, y)
-
-    def _hold(self) -> float:
-        return self._u if self._u is not None else self._clip(0.0)
+        return self._gain() * e
 
     def _update_auto(self, r: float, y: float) -> float:
         cfg = self._cfg
@@ -230,103 +161,33 @@ class LeadLag:
         else:
             x_next, e_f = e, e
         v = k * e_f + self._i
-        if not (math.isfinite(v) and math.isfinite(x_next)):
-            self._fault = True          # overflow from absurd inputs: state and output kept
-            return self._hold()
-        u = self._clip(v)
-        self._x, self._e_f, self._v, self._i_out = x_next, e_f, v, self._i
-        self._aw_active = False
-        if math.isfinite(cfg.ti):
-            di = k * h / cfg.ti * e_f
-            if cfg.anti_windup == 'back_calculation':
-                tt = cfg.tracking_time or cfg.ti
-                self._i += di + min(h / tt, 1.0) * (u - v)
-                self._aw_active = u != v
-            elif cfg.anti_windup == 'conditional_integration':
-                if (v > u and di > 0.0) or (v < u and di < 0.0):
-                    self._aw_active = True
-                else:
-                    self._i += di
-            else:
-                self._i += di
-        self._saturated = u != v
-        self._u = u
-        self._last = (r, y)
-        return u
+        if not self._accept(v, x_next):
+            return self._hold_output()
+        self._e_f = e_f
+        return self._apply(r, y, v, k, e_f)
 
-    # ------------------------------------------------------ operator actions
-    def set_gains(self, **changes: Any) -> None:
-        """Change any :class:`LeadLagConfig` field (by field name) bumplessly: at unchanged
-        inputs the next output is the one the old settings would give. ``ValueError`` naming
-        the parameter leaves the compensator untouched."""
-        known = {f.name for f in fields(LeadLagConfig)}
-        for name in changes:
-            if name not in known:
-                raise ValueError(f'{name}: unknown lead-lag setting; allowed '
-                                 + ', '.join(sorted(known)))
-        new = replace(self._cfg, **changes)
-        check_config(new)
-        if self._initialised and self._last is not None and not self._fault:
-            e = self._last[0] - self._last[1]
-            self._i += self._next_v(self._cfg, e) - self._next_v(new, e)
-        self._cfg = new
-
-    def set_manual(self, u: float | None = None) -> None:
-        """Manual: the output becomes ``u`` (limited) from the next sample; without ``u`` the
-        last output is held."""
-        if u is not None and not math.isfinite(u):
-            raise ValueError(f'manual_output: {u!r} is not finite')
-        self._manual_u = self._hold() if u is None else float(u)
-        self._mode = 'manual'
-
-    def set_auto(self) -> None:
-        """Automatic; the next output continues from the last one."""
-        if self._mode == 'manual' and self._last is not None and self._u is not None:
-            self._track(*self._last, self._u)
-        self._mode = 'auto'
+    def _retune(self, old: LeadLagConfig, new: LeadLagConfig, r: float, y: float) -> None:
+        """The integral absorbs the change of the next output at the last error (not during
+        an input fault: the recovery re-tracks)."""
+        if not self._fault:
+            e = r - y
+            self._i += self._next_v(old, e) - self._next_v(new, e)
 
 
-class LeadLagController:
+class LeadLagController(SisoController[LeadLag]):
     """:class:`LeadLag` behind the Controller protocol (SISO): reads ``output_name`` and its
     setpoint, writes ``input_name``. ``reset(y, u)`` is completed at the next ``step`` (which
     knows ``r``) and that step returns ``u``."""
 
-    disturbance_names: tuple[str, ...] = ()
+    law_name = 'lead-lag'
 
     def __init__(self, config: LeadLagConfig, output_name: str = 'y',
                  input_name: str = 'u') -> None:
-        self.lead_lag = LeadLag(config)
-        self.output_names = (output_name,)
-        self.input_names = (input_name,)
-        self._pending: float | None = None
+        super().__init__(LeadLag(config), output_name, input_name)
 
     @property
-    def sample_time(self) -> float:
-        return self.lead_lag.config.sample_time
-
-    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
-        u0 = _scalar(u, 'u')
-        if not math.isfinite(u0):
-            raise ValueError(f'reset: u = {u0!r} is not finite')
-        self._pending = u0
-
-    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y0, r0 = _scalar(y, 'y'), _scalar(r, 'r')
-        if self._pending is not None and math.isfinite(y0) and math.isfinite(r0):
-            self.lead_lag.reset(r0, y0, self._pending)
-            self._pending = None
-        return np.array([self.lead_lag.update(r0, y0)], dtype=float)
-
-    @property
-    def status(self) -> Mapping[str, Any]:
-        return self.lead_lag.status
-
-
-def _scalar(value: Any, name: str) -> float:
-    arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.size != 1:
-        raise ValueError(f'{name}: expected 1 value for a SISO lead-lag, got {arr.size}')
-    return float(arr[0])
+    def lead_lag(self) -> LeadLag:
+        return self._law
 
 
 # ===================================================================== transfer functions
