@@ -13,7 +13,7 @@ import array
 import dataclasses
 import difflib
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from functools import cache
 from typing import Any
@@ -145,6 +145,14 @@ def lookup(table: Mapping[str, Any], name: str, what: str) -> Any:
 def by_name(*items: Any) -> dict[str, Any]:
     """A table of ``items`` keyed by their ``name`` (a kind registry)."""
     return {item.name: item for item in items}
+
+
+def finder(table: Mapping[str, Any], what: str) -> Callable[[str], Any]:
+    """``find(name)``: :func:`lookup` of ``name`` in ``table`` (e.g. ``get_kind``)."""
+    def find(name: str) -> Any:
+        return lookup(table, name, what)
+    find.__doc__ = f"The {what} ``name``; ConfigError with the nearest known name if unknown."
+    return find
 
 
 # ----------------------------------------------------------------------------------- fields

@@ -279,6 +279,11 @@ class SisoController(Generic[LawT]):
         return np.array([self._law.update(r0, y0)], dtype=float)
 
     @property
+    def law(self) -> LawT:
+        """The control law in use (its live settings, mode and state)."""
+        return self._law
+
+    @property
     def status(self) -> Mapping[str, Any]:
         return self._law.status
 
