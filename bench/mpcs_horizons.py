@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from tank_control.core.control.mpcs import MpcsConfig, _Design, horizon_warning
-from tank_control.core.scenario import read_params_file, run_in_process
+from tank_control.core import params_file
+from tank_control.core.scenario import run_in_process
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / 'config' / 'scenarios' / 'tank_mpcs_qp_003.yaml'
@@ -45,7 +46,7 @@ def changes(reference: dict) -> list[float]:
 def scenario_run(horizons: tuple[int, int, int], weights=(1.0, 1.0), lam=0.5,
                  **extra) -> dict[str, float]:
     """One in-process run of the document's sequence; errors [cm], [°C], IAE."""
-    params = copy.deepcopy(read_params_file(SCENARIO))
+    params = copy.deepcopy(params_file.read(SCENARIO))
     n, nu, block = horizons
     params['controller'].update({'mpcs.horizon': n, 'mpcs.control_horizon': nu,
                                  'mpcs.block': block, 'mpcs.output_weights': list(weights),

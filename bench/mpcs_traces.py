@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tank_control.harness.trace import read_csv
+from tank_control.core.trace import Trace
 
 WINDOW = 300.0      # [s] before each change that must be settled
 
 
 def summary(trace_csv: Path) -> str:
-    c = read_csv(trace_csv).columns
+    c = Trace.read_csv(trace_csv).columns
     t = c['t']
     times = sorted({float(x) for name in ('r.h', 'r.T_out', 'd.F_D')
                     for x in t[1:][np.diff(c[name]) != 0]})
