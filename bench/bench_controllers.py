@@ -12,7 +12,7 @@ import numpy as np
 
 from tank_control.core.control.multiloop import TwoLoopPi, document_config
 from tank_control.core.control.pid import Pid2Dof, PidConfig, PidController
-from tank_control.core.control.smith import SmithConfig, SmithPredictor
+from tank_control.core.control.smith import SmithModel, SmithPredictor
 
 N, RUNS = 20000, 5
 
@@ -44,8 +44,9 @@ def main() -> None:
             lambda: TwoLoopPi(document_config('dynamic')),
             lambda c, k: c.step(float(k), y2, r2, empty)),
         'SmithPredictor.step (FOPDT model, L = 30 samples)': (
-            lambda: SmithPredictor(SmithConfig(model='fopdt', gain=0.05, time_constant=10.0,
-                                               dead_time=3.0, kp=50.0, ti=10.0, sample_time=0.1)),
+            lambda: SmithPredictor(SmithModel(model='fopdt', gain=0.05, time_constant=10.0,
+                                              dead_time=3.0),
+                                   PidConfig(kp=50.0, ti=10.0, sample_time=0.1)),
             lambda c, k: c.step(k * 0.1, y1, r1, empty)),
     }
     for name, (make, step) in cases.items():

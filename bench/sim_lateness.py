@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from tank_control.harness.runner import run
-from tank_control.harness.trace import read_csv
+from tank_control.core.trace import Trace
 
 SCENARIO = Path(__file__).resolve().parents[1] / 'config' / 'ipdt_pid.yaml'
 K1, TS, DEAD_TICKS = 0.05, 0.1, 50
@@ -47,7 +47,7 @@ def answer_stamps(mcap_path: Path) -> tuple[set[int], set[int]]:
 
 def applied_inputs(out: Path) -> dict[str, object]:
     """On-time ticks where the integrated input equals the answer, and the ages at late ones."""
-    trace = read_csv(out / 'trace.csv')
+    trace = Trace.read_csv(out / 'trace.csv')
     y, u = trace.columns['y.y'], trace.columns['u.u']
     n = len(y)
     applied = np.full(n, np.nan)

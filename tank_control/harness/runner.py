@@ -1,66 +1,14 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
-``run_scenario`` leaves in the output directory:
-
-* ``scenario.yaml`` — the merged parameters file the nodes were started with;
-* ``trace.csv``, ``run.mcap`` — written as the run goes (rows as they are complete,
-  messages as they arrive), so memory does not grow with the recording;
-* ``metrics.json``, ``plot.png`` — at the end, from the table kept in memory (8 bytes per
-  value);
-* ``logs/<node>.log`` — each node's output (ROS runs).
-
-A run that fails or is interrupted (SIGINT, SIGTERM, SIGHUP: ``signals.py``) stops its nodes
-and leaves what it recorded: a valid ``trace.csv`` and ``run.mcap`` up to that moment and a
-``metrics.json`` with ``"complete": false`` and the ``reason``; then ``RunFailed`` (or
-``RunInterrupted``) is raised. A complete run has ``"complete": true``. A run that recorded
-no measurement at all is a failure. The node processes die with the harness even when it is
-killed (``processes.py``).
-
-ROS run, step by step (no sleeps: every wait spins the recorder until an event):
-
-0. the domain is checked before anything is started, subscribed or written
-   (``domain.py``): a lock per ``ROS_DOMAIN_ID`` on this host, then a look at the graph
-   for ``harness.discovery_time`` seconds; another run or graph there is refused;
-1. the recorder node starts in this process (its own rclpy context; it is the node that
-   looked at the graph);
-2. every node starts as its own OS process
-   (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
-   plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
-   ``-p lockstep.paused:=true`` for the plant: its clock holds tick 0);
-3. wait until every node is in the graph and the recorder has matched every
-   publisher (measurement, /clock, setpoint, disturbance, manipulated); in sim
-   and wall, where the plant does not wait for answers, also every node's
-   subscriptions (the plant's inputs, the controller's measurement and
-   setpoint, the reference's /clock — in wall the time_origin of reference
-   and controller);
-4. un-pause the plant through its parameter service — tick 0 is published
-   only now (in wall mode its wall time is the time origin, which the
-   reference and the controller schedule on), so the recorder sees every tick
-   from the first. In
-   lockstep the plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
-   recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
-   plant cannot run ahead of the recording, so no sample is lost on a busy
-   machine (the signal publishers keep only 10 messages for a slow reader);
-5. run until the simulated time reaches the duration (lockstep: until every
-   answer of the last tick ≤ duration is recorded), watching that every
-   process is alive and the clock is moving;
-6. read the controller's parameters (final gains) through its services;
-7. stop the processes: SIGINT, then SIGTERM, then SIGKILL.
-
-A process that exits early, a graph that does not come up in
-``harness.startup_timeout``, a clock that stops for ``harness.stall_timeout`` or
-another graph that joins the domain during the run ends the run with ``RunFailed``
-carrying the node's last log lines.
-
-Rows of ``trace.csv`` are written once every message they depend on can be expected
-(``stream.py``); a message that comes later still is counted in
-``run.messages_after_row_written``.
-
+``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
+``plot.png`` and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds
+(start paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
+``trace.csv`` and ``run.mcap`` are written as the run goes (``stream.py``); a failed or
+interrupted run (SIGINT, SIGTERM, SIGHUP: ``signals.py``) leaves them valid up to that
+moment, with ``"complete": false`` and the ``reason`` in metrics.json (docs/harness.md,
+"Interrupted and failed runs"). The domain is checked before anything starts (``domain.py``)
+and the node processes die with the harness (``processes.py``).
 Times in the results are plant time (stamp − the plant's ``time_origin``).
-``late_samples`` in ``metrics.json`` (every clock mode) is the sum of
-``late_by_signal``: per answer signal (``r``, ``u``, ``d``) the due instants
-whose answer was not the value used that tick — none recorded, or reported
-late by its consumer (definition: ``harness/trace.py``).
 """
 from __future__ import annotations
 
@@ -159,8 +107,8 @@ def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = No
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
                  node_command: NodeCommand = node_module_command) -> RunResult:
-    """Run a loaded scenario into ``out_dir`` (see the module docstring). SIGINT, SIGTERM
-    and SIGHUP stop the run cleanly while it goes (when called from the main thread)."""
+    """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md). SIGINT,
+    SIGTERM and SIGHUP stop the run cleanly while it goes (when called from the main thread)."""
     out = Path(out_dir)
     with StopSignals() as stop:
         if in_process:
@@ -208,9 +156,14 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     ``reason``: why the run is not complete (None: it is)."""
     if reason is None:
         limits, gains = controller_report(scenario, controller_params)
-    else:
+        warnings = controller_warnings(controller_params)
+    else:                          # report what can be known; the reason is the failure
         limits, gains = (controller_report(scenario, controller_params) if controller_params
                          else _planned_report(scenario))
+        try:
+            warnings = controller_warnings(controller_params)
+        except (ConfigError, ValueError, KeyError, TypeError):
+            warnings = []
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
@@ -224,6 +177,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         **body,
         'run': run_info,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       'warnings': warnings,
                        'parameters': dict(controller_params)},
     }
     files = {**files, 'metrics': out / 'metrics.json'}
@@ -237,6 +191,18 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text.splitlines()[0]
+
+
+def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
+    """The configuration warning the controller gives for its final parameters (its
+    ``warning``, which controller_node logs and shows in /diagnostics; e.g. MPCS horizons
+    shorter than the plant's dead times), as a list: empty when there is none."""
+    if 'controller' not in controller_params:
+        return []
+    setup = core_scenario.controller_setup(controller_params, given=())
+    controller = setup.kind.build(setup.settings)
+    warning = str(getattr(controller, 'warning', '') or '')
+    return [warning] if warning else []
 
 
 def _jsonable(value: Any) -> Any:

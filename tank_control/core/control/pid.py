@@ -1,71 +1,20 @@
-"""Discrete two-degree-of-freedom PID controller (000 eq. 19, SPEC §2.1).
-
-Continuous law (000 eq. 19 with the real derivative of eq. 13)::
+"""Discrete two-degree-of-freedom PID controller (000 eq. 19 with the real derivative of eq. 13).
 
     U = kp·[ (b·W − Y) + 1/(ti·s)·(W − Y) + td·s/(Tf·s + 1)·(c·W − Y) ],   Tf = td/n
 
-``b`` weights the setpoint in the proportional term, ``c`` in the derivative
-term (both in [0, 1]); ``b = c = 1`` is the standard PID (000 eq. 2), ``td = 0``
-gives PI, ``ti = inf`` removes integral action.
-
-Discretisation (sample time ``h`` = ``sample_time`` [s]):
-
-* P: static, ``P(k) = kp·(b·r(k) − y(k))``.
-* D: **backward difference on the filter**, the discretisation Åström and
-  Hägglund recommend: ``Tf·dD/dt + D = kp·td·de_d/dt`` with backward
-  differences, i.e. ``D(k) = kp·n·(e_d(k) − x(k))`` with the low-pass state
-  ``x(k) = β·x(k−1) + (1 − β)·e_d(k)``, ``β = Tf/(Tf + h)``, ``e_d = c·r − y``;
-  in z: ``kp·n·β·(z − 1)/(z − β)``. ``0 < β < 1`` for every ``Tf/h``: stable
-  and, the pole being positive, free of ringing (Tustin rings when
-  ``h > 2·Tf``); the gain at low frequency is exactly ``kp·td·s`` and the area
-  of the response to an error step exactly ``kp·td``, for any ``h`` (a
-  step-invariant filter held for a sample realises ``kp·td·x/(1 − e^(−x))``,
-  ``x = h/Tf``); it tends to the continuous filter as ``h → 0``.
-  A setpoint step ``w0`` gives ``u(0) = kp·(b + c·td/(Tf + h))·w0
-  = kp·(b + c·n·β)·w0`` — ``kp·(1 + td/Tf)·w0`` of 000 eq. 16 in the limit
-  ``h → 0`` with ``b = c = 1``; no kick with ``c = 0``. The kick then decays
-  as ``β^k``.
-* I: forward (explicit) Euler, ``I(k+1) = I(k) + kp·h/ti·(r(k) − y(k))``, so
-  the integral acts from the sample after a change (``u(0)`` above holds).
-  ``I`` is stored in output units, which makes ``ti`` changes bumpless.
-
-Anti-windup (the applied output ``u`` — after limits and rate limit — is
-compared with the unsaturated ``v = P + I + D``):
-
-* ``back_calculation``: ``I += kp·h/ti·e + min(h/Tt, 1)·(u − v)``. Default
-  tracking time ``Tt = √(ti·td)`` for PID and ``Tt = ti`` for PI
-  (Åström–Hägglund's rule of thumb); ``h/Tt`` is capped at 1 (``Tt ≥ h``),
-  which keeps the tracking loop stable for any user value.
-* ``conditional_integration``: the integral increment is skipped while the
-  output is limited and the increment would drive it further into the limit.
-* ``none``: plain integration (for demonstrating windup).
-
-Other behaviour users rely on:
-
-* no derivative spike on the first sample or after ``reset`` (the filter
-  state starts at the current ``c·r − y``);
-* bumpless gain changes: ``set_gains`` keeps ``v`` at the last inputs
-  unchanged (the integral absorbs the change of P and D; a change of ``c``
-  shifts the filter state so the derivative term is untouched);
-* manual/auto with bumpless transfer both ways (in manual the integral tracks
-  the manual output; ``set_manual()`` without argument holds the last output);
-* output limits ``[u_min, u_max]`` and rate limit ``|Δu| ≤ du_max·h``
-  (``du_max`` in output units per second), also in manual mode;
-* a non-finite ``r`` or ``y`` holds the last output, sets
-  ``status['input_fault']`` and leaves the state untouched; the next finite
-  sample re-initialises bumplessly from the held output;
-* ``direct_action=True`` flips the sign of the whole law (output rises with
-  the measurement); a negative ``kp`` does the same.
+Backward-difference derivative filter, forward-Euler integral, output limits and rate limit,
+anti-windup (back-calculation, conditional integration), bumpless manual/auto and gain changes.
+Units: ``kp`` in output units per measurement unit, ``ti``, ``td``, ``sample_time`` in s,
+``du_max`` in output units per s. Discretisation, the u(0) kick and every guarantee:
+docs/controllers.md ("pid").
 """
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
+from tank_control.core.control.siso_law import SisoController, SisoLaw
 from tank_control.core.params import param
 
 ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
@@ -177,120 +126,58 @@ def default_tracking_time(ti: float, td: float) -> float:
 
 
 def _beta(cfg: PidConfig) -> float:
-    """Pole ``β = Tf/(Tf + h)`` of the backward-difference derivative filter, Tf = td/n."""
+    """Pole ``β = Tf/(Tf + h)`` of the backward-difference derivative filter, Tf = td/n.
+
+    Chosen over Tustin (rings when ``h > 2·Tf``) and a step-invariant filter held for a sample
+    (realises ``kp·td·x/(1 − e^(−x))``, x = h/Tf, instead of ``kp·td``): 0 < β < 1 for every
+    Tf/h, and the area of the response to an error step is exactly ``kp·td`` for any h.
+    """
     tf = cfg.td / cfg.n
     return tf / (tf + cfg.sample_time)
 
 
-class Pid2Dof:
+class Pid2Dof(SisoLaw[PidConfig]):
     """Discrete 2-DOF PID with filtered derivative (000 eq. 19, eqs. 13–14).
 
-    See the module docstring for the discretisation and every guarantee.
-    ``update`` is called once per sample (every ``sample_time`` seconds).
+    ``update`` is called once per sample (every ``sample_time`` seconds). P static, D a
+    backward difference on the filter (pole ``β = Tf/(Tf + h)``, state ``x`` of ``c·r − y``),
+    I forward Euler stored in output units. Guarantees: no derivative spike at the first
+    sample or after ``reset``; bumpless gain changes, manual/auto transfer and recovery from a
+    non-finite input (held output, ``status['input_fault']``); limits and rate limit also in
+    manual. Discretisation, the u(0) kick and anti-windup: docs/controllers.md ("pid").
+    Modes, limits, faults and the integral: :class:`SisoLaw`.
     """
 
+    unknown_setting = 'unknown PID parameter'
+
     def __init__(self, config: PidConfig) -> None:
+        super().__init__(config)
+        self._p = 0.0
+        self._d = 0.0
+        self._rate_limited = False
+
+    def _check(self, config: PidConfig) -> None:
         reason = config_reason(config)
         if reason:
             raise ValueError(reason)
-        self._cfg = replace(config)
-        self._mode = 'auto'
-        self._manual_u: float | None = None
-        self._i = 0.0            # integral term [output units]
-        self._x = 0.0            # derivative low-pass state [units of c·r − y]
-        self._u: float | None = None   # last applied output
-        self._v = 0.0            # last unsaturated output
-        self._p = 0.0
-        self._d = 0.0
-        self._i_out = 0.0
-        self._last: tuple[float, float] | None = None   # last finite (r, y)
-        self._initialised = False
-        self._fault = False
-        self._saturated = False
-        self._rate_limited = False
-        self._aw_active = False
 
-    # ----------------------------------------------------------------- state
-    @property
-    def config(self) -> PidConfig:
-        """A copy of the current settings."""
-        return replace(self._cfg)
+    def _flags(self) -> dict[str, bool]:
+        return {'rate_limited': self._rate_limited}
 
-    @property
-    def output(self) -> float | None:
-        """Last applied output (None before the first sample)."""
-        return self._u
+    def _terms(self) -> dict[str, float]:
+        """The p, i, d terms of the last sample."""
+        return {'p': self._p, 'i': self._i_out, 'd': self._d}
 
-    @property
-    def mode(self) -> str:
-        return self._mode
+    def _default_tracking_time(self) -> float:
+        return default_tracking_time(self._cfg.ti, self._cfg.td)
 
-    @property
-    def status(self) -> dict[str, Any]:
-        """mode, saturated, rate_limited, anti_windup_active, input_fault and the
-        p, i, d terms, unsaturated v and applied u of the last sample."""
-        return {
-            'mode': self._mode,
-            'saturated': self._saturated,
-            'rate_limited': self._rate_limited,
-            'anti_windup_active': self._aw_active,
-            'input_fault': self._fault,
-            'p': self._p, 'i': self._i_out, 'd': self._d,
-            'v': self._v,
-            'u': math.nan if self._u is None else self._u,
-        }
-
-    def _gain(self, cfg: PidConfig | None = None) -> float:
-        cfg = cfg or self._cfg
-        return -cfg.kp if cfg.direct_action else cfg.kp
-
-    def _clip(self, u: float) -> float:
-        return min(max(u, self._cfg.u_min), self._cfg.u_max)
-
-    # ------------------------------------------------------------- operation
-    def reset(self, r: float, y: float, u: float) -> None:
-        """Initialise bumplessly: with the same ``r`` and ``y`` the next
-        ``update`` returns ``u`` (clipped to the limits). No derivative kick."""
-        for name, value in (('r', r), ('y', y), ('u', u)):
-            if not math.isfinite(value):
-                raise ValueError(f'reset: {name} = {value!r} is not finite')
-        u = self._clip(float(u))
-        self._track(float(r), float(y), u)
-        self._u = u
-        self._v = u
-        self._fault = False
-        if self._mode == 'manual':
-            self._manual_u = u
-
-    def _track(self, r: float, y: float, u: float) -> None:
-        """Set the states so that v(r, y) = u with zero derivative term."""
+    def _rest(self, r: float, y: float) -> float:
+        """Filter state ``c·r − y`` and zero derivative term; returns the P term."""
         cfg = self._cfg
         self._x = cfg.c * r - y
         self._p = self._gain() * (cfg.b * r - y)
         self._d = 0.0
-        self._i = u - self._p
-        self._i_out = self._i
-        self._last = (r, y)
-        self._initialised = True
-
-    def update(self, r: float, y: float) -> float:
-        """One sample: setpoint ``r`` and measurement ``y`` → output ``u``."""
-        if not (math.isfinite(r) and math.isfinite(y)):
-            self._fault = True
-            return self._hold_output()
-        r, y = float(r), float(y)
-        if self._fault:
-            self._fault = False
-            self._track(r, y, self._hold_output())
-        if not self._initialised:
-            self._track(r, y, 0.0)
-            self._i = self._i_out = 0.0
-        if self._mode == 'manual':
-            return self._update_manual(r, y)
-        return self._update_auto(r, y)
-
-    def _hold_output(self) -> float:
-        return self._u if self._u is not None else self._clip(0.0)
+        return self._p
 
     def _limit(self, v: float) -> float:
         """Limits, then rate limit relative to the last output, then limits again."""
@@ -303,20 +190,9 @@ class Pid2Dof:
         self._rate_limited = u != self._clip(v)
         return u
 
-    def _update_manual(self, r: float, y: float) -> float:
-        target = self._manual_u if self._manual_u is not None else self._hold_output()
-        u = self._limit(target)
-        self._track(r, y, u)
-        self._v = u
-        self._u = u
-        self._saturated = u != target
-        self._aw_active = False
-        return u
-
     def _update_auto(self, r: float, y: float) -> float:
         cfg = self._cfg
         k = self._gain()
-        h = cfg.sample_time
         p = k * (cfg.b * r - y)
         ed = cfg.c * r - y
         if cfg.td > 0.0:
@@ -327,77 +203,24 @@ class Pid2Dof:
             d = 0.0
             x_next = ed
         v = p + self._i + d
-        if not (math.isfinite(v) and math.isfinite(x_next)):
-            self._fault = True        # overflow from absurd inputs: keep the state and the last output
+        if not self._accept(v, x_next):
             return self._hold_output()
-        self._x = x_next
-        u = self._limit(v)
-        self._p, self._d, self._v = p, d, v
-        i_used = self._i
-        self._aw_active = False
-        if math.isfinite(cfg.ti):
-            di = k * h / cfg.ti * (r - y)
-            if cfg.anti_windup == 'back_calculation':
-                tt = cfg.tracking_time or default_tracking_time(cfg.ti, cfg.td)
-                self._i += di + min(h / tt, 1.0) * (u - v)
-                self._aw_active = u != v
-            elif cfg.anti_windup == 'conditional_integration':
-                if (v > u and di > 0.0) or (v < u and di < 0.0):
-                    self._aw_active = True
-                else:
-                    self._i += di
-            else:
-                self._i += di
-        self._saturated = u != v
-        self._i_out = i_used
-        self._u = u
-        self._last = (r, y)
-        return u
+        self._p, self._d = p, d
+        return self._apply(r, y, v, k, r - y)
 
-    # ------------------------------------------------------ operator actions
-    def set_gains(self, **changes: Any) -> None:
-        """Change any PidConfig field bumplessly (000 eq. 19 gains, limits, ...).
-
-        Raises ValueError (naming the parameter and the allowed range) and
-        leaves the controller untouched if a value is invalid.
-        """
-        known = {f.name for f in fields(PidConfig)}
-        for name in changes:
-            if name not in known:
-                raise ValueError(f'{name}: unknown PID parameter; allowed ' + ', '.join(sorted(known)))
-        new = replace(self._cfg, **changes)
-        reason = config_reason(new)
-        if reason:
-            raise ValueError(reason)
-        old = self._cfg
-        if self._initialised and self._last is not None:
-            r, y = self._last
-            x_new = self._x + (new.c - old.c) * r     # keeps c·r − y − x unchanged
-            p_old = self._gain(old) * (old.b * r - y)
-            # D of the next sample at unchanged inputs: kp·n·β·(c·r − y − x)
-            d_old = self._gain(old) * old.n * _beta(old) * (old.c * r - y - self._x) if old.td > 0 else 0.0
-            p_new = self._gain(new) * (new.b * r - y)
-            d_new = self._gain(new) * new.n * _beta(new) * (new.c * r - y - x_new) if new.td > 0 else 0.0
-            self._x = x_new
-            self._i += (p_old + d_old) - (p_new + d_new)
-        self._cfg = new
-
-    def set_manual(self, u: float | None = None) -> None:
-        """Switch to manual: the output becomes ``u`` (limited) from the next
-        sample; without ``u`` the last output is held (bumpless)."""
-        if u is not None and not math.isfinite(u):
-            raise ValueError(f'manual_output: {u!r} is not finite')
-        self._manual_u = self._hold_output() if u is None else float(u)
-        self._mode = 'manual'
-
-    def set_auto(self) -> None:
-        """Switch to automatic; the next output continues from the last one."""
-        if self._mode == 'manual' and self._last is not None and self._u is not None:
-            self._track(*self._last, self._u)
-        self._mode = 'auto'
+    def _retune(self, old: PidConfig, new: PidConfig, r: float, y: float) -> None:
+        """Keep P + I + D of the next sample at unchanged inputs (000 eq. 19 gains, limits, ...)."""
+        x_new = self._x + (new.c - old.c) * r     # keeps c·r − y − x unchanged
+        p_old = self._gain(old) * (old.b * r - y)
+        # D of the next sample at unchanged inputs: kp·n·β·(c·r − y − x)
+        d_old = self._gain(old) * old.n * _beta(old) * (old.c * r - y - self._x) if old.td > 0 else 0.0
+        p_new = self._gain(new) * (new.b * r - y)
+        d_new = self._gain(new) * new.n * _beta(new) * (new.c * r - y - x_new) if new.td > 0 else 0.0
+        self._x = x_new
+        self._i += (p_old + d_old) - (p_new + d_new)
 
 
-class PidController:
+class PidController(SisoController[Pid2Dof]):
     """:class:`Pid2Dof` behind the Controller protocol of core/interfaces.py (SISO).
 
     Reads the measured channel ``output_name`` (default ``y``) and its
@@ -406,41 +229,14 @@ class PidController:
     so that step returns ``u`` exactly.
     """
 
-    disturbance_names: tuple[str, ...] = ()
+    law_name = 'PID'
 
     def __init__(self, config: PidConfig, output_name: str = 'y', input_name: str = 'u') -> None:
-        self.pid = Pid2Dof(config)
-        self.output_names = (output_name,)
-        self.input_names = (input_name,)
-        self._pending: tuple[float, float] | None = None
+        super().__init__(Pid2Dof(config), output_name, input_name)
 
     @property
-    def sample_time(self) -> float:
-        return self.pid.config.sample_time
-
-    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
-        y0, u0 = _scalar(y, 'y'), _scalar(u, 'u')
-        if not math.isfinite(u0):
-            raise ValueError(f'reset: u = {u0!r} is not finite')
-        self._pending = (y0, u0)
-
-    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y0, r0 = _scalar(y, 'y'), _scalar(r, 'r')
-        if self._pending is not None and math.isfinite(y0) and math.isfinite(r0):
-            self.pid.reset(r0, y0, self._pending[1])
-            self._pending = None
-        return np.array([self.pid.update(r0, y0)], dtype=float)
+    def pid(self) -> Pid2Dof:
+        return self._law
 
     def set_gains(self, **changes: Any) -> None:
         self.pid.set_gains(**changes)
-
-    @property
-    def status(self) -> Mapping[str, Any]:
-        return self.pid.status
-
-
-def _scalar(value: Any, name: str) -> float:
-    arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.size != 1:
-        raise ValueError(f'{name}: expected 1 value for a SISO PID, got {arr.size}')
-    return float(arr[0])

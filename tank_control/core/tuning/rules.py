@@ -1,51 +1,12 @@
-"""PID tuning rules behind one entry point, ``tune(rule, kind, **process)``.
+"""PID tuning rules behind one entry point, ``tune(rule, kind, **process)`` (000, 001, 004).
 
-Every rule returns a dict with the keys ``kp, ti, td, b, c`` in the form of
-the 2-DOF PID of 000 eq. 19 (``kp`` in controller-output units per measured
-unit, ``ti``/``td`` in seconds, ``b``/``c`` dimensionless); a key is ``None``
-where the rule does not give it (``ti`` for P, ``td`` for P/PI, ``b``/``c``
-for the 1-DOF rules — use 1, the standard PID).
-
-Process arguments (SPEC §1): ``gain`` (IPDT ``k1`` [1/s] or FOPDT ``K``),
-``dead_time`` (``To`` or ``L`` [s]), ``time_constant`` (``T`` [s]), ``ku``
-(ultimate gain), ``tu`` (ultimate period [s]); for ``smith_pi`` also ``n``
-(order 1 or 2 of the delay-free model), ``te`` [s] (n = 1) or ``xi`` (n = 2).
-Arguments a rule does not use are ignored; unknown names, missing arguments,
-non-positive values and unknown rules/kinds raise ``ValueError`` naming them.
-
-Rules
------
-``mdp``           IPDT, multiple dominant pole (000 eqs. 25–28, 32, 34): PI, PID.
-                  Exact closed forms (kp = 0.78362/(k1·To), td = 0.26289·To); 000's
-                  Table 1 used the rounded 0.784 and 0.263, hence its kp = 3.14 and
-                  td = 1.32 where the exact values are 3.134 and 1.314.
-``experimental``  IPDT, experimental (000 eqs. 35–36): PI, PID. For the PI, eq. 36
-                  gives kp = 0.6/(k1·To) = 2.4 for the example; 000's Table 1 prints
-                  2.5. We follow the equation.
-``zn``            Classical Ziegler–Nichols ultimate-point rule (Ziegler & Nichols,
-                  "Optimum settings for automatic controllers", Trans. ASME 64, 1942;
-                  SPEC-supplement §1.9): P 0.5·Ku; PI 0.45·Ku, Tu/1.2; PID 0.6·Ku,
-                  Tu/2, Tu/8.
-``zn_001``        Ziegler–Nichols ultimate point, 001 Table 6.2: P, PI, PID.
-``zn_004_q0``     Ziegler–Nichols, 004 Table 3.1, PID column q = 0 (P, PI shared).
-``zn_004_q1``     Ziegler–Nichols, 004 Table 3.1, PID column q = 1 (P, PI shared).
-                  The table values are returned as printed (the PID form 3.2.2 is
-                  garbled in our copy of 004). The q = 1 column equals 001's
-                  Table 6.2 (Td = 0.12·Tu); neither is the classical rule ``zn``
-                  (Td = Tu/8 = 0.125·Tu).
-``oppelt``        FOPDT step response, 001 Table 6.1 with a = K·L/T (eq. 6.15):
-                  P, PI, PID.
-``cohen_coon``    FOPDT, classical Cohen–Coon formulas (P, PI, PD, PID), which 004
-                  eqs. 3.4.12–3.4.15 restate in Åström–Hägglund's normalised form
-                  with τ = L/(L+T). They agree to the printed digits except the PI
-                  gain, printed there as 0.9·(1 + 0.92·τ/(1−τ)); the classical
-                  formula is 0.9 + L/(12T) = 0.9·(1 + 0.093·τ/(1−τ)). We use the
-                  classical one.
-``smith_pi``      PI primary of a Smith predictor on the delay-free model
-                  K/(T·s+1)^n (004 §3.6.1): n = 1, eq. 3.6.7 kp = T/(K·te),
-                  ti = T (te = desired closed-loop time constant, recommended
-                  (0.2…1)·T); n = 2, eq. 3.6.9 kp = 1/(4·xi²·K), ti = T (xi
-                  recommended in [0.5, 1]).
+Every rule returns ``{kp, ti, td, b, c}`` in the form of the 2-DOF PID of 000 eq. 19 (``kp`` in
+output units per measured unit, ``ti``/``td`` in s, ``b``/``c`` dimensionless; ``None`` where
+the rule gives no value). Process arguments: ``gain`` (IPDT k1 [1/s] or FOPDT K),
+``dead_time`` [s], ``time_constant`` [s], ``ku``, ``tu`` [s]; ``smith_pi`` also ``n``, ``te``
+[s], ``xi``. Unknown or missing arguments, non-positive values and unknown rules or kinds raise
+``ValueError`` naming them. Rules: ``mdp``, ``experimental``, ``zn``, ``zn_001``, ``zn_004_q0``,
+``zn_004_q1``, ``oppelt``, ``cohen_coon``, ``smith_pi`` — sources and notes: docs/tuning.md.
 """
 from __future__ import annotations
 
@@ -84,7 +45,11 @@ def _need(process: Mapping[str, float], rule: str, *names: str) -> list[float]:
 
 # ---------------------------------------------------------------- IPDT (000)
 def mdp(kind: str, process: Mapping[str, float]) -> Gains:
-    """Multiple dominant pole for k1/s·e^(−To·s) (000 eqs. 25–28, 32, 34)."""
+    """Multiple dominant pole for k1/s·e^(−To·s) (000 eqs. 25–28, 32, 34).
+
+    Exact closed forms (PID kp = 0.78362/(k1·To), td = 0.26289·To); 000's Table 1 used the
+    rounded 0.784 and 0.263, hence its kp = 3.14 and td = 1.32 for the exact 3.134 and 1.314.
+    """
     k1, to = _need(process, 'mdp', 'gain', 'dead_time')
     if kind == 'pid':   # quadruple pole s* = −(3 − √3)/To (eq. 25)
         return _gains(kp=6.0 * (2.0 * SQRT3 - 3.0) * math.exp(SQRT3 - 3.0) / (k1 * to),   # eq. 26
@@ -97,7 +62,10 @@ def mdp(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def experimental(kind: str, process: Mapping[str, float]) -> Gains:
-    """Experimental 2-DOF settings for IPDT (000 eqs. 35–36)."""
+    """Experimental 2-DOF settings for IPDT (000 eqs. 35–36).
+
+    The PI follows eq. 36, kp = 0.6/(k1·To) (2.4 for 000's example); Table 1 prints 2.5.
+    """
     k1, to = _need(process, 'experimental', 'gain', 'dead_time')
     if kind == 'pid':
         return _gains(kp=1.0 / (k1 * to), ti=3.0 * to, td=0.35 * to, b=0.3, c=0.3)        # eq. 35
@@ -141,7 +109,8 @@ def zn_004_q0(kind: str, process: Mapping[str, float]) -> Gains:
 
 def zn_004_q1(kind: str, process: Mapping[str, float]) -> Gains:
     """Ziegler–Nichols as printed in 004 Table 3.1, PID column q = 1 (td = 0.12·Tu as in
-    001 Table 6.2; not the classical Tu/8 of :func:`zn`)."""
+    001 Table 6.2; not the classical Tu/8 of :func:`zn`). The table values are used as
+    printed: the PID form 3.2.2 is garbled in our copy of 004."""
     return _ultimate('zn_004_q1', {**_ZN_004, 'pid': _ZN_004_PID['zn_004_q1']}, kind, process)
 
 
@@ -160,7 +129,12 @@ def oppelt(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
-    """Classical Cohen–Coon for K/(T·s+1)·e^(−L·s) (004 eqs. 3.4.12–3.4.15, see module doc)."""
+    """Classical Cohen–Coon for K/(T·s+1)·e^(−L·s) (004 eqs. 3.4.12–3.4.15).
+
+    004 restates the formulas in Åström–Hägglund's normalised form with τ = L/(L+T); they
+    agree to the printed digits except the PI gain, printed 0.9·(1 + 0.92·τ/(1−τ)), where the
+    classical formula 0.9 + L/(12T) = 0.9·(1 + 0.093·τ/(1−τ)) is used.
+    """
     if kind not in ('p', 'pi', 'pd', 'pid'):
         raise _bad_kind('cohen_coon', kind, ('p', 'pi', 'pd', 'pid'))
     k, t, dead = _need(process, 'cohen_coon', 'gain', 'time_constant', 'dead_time')
@@ -178,7 +152,11 @@ def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
 
 # ------------------------------------------------------------- Smith primary
 def smith_pi(kind: str, process: Mapping[str, float]) -> Gains:
-    """PI primary for a Smith predictor on K/(T·s+1)^n (004 eqs. 3.6.7, 3.6.9)."""
+    """PI primary for a Smith predictor on K/(T·s+1)^n (004 eqs. 3.6.7, 3.6.9).
+
+    n = 1: kp = T/(K·te), ti = T (te = desired closed-loop time constant, recommended
+    (0.2…1)·T); n = 2: kp = 1/(4·xi²·K), ti = T (xi recommended in [0.5, 1]).
+    """
     if kind != 'pi':
         raise _bad_kind('smith_pi', kind, ('pi',))
     order = process.get('n', 1)
@@ -204,7 +182,7 @@ def _bad_kind(rule: str, kind: str, allowed: tuple[str, ...]) -> ValueError:
 
 
 def tune(rule: str, kind: str, **process: float) -> Gains:
-    """Controller settings ``{kp, ti, td, b, c}`` from a named rule (see module doc).
+    """Controller settings ``{kp, ti, td, b, c}`` from a named rule (rules: docs/tuning.md).
 
     >>> round(tune('mdp', 'pid', gain=0.05, dead_time=5.0)['kp'], 2)
     3.13

@@ -334,6 +334,30 @@ def set_changed_gains(pid: Any, config: Any, names: Iterable[str] | None = None)
         pid.set_gains(**changes)
 
 
+def siso_build(controller_class: Callable[..., Any]) -> Callable[[Settings], Any]:
+    """``build`` for a kind whose controller is a ``SisoController`` (core/control/siso_law.py)
+    made from the kind's configuration: the channels, and manual output when started in
+    ``mode: manual``."""
+    def build(settings: Settings) -> Any:
+        controller = controller_class(settings.config,
+                                      output_name=settings.channels.output_names[0],
+                                      input_name=settings.channels.input_names[0])
+        if settings.mode.mode == 'manual':
+            controller.law.set_manual(float(settings.mode.manual_output))
+        return controller
+    return build
+
+
+def siso_update(controller: Any, settings: Settings, changed: frozenset[str]) -> bool:
+    """``update`` for such a kind: changed settings through the law's ``set_gains`` (the
+    integral absorbs the change, so the output stays continuous), then the mode (manual
+    output / bumpless return to auto)."""
+    law = controller.law
+    set_changed_gains(law, settings.config)
+    apply_mode(law, law.mode, settings, changed)
+    return True
+
+
 def apply_mode(target: Any, mode_now: str, settings: Settings, changed: frozenset[str]) -> None:
     """Manual output on request (or when the mode changes), bumpless return to auto."""
     mode = settings.mode

@@ -6,28 +6,27 @@ these functions, so a ROS run and an in-process run execute identical objects.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.kinds import mpcs, pid, relay_autotune, smith_pi, two_loop_pi
+from tank_control.core.control.kinds import lead_lag, mpcs, pid, relay_autotune, smith_pi, two_loop_pi
 from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import lookup
+from tank_control.core.params import by_name, finder
 
-KINDS: dict[str, ControllerKind] = {kind.name: kind for kind in (
+KINDS: dict[str, ControllerKind] = by_name(
     pid.KIND,
     two_loop_pi.KIND,
     smith_pi.KIND,
     relay_autotune.KIND,
     mpcs.KIND,
-)}
+    lead_lag.KIND,
+)
 
 
-def get_kind(name: str) -> ControllerKind:
-    """The kind ``name``; ``ConfigError`` with the nearest known name if unknown."""
-    return lookup(KINDS, name, 'controller kind')
+get_kind: Callable[[str], ControllerKind] = finder(KINDS, 'controller kind')
 
 
 def settings(kind: ControllerKind, values: Mapping[str, Any],

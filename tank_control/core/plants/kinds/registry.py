@@ -1,24 +1,23 @@
 """The plant kinds by name: a plain table."""
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from tank_control.core.interfaces import Plant
-from tank_control.core.params import lookup
-from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank
+from tank_control.core.params import by_name, finder
+from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank, sopdt
 from tank_control.core.plants.kinds.base import PlantKind
 
-KINDS: dict[str, PlantKind] = {kind.name: kind for kind in (
+KINDS: dict[str, PlantKind] = by_name(
     ipdt.KIND,
     fopdt.KIND,
     mixing_tank.KIND,
-)}
+    sopdt.KIND,
+)
 
 
-def get_kind(name: str) -> PlantKind:
-    """The kind ``name``; ``ConfigError`` with the nearest known name if unknown."""
-    return lookup(KINDS, name, 'plant kind')
+get_kind: Callable[[str], PlantKind] = finder(KINDS, 'plant kind')
 
 
 def make_plant(name: str, values: Mapping[str, Any] | None = None) -> Plant:
