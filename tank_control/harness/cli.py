@@ -93,6 +93,12 @@ def _print_result(result) -> None:
         print(f'{key}: {result.files[key]}')
 
 
+def _partial(err: BaseException) -> str:
+    """Where a failed or stopped run left what it recorded (nothing if it wrote nothing)."""
+    out = getattr(err, 'partial_results', None)
+    return f'\nthe results so far are in {out} ("complete": false)' if out else ''
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from tank_control.harness.runner import RunFailed, RunInterrupted
@@ -119,11 +125,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'tank-control: {err}', file=sys.stderr)
         return 2
     except RunFailed as err:
-        print(f'tank-control: run failed: {err}', file=sys.stderr)
+        print(f'tank-control: run failed: {err}{_partial(err)}', file=sys.stderr)
         return 1
     except RunInterrupted as stop:
-        print(f'tank-control: {stop}; the results so far are in {args.out} '
-              '("complete": false)', file=sys.stderr)
+        print(f'tank-control: {stop}{_partial(stop)}', file=sys.stderr)
         return stop.exit_code
     except KeyboardInterrupt:
         print('tank-control: interrupted', file=sys.stderr)

@@ -219,9 +219,12 @@ def _jsonable(value: Any) -> Any:
 
 
 def _as_failure(exc: BaseException, out: Path) -> BaseException:
-    """What to raise for ``exc`` after the partial results were written."""
+    """What to raise for ``exc`` after the partial results were written to ``out`` (noted
+    on the exception as ``partial_results`` for the command line's message)."""
     if isinstance(exc, OSError):
-        return RunFailed(f'{exc} (results so far in {out})')
+        exc = RunFailed(str(exc))
+    if isinstance(exc, (RunFailed, RunInterrupted)):
+        exc.partial_results = out
     return exc
 
 
