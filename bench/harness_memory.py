@@ -4,14 +4,18 @@ Runs ``tank-control run`` (lockstep over ROS, and ``--in-process``) on one scena
 several durations, each in a child Python process, and reports that process's peak resident
 set size (``ru_maxrss`` of the harness itself, not of the node processes) and the growth per
 plant tick between the shortest and the longest run. Each run gets its own output directory
-under ``--out``.
+under ``--out``. ``--tree`` runs another checkout's harness (e.g. an older commit exported
+with ``git archive``) for a before/after comparison. The ROS runs use a ROS_DOMAIN_ID held
+free by the same per-domain lock files as the tests.
 
     .venv/bin/python bench/harness_memory.py --durations 500 2500 --runs 3
 """
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
+import random
 import os
 import statistics
 import subprocess
@@ -31,12 +35,30 @@ print(json.dumps({'code': code, 'peak_kib': peak_kib, 'ticks': metrics['run']['t
 """
 
 
-def one_run(scenario: str, duration: float, out: Path, in_process: bool) -> dict:
+def claim_domain() -> tuple[int, object]:
+    """A ROS_DOMAIN_ID nobody else holds (the tests' lock files), held while this runs."""
+    lock_dir = Path(tempfile.gettempdir()) / 'tank_control_domains'
+    lock_dir.mkdir(exist_ok=True)
+    candidates = list(range(1, 101))
+    random.SystemRandom().shuffle(candidates)
+    for domain in candidates:
+        handle = open(lock_dir / f'{domain}.lock', 'w')
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.close()
+            continue
+        return domain, handle
+    raise SystemExit('no free ROS_DOMAIN_ID')
+
+
+def one_run(scenario: str, duration: float, out: Path, in_process: bool, tree: Path,
+            env: dict[str, str]) -> dict:
     argv = [sys.executable, '-c', CHILD, 'run', scenario, '--out', str(out),
             '--duration', str(duration), '--quiet']
     if in_process:
         argv.append('--in-process')
-    done = subprocess.run(argv, capture_output=True, text=True, cwd=REPO, env=dict(os.environ))
+    done = subprocess.run(argv, capture_output=True, text=True, cwd=tree, env=env)
     if done.returncode != 0:
         raise SystemExit(f'run failed ({done.returncode}):\n{done.stderr[-2000:]}')
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -50,15 +72,24 @@ def main() -> None:
     parser.add_argument('--modes', nargs='+', default=['lockstep', 'in_process'],
                         choices=['lockstep', 'in_process'])
     parser.add_argument('--out', type=Path, default=None)
+    parser.add_argument('--tree', type=Path, default=REPO,
+                        help='checkout whose tank_control runs (default: this one)')
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix='harness_memory_'))
+    tree = args.tree.resolve()
+    domain, _lock = claim_domain()
+    env = {**os.environ, 'PYTHONPATH': str(tree), 'ROS_DOMAIN_ID': str(domain),
+           'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+    scenario = str((REPO / args.scenario) if not Path(args.scenario).is_absolute()
+                   else args.scenario)
+    print(f'tree {tree}, ROS_DOMAIN_ID {domain}')
     for mode in args.modes:
         peaks: dict[float, list[int]] = {}
         ticks: dict[float, int] = {}
         for duration in args.durations:
             for i in range(args.runs):
-                result = one_run(args.scenario, duration, out / f'{mode}_{duration:g}_{i}',
-                                 mode == 'in_process')
+                result = one_run(scenario, duration, out / f'{mode}_{duration:g}_{i}',
+                                 mode == 'in_process', tree, env)
                 peaks.setdefault(duration, []).append(result['peak_kib'])
                 ticks[duration] = result['ticks']
         print(f'{mode}:')

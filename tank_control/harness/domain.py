@@ -1,25 +1,7 @@
-"""One run per ROS_DOMAIN_ID: checked before a run starts a node or records anything.
-
-Two graphs in one domain mix: the second run's controller would answer the first run's
-plant and each recorder would record the other's messages. So before anything else a ROS
-run
-
-1. takes an exclusive lock on the domain for this host (``flock`` on
-   ``<tmp>/tank_control_runs/domain-<id>.lock``, held until the run ends and released by
-   the kernel if the harness dies): a second ``tank-control`` run on this host refuses at
-   once, naming the first one's process and output directory;
-2. looks at the graph from a node without publishers or subscriptions: a node named like
-   one of the run's (``plant``, ``controller``, ``reference``, the recorder) or a publisher
-   on one of its topics means another graph — started by hand, by another user or on
-   another host — and the run refuses with what it found.
-
-The look lasts ``harness.discovery_time`` wall seconds (a wait for an absence has no event
-to wait for): DDS discovers a participant that is already running within a few tenths of
-a second on an idle host, but on a loaded one often only at its next announcement, 3 s
-later. It sees only live participants, because it starts from a fresh participant: a
-process that has ended (even by SIGKILL, without saying goodbye) announces nothing, so the
-nodes of the previous run on the domain never make the next run refuse.
-"""
+"""One run per ROS_DOMAIN_ID, checked before a run writes, subscribes or starts anything: a
+per-host lock on the domain (``lock_domain``), then a look at the graph for another run's
+node names or publishers of the run's topics (``foreign_graph``). Steps and reasons:
+docs/harness.md ("How a ROS run proceeds", step 0). Times in wall seconds."""
 from __future__ import annotations
 
 import errno

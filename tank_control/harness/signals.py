@@ -1,14 +1,7 @@
-"""SIGINT, SIGTERM and SIGHUP during a run: a request to stop, acted on at a safe point.
-
-While a run goes (``StopSignals`` as a context manager, in the main thread), the first of
-these signals is only noted; the run's loops call ``check()``, which raises
-``RunInterrupted`` there, so the harness stops its nodes and closes ``trace.csv``,
-``run.mcap`` and ``metrics.json`` (``"complete": false``) instead of dying with the node
-processes left running and the files half-written. A second signal raises at once (a
-stuck clean-up can still be interrupted; the node processes die with the harness in any
-case, see ``processes.py``). A signal noted after the run's last check is raised when the
-context ends. Outside the main thread nothing is installed and ``check()`` never raises.
-"""
+"""SIGINT, SIGTERM and SIGHUP during a run: the first is noted and raised as
+``RunInterrupted`` at the run's next ``check()``, so the harness stops its nodes and closes
+its files (docs/harness.md, "Interrupted and failed runs"); a second one raises at once.
+Installed only from the main thread."""
 from __future__ import annotations
 
 import signal

@@ -1,18 +1,7 @@
-"""A run's ``trace.csv`` and ``run.mcap``, written as the run goes.
-
-``RunOutputs`` holds the two files: ``trace.csv`` row by row (``core.trace.TraceWriter``,
-flushed every ``FLUSH_PERIOD`` wall seconds) and ``run.mcap`` message by message
-(``recording.McapRecording``). Memory then holds the table (8 bytes per value, for the
-metrics) and what is not written yet, not the recording.
-
-``RecordingStream`` is what a ROS run does with each message its recorder receives: into
-``run.mcap`` as received, and the signal messages (read straight from their CDR bytes) into
-the trace join (``harness/trace.py``). A row is written once every message it depends on
-can be expected: when the measurement of a later tick arrived ``HOLDBACK`` wall seconds
-ago (a late answer in sim or wall mode arrives within a few ticks; a message later still
-is counted in ``after_written``). ``close()`` writes every row still held (the end of a
-run, or its failure) and closes both files, valid as far as they go.
-"""
+"""A run's ``trace.csv`` and ``run.mcap`` written as the run goes: ``RunOutputs`` (the two
+files, trace.csv flushed every ``FLUSH_PERIOD``) and ``RecordingStream`` (each recorded
+message into run.mcap and the trace join; a row is written once a later tick's measurement
+arrived ``HOLDBACK`` ago). docs/harness.md, "Interrupted and failed runs". Wall seconds."""
 from __future__ import annotations
 
 import time

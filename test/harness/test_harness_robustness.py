@@ -194,6 +194,7 @@ def test_killing_the_harness_leaves_no_node_running_and_the_next_run_works(
     else:                                       # a clean stop: what was recorded is kept
         assert code == 128 + sig, harness.tail()
         assert f'interrupted by {name}' in harness.tail()
+        assert f'the results so far are in {out} ("complete": false)' in harness.tail()
         metrics = json.loads((out / 'metrics.json').read_text())
         assert metrics['complete'] is False and metrics['reason'] == f'interrupted by {name}'
         trace = assert_prefix_of_in_process_run(out)
