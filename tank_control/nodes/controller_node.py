@@ -16,7 +16,9 @@ not publish reaches the controller as NaN, and the controller keeps its own valu
 hold no channels); publishes
 ``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
 sample instant) and ``/diagnostics`` (mode, saturation, anti-windup, faults,
-counters, computation time and the controller's ``status`` as ``status.*``).
+counters, computation time, the controller's ``status`` as ``status.*`` and its
+``robustness.*`` / ``autotune.*`` results; level WARN with the text of any non-empty
+``*.warning`` result, published at once when one appears).
 A kind's operator commands are ``std_srvs/Trigger`` services ``~/<command>``;
 values a kind produces while running (``results``) are written back to its
 parameters after each sample and after each command. A kind with a state machine
@@ -191,8 +193,12 @@ class ControllerNode(Node):
             raise ParameterError(str(exc)) from None
 
     def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
+        # the node's own results (tuned gains, an identified model) are not a user's change:
+        # they are checked as values, not against a guard on changes (robustness.ms_max)
+        given = frozenset() if getattr(self, '_params', None) is not None \
+            and self._params.writing else changed
         try:
-            controller_setup(values, given=changed)
+            controller_setup(values, given=given)
         except ConfigError as exc:
             return str(exc)
         return None
@@ -398,9 +404,16 @@ class ControllerNode(Node):
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
             state = self._kind.state
+            published = False
             if state is not None and state in changed and self._state_pub is not None:
                 self._state_pub.publish(String(data=str(changed[state])))
                 self.get_logger().info(f'{self._state_text()}')
+                self._publish_diagnostics()
+                published = True
+            warnings = [f'{k}: {v}' for k, v in changed.items() if k.endswith('.warning') and v]
+            for text in warnings:
+                self.get_logger().warning(text)
+            if (warnings or any(k.endswith('.warning') for k in changed)) and not published:
                 self._publish_diagnostics()
 
     def _state_text(self) -> str:
@@ -453,6 +466,11 @@ class ControllerNode(Node):
                    else 'running')
         if self._kind.state is not None:
             message += f'; {self._state_text()}'
+        results = dict(self._kind.results(self._controller)) if self._kind.results else {}
+        warnings = [f'{k}: {v}' for k, v in results.items() if k.endswith('.warning') and v]
+        if warnings:
+            level = DiagnosticStatus.WARN
+            message += '; ' + '; '.join(warnings)
         fields = {
             'controller': self._params.values['controller'],
             'clock_mode': self._mode,
@@ -467,6 +485,8 @@ class ControllerNode(Node):
             **self.counters,
             **{f'status.{k}': v for k, v in status.items()
                if isinstance(v, (bool, int, float, str))},
+            **{k: v for k, v in results.items()
+               if k.startswith(('robustness.', 'autotune.')) and k != 'autotune.start'},
         }
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
