@@ -4,6 +4,8 @@
 
 * ``scenario.yaml`` — the merged parameters file the nodes were started with;
 * ``trace.csv``, ``run.mcap``, ``metrics.json``, ``plot.png``;
+* ``analysis.png`` for a SISO PID loop on a process model (``harness/analysis.py``: Bode with
+  the margins, Nyquist with the Ms circle, gang of four, of the final gains);
 * ``logs/<node>.log`` — each node's output (ROS runs).
 
 ROS run, step by step (no sleeps: every wait spins the recorder until an event):
@@ -61,6 +63,7 @@ from tank_control.core import scenario as core_scenario
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
+from tank_control.harness.analysis import loop_cases, plot_analysis
 from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
@@ -69,7 +72,7 @@ from tank_control.harness.scenario_file import (Scenario, ScenarioError, effecti
 from tank_control.harness.trace import GATED_DISTURBANCE, LATE_TOPICS, from_messages
 
 NS = 1_000_000_000
-OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
+OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png', 'analysis.png')
 PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
              'controller': ('manipulated',)}
 SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
@@ -163,6 +166,13 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
+    robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
+    cases, analysis_note = [], ''
+    if 'controller' in scenario.harness.nodes and controller_params:
+        try:
+            cases = loop_cases(scenario.sections, controller_params)
+        except (ConfigError, ValueError) as exc:
+            analysis_note = f'analysis.png not written: {exc}'
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
@@ -171,7 +181,10 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         **body,
         'run': run_info,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       **({'robustness': robustness} if robustness else {}),
                        'parameters': dict(controller_params)},
+        'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
+                          for case in cases} or analysis_note or None,
     }
     files = {
         'trace': trace.write_csv(out / 'trace.csv'),
@@ -180,6 +193,10 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'plot': plot_runs([(scenario.name, trace)], out / 'plot.png',
                           title=scenario.harness.title or scenario.name),
     }
+    if cases:
+        files['analysis'] = plot_analysis(cases, out / 'analysis.png',
+                                          title=f'{scenario.harness.title or scenario.name}: '
+                                                'final gains')
     files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
     return RunResult(scenario.name, out, trace, metrics, files)
 

@@ -51,8 +51,9 @@ before the test at any time, bumplessly (state ``reverted``). A proposal whose l
 be unstable or exceed ``robustness.ms_max`` (``ms_max``) is not applied (its reason is
 reported). After an apply the response is verified: the next setpoint change, or with
 ``autotune.verify_step`` ≠ 0 an internal setpoint step of that size held for the
-verification window once the output has stayed within ``autotune.settle_band`` of
-the setpoint for ``autotune.settle_time``, is measured and compared with its prediction (the same step
+verification window once the loop is at rest (the output within 2 % of the step, or
+``noise_band`` times the noise σ estimated in the test, of the setpoint for
+``autotune.settle_time``), is measured and compared with its prediction (the same step
 simulated on the model from the operating point, limits included); a response whose IAE
 exceeds ``verify_tolerance`` × the predicted one, or whose overshoot exceeds
 ``verify_tolerance`` × the predicted one + 5 percentage points, is reported in
@@ -819,7 +820,9 @@ class RelayAutotuner:
         r_used = r + c.offset
         if c.state == 'waiting' and math.isfinite(y) and math.isfinite(r):
             step, cfg = self._cfg.verify_step, self._cfg
-            if abs(y - r) > cfg.settle_band or c.r_prev != r:
+            noise = cfg.noise_band * self._sigma if math.isfinite(self._sigma) else 0.0
+            band = max(0.02 * abs(step), noise)       # at rest: 2 % of the step, or the noise
+            if abs(y - r) > band or c.r_prev != r:
                 c.calm_since = None
             elif c.calm_since is None:
                 c.calm_since = t
