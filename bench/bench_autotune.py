@@ -1,4 +1,4 @@
-"""Relay auto-tuning accuracy: describing function vs first harmonic (issue 6, SPEC §2.5).
+"""Relay auto-tuning accuracy: describing function vs first harmonic (001 §1.3, 004 §3.2–3.3).
 
 For FOPDT (K = 1, T = 1, L/T in {0.1, 0.3, 1, 3}), IPDT (k1 = 0.05, To = 5) and, outside
 the model family, 1/(s+1)²·e^(−L·s) (L = 0.3, 1), a relay of amplitude d = 1 runs on the

@@ -1,12 +1,13 @@
-"""MPCS benchmarks (issue 8): per-sample time of the analytic and QP versions, the QP
-library comparison, and a one-hour tank scenario run in-process.
+"""MPCS benchmarks: per-sample time of the analytic and QP versions at the default horizons
+and at 003's (100, 50) (the baseline, measured in the same run), the QP library comparison,
+a one-hour tank scenario run in-process, design rebuild times and IAE.
 
     .venv/bin/python bench/bench_mpcs.py [--runs 3] [--quick]
 
 QP problems are recorded along a closed-loop run on the nonlinear tank (setpoint
 steps on h and T, an F_D step; re-linearisation off so that H and the constraint
-matrix stay fixed) so that the rate limits are active in the transients, then replayed on each library (same H, f, bounds) to compare the
-solvers on identical data. Results go to stdout as Markdown; copy them to
+matrix stay fixed) so that the rate limits are active in the transients, then replayed on
+each library (same H, f, bounds) to compare the solvers on identical data. Results go to stdout as Markdown; copy them to
 bench/RESULTS.md.
 """
 from __future__ import annotations
@@ -20,6 +21,8 @@ import numpy as np
 
 from tank_control.core.control.mpcs import Mpcs, MpcsConfig
 from tank_control.core.plants.mixing_tank import MixingTank
+
+DOCUMENT = (100, 50, 1)     # 003 §6 (N, Nu, block): the baseline of the timing tables
 
 
 class _Tank(MixingTank):
@@ -199,70 +202,79 @@ def main() -> None:
     base = MpcsConfig()
     print(f'## MPCS per-sample times ({samples} samples of the tank scenario, '
           f'median over {runs} runs of each statistic), ms\n')
-    print('| controller | (N, Nu) | step median | step p99 | solver fallbacks |')
-    print('|---|---|---|---|---|')
-    cases = [('analytic', 100, 50), ('analytic', 300, 100), ('qp', 100, 50), ('qp', 300, 100)]
+    print('| controller | (N, Nu, block) | decision variables | step median | step p99 | '
+          'solver fallbacks |')
+    print('|---|---|---|---|---|---|')
+    default = (base.horizon, base.control_horizon, base.block)
+    cases = [('analytic', *DOCUMENT), ('analytic', *default), ('qp', *DOCUMENT),
+             ('qp', *default), ('qp', default[0], default[1], 1)]
     recorded = {}
-    for solver, n, nu in cases:
-        cfg = replace(base, solver=solver, horizon=n, control_horizon=nu)
+    for solver, n, nu, block in cases:
+        cfg = replace(base, solver=solver, horizon=n, control_horizon=nu, block=block)
         meds, p99s, fb = [], [], 0
         for run in range(runs):
             steps, _, _, ctl, _ = run_loop(cfg, samples)
             meds.append(np.median(steps) * 1e3)
             p99s.append(np.percentile(steps, 99) * 1e3)
             fb = ctl.status['fallbacks']
-        if solver == 'qp':     # one fixed QP structure for the library comparison
+        if solver == 'qp' and (n, nu, block) in (DOCUMENT, default):   # library comparison
             fixed = replace(cfg, relinearize=False)
             _, _, rec, ctl, _ = run_loop(fixed, samples, record=True)
-            recorded[(n, nu)] = (ctl._design.qp.h, ctl._design.qp.a, rec)
-        print(f'| MPCS-{solver} | ({n}, {nu}) | {statistics.median(meds):.3f} | '
-              f'{statistics.median(p99s):.3f} | {fb} |')
+            recorded[(n, nu, block)] = (ctl._design.qp.h, ctl._design.qp.a, rec)
+        n_dec = 2 * -(-nu // block)
+        print(f'| MPCS-{solver} | ({n}, {nu}, {block}) | {n_dec} | '
+              f'{statistics.median(meds):.3f} | {statistics.median(p99s):.3f} | {fb} |')
     print('\n## QP library comparison (same recorded QPs, solve call only), ms\n')
-    print('| (N, Nu) | library | median | p99 | max |x − x_daqp| |')
+    print('| (N, Nu, block) | library | median | p99 | max |x − x_daqp| |')
     print('|---|---|---|---|---|')
-    for (n, nu), (h, a, rec) in recorded.items():
+    for (n, nu, block), (h, a, rec) in recorded.items():
         ref = [r[5] for r in rec]
         for name, fn in LIBS.items():
             try:
                 times, xs = fn(h, a, rec)
             except Exception as exc:  # noqa: BLE001 - report and continue
-                print(f'| ({n}, {nu}) | {name} | failed: {exc} | | |')
+                print(f'| ({n}, {nu}, {block}) | {name} | failed: {exc} | | |')
                 continue
             err = max(float(np.max(np.abs(x - r))) for x, r in zip(xs, ref) if r is not None)
-            print(f'| ({n}, {nu}) | {name} | {ms(times)} | {err:.1e} |')
-    print('\n## One-hour tank scenario in-process, MPCS-QP (N, Nu) = (100, 50)\n')
-    walls = []
-    for _ in range(runs):
-        _, wall, _, ctl, _ = run_loop(replace(base, solver='qp'), 3600)
-        walls.append(wall)
-    print(f'wall time: median {statistics.median(walls):.2f} s of {runs} runs '
-          f'({", ".join(f"{w:.2f}" for w in walls)}); fallbacks {ctl.status["fallbacks"]}')
-    print('\n## Design (re)build time, ms (median of runs)\n')
-    print('| (N, Nu) | construct | configure(horizon) | configure(operating point) |')
+            print(f'| ({n}, {nu}, {block}) | {name} | {ms(times)} | {err:.1e} |')
+    print('\n## One-hour tank scenario in-process, MPCS-QP, wall time, s\n')
+    print('| (N, Nu, block) | median | runs | fallbacks |')
     print('|---|---|---|---|')
-    for n, nu in ((100, 50), (300, 100)):
+    for n, nu, block in (DOCUMENT, default):
+        walls = []
+        for _ in range(runs):
+            _, wall, _, ctl, _ = run_loop(replace(base, solver='qp', horizon=n,
+                                                  control_horizon=nu, block=block), 3600)
+            walls.append(wall)
+        print(f'| ({n}, {nu}, {block}) | {statistics.median(walls):.2f} | '
+              f'{", ".join(f"{w:.2f}" for w in walls)} | {ctl.status["fallbacks"]} |')
+    print('\n## Design (re)build time, ms (median of runs)\n')
+    print('| (N, Nu, block) | construct | configure(horizon) | configure(operating point) |')
+    print('|---|---|---|---|')
+    for n, nu, block in (DOCUMENT, default):
         rows = []
         for _ in range(runs):
             a = time.perf_counter()
-            ctl = Mpcs(replace(base, solver='qp', horizon=n, control_horizon=nu))
+            ctl = Mpcs(replace(base, solver='qp', horizon=n, control_horizon=nu, block=block))
             b = time.perf_counter()
             ctl.configure(horizon=n + 1)
             c = time.perf_counter()
             ctl.configure(op_F_H=15.0)
             rows.append((b - a, c - b, time.perf_counter() - c))
         med = [statistics.median(col) * 1e3 for col in zip(*rows)]
-        print(f'| ({n}, {nu}) | {med[0]:.0f} | {med[1]:.0f} | {med[2]:.0f} |')
+        print(f'| ({n}, {nu}, {block}) | {med[0]:.0f} | {med[1]:.0f} | {med[2]:.0f} |')
     print('\n## IAE on the one-hour scenario (h [cm·s], T_out [°C·s])\n')
     print('| controller | IAE h | IAE T_out |')
     print('|---|---|---|')
-    for label, cfg in (('MPCS analytic (100, 50, λ=0.5)', replace(base, solver='analytic')),
-                       ('MPCS qp (100, 50, λ=0.5)', replace(base, solver='qp')),
-                       ('MPCS qp (300, 100, λ=0.5)', replace(base, solver='qp', horizon=300,
-                                                             control_horizon=100)),
-                       ('MPCS qp (100, 50), no re-linearisation',
+    doc = replace(base, horizon=DOCUMENT[0], control_horizon=DOCUMENT[1], block=DOCUMENT[2])
+    for label, cfg in ((f'MPCS analytic {default}, λ 0.5', replace(base, solver='analytic')),
+                       (f'MPCS qp {default}, λ 0.5', replace(base, solver='qp')),
+                       (f'MPCS qp {default}, no re-linearisation',
                         replace(base, solver='qp', relinearize=False)),
-                       ("MPCS qp, document's cost (align off, w_∞ = 0)",
-                        replace(base, solver='qp', align=False, terminal_weight=0.0))):
+                       (f'MPCS analytic {DOCUMENT}, λ 0.5', replace(doc, solver='analytic')),
+                       (f'MPCS qp {DOCUMENT}, λ 0.5', replace(doc, solver='qp')),
+                       (f"MPCS qp {DOCUMENT}, document's cost (align off, w_∞ = 0)",
+                        replace(doc, solver='qp', align=False, terminal_weight=0.0))):
         iae = run_loop(cfg, 3600)[4]
         print(f'| {label} | {iae[0]:.0f} | {iae[1]:.0f} |')
     try:

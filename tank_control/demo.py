@@ -1,20 +1,13 @@
 """The main job (``make demo``): the mixing tank of 003 in lockstep over a real ROS 2 graph.
 
-Runs ``config/scenarios/tank_mpcs_qp.yaml`` — the nonlinear mixing tank of 003 §1 under the
-offset-free MPCS with the numeric (QP) solver of 003 §6 / SPEC §2.8, (N, Nu, λ) = (100, 50,
-0.5), within the document's own constraints 0 <= F_H, F_Cin <= 100 cm³/s and |ΔF| <= 0.2
-cm³/s per sample, enforced in its optimisation: the best controller available (constrained
-and offset-free; whole-run IAE 3853 cm·s on h and 6154 °C·s on T_out against 6052 / 12279
-for the two-loop PI of 003 and 40305 / 6472 with its decoupler — docs/mpcs.md; the analytic
-MPCS, which only clips its move, scores a little lower still but does not optimise under
-the constraints) — as three node processes (plant, controller, reference)
-plus the harness's recorder, in lockstep as fast as the machine allows, then prints the
-metrics table, the inputs' ranges and constraint violations, and where the plot, the trace
-and the MCAP recording are. The tank starts at its operating point and the controller takes
-over there bumplessly (its ``initial_output``, 003's flows F_H = 14, F_Cin = 37 cm³/s), so
-the experiment starts at once: h 81 → 90 cm at 100 s, T_out → 36 °C at 1600 s, F_D +25 %
-at 3100 s, h → 75 cm at 4600 s, T_out → 31 °C at 6100 s, F_D −25 % at 7600 s; 9100 s
-simulated.
+Runs ``config/scenarios/tank_mpcs_qp.yaml`` — the nonlinear tank of 003 §1 under the
+offset-free MPCS-QP of 003 §6 at its default horizons (N, Nu, block) = (600, 200, 10) with
+003's λ = 0.5, within the document's constraints
+0 ≤ F_H, F_Cin ≤ 100 cm³/s and |ΔF| ≤ 0.2 cm³/s per sample, warm-started at the operating point;
+setpoint changes on h and T_out and ±25 % steps of F_D, 9100 s simulated — as three node
+processes plus the harness's recorder, then prints the metrics table, the inputs' ranges and
+constraint violations, and where the plot, trace and recording are. Comparison with the
+two-loop PI: docs/mpcs.md.
 
     python -m tank_control.demo [--out DIR] [--scenario FILE] [--duration S] [--in-process]
 """
@@ -77,6 +70,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name, m in inputs.items():
         print(f'input {name}: min {m["min"]:.4g}, max {m["max"]:.4g}, total variation '
               f'{m["total_variation"]:.4g}, constraint violations {m["constraint_violations"]}')
+    for warning in result.metrics.get('controller', {}).get('warnings', []):
+        print(f'controller warning: {warning}')
     print(f'run: {run_info["ticks"]} ticks, {run_info["sim_duration"]:g} s simulated in '
           f'{run_info["wall_time"]:.1f} s wall ({run_info["ticks_per_s"]:.0f} ticks/s), '
           f'missed samples {run_info["missed_samples"]}, late samples {run_info["late_samples"]}')

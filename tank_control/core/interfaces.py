@@ -1,23 +1,13 @@
-"""The small interfaces every plant, controller and reference shares.
+"""The small interfaces every plant, controller and reference shares (pure Python/numpy).
 
-These are the contracts between `core/` objects, `core/loop.py` (the in-process
-closed loop) and the ROS 2 nodes. Everything here is pure Python/numpy.
-
-Conventions
------------
-* Signals are named channels. A plant declares the names of its measured
-  outputs, manipulated inputs and disturbances; a controller declares which
-  outputs it reads and which inputs it writes; setpoints carry the name of the
-  output they are for (a setpoint for ``h`` is named ``h``).
-* SISO plants use the channel names ``y`` (output), ``u`` (manipulated input)
-  and ``v`` (load disturbance at the plant input, 000 Fig. 1: y = G·(u + v)).
-* The mixing tank (003 §1) uses outputs ``h`` [cm], ``T_out`` [°C]; inputs
-  ``F_H``, ``F_Cin`` [cm³/s]; disturbances ``F_D`` [cm³/s], ``T_D``, ``T_H``,
-  ``T_C`` [°C]. Units are those of the document (cm, cm³/s, °C, s).
-* Vectors are 1-D ``numpy.float64`` arrays ordered as the declared names.
-* Time is kept as integer nanoseconds (``t_ns``) wherever samples are counted,
-  so that the in-process loop and the ROS graph (whose stamps are integer
-  nanoseconds) see bit-identical sample instants; ``seconds(t_ns)`` converts.
+The contracts between ``core/`` objects, ``core/loop.py`` and the ROS 2 nodes. Signals are
+named channels: a plant declares its outputs, inputs and disturbances, a controller the outputs
+it reads and the inputs it writes, a setpoint carries its output's name. SISO plants use ``y``,
+``u`` and ``v`` (load at the plant input, 000 Fig. 1); the mixing tank (003 §1) ``h`` [cm],
+``T_out`` [°C], ``F_H``, ``F_Cin``, ``F_D`` [cm³/s], ``T_D``, ``T_H``, ``T_C`` [°C]. Vectors
+are 1-D float64 arrays in the declared order. Time is integer nanoseconds wherever samples are
+counted, so the in-process loop and the ROS graph see bit-identical instants;
+``seconds(t_ns)`` converts.
 """
 from __future__ import annotations
 

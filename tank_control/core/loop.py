@@ -1,24 +1,18 @@
 """The discrete-time closed loop run in-process: the reference every ROS run must match.
 
-Exactly the arithmetic of the lockstep protocol of the nodes, without ROS. With ``ts_ns = to_ns(sample_time)`` (the plant's sample time), for tick
-``k = 0, 1, ..., K`` (``K = duration_ns // ts_ns``):
+The arithmetic of the nodes' lockstep protocol (docs/nodes.md), without ROS. With
+``ts_ns = to_ns(sample_time)`` of the plant, for tick ``k = 0 … duration_ns // ts_ns``:
 
-1. ``t_k = k * ts_ns`` (integer ns), ``t = seconds(t_k)``;
-2. ``r``, ``d`` from the reference at ``t`` (disturbance channels the
-   reference does not schedule keep the plant's nominal values);
-3. ``y = plant.outputs() + noise()`` — one noise draw per tick, the same
-   draws the plant node makes;
-4. ``u = controller.step(t, y, r, d)`` if ``t_k % controller_ts_ns == 0``
-   (the controller's sample instants), else the last ``u`` is held; at the
-   first sample whose measurement is finite the controller is first warm-started
-   (:func:`warm_start`: ``reset(y, initial_output)``), exactly as controller_node does;
-5. record ``t, y.*, r.*, u.*, d.*``;
-6. ``plant.step(u, d, sample_time)`` — zero-order hold over ``[t_k, t_k+1)``.
+1. ``t_k = k·ts_ns`` (integer ns); ``r``, ``d`` from the reference at ``t_k`` (disturbance
+   channels it does not schedule keep the plant's nominal values);
+2. ``y = plant.outputs() + noise()`` — one noise draw per tick, as plant_node draws;
+3. at the controller's sample instants (``t_k % controller_ts_ns == 0``)
+   ``u = controller.step(t, y, r, d)``, else the last ``u`` is held; the first sample with
+   a finite measurement first warm-starts it (:func:`warm_start`), as controller_node does;
+4. record ``t, y.*, r.*, u.*, d.*``; ``plant.step(u, d, sample_time)`` — ZOH over
+   ``[t_k, t_k+1)``.
 
-Channels are matched by name: the controller reads ``controller.output_names``
-from ``y`` and ``r``, ``controller.disturbance_names`` from ``d``, and writes
-``controller.input_names`` into the plant's inputs (others keep their nominal
-value).
+Channels are matched by name (``output_names``, ``disturbance_names``, ``input_names``).
 """
 from __future__ import annotations
 

@@ -142,16 +142,9 @@ def lookup(table: Mapping[str, Any], name: str, what: str) -> Any:
         raise ConfigError(f'{what.split()[0]}: ' + unknown_reason(str(name), table, what)) from None
 
 
-def check_all(specs: Iterable[ParamSpec], values: Mapping[str, Any]) -> list[str]:
-    """Reasons for every value in ``values`` that its spec rejects (unknown names too)."""
-    by_name = {spec.name: spec for spec in specs}
-    reasons = []
-    for name, value in values.items():
-        spec = by_name.get(name)
-        reason = unknown_reason(name, by_name) if spec is None else spec.check(value)
-        if reason:
-            reasons.append(reason)
-    return reasons
+def by_name(*items: Any) -> dict[str, Any]:
+    """A table of ``items`` keyed by their ``name`` (a kind registry)."""
+    return {item.name: item for item in items}
 
 
 # ----------------------------------------------------------------------------------- fields
@@ -224,16 +217,14 @@ def _params(cls: type) -> dict[str, _Param]:
     return out
 
 
-def specs_of(cls: type, prefix: str = '', **defaults: Any) -> tuple[ParamSpec, ...]:
-    """The parameters declared on dataclass ``cls``, names prefixed with ``prefix``;
-    ``defaults`` (by field name) replace the declared defaults (e.g. a kind's channel names)."""
+def specs_of(cls: type, **defaults: Any) -> tuple[ParamSpec, ...]:
+    """The parameters declared on dataclass ``cls``; ``defaults`` (by field name) replace the
+    declared defaults (e.g. a kind's channel names)."""
     out = []
     for p in _params(cls).values():
         spec = p.spec
         if p.field in defaults:
             spec = dataclasses.replace(spec, default=_encode(p, defaults[p.field]))
-        if prefix:
-            spec = dataclasses.replace(spec, name=prefix + spec.name)
         out.append(spec)
     return tuple(out)
 

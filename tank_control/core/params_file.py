@@ -1,17 +1,12 @@
 """ROS 2 parameter files: the one reader and writer (harness, in-process loop, ``ros2 param``).
 
-A file maps node names to ``ros__parameters``::
-
-    /**:                         # every node (also ``/*``)
-      ros__parameters: {clock_mode: lockstep}
-    plant:                       # also /plant or /**/plant
-      ros__parameters: {plant: ipdt, tuning: {rule: mdp}}   # nested maps = dotted names
-
-:func:`read`/:func:`parse` give each section's flat parameters (dotted names, as rcl reads
-them), keyed ``/**`` for the wildcard and by the bare node name otherwise; :func:`node_values`
-is what one node receives (wildcard overlaid by its own section); :func:`dumps`/:func:`write`
-write sections back nested, in the dialect of :mod:`ros_yaml`. Values must be ROS 2 parameter
-values: bool, int, float, string or a non-empty list of one of them, finite numbers.
+A file maps node names (``plant``, ``/plant``, ``/**/plant``; ``/**`` or ``/*`` for every node)
+to ``ros__parameters``; nested maps are dotted names (``tuning: {rule: mdp}`` is
+``tuning.rule``). :func:`read`/:func:`parse` give each section's flat parameters, keyed ``/**``
+for the wildcard and by the bare node name otherwise; :func:`node_values` is what one node
+receives (wildcard overlaid by its own section); :func:`dumps`/:func:`write` write sections
+back nested, in the dialect of :mod:`ros_yaml`. Values must be ROS 2 parameter values: bool,
+int, float, string or a non-empty list of one of them, finite numbers.
 """
 from __future__ import annotations
 

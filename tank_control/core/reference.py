@@ -1,39 +1,11 @@
-"""Setpoint and disturbance schedules per channel (the reference publisher's arithmetic).
+"""Setpoint and disturbance schedules per channel: the reference publisher's arithmetic.
 
-A channel is a piecewise-constant *target* — ``values[i]`` from ``times[i]``
-on (``values[0]`` also before ``times[0]``) — optionally followed at a limited
-rate ``ramp_rate`` [units/s] instead of jumping. A rate limit turns a step into
-a ramp: 001 Fig. 1.15 reaches setpoint 100 in 25 s, i.e. ``ramp_rate = 4``
-(SPEC §2.4: ~40 % overshoot of the ZN PID with a step, ~3 % with the ramp).
-The value at time ``t`` is a closed-form function of the schedule and ``t``
-(no hidden integrator state), so the ROS reference node and the in-process
-loop (``core/loop.py``) compute bit-identical values.
-
-Parameter layout (flat typed ROS 2 parameters; nested YAML maps flatten to the
-same dotted names)::
-
-    reference:
-      ros__parameters:
-        sample_time: 1.0               # publishing period in wall mode [s]
-        clock_mode: wall               # sim/lockstep: answer every /clock tick instead
-        setpoint.channels: [y]          # setpoint channels (= controlled outputs)
-        setpoint.y.times: [0.0, 10.0]   # [s] instants of scheduled changes (non-decreasing)
-        setpoint.y.values: [0.0, 1.0]   # target from times[i] on [channel units]
-        setpoint.y.ramp_rate: 0.0       # [units/s] rate limit of transitions; 0 = steps
-        setpoint.y.min: -1.0e9          # limits: an out-of-range value is rejected
-        setpoint.y.max: 1.0e9
-        disturbance.channels: [v]
-        disturbance.v.value: 0.0        # shorthand for a constant (instead of times/values)
-
-``<kind>.<ch>.value`` in a file is a constant (``times: [0.0]``,
-``values: [value]``); together with ``times``/``values`` it must equal the
-schedule's value at t = 0 (the node declares ``value`` so, and ``ros2 param
-dump`` writes all three), any other value is an error.
-At runtime ``ros2 param set /reference setpoint.y.value 2.0`` is an operator
-override applied at the next published instant ``t``: the target becomes 2.0
-from ``t`` on and later scheduled entries are dropped (the ramp rate still
-applies). A new ``times``/``values`` pair replaces the schedule (equal lengths;
-set both at once, e.g. ``ros2 param load`` or ``set_parameters_atomically``).
+A channel is a piecewise-constant target — ``values[i]`` from ``times[i]`` on — optionally
+followed at the rate ``ramp_rate`` [channel units/s] (001 Fig. 1.15: 0 → 100 in 25 s is
+``ramp_rate = 4``). The value at time ``t`` [s] is a closed-form function of the schedule and
+``t`` (no hidden integrator state), so reference_node and the in-process loop compute
+bit-identical values. Parameter layout (``setpoint.<ch>.times`` ...), ``value`` and runtime
+overrides: docs/nodes.md ("reference_node").
 """
 from __future__ import annotations
 
@@ -281,7 +253,7 @@ def channel_specs(reference: Reference) -> tuple[ParamSpec, ...]:
     """ParamSpecs of the reference's channels; defaults are the given reference's schedules.
 
     ``value`` is declared with the channel's value at t = 0 and acts as the
-    runtime override (layout and semantics: module doc).
+    runtime override (layout and semantics: docs/nodes.md, "reference_node").
     """
     specs = [
         # [''] stands for "no channels" (a ROS list parameter needs an item to have a type)

@@ -89,6 +89,8 @@ def _print_result(result) -> None:
     if claim:
         print(f'documented claim: {claim}')
     print(markdown_table([result]), end='')
+    for warning in result.metrics.get('controller', {}).get('warnings', []):
+        print(f'controller warning: {warning}')
     for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
         if key in result.files:
             print(f'{key}: {result.files[key]}')
@@ -115,6 +117,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             results.append(_run_one(path, args.out / name, args))
         files = write_comparison(results, args.out)
         print(files['table'].read_text(), end='')
+        for result in results:
+            for warning in result.metrics.get('controller', {}).get('warnings', []):
+                print(f'{result.name}: controller warning: {warning}')
         print(f'table: {files["table"]}\nplot: {files["plot"]}')
         return 0
     except ScenarioError as err:

@@ -1,65 +1,9 @@
-"""Metrics of a run, computed from its trace (``metrics.json``).
+"""Metrics of a run, computed from its trace: the body of ``metrics.json``.
 
-Events and windows. An event is a setpoint change of any output (``r.<name>``) or a
-change of any disturbance (``d.<name>``). A change is a run of consecutive samples
-where the signal moves in one direction (a step is one sample, a reference ramp
-several); it goes from the value before to the value once the signal is constant.
-A change smaller than ``STEP_TOL`` (0.1 %) of the channel's magnitude — the largest
-|value| of the column over the run (and |y(0)| for a setpoint) — is not an event
-(e.g. a setpoint written as 33.5714 for the tank's 2115/63 = 33.571428… °C). When the
-run starts away from its setpoint (|r(0) − y(0)| above that tolerance), t = 0 counts
-as a setpoint change from y(0). Each event's window runs from its first sample to
-the next event of any kind (any output, any disturbance; exclusive) or the end of
-the run, so one response is never mixed with the response to another event.
-``events`` lists them in time order: ``t``, ``t_end`` [s] (the next event's instant,
-not part of the window, or the run's last sample), ``kind`` (``setpoint``/
-``disturbance``), ``channel``, ``from``, ``to``.
-
-Per output channel (one with a setpoint column ``r.<name>``), with e = r − y (e > 0:
-the output is below its setpoint):
-
-* ``iae`` = ∫|e| dt and ``ise`` = ∫e² dt over the whole run (trapezoidal rule,
-  ``core.analysis.step_metrics``). Units: channel unit·s and unit²·s.
-* ``steps``: one entry per setpoint change of this output, over its window
-  (Δ = r_to − r_from, times from the change's start): ``t``, ``t_end``, ``r_from``,
-  ``r_to``;
-
-  - ``overshoot_pct``: max(0, max sign(Δ)·(y − r_to)) / |Δ| · 100;
-  - ``rise_time``: time from 10 % to 90 % of Δ, None if 90 % is never reached;
-  - ``settling_time``: time after which |y − r_to| stays within 2 % of |Δ|,
-    None if it never does within the window;
-  - ``ss_error``: r_to − mean(y) over the last 5 % of the window;
-  - ``peak``, ``peak_time`` (computed by ``core.analysis.step_metrics``);
-  - ``interaction``: per other output (one without a setpoint change at the same
-    instant) what this step does to it over the window — the deviation metrics
-    below;
-  - ``coincident``: other events starting at the same sample (they share the window).
-
-* ``disturbance_steps``: one entry per instant where a disturbance changes, over its
-  window: ``t``, ``t_end``, ``changes`` ({channel: [from, to]}), ``coincident``
-  (setpoint changes at the same sample), and the deviation metrics of this output.
-
-Deviation metrics (``core.analysis.step_metrics.deviation_metrics`` of e over the
-window): ``peak_error`` max |e| and ``peak_signed`` e there, ``peak_time`` after the
-event [s]; ``iae`` ∫|e| dt and the signed ``integral_error`` ∫e dt (000 eq. 10 gives
-it in closed form for a load step on an integrating plant); ``recovery_time``: time
-after which |e| stays within 2 % of ``peak_error`` [s], None if not within the window;
-``final_error``: mean e over the last 5 % of the window; ``initial_error``: e at the
-event. The deviation is measured from the output's setpoint, so an output still
-moving from an earlier event carries that into these numbers (``initial_error`` ≠ 0).
-
-Per input channel ``u.<name>``: ``min``, ``max``, ``total_variation`` Σ|Δu|,
-and ``constraint_violations`` (samples outside the controller's
-``[u_min, u_max]``, 1e-9 tolerance, when limits are known).
-
-Run (``sampling_metrics``): ``missed_samples`` — plant ticks without a recorded
-measurement (gaps, and before the first one when the clock starts at 0);
-``max_jitter`` [s] — largest deviation of the spacing of successive
-measurements from the plant sample time: of their stamps in sim/lockstep (0 on
-the exact tick grid), of their arrival times at the recorder in wall mode;
-``late_samples`` — the sum of ``late_by_signal`` (``Trace.late``: per
-answer signal the due instants whose answer was not recorded or was reported
-late by its consumer; ``harness/trace.py``), by the same rule in every clock mode.
+Events (setpoint and disturbance changes) and their windows; per output IAE, ISE, per-step and
+deviation metrics; per input range, total variation and constraint violations; the run's
+sampling figures. Every field and its definition: docs/harness.md ("metrics.json").
+Units: the channels' units, times in s of plant time; e = r − y.
 """
 from __future__ import annotations
 
@@ -184,7 +128,7 @@ def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> 
 
 
 def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
-    """Deviation metrics (module docstring) of the error ``e`` over a window starting at t[0]."""
+    """Deviation metrics (docs/harness.md) of the error ``e`` over a window starting at t[0]."""
     finite = np.isfinite(e)
     if finite.sum() < 2:
         return {'peak_error': None, 'peak_signed': None, 'peak_time': None, 'iae': None,
@@ -197,7 +141,7 @@ def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
 def signal_metrics(t: np.ndarray, outputs: Mapping[str, tuple[np.ndarray, np.ndarray]],
                    disturbances: Mapping[str, np.ndarray] | None = None,
                    step_tol: float = STEP_TOL) -> dict[str, Any]:
-    """``events`` and ``outputs`` sections (module docstring) for outputs name → (y, r) and
+    """``events`` and ``outputs`` sections (docs/harness.md) for outputs name → (y, r) and
     disturbances name → d sampled at ``t``."""
     t = np.asarray(t, dtype=float)
     n = len(t)

@@ -14,11 +14,11 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from tank_control.harness.recording import RawMessage
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
+from tank_control.nodes.messages import ORIGIN_QOS, SIGNAL_QOS, reliable_qos
 
 #: (topic, type) of everything recorded. Signal topics are relative names (remapping works).
 TOPICS: tuple[tuple[str, str], ...] = (
@@ -34,18 +34,10 @@ TOPICS: tuple[tuple[str, str], ...] = (
 )
 
 # Reliable like the publishers; a deep reader queue so a busy harness does not drop.
-RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
-
+RECORD_QOS = reliable_qos(1000)
 #: ``time_origin`` is latched by the plant (transient local): a late joiner still gets it.
-ORIGIN_RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                               reliability=ReliabilityPolicy.RELIABLE,
-                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-GATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+ORIGIN_RECORD_QOS = ORIGIN_QOS
+GATE_QOS = SIGNAL_QOS
 _GATE_NEEDS = ('measurement', 'setpoint', 'manipulated', 'disturbance')
 
 

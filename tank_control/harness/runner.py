@@ -1,49 +1,10 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
-``run_scenario`` leaves in the output directory:
-
-* ``scenario.yaml`` — the merged parameters file the nodes were started with;
-* ``trace.csv``, ``run.mcap``, ``metrics.json``, ``plot.png``;
-* ``analysis.png`` for a SISO PID loop on a process model (``harness/analysis.py``: Bode with
-  the margins, Nyquist with the Ms circle, gang of four, of the final gains);
-* ``logs/<node>.log`` — each node's output (ROS runs).
-
-ROS run, step by step (no sleeps: every wait spins the recorder until an event):
-
-1. the recorder node starts in this process (its own rclpy context);
-2. every node starts as its own OS process
-   (``python -m tank_control.nodes.<name>_node --ros-args --params-file F``,
-   plus ``-p use_sim_time:=true`` for the non-plant nodes in sim/lockstep and
-   ``-p lockstep.paused:=true`` for the plant: its clock holds tick 0);
-3. wait until every node is in the graph and the recorder has matched every
-   publisher (measurement, /clock, setpoint, disturbance, manipulated); in sim
-   and wall, where the plant does not wait for answers, also every node's
-   subscriptions (the plant's inputs, the controller's measurement and
-   setpoint, the reference's /clock — in wall the time_origin of reference
-   and controller);
-4. un-pause the plant through its parameter service — tick 0 is published
-   only now (in wall mode its wall time is the time origin, which the
-   reference and the controller schedule on), so the recorder sees every tick
-   from the first. In
-   lockstep the plant's ``disturbance`` input is remapped to ``disturbance_gated``, which the
-   recorder feeds once it holds the whole tick (``Recorder.enable_gate``): the
-   plant cannot run ahead of the recording, so no sample is lost on a busy
-   machine (the signal publishers keep only 10 messages for a slow reader);
-5. run until the simulated time reaches the duration (lockstep: until every
-   answer of the last tick ≤ duration is recorded), watching that every
-   process is alive and the clock is moving;
-6. read the controller's parameters (final gains) through its services;
-7. stop the processes: SIGINT, then SIGTERM, then SIGKILL.
-
-A process that exits early, a graph that does not come up in
-``harness.startup_timeout`` or a clock that stops for ``harness.stall_timeout``
-ends the run with ``RunFailed`` carrying the node's last log lines.
-
+``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
+``plot.png``, ``analysis.png`` (a SISO PID loop on a process model: ``harness/analysis.py``)
+and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds (start
+paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
 Times in the results are plant time (stamp − the plant's ``time_origin``).
-``late_samples`` in ``metrics.json`` (every clock mode) is the sum of
-``late_by_signal``: per answer signal (``r``, ``u``, ``d``) the due instants
-whose answer was not the value used that tick — none recorded, or reported
-late by its consumer (definition: ``harness/trace.py``).
 """
 from __future__ import annotations
 
@@ -132,7 +93,7 @@ def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = No
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
                  node_command: NodeCommand = node_module_command) -> RunResult:
-    """Run a loaded scenario into ``out_dir`` (see the module docstring)."""
+    """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for stale in OUTPUT_FILES:                    # a failed run must not leave old results
@@ -182,6 +143,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'run': run_info,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
                        **({'robustness': robustness} if robustness else {}),
+                       'warnings': controller_warnings(controller_params),
                        'parameters': dict(controller_params)},
         'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
                           for case in cases} or analysis_note or None,
@@ -199,6 +161,18 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
                                                 'final gains')
     files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
     return RunResult(scenario.name, out, trace, metrics, files)
+
+
+def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
+    """The configuration warning the controller gives for its final parameters (its
+    ``warning``, which controller_node logs and shows in /diagnostics; e.g. MPCS horizons
+    shorter than the plant's dead times), as a list: empty when there is none."""
+    if 'controller' not in controller_params:
+        return []
+    setup = core_scenario.controller_setup(controller_params, given=())
+    controller = setup.kind.build(setup.settings)
+    warning = str(getattr(controller, 'warning', '') or '')
+    return [warning] if warning else []
 
 
 def _jsonable(value: Any) -> Any:

@@ -1,26 +1,9 @@
 """Scenario files: one standard ROS 2 parameters file that is also a runnable experiment.
 
-A scenario has a section per node (``plant``, ``controller``, ``reference``), optionally
-``/**`` for every node, and a ``harness`` section read only by the harness::
-
-    plant:
-      ros__parameters: {plant: ipdt, gain: 0.05, dead_time: 5.0, sample_time: 0.1}
-    controller:
-      ros__parameters: {controller: pid, kp: 3.14, ti: 18.66}
-    reference:
-      ros__parameters: {...}
-    harness:
-      ros__parameters:
-        duration: 100.0            # simulated seconds
-        clock_mode: lockstep       # lockstep | sim | wall
-        real_time_factor: 0.0      # 0 = as fast as possible (lockstep only)
-        nodes: [plant, controller, reference]
-
-Files are read by ``core/params_file.py`` and every node section is validated as the node
-validates it (``core/scenario.py``), so a file or ``--set`` override that a node would refuse
-is refused before anything starts, with the same reason, in a ROS run and in-process alike.
-``--set NODE.PARAM=VALUE`` values are typed as YAML (``kp=2.5`` a float, ``rule=mdp`` a
-string, ``steps=[0.0, 1.0]`` a list).
+A section per node (``plant``, ``controller``, ``reference``, optionally ``/**``) and a
+``harness`` section (``duration`` [s], ``clock_mode``, ``real_time_factor``, ``nodes``, ...)
+read only by the harness. Every node section is validated as the node validates it, and
+``--set NODE.PARAM=VALUE`` values are typed as YAML. Layout and example: docs/harness.md.
 """
 from __future__ import annotations
 

@@ -1,32 +1,9 @@
 """A ROS run's table (``core/trace.py``) from the recorded signal messages.
 
-The ``measurement``, ``setpoint``, ``manipulated`` and ``disturbance`` messages are joined
-on their stamps into the table the in-process loop writes.
-
-Join rule for recorded messages (``from_messages``): the rows are the stamps of
-the ``measurement`` messages (plant ticks ``t_k``); row k holds what acts over
-``[t_k, t_k+1)``: each other signal takes its latest message stamped before
-``t_k+1`` (zero-order hold). In sim and lockstep every answer is stamped
-exactly ``t_k``; in wall mode the controller's answer to tick k is stamped
-when it sampled, within ``[t_k, t_k+1)``, and the plant integrates that
-interval with it. Before the first message a column is NaN.
-
-Late samples (``Trace.late``, per signal ``r``, ``u``, ``d``). An answer
-is *due* at the instants of its sender's grid on plant time (``due_ns``: the
-controller's ``sample_time`` for ``u``; every tick for ``r``/``d`` in sim and
-lockstep, the reference's ``sample_time`` in wall mode); its answer to a due
-instant ``t_e`` is a message stamped in ``[t_e, t_e + period)``. A due
-instant is late when
-
-* no answer to it was recorded (the value is held from an earlier one), or
-* its consumer reported the answer late (``late_stamps``: the plant for
-  ``u``/``d``, the controller for ``r``, on ``~/late_inputs``): it came after
-  the consumer had used that tick, which then ran with the previous value
-  (sim, wall; lockstep waits for every answer, so there only a message the
-  recording lost counts).
-
-The trace shows answers by their stamps; a reported one was used a tick later
-than its row says (the report in ``run.mcap`` holds the values used instead).
+The ``measurement``, ``setpoint``, ``manipulated`` and ``disturbance`` messages are joined on
+their stamps into the table the in-process loop writes: row k holds what acts over
+``[t_k, t_k+1)`` (zero-order hold). The join rule and the late-sample rule (``Trace.late``):
+docs/harness.md ("trace.csv", "Late samples"). Stamps in integer ns.
 """
 from __future__ import annotations
 
@@ -61,7 +38,7 @@ def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
                   t_end_ns: int | None = None, tick_ns: int | None = None,
                   due_ns: Mapping[str, int] | None = None,
                   late_stamps: Mapping[str, Iterable[int]] | None = None) -> Trace:
-    """Join recorded signal messages into a table (see the module docstring).
+    """Join recorded signal messages into a table (join rule: docs/harness.md, "trace.csv").
 
     ``t0_ns`` is subtracted from the stamps (the plant's time origin: 0 in
     sim/lockstep, the wall time of its tick 0 in wall mode); rows end at

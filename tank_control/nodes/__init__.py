@@ -1,10 +1,9 @@
-"""Thin rclpy adapters around core objects.
+"""Thin rclpy adapters around core objects: plant_node, controller_node, reference_node.
 
-A control node computes one small problem per sample; a multi-threaded BLAS
-only adds wake-up latency and contention on a small machine (seen: an MPCS
-rebuild taking ~1 s instead of ~0.1 s on 2 loaded cores). Nodes therefore run
-single-threaded BLAS unless the user asks otherwise. This must happen before
-numpy is imported, which is why it lives in the package's ``__init__``.
+Importing the package sets single-threaded BLAS unless the environment says otherwise: a
+node solves one small problem per sample, and a multi-threaded BLAS only adds wake-up latency
+and contention on a small machine (MPCS rebuild times: bench/RESULTS.md, "MPCS"). This must
+happen before numpy is imported, which is why it lives in the package's ``__init__``.
 """
 import os
 

@@ -1,18 +1,10 @@
-"""Clock modes and the lockstep bookkeeping shared by the nodes (BRIEF "Clock modes").
+"""Clock modes and the lockstep bookkeeping shared by the nodes (docs/nodes.md, "Clock modes").
 
-* ``wall``: every node samples on its own wall timer with the latest data.
-* ``sim``: the plant publishes ``/clock`` at ``real_time_factor`` × real time;
-  the other nodes run with ``use_sim_time``.
-* ``lockstep``: the plant publishes tick k (``/clock = t_k`` and the
-  measurement stamped ``t_k = k * ts_ns``) and advances only when every answer
-  stamped ``t_k`` has arrived. Answers are idempotent per stamp: a node that
-  already answered ``t_k`` re-publishes the same messages when tick k is
-  re-sent (``Answers``).
-
-``StampedInbox`` collects the messages of one stamp from several topics and
-says when a tick is complete; the plant uses it for ``manipulated`` (+
-``disturbance``), a controller for ``measurement`` + ``setpoint`` (+
-``disturbance``).
+``StampedInbox`` collects the messages of one stamp from several topics and says when a
+lockstep tick is complete (the plant: ``manipulated`` + ``disturbance``; a controller:
+``measurement`` + ``setpoint`` + ``disturbance``); ``Answers`` keeps the messages a node
+published for a stamp, so a re-sent tick is answered with the same messages. Times in
+integer nanoseconds.
 """
 from __future__ import annotations
 
@@ -31,7 +23,7 @@ def steady_clock() -> Clock:
 
 
 def is_sample_instant(t_ns: int, sample_time_ns: int) -> bool:
-    """True if ``t_ns`` is a multiple of the sample time (integer arithmetic, BRIEF)."""
+    """True if ``t_ns`` is a multiple of the sample time (integer arithmetic, no rounding)."""
     return sample_time_ns > 0 and t_ns % sample_time_ns == 0
 
 

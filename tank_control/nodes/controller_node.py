@@ -1,70 +1,11 @@
-"""controller_node: a core controller (selected by name) sampled on the ROS 2 graph.
+"""controller_node: a core controller kind (parameter ``controller``) sampled on the ROS 2 graph.
 
-Parameters: those of the selected controller kind (``core/control/registry.py``;
-for ``pid`` the gains ``kp, ti, td, n, b, c``, limits ``u_min, u_max,
-du_max``, ``anti_windup``, ``tracking_time``, ``mode``, ``manual_output``,
-``fail_safe``, ``fail_safe_output``, ``tuning.*``, channel names
-``output_names``/``input_names``) plus the node's own (``clock_mode``,
-``stale_samples``, ``diagnostics_period``). Every change is validated before it
-is accepted (``nodes/params.py``) and applied at the next sample, bumplessly.
-
-Topics (relative names): subscribes ``measurement``, ``setpoint`` and, when the
-controller uses measured disturbances, ``disturbance`` (a channel the reference does
-not publish reaches the controller as NaN, and the controller keeps its own value —
-``mpcs``: the last measured one, initially its operating point ``mpcs.op.F_D``,
-``mpcs.op.T_D``; in lockstep the tick still waits for the reference's message, which may
-hold no channels); publishes
-``manipulated`` (``sensor_msgs/JointState`` by channel name, stamped with the
-sample instant) and ``/diagnostics`` (mode, saturation, anti-windup, faults,
-counters, computation time, the controller's ``status`` as ``status.*`` and its
-``robustness.*`` / ``autotune.*`` results; level WARN with the text of any non-empty
-``*.warning`` result, published at once when one appears).
-A kind's operator commands are ``std_srvs/Trigger`` services ``~/<command>``;
-values a kind produces while running (``results``) are written back to its
-parameters after each sample and after each command. A kind with a state machine
-(``ControllerKind.state``, e.g. ``autotune.state`` of ``relay_autotune``)
-publishes every state change on ``~/<state name, '.' → '_'>`` (e.g.
-``/controller/autotune_state``; ``std_msgs/String`` holding the state name,
-reliable, transient local, keep-last 10: a late subscriber gets the recent states,
-the last one current)
-and in ``/diagnostics`` at once (message ``<state name> <state>[: reason]``).
-
-Sampling (BRIEF "Clock modes"), parameter ``clock_mode``:
-
-* ``wall`` — a wall timer every ``sample_time`` with the latest data, stamped
-  with the wall time; the loop time ``t`` given to the controller (e.g. for
-  ``autotune.start_time``) is plant time, ``stamp − origin`` with the plant's
-  latched ``time_origin`` (``nodes/messages.py``): no sample before it is known;
-* ``sim`` — the same timer on the simulated clock (``use_sim_time:=true``),
-  latest data, stamped with the latest sample instant ``k·sample_time`` the
-  simulated clock has reached (``clock.sim_sample_instant``): strictly increasing
-  even when the timer fires late (a loaded machine, a ``/clock`` jump);
-* ``lockstep`` — no timer: once ``measurement`` and ``setpoint`` (and
-  ``disturbance`` if used) stamped ``t_k`` are in, the node computes
-  ``step(t_k, ...)`` if ``t_k`` is a multiple of its sample time (else holds its
-  last output) and publishes ``manipulated`` stamped ``t_k``. Answers are
-  idempotent: a re-sent tick gets the same message again, not a recomputation;
-* ``auto`` (default) — ``lockstep`` answering when ``use_sim_time`` is true
-  (the harness passes it in the plant's sim and lockstep modes; the reference
-  answers every ``/clock`` tick in both, so each sample uses the measurement
-  of exactly its instant), else ``wall``.
-
-Late setpoints (sim, wall): a ``setpoint`` message stamped at or before the
-latest sample instant (plant time) arrived after that sample had used an
-older one; its stamp and the setpoint values used instead are published on
-``~/late_inputs``. (An older message than the one held is not taken.)
-
-Warm start: at the first sample with a finite measurement the controller is
-``reset(y, initial_output)`` (``core.loop.warm_start``, exactly as the in-process
-loop), so it takes over the plant bumplessly from ``initial_output``.
-
-Measurement faults: a non-finite measured value, or (wall/sim) no measurement
-for ``stale_samples`` samples, holds the last output — or sends
-``fail_safe_output`` when ``fail_safe`` is ``output`` — without touching the
-controller's state; it is logged once per episode and counted in the
-diagnostics. When good measurements return the controller is re-initialised
-from the output the plant received (``Controller.reset(y, u)``), so the
-output continues without a jump.
+Subscribes ``measurement``, ``setpoint`` (and ``disturbance`` when the kind uses measured
+disturbances); publishes ``manipulated``, ``/diagnostics``, ``~/late_inputs``, the kind's state
+topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
+parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
+Samples on a timer (``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start,
+measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
 """
 from __future__ import annotations
 
@@ -78,7 +19,6 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -94,17 +34,15 @@ from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
 from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
-                                         TOPIC_TIME_ORIGIN, from_joint_state, stamp_to_ns,
-                                         to_joint_state)
+                                         TOPIC_TIME_ORIGIN, from_joint_state, reliable_qos,
+                                         stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
 #: State topic of a kind with a state machine: reliable, transient local, keep-last 10 (a
 #: one-sample state such as ``tuned`` is not overwritten before delivery); a late subscriber
 #: gets the recent states, the last one is the current state.
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE_QOS = reliable_qos(10, latched=True)
 
 
 class ControllerNode(Node):
@@ -182,6 +120,8 @@ class ControllerNode(Node):
             f'{kind_name} controller ({self._kind.description}), {self._mode} clock, sample_time '
             f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '
             f'writes {list(self._inputs)}')
+        self._warning = ''
+        self._check_warning()
 
     # ------------------------------------------------------------ parameters
     def _kind_from_overrides(self) -> str:
@@ -389,6 +329,7 @@ class ControllerNode(Node):
         u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start
         self._u = u
+        self._check_warning()
         self._write_results()
         return u
 
@@ -456,9 +397,22 @@ class ControllerNode(Node):
         return u
 
     # ----------------------------------------------------------- diagnostics
+    def _check_warning(self) -> None:
+        """The controller's configuration warning (its ``warning`` attribute, '' for none;
+        e.g. MPCS horizons shorter than its dead times): logged when it appears or
+        changes, and shown in ``/diagnostics`` (level WARN, in the message) while it lasts."""
+        warning = str(getattr(self._controller, 'warning', '') or '')
+        if warning == self._warning:
+            return
+        self._warning = warning
+        if warning:
+            self.get_logger().warning(warning)
+        self._publish_diagnostics()
+
     def _publish_diagnostics(self) -> None:
         status = dict(self._controller.status)
-        level = DiagnosticStatus.WARN if self._fault else DiagnosticStatus.OK
+        level = (DiagnosticStatus.WARN if self._fault or self._warning
+                 else DiagnosticStatus.OK)
         waiting = len(self._y) < len(self._outputs) and self._mode != 'lockstep'
         message = (f'measurement {self._fault}: holding' if self._fault
                    else 'waiting for measurement' if waiting
@@ -471,6 +425,8 @@ class ControllerNode(Node):
         if warnings:
             level = DiagnosticStatus.WARN
             message += '; ' + '; '.join(warnings)
+        if self._warning:
+            message += f'; warning: {self._warning}'
         fields = {
             'controller': self._params.values['controller'],
             'clock_mode': self._mode,

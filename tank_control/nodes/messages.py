@@ -1,27 +1,8 @@
-"""Signal messages and QoS shared by every node (BRIEF "Messages").
+"""Signal messages, topic names and QoS shared by every node.
 
-Every signal topic (``measurement``, ``manipulated``, ``setpoint``,
-``disturbance``) carries a ``sensor_msgs/msg/JointState``: ``header.stamp`` is
-the sample instant (integer nanoseconds, exactly ``k * ts_ns`` in sim and
-lockstep), ``name[]`` the channel names and ``position[]`` the values
-(float64, units of the channel); ``velocity``/``effort`` stay empty.
-
-Time base: the plant is the clock master. Its tick k is at plant time
-``t_k = k * ts``; a stamp is ``origin + t_k`` where ``origin`` is published
-(latched) on ``time_origin`` — 0 in sim and lockstep (the simulated clock
-starts at tick 0), the ROS (wall) time of tick 0 in wall mode. Every node
-schedules on plant time (``stamp - origin``).
-
-An answer (``setpoint``, ``manipulated``, ``disturbance``) that reaches its
-consumer after the consumer has used its tick (sim and wall: nobody waits) is
-*late*; the consumer keeps the value it used and publishes the answer's stamp
-with the values it used instead on ``~/late_inputs`` (``/plant/late_inputs``
-for ``manipulated``/``disturbance``, ``/controller/late_inputs`` for
-``setpoint``).
-
-JointState is chosen because it is in common_interfaces, has a header and
-carries named float64 values, so every standard tool (``ros2 topic echo``,
-rosbag/MCAP, PlotJuggler, Foxglove) shows the channels by name.
+A signal is a ``sensor_msgs/msg/JointState``: ``header.stamp`` = the sample instant (integer
+ns; ``origin + k·ts`` of the plant's time base), ``name[]`` = channels, ``position[]`` = values
+in the channel's units. Time base, late answers and QoS: docs/nodes.md.
 """
 from __future__ import annotations
 
@@ -37,25 +18,26 @@ from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import NS_PER_S
 
-#: Signal topics: reliable, keep-last 10 (BRIEF "QoS for signal topics").
-SIGNAL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.VOLATILE)
+def reliable_qos(depth: int, latched: bool = False) -> QoSProfile:
+    """Reliable keep-last ``depth``; ``latched``: transient local (a late joiner gets the
+    last ``depth`` messages), else volatile."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))
+
+
+#: Signal topics: reliable, keep-last 10, volatile.
+SIGNAL_QOS = reliable_qos(10)
 #: ``/clock`` published by the plant (reliable keep-last 10; a best-effort
 #: subscriber such as rclpy's own TimeSource still matches it).
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
+CLOCK_QOS = reliable_qos(10)
 #: ``~/late_inputs``: reliable and deep, so that a burst of reports on a loaded machine reaches a
 #: slow reader (the harness's recorder) whole.
-LATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                      reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.VOLATILE)
+LATE_QOS = reliable_qos(1000)
 #: ``time_origin`` (``builtin_interfaces/msg/Time``): the plant's time origin, latched —
 #: reliable, transient local, keep-last 1, so a node that starts later still gets it.
-ORIGIN_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+ORIGIN_QOS = reliable_qos(1, latched=True)
 
 
 def quiet_publisher_events() -> PublisherEventCallbacks:

@@ -1,41 +1,9 @@
-"""Core ``ParamSpec`` tuples → declared, validated ROS 2 parameters.
+"""Core ``ParamSpec`` records → declared, validated ROS 2 parameters (one binding per node).
 
-One ``ParameterBinding`` per node does the whole parameter user interface:
-
-* **declare** every spec with a ``ParameterDescriptor`` (description,
-  ``FloatingPointRange``/``IntegerRange`` from ``min``/``max``, ``read_only``,
-  ``additional_constraints`` naming the allowed values), taking the initial
-  value from the params file (the node's overrides) after validating it;
-* **pre-set** callback (``add_pre_set_parameters_callback``, Jazzy): coerces
-  types as ROS users expect and adds derived parameters (e.g. the gains a
-  tuning rule produces) so they are set atomically with the change;
-* **on-set** callback: checks every value against its spec and the whole
-  candidate set against the node's cross-parameter relations; a violation
-  returns ``SetParametersResult(successful=False, reason=...)`` with a
-  one-line reason naming the parameter and the allowed range — nothing is
-  accepted and then ignored;
-* **post-set** callback: records accepted changes; the node takes them with
-  ``take_pending()`` and applies them at its next sample.
-
-Why validation sits in the on-set callback: Jazzy's pre-set callback can only
-rewrite the list of parameters (an emptied list fails with a generic message),
-so a reason naming the parameter can only come from the on-set callback. Both
-run before anything is stored, so a rejected request changes nothing. Range
-and read-only violations are refused by rclpy itself from the descriptor,
-before the on-set callback, with its own one-line reason ("Parameter kp out of
-range Min: 0.0, Max: ..., value: -1.0"); they are counted in ``rejected`` too.
-
-Typing. Jazzy's rclpy does not coerce: a statically typed ``double`` parameter
-rejects an ``integer`` value ("Wrong parameter type"), both from a params file
-(``kp: 2`` raises at declaration) and from ``ros2 param set /controller kp 2``
-(YAML parses ``2`` as an integer). ``ParameterDescriptor.dynamic_typing`` only
-switches the type check off. This module keeps one type per parameter (the
-type of the spec's default) and converts integers to doubles itself — in the
-overrides before declaring and in the pre-set callback for runtime sets —
-while declaring with ``dynamic_typing=True`` so that a value of a wrong type
-(a string for a gain, say) reaches the on-set check and gets our reason
-("kp: 'abc' is a str, expected float; allowed [0, 1e+12]") instead of rclpy's
-nameless type error. Stored values therefore always have the spec's type.
+Declares every spec with its ``ParameterDescriptor``, validates start-up values and every
+change (spec, then the node's relations between parameters), refuses with a one-line reason
+naming the parameter, and hands accepted changes to the node for its next sample. What users
+see: docs/nodes.md ("Parameters"); the rclpy (Jazzy) details: :class:`ParameterBinding`.
 """
 from __future__ import annotations
 
@@ -129,6 +97,24 @@ class ParameterBinding:
     the requested changes) and returns a reason or None; ``derive`` returns
     extra values to set along with a change (never overriding a value the user
     set in the same request). Both also run on the start-up values.
+
+    Callbacks (Jazzy): the *pre-set* callback coerces types and adds the derived
+    values, so they are set atomically with the change; the *on-set* callback
+    validates; the *post-set* callback records accepted changes for
+    :meth:`take_pending`. Validation sits in the on-set callback because a pre-set
+    callback can only rewrite the list (an emptied list fails with a generic
+    message); both run before anything is stored, so a rejected request changes
+    nothing. Range and read-only violations are refused by rclpy from the
+    descriptor before the on-set callback (counted here too).
+
+    Typing: Jazzy's rclpy does not coerce — a ``double`` parameter rejects an
+    integer ("Wrong parameter type"), from a params file and from ``ros2 param set``
+    alike, and ``dynamic_typing`` only switches the check off. So each parameter
+    keeps the type of its spec's default, integers are converted to doubles here
+    (in the overrides before declaring, in the pre-set callback at runtime), and
+    parameters are declared with ``dynamic_typing=True`` so a value of a wrong
+    type reaches the on-set check and gets a reason naming the parameter instead
+    of rclpy's nameless type error.
     """
 
     def __init__(self, node: Node, specs: Iterable[ParamSpec], *,

@@ -1,57 +1,9 @@
-"""plant_node: simulates a core plant model and is the clock master.
+"""plant_node: simulates a core plant kind (parameter ``plant``) and is the clock master.
 
-Topics (``sensor_msgs/JointState`` signals, see ``nodes/messages.py``):
-
-* publishes ``measurement`` — every output channel with seeded Gaussian noise,
-  one message per tick, ``header.stamp`` = the sample instant;
-* subscribes ``manipulated`` and ``disturbance`` — values taken by channel
-  name; a malformed message, an unknown channel or a non-finite value is
-  ignored (the last valid value is kept), logged once per kind and counted;
-* publishes ``/clock`` (``rosgraph_msgs/Clock``) in ``sim`` and ``lockstep``;
-* publishes ``time_origin`` (``builtin_interfaces/Time``, latched): the ROS
-  time of tick 0 — 0 in ``sim``/``lockstep``, the wall time of its first tick
-  in ``wall``. Plant time is ``stamp − origin`` in every mode, and the other
-  nodes schedule on it (the reference's schedule, the controller's loop time);
-* publishes ``~/late_inputs`` (``sensor_msgs/JointState``): in ``sim`` and
-  ``wall``, an input message that arrived after the plant had integrated the
-  tick it is stamped in (``stamp − origin < t_k``, tick k being the latest
-  published): its stamp and channels, with the values the plant integrated
-  that tick with instead (it held the previous ones). It is still taken as
-  the latest value unless an answer with a later stamp is already held;
-* publishes ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): ticks,
-  ignored inputs, late inputs, re-sent ticks, the time origin, the model's
-  status (clipped flows, overflow).
-
-Clock modes (parameter ``clock_mode``):
-
-* ``wall``: a wall timer every ``sample_time``; tick 0 at start (the time
-  origin), tick k stamped ``origin + k·ts``, published at that wall time.
-* ``sim``: a wall timer every ``sample_time / real_time_factor``; tick k is
-  ``t_k = k·ts_ns`` on ``/clock`` (measurement first, then ``/clock``).
-* ``lockstep``: tick k publishes ``/clock`` and ``measurement`` stamped
-  ``t_k``; the plant integrates ``[t_k, t_k+1)`` once every input channel
-  has a value stamped ``t_k`` on ``manipulated`` and (with
-  ``lockstep.wait_for_reference``) the ``disturbance`` message of ``t_k``
-  arrived, then publishes tick k+1 at once (``real_time_factor: 0``) or when
-  its wall time ``t_{k+1} / real_time_factor`` has come (a pacing timer).
-  Tick k is re-sent unchanged (same noise draw) if no complete answer came
-  within ``lockstep.resend_period`` — this also covers start-up before
-  discovery has matched the endpoints.
-
-``lockstep.paused: true`` (despite the name, in every mode) holds the clock:
-no tick is published and simulated time stands still until it is set to
-false — e.g. to let a recorder match every publisher before tick 0 (the
-harness starts the plant paused in every mode). In ``sim`` and ``wall``
-un-pausing publishes tick 0 (if it was not yet; in ``wall`` its wall time is
-the time origin) and the next tick follows one ``sample_time /
-real_time_factor`` (``wall``: ``sample_time``) later; in ``sim`` pausing again
-stops the timer, a running ``wall`` clock cannot be paused (refused).
-
-In ``wall``/``sim`` each timer tick k first integrates ``[t_{k-1}, t_k)``
-with the latest inputs (the answers to tick k-1), then publishes tick k.
-Model parameter changes (``ros2 param set /plant dead_time 6.0``) are
-validated (a rejected change returns the reason) and take effect at the next
-step.
+Publishes ``measurement`` (outputs plus seeded noise), ``/clock`` (sim, lockstep),
+``time_origin``, ``~/late_inputs``, ``/diagnostics``; subscribes ``manipulated`` and
+``disturbance`` by channel name. Clock modes ``wall``/``sim``/``lockstep``, the lockstep
+protocol and ``lockstep.paused``: docs/nodes.md. Units: those of the plant kind; times in s.
 """
 from __future__ import annotations
 
@@ -89,7 +41,7 @@ _LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
 
 
 class PlantNode(Node):
-    """The plant simulation node (see module doc)."""
+    """The plant simulation node, clock master of the run (docs/nodes.md)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('plant', allow_undeclared_parameters=True, **kwargs)
@@ -325,7 +277,7 @@ class PlantNode(Node):
 
     def _take_latest(self, topic: str, t_ns: int | None, accepted: dict[str, float]) -> None:
         """sim/wall: hold the newest values; report an answer that came after its tick
-        was integrated (``~/late_inputs``, see module doc)."""
+        was integrated (``~/late_inputs``, docs/nodes.md "Late answers")."""
         if t_ns is None:
             return                      # malformed (counted by the filter)
         if self._tick_msgs is not None and t_ns - self._stamp_offset_ns < self.k * self.ts_ns:

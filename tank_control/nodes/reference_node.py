@@ -1,34 +1,9 @@
-"""reference_node: publishes setpoints and disturbances per channel.
+"""reference_node: publishes the setpoint and disturbance schedules of ``core/reference.py``.
 
-Topics (``sensor_msgs/JointState``, see ``nodes/messages.py``):
-
-* ``setpoint`` — the setpoint channels (``setpoint.channels``), stamped with the instant;
-* ``disturbance`` — the disturbance channels (may be empty; in lockstep it is
-  the reference's answer for the tick and the plant waits for it).
-
-Time base: the plant's (``nodes/messages.py``). With ``clock_mode: wall``
-(default) and without ``use_sim_time`` the schedule time is plant time: the
-node waits for the plant's ``time_origin`` (latched; nothing is published
-before it) and publishes at the instants ``origin + j·sample_time`` — stamped
-with that instant, schedule time ``j·sample_time`` — on a wall timer re-armed
-for each instant (the latest instant reached is published, so a late timer
-skips instants rather than stamping the future); a new origin (the plant
-restarted) starts the grid again. With ``clock_mode`` ``sim``/``lockstep`` or
-``use_sim_time`` on every
-``/clock`` tick ``t_k``: one answer per tick stamped ``t_k``, idempotent (a
-re-sent tick gets the same messages again, nothing is recomputed). With
-``clock_mode: lockstep`` and ``lockstep.anticipate`` (default) it also answers the next tick
-``t_k + (t_k − t_{k−1})`` right away: the values are a function of time only,
-so the messages are the ones it would send on ``/clock t_{k+1}``, and the
-controller of tick k+1 then needs only the measurement — one DDS hop less per
-tick. (Live parameter changes then act from the next tick not yet answered.) Not in
-``sim`` nor with ``use_sim_time`` alone: there plant and controller use the latest
-message, which must be the current tick's.
-
-Parameters: ``core/reference.py`` (layout and semantics). Runtime changes
-(``ros2 param set /reference setpoint.y.value 2.0``) are validated (limits,
-equal times/values lengths) — a rejected change returns the reason — and take
-effect at the next published instant.
+Publishes ``setpoint`` and ``disturbance`` (``sensor_msgs/JointState`` by channel name): in
+``wall`` mode every ``sample_time`` of plant time from the plant's ``time_origin`` on, otherwise
+one idempotent answer per ``/clock`` tick (in ``lockstep`` also one tick ahead). Parameter
+layout, runtime overrides and timing: docs/nodes.md ("reference_node"). Times in s.
 """
 from __future__ import annotations
 

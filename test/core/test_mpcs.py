@@ -1,7 +1,8 @@
 """MPCS controller on the nonlinear tank: offset-free tracking, constraints, fallback,
-bumpless reset and runtime reconfiguration (issue 8 acceptance, in-process)."""
+bumpless reset and runtime reconfiguration (in-process)."""
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 from tank_control.core.control import mpcs_qp
 from tank_control.core.control.kinds import mpcs as mpcs_kind
 from tank_control.core.control.kinds.base import resolve
-from tank_control.core.control.mpcs import Mpcs, MpcsConfig
+from tank_control.core.control.mpcs import Mpcs, MpcsConfig, horizon_warning
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
 from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
@@ -21,7 +22,7 @@ D0 = np.array([12.0, 33.0])
 
 
 class Tank(MixingTank):
-    """The plants branch's nonlinear tank; d = [F_D, T_D] as MPCS measures them."""
+    """The nonlinear tank of core/plants; d = [F_D, T_D] as MPCS measures them."""
 
     def step(self, u, d, dt):
         super().step(u, [d[0], d[1], 62.0, 23.0], dt)
@@ -60,7 +61,7 @@ def scenario_dist(t):
                          [('analytic', 'input'), ('qp', 'input'), ('analytic', 'output')])
 def test_offset_free_after_setpoint_and_disturbance_changes(solver, disturbance_model):
     """|e_T| ≤ 0.02 °C and |e_h| ≤ 0.05 cm once settled, on the nonlinear tank, with
-    the document's horizons (N, Nu) = (100, 50) and rate limit 0.2 per sample."""
+    the default horizons and the document's rate limit 0.2 per sample."""
     ctl = Mpcs(MpcsConfig(solver=solver, disturbance_model=disturbance_model))
     y, r, u = run(ctl, make_tank(), 3600, scenario_ref, scenario_dist)
     for end in (1200, 2400, 3600):          # last 150 s before each change / the end
@@ -123,12 +124,25 @@ def test_large_setpoint_change_with_relinearisation():
 
 def test_unreachable_temperature_setpoint_does_not_wind_up():
     """003 §2.2's failure mode: T_out = 24 °C with F_D at 33 °C is unreachable at h = 81
-    (best: F_H = 0 → T = 24.9 °C). The QP holds the level, saturates F_H at 0 without
-    windup and recovers at once when the setpoint becomes reachable again."""
+    (best: F_H = 0 → T = 24.9 °C). The QP saturates F_H at 0 without windup, the level
+    stays at the cost's compromise between the two errors and the loop recovers at once
+    when the setpoint becomes reachable again."""
     ref = lambda t: np.array([81.0, 24.0 if t < 1200 else 30.0])
     y, r, u = run(Mpcs(MpcsConfig(solver='qp')), make_tank(), 2600, ref, lambda t: D0)
-    assert y[:1200, 0].max() < 81.2 and abs(y[1199, 0] - 81.0) < 0.05   # the level never rises
-    assert u[1199, 0] == 0.0 and abs(y[1199, 1] - (51 * 23 + 12 * 33) / 63) < 0.05
+    # With F_H at 0 only F_Cin is left for two errors: the steady state minimising
+    # e_h² + e_T² (W_y = 1, 1) of the linear model (003 eqs. 4-6 at h0 = 81 cm: level gain
+    # 2·√h0/α cm, temperature gain (T_C − T0)/q0 °C per cm³/s) raises F_Cin by δ and
+    # gives up g_h·δ of level for a little temperature.
+    g_h, g_t = 2 * 9.0 / 7.0, (23.0 - T0) / 63.0
+    t_best = (51 * 23 + 12 * 33) / 63            # [°C] F_H = 0 at h = 81 cm
+    delta = -g_t * (t_best - 24.0) / (g_h ** 2 + g_t ** 2)
+    assert y[:1200, 0].max() < 81.2                      # the level never runs away
+    assert abs(y[1199, 0] - (81.0 + g_h * delta)) < 0.01, (y[1199, 0], g_h * delta)
+    # F_H sits at its lower limit 0: never below it (the output is clipped to the limit), and
+    # above it only by the QP's rounding of its active constraint — the QP works in deviations
+    # from the operating point (14 cm³/s), where a few ulp are ~1e-15 cm³/s
+    assert np.all(u[:, 0] >= 0.0)
+    assert 0.0 <= u[1199, 0] <= 1e-12 and abs(y[1199, 1] - t_best) < 0.05
     e = np.abs(y[-150:] - r[-150:])
     assert e[:, 0].max() <= 0.05 and e[:, 1].max() <= 0.02
 
@@ -284,7 +298,8 @@ def test_is_a_controller():
 def test_controller_kind_builds_checks_and_updates_from_parameter_values():
     """resolve/build/update from flat parameter values, as controller_node drives them."""
     kind = mpcs_kind.KIND
-    values = {'mpcs.solver': 'qp', 'mpcs.horizon': 80}
+    values = {'mpcs.solver': 'qp', 'mpcs.horizon': 80, 'mpcs.control_horizon': 30}
+    resolve(kind, values)                  # 003 §6's (80, 30): accepted (with a warning)
     ctl = kind.build(resolve(kind, values))
     assert ctl.config.solver == 'qp' and ctl.config.horizon == 80
     with pytest.raises(ConfigError, match='mpcs.control_horizon'):
@@ -321,9 +336,9 @@ def test_registered_kind_is_built_checked_and_reconfigured_by_the_registry():
     with pytest.raises(ConfigError, match='mpcs.horizon'):
         resolve(kind, {**values, 'mpcs.horizon': 0})
     y, r = np.array([81.0, T0]), np.array([82.0, T0])
-    same, u = registry.step_with_changes(kind, ctl, resolve(kind, {**values, 'mpcs.horizon': 150}),
+    same, u = registry.step_with_changes(kind, ctl, resolve(kind, {**values, 'mpcs.horizon': 700}),
                                          frozenset({'mpcs.horizon'}), 0.0, y, r, D0)
-    assert same is ctl and ctl.config.horizon == 150 and np.all(np.isfinite(u))
+    assert same is ctl and ctl.config.horizon == 700 and np.all(np.isfinite(u))
 
 
 def test_unmeasured_disturbance_channels_use_the_operating_point_then_the_last_value():
@@ -344,3 +359,107 @@ def test_unmeasured_disturbance_channels_use_the_operating_point_then_the_last_v
     ua = a.step(6.0, y, r, np.array([np.nan, np.nan]))
     ub = b.step(6.0, y, r, np.array([15.0, 33.0]))
     assert np.array_equal(ua, ub)
+
+
+# --- horizons: the defaults cover the dead times; shorter ones are accepted with a warning ---
+
+#: [s] time constant of the level at the document's operating point, from V = C·h² and
+#: F = α·√h linearised at h0 = 81 cm: τ = 4·C·h0^1.5/α (003 §1; the slowest mode of the model)
+TAU_LEVEL = 4 * 0.7 * 81.0 ** 1.5 / 7.0
+F_CIN_DELAY = 180          # [samples] the cold-water dead time at Ts = 1 s (003 §1)
+CHANGES = (100, 1600, 3100)         # [s] h step, T_out step, F_D step, 1500 s apart
+SETTLED = 1200             # [s] after a change the claim holds from here to the next change
+
+
+def sequence_ref(t):
+    """h 81 → 85 cm at 100 s, T_out → 35.5 °C at 1600 s."""
+    return np.array([81.0 if t < 100 else 85.0, T0 if t < 1600 else 35.5])
+
+
+def sequence_dist(t):
+    """F_D 12 → 15 cm³/s at 3100 s (measured)."""
+    return np.array([12.0 if t < 3100 else 15.0, 33.0])
+
+
+def settled_errors(y, r):
+    """Worst |e_h| [cm] and |e_T| [°C] from SETTLED s after each change to the next one."""
+    ends = CHANGES[1:] + (len(y),)
+    e = np.abs(y - r)
+    return np.max([e[c + SETTLED:end].max(axis=0) for c, end in zip(CHANGES, ends)], axis=0)
+
+
+@pytest.mark.parametrize('weights, lam, solver', [
+    ((1.0, 30.0), 0.5, 'qp'),          # the T_out weight raised to 30
+    ((1.0, 30.0), 0.5, 'analytic'),
+    ((30.0, 1.0), 0.5, 'qp'),          # the level weight raised instead
+    ((1.0, 100.0), 0.1, 'qp'),
+    ((100.0, 1.0), 1.0, 'qp'),
+])
+def test_default_horizons_settle_offset_free_with_unequal_weights(weights, lam, solver):
+    """The claim |e_h| ≤ 0.05 cm, |e_T| ≤ 0.02 °C (from 1200 s after each change) holds with
+    the default horizons for strongly unequal output weights and 003's range of λ, within
+    the rate limit 0.2 cm³/s per sample; the defaults give no warning."""
+    ctl = Mpcs(MpcsConfig(solver=solver, output_weights=weights, lam=(lam,)))
+    assert ctl.warning == ''
+    y, r, u = run(ctl, make_tank(), 4600, sequence_ref, sequence_dist)
+    e_h, e_t = settled_errors(y, r)
+    assert e_h <= 0.05 and e_t <= 0.02, (e_h, e_t)
+    assert np.all(np.abs(np.diff(np.vstack([U0, u]), axis=0)) <= 0.2 + 1e-9)
+
+
+def test_document_horizons_warn_and_leave_the_level_off_with_a_heavy_temperature_weight():
+    """003 §6's (N, Nu) = (100, 50) with W_y = (1, 30): accepted with a warning naming both
+    horizons, and 1200 s after the h step the level is still more than 0.05 cm off (moving
+    h at a fixed T needs F_Cin, which acts only after 180 s, beyond every planned move)."""
+    ctl = Mpcs(MpcsConfig(solver='qp', horizon=100, control_horizon=50, block=1,
+                          output_weights=(1.0, 30.0)))
+    assert 'mpcs.horizon' in ctl.warning and 'mpcs.control_horizon' in ctl.warning
+    y, _, _ = run(ctl, make_tank(), CHANGES[0] + SETTLED + 1, sequence_ref, sequence_dist)
+    assert abs(y[-1, 0] - 85.0) > 0.05
+
+
+def test_horizon_warning_names_each_parameter_and_its_minimum():
+    n_min = F_CIN_DELAY + math.ceil(TAU_LEVEL)            # 180 + 292 samples
+    assert horizon_warning(MpcsConfig()) == ''
+    short = horizon_warning(MpcsConfig(horizon=n_min - 1))
+    assert short.startswith('mpcs.horizon: ') and f'at least {n_min} ' in short
+    assert '\n' not in short and 'mpcs.control_horizon' not in short
+    assert horizon_warning(MpcsConfig(horizon=n_min)) == ''
+    # without alignment the cost looks through F_Cin's 180 s and T_out's 120 s
+    assert f'at least {300 + math.ceil(TAU_LEVEL)} ' in horizon_warning(
+        MpcsConfig(align=False, horizon=n_min))
+    # another operating point: its own level time constant (h0 = ((16 + 37 + 12)/7)²)
+    h0 = ((16.0 + 37.0 + 12.0) / 7.0) ** 2
+    n_op = F_CIN_DELAY + math.ceil(4 * 0.7 * h0 ** 1.5 / 7.0)
+    assert f'at least {n_op} ' in horizon_warning(MpcsConfig(op_F_H=16.0, horizon=n_op - 1))
+    assert horizon_warning(MpcsConfig(op_F_H=16.0, horizon=n_op)) == ''
+    # control horizon: the last planned move, at (⌈Nu/block⌉ − 1)·block, after F_Cin's 180 s
+    for block in (1, 7, 10, 20):
+        nu_min = next(nu for nu in range(1, 600)
+                      if (math.ceil(nu / block) - 1) * block > F_CIN_DELAY)
+        few = horizon_warning(MpcsConfig(control_horizon=nu_min - 1, block=block))
+        assert few.startswith('mpcs.control_horizon: ')
+        assert f'at least {nu_min} with mpcs.block {block}' in few
+        assert horizon_warning(MpcsConfig(control_horizon=nu_min, block=block)) == ''
+
+
+@pytest.mark.parametrize('solver, n, nu, lam', [
+    ('analytic', 50, 10, 1.0), ('analytic', 300, 100, 0.1), ('analytic', 500, 60, 0.4),
+    ('qp', 100, 50, 0.5), ('qp', 50, 10, 0.2), ('qp', 80, 30, 0.3)])   # SPEC §2.8
+def test_the_documents_settings_are_accepted_with_a_warning(solver, n, nu, lam):
+    values = {'mpcs.solver': solver, 'mpcs.horizon': n, 'mpcs.control_horizon': nu,
+              'mpcs.block': 1, 'mpcs.lambda': [lam]}
+    ctl = Mpcs(config_from(MpcsConfig, values))      # not refused
+    assert 'mpcs.control_horizon' in ctl.warning      # every Nu ≤ 100: before F_Cin acts
+    assert ctl.status['warning'] == ctl.warning and ctl.status['warnings'] == 1
+    _, _, u = run(ctl, make_tank(), 50, lambda t: np.array([82.0, T0]), lambda t: D0)
+    assert np.all(np.isfinite(u)) and np.all(np.abs(np.diff(u, axis=0)) <= 0.2 + 1e-9)
+
+
+def test_status_shows_the_warning_of_the_design_in_use_and_counts_them():
+    ctl = Mpcs()
+    assert ctl.status['warning'] == '' and ctl.status['warnings'] == 0
+    ctl.configure(horizon=300)
+    assert ctl.status['warning'].startswith('mpcs.horizon') and ctl.status['warnings'] == 1
+    ctl.configure(horizon=600)
+    assert ctl.status['warning'] == '' and ctl.status['warnings'] == 1

@@ -1,4 +1,4 @@
-"""The controllers on the plants branch's models (core/plants), through the Plant and
+"""The controllers on the plant models of core/plants, through the Plant and
 Controller protocols: y = plant.outputs(); u = controller.step(t, y, r, d); plant.step(u, d, ts)."""
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def test_fopdt_zn_pid_step_versus_ramp():
 
 
 def test_both_two_loop_variants_on_the_nonlinear_tank():
-    """003 §2–3 gains on the plants branch's MixingTank: physical, tracking, coupling as in 003."""
+    """003 §2–3 gains on the MixingTank of core/plants: physical, tracking, coupling as in 003."""
     dev = {}
     for variant in ('none', 'dynamic'):
         plant = make_plant('mixing_tank', {'integration_step': 0.5})

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import quad
+from support.plant_runs import run
 
 from tank_control.core.interfaces import Plant
 from tank_control.core.plants.fopdt import Fopdt, FopdtConfig
@@ -89,18 +90,9 @@ def test_ipdt_relay_limit_cycle_matches_closed_form():
     assert centre == pytest.approx(0.0, abs=1e-9)
 
 
-def _run(plant, u_of_t, dts, v_of_t=lambda t: 0.0):
-    t, out = 0.0, [(0.0, plant.outputs()[0])]
-    for dt in dts:
-        plant.step([u_of_t(t)], [v_of_t(t)], dt)
-        t += dt
-        out.append((t, plant.outputs()[0]))
-    return np.array(out)
-
-
 def test_fopdt_step_response_is_exact_with_a_fractional_dead_time():
     K, T, L, y0, step = 0.05, 10.0, 3.3, -2.0, 4.0
-    trace = _run(Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, output_offset=y0)),
+    trace = run(Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, output_offset=y0)),
                  lambda t: step, [0.4] * 100)
     t = trace[:, 0]
     expected = y0 + K * step * np.where(t > L, 1 - np.exp(-(t - L) / T), 0.0)
@@ -109,7 +101,7 @@ def test_fopdt_step_response_is_exact_with_a_fractional_dead_time():
 
 def test_ipdt_step_response_is_exact_with_a_fractional_dead_time():
     k1, To, y0, step = 0.05, 5.0, 1.0, 3.0
-    trace = _run(Ipdt(IpdtConfig(gain=k1, dead_time=To, output_offset=y0)),
+    trace = run(Ipdt(IpdtConfig(gain=k1, dead_time=To, output_offset=y0)),
                  lambda t: step, [0.3] * 60)          # 5 / 0.3 is not an integer
     t = trace[:, 0]
     np.testing.assert_allclose(trace[:, 1], y0 + k1 * step * np.maximum(t - To, 0.0),
@@ -118,8 +110,8 @@ def test_ipdt_step_response_is_exact_with_a_fractional_dead_time():
 
 def test_load_disturbance_enters_at_the_plant_input():
     # y = G·(u + v): a step in v gives the same response as a step in u.
-    by_u = _run(Fopdt(), lambda t: 1.0 if t >= 2.0 else 0.0, [0.5] * 40)
-    by_v = _run(Fopdt(), lambda t: 0.0, [0.5] * 40, v_of_t=lambda t: 1.0 if t >= 2.0 else 0.0)
+    by_u = run(Fopdt(), lambda t: 1.0 if t >= 2.0 else 0.0, [0.5] * 40)
+    by_v = run(Fopdt(), lambda t: 0.0, [0.5] * 40, v_of_t=lambda t: 1.0 if t >= 2.0 else 0.0)
     np.testing.assert_array_equal(by_u, by_v)
 
 
@@ -127,8 +119,8 @@ def test_result_does_not_depend_on_the_step_size():
     def u_of_t(t):
         return 1.0 if t < 6.0 else -0.5       # switches on a common step boundary
 
-    coarse = _run(Fopdt(), u_of_t, [2.0] * 10)
-    fine = _run(Fopdt(), u_of_t, [0.125] * 160)
+    coarse = run(Fopdt(), u_of_t, [2.0] * 10)
+    fine = run(Fopdt(), u_of_t, [0.125] * 160)
     np.testing.assert_allclose(fine[::16], coarse, rtol=0, atol=1e-14)
 
 

@@ -1,6 +1,6 @@
 """RelayAutotuner (core/control/relay_autotune.py): the whole test on exact dead-time plants.
 
-Acceptance of issue 6: Ku within ±3 % and Tu within ±2 % of the exact ultimate point
+Required: Ku within ±3 % and Tu within ±2 % of the exact ultimate point
 (solved independently in the helper) with 1 % measurement noise; 001's example ends
 with a running PID within 8 oscillation periods after settling; every failure path
 restores the previous gains and leaves the loop running.

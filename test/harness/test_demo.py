@@ -1,7 +1,7 @@
-"""``make demo`` (issue 7's main job): its default path, cut short with ``--duration``.
+"""``make demo`` (the main job): its default path, cut short with ``--duration``.
 
 The default scenario is the mixing tank of 003 under the constrained, offset-free MPCS-QP
-with the document's own constraints (003 §6: 0 <= F <= 100 cm³/s, |ΔF| <= 0.2 cm³/s per
+with the default horizons and the document's own constraints (003 §6: 0 <= F <= 100 cm³/s, |ΔF| <= 0.2 cm³/s per
 sample), run in lockstep over ROS 2; the demo prints the metrics table and the paths of
 plot, trace and recording, and the recorded trace equals the in-process loop to 1e-9.
 """
@@ -26,8 +26,12 @@ def test_default_scenario_is_mpcs_qp_within_the_documents_constraints():
     assert path.name == 'tank_mpcs_qp.yaml'
     ctrl = params_file.read(path)['controller']
     assert (ctrl['controller'], ctrl['mpcs.solver']) == ('mpcs', 'qp')
-    # 003 §6 / SPEC §2.8: (N, Nu, λ) = (100, 50, 0.5), 0 <= u <= 100, |Δu| <= 0.2
-    assert (ctrl['mpcs.horizon'], ctrl['mpcs.control_horizon'], ctrl['mpcs.lambda']) == (100, 50, [0.5])
+    # the default horizons (no warning), 003's λ 0.5 and constraints 0 <= u <= 100, |Δu| <= 0.2
+    from tank_control.core.control.mpcs import MpcsConfig
+    c = MpcsConfig()
+    assert (ctrl['mpcs.horizon'], ctrl['mpcs.control_horizon'], ctrl['mpcs.block']) == (
+        c.horizon, c.control_horizon, c.block)
+    assert ctrl['mpcs.lambda'] == [0.5]
     assert ctrl['mpcs.u_min'] == [0.0, 0.0] and ctrl['mpcs.u_max'] == [100.0, 100.0]
     assert ctrl['mpcs.du_max'] == [0.2, 0.2]
 
@@ -42,7 +46,7 @@ def test_demo_default_runs_in_lockstep_over_ros_and_prints_table_and_paths(tmp_p
     assert 'tank_mpcs_qp.yaml, lockstep over ROS 2' in text
     assert 'initial_output (F_H 14, F_Cin 37)' in text
     assert '| tank_mpcs_qp | h |' in text and '| tank_mpcs_qp | T_out |' in text
-    assert text.count('constraint violations 0') == 2
+    assert text.count('constraint violations 0') == 2 and 'controller warning' not in text
     for label, name in (('plot', 'plot.png'), ('trace', 'trace.csv'), ('recording', 'run.mcap')):
         line = next(ln for ln in text.splitlines() if ln.startswith(f'{label}:'))
         assert Path(line.split(':', 1)[1].strip()) == out / name

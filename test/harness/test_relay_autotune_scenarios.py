@@ -47,7 +47,7 @@ def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
     st = tuner.status
     assert st['ku'] == pytest.approx(ku, rel=0.03) and st['tu'] == pytest.approx(tu, rel=0.02)
     assert st['ku'] == pytest.approx(117.8, rel=0.03) and st['tu'] == pytest.approx(10.82, rel=0.02)
-    # experiment (relay start → tuned) within 8 oscillation periods (issue 6)
+    # experiment (relay start → tuned) within 8 oscillation periods
     t_relay, t_tuned = log[2][0], log[4][0]
     assert t_tuned - t_relay <= 8 * tu
     # the tuned ZN PID holds the setpoint afterwards

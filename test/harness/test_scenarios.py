@@ -99,7 +99,7 @@ def test_000_load_step_rejected_as_eq_10_predicts(results, scenario, rule, kind)
 ])
 def test_000_dead_time_off_by_20_percent_stays_well_behaved(results, scenario, overrides):
     """000 Figs. 6–7: with To ±20 % both methods stay "relatively robust": the loop is
-    stable (setpoint and load responses settle), overshoot ≤ 20 % (issue 5)."""
+    stable (setpoint and load responses settle), overshoot ≤ 20 % (docs/scenarios.md)."""
     result = results(scenario, *overrides)
     step, load = first_step(result), load_step(result)
     assert step['overshoot_pct'] <= 20.0

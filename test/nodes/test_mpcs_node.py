@@ -1,11 +1,14 @@
-"""controller: mpcs in controller_node over real DDS (issue 8): plant (mixing_tank, lockstep as
+"""controller: mpcs in controller_node over real DDS: plant (mixing_tank, lockstep as
 fast as possible), controller (MPCS, QP) and reference in three processes.
 
 * The recorded lockstep run equals ``core/loop.py`` in-process to 1e-9 on every signal,
   including a runtime ``mpcs.horizon`` change: the plant is paused (``lockstep.paused``) so
-  the tick at which the change takes effect is known, ``mpcs.horizon`` is set to 150, the
+  the tick at which the change takes effect is known, ``mpcs.horizon`` is set to 300, the
   loop resumes; in-process the same change is applied at that tick through the registry
   (``step_with_changes``, as the node does).
+* 300 samples are shorter than the F_Cin dead time plus the model's settling: the change
+  is accepted, and the controller's warning is logged and shown in ``/diagnostics``
+  (level WARN, ``status.warning``, ``status.warnings``); the file's defaults give none.
 * The reference publishes F_D but not T_D: the node passes T_D as NaN and MPCS uses its
   operating point (33 °C), the plant its nominal T_D (33 °C) — the same values in-process.
 * Invalid changes (``mpcs.horizon 0``, ``mpcs.solver foo``, ``mpcs.control_horizon`` above the
@@ -70,6 +73,11 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
     plant_diag: list[dict[str, str]] = []
     node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: plant_diag.extend(
         {kv.key: kv.value for kv in st.values} for st in msg.status if st.name == 'plant'), 50)
+    ctrl_diag: list[tuple[int, str, dict[str, str]]] = []
+    node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: ctrl_diag.extend(
+        (int.from_bytes(st.level, 'little') if isinstance(st.level, bytes) else int(st.level),
+         st.message, {kv.key: kv.value for kv in st.values})
+        for st in msg.status if st.name.startswith('controller')), 50)
     for name in NODES:
         procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
 
@@ -107,23 +115,34 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
     assert probe.wait_for(lambda: any('waiting_for' not in d for d in plant_diag), 10), logs()
     k_change = round(float(next(d for d in plant_diag if 'waiting_for' not in d)['sim_time']))
     assert probe.wait_for(lambda: last('manipulated') == (k_change - 1) * TS_NS, 10), logs()
-    result = set_params(controller, **{'mpcs.horizon': 150}).results[0]
+    # the file's horizons (the defaults) give no warning
+    assert probe.wait_for(lambda: ctrl_diag, 10), logs()
+    assert ctrl_diag[-1][2]['status.warning'] == '' and ctrl_diag[-1][0] == 0
+    result = set_params(controller, **{'mpcs.horizon': 300}).results[0]
     assert result.successful, result.reason
     assert set_params(plant, **{'lockstep.paused': False}).results[0].successful
+    # applied at the next sample: the warning is logged and shown in /diagnostics
+    assert probe.wait_for(lambda: any(d[2]['status.warning'].startswith('mpcs.horizon: 300 ')
+                                      for d in ctrl_diag), 30), logs()
+    level, message, fields = next(d for d in ctrl_diag if d[2]['status.warning'])
+    assert level == 1 and 'warning: mpcs.horizon: 300 ' in message   # DiagnosticStatus.WARN
+    assert 'at least 472' in fields['status.warning'] and fields['status.warnings'] == '1'
+    assert probe.wait_for(lambda: 'mpcs.horizon: 300 samples' in procs.processes[
+        'controller'].tail(200), 10), logs()
 
     # invalid changes while running: refused with the parameter and the allowed range/choices
     refused = {}
     for name, value in (('mpcs.horizon', 0), ('mpcs.solver', 'foo'),
-                        ('mpcs.control_horizon', 151)):
+                        ('mpcs.control_horizon', 301)):
         res = set_params(controller, **{name: value}).results[0]
         assert not res.successful
         refused[name] = res.reason
     assert 'mpcs.horizon' in refused['mpcs.horizon'] and '1' in refused['mpcs.horizon']
     assert 'mpcs.solver' in refused['mpcs.solver'] and 'analytic' in refused['mpcs.solver']
     assert 'mpcs.control_horizon' in refused['mpcs.control_horizon'] \
-        and '150' in refused['mpcs.control_horizon']
+        and '300' in refused['mpcs.control_horizon']
     values = call(controller.get_parameters(['mpcs.horizon', 'mpcs.solver'])).values
-    assert (values[0].integer_value, values[1].string_value) == (150, 'qp')
+    assert (values[0].integer_value, values[1].string_value) == (300, 'qp')
 
     last_tick = k_change + 150                            # the loop continued
     assert probe.wait_for(lambda: all(last(t) >= last_tick * TS_NS for t in TOPICS), 60), logs()
@@ -131,7 +150,7 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
     # in-process: the same objects; the change applied at k_change as the node applies it
     built = build(params)
     kind = built.controller_setup.kind
-    changed = resolve(kind, {**built.controller_setup.settings.values, 'mpcs.horizon': 150},
+    changed = resolve(kind, {**built.controller_setup.settings.values, 'mpcs.horizon': 300},
                       given=())
     inner = built.controller
 
@@ -147,7 +166,7 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
             return inner.step(t, y, r, d)
     trace = run_loop(built.plant, AtTick(), built.reference, sample_time=built.sample_time,
                      duration=float(last_tick), noise=built.noise.sample)
-    assert inner.config.horizon == 150
+    assert inner.config.horizon == 300
 
     worst: dict[str, float] = {}
     for topic, prefix in TOPICS.items():
@@ -165,7 +184,7 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
 
 def test_wall_mode_horizon_change_rebuilds_without_missing_a_sample(procs, ros_env, node_cmd,
                                                                     probe):
-    """wall clock, Ts = 1 s: ``mpcs.horizon`` 100 → 300 is rebuilt inside one timer callback
+    """wall clock, Ts = 1 s: ``mpcs.horizon`` 600 → 300 is rebuilt inside one timer callback
     (docs/mpcs.md: tens of ms); the samples around it stay 1 s apart and finite."""
     argv = node_cmd('controller_node', *[x for p in (
         'controller:=mpcs', 'clock_mode:=wall', 'mpcs.solver:=qp', 'diagnostics_period:=0.2')

@@ -1,4 +1,4 @@
-"""controller: relay_autotune over real DDS (issue 6): plant (FOPDT, lockstep as fast as
+"""controller: relay_autotune over real DDS: plant (FOPDT, lockstep as fast as
 possible), controller and reference in three processes, driven by the operator interface —
 ``/controller/start_autotune`` / ``abort_autotune`` services, the ``autotune.start``
 parameter, the ``/controller/autotune_state`` topic and parameter reads.

@@ -1,8 +1,8 @@
 """Small lockstep stand-ins for plant_node and reference_node (harness tests only).
 
 ``plant``: an integrator y(k+1) = y(k) + ts·(u(k) + v) (exact ZOH), output ``y``,
-input ``u``, no disturbance channel; it follows the lockstep protocol of the
-BRIEF (tick k: /clock and measurement stamped t_k; advance once ``manipulated``
+input ``u``, no disturbance channel; it follows the lockstep protocol of
+docs/nodes.md (tick k: /clock and measurement stamped t_k; advance once ``manipulated``
 and ``disturbance`` stamped t_k are in; re-send every 0.5 s; ``lockstep.paused``
 holds tick 0 until set to false, as plant_node does). Parameter
 ``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time.

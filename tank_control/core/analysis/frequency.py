@@ -1,38 +1,14 @@
-"""Frequency-domain analysis with exact dead time (SPEC §3; 001 §1.1, 002, 004 §3.4).
+"""Frequency-domain analysis with exact dead time (001 §1.1 eqs. 6.4–6.7, 002, 004 §3.4; SPEC §3).
 
-Units: angular frequency ``w`` in rad/s, times (``dead_time``, ``time_constant``,
-``ti``, ``td``, ``sample_time``, delay margin) in seconds, phases in degrees at the
-API (radians internally), gains as plain ratios (``gain_margin_db`` is also given).
-
-A system is a :class:`FrequencyResponse`: a rational part evaluated at complex
-``s`` (continuous) or ``z`` (discrete), times the *exact* dead time
-``e^(−L·s)`` (continuous) or ``z^(−d)`` with ``d = L/Ts`` samples (discrete,
-001 eq. 6.5–6.7, SPEC §3). No Padé approximation is used anywhere: the dead
-time leaves ``|G|`` unchanged and lowers the phase by ``ω·L`` (001 eq. 6.4).
-The phase is continuous in ω, starting from its limit as ω → 0+
-(``−k·90°`` for ``k`` integrators, ``−180°`` more for a negative gain).
-
-Models
-------
-* plants: :func:`ipdt` ``k1/s·e^(−To·s)`` (000 eq. 1), :func:`fopdt`
-  ``K/(T·s+1)·e^(−L·s)`` (001 eq. 6.14), :func:`rational` ``num(s)/den(s)·e^(−L·s)``;
-* controllers: :func:`pid_feedback` / :func:`pid_setpoint` (the two parts of the
-  2-DOF PID of 000 eq. 19 with the real derivative ``Tf = td/n``, eq. 13–14),
-  :func:`pi`, :func:`lead` (002's PD / phase-lead ``kp·(td·s+1)/(td/n·s+1)``),
-  :func:`series_pid` (002 §1.4, PI × lead);
-* sampled loop with ZOH (sample time ``Ts``): :func:`ipdt_zoh`, :func:`fopdt_zoh`
-  (exact step-invariant models, also with a fractional dead time),
-  :func:`rational_zoh` (any strictly proper rational plant with dead time),
-  :func:`rational_discrete`, and :func:`pid_feedback_discrete` /
-  :func:`pid_setpoint_discrete`, the transfer functions of the implemented
-  ``Pid2Dof`` (forward-Euler integral, backward-difference filtered derivative).
-
-Analysis
---------
-:func:`ultimate_point` (ku, tu, wu), :func:`margins` (gain/phase margin, crossovers,
-delay margin, ``Ms = max|S|``), :func:`closed_loop_poles_unstable` (Nyquist count,
-exact with dead time), the gang of four :func:`gang_of_four` (002: S, T, PS, CS)
-and :func:`tuning_report` (a tuning ``kp, ti, td, b, c, n`` on a plant → dict).
+A :class:`FrequencyResponse` is a rational part times the exact dead time ``e^(−L·s)``
+(continuous) or ``z^(−d)`` (discrete, sampled loop with ZOH, also fractional dead time); no
+Padé approximation anywhere. Models: plants (:func:`ipdt`, :func:`fopdt`, :func:`rational`),
+the 2-DOF PID of 000 eq. 19 and 002's compensators, the discrete transfer functions of the
+implemented ``Pid2Dof``, exact ZOH models of any strictly proper rational plant with dead time
+(:func:`rational_zoh`). Analysis: :func:`ultimate_point`, :func:`margins`,
+:func:`closed_loop_poles_unstable`, :func:`gang_of_four`, :func:`tuning_report`. Units: ω in
+rad/s, times in s, phases in degrees at the API (continuous, from the ω → 0+ limit), gains as
+ratios. Overview and the documents' tunings: README, "Frequency-domain analysis (core)".
 """
 from __future__ import annotations
 

@@ -1,17 +1,12 @@
 """Step-response and error-integral metrics of recorded (sampled) signals.
 
-Conventions: ``t`` in seconds (strictly increasing samples), signals in the
-units of the measured output. Every function accepts noisy data and steps in
-either direction (the response is normalised by the signed step size).
-
-* :func:`iae` — ∫|e| dt [unit·s], trapezoidal rule over the samples.
-* :func:`ise` — ∫e² dt [unit²·s], trapezoidal rule.
-* :func:`step_metrics` — overshoot [%], rise time 10–90 % [s], settling time
-  into a ±2 % band [s], steady-state error [unit], peak value and time.
-* :func:`deviation_metrics` — response of an error that should stay at 0 (a load
-  change, or the coupling from another output's setpoint step): peak error
-  [unit] and its time [s], IAE, ∫e dt [unit·s] (000 eq. 10 for a load step),
-  recovery time into ±2 % of the peak [s], final and initial error [unit].
+``t`` in s (strictly increasing), signals in the units of the measured output; noisy data and
+steps in either direction are accepted (responses are normalised by the signed step size).
+:func:`iae` ∫|e| dt [unit·s] and :func:`ise` ∫e² dt [unit²·s] (trapezoidal rule);
+:func:`step_metrics` overshoot [%], 10–90 % rise time [s], ±2 % settling time [s],
+steady-state error, peak; :func:`deviation_metrics` for an error that should stay at 0 (a load
+change, a coupling): peak error and time, IAE, ∫e dt (000 eq. 10 for a load step), recovery
+time into ±2 % of the peak, final and initial error.
 """
 from __future__ import annotations
 
@@ -52,8 +47,14 @@ def ise(t, e) -> float:
     return _trapz(t, e * e)
 
 
+class _Metrics:
+    def as_dict(self) -> dict[str, float]:
+        """The metrics by field name."""
+        return asdict(self)  # type: ignore[call-overload]
+
+
 @dataclass(frozen=True)
-class StepMetrics:
+class StepMetrics(_Metrics):
     """Metrics of a response to a setpoint step (units in the field comments).
 
     ``overshoot``: (peak beyond the final setpoint) / |step| · 100 [%], ≥ 0.
@@ -70,9 +71,6 @@ class StepMetrics:
     steady_state_error: float
     peak: float
     peak_time: float
-
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
 
 
 def _interp(t: np.ndarray, z: np.ndarray, level: float, i: int) -> float:
@@ -152,7 +150,7 @@ def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | 
 
 
 @dataclass(frozen=True)
-class DeviationMetrics:
+class DeviationMetrics(_Metrics):
     """Response of an error e = r − y to an event that should leave it at 0.
 
     ``peak_error``: max |e| [unit]; ``peak_signed``: e at that instant (e > 0: output
@@ -172,9 +170,6 @@ class DeviationMetrics:
     recovery_time: float
     final_error: float
     initial_error: float
-
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
 
 
 def deviation_metrics(t, e, band: float = 0.02, final_window: float = 0.1) -> DeviationMetrics:

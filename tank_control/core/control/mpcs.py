@@ -1,52 +1,15 @@
-"""MPCS: offset-free predictive control of the mixing tank (003 §4, §6; SPEC §2.8; issue 8).
+"""MPCS: offset-free predictive control of the mixing tank (003 §4 analytic, §6 QP; SPEC §2.8).
 
-Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured
-disturbances ``F_D`` [cm³/s], ``T_D`` [°C] used as feed-forward.
-
-Per sample ``k`` (:meth:`Mpcs.step`):
-
-1. the Kalman estimator (:mod:`mpcs_estimator`) corrects the augmented state
-   (model state, integrating disturbances, ``T_out`` delay register) with
-   ``y(k)``;
-2. the prediction (:mod:`mpcs_prediction`) — linear in the estimate, the
-   ``F_Cin`` values still in the 180 s delay line, ``u(k−1)`` and ``d(k)`` —
-   gives the cost of SPEC §2.8;
-3. ``solver='analytic'``: the unconstrained optimum's first move, a constant
-   gain (003 §4), then clipped to ``|Δu| ≤ du_max`` and ``u_min ≤ u ≤ u_max``;
-   ``solver='qp'``: the constrained QP (003 §6, :mod:`mpcs_qp`); a failed or
-   infeasible QP falls back to the clipped analytic move (counted in
-   ``status['fallbacks']``);
-4. the estimator is advanced with the input that acts on the tank over
-   ``[k, k+1)`` (``F_H(k)``, ``F_Cin(k−180)``) and ``d(k)``.
-
-The output is never NaN: non-finite measurements skip the estimator
-correction, non-finite setpoints hold the last input.
-
-Horizons and dead times (why the defaults are what they are)
-------------------------------------------------------------
-Input→output dead times at Ts = 1 s: F_H→h 0, F_H→T_out 120, F_Cin→h 180,
-F_Cin→T_out 300 samples. With the document's cost taken literally and its
-numeric horizons (N, Nu) = (100, 50), no move can change any predicted T_out
-and F_Cin changes no predicted output at all: its columns of the dynamic
-matrix are zero, so the optimiser never moves F_Cin, and F_H alone cannot hold
-two setpoints — the T loop is left to a slow drift of the disturbance
-estimate (IAE on T about 2.7× worse, see bench/RESULTS.md). Two remedies, both
-on by default and both switchable:
-
-* ``mpcs.align`` counts T_out's horizon from its own 120 s dead time
-  (T_out(k+120+p) = T(k+p)), so (N, Nu) = (100, 50) sees F_H's effect on T;
-* ``mpcs.terminal_weight`` adds the error of the steady state the model
-  reaches if the last planned inputs are held (cost of 2 rows, exact for the
-  stable linear model); it is what tells a horizon shorter than 180 samples
-  what F_Cin is for, and makes the unconstrained fixed point offset-free
-  (the steady-state gain matrix is invertible).
-
-A horizon N ≥ ~300 sees F_Cin's full effect inside the horizon (better IAE,
-still ≤ 0.2 ms per QP sample); move blocking (``mpcs.block``) keeps the QP
-small for long control horizons.
+Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured disturbances
+``F_D`` [cm³/s], ``T_D`` [°C] as feed-forward; time in s (sample time 1 s in 003). Per sample:
+Kalman correction (:mod:`mpcs_estimator`), prediction over the delayed model
+(:mod:`mpcs_prediction`), the analytic move clipped to the limits or the constrained QP
+(:mod:`mpcs_qp`, clipped analytic fallback), estimator time update. The algorithm and why the
+defaults align T_out's horizon and weight the steady state: docs/mpcs.md ("The algorithm").
 """
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
@@ -83,8 +46,8 @@ class MpcsConfig:
 
     sample_time: float = sample_time_param(1.0, 0.01, 60.0, ' (003: 1 s); the dead times must '
                                            'be multiples of it')
-    horizon: int = _m(100, 'prediction horizon N [samples] (003: 50…500)', 'horizon', 1, 2000)
-    control_horizon: int = _m(50, 'control horizon Nu [samples], <= N (003: 10…100)',
+    horizon: int = _m(600, 'prediction horizon N [samples] (003: 50…500)', 'horizon', 1, 2000)
+    control_horizon: int = _m(200, 'control horizon Nu [samples], <= N (003: 10…100)',
                               'control_horizon', 1, 2000)
     lam: tuple[float, ...] = _m((0.5,), 'move weight λ on ||Δu||², one value or one per input '
                                 '[F_H, F_Cin] ((cm/(cm³/s))² scale; 003: 0.1…1)', 'lambda',
@@ -95,7 +58,7 @@ class MpcsConfig:
     terminal_weight: float = _m(100.0, 'weight w_∞ of the predicted steady-state error (lets a '
                                 'horizon shorter than the 180 s F_Cin dead time use F_Cin; 0 = '
                                 "the document's cost)", 'terminal_weight', 0.0, 1e6)
-    block: int = _m(1, 'move blocking: one free move every `block` samples within Nu (1 = '
+    block: int = _m(10, 'move blocking: one free move every `block` samples within Nu (1 = '
                     'every sample)', 'block', 1, 100)
     align: bool = _m(True, 'count the horizon of T_out from its 120 s dead time (predict '
                      'T_out(k+τ+p) = T(k+p)); false = literal p = 1..N', 'align')
@@ -184,6 +147,50 @@ _ESTIMATOR_FIELDS = {'sample_time', 'disturbance_model', 'disturbance_noise', 's
                      'model_alpha', 'model_tau', 'model_tau_c'}
 
 
+def horizon_warning(cfg: MpcsConfig, model: DelayedModel | None = None) -> str:
+    """A one-line warning when the horizons do not cover the model's dead times, else ''.
+
+    ``model``: the prediction model in use (default: the tank at the configured
+    operating point). Not a refusal: the document's own horizons (003 §4, §6:
+    N = 50…100) are shorter on purpose and stay usable as reproductions. Two
+    conditions, each named with its minimum (derivation and measurements:
+    docs/mpcs.md):
+
+    * ``mpcs.horizon``: N·Ts ≥ the longest input→output dead time the cost looks
+      through (F_Cin: 180 s; 300 s to T_out without ``mpcs.align``) plus the
+      model's settling, its slowest time constant ``−Ts/ln max|eig A|`` [s]
+      (the level, ``4·C·h0^1.5/α`` = 292 s at h0 = 81 cm);
+    * ``mpcs.control_horizon``: the last planned move, at sample
+      ``(⌈Nu/block⌉ − 1)·block``, comes after the longest input dead time
+      relative to the fastest input (F_Cin 180 s after F_H), so that a move of
+      F_H can be planned for when the cold water arrives.
+    """
+    m = model or tank_model(cfg.operating_point(), cfg.sample_time)
+    ts = cfg.sample_time
+    offsets = m.output_delays if cfg.align else (0,) * m.n_y
+    seen = max(dm + dy - off for dm in m.input_delays
+               for dy, off in zip(m.output_delays, offsets))
+    tau = -ts / math.log(float(np.max(np.abs(np.linalg.eigvals(m.a)))))     # [s]
+    n_min = seen + math.ceil(tau / ts - 1e-9)
+    spread = max(m.input_delays) - min(m.input_delays)
+    slow = Mpcs.input_names[int(np.argmax(m.input_delays))] \
+        if m.n_u == len(Mpcs.input_names) else f'input {int(np.argmax(m.input_delays))}'
+    blk = cfg.block
+    last_move = (math.ceil(cfg.control_horizon / blk) - 1) * blk
+    nu_min = (spread // blk + 1) * blk + 1 if spread > 0 else 1
+    parts = []
+    if cfg.horizon < max(n_min, nu_min):
+        parts.append(f'mpcs.horizon: {cfg.horizon} samples do not cover the longest dead time '
+                     f'the cost sees ({seen * ts:g} s) plus the model\'s settling (slowest time '
+                     f'constant {tau:.0f} s): at least {max(n_min, nu_min)} for weight-independent '
+                     f'offset-free settling')
+    if last_move <= spread:
+        parts.append(f'mpcs.control_horizon: the last planned move (sample {last_move}) is '
+                     f'not after the {spread * ts:g} s dead time of {slow}: at least {nu_min} '
+                     f'with mpcs.block {blk}')
+    return '; '.join(parts)
+
+
 def _two(values: tuple[float, ...]) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     return np.full(2, arr[0]) if arr.size == 1 else arr
@@ -202,6 +209,7 @@ class _Design:
         cost = CostConfig(cfg.horizon, cfg.control_horizon, cfg.lam, cfg.output_weights,
                           cfg.terminal_weight, cfg.block, cfg.align)
         self.pred = Prediction(self.estimator.sys, cost)
+        self.warning = horizon_warning(cfg, self.model)
         m, p = self.model, self.pred
         self.u_min, self.u_max = _two(cfg.u_min) - m.u0, _two(cfg.u_max) - m.u0   # deviations
         self.du_max = _two(cfg.du_max)
@@ -298,7 +306,8 @@ class Mpcs:
         A channel of ``d`` that is missing or non-finite (NaN: never measured, e.g. the
         reference does not publish it) keeps its last measured value, initially the
         operating point's ``mpcs.op.F_D`` [cm³/s] / ``mpcs.op.T_D`` [°C]: see
-        :meth:`_fill_d`.
+        :meth:`_fill_d`. The output is never NaN: a non-finite measurement skips the
+        estimator correction, a non-finite setpoint holds the last input.
         """
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
@@ -333,6 +342,12 @@ class Mpcs:
         return u.copy()
 
     @property
+    def warning(self) -> str:
+        """:func:`horizon_warning` of the design in use ('' if none); controller_node logs
+        each new one and shows it in ``/diagnostics``."""
+        return self._design.warning
+
+    @property
     def status(self) -> Mapping[str, Any]:
         """Scalars for diagnostics: solver, timing [ms], counters, estimator state."""
         des = self._design
@@ -354,6 +369,8 @@ class Mpcs:
             'bad_setpoints': self._counters['bad_setpoints'],
             'rebuilds': self._counters['rebuilds'],
             'relinearizations': self._counters['relinearizations'],
+            'warning': des.warning,              # horizon_warning of the design in use, or ''
+            'warnings': self._counters['warnings'],   # designs built with a warning
             'op_h': float(des.model.y0[0]),                     # [cm]
             'op_T': float(des.model.y0[1]),                     # [°C]
             # estimated disturbance: on [dh/dt·Ts, dT/dt·Ts] ('input') or [h, T_out] ('output')
@@ -394,6 +411,7 @@ class Mpcs:
         else:
             self._design = _Design(cfg, old.model, old.estimator)
         self._counters['rebuilds'] += 1
+        self._counters['warnings'] += int(bool(self._design.warning))
         return cfg
 
     # --- internals -----------------------------------------------------------------
@@ -445,7 +463,8 @@ class Mpcs:
 
     def _reset_counters(self) -> None:
         self._counters = {'samples': 0, 'fallbacks': 0, 'bad_measurements': 0,
-                          'bad_setpoints': 0, 'rebuilds': 0, 'relinearizations': 0}
+                          'bad_setpoints': 0, 'rebuilds': 0, 'relinearizations': 0,
+                          'warnings': int(bool(self._design.warning))}
         self._last_solve = self._max_solve = 0.0
         self._last_flag = 0
         self._last_iter = 0

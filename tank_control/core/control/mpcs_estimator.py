@@ -1,26 +1,10 @@
-"""Offset-free state and disturbance estimation over the delayed model (issue 8).
+"""Offset-free state and disturbance estimation for MPCS over the delayed model (003 §4).
 
-003 §4 reports a steady-state error on T for its MPCS: the linear model is
-wrong away from the operating point and nothing in the controller corrects it.
-The cure used here is the standard one for offset-free MPC: augment the model
-with integrating (constant) disturbance states ``w`` and estimate them from
-the measurements each sample, so that in steady state the model reproduces the
-measured outputs exactly and the predictive controller removes the offset.
-
-Augmented state ``ξ = [x, w, r_1, …]``:
-
-* ``x`` — model state (level deviation [cm], temperature deviation [°C]);
-* ``w`` — disturbance: ``'input'`` model adds ``w`` to the state equation
-  (``x⁺ = A x + B_u u + B_d d + w``: an unknown inflow/heat load, propagated
-  through the tank dynamics — good for load-type mismatch), ``'output'`` adds
-  ``w`` to the measured outputs (``y = C x + w``);
-* ``r_i`` — shift register of the last ``d_i`` values of ``(C x)_i`` for each
-  output with a dead time ``d_i`` (``T_out(k) = T(k − 120)``), so the delayed
-  measurement is compared with the model's value of 120 samples ago.
-
-The gain is the steady-state Kalman gain of the augmented system (discrete
-algebraic Riccati equation), computed once per design. Units: deviations in
-the model's scaled units (cm, °C).
+Augmented state ``ξ = [x, w, r_1, …]``: model state ``x`` (level [cm], temperature [°C]
+deviations), integrating disturbances ``w`` (``'input'``: added to the state equation;
+``'output'``: added to the measured outputs), and per delayed output a shift register of its
+last ``d_i`` model values (``T_out(k) = T(k − 120)``). Steady-state Kalman gain from the filter
+Riccati equation, once per design. Why and how: docs/mpcs.md ("Offset-free estimation").
 """
 from __future__ import annotations
 
@@ -115,9 +99,10 @@ def filter_riccati(a: np.ndarray, c: np.ndarray, q: np.ndarray, r: np.ndarray,
     ``P = A P Aᵀ − A P Cᵀ (C P Cᵀ + R)⁻¹ C P Aᵀ + Q``.
 
     Structure-preserving doubling (quadratic convergence, a handful of n×n
-    solves per iteration) — about 10× faster than the generalized-Schur
-    method for the ~124-state augmented tank model, so a redesign at run time
-    stays well inside one sample. Falls back to ``scipy`` if not converged.
+    solves per iteration), much faster than scipy's generalized-Schur solver on
+    the augmented tank model with the nodes' single-threaded BLAS
+    (``bench/bench_riccati.py``, bench/RESULTS.md), so a redesign at run time
+    stays inside one sample. Falls back to ``scipy`` if not converged.
     """
     n = a.shape[0]
     eye = np.eye(n)

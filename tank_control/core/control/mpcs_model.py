@@ -1,23 +1,10 @@
-"""MPCS prediction model: discrete linear model with exact input/output dead times.
+"""MPCS prediction model: the linearised tank (003 eqs. 4–7) with exact input/output dead times.
 
-003 §4 builds its predictive controller on the linearised tank (003 eqs. 4–7,
-SPEC §1.3) *without* the dead times of the plant (180 s on ``F_Cin``, 120 s on
-``T_out``). Here the dead times are part of the model:
-
-* input delay ``F_C(k) = F_Cin(k − d_u)``: the last ``d_u`` values of ``F_Cin``
-  are known (they are the controller's own past outputs) and enter the
-  prediction as *known past inputs*; they are not estimated.
-* output delay ``T_out(k) = T(k − d_y)``: the estimator carries a shift
-  register of the last ``d_y`` model temperatures (``mpcs_estimator``).
-
-Everything is in deviation variables around an operating point (003 §4:
-"regulation around the operating point"), and the state is scaled for
-conditioning: the document divided the volume by 100 (003 eq. 7); we rescale
-the volume deviation by ``dh/dV = 1/(2·C·h0)`` (≈ 1/113 at h0 = 81 cm), so the
-first state *is* the level deviation in cm and the output matrix is the
-identity (SPEC §1.3 "volume/100 or better").
-
-Units (as the document): h [cm], T [°C], flows [cm³/s], time [s].
+Unlike 003 §4 the dead times are in the model: the input delay on ``F_Cin`` enters the
+prediction as known past inputs, the output delay on ``T_out`` as a register in the estimator
+(:mod:`mpcs_estimator`). Deviation variables around an operating point; the volume deviation
+is rescaled by ``dh/dV = 1/(2·C·h0)`` so the first state is the level deviation in cm and C is
+the identity (003 eq. 7 divided the volume by 100). Units: h [cm], T [°C], flows [cm³/s], s.
 """
 from __future__ import annotations
 

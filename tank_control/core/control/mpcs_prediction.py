@@ -1,32 +1,12 @@
-"""Condensed MPCS prediction and cost (SPEC §2.8, 003 §4 and §6) with dead times.
+"""Condensed MPCS prediction and cost with dead times (003 §4 and §6, SPEC §2.8).
 
-Predicted outputs are linear in the *known* vector
-
-    z = [ξ̂(k|k), past inputs still in the input delay lines, u(k−1), d(k)]
-
-(deviations; ``ξ̂`` from :mod:`mpcs_estimator`) and in the decision vector of
-future moves ``ΔU = [Δu(k+t_0), Δu(k+t_1), …]`` (``t_j = j·block``, ``j < ⌈Nu/block⌉``;
-``block = 1`` is the document's ``Nu`` free moves):
-
-    Ŷ = M_z z + G ΔU,        ŷ_∞ = M∞ z + G∞ ΔU.
-
-Cost (SPEC §2.8 plus an optional steady-state term):
-
-    J = Σ_{p=1..N} ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||²
-        + Σ_j λ·||Δu(k+t_j)||²
-
-* Dead-time alignment (``align``): the prediction of an output with dead time
-  ``d_i`` is counted from the first sample the inputs can move it, i.e. the
-  p-th prediction of ``T_out`` is ``T_out(k+d_i+p) = T(k+p)``. Without it
-  (the document's literal cost) and ``N ≤ 120`` no move can change any
-  predicted ``T_out``, so the T loop is blind.
-* ``F_Cin`` acts on both outputs only after 180 samples; with ``N ≤ 180`` its
-  columns of ``G`` are zero and only the steady-state term ``ŷ_∞`` (the
-  output the model settles at if the last planned inputs are held, ``w_∞ > 0``)
-  tells the controller what ``F_Cin`` is for. Without it a short horizon
-  leaves one input unused and the two outputs cannot both be tracked.
-* ``w`` (estimated disturbance) is held constant over the horizon; measured
-  disturbances ``d`` are held at their current value (feed-forward).
+``Ŷ = M_z z + G ΔU`` and ``ŷ_∞ = M∞ z + G∞ ΔU`` with the known vector
+``z = [ξ̂(k|k), inputs still in the delay lines, u(k−1), d(k)]`` (deviations) and the future
+moves ``ΔU`` (one every ``block`` samples); cost
+``J = Σ_p ||W_y (r − ŷ(p))||² + w_∞·||W_y (r − ŷ_∞)||² + Σ_j λ·||Δu(k+t_j)||²``.
+``align`` counts a delayed output's horizon from its dead time; ``w_∞`` tells a horizon shorter
+than F_Cin's 180 samples what F_Cin is for (docs/mpcs.md, "Horizons and dead times").
+Units: cm, °C, cm³/s.
 """
 from __future__ import annotations
 
@@ -64,7 +44,8 @@ class Prediction:
     """The condensed prediction matrices and the cost's Hessian/linear terms.
 
     ``z`` layout: ``[ξ̂ (sys.n), delay-line inputs (Σ input_delays), u_prev (n_u), d (n_d)]``,
-    each delay line oldest first (``u_m(k−d_m) … u_m(k−1)``).
+    each delay line oldest first (``u_m(k−d_m) … u_m(k−1)``). The estimated disturbance ``w`` is
+    held constant over the horizon, the measured ``d`` at its current value (feed-forward).
     """
 
     def __init__(self, sys: AugmentedSystem, cost: CostConfig) -> None:
@@ -90,23 +71,6 @@ class Prediction:
         self.i_d = idx + nu
         self.n_z = idx + nu + nd
         nv = self.n_z + self.n_dec           # columns: [z, ΔU]
-        # --- input trajectories u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}, rows over [z, ΔU]
-        def u_row(mi: int, i: int) -> np.ndarray:
-            row = np.zeros(nv)
-            row[self.i_uprev + mi] = 1.0
-            nj = int(np.searchsorted(self.move_times, i, side='right'))
-            row[self.n_z + mi + nu * np.arange(nj)] = 1.0
-            return row
-
-        def u_eff_rows(j: int) -> np.ndarray:
-            rows = np.zeros((nu, nv))
-            for mi, dm in enumerate(m.input_delays):
-                if j < dm:
-                    rows[mi, self.i_buf[mi] + j] = 1.0    # known past input
-                else:
-                    rows[mi] = u_row(mi, j - dm)
-            return rows
-
         w_sel = np.zeros((sys.n_w, nv))
         w_sel[:, n + np.arange(sys.n_w)] = np.eye(sys.n_w)
         d_sel = np.zeros((nd, nv))
@@ -120,21 +84,22 @@ class Prediction:
         n_steps = max(max(steps), 0)
         xs = np.zeros((n_steps + 1, n, nv))
         xs[0, :, :n] = np.eye(n)
+        drive = np.matmul(m.b_u, self._input_rows(m, n_steps, nv))     # B_u u_eff(k+j)
         for j in range(n_steps):
-            xs[j + 1] = m.a @ xs[j] + m.b_u @ u_eff_rows(j) + const
+            xs[j + 1] = m.a @ xs[j] + drive[j] + const
         # --- outputs, ordered p-major: row (p−1)·ny + i
         y_rows = np.zeros((big_n * ny, nv))
+        p = np.arange(1, big_n + 1)
         for i in range(ny):
-            for p in range(1, big_n + 1):
-                s = p + offsets[i] - m.output_delays[i]
-                if s >= 0:
-                    row = m.c[i] @ xs[s]
-                else:                                   # still in the register: known past
-                    row = np.zeros(nv)
-                    row[sys.reg_start[i] + (-s) - 1] = 1.0
-                if sys.kind == 'output':
-                    row = row + w_sel[i]
-                y_rows[(p - 1) * ny + i] = row
+            s = p + offsets[i] - m.output_delays[i]
+            rows = np.zeros((big_n, nv))
+            ahead = s >= 0
+            rows[ahead] = m.c[i] @ xs[s[ahead]]
+            known = np.flatnonzero(~ahead)                # still in the register: known past
+            rows[known, sys.reg_start[i] - s[known] - 1] = 1.0
+            if sys.kind == 'output':
+                rows = rows + w_sel[i]
+            y_rows[i::ny] = rows
         # --- steady state reached when the last planned inputs are held
         u_last = np.zeros((nu, nv))
         u_last[:, self.i_uprev:self.i_uprev + nu] = np.eye(nu)
@@ -173,6 +138,23 @@ class Prediction:
         self.k_r = first @ self.f_r
         # cumulative-sum matrix: u(k+t_j) − u_prev = L ΔU
         self.cum = np.kron(np.tril(np.ones((self.n_moves, self.n_moves))), np.eye(nu))
+
+    def _input_rows(self, m, n_steps: int, nv: int) -> np.ndarray:
+        """``u_eff(k+j)`` for ``j < n_steps`` as rows over ``[z, ΔU]``, shape
+        ``(n_steps, n_u, nv)``: a value still in input m's delay line (``j < d_m``) is a
+        known past input; later ``u_m(k+i) = u_prev_m + Σ_{t_j ≤ i} Δ_{j,m}``, ``i = j − d_m``."""
+        nu = m.n_u
+        rows = np.zeros((n_steps, nu, nv))
+        j = np.arange(n_steps)
+        move_cols = self.n_z + nu * np.arange(self.n_moves)
+        for mi, dm in enumerate(m.input_delays):
+            past = j[j < dm]
+            rows[past, mi, self.i_buf[mi] + past] = 1.0
+            ahead = j[j >= dm]
+            rows[ahead, mi, self.i_uprev + mi] = 1.0
+            made = self.move_times[None, :] <= (ahead - dm)[:, None]
+            rows[ahead[:, None], mi, (move_cols + mi)[None, :]] = made
+        return rows
 
     def z_vector(self, xi: np.ndarray, buffers: list[np.ndarray], u_prev: np.ndarray,
                  d: np.ndarray) -> np.ndarray:

@@ -4,10 +4,9 @@
     subject to lb ≤ x ≤ ub                   (|Δu| ≤ du_max, slack ≥ 0)
                lo ≤ A x ≤ hi                 (u_min ≤ u ≤ u_max, soft output bounds)
 
-Solved with DAQP (dual active-set; chosen by ``bench/bench_mpcs.py`` against
-quadprog, proxsuite and OSQP). One DAQP workspace is set up per design and
-reused every sample: only ``f`` and the bounds change, and the active set of
-the previous sample is the starting point (warm start).
+Solved with DAQP (dual active set; the choice against quadprog, proxsuite and OSQP:
+bench/RESULTS.md, "MPCS"). One DAQP workspace per design is reused every sample: only ``f`` and
+the bounds change, and the previous sample's active set is the starting point (warm start).
 """
 from __future__ import annotations
 

@@ -1,52 +1,11 @@
-"""Two-loop PI for the mixing tank, with or without decoupling (003 §2–3, SPEC §2.7).
+"""Two-loop PI for the mixing tank, with or without decoupling (003 §2–3, eqs. 1–3).
 
-Loops (pairing of 003): level ``h`` [cm] ← hot inflow ``F_H`` [cm³/s] and
-outlet temperature ``T_out`` [°C] ← cold inflow command ``F_Cin`` [cm³/s].
-
-Each loop is a parallel PI ``v = kp·e + ki·∫e dt`` (e = r − y), discretised
-with forward Euler, ``I(k+1) = I(k) + ki·h·e(k)``. The document gives
-``Kp, Ki`` for a discrete PI sampled at 1 s; we read ``Ki`` as the integral
-gain ``ki = kp/ti`` in 1/s, which at the document's ``Ts = 1 s`` is the same
-number as a per-sample gain on the error sum (and stays meaningful at other
-sample times). The parallel form is needed because the decoupled T loop has
-``Kp = 0`` (pure integral action), which has no ``kp/ti`` form.
-
-Document settings:
-
-* without decoupling (003 §2.1): ``F_H``: kp 0.9, ki 0.01; ``F_Cin``: kp −0.2,
-  ki −0.002 (ti = 90 s and 100 s); outputs limited to 0…300.
-* with decoupling (003 §3, eqs. 1–3): ``F_H = v_h + D12·v_T``,
-  ``F_Cin = v_T + D21·v_h`` with ``D12 = −1`` and ``D21`` static ≈ 2.69 or the
-  first-order discrete filter (0.00619·z + 2.122e−5)/(0.002301·z + 7.897e−6)
-  (eq. 2). Gains ``F_H``: 0.04 / 0.0004, ``F_Cin``: 0 / −0.01. As 003 §3
-  explains, the PI outputs and the decoupler outputs are limited to
-  −300…300 and the physical limit 0…300 is applied only after the sum.
-
-  Note: eq. 3 of 003 prints the difference equation with ``+7.897e−6·y(k−1)``;
-  the transfer function of eq. 2 (and its quoted gain 2.69) needs ``−``. We
-  implement eq. 2: y(k) = (0.00619·u(k) + 2.122e−5·u(k−1) − 7.897e−6·y(k−1)) / 0.002301.
-  (Eq. 3 as printed has DC gain 2.709; the difference is immaterial.)
-
-  The static decoupler makes the steady state exactly non-interacting at
-  the operating point: v_T changes F_H + F_C by 0 (D12 = −1) and v_h changes
-  the heat balance by 0 since D21 = (T_H − T)/(T − T_C) = 28.43/10.57 = 2.69.
-
-Setpoint guard (003 §2.2, SPEC §2.7): a T_out setpoint the tank cannot reach
-at steady state (e.g. near T_C while the disturbance inflow is warmer) makes
-the integrators push one flow to its limit forever and the level drift or
-overflow. With ``setpoint_guard`` the level setpoint is limited to
-``h_range`` and the T_out setpoint to the interval reachable at steady state
-with that level and the nominal disturbance inflow (003 operating point:
-F_D = 12 cm³/s at T_D = 33 °C, T_H = 62, T_C = 23 °C; outflow α·√h, α = 7):
-``F = α·√h_r``, ``T ∈ [((F−F_D)·T_C + F_D·T_D)/F, ((F−F_D)·T_H + F_D·T_D)/F]``,
-shrunk by ``guard_margin``. ``status['setpoint_limited']`` reports it.
-
-Anti-windup sees the applied (saturated) flows: with decoupling, loop i's
-effective output is ``u_i,sat − (decoupler term into u_i)``, limited to the PI
-output range, and ``back_calculation`` drives the integral towards it:
-``I += ki·h·e + min(h/Tt, 1)·(v_eff − v)``, default ``Tt = kp/ki`` (= ti) and
-``Tt = h`` (clamping) for a pure integral loop. ``conditional_integration``
-freezes the integral while it would push further into the limit.
+Pairing of 003: level ``h`` [cm] ← hot inflow ``F_H`` [cm³/s], outlet temperature ``T_out``
+[°C] ← cold inflow command ``F_Cin`` [cm³/s]. Each loop a parallel PI ``v = kp·e + ki·∫e dt``
+(forward Euler); decoupling ``F_H = v_h + D12·v_T``, ``F_Cin = v_T + D21·v_h`` with D12 = −1
+and D21 static (2.69) or the filter of 003 eq. 2; a setpoint guard for setpoints the tank
+cannot hold (003 §2.2); anti-windup on the applied flows. Document settings, limits and the
+reasoning: docs/controllers.md ("two_loop_pi").
 """
 from __future__ import annotations
 
@@ -70,7 +29,12 @@ _GAIN = 1e6
 @dataclass
 class PiLoop:
     """One parallel PI loop: v = kp·e + ki·∫e dt. kp [u/y units], ki [u/(y units·s)],
-    tracking_time [s] (None: kp/ki, or the sample time for a pure integral loop)."""
+    tracking_time [s] (None: kp/ki, or the sample time for a pure integral loop).
+
+    003's ``Ki`` (a discrete PI at 1 s) is read as the integral gain kp/ti in 1/s: the same
+    number as a per-sample gain at Ts = 1 s, and meaningful at other sample times. The parallel
+    form is needed because the decoupled T loop has kp = 0, which has no kp/ti form.
+    """
 
     kp: float
     ki: float
@@ -218,7 +182,11 @@ def _d21_gain(cfg: TwoLoopPiConfig) -> float:
 
 
 class D21Filter:
-    """003 eq. 2 as a difference equation: a0·y(k) + a1·y(k−1) = b0·u(k) + b1·u(k−1)."""
+    """003 eq. 2 as a difference equation: a0·y(k) + a1·y(k−1) = b0·u(k) + b1·u(k−1).
+
+    003 eq. 3 prints ``+7.897e−6·y(k−1)``; the transfer function of eq. 2 and its quoted gain
+    2.69 need ``−`` (eq. 3 as printed has DC gain 2.709), so eq. 2 is implemented.
+    """
 
     def __init__(self) -> None:
         self.u_prev = 0.0
@@ -347,6 +315,8 @@ class TwoLoopPi:
             c21 = self._d21.step(v[0]) if cfg.decoupling == 'dynamic' else cfg.d21 * v[0]
             cross = np.clip(np.array([cfg.d12 * v[1], c21]), lo, hi)   # 003 §3.1: decoupler outputs clipped
         u = np.clip(v + cross, cfg.u_min, cfg.u_max)
+        # anti-windup sees the applied flows: loop i's effective output is u_i − (decoupler
+        # term into u_i), within the PI output range
         v_eff = np.clip(u - cross, lo, hi)
         aw = [False, False]
         for i, loop in enumerate(loops):

@@ -1,61 +1,12 @@
-"""Discrete two-degree-of-freedom PID controller (000 eq. 19, SPEC §2.1).
-
-Continuous law (000 eq. 19 with the real derivative of eq. 13)::
+"""Discrete two-degree-of-freedom PID controller (000 eq. 19 with the real derivative of eq. 13).
 
     U = kp·[ (b·W − Y) + 1/(ti·s)·(W − Y) + td·s/(Tf·s + 1)·(c·W − Y) ],   Tf = td/n
 
-``b`` weights the setpoint in the proportional term, ``c`` in the derivative
-term (both in [0, 1]); ``b = c = 1`` is the standard PID (000 eq. 2), ``td = 0``
-gives PI, ``ti = inf`` removes integral action.
-
-Discretisation (sample time ``h`` = ``sample_time`` [s]):
-
-* P: static, ``P(k) = kp·(b·r(k) − y(k))``.
-* D: **backward difference on the filter**, the discretisation Åström and
-  Hägglund recommend: ``Tf·dD/dt + D = kp·td·de_d/dt`` with backward
-  differences, i.e. ``D(k) = kp·n·(e_d(k) − x(k))`` with the low-pass state
-  ``x(k) = β·x(k−1) + (1 − β)·e_d(k)``, ``β = Tf/(Tf + h)``, ``e_d = c·r − y``;
-  in z: ``kp·n·β·(z − 1)/(z − β)``. ``0 < β < 1`` for every ``Tf/h``: stable
-  and, the pole being positive, free of ringing (Tustin rings when
-  ``h > 2·Tf``); the gain at low frequency is exactly ``kp·td·s`` and the area
-  of the response to an error step exactly ``kp·td``, for any ``h`` (a
-  step-invariant filter held for a sample realises ``kp·td·x/(1 − e^(−x))``,
-  ``x = h/Tf``); it tends to the continuous filter as ``h → 0``.
-  A setpoint step ``w0`` gives ``u(0) = kp·(b + c·td/(Tf + h))·w0
-  = kp·(b + c·n·β)·w0`` — ``kp·(1 + td/Tf)·w0`` of 000 eq. 16 in the limit
-  ``h → 0`` with ``b = c = 1``; no kick with ``c = 0``. The kick then decays
-  as ``β^k``.
-* I: forward (explicit) Euler, ``I(k+1) = I(k) + kp·h/ti·(r(k) − y(k))``, so
-  the integral acts from the sample after a change (``u(0)`` above holds).
-  ``I`` is stored in output units, which makes ``ti`` changes bumpless.
-
-Anti-windup (the applied output ``u`` — after limits and rate limit — is
-compared with the unsaturated ``v = P + I + D``):
-
-* ``back_calculation``: ``I += kp·h/ti·e + min(h/Tt, 1)·(u − v)``. Default
-  tracking time ``Tt = √(ti·td)`` for PID and ``Tt = ti`` for PI
-  (Åström–Hägglund's rule of thumb); ``h/Tt`` is capped at 1 (``Tt ≥ h``),
-  which keeps the tracking loop stable for any user value.
-* ``conditional_integration``: the integral increment is skipped while the
-  output is limited and the increment would drive it further into the limit.
-* ``none``: plain integration (for demonstrating windup).
-
-Other behaviour users rely on:
-
-* no derivative spike on the first sample or after ``reset`` (the filter
-  state starts at the current ``c·r − y``);
-* bumpless gain changes: ``set_gains`` keeps ``v`` at the last inputs
-  unchanged (the integral absorbs the change of P and D; a change of ``c``
-  shifts the filter state so the derivative term is untouched);
-* manual/auto with bumpless transfer both ways (in manual the integral tracks
-  the manual output; ``set_manual()`` without argument holds the last output);
-* output limits ``[u_min, u_max]`` and rate limit ``|Δu| ≤ du_max·h``
-  (``du_max`` in output units per second), also in manual mode;
-* a non-finite ``r`` or ``y`` holds the last output, sets
-  ``status['input_fault']`` and leaves the state untouched; the next finite
-  sample re-initialises bumplessly from the held output;
-* ``direct_action=True`` flips the sign of the whole law (output rises with
-  the measurement); a negative ``kp`` does the same.
+Backward-difference derivative filter, forward-Euler integral, output limits and rate limit,
+anti-windup (back-calculation, conditional integration), bumpless manual/auto and gain changes.
+Units: ``kp`` in output units per measurement unit, ``ti``, ``td``, ``sample_time`` in s,
+``du_max`` in output units per s. Discretisation, the u(0) kick and every guarantee:
+docs/controllers.md ("pid").
 """
 from __future__ import annotations
 
@@ -177,7 +128,12 @@ def default_tracking_time(ti: float, td: float) -> float:
 
 
 def _beta(cfg: PidConfig) -> float:
-    """Pole ``β = Tf/(Tf + h)`` of the backward-difference derivative filter, Tf = td/n."""
+    """Pole ``β = Tf/(Tf + h)`` of the backward-difference derivative filter, Tf = td/n.
+
+    Chosen over Tustin (rings when ``h > 2·Tf``) and a step-invariant filter held for a sample
+    (realises ``kp·td·x/(1 − e^(−x))``, x = h/Tf, instead of ``kp·td``): 0 < β < 1 for every
+    Tf/h, and the area of the response to an error step is exactly ``kp·td`` for any h.
+    """
     tf = cfg.td / cfg.n
     return tf / (tf + cfg.sample_time)
 
@@ -185,8 +141,12 @@ def _beta(cfg: PidConfig) -> float:
 class Pid2Dof:
     """Discrete 2-DOF PID with filtered derivative (000 eq. 19, eqs. 13–14).
 
-    See the module docstring for the discretisation and every guarantee.
-    ``update`` is called once per sample (every ``sample_time`` seconds).
+    ``update`` is called once per sample (every ``sample_time`` seconds). P static, D a
+    backward difference on the filter (pole ``β = Tf/(Tf + h)``, state ``x`` of ``c·r − y``),
+    I forward Euler stored in output units. Guarantees: no derivative spike at the first
+    sample or after ``reset``; bumpless gain changes, manual/auto transfer and recovery from a
+    non-finite input (held output, ``status['input_fault']``); limits and rate limit also in
+    manual. Discretisation, the u(0) kick and anti-windup: docs/controllers.md ("pid").
     """
 
     def __init__(self, config: PidConfig) -> None:
@@ -339,7 +299,7 @@ class Pid2Dof:
             di = k * h / cfg.ti * (r - y)
             if cfg.anti_windup == 'back_calculation':
                 tt = cfg.tracking_time or default_tracking_time(cfg.ti, cfg.td)
-                self._i += di + min(h / tt, 1.0) * (u - v)
+                self._i += di + min(h / tt, 1.0) * (u - v)   # h/Tt ≤ 1: stable for any Tt
                 self._aw_active = u != v
             elif cfg.anti_windup == 'conditional_integration':
                 if (v > u and di > 0.0) or (v < u and di < 0.0):

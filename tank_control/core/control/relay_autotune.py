@@ -1,77 +1,15 @@
 """Relay auto-tuner: a PID that identifies its process with a relay test and tunes itself.
 
-The "push a button and it tunes itself" controller of 001 §1.3 (Fig. 6.16: a PID
-and an on-off controller in parallel, "Tuning" → "Automat") and 004 §3.2–3.3,
-made safe to run on a live loop (SPEC §2.5, issue 6).
-
-States (``status['state']``)::
-
-    idle ──start()──► settling ──► relay ──► measuring ──► tuned ──► running
-      ▲                  │            │           │    (apply: preview)    ▲  │
-      └──── failed / aborted ◄────────┴───────────┘     └─► proposed ─apply┘  │
-                                                   revert() ─► reverted ◄─────┘
-
-* ``idle`` / ``running`` / ``failed`` / ``aborted``: normal PID operation
-  (:class:`~tank_control.core.control.pid.Pid2Dof`); ``running`` with the tuned
-  gains, ``failed``/``aborted`` with the gains from before the test (restored,
-  bumpless from the bias ``u0``).
-* ``settling``: the PID keeps control until the output has stayed within
-  ``autotune.settle_band`` of the setpoint for ``autotune.settle_time`` (or
-  ``autotune.settle_timeout`` passed); ``u0`` = mean PID output over that window
-  (the bias of the relay), noise σ estimated from the sample-to-sample
-  differences of ``y`` (σ ≈ std(Δy)/√2).
-* ``relay``: ``u = u0 ± d`` (``d`` = ``autotune.relay_amplitude``) switched by the
-  error with hysteresis ``ε = max(autotune.hysteresis, autotune.noise_band·σ)``,
-  within the PID's output limits (d shrinks so that the relay stays symmetric about
-  u0) and rate limit, until the first whole cycle is complete.
-* ``measuring``: whole cycles are collected until the last ``autotune.min_cycles``
-  are stationary (periods and first-harmonic amplitudes within
-  ``autotune.stationarity_tol``). When a cycle's half-periods are asymmetric
-  (``|Tu1 − Tu2|/P`` above ``autotune.asymmetry_tol`` in two consecutive cycles, on the
-  same side) and bias correction is on, ``u0`` becomes the last cycle's mean input
-  and counting starts again.
-* ``tuned``: :func:`~tank_control.core.tuning.identification.identify_relay` gives
-  ku, tu (first harmonic corrected to −180°, or the describing function if
-  ``autotune.method`` says so) and an FOPDT/IPDT model; the gains come from
-  ``tune(autotune.rule, autotune.kind, ...)``, are set bumplessly and the PID
-  takes over in the same sample (a relay switch, so y is near the setpoint) with
-  its integral at the bias ``u0`` — the equilibrium input, not the last relay value
-  ``u0 ± d``, which would disturb the loop by d; the next sample is ``running``.
-
-The identified model is kept: changing ``autotune.rule`` or a design target
-(``autotune.kind``, ``ms_target``, ``tau_c``, ``gain_margin``, ``phase_margin``,
-``method``) re-derives the gains from it without a new test. Every design is a
-*proposal* with its predicted margins (``core/analysis/robustness.py``: Ms, GM, PM of the
-implemented discrete loop on the model) and predicted response (overshoot, IAE of a unit
-setpoint and a unit load step, simulated on the model). ``autotune.apply``: ``auto``
-applies it at once (state ``tuned`` → ``running``); ``preview`` keeps the gains from
-before the test (state ``proposed``) until :meth:`apply` (``~/apply_autotune``, or
-``autotune.apply_time``). :meth:`revert` (``~/revert_gains``) returns to the gains from
-before the test at any time, bumplessly (state ``reverted``). A proposal whose loop would
-be unstable or exceed ``robustness.ms_max`` (``ms_max``) is not applied (its reason is
-reported). After an apply the response is verified: the next setpoint change, or with
-``autotune.verify_step`` ≠ 0 an internal setpoint step of that size held for the
-verification window once the loop is at rest (the output within 2 % of the step, or
-``noise_band`` times the noise σ estimated in the test, of the setpoint for
-``autotune.settle_time``), is measured and compared with its prediction (the same step
-simulated on the model from the operating point, limits included); a response whose IAE
-exceeds ``verify_tolerance`` × the predicted one, or whose overshoot exceeds
-``verify_tolerance`` × the predicted one + 5 percentage points, is reported in
-``autotune.warning`` with the numbers.
-
-Faults end the test in ``failed`` with ``status['reason']``: no oscillation within
-``autotune.timeout`` (counted from the relay start), output deviation above
-``autotune.max_amplitude``, setpoint changed during the test, a non-finite
-measurement or setpoint, an identification or tuning rule that cannot be applied.
-``abort()`` ends it in ``aborted``.
-
-Starting: :meth:`start` (the node's ``~/start_autotune`` service or the
-``autotune.start`` parameter, which the node re-arms to false), or at a scheduled
-time ``autotune.start_time`` (> 0, the loop's time in seconds), which the
-in-process loop and a lockstep ROS run reach at the same sample.
-
-Designed to be driven by a node: ``start()``/``abort()`` return ``(accepted,
-message)`` (a std_srvs/Trigger answer), ``state``/``status`` are plain values.
+001 §1.3 (Fig. 6.16, PID and on-off controller in parallel) and 004 §3.2–3.3, made safe to run
+on a live loop: ``idle → settling → relay → measuring → proposed/tuned → running``, with
+``failed`` / ``aborted`` / ``reverted`` restoring the previous gains bumplessly. The ultimate
+point and model come from :func:`~tank_control.core.tuning.identification.identify_relay`, the
+gains from :func:`~tank_control.core.tuning.rules.tune`; the identified model is kept, so a rule
+or target change re-derives the proposal without a new test. Each proposal carries its margins
+and predicted response (``core/analysis/robustness.py``); it is applied at once or previewed,
+reverted on request and verified against its prediction after the apply. Times in s, signals in
+the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.md
+("relay_autotune").
 """
 from __future__ import annotations
 
@@ -318,6 +256,9 @@ class RelayAutotuner:
 
     ``pid_config``: the PID in normal operation (its limits bound the relay too);
     ``autotune``: the test settings. Channels: reads ``output_name``, writes ``input_name``.
+    Designed to be driven by a node: ``start()``/``abort()`` return ``(accepted, message)``
+    (a std_srvs/Trigger answer), ``state``/``status`` are plain values; ``status['state']``
+    and, after ``failed``/``aborted``, ``status['reason']``.
     """
 
     disturbance_names: tuple[str, ...] = ()
@@ -760,6 +701,8 @@ class RelayAutotuner:
             return True
         self._result, self._gains = res, proposal.tuned
         self._model, self._proposal = from_identified(res.model), proposal
+        # The PID takes over from the bias u0, the equilibrium input, not from the last relay
+        # value u0 ± d, which would disturb the loop by d.
         self._pending = self._u0
         self._state, self._reason = 'proposed', ''
         self._offer(proposal, after_test=True)

@@ -1,34 +1,9 @@
-"""Smith predictor with a PI primary (004 §3.6.1, Fig. 3.6; SPEC §2.6).
+"""Smith predictor with a PI primary (004 §3.6.1, Fig. 3.6; eqs. 3.6.3–3.6.6).
 
-The primary PI (a :class:`Pid2Dof` with ``td = 0``) is designed for the
-delay-free model ``Hp*(s)`` and acts on the predicted measurement::
-
-    y_pred(k) = y(k) + ŷ*(k) − ŷ_L(k)
-
-where ``ŷ*`` is the internal model without dead time and ``ŷ_L`` the same
-model with the dead time ``L`` (004 eqs. 3.6.3–3.6.4). With a perfect model
-``y = ŷ_L`` and the primary sees the undelayed ``ŷ*``: the dead time leaves
-the loop (004 eq. 3.6.6).
-
-Internal models (exact for a zero-order-hold input, sample time h):
-
-* ``fopdt``: K/(T·s + 1)·e^(−L·s). ŷ*(k+1) = a·ŷ*(k) + K(1−a)·u(k), a = e^(−h/T).
-  ``L = (d + f)·h`` with integer d ≥ 0 and 0 ≤ f < 1; during a sample period
-  the delayed input is u(k−d−1) for the first f·h seconds and u(k−d) for the
-  rest, which gives exactly
-  ŷ_L(k+1) = a·ŷ_L(k) + K·e^(−(1−f)h/T)(1 − e^(−f·h/T))·u(k−d−1) + K(1 − e^(−(1−f)h/T))·u(k−d).
-* ``ipdt``: k1/s·e^(−L·s). Only the difference is needed, and it is the
-  exact integral of the input over the last L seconds:
-  ŷ* − ŷ_L = k1·h·(Σ_{j=1..d} u(k−j) + f·u(k−d−1)); no ever-growing states.
-
-Known limitation (IPDT): the classical Smith predictor with an integrating
-model leaves a steady-state error k1·L·v0 after a constant input load v0
-(the prediction assumes the constant compensating input still drives the
-output); setpoint tracking is exact. Use the 2-DOF PID (MDP tuning) when
-load rejection matters.
-
-The PI primary for the FOPDT model comes from ``tune('smith_pi', 'pi', ...)``
-(004 eqs. 3.6.7, 3.6.9).
+The primary PI (a :class:`Pid2Dof` with ``td = 0``) acts on ``y_pred(k) = y(k) + ŷ*(k) −
+ŷ_L(k)``: the internal model without and with its dead time L, exact for a zero-order-hold
+input (``fopdt`` K/(T·s+1)·e^(−L·s) or ``ipdt`` k1/s·e^(−L·s)). Times in s. Structure, the
+IPDT load-offset limitation and tuning: docs/controllers.md ("smith_pi").
 """
 from __future__ import annotations
 
@@ -85,7 +60,8 @@ class SmithPredictor:
     Reads ``output_name`` (default ``y``) and its setpoint, writes
     ``input_name`` (default ``u``). ``reset(y, u)`` puts the internal model in
     the steady state of a constant ``u`` and is completed at the next ``step``
-    (which returns ``u``).
+    (which returns ``u``). With the ``ipdt`` model a constant input load v0 leaves a
+    steady-state error k1·L·v0 (the classical structure's limitation); setpoint tracking is exact.
     """
 
     disturbance_names: tuple[str, ...] = ()
@@ -126,14 +102,26 @@ class SmithPredictor:
         return self._hist[j - 1]
 
     def _difference(self) -> float:
-        """ŷ*(k) − ŷ_L(k), the prediction correction."""
+        """ŷ*(k) − ŷ_L(k), the prediction correction.
+
+        ``ipdt``: only the difference is needed, and it is the exact integral of the input over
+        the last L = (d + f)·h seconds, ``k1·h·(Σ_{j=1..d} u(k−j) + f·u(k−d−1))``: no
+        ever-growing states.
+        """
         if self.model.model == 'ipdt':
             total = sum(self._u_ago(j) for j in range(1, self._d + 1)) + self._f * self._u_ago(self._d + 1)
             return self.model.gain * self.sample_time * total
         return self._y_free - self._y_del
 
     def _advance(self, u: float) -> None:
-        """Advance the internal model by one sample with input u(k) = u."""
+        """Advance the internal model by one sample with input u(k) = u.
+
+        ``fopdt``, exact for a ZOH input: ``ŷ*(k+1) = a·ŷ*(k) + K(1−a)·u(k)``, a = e^(−h/T).
+        With ``L = (d + f)·h`` (integer d ≥ 0, 0 ≤ f < 1) the delayed input is u(k−d−1) for
+        the first f·h seconds of a sample and u(k−d) for the rest, which gives exactly
+        ``ŷ_L(k+1) = a·ŷ_L(k) + K·e^(−(1−f)h/T)(1 − e^(−f·h/T))·u(k−d−1)
+        + K(1 − e^(−(1−f)h/T))·u(k−d)``.
+        """
         if self.model.model == 'fopdt':
             k = self.model.gain
             self._y_free = self._a * self._y_free + k * (1 - self._a) * u

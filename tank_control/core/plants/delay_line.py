@@ -1,26 +1,10 @@
-"""Exact transport delays (pure dead time e^(−L·s), 000 eq. 1, 001 eq. 6.14, 003 §1).
+"""Exact transport delays, pure dead time e^(−L·s) (000 eq. 1, 001 eq. 6.14, 003 §1).
 
-Two delay lines, both keeping at least ``max_delay`` seconds of history so that
-the delay can change at run time (000's ±20 % dead-time experiments) without
-losing what is stored:
-
-* ``DelayLine`` delays a piecewise-constant (zero-order-hold) signal exactly.
-  It stores the signal as breakpoints ``(switch time, value)`` and returns the
-  delayed signal over an interval as piecewise-constant segments, so a plant
-  can integrate each segment in closed form. Nothing is rounded to a grid: a
-  dead time that is not a multiple of the sample time is reproduced exactly.
-* ``HermiteDelayLine`` delays a continuous signal that is known on an
-  integration grid together with its slopes (e.g. the tank temperature T on the
-  RK4 grid, delayed by τ to T_out, 003 §1). Values at grid instants are
-  returned exactly; between grid points it interpolates with cubic Hermite
-  polynomials (fourth-order accurate, like the RK4 grid values themselves).
-
-A delay that changes at run time is interpreted as y(t) = x(t − L(t)): from the
-change on, the output reads the stored history at the new lag (a larger delay
-replays older history, a smaller one skips part of it).
-
-Times: breakpoint switch times are integer nanoseconds (the plants' sample
-clock, see ``core.interfaces``); delays and interval lengths are seconds.
+``DelayLine`` delays a zero-order-hold signal exactly (stored as switch instants, returned as
+constant pieces a plant integrates in closed form); ``HermiteDelayLine`` delays a continuous
+signal known on an integration grid with its slopes (cubic Hermite between grid points). Both
+keep ``max_delay`` seconds of history, so the delay can change at run time: y(t) = x(t − L(t))
+(docs/plants.md). Switch times in integer ns; delays and interval lengths in s.
 """
 from __future__ import annotations
 

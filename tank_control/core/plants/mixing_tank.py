@@ -1,32 +1,12 @@
-"""Nonlinear mixing tank with transport delays (003 §1, SPEC §1.3). Units: cm, cm³, cm³/s, °C, s.
-
-Hot (T_H, F_H), cold (T_C, F_C) and disturbance (T_D, F_D) water mix in a tank
-with level-dependent outflow (003 §1)::
+"""Nonlinear mixing tank with transport delays (003 §1). Units: cm, cm³, cm³/s, °C, s.
 
     dV/dt   = F_H + F_C + F_D − F(h)
     V·dT/dt = F_H·T_H + F_C·T_C + F_D·T_D − (F_H + F_C + F_D)·T
-    F(h) = α·√h,   V = C·h²   (h = √(V/C))
-    T_out(t) = T(t − τ),   F_C(t) = F_Cin(t − τ_C)
+    F(h) = α·√h,   V = C·h²,   T_out(t) = T(t − τ),   F_C(t) = F_Cin(t − τ_C)
 
-Channels: outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s];
-disturbances ``F_D`` [cm³/s], ``T_D``, ``T_H``, ``T_C`` [°C].
-
-Numerics: inside every ``step(u, d, dt)`` the state (V, T) is integrated with
-fixed-step RK4 (``integration_step``). The delayed cold inflow F_C is piecewise
-constant (exact ``DelayLine``); the RK4 grid is split at its switch instants, so
-a τ_C that is not a multiple of the sample time costs no accuracy. T is stored
-on the RK4 grid with its one-sided slopes in a ``HermiteDelayLine``; T_out is
-exact at grid instants (τ a multiple of the grid step) and fourth-order
-accurate between them.
-
-Physics guards (counted in ``status``): negative flows are clipped to 0,
-temperatures of the inflows to [0, 100] °C (liquid water); the level never goes
-below 0 (the outflow α·√h vanishes at h = 0); above ``h_max`` the tank spills
-(the excess volume leaves at the tank temperature); T stays within the range of
-its start value and the inflow temperatures. Near an empty tank the T equation
-becomes stiff (rate F_in/V); there RK4 is sub-stepped and, when even that is
-unstable, T follows the exact solution for frozen V
-(T − T_mix decays as e^(−F_in·δ/V)).
+Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; disturbances ``F_D``
+[cm³/s], ``T_D``, ``T_H``, ``T_C`` [°C]. RK4 with exact delays; physics guards (clipped flows,
+overflow, empty tank) counted in ``status``: docs/plants.md ("Mixing tank").
 """
 from __future__ import annotations
 
@@ -165,7 +145,17 @@ def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]
 
 
 class MixingTank:
-    """The nonlinear mixing tank of 003 §1 with delays on F_Cin (τ_C) and T_out (τ)."""
+    """The nonlinear mixing tank of 003 §1 with delays on F_Cin (τ_C) and T_out (τ).
+
+    Inside every ``step`` the state (V, T) is integrated with fixed-step RK4
+    (``integration_step``). The delayed cold inflow F_C is piecewise constant (exact
+    ``DelayLine``) and the RK4 grid is split at its switch instants, so a τ_C that is not a
+    multiple of the sample time costs no accuracy. T is stored on the RK4 grid with its
+    one-sided slopes in a ``HermiteDelayLine``: T_out is exact at grid instants and
+    fourth-order accurate between them. Near an empty tank (stiff T equation, rate F_in/V)
+    RK4 is sub-stepped, and where even that is unstable T follows the exact solution for
+    frozen V.
+    """
 
     output_names: tuple[str, ...] = ('h', 'T_out')
     input_names: tuple[str, ...] = ('F_H', 'F_Cin')
@@ -285,7 +275,7 @@ class MixingTank:
 
     @property
     def status(self) -> Mapping[str, StatusValue]:
-        """Counters and flags (see the module docstring).
+        """Counters and flags of the physics guards (docs/plants.md).
 
         ``clipped_<channel>``: steps in which that input was clipped;
         ``clipped_flows``: their sum over F_H, F_Cin, F_D; ``overflow``: spilled in

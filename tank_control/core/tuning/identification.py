@@ -1,43 +1,11 @@
 """Identification from a relay (on-off) experiment: ultimate point and low-order models.
 
-Pure functions on recorded samples ``t`` [s], ``u`` (plant input, held constant
-between samples: zero-order hold) and ``y`` (measured plant output). Sources:
-001 §1.3 (eqs. 6.16–6.22), 004 §3.2–3.3 and §3.6 (eqs. 3.2.1, 3.3.1–3.3.21,
-3.6.1–3.6.2); SPEC §1.2 and §2.5.
-
-Two estimates of the ultimate point (ku, tu) are computed from the same record:
-
-* describing function (001 eq. 6.22, 004 eq. 3.2.1): ``ku = 4·d/(π·a)`` with
-  ``a`` the output amplitude and ``tu`` the oscillation period. It neglects the
-  higher harmonics of ``y`` and, with hysteresis, the fact that the oscillation
-  is not at the −180° point; on FOPDT it is off by −18 % … +13 % (SPEC §2.5).
-* first harmonic (004 eqs. 3.3.19–3.3.21): over whole stationary periods the
-  Fourier coefficients of ``u`` and ``y`` at ``k·ωc`` give the plant frequency
-  response ``G(j·k·ωc) = Y_k/U_k`` *exactly* for a linear plant, whatever the
-  relay and its hysteresis did (``u`` is integrated exactly as a ZOH signal;
-  ``y`` by the trapezoidal sum over whole periods). ``ωc`` is, however, not the
-  phase-crossover frequency ``ωu``: even an ideal relay oscillates a few per cent
-  away from it (the higher harmonics of ``y`` shift the switching instants), and
-  hysteresis ε lowers it by about ``arcsin(ε/a)`` of phase; a sampled relay adds up
-  to one sample of delay per switch. ``1/|G(jωc)|`` alone is off by up to 5–18 %
-  under 1 % noise (bench/RESULTS.md).
-
-Correction to the −180° point (:func:`anchored_ultimate_point`): the measured
-``G(jωc)`` is the anchor, a local model bridges the phase gap. The bridge is
-``k·e^(−L·s)/(s + α)^n`` with a *real* order n, solved exactly through the two
-measured points ``G(jωc)`` and ``G(j3ωc)`` (:func:`fit_local_model`: four real
-equations, four unknowns; exact for FOPDT, IPDT and any ``1/(s+α)^n`` with dead
-time). When it has no solution the bridge is the FOPDT/IPDT fitted to the samples
-in the time domain (:func:`fit_time_domain`, an exact simulation of the model under
-the recorded ZOH input). That fitted FOPDT/IPDT is also the reported model (for
-model-based tuning rules). Verified numerically (test_identification.py,
-bench/bench_autotune.py): worst errors 0.8 % (Ku) and 0.3 % (Tu) against the exact
-ultimate point on FOPDT L/T = 0.1 … 3, IPDT and SOPDT with 1 % noise, 47 samples per
-period, 4 cycles (2 % / 0.9 % with 20 samples per period).
-
-Signs: ``u`` and ``y`` are used as deviations from the operating point
-``(u0, y0)``; the plant gain is assumed positive (reverse-acting plants: negate
-``u`` before calling).
+Pure functions on recorded samples ``t`` [s], ``u`` (plant input, zero-order hold) and ``y``
+(plant output), as deviations from the operating point; plant gain assumed positive. Sources:
+001 §1.3 (eqs. 6.16–6.22), 004 §3.2–3.3 and §3.6 (eqs. 3.2.1, 3.3.1–3.3.21, 3.6.1–3.6.2).
+Estimates: describing function ``ku = 4·d/(π·a)``; first harmonic ``G(jωc) = Y1/U1``, corrected
+to the −180° point along a local model through ``G(jωc)`` and ``G(j3ωc)``
+(:func:`anchored_ultimate_point`). Method: docs/tuning.md; accuracy: bench/RESULTS.md.
 """
 from __future__ import annotations
 

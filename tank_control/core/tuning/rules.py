@@ -1,101 +1,17 @@
-"""PID tuning rules behind one entry point, ``tune(rule, kind, **process)``.
+"""PID tuning rules behind one entry point, ``tune(rule, kind, **process)`` (000, 001, 004).
 
-Every rule returns the keys ``kp, ti, td, b, c`` in the form of the 2-DOF PID
-of 000 eq. 19 (``kp`` in controller-output units per measured unit, ``ti``/``td``
-in seconds, ``b``/``c`` dimensionless); a key is ``None`` where the rule does not
-give it (``ti`` for P, ``td`` for P/PI, ``b``/``c`` for the 1-DOF rules — use 1,
-the standard PID). The result is a :class:`TuneResult` (a dict of those five keys)
-that also says what it is: ``rule``, ``source``, the process ``model`` it was
-designed on (when the rule uses one), and ``margins`` — the predicted robustness
-on that model (GM, PM, Ms, Mt, crossover, delay margin, Nyquist stability; of the
-implemented discrete loop when ``sample_time`` is given); ``explain()`` prints it.
-
-Process arguments (SPEC §1): ``gain`` (IPDT ``k1`` [1/s], FOPDT/SOPDT ``K``),
-``dead_time`` (``To`` or ``L`` [s]), ``time_constant`` (``T``, SOPDT ``T1`` [s]),
-``time_constant2`` (SOPDT ``T2`` [s]), ``model`` ('fopdt', 'ipdt' or 'sopdt';
-default: sopdt with ``time_constant2``, fopdt with ``time_constant``, else ipdt),
-``ku`` (ultimate gain), ``tu`` (ultimate period [s]); for ``smith_pi`` also ``n``
-(order 1 or 2 of the delay-free model), ``te`` [s] (n = 1) or ``xi`` (n = 2).
-Design targets: ``ms`` (default 1.4) and ``mt`` (``ms`` rule), ``tau_c`` [s]
-(closed-loop time constant of ``simc`` and ``lambda``), ``gain_margin`` (A_r,
-default 3) and ``phase_margin`` [deg] (φ_r, default 60) of ``ho`` and ``tan``,
-``r`` (``tan``); the implemented loop: ``sample_time`` [s] and ``filter_n``
-(td/Tf, default 10; 000 eq. 14).
-Arguments a rule does not use are ignored; unknown names, missing arguments,
-non-positive values and unknown rules/kinds raise ``ValueError`` naming them.
-
-Rules
------
-``mdp``           IPDT, multiple dominant pole (000 eqs. 25–28, 32, 34): PI, PID.
-                  Exact closed forms (kp = 0.78362/(k1·To), td = 0.26289·To); 000's
-                  Table 1 used the rounded 0.784 and 0.263, hence its kp = 3.14 and
-                  td = 1.32 where the exact values are 3.134 and 1.314.
-``experimental``  IPDT, experimental (000 eqs. 35–36): PI, PID. For the PI, eq. 36
-                  gives kp = 0.6/(k1·To) = 2.4 for the example; 000's Table 1 prints
-                  2.5. We follow the equation.
-``zn``            Classical Ziegler–Nichols ultimate-point rule (Ziegler & Nichols,
-                  "Optimum settings for automatic controllers", Trans. ASME 64, 1942;
-                  SPEC-supplement §1.9): P 0.5·Ku; PI 0.45·Ku, Tu/1.2; PID 0.6·Ku,
-                  Tu/2, Tu/8.
-``zn_001``        Ziegler–Nichols ultimate point, 001 Table 6.2: P, PI, PID.
-``zn_004_q0``     Ziegler–Nichols, 004 Table 3.1, PID column q = 0 (P, PI shared).
-``zn_004_q1``     Ziegler–Nichols, 004 Table 3.1, PID column q = 1 (P, PI shared).
-                  The table values are returned as printed (the PID form 3.2.2 is
-                  garbled in our copy of 004). The q = 1 column equals 001's
-                  Table 6.2 (Td = 0.12·Tu); neither is the classical rule ``zn``
-                  (Td = Tu/8 = 0.125·Tu).
-``oppelt``        FOPDT step response, 001 Table 6.1 with a = K·L/T (eq. 6.15):
-                  P, PI, PID.
-``cohen_coon``    FOPDT, classical Cohen–Coon formulas (P, PI, PD, PID), which 004
-                  eqs. 3.4.12–3.4.15 restate in Åström–Hägglund's normalised form
-                  with τ = L/(L+T). They agree to the printed digits except the PI
-                  gain, printed there as 0.9·(1 + 0.92·τ/(1−τ)); the classical
-                  formula is 0.9 + L/(12T) = 0.9·(1 + 0.093·τ/(1−τ)). We use the
-                  classical one.
-``smith_pi``      PI primary of a Smith predictor on the delay-free model
-                  K/(T·s+1)^n (004 §3.6.1): n = 1, eq. 3.6.7 kp = T/(K·te),
-                  ti = T (te = desired closed-loop time constant, recommended
-                  (0.2…1)·T); n = 2, eq. 3.6.9 kp = 1/(4·xi²·K), ti = T (xi
-                  recommended in [0.5, 1]).
-``ms``            Ms-constrained design (``core/tuning/robust.py``): the kappa-tau
-                  idea of 004 §3.4.2 (eq. 3.4.7) by optimisation — largest integral
-                  gain subject to Ms ≤ ``ms`` (and Mt ≤ ``mt``), PID with td ≤ ti/4,
-                  on the exact-delay FOPDT/IPDT/SOPDT (the implemented discrete loop
-                  with ``sample_time``); b for no setpoint resonance, c = 0. PI, PID.
-``amigo``         AMIGO (Åström & Hägglund, "Revisiting the Ziegler–Nichols step
-                  response method for PID control", J. Process Control 14, 2004;
-                  *Advanced PID Control*, 2006, §7.6). FOPDT, τ = L/(L + T):
-                  PI kp = 0.15/K + (0.35 − L·T/(L + T)²)·T/(K·L),
-                  ti = 0.35·L + 13·L·T²/(T² + 12·L·T + 7·L²);
-                  PID kp = (0.2 + 0.45·T/L)/K, ti = (0.4·L + 0.8·T)/(L + 0.1·T)·L,
-                  td = 0.5·L·T/(0.3·L + T); b = 0 for τ ≤ 0.5, 1 above; c = 0.
-                  IPDT: PI kp = 0.35/(k1·L), ti = 13.4·L; PID 0.45/(k1·L), 8·L,
-                  0.5·L; b = 0. SOPDT by Skogestad's half rule (below).
-``simc``          SIMC (Skogestad, "Simple analytic rules for model reduction and
-                  PID controller tuning", J. Process Control 13, 2003), τc =
-                  ``tau_c`` (default τc = L, "tight control"): FOPDT PI kp =
-                  T/(K·(τc + L)), ti = min(T, 4·(τc + L)); IPDT PI kp =
-                  1/(k1·(τc + L)), ti = 4·(τc + L); SOPDT PID (series form) kc =
-                  T1/(K·(τc + L)), τI = min(T1, 4·(τc + L)), τD = T2, returned in the
-                  ideal form of 000 eq. 19 (kp = kc·(1 + τD/τI), ti = τI + τD,
-                  td = τI·τD/(τI + τD)); SOPDT PI by the half rule: T = T1 + T2/2,
-                  L + T2/2. 1-DOF.
-``lambda``        Lambda (IMC) PI, λ = ``tau_c``: FOPDT kp = T/(K·(λ + L)), ti = T
-                  (Rivera, Morari & Skogestad 1986; default λ = T); IPDT kp =
-                  (2λ + L)/(k1·(λ + L)²), ti = 2λ + L (Chien & Fruehauf 1990; λ must
-                  be given); SOPDT by the half rule. 1-DOF.
-``ho``            PI from gain and phase margins (Ho, Hang & Cao 1995; 004 eqs.
-                  3.4.16–3.4.18): ω_P = (A_r·φ_r + π/2·A_r·(A_r − 1))/((A_r² − 1)·L),
-                  kp = ω_P·T/(A_r·K), ti = 1/(2ω_P − 4ω_P²·L/π + 1/T); FOPDT, IPDT as
-                  the limit T → ∞ (K = k1·T), SOPDT by the half rule. Refused when the
-                  pair gives ti ≤ 0 (SPEC-supplement §2.8).
-``tan``           Two-point PI (Tan, Lee & Wang 1996; 004 eqs. 3.4.19, 3.4.22 as
-                  reconstructed in SPEC-supplement §2.9): the loop equals −1/A_r at
-                  ω = r·ωu: ti = 1/(r·ωu·tan(π + ∠G(j·r·ωu))), kp = r·ωu·ti/(A_r·
-                  |G(j·r·ωu)|·√((r·ωu·ti)² + 1)); r = 0.8 for θ = L/T < 0.5 (FOPDT;
-                  SOPDT with T = T1 + T2), 0.5 otherwise and for IPDT, or ``r``.
-                  G is the model's exact-delay response. PI only: the PID relations
-                  3.4.20–3.4.21 are garbled in our copy of 004.
+Every rule returns ``{kp, ti, td, b, c}`` in the form of the 2-DOF PID of 000 eq. 19 (``kp`` in
+output units per measured unit, ``ti``/``td`` in s, ``b``/``c`` dimensionless; ``None`` where
+the rule gives no value), as a :class:`TuneResult` that also carries the rule's source, the
+process model it was designed on and the predicted margins on it. Process arguments: ``gain``
+(IPDT k1 [1/s], FOPDT/SOPDT K), ``dead_time`` [s], ``time_constant`` [s], ``time_constant2``
+[s] (SOPDT), ``model``, ``ku``, ``tu`` [s]; ``smith_pi`` also ``n``, ``te`` [s], ``xi``; design
+targets ``ms``, ``mt``, ``tau_c`` [s], ``gain_margin``, ``phase_margin`` [deg], ``r``; the
+implemented loop ``sample_time`` [s], ``filter_n``. Unknown or missing arguments, non-positive
+values and unknown rules or kinds raise ``ValueError`` naming them. Rules: ``mdp``,
+``experimental``, ``zn``, ``zn_001``, ``zn_004_q0``, ``zn_004_q1``, ``oppelt``, ``cohen_coon``,
+``smith_pi``, ``ms``, ``amigo``, ``simc``, ``lambda``, ``ho``, ``tan`` — sources and notes:
+docs/tuning.md.
 """
 from __future__ import annotations
 
@@ -140,7 +56,11 @@ def _need(process: Mapping[str, float], rule: str, *names: str) -> list[float]:
 
 # ---------------------------------------------------------------- IPDT (000)
 def mdp(kind: str, process: Mapping[str, float]) -> Gains:
-    """Multiple dominant pole for k1/s·e^(−To·s) (000 eqs. 25–28, 32, 34)."""
+    """Multiple dominant pole for k1/s·e^(−To·s) (000 eqs. 25–28, 32, 34).
+
+    Exact closed forms (PID kp = 0.78362/(k1·To), td = 0.26289·To); 000's Table 1 used the
+    rounded 0.784 and 0.263, hence its kp = 3.14 and td = 1.32 for the exact 3.134 and 1.314.
+    """
     k1, to = _need(process, 'mdp', 'gain', 'dead_time')
     if kind == 'pid':   # quadruple pole s* = −(3 − √3)/To (eq. 25)
         return _gains(kp=6.0 * (2.0 * SQRT3 - 3.0) * math.exp(SQRT3 - 3.0) / (k1 * to),   # eq. 26
@@ -153,7 +73,10 @@ def mdp(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def experimental(kind: str, process: Mapping[str, float]) -> Gains:
-    """Experimental 2-DOF settings for IPDT (000 eqs. 35–36)."""
+    """Experimental 2-DOF settings for IPDT (000 eqs. 35–36).
+
+    The PI follows eq. 36, kp = 0.6/(k1·To) (2.4 for 000's example); Table 1 prints 2.5.
+    """
     k1, to = _need(process, 'experimental', 'gain', 'dead_time')
     if kind == 'pid':
         return _gains(kp=1.0 / (k1 * to), ti=3.0 * to, td=0.35 * to, b=0.3, c=0.3)        # eq. 35
@@ -197,7 +120,8 @@ def zn_004_q0(kind: str, process: Mapping[str, float]) -> Gains:
 
 def zn_004_q1(kind: str, process: Mapping[str, float]) -> Gains:
     """Ziegler–Nichols as printed in 004 Table 3.1, PID column q = 1 (td = 0.12·Tu as in
-    001 Table 6.2; not the classical Tu/8 of :func:`zn`)."""
+    001 Table 6.2; not the classical Tu/8 of :func:`zn`). The table values are used as
+    printed: the PID form 3.2.2 is garbled in our copy of 004."""
     return _ultimate('zn_004_q1', {**_ZN_004, 'pid': _ZN_004_PID['zn_004_q1']}, kind, process)
 
 
@@ -216,7 +140,12 @@ def oppelt(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
-    """Classical Cohen–Coon for K/(T·s+1)·e^(−L·s) (004 eqs. 3.4.12–3.4.15, see module doc)."""
+    """Classical Cohen–Coon for K/(T·s+1)·e^(−L·s) (004 eqs. 3.4.12–3.4.15).
+
+    004 restates the formulas in Åström–Hägglund's normalised form with τ = L/(L+T); they
+    agree to the printed digits except the PI gain, printed 0.9·(1 + 0.92·τ/(1−τ)), where the
+    classical formula 0.9 + L/(12T) = 0.9·(1 + 0.093·τ/(1−τ)) is used.
+    """
     if kind not in ('p', 'pi', 'pd', 'pid'):
         raise _bad_kind('cohen_coon', kind, ('p', 'pi', 'pd', 'pid'))
     k, t, dead = _need(process, 'cohen_coon', 'gain', 'time_constant', 'dead_time')
@@ -234,7 +163,11 @@ def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
 
 # ------------------------------------------------------------- Smith primary
 def smith_pi(kind: str, process: Mapping[str, float]) -> Gains:
-    """PI primary for a Smith predictor on K/(T·s+1)^n (004 eqs. 3.6.7, 3.6.9)."""
+    """PI primary for a Smith predictor on K/(T·s+1)^n (004 eqs. 3.6.7, 3.6.9).
+
+    n = 1: kp = T/(K·te), ti = T (te = desired closed-loop time constant, recommended
+    (0.2…1)·T); n = 2: kp = 1/(4·xi²·K), ti = T (xi recommended in [0.5, 1]).
+    """
     if kind != 'pi':
         raise _bad_kind('smith_pi', kind, ('pi',))
     order = process.get('n', 1)
@@ -521,7 +454,7 @@ class TuneResult(dict):
 
 
 def tune(rule: str, kind: str, **process: Any) -> TuneResult:
-    """Controller settings ``{kp, ti, td, b, c}`` from a named rule (see module doc), as a
+    """Controller settings ``{kp, ti, td, b, c}`` from a named rule (rules: docs/tuning.md), as a
     :class:`TuneResult` that also carries the model and the predicted margins.
 
     >>> round(tune('mdp', 'pid', gain=0.05, dead_time=5.0)['kp'], 2)

@@ -11,18 +11,19 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.kinds import mpcs, pid, relay_autotune, smith_pi, two_loop_pi
+from tank_control.core.control.kinds import lead_lag, mpcs, pid, relay_autotune, smith_pi, two_loop_pi
 from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import lookup
+from tank_control.core.params import by_name, lookup
 
-KINDS: dict[str, ControllerKind] = {kind.name: kind for kind in (
+KINDS: dict[str, ControllerKind] = by_name(
     pid.KIND,
     two_loop_pi.KIND,
     smith_pi.KIND,
     relay_autotune.KIND,
     mpcs.KIND,
-)}
+    lead_lag.KIND,
+)
 
 
 def get_kind(name: str) -> ControllerKind:

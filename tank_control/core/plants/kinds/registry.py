@@ -5,15 +5,16 @@ from collections.abc import Mapping
 from typing import Any
 
 from tank_control.core.interfaces import Plant
-from tank_control.core.params import lookup
-from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank
+from tank_control.core.params import by_name, lookup
+from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank, sopdt
 from tank_control.core.plants.kinds.base import PlantKind
 
-KINDS: dict[str, PlantKind] = {kind.name: kind for kind in (
+KINDS: dict[str, PlantKind] = by_name(
     ipdt.KIND,
     fopdt.KIND,
     mixing_tank.KIND,
-)}
+    sopdt.KIND,
+)
 
 
 def get_kind(name: str) -> PlantKind:

@@ -1,0 +1,683 @@
+"""Discrete lead-lag compensator and 002's frequency-domain design of it (002 §1.1–1.4, SPEC §3).
+
+Continuous law (002 §1.2 lead "PD", §1.3 PI, §1.4 series PID)::
+
+    C(s) = kp · (td·s + 1)/(alpha·td·s + 1) · (1 + 1/(ti·s)),   E = W − Y
+
+The lead (0 < alpha < 1, ``td = 0``: none) has its largest phase lead
+``asin((1 − alpha)/(1 + alpha))`` at ``w_max = 1/(td·√alpha)`` [rad/s] and the gain 1 at low,
+``1/alpha`` at high frequency; the PI (the lag part, ``ti = inf``: none) removes the steady-state
+error. Units: ``kp`` in u units per y unit, ``td``, ``ti``, ``sample_time`` in s, phases in
+degrees at the API.
+
+Discretisation (sample time ``h``):
+
+* lead: matched pole-zero, its zero ``−1/td`` and pole ``−1/(alpha·td)`` mapped by
+  ``z = e^(s·h)``, the gain matched at ``z = 1``::
+
+      L(z) = g·(z − z0)/(z − p0) = 1 + gd·(z − 1)/(z − p0),
+      z0 = e^(−h/td), p0 = e^(−h/(alpha·td)), g = (1 − p0)/(1 − z0), gd = g − 1
+
+  Its pole ``p0`` lies in (0, 1) for every ``h``: stable and free of ringing (Tustin rings
+  once ``h > 2·alpha·td``); ``L(1) = 1`` exactly; it tends to the continuous network as
+  ``h → 0`` (``gd → (1 − alpha)/alpha``). At the crossover it keeps the lead's phase to within
+  a small part of the hold's half sample, where the backward difference (the PID's derivative
+  filter) would cost about another ``ω·h/2``. Realised as ``e_f = e + gd·(e − x)`` with the
+  low-pass state ``x ← p0·x + (1 − p0)·e`` updated after.
+* PI after the lead, forward Euler in output units: ``v = kp·e_f + I``,
+  ``I ← I + kp·h/ti·e_f`` (so ``ti`` changes are bumpless), i.e. ``1 + h/(ti·(z − 1))``.
+
+So the implemented law is exactly (:func:`discrete_polynomials`, :func:`discrete_response`)::
+
+    C(z) = kp · (1 + h/(ti·(z − 1))) · g·(z − z0)/(z − p0)
+
+Behaviour users rely on (as the PID's): output limits ``[u_min, u_max]``; anti-windup of the
+integral (``back_calculation`` with tracking time ``Tt``, default ``ti``, ``h/Tt`` capped at 1;
+``conditional_integration``; ``none``); no kick on the first sample or after ``reset`` (the
+lead starts at the steady state of the current error); ``reset(r, y, u)`` makes the next
+output ``u``; bumpless gain changes (the integral, or without integral action the output bias
+``I``, absorbs them); manual/auto bumpless both ways; a non-finite ``r`` or ``y`` holds the
+last output and leaves the state untouched; ``direct_action`` reverses the sign.
+
+Design (:func:`design`, 002): P for the steady-state error ``1/(1 + kp·K) <= e`` (§1.1); PD:
+the lead's ``w_max`` at the P loop's gain crossover, moved to the mean of itself and the new
+crossover until the phase margin reaches its target (§1.2; no lead if the P loop has it);
+PI: the gain and ``ti = ratio/w_c`` (the integral corner a decade below the P loop's
+crossover) that give the target phase margin (§1.3); series PID: the PD's ``td``, the PI's
+``ti``, the mean of the two gains (§1.4). The design is continuous (exact dead time); the
+sampled loop loses about ``w_c·h/2`` of phase to the hold.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import numpy as np
+from scipy.optimize import brentq
+
+from tank_control.core.analysis import frequency as fr
+from tank_control.core.control.pid import (ANTI_WINDUP_CHOICES, BIG, anti_windup_param,
+                                           sample_time_param)
+from tank_control.core.params import ConfigError, check_config, param
+
+ALPHA_MIN, ALPHA_MAX = 0.01, 0.99
+
+
+# ============================================================================ the law
+@dataclass
+class LeadLagConfig:
+    """Settings of :class:`LeadLag` (002 §1.2–1.4); every field is a parameter.
+
+    As parameters ``lead_lag.ti = 0`` means no integral action (``inf``) and
+    ``tracking_time = 0`` the default ``Tt = ti``."""
+
+    kp: float = param(1.0, 'gain K of C(s) = K (Td s + 1)/(alpha Td s + 1) (1 + 1/(Ti s)); > 0, '
+                      'use direct_action for the opposite sign', unit='u units per y unit',
+                      min=0.0, max=BIG, name='lead_lag.kp', source='002 §1.4')
+    td: float = param(0.0, 'lead time Td: largest phase lead at w_max = 1/(Td sqrt(alpha)) '
+                      '(0 = no lead)', unit='s', min=0.0, max=BIG, name='lead_lag.td',
+                      source='002 §1.2')
+    alpha: float = param(0.1, 'lead pole/zero ratio alpha = Tf/Td; largest lead '
+                         'asin((1 - alpha)/(1 + alpha)), high-frequency gain K/alpha', unit='-',
+                         min=ALPHA_MIN, max=ALPHA_MAX, name='lead_lag.alpha', source='002 §1.2')
+    ti: float = param(math.inf, 'integral time Ti of the series PI (0 = no integral action)',
+                      unit='s', min=0.0, max=BIG, zero=math.inf, name='lead_lag.ti',
+                      source='002 §1.3')
+    sample_time: float = sample_time_param()
+    u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
+    u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
+    anti_windup: str = anti_windup_param()
+    tracking_time: float | None = param(None, 'back-calculation tracking time Tt (0 = default '
+                                        'Ti)', unit='s', min=0.0, max=BIG, zero=None)
+    direct_action: bool = param(False, 'true: output rises when the measurement rises')
+
+    def reason(self) -> str | None:
+        """Relations between the fields (one line naming the parameter), or None."""
+        if not self.kp > 0.0:
+            return f'lead_lag.kp: {self.kp!r} must be > 0 (direct_action reverses the sign)'
+        if not self.ti > 0.0:
+            return f'lead_lag.ti: {self.ti!r} is out of range; allowed (0, inf] s (0 = none)'
+        if not self.u_min < self.u_max:
+            return f'u_min: {self.u_min:g} must be below u_max {self.u_max:g}'
+        if self.anti_windup not in ANTI_WINDUP_CHOICES:
+            return f'anti_windup: {self.anti_windup!r} is not one of ' + ', '.join(
+                ANTI_WINDUP_CHOICES)
+        return None
+
+
+def lead_constants(td: float, alpha: float, h: float) -> tuple[float, float]:
+    """``(p0, gd)`` of the matched pole-zero lead: pole ``p0 = e^(−h/(alpha·td))`` and
+    ``gd = (z0 − p0)/(1 − z0)``, ``z0 = e^(−h/td)``; ``(0, 0)`` without a lead (``td = 0``)."""
+    if td <= 0.0:
+        return 0.0, 0.0
+    a, b = -h / td, -h / (alpha * td)
+    return math.exp(b), (math.expm1(a) - math.expm1(b)) / -math.expm1(a)
+
+
+class LeadLag:
+    """Discrete lead-lag compensator (002 §1.2–1.4); see the module docstring.
+
+    ``update(r, y)`` once per sample (every ``sample_time`` seconds) returns the output."""
+
+    def __init__(self, config: LeadLagConfig) -> None:
+        check_config(config)
+        self._cfg = replace(config)
+        self._mode = 'auto'
+        self._manual_u: float | None = None
+        self._x = 0.0           # lead low-pass state [units of e = r − y]
+        self._i = 0.0           # integral (without integral action: bias) [u units]
+        self._u: float | None = None
+        self._v = 0.0
+        self._e_f = 0.0
+        self._i_out = 0.0
+        self._last: tuple[float, float] | None = None
+        self._initialised = False
+        self._fault = False
+        self._saturated = False
+        self._aw_active = False
+
+    # ---------------------------------------------------------------- state
+    @property
+    def config(self) -> LeadLagConfig:
+        return replace(self._cfg)
+
+    @property
+    def output(self) -> float | None:
+        return self._u
+
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    @property
+    def status(self) -> dict[str, Any]:
+        """mode, saturated, anti_windup_active, input_fault, the lead's output ``lead``
+        (filtered error), the integral ``i``, the unlimited ``v`` and applied ``u``."""
+        return {'mode': self._mode, 'saturated': self._saturated,
+                'anti_windup_active': self._aw_active, 'input_fault': self._fault,
+                'lead': self._e_f, 'i': self._i_out, 'v': self._v,
+                'u': math.nan if self._u is None else self._u}
+
+    def _gain(self, cfg: LeadLagConfig | None = None) -> float:
+        cfg = cfg or self._cfg
+        return -cfg.kp if cfg.direct_action else cfg.kp
+
+    def _clip(self, u: float) -> float:
+        return min(max(u, self._cfg.u_min), self._cfg.u_max)
+
+    def _next_v(self, cfg: LeadLagConfig, e: float) -> float:
+        """The output before limits of the next sample at error ``e`` from the current state."""
+        gd = lead_constants(cfg.td, cfg.alpha, cfg.sample_time)[1]
+        return self._gain(cfg) * (e + gd * (e - self._x)) + self._i
+
+    # ------------------------------------------------------------ operation
+    def reset(self, r: float, y: float, u: float) -> None:
+        """Initialise bumplessly: with the same ``r`` and ``y`` the next ``update`` returns
+        ``u`` (clipped to the limits); the lead starts at rest (no kick)."""
+        for name, value in (('r', r), ('y', y), ('u', u)):
+            if not math.isfinite(value):
+                raise ValueError(f'reset: {name} = {value!r} is not finite')
+        u = self._clip(float(u))
+        self._track(float(r), float(y), u)
+        self._u = self._v = u
+        self._fault = False
+        if self._mode == 'manual':
+            self._manual_u = u
+
+    def _track(self, r: float, y: float, u: float) -> None:
+        """States such that the output at (r, y) is ``u`` with the lead at rest."""
+        e = r - y
+        self._x = e
+        self._e_f = e
+        self._i = u - self._gain() * e
+        self._i_out = self._i
+        self._last = (r, y)
+        self._initialised = True
+
+    def update(self, r: float, y: float) -> float:
+        """One sample: setpoint ``r`` and measurement ``y`` → output ``u``."""
+        if not (math.isfinite(r) and math.isfinite(y)):
+            self._fault = True
+            return self._hold()
+        r, y = float(r), float(y)
+        if self._fault:
+            self._fault = False
+            self._track(r, y, self._hold())
+        if not self._initialised:
+            self._track(r, y, 0.0)
+            self._i = self._i_out = 0.0
+        if self._mode == 'manual':
+            target = self._manual_u if self._manual_u is not None else self._hold()
+            u = self._clip(target)
+            self._track(r, y, u)
+            self._u = self._v = u
+            self._saturated, self._aw_active = u != target, False
+            return u
+        return self._update_auto(r, y)
+
+    def _hold(self) -> float:
+        return self._u if self._u is not None else self._clip(0.0)
+
+    def _update_auto(self, r: float, y: float) -> float:
+        cfg = self._cfg
+        k, h, e = self._gain(), cfg.sample_time, r - y
+        if cfg.td > 0.0:
+            p0, gd = lead_constants(cfg.td, cfg.alpha, h)
+            e_f = e + gd * (e - self._x)
+            x_next = p0 * self._x + (1.0 - p0) * e
+        else:
+            x_next, e_f = e, e
+        v = k * e_f + self._i
+        if not (math.isfinite(v) and math.isfinite(x_next)):
+            self._fault = True          # overflow from absurd inputs: state and output kept
+            return self._hold()
+        u = self._clip(v)
+        self._x, self._e_f, self._v, self._i_out = x_next, e_f, v, self._i
+        self._aw_active = False
+        if math.isfinite(cfg.ti):
+            di = k * h / cfg.ti * e_f
+            if cfg.anti_windup == 'back_calculation':
+                tt = cfg.tracking_time or cfg.ti
+                self._i += di + min(h / tt, 1.0) * (u - v)
+                self._aw_active = u != v
+            elif cfg.anti_windup == 'conditional_integration':
+                if (v > u and di > 0.0) or (v < u and di < 0.0):
+                    self._aw_active = True
+                else:
+                    self._i += di
+            else:
+                self._i += di
+        self._saturated = u != v
+        self._u = u
+        self._last = (r, y)
+        return u
+
+    # ------------------------------------------------------ operator actions
+    def set_gains(self, **changes: Any) -> None:
+        """Change any :class:`LeadLagConfig` field (by field name) bumplessly: at unchanged
+        inputs the next output is the one the old settings would give. ``ValueError`` naming
+        the parameter leaves the compensator untouched."""
+        known = {f.name for f in fields(LeadLagConfig)}
+        for name in changes:
+            if name not in known:
+                raise ValueError(f'{name}: unknown lead-lag setting; allowed '
+                                 + ', '.join(sorted(known)))
+        new = replace(self._cfg, **changes)
+        check_config(new)
+        if self._initialised and self._last is not None and not self._fault:
+            e = self._last[0] - self._last[1]
+            self._i += self._next_v(self._cfg, e) - self._next_v(new, e)
+        self._cfg = new
+
+    def set_manual(self, u: float | None = None) -> None:
+        """Manual: the output becomes ``u`` (limited) from the next sample; without ``u`` the
+        last output is held."""
+        if u is not None and not math.isfinite(u):
+            raise ValueError(f'manual_output: {u!r} is not finite')
+        self._manual_u = self._hold() if u is None else float(u)
+        self._mode = 'manual'
+
+    def set_auto(self) -> None:
+        """Automatic; the next output continues from the last one."""
+        if self._mode == 'manual' and self._last is not None and self._u is not None:
+            self._track(*self._last, self._u)
+        self._mode = 'auto'
+
+
+class LeadLagController:
+    """:class:`LeadLag` behind the Controller protocol (SISO): reads ``output_name`` and its
+    setpoint, writes ``input_name``. ``reset(y, u)`` is completed at the next ``step`` (which
+    knows ``r``) and that step returns ``u``."""
+
+    disturbance_names: tuple[str, ...] = ()
+
+    def __init__(self, config: LeadLagConfig, output_name: str = 'y',
+                 input_name: str = 'u') -> None:
+        self.lead_lag = LeadLag(config)
+        self.output_names = (output_name,)
+        self.input_names = (input_name,)
+        self._pending: float | None = None
+
+    @property
+    def sample_time(self) -> float:
+        return self.lead_lag.config.sample_time
+
+    def reset(self, y: np.ndarray, u: np.ndarray) -> None:
+        u0 = _scalar(u, 'u')
+        if not math.isfinite(u0):
+            raise ValueError(f'reset: u = {u0!r} is not finite')
+        self._pending = u0
+
+    def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        y0, r0 = _scalar(y, 'y'), _scalar(r, 'r')
+        if self._pending is not None and math.isfinite(y0) and math.isfinite(r0):
+            self.lead_lag.reset(r0, y0, self._pending)
+            self._pending = None
+        return np.array([self.lead_lag.update(r0, y0)], dtype=float)
+
+    @property
+    def status(self) -> Mapping[str, Any]:
+        return self.lead_lag.status
+
+
+def _scalar(value: Any, name: str) -> float:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.size != 1:
+        raise ValueError(f'{name}: expected 1 value for a SISO lead-lag, got {arr.size}')
+    return float(arr[0])
+
+
+# ===================================================================== transfer functions
+def discrete_polynomials(kp: float, td: float, alpha: float, ti: float,
+                         sample_time: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(num, den)`` in z, highest power first, of the implemented ``C(z) = −U/Y = U/W``:
+    ``kp·(ti·z − ti + h)/(ti·(z − 1)) · g·(z − z0)/(z − p0)`` with ``z0 = e^(−h/td)``,
+    ``p0 = e^(−h/(alpha·td))``, ``g = (1 − p0)/(1 − z0)`` (lead: matched pole-zero; PI:
+    forward Euler; ``ti = inf``/``td = 0``: that part is 1)."""
+    h = sample_time
+    num, den = np.array([float(kp)]), np.array([1.0])
+    if td > 0.0:
+        z0, p0 = math.exp(-h / td), math.exp(-h / (alpha * td))
+        g = math.expm1(-h / (alpha * td)) / math.expm1(-h / td)      # (1 − p0)/(1 − z0)
+        num = np.convolve(num, [g, -g * z0])
+        den = np.convolve(den, [1.0, -p0])
+    if math.isfinite(ti):
+        num = np.convolve(num, [ti, h - ti])
+        den = np.convolve(den, [ti, -ti])
+    return num, den
+
+
+def discrete_response(kp: float, td: float, alpha: float, ti: float,
+                      sample_time: float) -> fr.FrequencyResponse:
+    """Frequency response ``C(e^(jωh))`` of the implemented law (:func:`discrete_polynomials`)."""
+    num, den = discrete_polynomials(kp, td, alpha, ti, sample_time)
+    with np.errstate(invalid='ignore'):   # the PI's zero 1 − h/ti < 0 (h > ti): no corner
+        return fr.rational_discrete(num, den, sample_time)
+
+
+def continuous_response(kp: float, td: float, alpha: float,
+                        ti: float = math.inf) -> fr.FrequencyResponse:
+    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` (002 §1.4)."""
+    num, den = np.array([float(kp)]), np.array([1.0])
+    if td > 0.0:
+        num, den = np.convolve(num, [td, 1.0]), np.convolve(den, [alpha * td, 1.0])
+    if math.isfinite(ti):
+        num, den = np.convolve(num, [ti, 1.0]), np.convolve(den, [ti, 0.0])
+    return fr.rational(num, den)
+
+
+# ================================================================================ design
+MODELS = ('fopdt', 'sopdt', 'ipdt')
+STRUCTURES = ('p', 'pd', 'pi', 'pid')
+RULES = ('none', 'frequency_002')
+
+
+@dataclass(frozen=True)
+class LeadLagTuning:
+    """The design group: a rule, the structure it designs, the process model and the targets."""
+
+    rule: str = param('none', "design rule; frequency_002: lead_lag.kp, lead_lag.td, lead_lag.ti "
+                      "come from 002's frequency-domain design on the model tuning.model",
+                      name='tuning.rule', choices=RULES, source='002 §1')
+    kind: str = param('pid', 'structure designed: p (gain for the steady-state error), pd (lead '
+                      'at the crossover), pi (gain and Ti for the phase margin), pid (series '
+                      'PD times PI, the mean gain)', name='tuning.kind', choices=STRUCTURES)
+    model: str = param('fopdt', 'process model: fopdt K/(T s+1) e^(-L s), sopdt '
+                       'K/((T s+1)(T2 s+1)) e^(-L s), ipdt K/s e^(-L s)', name='tuning.model',
+                       choices=MODELS)
+    gain: float = param(0.0, 'process gain K (0 = not given)',
+                        unit='y units per u unit, per s for ipdt', min=0.0, max=BIG,
+                        name='tuning.gain')
+    time_constant: float = param(0.0, 'process time constant T (fopdt, sopdt)', unit='s',
+                                 min=0.0, max=BIG, name='tuning.time_constant')
+    time_constant2: float = param(0.0, 'second time constant T2 (sopdt)', unit='s', min=0.0,
+                                  max=BIG, name='tuning.time_constant2')
+    dead_time: float = param(0.0, 'process dead time L', unit='s', min=0.0, max=BIG,
+                             name='tuning.dead_time')
+    phase_margin: float = param(60.0, 'target phase margin (002: 5 % overshoot, damping 0.6, '
+                                '60 deg)', unit='deg', min=1.0, max=89.0,
+                                name='tuning.phase_margin', source='002 §1.2')
+    steady_state_error: float = param(0.05, 'largest steady-state error after a setpoint step, '
+                                      'a fraction of the step (sets the gain of p, pd and the '
+                                      'PD part of pid)', unit='-', min=0.001, max=0.4,
+                                      name='tuning.steady_state_error', source='002 §1.1')
+    integral_ratio: float = param(10.0, 'integral corner 1/Ti this many times below the P '
+                                  "loop's crossover (002: a decade)", unit='-', min=2.0,
+                                  max=1000.0, name='tuning.integral_ratio', source='002 §1.3')
+
+    def reason(self) -> str | None:
+        """The model's parameters a rule needs, and none it does not use (one line)."""
+        if self.rule == 'none':
+            return None
+        needs = {'fopdt': ('time_constant',), 'sopdt': ('time_constant', 'time_constant2'),
+                 'ipdt': ()}[self.model]
+        if not self.gain > 0.0:
+            return (f'tuning.gain: needed by tuning.rule {self.rule!r}; allowed (0, {BIG:g}] '
+                    '(a reverse-acting process: its magnitude and direct_action true)')
+        for name in needs:
+            if not getattr(self, name) > 0.0:
+                return (f'tuning.{name}: needed by tuning.model {self.model!r}; allowed '
+                        f'(0, {BIG:g}] s')
+        for name in ('time_constant', 'time_constant2'):
+            if name not in needs and getattr(self, name) != 0.0:
+                return (f'tuning.{name}: {getattr(self, name):g} is not used by tuning.model '
+                        f'{self.model!r}; allowed 0')
+        return None
+
+    def process(self) -> ProcessModel:
+        return ProcessModel(self.model, self.gain, self.time_constant, self.time_constant2,
+                            self.dead_time)
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """The design's process (002's 4/((s+1)(s+2)) is ``sopdt`` K 2, T 1 s, T2 0.5 s;
+    FOPDT 001 eq. 6.14; IPDT 000 eq. 1): magnitude and continuous phase in closed form."""
+
+    model: str
+    gain: float
+    time_constant: float = 0.0
+    time_constant2: float = 0.0
+    dead_time: float = 0.0
+
+    @property
+    def static_gain(self) -> float:
+        return math.inf if self.model == 'ipdt' else self.gain
+
+    def magnitude(self, w: float) -> float:
+        if self.model == 'ipdt':
+            return self.gain / w
+        return self.gain / math.sqrt((1 + (w * self.time_constant) ** 2)
+                                     * (1 + (w * self.time_constant2) ** 2))
+
+    def phase(self, w: float) -> float:
+        """Continuous phase [rad] from its ω → 0+ limit (0, or −π/2 for ipdt)."""
+        lag = -math.pi / 2 if self.model == 'ipdt' else (
+            -math.atan(w * self.time_constant) - math.atan(w * self.time_constant2))
+        return lag - w * self.dead_time
+
+    def response(self) -> fr.FrequencyResponse:
+        if self.model == 'ipdt':
+            return fr.ipdt(self.gain, self.dead_time)
+        den = np.convolve([self.time_constant, 1.0], [self.time_constant2, 1.0])
+        return fr.rational([self.gain], den, self.dead_time)
+
+    def corners(self) -> list[float]:
+        out = [1.0 / t for t in (self.time_constant, self.time_constant2, self.dead_time)
+               if t > 0.0]
+        return out or [self.gain]
+
+
+@dataclass(frozen=True)
+class LeadStep:
+    """One step of 002's lead iteration: ``w_max`` [rad/s], ``td`` [s] and the resulting
+    loop's ``phase_margin`` [deg] at its crossover ``wc`` [rad/s]."""
+
+    w_max: float
+    td: float
+    phase_margin: float
+    wc: float
+
+
+@dataclass(frozen=True)
+class Design:
+    """The designed ``kp``, ``td`` (0 = no lead), ``ti`` (inf = none) and the loop's
+    ``phase_margin`` [deg] at ``wc`` [rad/s]; the steps: the P gain for the steady-state
+    error and its loop (``p_*``), the lead iteration (``lead_steps``), the PI gain and the
+    crossover of its P loop (``pi_*``)."""
+
+    kp: float
+    td: float
+    ti: float
+    phase_margin: float
+    wc: float
+    p_gain: float = math.nan
+    p_phase_margin: float = math.nan
+    p_wc: float = math.nan
+    lead_steps: tuple[LeadStep, ...] = field(default=())
+    pi_gain: float = math.nan
+    pi_wc: float = math.nan
+
+    def values(self) -> dict[str, float]:
+        """As parameter values (``lead_lag.ti`` 0 = none)."""
+        return {'lead_lag.kp': self.kp, 'lead_lag.td': self.td,
+                'lead_lag.ti': self.ti if math.isfinite(self.ti) else 0.0}
+
+
+_MAX_LEAD_STEPS = 60
+
+
+Curve = Callable[[float], float]
+
+
+def _loop(process: ProcessModel, kp: float, td: float, alpha: float,
+          ti: float) -> tuple[Curve, Curve]:
+    """Closed-form magnitude and continuous phase [rad] of ``C(jω)·G(jω)``."""
+    def magnitude(w: float) -> float:
+        m = kp * process.magnitude(w)
+        if td > 0.0:
+            m *= math.sqrt((1 + (w * td) ** 2) / (1 + (alpha * w * td) ** 2))
+        if math.isfinite(ti):
+            m *= math.sqrt(1 + 1 / (w * ti) ** 2)
+        return m
+
+    def phase(w: float) -> float:
+        p = process.phase(w)
+        if td > 0.0:
+            p += math.atan(w * td) - math.atan(alpha * w * td)
+        if math.isfinite(ti):
+            p -= math.atan(1 / (w * ti))
+        return p
+    return magnitude, phase
+
+
+def _crossovers(magnitude: Curve, corners: list[float], monotone: bool) -> list[float]:
+    """Every ω [rad/s] with |L(jω)| = 1: brentq on log|L| between grid points where it changes
+    sign (a log grid five decades beyond the corners; ``monotone``: |L| strictly decreasing,
+    so one bracket, widened by factors of 4, suffices)."""
+    def f(x: float) -> float:
+        return math.log(magnitude(x))
+    if monotone:
+        lo = hi = math.sqrt(min(corners) * max(corners))
+        for _ in range(200):
+            if f(lo) > 0.0:
+                break
+            lo /= 4.0
+        for _ in range(200):
+            if f(hi) < 0.0:
+                break
+            hi *= 4.0
+        if not f(lo) > 0.0 > f(hi):
+            return []
+        return [brentq(f, lo, hi, xtol=1e-14, rtol=1e-13)]
+    w = np.logspace(math.log10(min(corners) * 1e-5), math.log10(max(corners) * 1e5), 2000)
+    lm = np.array([f(x) for x in w])
+    return [brentq(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13)
+            for i in np.flatnonzero(np.sign(lm[1:]) != np.sign(lm[:-1]))]
+
+
+def loop_margin(process: ProcessModel, kp: float, td: float, alpha: float,
+                ti: float = math.inf) -> tuple[float, float]:
+    """``(phase margin [deg], crossover [rad/s])`` of the continuous loop, the worst over its
+    gain crossovers (closed forms; no crossover: ``(inf, nan)``)."""
+    magnitude, phase = _loop(process, kp, td, alpha, ti)
+    corners = process.corners() + [1 / t for t in (td, alpha * td) if t > 0]
+    if math.isfinite(ti):
+        corners.append(1 / ti)
+    # without a lead |C·G| falls strictly (every model's |G| does, and |PI|): one crossover
+    found = [(180.0 + math.degrees(phase(w)), w)
+             for w in _crossovers(magnitude, corners, monotone=td == 0.0)]
+    return min(found) if found else (math.inf, math.nan)
+
+
+def _stable(process: ProcessModel, kp: float, td: float, alpha: float, ti: float) -> bool:
+    """Nyquist count of the loop with the exact dead time (core/analysis/frequency.py)."""
+    return fr.closed_loop_stable(continuous_response(kp, td, alpha, ti) * process.response())
+
+
+def _p_gain(tuning: LeadLagTuning, process: ProcessModel) -> float:
+    """002 §1.1: the steady-state error of a setpoint step is 1/(1 + kp·K) <= e."""
+    if not math.isfinite(process.static_gain):
+        raise ConfigError(f'tuning.kind: {tuning.kind!r} takes its gain from the steady-state '
+                          'error (002 §1.1), and an integrating process (tuning.model ipdt) has '
+                          'none at any gain; allowed pi')
+    return (1.0 / tuning.steady_state_error - 1.0) / process.static_gain
+
+
+def _design_p(tuning: LeadLagTuning, process: ProcessModel, alpha: float,
+              check: bool = True) -> Design:
+    """002 §1.1: the gain for the steady-state error (``check``: refused if unstable)."""
+    kp = _p_gain(tuning, process)
+    pm, wc = loop_margin(process, kp, 0.0, alpha)
+    if check and not _stable(process, kp, 0.0, alpha, math.inf):
+        raise ConfigError(f'tuning.steady_state_error: {tuning.steady_state_error:g} needs the '
+                          f'gain {kp:.6g}, which makes the loop unstable; allow a larger error')
+    return Design(kp, 0.0, math.inf, pm, wc, kp, pm, wc)
+
+
+def _design_pd(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> Design:
+    """002 §1.2: the lead's largest phase at the P loop's crossover, then at the mean of the
+    previous w_max and the new crossover, until the phase margin reaches the target."""
+    p = _design_p(tuning, process, alpha, check=False)
+    target = tuning.phase_margin
+    if p.phase_margin >= target and _stable(process, p.kp, 0.0, alpha, math.inf):
+        return p                                   # the P loop has the margin: no lead
+    w_max, steps, best = p.p_wc, [], -math.inf
+    for _ in range(_MAX_LEAD_STEPS):
+        td = 1.0 / (w_max * math.sqrt(alpha))
+        pm, wc = loop_margin(process, p.kp, td, alpha)
+        steps.append(LeadStep(w_max, td, pm, wc))
+        if pm >= target and _stable(process, p.kp, td, alpha, math.inf):
+            return replace(p, td=td, phase_margin=pm, wc=wc, lead_steps=tuple(steps))
+        best = max(best, pm)
+        w_next = 0.5 * (w_max + wc)
+        if not math.isfinite(w_next) or abs(w_next - w_max) <= 1e-12 * w_max:
+            break
+        w_max = w_next
+    lead = math.degrees(math.asin((1 - alpha) / (1 + alpha)))
+    raise ConfigError(f'tuning.phase_margin: {target:g} deg is out of reach of the lead '
+                      f'(lead_lag.alpha {alpha:g}: at most {lead:.1f} deg of lead) with the '
+                      f'gain {p.kp:.6g} that tuning.steady_state_error '
+                      f'{tuning.steady_state_error:g} needs; the lead iteration reached '
+                      f'{best:.1f} deg; allow a lower phase margin, a larger error or a smaller '
+                      'alpha, or use tuning.kind pi')
+
+
+def _design_pi(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> Design:
+    """002 §1.3: the P gain that puts the P loop's crossover w_p where, with the integral
+    corner at w_p/ratio, the PI loop has the target phase margin (002 lowers the gain until
+    the P loop has margin to spare, then places the corner a decade below)."""
+    target, ratio = tuning.phase_margin, tuning.integral_ratio
+
+    def margin_at(w_p: float) -> float:
+        kp = 1.0 / process.magnitude(w_p)
+        return loop_margin(process, kp, 0.0, alpha, ratio / w_p)[0] - target
+
+    low = min(process.corners()) * 1e-4
+    if not margin_at(low) > 0.0:
+        raise ConfigError(f'tuning.phase_margin: {target:g} deg is more than a PI with the '
+                          f'integral corner {ratio:g} times below the crossover can give on '
+                          f'tuning.model {process.model!r}; allowed below '
+                          f'{target + margin_at(low):.1f} deg')
+    high = low
+    while margin_at(high) > 0.0:
+        high *= 2.0
+        if high > max(process.corners()) * 1e6:
+            raise ConfigError(f'tuning.model: {process.model!r} without dead time keeps the PI '
+                              f'loop above {target:g} deg phase margin at every gain, so 002 '
+                              'fixes no gain; give tuning.dead_time or use tuning.model sopdt')
+    w_p = brentq(margin_at, high / 2.0, high, xtol=1e-14, rtol=1e-13)
+    kp, ti = 1.0 / process.magnitude(w_p), ratio / w_p
+    pm, wc = loop_margin(process, kp, 0.0, alpha, ti)
+    if not _stable(process, kp, 0.0, alpha, ti):
+        raise ConfigError(f'tuning.phase_margin: the PI design for {target:g} deg is unstable '
+                          f'on tuning.model {process.model!r}; change the target')
+    return Design(kp, 0.0, ti, pm, wc, pi_gain=kp, pi_wc=w_p)
+
+
+def _design_pid(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> Design:
+    """002 §1.4: series PID = PD·PI, gain the mean of the two designed gains."""
+    pd = _design_pd(tuning, process, alpha)
+    pi = _design_pi(tuning, process, alpha)
+    kp = 0.5 * (pd.kp + pi.kp)
+    pm, wc = loop_margin(process, kp, pd.td, alpha, pi.ti)
+    if not _stable(process, kp, pd.td, alpha, pi.ti):
+        raise ConfigError('tuning.kind: the series PID of the PD and PI designs (mean gain '
+                          f'{kp:.6g}) is unstable on this model; use tuning.kind pd or pi')
+    return replace(pd, kp=kp, ti=pi.ti, phase_margin=pm, wc=wc, pi_gain=pi.kp, pi_wc=pi.pi_wc)
+
+
+def design(tuning: LeadLagTuning, alpha: float) -> Design:
+    """002's design of ``tuning.kind`` for ``tuning.process()`` with the lead ratio ``alpha``.
+    Raises :class:`ConfigError` (one line naming the parameter) when the target is out of
+    reach or the rule does not apply."""
+    if tuning.rule == 'none':
+        raise ConfigError("tuning.rule: 'none' designs nothing; allowed frequency_002")
+    reason = tuning.reason()
+    if reason:
+        raise ConfigError(reason)
+    process = tuning.process()
+    return {'p': _design_p, 'pd': _design_pd, 'pi': _design_pi,
+            'pid': _design_pid}[tuning.kind](tuning, process, alpha)
