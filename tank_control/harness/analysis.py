@@ -1,7 +1,7 @@
 """Robustness of a scenario's SISO PID loop on its process models: a table and ``analysis.png``.
 
 A SISO loop is a ``pid`` or ``relay_autotune`` controller on a plant that is a process model
-(``fopdt``, ``ipdt``, a second-order plant with dead time: ``core/tuning/model.from_plant``).
+(``fopdt``, ``ipdt``, ``sopdt``: ``core/tuning/model.from_plant``).
 The loop analysed is the implemented one: the exact ZOH model at the controller's sample time
 and the transfer function of ``Pid2Dof`` with the given gains (``core/analysis/robustness.py``;
 exact dead time, SPEC §3, 002's gang of four). The plant section gives the true model; the
@@ -112,10 +112,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     """``analysis.png``: Bode of the loop gain L with the margins marked, Nyquist of L with
     the Ms circle (centre −1, radius 1/Ms) and the unit circle's −1 point, and the gang of
     four |S|, |T|, |PS|, |CS| — one colour per case, exact delay, up to the Nyquist frequency."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
+    from tank_control.harness.plotting import plt, save_figure   # the Agg backend
     path = Path(path)
     fig, axes = plt.subplots(2, 2, figsize=(12, 9))
     (ax_mag, ax_nyq), (ax_ph, ax_g4) = axes
@@ -173,12 +170,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_g4.legend(fontsize='small')
     for ax in axes.flat:
         ax.grid(True, alpha=0.3, which='both')
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, title, dpi=90)
 
 
 def analyze(path: str | Path, overrides: tuple[str, ...] = ()) -> str:

@@ -27,15 +27,6 @@ PLANTS = {       # the benchmark plants of bench/RESULTS.md
 }
 
 
-def model_args(m: ProcessModel) -> dict:
-    args = dict(model=m.kind, gain=m.gain, dead_time=m.dead_time)
-    if m.kind != 'ipdt':
-        args['time_constant'] = m.time_constant
-    if m.kind == 'sopdt':
-        args['time_constant2'] = m.time_constant2
-    return args
-
-
 def discrete_ms(m: ProcessModel, g: dict, h: float = H, n: float = 10.0) -> tuple[float, bool]:
     """Ms and Nyquist stability of the implemented loop: exact ZOH plant × Pid2Dof's law."""
     loop = fr.pid_feedback_discrete(g['kp'], g['ti'], g['td'] or 0.0, n, sample_time=h) \
@@ -74,6 +65,62 @@ def test_sopdt_zoh_transfer_function_is_the_z_transform_of_the_step_response():
         assert abs(g.at(z) - expected) < 1e-9 * abs(expected)
 
 
+@pytest.mark.parametrize('name', list(PLANTS))
+def test_closed_form_magnitude_and_phase_are_the_models_frequency_response(name):
+    """|G(jω)| and the continuous phase (from 0, or −90° for IPDT, at ω → 0+) of the closed
+    forms equal the frequency module's exact-delay response, as a complex number."""
+    m = PLANTS[name]
+    g = m.response()
+    for w in np.logspace(-3, 1, 9):
+        value = m.magnitude(w) * np.exp(1j * m.phase(w))
+        assert abs(value - g(np.array([w]))[0]) < 1e-12 * abs(value)
+    assert m.phase(1e-9) == pytest.approx(-math.pi / 2 if m.kind == 'ipdt' else 0.0, abs=1e-7)
+
+
+def sopdt_values(**values):
+    return {'plant': 'sopdt', 'gain': -2.0, 'dead_time': 0.7, **values}
+
+
+@pytest.mark.parametrize('values, expected', [
+    (sopdt_values(time_constant_1=0.5, time_constant_2=1.0),
+     ProcessModel('sopdt', 2.0, 0.7, 1.0, 0.5)),                   # the slower lag first
+    (sopdt_values(time_constant_1=0.0, time_constant_2=3.0), ProcessModel('fopdt', 2.0, 0.7, 3.0)),
+    (sopdt_values(form='damping', time_constant=2.0, damping=1.0),
+     ProcessModel('sopdt', 2.0, 0.7, 2.0, 2.0)),                   # critical: two equal lags
+    (sopdt_values(form='damping', time_constant=2.0, damping=0.5), None),   # underdamped
+    (sopdt_values(time_constant_1=0.0, time_constant_2=0.0), None),          # no lag
+    ({'plant': 'fopdt', 'gain': 0.05, 'time_constant': 10.0, 'dead_time': 3.0},
+     ProcessModel('fopdt', 0.05, 3.0, 10.0)),
+    ({'plant': 'fopdt', 'time_constant': 0.0}, None),
+    ({'plant': 'ipdt', 'gain': 0.05, 'dead_time': 5.0}, ProcessModel('ipdt', 0.05, 5.0)),
+    ({'plant': 'mixing_tank'}, None),
+])
+def test_from_plant_knows_the_siso_plant_kinds(values, expected):
+    from tank_control.core.scenario import plant_setup
+    from tank_control.core.tuning.model import from_plant
+    setup = plant_setup(values)
+    assert from_plant(setup.kind.name, setup.model) == expected
+
+
+def test_the_model_of_an_sopdt_plant_is_simulated_as_the_plant_runs():
+    """The plant (form damping, ζ = 1, its own arithmetic) sampled at H and the simulation of
+    its model (two equal lags) agree; both are the continuous step response."""
+    from tank_control.core.scenario import plant_setup
+    from tank_control.core.tuning.model import from_plant
+    setup = plant_setup(sopdt_values(form='damping', time_constant=4.0, damping=1.0,
+                                     dead_time=1.25))
+    plant = setup.kind.build(setup.model)
+    sim = DiscretePlant(from_plant('sopdt', setup.model), H)
+    t = H * np.arange(300)
+    tau = np.maximum(t - 1.25, 0.0)
+    exact = -2.0 * (1.0 - (1.0 + tau / 4.0) * np.exp(-tau / 4.0))    # K < 0: the plant's sign
+    for k in range(t.size):
+        assert plant.outputs()[0] == pytest.approx(exact[k], abs=1e-12)
+        assert sim.output() == pytest.approx(-exact[k], abs=1e-12)  # the model: |K|
+        plant.step([1.0], [], H)
+        sim.step(1.0)
+
+
 # ------------------------------------------------------------------------- Ms design
 @pytest.mark.parametrize('name', list(PLANTS))
 @pytest.mark.parametrize('kind', ['pi', 'pid'])
@@ -81,7 +128,7 @@ def test_ms_design_meets_the_target_on_the_implemented_discrete_loop(name, kind)
     """Realised Ms of the running loop (exact ZOH plant, the discrete PID, h = 0.1 s) within
     3 % of the target (in fact to 0.1 %), loop stable; PID with td ≤ ti/4."""
     m = PLANTS[name]
-    g = tune('ms', kind, ms=1.4, sample_time=H, **model_args(m))
+    g = tune('ms', kind, ms=1.4, sample_time=H, **m.tune_arguments())
     ms, stable = discrete_ms(m, g)
     assert stable
     assert ms == pytest.approx(1.4, rel=1e-3)
@@ -95,7 +142,7 @@ def test_ms_design_is_the_largest_integral_gain_found_by_brute_force():
     frequency module's Ms (refined grid) and Nyquist count; no stable (kp, ki) with
     Ms ≤ 1.4 has a larger ki than the design (to 1 %), and the design is attained."""
     m = PLANTS['FOPDT L/T=0.3']
-    g = tune('ms', 'pi', ms=1.4, sample_time=H, **model_args(m))
+    g = tune('ms', 'pi', ms=1.4, sample_time=H, **m.tune_arguments())
     ki_design = g['kp'] / g['ti']
     plant = m.response(H)
 
@@ -120,7 +167,7 @@ def test_ms_design_setpoint_weight_removes_the_setpoint_resonance():
     """b is the largest weight with max|Y/R| ≤ 1 (kappa-tau's choice): with b the setpoint
     peak is ≤ 1, with b + 0.05 it exceeds 1 (when b < 1)."""
     m = PLANTS['FOPDT L/T=0.3']
-    g = tune('ms', 'pi', ms=1.4, sample_time=H, **model_args(m))
+    g = tune('ms', 'pi', ms=1.4, sample_time=H, **m.tune_arguments())
     plant = m.response(H)
     assert 0.0 < g['b'] < 1.0
     peak = fr.tuning_report(plant, g['kp'], g['ti'], 0.0, g['b'], 1.0)['setpoint_peak']
@@ -132,10 +179,10 @@ def test_ms_design_setpoint_weight_removes_the_setpoint_resonance():
 def test_ms_design_continuous_and_with_mt():
     """Without sample_time the continuous loop meets the target; an Mt bound is met too."""
     m = PLANTS['FOPDT L/T=1']
-    g = tune('ms', 'pid', ms=1.6, **model_args(m))
+    g = tune('ms', 'pid', ms=1.6, **m.tune_arguments())
     rep = fr.tuning_report(m.response(), g['kp'], g['ti'], g['td'])
     assert rep['ms'] == pytest.approx(1.6, rel=1e-3) and rep['stable']
-    g = tune('ms', 'pi', ms=2.0, mt=1.3, sample_time=H, **model_args(m))
+    g = tune('ms', 'pi', ms=2.0, mt=1.3, sample_time=H, **m.tune_arguments())
     loop = fr.pid_feedback_discrete(g['kp'], g['ti'], sample_time=H) * m.response(H)
     margins = fr.margins(loop)
     assert margins.ms <= 2.0 * 1.001 and margins.mt <= 1.3 * 1.001
@@ -145,7 +192,7 @@ def test_ms_design_continuous_and_with_mt():
 def test_a_larger_ms_target_gives_a_larger_integral_gain():
     m = PLANTS['IPDT']
     ki = [(lambda g: g['kp'] / g['ti'])(tune('ms', 'pi', ms=target, sample_time=H,
-                                            **model_args(m))) for target in (1.2, 1.4, 2.0)]
+                                            **m.tune_arguments())) for target in (1.2, 1.4, 2.0)]
     assert ki[0] < ki[1] < ki[2]
 
 
@@ -294,7 +341,7 @@ def test_tan_reproduces_the_supplements_check():
 def test_tan_places_the_phase_crossover_at_r_wu_with_the_gain_margin(name):
     """r = 0.5 for θ ≥ 0.5 and IPDT, 0.8 otherwise; the loop is −1/A_r at r·ωu."""
     m = PLANTS[name]
-    g = tune('tan', 'pi', gain_margin=2.5, **model_args(m))
+    g = tune('tan', 'pi', gain_margin=2.5, **m.tune_arguments())
     r = 0.8 if name == 'SOPDT' else 0.5
     assert g.margins['w180'] == pytest.approx(r * m.ultimate_point().wu, rel=1e-6)
     assert g.margins['gain_margin'] == pytest.approx(2.5, rel=1e-6)
@@ -303,7 +350,7 @@ def test_tan_places_the_phase_crossover_at_r_wu_with_the_gain_margin(name):
 # ------------------------------------------------------------------ what tune returns
 def test_tune_result_explains_rule_model_and_predicted_margins():
     m = PLANTS['FOPDT L/T=0.3']
-    g = tune('ms', 'pi', ms=1.4, sample_time=H, **model_args(m))
+    g = tune('ms', 'pi', ms=1.4, sample_time=H, **m.tune_arguments())
     assert set(g) == {'kp', 'ti', 'td', 'b', 'c'}
     assert g.rule == 'ms' and '3.4.2' in g.source and g.model == m
     assert g.margins['ms'] == pytest.approx(1.4, rel=1e-3) and g.margins['stable']

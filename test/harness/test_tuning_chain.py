@@ -14,11 +14,10 @@ import sys
 import numpy as np
 import pytest
 from support import CONFIG
+from support.relay import run_logged
 
 from tank_control.core import params_file
 from tank_control.core.analysis import frequency as fr
-from tank_control.core.scenario import build
-from tank_control.core.loop import run_loop
 from tank_control.core.trace import Trace
 from tank_control.harness import analysis
 from tank_control.harness.runner import run
@@ -26,27 +25,9 @@ from tank_control.harness.runner import run
 SCENARIO = CONFIG / 'fopdt_ms_autotune.yaml'
 
 
-def run_logged(params):
-    built = build(params)
-    tuner = built.controller
-    log: list[tuple[float, str]] = []
-    step = tuner.step
-
-    def logged(t, y, r, d):
-        u = step(t, y, r, d)
-        if not log or log[-1][1] != tuner.state:
-            log.append((t, tuner.state))
-        return u
-    tuner.step = logged
-    duration = float(params['harness']['duration'])
-    trace = run_loop(built.plant, tuner, built.reference, sample_time=built.sample_time,
-                     duration=duration, noise=built.noise.sample)
-    return trace, built, log
-
-
 def test_shipped_chain_keeps_its_claim_in_process():
     params = params_file.read(SCENARIO)
-    trace, built, log = run_logged(params)
+    trace, built, log = run_logged(params, float(params['harness']['duration']))
     states = [s for _, s in log]
     assert states == ['idle', 'settling', 'relay', 'measuring', 'proposed', 'running']
     assert dict((s, t) for t, s in log)['running'] == pytest.approx(150.0)   # apply_time

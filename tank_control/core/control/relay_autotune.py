@@ -862,13 +862,7 @@ class RelayAutotuner:
 def design_arguments(model: ProcessModel, cfg: AutotuneConfig, pid: PidConfig) -> dict[str, Any]:
     """``tune`` arguments of a model-based rule: the model, the design targets of ``cfg``
     (0 = the rule's default) and the implemented loop (sample time, filter) of ``pid``."""
-    args: dict[str, Any] = {'model': model.kind, 'gain': model.gain,
-                            'dead_time': model.dead_time, 'sample_time': pid.sample_time,
-                            'filter_n': pid.n}
-    if model.kind != 'ipdt':
-        args['time_constant'] = model.time_constant
-    if model.kind == 'sopdt':
-        args['time_constant2'] = model.time_constant2
+    args = {**model.tune_arguments(), 'sample_time': pid.sample_time, 'filter_n': pid.n}
     if cfg.rule == 'ms':
         args['ms'] = cfg.ms_target
     for name in ('tau_c', 'gain_margin', 'phase_margin'):

@@ -4,11 +4,13 @@
 * ``ipdt``: ``k1/s·e^(−L·s)`` (000 eq. 1; ``gain`` = k1 per second);
 * ``sopdt``: ``K/((T1·s + 1)(T2·s + 1))·e^(−L·s)`` (004 eq. 3.5.8 with real poles; T2 ≤ T1).
 
-Gains in output units per input unit (IPDT: per second), times in s. :meth:`ProcessModel.response`
-gives the continuous response or, with a sample time, the exact ZOH model the implemented
-discrete loop sees (``core/analysis/frequency.py``); :meth:`ProcessModel.state_space` the
-same model for simulation. The gain is taken positive (a reverse-acting process is run with
-``direct_action``).
+Gains in output units per input unit (IPDT: per second), times in s, frequencies in rad/s.
+:meth:`ProcessModel.response` gives the continuous response or, with a sample time, the exact
+ZOH model the implemented discrete loop sees (``core/analysis/frequency.py``);
+:meth:`ProcessModel.magnitude` / :meth:`ProcessModel.phase` the continuous response in closed
+form; :meth:`ProcessModel.plant` the project's plant of the model (``core/plants``), which
+:class:`DiscretePlant` samples for simulation. The gain is taken positive (a reverse-acting
+process is run with ``direct_action``).
 """
 from __future__ import annotations
 
@@ -16,9 +18,11 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from tank_control.core.analysis import frequency as fr
+from tank_control.core.plants.fopdt import Fopdt, FopdtConfig
+from tank_control.core.plants.ipdt import Ipdt, IpdtConfig
+from tank_control.core.plants.siso import DeadTimePlant
+from tank_control.core.plants.sopdt import Sopdt, SopdtConfig
 
 KINDS = ('fopdt', 'ipdt', 'sopdt')
 
@@ -87,11 +91,49 @@ class ProcessModel:
         num, den = self.numerator_denominator()
         return fr.rational_zoh(num, den, self.dead_time, sample_time)
 
-    def state_space(self, sample_time: float) -> fr.ZohStateSpace:
-        """The exact ZOH state-space model at ``sample_time`` [s] (for simulation)."""
+    def plant(self) -> DeadTimePlant:
+        """The project's exact plant of this model at rest (``core/plants``: ``Fopdt``,
+        ``Ipdt``, ``Sopdt``), its input history long enough for the dead time."""
         self.check()
-        num, den = self.numerator_denominator()
-        return fr.zoh_state_space(num, den, self.dead_time, sample_time)
+        common = {'gain': self.gain, 'dead_time': self.dead_time,
+                  'max_dead_time': max(self.dead_time, 100.0)}
+        if self.kind == 'ipdt':
+            return Ipdt(IpdtConfig(**common))
+        if self.kind == 'fopdt':
+            return Fopdt(FopdtConfig(time_constant=self.time_constant, **common))
+        return Sopdt(SopdtConfig(form='time_constants', time_constant_1=self.time_constant,
+                                 time_constant_2=self.time_constant2, **common))
+
+    # --------------------------------------------------------- closed-form response
+    @property
+    def lags(self) -> tuple[float, ...]:
+        """The time constants of the delay-free part: () IPDT, (T,) FOPDT, (T1, T2) SOPDT."""
+        return {'ipdt': (), 'fopdt': (self.time_constant,),
+                'sopdt': (self.time_constant, self.time_constant2)}[self.kind]
+
+    @property
+    def static_gain(self) -> float:
+        """G(0): K, or inf for IPDT."""
+        return math.inf if self.kind == 'ipdt' else self.gain
+
+    def magnitude(self, w: float) -> float:
+        """``|G(jω)|`` at ``w`` > 0 [rad/s] (the dead time leaves it unchanged)."""
+        m = self.gain / w if self.kind == 'ipdt' else self.gain
+        for lag in self.lags:
+            m /= math.sqrt(1.0 + (w * lag) ** 2)
+        return m
+
+    def phase(self, w: float) -> float:
+        """Continuous phase of ``G(jω)`` [rad] from its ω → 0+ limit (0, or −π/2 for IPDT),
+        the exact dead time's −ω·L included (001 eq. 6.4)."""
+        p = -math.pi / 2 if self.kind == 'ipdt' else 0.0
+        return p - sum(math.atan(w * lag) for lag in self.lags) - w * self.dead_time
+
+    def corners(self) -> list[float]:
+        """The corner frequencies [rad/s]: 1/T of each lag and 1/L; [gain] when there are
+        none (an IPDT without dead time), to anchor a frequency grid."""
+        out = [1.0 / t for t in (*self.lags, self.dead_time) if t > 0.0]
+        return out or [self.gain]
 
     # ------------------------------------------------------------------------ features
     @property
@@ -123,6 +165,14 @@ class ProcessModel:
         return (f'sopdt K={self.gain:.6g} T1={self.time_constant:.6g} s '
                 f'T2={self.time_constant2:.6g} s L={self.dead_time:.6g} s')
 
+    def tune_arguments(self) -> dict[str, Any]:
+        """The process arguments of ``tune`` (``core/tuning/rules.py``) for this model."""
+        args: dict[str, Any] = {'model': self.kind, 'gain': self.gain,
+                                'dead_time': self.dead_time}
+        for name, lag in zip(('time_constant', 'time_constant2'), self.lags):
+            args[name] = lag
+        return args
+
     def as_dict(self) -> dict[str, Any]:
         return {'kind': self.kind, 'gain': self.gain, 'time_constant': self.time_constant,
                 'time_constant2': self.time_constant2, 'dead_time': self.dead_time}
@@ -141,42 +191,43 @@ def from_identified(model: Any) -> ProcessModel:
 
 
 def from_plant(kind: str, config: Any) -> ProcessModel | None:
-    """The model of a plant kind's configuration (``core/plants``): ``fopdt`` and ``ipdt``
-    exactly, a second-order plant by its ``time_constant``/``time_constant2`` (or
-    ``time_constant1``) fields; None for other plants (the mixing tank is not SISO)."""
-    gain = getattr(config, 'gain', None)
-    dead = getattr(config, 'dead_time', None)
-    if gain is None or dead is None or gain == 0:
+    """The model of a plant kind's configuration (``core/plants``): ``fopdt``, ``ipdt`` and
+    ``sopdt`` (form ``time_constants``, or ``damping`` with ζ = 1: two equal lags; a zero time
+    constant drops that lag); None for a plant without a lag where one is needed, an
+    underdamped SOPDT, a zero gain, or another plant (the mixing tank is not SISO)."""
+    gain = abs(float(getattr(config, 'gain', 0.0) or 0.0))
+    if kind not in KINDS or gain == 0.0:
         return None
+    dead = float(config.dead_time)
     if kind == 'ipdt':
-        return ProcessModel('ipdt', abs(gain), dead)
-    t1 = getattr(config, 'time_constant', getattr(config, 'time_constant1', None))
-    t2 = getattr(config, 'time_constant2', None)
-    if t1 is None or t1 <= 0:
+        return ProcessModel('ipdt', gain, dead)
+    if kind == 'fopdt':
+        lags = [config.time_constant]
+    elif config.form == 'damping':
+        if config.damping != 1.0:
+            return None
+        lags = [config.time_constant] * 2
+    else:
+        lags = [config.time_constant_1, config.time_constant_2]
+    lags = sorted((float(t) for t in lags if t > 0.0), reverse=True)
+    if not lags:
         return None
-    if t2 is not None and t2 > 0:
-        return ProcessModel('sopdt', abs(gain), dead, max(t1, t2), min(t1, t2))
-    return ProcessModel('fopdt', abs(gain), dead, t1)
+    if len(lags) == 1:
+        return ProcessModel('fopdt', gain, dead, lags[0])
+    return ProcessModel('sopdt', gain, dead, lags[0], lags[1])
 
 
 class DiscretePlant:
-    """Simulation of :class:`ProcessModel` with the exact ZOH at ``sample_time`` [s]:
-    ``outputs()`` is y(k) (deviation from the rest state), ``step(u)`` holds ``u`` (the plant
-    input, load disturbance included) over one sample. Equal to the project's exact plants
-    (``core/plants``) sampled at the same instants."""
+    """:meth:`ProcessModel.plant` sampled every ``sample_time`` [s]: ``output()`` is y(k)
+    (deviation from the rest state), ``step(u)`` holds ``u`` (the plant input, load
+    disturbance included) over one sample — the exact ZOH model of the loop's analysis."""
 
     def __init__(self, model: ProcessModel, sample_time: float) -> None:
-        self._ss = model.state_space(sample_time)
-        m = self._ss.phi.shape[0]
-        self._x = np.zeros((m, 1))
-        self._inputs = [0.0] * (self._ss.delay_samples + 2)   # u(k), u(k−1), …, u(k−d−1)
+        self._plant = model.plant()
+        self._h = float(sample_time)
 
     def output(self) -> float:
-        return float((self._ss.c @ self._x)[0, 0])
+        return float(self._plant.outputs()[0])
 
     def step(self, u: float) -> None:
-        self._inputs = [float(u)] + self._inputs[:-1]
-        d = self._ss.delay_samples
-        self._x = (self._ss.phi @ self._x + self._ss.gamma0 * self._inputs[d]
-                   + self._ss.gamma1 * self._inputs[d + 1])
-
+        self._plant.step((u,), (), self._h)
