@@ -369,6 +369,11 @@ def test_tune_result_explains_rule_model_and_predicted_margins():
     (lambda: tune('ho', 'pi', gain=1.0, time_constant=1.0, dead_time=1.0, gain_margin=1.0),
      ('gain_margin',)),
     (lambda: tune('tan', 'pi', gain=1.0, time_constant=1.0, dead_time=1.0, r=1.5), ('r',)),
+    # an FOPDT rule refuses an SOPDT rather than ignore its second lag
+    (lambda: tune('cohen_coon', 'pi', gain=1.0, time_constant=10.0, time_constant2=5.0,
+                  dead_time=3.0), ('cohen_coon', 'FOPDT', "'sopdt'")),
+    (lambda: tune('oppelt', 'pid', gain=1.0, time_constant=10.0, dead_time=3.0,
+                  model='ipdt'), ('oppelt', 'FOPDT', "'ipdt'")),
 ])
 def test_bad_requests_name_the_argument(call, words):
     with pytest.raises(ValueError) as info:

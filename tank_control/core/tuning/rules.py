@@ -126,10 +126,19 @@ def zn_004_q1(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 # ------------------------------------------------------ FOPDT step response
+def _fopdt_only(process: Mapping[str, Any], rule: str) -> None:
+    """An FOPDT rule refuses another model rather than ignore part of it (T2 of an SOPDT)."""
+    kind = process.get('model', 'sopdt' if process.get('time_constant2') else 'fopdt')
+    if kind != 'fopdt':
+        raise ValueError(f'tune: rule {rule!r} is for an FOPDT model, not model = {kind!r}; '
+                         'give the FOPDT (gain, time_constant, dead_time)')
+
+
 def oppelt(kind: str, process: Mapping[str, float]) -> Gains:
     """Oppelt, 001 Table 6.1, with a = K·L/T from the tangent construction (eq. 6.15)."""
     if kind not in ('p', 'pi', 'pid'):
         raise _bad_kind('oppelt', kind, ('p', 'pi', 'pid'))
+    _fopdt_only(process, 'oppelt')
     k, t, dead = _need(process, 'oppelt', 'gain', 'time_constant', 'dead_time')
     a = k * dead / t
     if kind == 'p':
@@ -148,6 +157,7 @@ def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
     """
     if kind not in ('p', 'pi', 'pd', 'pid'):
         raise _bad_kind('cohen_coon', kind, ('p', 'pi', 'pd', 'pid'))
+    _fopdt_only(process, 'cohen_coon')
     k, t, dead = _need(process, 'cohen_coon', 'gain', 'time_constant', 'dead_time')
     r = dead / t                      # L/T = τ/(1 − τ)
     base = t / (k * dead)             # 1/a
