@@ -3,6 +3,7 @@
     tank-control run SCENARIO.yaml --out DIR [--mode lockstep|sim|wall] [--rtf X]
                      [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
+    tank-control analyze SCENARIO.yaml [--set NODE.PARAM=VALUE ...]
 
 Exit status: 0 done, 1 the run failed (a node crashed, did not start or
 stalled: its last log lines are printed), 2 bad command line or scenario.
@@ -67,6 +68,11 @@ def _parser() -> argparse.ArgumentParser:
     compare = sub.add_parser('compare', help='run several scenarios and compare their metrics')
     compare.add_argument('scenarios', type=Path, nargs='+')
     options(compare)
+    analyze = sub.add_parser('analyze', help="robustness of a scenario's PID loop on its plant "
+                             'model (stability, GM, PM, Ms, Mt, delay margin), without running')
+    analyze.add_argument('scenario', type=Path)
+    analyze.add_argument('--set', dest='overrides', action='append', default=[],
+                         metavar='NODE.PARAM=VALUE', help='override a parameter (typed as YAML)')
     return parser
 
 
@@ -85,8 +91,9 @@ def _print_result(result) -> None:
     print(markdown_table([result]), end='')
     for warning in result.metrics.get('controller', {}).get('warnings', []):
         print(f'controller warning: {warning}')
-    for key in ('plot', 'trace', 'recording', 'metrics'):
-        print(f'{key}: {result.files[key]}')
+    for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
+        if key in result.files:
+            print(f'{key}: {result.files[key]}')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -95,6 +102,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))
+            return 0
+        if args.command == 'analyze':
+            from tank_control.harness.analysis import analyze
+            print(analyze(args.scenario, tuple(args.overrides)), end='')
             return 0
         from tank_control.harness.compare import write_comparison
         results, used = [], set()

@@ -1,8 +1,9 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
 ``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
-``plot.png`` and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds
-(start paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
+``plot.png``, ``analysis.png`` (a SISO PID loop on a process model: ``harness/analysis.py``)
+and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds (start
+paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
 Times in the results are plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
@@ -23,6 +24,7 @@ from tank_control.core import scenario as core_scenario
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
+from tank_control.harness.analysis import loop_cases, plot_analysis
 from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
@@ -31,7 +33,7 @@ from tank_control.harness.scenario_file import (Scenario, ScenarioError, effecti
 from tank_control.harness.trace import GATED_DISTURBANCE, LATE_TOPICS, from_messages
 
 NS = 1_000_000_000
-OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
+OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png', 'analysis.png')
 PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
              'controller': ('manipulated',)}
 SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
@@ -125,6 +127,13 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
+    robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
+    cases, analysis_note = [], ''
+    if 'controller' in scenario.harness.nodes and controller_params:
+        try:
+            cases = loop_cases(scenario.sections, controller_params)
+        except (ConfigError, ValueError) as exc:
+            analysis_note = f'analysis.png not written: {exc}'
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
@@ -133,8 +142,11 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         **body,
         'run': run_info,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       **({'robustness': robustness} if robustness else {}),
                        'warnings': controller_warnings(controller_params),
                        'parameters': dict(controller_params)},
+        'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
+                          for case in cases} or analysis_note or None,
     }
     files = {
         'trace': trace.write_csv(out / 'trace.csv'),
@@ -143,6 +155,10 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'plot': plot_runs([(scenario.name, trace)], out / 'plot.png',
                           title=scenario.harness.title or scenario.name),
     }
+    if cases:
+        files['analysis'] = plot_analysis(cases, out / 'analysis.png',
+                                          title=f'{scenario.harness.title or scenario.name}: '
+                                                'final gains')
     files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
     return RunResult(scenario.name, out, trace, metrics, files)
 

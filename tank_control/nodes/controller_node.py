@@ -2,9 +2,10 @@
 
 Subscribes ``measurement``, ``setpoint`` (and ``disturbance`` when the kind uses measured
 disturbances); publishes ``manipulated``, ``/diagnostics``, ``~/late_inputs``, the kind's state
-topic; offers the kind's commands as ``std_srvs/Trigger`` services. Samples on a timer
-(``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start, measurement faults
-and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
+topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
+parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
+Samples on a timer (``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start,
+measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
 """
 from __future__ import annotations
 
@@ -132,8 +133,12 @@ class ControllerNode(Node):
             raise ParameterError(str(exc)) from None
 
     def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
+        # the node's own results (tuned gains, an identified model) are not a user's change:
+        # they are checked as values, not against a guard on changes (robustness.ms_max)
+        given = frozenset() if getattr(self, '_params', None) is not None \
+            and self._params.writing else changed
         try:
-            controller_setup(values, given=changed)
+            controller_setup(values, given=given)
         except ConfigError as exc:
             return str(exc)
         return None
@@ -340,9 +345,16 @@ class ControllerNode(Node):
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
             state = self._kind.state
+            published = False
             if state is not None and state in changed and self._state_pub is not None:
                 self._state_pub.publish(String(data=str(changed[state])))
                 self.get_logger().info(f'{self._state_text()}')
+                self._publish_diagnostics()
+                published = True
+            warnings = [f'{k}: {v}' for k, v in changed.items() if k.endswith('.warning') and v]
+            for text in warnings:
+                self.get_logger().warning(text)
+            if (warnings or any(k.endswith('.warning') for k in changed)) and not published:
                 self._publish_diagnostics()
 
     def _state_text(self) -> str:
@@ -408,6 +420,11 @@ class ControllerNode(Node):
                    else 'running')
         if self._kind.state is not None:
             message += f'; {self._state_text()}'
+        results = dict(self._kind.results(self._controller)) if self._kind.results else {}
+        warnings = [f'{k}: {v}' for k, v in results.items() if k.endswith('.warning') and v]
+        if warnings:
+            level = DiagnosticStatus.WARN
+            message += '; ' + '; '.join(warnings)
         if self._warning:
             message += f'; warning: {self._warning}'
         fields = {
@@ -424,6 +441,8 @@ class ControllerNode(Node):
             **self.counters,
             **{f'status.{k}': v for k, v in status.items()
                if isinstance(v, (bool, int, float, str))},
+            **{k: v for k, v in results.items()
+               if k.startswith(('robustness.', 'autotune.')) and k != 'autotune.start'},
         }
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
