@@ -1,4 +1,4 @@
-"""Robustness and predicted response of the implemented PID loop on a process model.
+"""Robustness and predicted response of the implemented loop on a process model.
 
 The loop is the one that runs: the exact ZOH model of the process at the controller's
 sample time (``core/tuning/model.py``, fractional dead time included) in feedback with the
@@ -7,7 +7,9 @@ backward-difference filtered derivative, 000 eqs. 13, 19). :func:`loop_report` g
 Nyquist stability with the exact delay, gain and phase margins, Ms, Mt, delay margin and
 crossovers (SPEC §3; 002); :func:`predict` simulates the same loop on the model for a unit
 setpoint step and a unit load step at the plant input (000 Fig. 1) and gives overshoot,
-IAE and settling time. Units: margins as ratios, phase in degrees, frequencies in rad/s,
+IAE and settling time. :func:`response_report` does the same analysis for any controller's
+discrete response (the lead-lag's, the Smith predictor's equivalent controller,
+:func:`smith_report`). Units: margins as ratios, phase in degrees, frequencies in rad/s,
 times in s, IAE in output units·s per unit step.
 """
 from __future__ import annotations

@@ -203,8 +203,9 @@ class RobustnessResults:
     """Robustness of the running loop on the process model, recomputed when the gains or the
     model change (read-only; ``core/analysis/robustness.py``). 0 / none without a model."""
 
-    model: str = _rr('none', 'process model of the analysis (the tuning.* model or the '
-                     "auto-tuner's identified one); none = no analysis", 'model')
+    model: str = _rr('none', 'process model of the analysis (the tuning.* model, the '
+                     "auto-tuner's identified one or the Smith predictor's smith.* model); none = "
+                     'no analysis', 'model')
     stable: bool = _rr(False, 'closed loop stable (Nyquist count with the exact dead time)',
                        'stable')
     gain_margin: float = _rr(0.0, 'gain margin (0 = infinite: the phase never reaches -180 deg)',
