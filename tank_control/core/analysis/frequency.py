@@ -790,11 +790,35 @@ def tuning_report(plant: FrequencyResponse | Any, kp: float, ti: float | None = 
     else:
         ctrl = pid_feedback(kp, ti, td, n)
         ref = pid_setpoint(kp, ti, td, n, b, c)
+    return controller_report(ctrl, plant, ref)
+
+
+def controller_report(ctrl: FrequencyResponse, plant: FrequencyResponse,
+                      ref: FrequencyResponse | None = None,
+                      characteristic: FrequencyResponse | None = None) -> dict[str, float | bool]:
+    """Frequency-domain report of the loop ``L = ctrl·plant`` for any controller response
+    ``ctrl`` = −U/Y (same keys as :func:`tuning_report`); ``ref`` = U/R (default ``ctrl``:
+    one degree of freedom) for ``setpoint_peak``; ``stable`` is the Nyquist count on
+    ``characteristic`` when given (a loop whose closed-loop poles are those of ``L``, e.g. a
+    Smith predictor's delay-free ``C·Gm0``), else on ``L``."""
+    ref = ctrl if ref is None else ref
     loop = ctrl * plant
     w, val, ph = _refined(loop)
     peak, _ = _peak(lambda x: ref(x) * plant(x) / (1.0 + loop(x)), w)
-    out: dict[str, float | bool] = dict(_margins_on(loop, w, val, ph).as_dict())
-    out['stable'] = _nyquist_count_on(loop, w, val) == 0
+    m = _margins_on(loop, w, val, ph)
+    out: dict[str, float | bool] = dict(m.as_dict())
+    if characteristic is None:
+        out['stable'] = _nyquist_count_on(loop, w, val) == 0
+    else:
+        out['stable'] = closed_loop_poles_unstable(characteristic) == 0
+        if out['stable'] and m.gain_crossovers:
+            # L may have open-loop unstable poles (a Smith predictor's equivalent controller):
+            # the phase a delay may still remove at each crossover is 180° + ∠L modulo 360°.
+            pms = [(math.pi + _phase_scalar(loop, x, w, ph)) % (2 * math.pi)
+                   for x in m.gain_crossovers]
+            j = int(np.argmin(pms))
+            out['phase_margin'], out['wc'] = math.degrees(pms[j]), m.gain_crossovers[j]
+            out['delay_margin'] = min(p / x for p, x in zip(pms, m.gain_crossovers))
     out['setpoint_peak'] = peak
     return out
 

@@ -1,4 +1,4 @@
-"""Robustness and predicted response of the implemented PID loop on a process model.
+"""Robustness and predicted response of the implemented loop on a process model.
 
 The loop is the one that runs: the exact ZOH model of the process at the controller's
 sample time (``core/tuning/model.py``, fractional dead time included) in feedback with the
@@ -7,13 +7,16 @@ backward-difference filtered derivative, 000 eqs. 13, 19). :func:`loop_report` g
 Nyquist stability with the exact delay, gain and phase margins, Ms, Mt, delay margin and
 crossovers (SPEC §3; 002); :func:`predict` simulates the same loop on the model for a unit
 setpoint step and a unit load step at the plant input (000 Fig. 1) and gives overshoot,
-IAE and settling time. Units: margins as ratios, phase in degrees, frequencies in rad/s,
+IAE and settling time. :func:`response_report` does the same analysis for any controller's
+discrete response (the lead-lag's, the Smith predictor's equivalent controller,
+:func:`smith_report`). Units: margins as ratios, phase in degrees, frequencies in rad/s,
 times in s, IAE in output units·s per unit step.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -43,17 +46,69 @@ class LoopReport:
     model: str
 
 
-def loop_report(model: ProcessModel, config: PidConfig) -> LoopReport:
-    """:class:`LoopReport` of ``Pid2Dof(config)`` on ``model`` sampled at
-    ``config.sample_time`` (the gain magnitude is used: a reverse-acting process runs with
-    ``direct_action``)."""
-    h = config.sample_time
-    rep = fr.tuning_report(model.response(h), abs(config.kp), config.ti, config.td, config.b,
-                           config.c, config.n)
+def response_report(model: ProcessModel, controller: fr.FrequencyResponse,
+                    setpoint: fr.FrequencyResponse | None = None,
+                    characteristic: fr.FrequencyResponse | None = None) -> LoopReport:
+    """:class:`LoopReport` of any implemented controller on ``model``: ``controller`` is its
+    discrete response −U/Y (its ``sample_time`` is the loop's), ``setpoint`` its U/R (default
+    the same: one degree of freedom); ``characteristic``: a loop with the same closed-loop
+    poles for the Nyquist count (default the loop itself)."""
+    rep = fr.controller_report(controller, model.response(controller.sample_time), setpoint,
+                               characteristic)
     return LoopReport(stable=bool(rep['stable']), gain_margin=rep['gain_margin'],
                       phase_margin=rep['phase_margin'], ms=rep['ms'], mt=rep['mt'],
                       delay_margin=rep['delay_margin'], wc=rep['wc'], w180=rep['w180'],
                       setpoint_peak=rep['setpoint_peak'], model=model.describe())
+
+
+def loop_report(model: ProcessModel, config: PidConfig) -> LoopReport:
+    """:class:`LoopReport` of ``Pid2Dof(config)`` on ``model`` sampled at
+    ``config.sample_time`` (the gain magnitude is used: a reverse-acting process runs with
+    ``direct_action``)."""
+    h, kp = config.sample_time, abs(config.kp)
+    return response_report(
+        model, fr.pid_feedback_discrete(kp, config.ti, config.td, config.n, sample_time=h),
+        fr.pid_setpoint_discrete(kp, config.ti, config.td, config.n, config.b, config.c,
+                                 sample_time=h))
+
+
+def smith_responses(model: ProcessModel, primary: PidConfig
+                    ) -> tuple[fr.FrequencyResponse, fr.FrequencyResponse, fr.FrequencyResponse]:
+    """``(C_eq, R_eq, C·Gm0)`` of the Smith predictor (004 §3.6.1) with the discrete PI
+    ``primary`` (td = c = 0) and the internal model ``model`` as implemented at its sample
+    time ``h`` (exact ZOH, fractional dead time; a negative ``kp`` acts on the positive
+    ``model`` with the opposite sign): the equivalent feedback controller
+    ``C_eq = C/(1 + C·(Gm0 − Gm))`` (−U/Y), its setpoint path ``R_eq = C_r/(1 + C·(Gm0 − Gm))``
+    (U/R, weight b) and the delay-free loop ``C·Gm0`` whose closed-loop poles are the loop's
+    when the plant equals the model (004 eq. 3.6.5)."""
+    h, kp = primary.sample_time, abs(primary.kp)
+    sign = -1.0 if primary.kp < 0 else 1.0       # kp < 0 on a positive model: positive feedback
+    c = fr.pid_feedback_discrete(kp, primary.ti, 0.0, primary.n, sample_time=h) * sign
+    cr = fr.pid_setpoint_discrete(kp, primary.ti, 0.0, primary.n, primary.b, 0.0,
+                                  sample_time=h) * sign
+    gm = model.response(h)
+    gm0 = replace(model, dead_time=0.0).response(h)
+
+    def delta(z: np.ndarray) -> np.ndarray:              # Gm0 − Gm on z (delay included)
+        return gm0.at(z) - gm.at(z)
+
+    # C_eq has C's integrator unless C·(Gm0 − Gm) has one too (ipdt: Gm0 − Gm is a finite sum
+    # with a non-zero value at z = 1; fopdt: it vanishes at z = 1).
+    integrators = c.integrators if model.kind != 'ipdt' else 0
+
+    def equivalent(law: fr.FrequencyResponse) -> fr.FrequencyResponse:
+        f, g = law.rational, c.rational
+        return fr.FrequencyResponse(lambda z: f(z) / (1.0 + g(z) * delta(z)), 0.0, h,
+                                    integrators, 0, c.corners + gm.corners)
+    return equivalent(c), equivalent(cr), c * gm0
+
+
+def smith_report(model: ProcessModel, primary: PidConfig) -> LoopReport:
+    """:class:`LoopReport` of the Smith predictor on its own internal model (plant = model):
+    margins, Ms, Mt and crossovers of ``L = C_eq·Gm`` (:func:`smith_responses`, exact dead
+    time and ZOH), stability from the delay-free loop ``C·Gm0``."""
+    ceq, req, free = smith_responses(model, primary)
+    return response_report(model, ceq, req, characteristic=free)
 
 
 @dataclass(frozen=True)
@@ -123,21 +178,29 @@ def predict(model: ProcessModel, config: PidConfig, duration: float | None = Non
                       iae_load=iae(t, yl))
 
 
+def pid_key(config: PidConfig) -> tuple[Any, ...]:
+    """The settings of a ``PidConfig`` that :func:`loop_report` depends on."""
+    return (abs(config.kp), config.ti, config.td, config.n, config.sample_time, config.b,
+            config.c)
+
+
 class RobustnessMonitor:
     """The report of the running loop, recomputed only when the model or the loop's settings
-    change (kp, ti, td, n, sample time)."""
+    change: ``analyse(model, config)`` (default :func:`loop_report`, the PID) keyed by
+    ``key(config)`` (default :func:`pid_key`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, analyse: Callable[[ProcessModel, Any], LoopReport] = loop_report,
+                 key: Callable[[Any], Any] = pid_key) -> None:
+        self._analyse, self._key_of = analyse, key
         self._key: Any = None
         self._report: LoopReport | None = None
 
-    def report(self, model: ProcessModel | None, config: PidConfig) -> LoopReport | None:
+    def report(self, model: ProcessModel | None, config: Any) -> LoopReport | None:
         if model is None:
             return None
-        key = (model, abs(config.kp), config.ti, config.td, config.n, config.sample_time,
-               config.b, config.c)
+        key = (model, self._key_of(config))
         if key != self._key:
-            self._report = loop_report(model, config)
+            self._report = self._analyse(model, config)
             self._key = key
         return self._report
 

@@ -16,7 +16,7 @@ from types import MappingProxyType
 from typing import Any
 
 from tank_control.core.analysis.robustness import (LoopReport, RobustnessMonitor, finite_or,
-                                                   loop_report)
+                                                   loop_report, pid_key)
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import (ConfigError, ParamSpec, coerce, config_from, names_of,
                                       param, specs_of, unknown_reason)
@@ -203,8 +203,9 @@ class RobustnessResults:
     """Robustness of the running loop on the process model, recomputed when the gains or the
     model change (read-only; ``core/analysis/robustness.py``). 0 / none without a model."""
 
-    model: str = _rr('none', 'process model of the analysis (the tuning.* model or the '
-                     "auto-tuner's identified one); none = no analysis", 'model')
+    model: str = _rr('none', 'process model of the analysis (the tuning.* model, the '
+                     "auto-tuner's identified one or the Smith predictor's smith.* model); none = "
+                     'no analysis', 'model')
     stable: bool = _rr(False, 'closed loop stable (Nyquist count with the exact dead time)',
                        'stable')
     gain_margin: float = _rr(0.0, 'gain margin (0 = infinite: the phase never reaches -180 deg)',
@@ -249,46 +250,59 @@ def robustness_values(report: LoopReport | None, ms_max: float) -> dict[str, Any
 
 
 class LoopWatch:
-    """The robustness analysis of a PID-based controller's running loop: the process ``model``
-    (None: none known) and ``ms_max``; :meth:`values` gives the ``robustness.*`` values for
-    the running ``PidConfig``, recomputed only when the gains or the model change."""
+    """The robustness analysis of a controller's running loop: the process ``model`` (None:
+    none known) and ``ms_max``; :meth:`values` gives the ``robustness.*`` values for the
+    running configuration, recomputed only when the gains or the model change.
+    ``analyse(model, config)`` and ``key(config)``: the controller's analysis (default the
+    PID's, a ``PidConfig``)."""
 
-    def __init__(self, model: ProcessModel | None = None, ms_max: float = 0.0) -> None:
+    def __init__(self, model: ProcessModel | None = None, ms_max: float = 0.0,
+                 analyse: Callable[[ProcessModel, Any], LoopReport] = loop_report,
+                 key: Callable[[Any], Any] = pid_key) -> None:
         self.model = model
         self.ms_max = ms_max
-        self._monitor = RobustnessMonitor()
+        self._monitor = RobustnessMonitor(analyse, key)
 
-    def report(self, pid: Any) -> LoopReport | None:
-        return self._monitor.report(self.model, pid)
+    def report(self, config: Any) -> LoopReport | None:
+        return self._monitor.report(self.model, config)
 
-    def values(self, pid: Any) -> dict[str, Any]:
-        return robustness_values(self.report(pid), self.ms_max)
+    def values(self, config: Any) -> dict[str, Any]:
+        return robustness_values(self.report(config), self.ms_max)
 
 
-def guard_reason(settings: Settings, model: ProcessModel | None, pid: Any) -> str | None:
+def pid_gains(pid: Any) -> str:
+    """The gains a guard's reason shows for a ``PidConfig``."""
+    return f'kp {abs(pid.kp):.4g}, ti {pid.ti:.4g} s, td {pid.td:.4g} s'
+
+
+def guard_reason(settings: Settings, model: ProcessModel | None, config: Any,
+                 analyse: Callable[[ProcessModel, Any], LoopReport] = loop_report,
+                 names: tuple[str, ...] = ROBUSTNESS_NAMES,
+                 gains: Callable[[Any], str] = pid_gains) -> str | None:
     """The robustness guard: with ``robustness.ms_max`` > 0 and a known ``model``, a change of
-    the loop (:data:`ROBUSTNESS_NAMES` or the tuning rule's settings among the names given)
-    whose implemented loop ``pid`` (a ``PidConfig``) would be unstable or exceed Ms is refused,
-    with the numbers. A change of the model alone is not refused (it is reported by
-    ``robustness.warning``)."""
+    the loop (``names``, default the PID's :data:`ROBUSTNESS_NAMES`, or the tuning rule's
+    settings) whose implemented loop ``analyse(model, config)`` (default the PID's) would be
+    unstable or exceed Ms is refused, with the numbers. A change of the model alone is not
+    refused (it is reported by ``robustness.warning``)."""
     ms_max = settings.robustness.ms_max
     if ms_max <= 0 or model is None:
         return None
     changed = sorted(n for n in settings.given
-                     if n in ROBUSTNESS_NAMES or (n.startswith('tuning.')
-                                                  and settings.values.get('tuning.rule') != 'none'))
+                     if n in names or (n.startswith('tuning.')
+                                       and settings.values.get('tuning.rule') != 'none'))
     if not changed:
         return None
-    report = loop_report(model, pid)
-    gains = f'kp {abs(pid.kp):.4g}, ti {pid.ti:.4g} s, td {pid.td:.4g} s'
-    names = ', '.join(n for n in ('kp', 'ti', 'td', 'n', 'direct_action') if n in changed) or (
+    report = analyse(model, config)
+    shown = gains(config)
+    loop_names = [n for n in names if n not in ('sample_time', 'robustness.ms_max')]
+    what = ', '.join(n for n in loop_names if n in changed) or (
         'tuning.rule' if any(n.startswith('tuning.') for n in changed) else changed[0])
     if not report.stable:
-        return (f'{names}: the loop would be unstable ({gains}) on the model {report.model}; '
+        return (f'{what}: the loop would be unstable ({shown}) on the model {report.model}; '
                 f'robustness.ms_max {ms_max:g} refuses it')
     if report.ms > ms_max:
-        return (f'{names}: Ms would be {report.ms:.3g} > robustness.ms_max {ms_max:g} '
-                f'({gains}; GM {report.gain_margin:.3g}, PM {report.phase_margin:.1f} deg on '
+        return (f'{what}: Ms would be {report.ms:.3g} > robustness.ms_max {ms_max:g} '
+                f'({shown}; GM {report.gain_margin:.3g}, PM {report.phase_margin:.1f} deg on '
                 f'the model {report.model})')
     return None
 
