@@ -237,6 +237,7 @@ class _RosRun:
         self.mode = self.config.clock_mode
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
         self.phase = 'while starting'
+        self.cpu: dict[str, float] = {}            # CPU seconds during the run, by process
         plant = scenario.params('plant')
         self.gated = (self.mode == 'lockstep' and {'plant', 'reference'} <= set(self.config.nodes)
                       and plant.get('lockstep.wait_for_reference', True) is True)
@@ -244,7 +245,9 @@ class _RosRun:
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
         argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
-        if self.mode != 'wall' and node != 'plant':
+        # Sim: the others' timers run on /clock. Lockstep: they follow the plant's stamps
+        # (clock_mode lockstep is in their sections), so no time source and no /clock reader.
+        if self.mode == 'sim' and node != 'plant':
             argv += ['-p', 'use_sim_time:=true']
         if node == 'plant':
             argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
@@ -279,12 +282,15 @@ class _RosRun:
             for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
             self._await_graph(nodes)
+            cpu_start = self._cpu_seconds()
             run_start = time.monotonic()
             if 'plant' in nodes:
                 self._unpause()
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
+            self.cpu = {name: end - cpu_start[name] for name, end in self._cpu_seconds().items()
+                        if end is not None and cpu_start.get(name) is not None}
             self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
                                  if 'controller' in self.config.nodes else {})
@@ -298,6 +304,12 @@ class _RosRun:
             rclpy.try_shutdown(context=context)
         return self._results(recorder, controller_params, plant_params, reference_params, codes,
                              run_wall, time.monotonic() - wall_start)
+
+    def _cpu_seconds(self) -> dict[str, float | None]:
+        """CPU time used so far by each node process and by this (harness) process [s]."""
+        out = {name: proc.cpu_seconds() for name, proc in self.group.processes.items()}
+        out['harness'] = time.process_time()
+        return out
 
     def _await(self, condition: Callable[[], bool], what: str) -> None:
         if not self.recorder.spin_until(condition, self.config.startup_timeout, self._check_alive):
@@ -472,6 +484,10 @@ class _RosRun:
             'wall_time_total': total_wall,
             'ticks': ticks,
             'ticks_per_s': ticks / run_wall if run_wall > 0 else 0.0,
+            # CPU per tick during the run (from un-pausing the plant to the last tick) of each
+            # node process and of the harness (recorder, gate, progress) [ms]
+            'cpu_ms_per_tick': {name: 1e3 * seconds / ticks for name, seconds in self.cpu.items()}
+            if ticks else {},
             'missed_samples': sampling['missed_samples'],
             'late_samples': int(sum(trace.late.values())),
             'late_by_signal': trace.late,

@@ -34,8 +34,9 @@ from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
 from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
-                                         TOPIC_TIME_ORIGIN, from_joint_state, reliable_qos,
-                                         stamp_to_ns, to_joint_state)
+                                         TOPIC_TIME_ORIGIN, from_joint_state,
+                                         quiet_publisher_events, quiet_subscription_events,
+                                         reliable_qos, stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -88,16 +89,19 @@ class ControllerNode(Node):
         self._last_sample: tuple[int, dict[str, float]] | None = None   # (plant time, r used)
         self._compute_s = math.nan
 
-        self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS)
+        self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
+                                          event_callbacks=quiet_publisher_events())
         self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
         if self._mode == 'wall':
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS)
-        self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS)
+        self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
+                                 event_callbacks=quiet_subscription_events())
+        self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS,
+                                 event_callbacks=quiet_subscription_events())
         if self._disturbances:
             self.create_subscription(JointState, TOPIC_DISTURBANCE, self._on_disturbance,
-                                     SIGNAL_QOS)
+                                     SIGNAL_QOS, event_callbacks=quiet_subscription_events())
         required: dict[str, tuple[str, ...]] = {'measurement': self._outputs,
                                                 'setpoint': self._outputs}
         if self._disturbances:
