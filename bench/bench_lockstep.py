@@ -15,6 +15,7 @@ Two kinds of measurement, interleaved run by run so that both see the same machi
   the three-process ring with the events executor measured in the same run.
 
     .venv/bin/python bench/bench_lockstep.py [--runs 3] [--trips 3000] [--only ring|lockstep]
+                                             [--baseline OTHER_PYTHON ...]
 
 Prints one line per measurement and a markdown table of medians (min–max) with the load
 average before and after.
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -44,7 +46,7 @@ SCENARIOS = (
 
 # ---------------------------------------------------------------- ring member (child process)
 def ring_member(index: int, size: int, executor_kind: str, trips: int) -> int:
-    """One member of the ring; member 0 starts the ring once every member is matched."""
+    """One member of the ring; member 0 starts it (re-sending the start until it returns)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.experimental import EventsExecutor
@@ -96,7 +98,7 @@ def ring_member(index: int, size: int, executor_kind: str, trips: int) -> int:
     if len(state['marks']) < 2:
         print(f'ring member {index}: stopped at {state["count"]} of {total} messages',
               file=sys.stderr, flush=True)
-    if len(state['marks']) == 2:
+    else:
         (t0, c0), (t1, c1) = state['marks']
         print(json.dumps({'index': index, 'rate': trips / (t1 - t0),
                           'cpu_ms': 1e3 * (c1 - c0) / trips}), flush=True)
@@ -133,6 +135,7 @@ def lockstep(config: Path, duration: float, env: dict[str, str],
                     '--duration', str(duration), '--quiet'], env=env, check=True,
                    stdout=subprocess.DEVNULL, cwd=out)   # cwd: `-m` must not import ./tank_control
     run = json.loads((out / 'metrics.json').read_text())['run']
+    shutil.rmtree(out)
     return {'rate': run['ticks_per_s'], 'cpu_ms': run.get('cpu_ms_per_tick', {}),
             'missed': run['missed_samples']}
 
