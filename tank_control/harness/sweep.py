@@ -558,6 +558,7 @@ class SweepResult:
     summary: dict[str, Any] = field(default_factory=dict)
     ran: int = 0
     skipped: int = 0
+    run_wall: float = 0.0        # wall seconds from the first submission to the last result
 
 
 def _read_done(path: Path) -> dict[str, dict[str, Any]]:
@@ -647,7 +648,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: cf.Executor,
                 future.cancel()
             raise
     rows = table_rows(todo_cases, records)
-    result = SweepResult(out, rows, ran=len(pending), skipped=state['skipped'])
+    result = SweepResult(out, rows, ran=len(pending), skipped=state['skipped'],
+                         run_wall=time.monotonic() - start)
     result.files.update(write_table(rows, out))
     result.summary = summarize(rows, spec)
     result.files.update(write_summary(result.summary, out))

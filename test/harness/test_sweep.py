@@ -263,3 +263,23 @@ def test_lockstep_runs_in_their_own_domains_equal_the_in_process_runs(tmp_path):
                 assert b[name] == pytest.approx(a[name], rel=1e-9, abs=1e-9), name
             else:
                 assert b[name] == a[name]
+
+
+# --------------------------------------------------------------------------- shipped studies
+@pytest.mark.parametrize('name, runs', [('000_robustness.yaml', 4 * 9 * 7),
+                                        ('tank_disturbances.yaml', 4 * 20)])
+def test_shipped_studies_are_valid_and_as_documented(name, runs):
+    path = CONFIG / 'studies' / name
+    assert sweep.is_study(path) and not sweep.is_study(MDP_PID)
+    spec = sweep.load_study(path)
+    all_cases = sweep.cases(spec)
+    assert len(all_cases) == runs and not [c.error for c in all_cases if c.error]
+    docs = (CONFIG.parent / 'docs' / 'sweeps.md').read_text()
+    assert f'config/studies/{name}' in docs
+
+
+def test_study_keys_are_checked(tmp_path):
+    path = tmp_path / 'bad_study.yaml'
+    path.write_text(f'study:\n  scenarios: [{MDP_PID}]\n  gird: {{}}\n')
+    with pytest.raises(ScenarioError, match='did you mean grid'):
+        sweep.load_study(path)
