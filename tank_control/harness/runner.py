@@ -29,7 +29,8 @@ from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import write_raw, write_trace
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
-                                                load_scenario, write_params_file)
+                                                load_scenario, node_parameters,
+                                                write_params_file)
 from tank_control.harness.trace import GATED_DISTURBANCE, LATE_TOPICS, from_messages
 
 NS = 1_000_000_000
@@ -120,9 +121,10 @@ def controller_report(scenario: Scenario, controller_params: Mapping[str, Any]
     return limits, {name: settings.values[name] for name in kind.gains}
 
 
-def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
-           controller_params: Mapping[str, Any], mcap_writer: Callable[[Path], Path]) -> RunResult:
-    """Write trace.csv, run.mcap, metrics.json and plot.png."""
+def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any]
+                ) -> tuple[dict[str, Any], list[Any]]:
+    """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
+    analysis) and the loop cases it was analysed on; also what a sweep records per run."""
     limits, gains = controller_report(scenario, controller_params)
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
@@ -135,18 +137,30 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         except (ConfigError, ValueError) as exc:
             analysis_note = f'analysis.png not written: {exc}'
     metrics = {
-        'scenario': scenario.name,
-        'title': scenario.harness.title,
-        'claim': scenario.harness.claim,
-        'mode': run_info.get('mode'),
         **body,
-        'run': run_info,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
                        **({'robustness': robustness} if robustness else {}),
                        'warnings': controller_warnings(controller_params),
                        'parameters': dict(controller_params)},
         'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
                           for case in cases} or analysis_note or None,
+    }
+    return metrics, cases
+
+
+def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
+           controller_params: Mapping[str, Any], mcap_writer: Callable[[Path], Path]) -> RunResult:
+    """Write trace.csv, run.mcap, metrics.json and plot.png."""
+    measured, cases = run_metrics(scenario, trace, controller_params)
+    metrics = {
+        'scenario': scenario.name,
+        'title': scenario.harness.title,
+        'claim': scenario.harness.claim,
+        'mode': run_info.get('mode'),
+        **{k: measured[k] for k in ('outputs', 'inputs', 'events')},
+        'run': run_info,
+        'controller': measured['controller'],
+        'loop_analysis': measured['loop_analysis'],
     }
     files = {
         'trace': trace.write_csv(out / 'trace.csv'),
@@ -191,16 +205,24 @@ def _jsonable(value: Any) -> Any:
 # ----------------------------------------------------------------------------------------------
 # In-process (core/loop.py, no ROS)
 
-def _run_in_process(scenario: Scenario, params_file: Path, out: Path,
+def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
+    """Run a loaded scenario through core/loop.py for its ``harness.duration``: the sections
+    the node processes would read (``node_parameters``), built as the nodes build them.
+    ``ScenarioError`` (one line) for a value the core objects reject."""
+    try:
+        built = core_scenario.build(node_parameters(scenario))
+        return core_scenario.run(built, scenario.harness.duration).until(
+            scenario.harness.duration), built
+    except ConfigError as exc:
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
+
+
+def _run_in_process(scenario: Scenario, _params_file: Path, out: Path,
                     progress: ProgressFn | None) -> RunResult:
 
     config = scenario.harness
     start = time.monotonic()
-    try:
-        built = core_scenario.build(core_scenario.sections_of(params_file))
-        trace = core_scenario.run(built, config.duration).until(config.duration)
-    except ConfigError as exc:            # a parameter the core objects reject: one line
-        raise ScenarioError(f'{scenario.path}: {exc}') from None
+    trace, built = simulate(scenario)
     wall = time.monotonic() - start
     ticks = len(trace)
     if progress:
@@ -270,7 +292,9 @@ class _RosRun:
         from tank_control.harness.recorder import Recorder
 
         context = Context()
-        rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'])
+        domain = self.env.get('ROS_DOMAIN_ID', '').strip()     # the nodes' domain, not ours
+        rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'],
+                   domain_id=int(domain) if domain.isdigit() else None)
         recorder: Recorder | None = None
         wall_start = time.monotonic()
         try:
