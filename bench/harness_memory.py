@@ -6,22 +6,22 @@ set size (``ru_maxrss`` of the harness itself, not of the node processes) and th
 plant tick between the shortest and the longest run. Each run gets its own output directory
 under ``--out``. ``--tree`` runs another checkout's harness (e.g. an older commit exported
 with ``git archive``) for a before/after comparison. The ROS runs use a ROS_DOMAIN_ID held
-free by the same per-domain lock files as the tests.
+free by the same claim as the tests (``harness/domains.py``).
 
     .venv/bin/python bench/harness_memory.py --durations 500 2500 --runs 3
 """
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
-import random
 import os
 import statistics
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from tank_control.harness import domains
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -33,23 +33,6 @@ peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 metrics = json.load(open(sys.argv[sys.argv.index('--out') + 1] + '/metrics.json'))
 print(json.dumps({'code': code, 'peak_kib': peak_kib, 'ticks': metrics['run']['ticks']}))
 """
-
-
-def claim_domain() -> tuple[int, object]:
-    """A ROS_DOMAIN_ID nobody else holds (the tests' lock files), held while this runs."""
-    lock_dir = Path(tempfile.gettempdir()) / 'tank_control_domains'
-    lock_dir.mkdir(exist_ok=True)
-    candidates = list(range(1, 101))
-    random.SystemRandom().shuffle(candidates)
-    for domain in candidates:
-        handle = open(lock_dir / f'{domain}.lock', 'w')
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.close()
-            continue
-        return domain, handle
-    raise SystemExit('no free ROS_DOMAIN_ID')
 
 
 def one_run(scenario: str, duration: float, out: Path, in_process: bool, tree: Path,
@@ -77,7 +60,7 @@ def main() -> None:
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix='harness_memory_'))
     tree = args.tree.resolve()
-    domain, _lock = claim_domain()
+    domain, _lock = domains.claim()    # held while this runs
     env = {**os.environ, 'PYTHONPATH': str(tree), 'ROS_DOMAIN_ID': str(domain),
            'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
     scenario = str((REPO / args.scenario) if not Path(args.scenario).is_absolute()

@@ -8,41 +8,19 @@
 """
 from __future__ import annotations
 
-import fcntl
 import os
-import random
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
+from tank_control.harness import domains
 from tank_control.harness.processes import ProcessGroup
 
 REPO = Path(__file__).resolve().parents[1]
-_LOCK_DIR = Path(tempfile.gettempdir()) / 'tank_control_domains'
-_DOMAIN_IDS = list(range(1, 101))   # valid for LOCALHOST discovery on Linux
-
-
-def _claim_domain_id() -> tuple[int, object]:
-    """Lock a free domain id for this process's lifetime (the lock dies with it)."""
-    _LOCK_DIR.mkdir(exist_ok=True)
-    candidates = _DOMAIN_IDS[:]
-    random.SystemRandom().shuffle(candidates)
-    for domain_id in candidates:
-        handle = open(_LOCK_DIR / f'{domain_id}.lock', 'w')
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.close()
-            continue
-        return domain_id, handle
-    raise RuntimeError('no free ROS_DOMAIN_ID for this test session')
-
-
-_DOMAIN_ID, _DOMAIN_LOCK = _claim_domain_id()
+_DOMAIN_ID, _DOMAIN_LOCK = domains.claim()   # held for the session's lifetime
 os.environ['ROS_DOMAIN_ID'] = str(_DOMAIN_ID)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)

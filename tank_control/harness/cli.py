@@ -3,13 +3,17 @@
     tank-control run SCENARIO.yaml --out DIR [--mode lockstep|sim|wall] [--rtf X]
                      [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
+    tank-control analyze SCENARIO.yaml [--set NODE.PARAM=VALUE ...]
+    tank-control sweep SCENARIO.yaml ... | STUDY.yaml --out DIR [--grid NODE.PARAM=SPEC ...]
+                     [--random NODE.PARAM=DIST ...] [--samples N] [--seed S] [--set ...]
+                     [--duration S] [--workers N | --cluster ADDRESS | --scheduler-file F]
+                     [--ros]
 
-Exit status: 0 done, 1 the run failed (a node crashed, did not start or
-stalled: its last log lines are printed; another run or graph on the
-ROS_DOMAIN_ID; nothing recorded), 2 bad command line or scenario,
-128 + N stopped by signal N (130 SIGINT, 143 SIGTERM, 129 SIGHUP). A failed or
-stopped run leaves what it recorded, with ``"complete": false`` and the reason
-in metrics.json.
+Exit status: 0 done (a sweep: some runs succeeded), 1 the run failed (a node crashed, did not
+start or stalled: its last log lines are printed; another run or graph on the ROS_DOMAIN_ID;
+nothing recorded), 2 bad command line or scenario, 128 + N stopped by signal N (130 SIGINT,
+143 SIGTERM, 129 SIGHUP). A failed or stopped run leaves what it recorded, with
+``"complete": false`` and the reason in metrics.json.
 """
 from __future__ import annotations
 
@@ -71,7 +75,76 @@ def _parser() -> argparse.ArgumentParser:
     compare = sub.add_parser('compare', help='run several scenarios and compare their metrics')
     compare.add_argument('scenarios', type=Path, nargs='+')
     options(compare)
+    analyze = sub.add_parser('analyze', help="robustness of a scenario's PID loop on its plant "
+                             'model (stability, GM, PM, Ms, Mt, delay margin), without running')
+    analyze.add_argument('scenario', type=Path)
+    analyze.add_argument('--set', dest='overrides', action='append', default=[],
+                         metavar='NODE.PARAM=VALUE', help='override a parameter (typed as YAML)')
+    sweep = sub.add_parser('sweep', help='many runs: grids and Monte Carlo over parameters '
+                           '(docs/sweeps.md)')
+    sweep.add_argument('scenarios', type=Path, nargs='+',
+                       help='scenario files, or one study file (config/studies/)')
+    sweep.add_argument('--out', required=True, type=Path, help='output directory (rerun: resume)')
+    sweep.add_argument('--grid', action='append', default=[], metavar='NODE.PARAM=SPEC',
+                       help='v1,v2,... or a:b:n or ±p%%:n (around the scenario\'s value); '
+                       'NODE.PARAM[i] for element i of a list')
+    sweep.add_argument('--random', action='append', default=[], metavar='NODE.PARAM=DIST',
+                       help='normal(mu,sigma), uniform(a,b) or randint(a,b)')
+    sweep.add_argument('--samples', type=int, help='random draws per grid point')
+    sweep.add_argument('--seed', type=int, help='seed of the random draws (default 0)')
+    sweep.add_argument('--set', dest='overrides', action='append', default=[],
+                       metavar='NODE.PARAM=VALUE', help='a fixed override for every run')
+    sweep.add_argument('--duration', type=float, help='simulated seconds per run')
+    where = sweep.add_mutually_exclusive_group()
+    where.add_argument('--workers', type=int, help='local worker processes (default: all cores)')
+    where.add_argument('--cluster', metavar='ADDRESS',
+                       help='run on a dask.distributed scheduler (tcp://HOST:PORT)')
+    where.add_argument('--scheduler-file', metavar='FILE', help='Dask scheduler file')
+    sweep.add_argument('--ros', action='store_true',
+                       help='each run in lockstep over ROS 2, in a ROS_DOMAIN_ID of its own')
+    sweep.add_argument('--quiet', action='store_true', help='no progress bar')
     return parser
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from tank_control.harness import sweep
+    if len(args.scenarios) == 1 and sweep.is_study(args.scenarios[0]):
+        spec = sweep.load_study(args.scenarios[0])
+    else:
+        spec = sweep.SweepSpec(scenarios=tuple(args.scenarios))
+    spec = sweep.SweepSpec(
+        scenarios=spec.scenarios,
+        grid=spec.grid + tuple(sweep.GridAxis.parse(g) for g in args.grid),
+        random=spec.random + tuple(sweep.RandomAxis.parse(r) for r in args.random),
+        samples=spec.samples if args.samples is None else args.samples,
+        seed=spec.seed if args.seed is None else args.seed,
+        sets=spec.sets + tuple(args.overrides),
+        duration=spec.duration if args.duration is None else args.duration,
+        ros=spec.ros or args.ros, title=spec.title, claim=spec.claim)
+    sweep.cases(spec)                         # every bad specification before anything starts
+    close = None
+    if args.cluster or args.scheduler_file:
+        executor, close = sweep.dask_executor(args.cluster, args.scheduler_file)
+    else:
+        executor = sweep.local_executor(args.workers)
+    progress = None if args.quiet else sweep.ProgressBar(sys.stderr)
+    try:
+        result = sweep.run_sweep(spec, args.out, executor, progress)
+    except KeyboardInterrupt:
+        print(f'tank-control: sweep interrupted; finished runs are kept in {args.out}/runs.jsonl '
+              '(rerun the same command to resume)', file=sys.stderr)
+        return 130
+    finally:
+        executor.shutdown(wait=False)
+        if close:
+            close()
+    print(sweep.summary_markdown(result.summary), end='')
+    ok = sum(row['status'] == 'ok' for row in result.rows)
+    print(f'{len(result.rows)} runs: {ok} ok, {len(result.rows) - ok} failed '
+          f'({result.ran} ran now, {result.skipped} from an earlier invocation)')
+    for key, path in result.files.items():
+        print(f'{key}: {path}')
+    return 0 if ok else 1
 
 
 def _run_one(path: Path, out: Path, args: argparse.Namespace):
@@ -89,8 +162,9 @@ def _print_result(result) -> None:
     print(markdown_table([result]), end='')
     for warning in result.metrics.get('controller', {}).get('warnings', []):
         print(f'controller warning: {warning}')
-    for key in ('plot', 'trace', 'recording', 'metrics'):
-        print(f'{key}: {result.files[key]}')
+    for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
+        if key in result.files:
+            print(f'{key}: {result.files[key]}')
 
 
 def _partial(err: BaseException) -> str:
@@ -105,6 +179,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))
+            return 0
+        if args.command == 'sweep':
+            return _sweep(args)
+        if args.command == 'analyze':
+            from tank_control.harness.analysis import analyze
+            print(analyze(args.scenario, tuple(args.overrides)), end='')
             return 0
         from tank_control.harness.compare import write_comparison
         results, used = [], set()

@@ -63,9 +63,14 @@ def plot_runs(traces: Sequence[tuple[str, Trace]], path: str | Path, title: str 
         ax.grid(True, alpha=0.3)
         ax.legend(loc='best', fontsize='small')
     axes[-1, 0].set_xlabel('time [s]')
+    return save_figure(fig, path, title, dpi=100)
+
+
+def save_figure(fig, path: Path, title: str = '', dpi: int = 100) -> Path:
+    """Give ``fig`` its title, lay it out, write it to ``path`` and close it."""
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path

@@ -46,11 +46,27 @@ class ManagedProcess:
         process is not reaped (see the module doc)."""
         return exit_code(self.popen)
 
+    def cpu_seconds(self) -> float | None:
+        """CPU time (user + system) the process has used so far [s]; None where
+        ``/proc`` cannot tell (not Linux, or the process is gone)."""
+        return process_cpu_seconds(self.popen.pid)
+
     def tail(self, lines: int = 20) -> str:
         """The last ``lines`` lines of the process's output."""
         self._log.flush()
         text = self.log_path.read_text(errors='replace')
         return '\n'.join(text.splitlines()[-lines:])
+
+
+def process_cpu_seconds(pid: int) -> float | None:
+    """utime + stime of ``pid`` from ``/proc/<pid>/stat`` [s] (None if unreadable)."""
+    try:
+        with open(f'/proc/{pid}/stat', 'rb') as stat:
+            fields = stat.read().rsplit(b')', 1)[1].split()
+    except OSError:
+        return None
+    # after the command's closing parenthesis: state is field 3, utime 14, stime 15
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def exit_code(popen: subprocess.Popen) -> int | None:

@@ -12,13 +12,14 @@ from typing import Any
 
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
 from tank_control.harness.recording import RawMessage
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
-from tank_control.nodes.messages import ORIGIN_QOS, SIGNAL_QOS, reliable_qos
+from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, quiet_publisher_events,
+                                         quiet_subscription_events, reliable_qos)
 
 #: The recorder's node name (another graph's recorder on the domain is another run).
 RECORDER_NAME = 'tank_control_recorder'
@@ -104,13 +105,16 @@ class Recorder:
     """Subscriptions on a node of its own (in ``context``), spun by ``spin_once``.
 
     ``subscribe=False`` creates the node only (the harness first looks at the graph from it,
-    ``domain.foreign_graph``) and ``subscribe(sink)`` starts recording. Each message goes to
+    ``graph_check.foreign_graph``) and ``subscribe(sink)`` starts recording. Each message goes to
     ``sink`` as it arrives; without a sink it is kept in ``messages``."""
 
     def __init__(self, context: Context, name: str = RECORDER_NAME, sink: Sink | None = None,
                  subscribe: bool = True) -> None:
         self.node = Node(name, context=context)
-        self.executor = SingleThreadedExecutor(context=context)
+        # rclpy's C++ events executor: a third of the CPU per message of the
+        # SingleThreadedExecutor (bench/RESULTS.md, "Lockstep"); spun by spin_once only
+        # (tank_control/nodes/runtime.py says why).
+        self.executor = EventsExecutor(context=context)
         self.executor.add_node(self.node)
         self.messages: list[RawMessage] = []
         self.sink: Sink = sink if sink is not None else self.messages.append
@@ -135,7 +139,8 @@ class Recorder:
         for topic, type_name in TOPICS:
             qos = ORIGIN_RECORD_QOS if topic == 'time_origin' else RECORD_QOS
             self.node.create_subscription(_message_class(type_name), topic,
-                                          self._callback(topic, type_name), qos, raw=True)
+                                          self._callback(topic, type_name), qos, raw=True,
+                                          event_callbacks=quiet_subscription_events())
 
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
         full = topic if topic.startswith('/') else '/' + topic
@@ -164,7 +169,8 @@ class Recorder:
         (signal publishers keep only the last 10 messages for a slow reader)."""
         from sensor_msgs.msg import JointState
         self._gate_stamps = {topic: set() for topic in _GATE_NEEDS}
-        self._gate_pub = self.node.create_publisher(JointState, GATED_DISTURBANCE, GATE_QOS)
+        self._gate_pub = self.node.create_publisher(JointState, GATED_DISTURBANCE, GATE_QOS,
+                                                    event_callbacks=quiet_publisher_events())
 
     def _gate(self, topic: str, stamp: int, data: bytes) -> None:
         self._gate_stamps[topic].add(stamp)

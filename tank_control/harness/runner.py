@@ -1,13 +1,14 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
 ``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
-``plot.png`` and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds
-(start paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
+``plot.png``, ``analysis.png`` (a SISO PID loop on a process model: ``harness/analysis.py``)
+and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds (start
+paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
 ``trace.csv`` and ``run.mcap`` are written as the run goes (``stream.py``); a failed or
 interrupted run (SIGINT, SIGTERM, SIGHUP: ``signals.py``) leaves them valid up to that
 moment, with ``"complete": false`` and the ``reason`` in metrics.json (docs/harness.md,
-"Interrupted and failed runs"). The domain is checked before anything starts (``domain.py``)
-and the node processes die with the harness (``processes.py``).
+"Interrupted and failed runs"). The domain is checked before anything starts (``domains.py``,
+``graph_check.py``) and the node processes die with the harness (``processes.py``).
 Times in the results are plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
@@ -29,7 +30,9 @@ from tank_control.core import scenario as core_scenario
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
-from tank_control.harness.domain import domain_of, foreign_graph, lock_domain
+from tank_control.harness.analysis import loop_cases, plot_analysis
+from tank_control.harness.domains import domain_of, lock_run
+from tank_control.harness.graph_check import foreign_graph
 from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import TraceMessages
@@ -40,10 +43,11 @@ from tank_control.harness.signals import RunInterrupted, StopSignals
 from tank_control.harness.stream import RecordingStream, RunOutputs
 from tank_control.harness.trace import GATED_DISTURBANCE
 
-__all__ = ['RunFailed', 'RunInterrupted', 'RunResult', 'Progress', 'run', 'run_scenario']
+__all__ = ['RunFailed', 'RunInterrupted', 'RunResult', 'Progress', 'run', 'run_scenario',
+           'run_metrics', 'simulate']
 
 NS = 1_000_000_000
-OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png')
+OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png', 'analysis.png')
 PUBLISHES = {'plant': ('measurement', '/clock'), 'reference': ('setpoint', 'disturbance'),
              'controller': ('manipulated',)}
 SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
@@ -149,15 +153,16 @@ def _planned_report(scenario: Scenario) -> tuple[dict[str, tuple[float, float]],
         return {}, {}
 
 
-def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
-           controller_params: Mapping[str, Any], files: Mapping[str, Path],
-           reason: str | None = None) -> RunResult:
-    """Write metrics.json and plot.png next to the trace and recording already written;
-    ``reason``: why the run is not complete (None: it is)."""
-    if reason is None:
+def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any],
+                complete: bool = True) -> tuple[dict[str, Any], list[Any]]:
+    """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
+    analysis) and the loop cases it was analysed on; also what a sweep records per run.
+    ``complete=False`` (a failed or stopped run): what can be known, the controller's limits
+    and gains from the file when the node could not be asked, no error from the report."""
+    if complete:
         limits, gains = controller_report(scenario, controller_params)
         warnings = controller_warnings(controller_params)
-    else:                          # report what can be known; the reason is the failure
+    else:
         limits, gains = (controller_report(scenario, controller_params) if controller_params
                          else _planned_report(scenario))
         try:
@@ -167,6 +172,31 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
+    robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
+    cases, analysis_note = [], ''
+    if 'controller' in scenario.harness.nodes and controller_params:
+        try:
+            cases = loop_cases(scenario.sections, controller_params)
+        except (ConfigError, ValueError) as exc:
+            analysis_note = f'analysis.png not written: {exc}'
+    metrics = {
+        **body,
+        'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       **({'robustness': robustness} if robustness else {}),
+                       'warnings': warnings,
+                       'parameters': dict(controller_params)},
+        'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
+                          for case in cases} or analysis_note or None,
+    }
+    return metrics, cases
+
+
+def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
+           controller_params: Mapping[str, Any], files: Mapping[str, Path],
+           reason: str | None = None) -> RunResult:
+    """Write metrics.json, plot.png and analysis.png next to the trace and recording already
+    written; ``reason``: why the run is not complete (None: it is)."""
+    measured, cases = run_metrics(scenario, trace, controller_params, complete=reason is None)
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
@@ -174,13 +204,16 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'mode': run_info.get('mode'),
         'complete': reason is None,
         'reason': reason,
-        **body,
+        **{k: measured[k] for k in ('outputs', 'inputs', 'events')},
         'run': run_info,
-        'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
-                       'warnings': warnings,
-                       'parameters': dict(controller_params)},
+        'controller': measured['controller'],
+        'loop_analysis': measured['loop_analysis'],
     }
     files = {**files, 'metrics': out / 'metrics.json'}
+    if cases:
+        files['analysis'] = plot_analysis(cases, out / 'analysis.png',
+                                          title=f'{scenario.harness.title or scenario.name}: '
+                                                'final gains')
     files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
     if len(trace):
         files['plot'] = plot_runs([(scenario.name, trace)], out / 'plot.png',
@@ -231,11 +264,33 @@ def _as_failure(exc: BaseException, out: Path) -> BaseException:
 # ----------------------------------------------------------------------------------------------
 # In-process (core/loop.py, no ROS)
 
+def _build(scenario: Scenario) -> core_scenario.Built:
+    """The core objects of the sections the node processes would read (``node_parameters``,
+    what scenario.yaml holds), built as the nodes build them; ``ScenarioError`` (one line)
+    for a value the core objects reject."""
+    try:
+        return core_scenario.build(node_parameters(scenario))
+    except (ConfigError, ValueError) as exc:
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
+
+
+def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
+    """Run a loaded scenario through core/loop.py for its ``harness.duration`` (the table
+    in memory, nothing written); ``ScenarioError`` (one line) for a value the core objects
+    reject."""
+    built = _build(scenario)
+    try:
+        return core_scenario.run(built, scenario.harness.duration).until(
+            scenario.harness.duration), built
+    except (ConfigError, ValueError) as exc:
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
+
+
 def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
                     stop: StopSignals) -> RunResult:
     config = scenario.harness
+    built = _build(scenario)
     try:
-        built = core_scenario.build(node_parameters(scenario))   # what scenario.yaml holds
         rows = core_loop.iter_loop(built.plant, built.controller, built.reference,
                                    sample_time=built.sample_time, duration=config.duration,
                                    noise=built.noise.sample)
@@ -310,6 +365,7 @@ class _RosRun:
         self.mode = self.config.clock_mode
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
         self.phase = 'while starting'
+        self.cpu: dict[str, float] = {}            # CPU seconds during the run, by process
         plant = scenario.params('plant')
         self.gated = (self.mode == 'lockstep' and {'plant', 'reference'} <= set(self.config.nodes)
                       and plant.get('lockstep.wait_for_reference', True) is True)
@@ -322,7 +378,9 @@ class _RosRun:
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
         argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
-        if self.mode != 'wall' and node != 'plant':
+        # Sim: the others' timers run on /clock. Lockstep: they follow the plant's stamps
+        # (clock_mode lockstep is in their sections), so no time source and no /clock reader.
+        if self.mode == 'sim' and node != 'plant':
             argv += ['-p', 'use_sim_time:=true']
         if node == 'plant':
             argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
@@ -359,7 +417,7 @@ class _RosRun:
     def execute(self) -> RunResult:
         if not self.domain.isdigit():
             raise RunFailed(f'ROS_DOMAIN_ID {self.domain!r} is not a domain number')
-        lock, reason = lock_domain(self.domain, str(self.out.resolve()))
+        lock, reason = lock_run(self.domain, str(self.out.resolve()))
         if reason:
             raise RunFailed(reason)
         try:
@@ -375,7 +433,7 @@ class _RosRun:
 
         context = Context()
         rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'],
-                   domain_id=int(self.domain))
+                   domain_id=int(self.domain))     # the nodes' domain
         recorder: Recorder | None = None
         failure: BaseException | None = None
         controller_params: dict[str, Any] = {}
@@ -400,12 +458,15 @@ class _RosRun:
             for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
             self._await_graph(nodes)
+            cpu_start = self._cpu_seconds()
             run_start = time.monotonic()
             if 'plant' in nodes:
                 self._unpause()
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
+            self.cpu = {name: end - cpu_start[name] for name, end in self._cpu_seconds().items()
+                        if end is not None and cpu_start.get(name) is not None}
             self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
                                  if 'controller' in self.config.nodes else {})
@@ -425,6 +486,12 @@ class _RosRun:
             raise failure if failure is not None else RunFailed('the run did not start')
         return self._results(failure, controller_params, reference_params, codes, run_wall,
                              time.monotonic() - wall_start)
+
+    def _cpu_seconds(self) -> dict[str, float | None]:
+        """CPU time used so far by each node process and by this (harness) process [s]."""
+        out = {name: proc.cpu_seconds() for name, proc in self.group.processes.items()}
+        out['harness'] = time.process_time()
+        return out
 
     def _await(self, condition: Callable[[], bool], what: str) -> None:
         if not self.recorder.spin_until(condition, self.config.startup_timeout, self._check_alive):
@@ -581,6 +648,10 @@ class _RosRun:
             'wall_time_total': total_wall,
             'ticks': ticks,
             'ticks_per_s': ticks / run_wall if run_wall > 0 else 0.0,
+            # CPU per tick during the run (from un-pausing the plant to the last tick) of each
+            # node process and of the harness (recorder, gate, progress) [ms]
+            'cpu_ms_per_tick': {name: 1e3 * seconds / ticks for name, seconds in self.cpu.items()}
+            if ticks else {},
             'missed_samples': sampling['missed_samples'],
             'late_samples': int(sum(trace.late.values())),
             'late_by_signal': trace.late,

@@ -2,9 +2,10 @@
 
 Subscribes ``measurement``, ``setpoint`` (and ``disturbance`` when the kind uses measured
 disturbances); publishes ``manipulated``, ``/diagnostics``, ``~/late_inputs``, the kind's state
-topic; offers the kind's commands as ``std_srvs/Trigger`` services. Samples on a timer
-(``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start, measurement faults
-and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
+topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
+parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
+Samples on a timer (``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start,
+measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
 """
 from __future__ import annotations
 
@@ -33,8 +34,9 @@ from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
 from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
-                                         TOPIC_TIME_ORIGIN, from_joint_state, reliable_qos,
-                                         stamp_to_ns, to_joint_state)
+                                         TOPIC_TIME_ORIGIN, from_joint_state,
+                                         quiet_publisher_events, quiet_subscription_events,
+                                         reliable_qos, stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -87,16 +89,19 @@ class ControllerNode(Node):
         self._last_sample: tuple[int, dict[str, float]] | None = None   # (plant time, r used)
         self._compute_s = math.nan
 
-        self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS)
+        self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
+                                          event_callbacks=quiet_publisher_events())
         self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
         if self._mode == 'wall':
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS)
-        self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS)
+        self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
+                                 event_callbacks=quiet_subscription_events())
+        self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS,
+                                 event_callbacks=quiet_subscription_events())
         if self._disturbances:
             self.create_subscription(JointState, TOPIC_DISTURBANCE, self._on_disturbance,
-                                     SIGNAL_QOS)
+                                     SIGNAL_QOS, event_callbacks=quiet_subscription_events())
         required: dict[str, tuple[str, ...]] = {'measurement': self._outputs,
                                                 'setpoint': self._outputs}
         if self._disturbances:
@@ -132,8 +137,12 @@ class ControllerNode(Node):
             raise ParameterError(str(exc)) from None
 
     def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
+        # the node's own results (tuned gains, an identified model) are not a user's change:
+        # they are checked as values, not against a guard on changes (robustness.ms_max)
+        given = frozenset() if getattr(self, '_params', None) is not None \
+            and self._params.writing else changed
         try:
-            controller_setup(values, given=changed)
+            controller_setup(values, given=given)
         except ConfigError as exc:
             return str(exc)
         return None
@@ -340,9 +349,16 @@ class ControllerNode(Node):
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
             state = self._kind.state
+            published = False
             if state is not None and state in changed and self._state_pub is not None:
                 self._state_pub.publish(String(data=str(changed[state])))
                 self.get_logger().info(f'{self._state_text()}')
+                self._publish_diagnostics()
+                published = True
+            warnings = [f'{k}: {v}' for k, v in changed.items() if k.endswith('.warning') and v]
+            for text in warnings:
+                self.get_logger().warning(text)
+            if (warnings or any(k.endswith('.warning') for k in changed)) and not published:
                 self._publish_diagnostics()
 
     def _state_text(self) -> str:
@@ -408,6 +424,11 @@ class ControllerNode(Node):
                    else 'running')
         if self._kind.state is not None:
             message += f'; {self._state_text()}'
+        results = dict(self._kind.results(self._controller)) if self._kind.results else {}
+        warnings = [f'{k}: {v}' for k, v in results.items() if k.endswith('.warning') and v]
+        if warnings:
+            level = DiagnosticStatus.WARN
+            message += '; ' + '; '.join(warnings)
         if self._warning:
             message += f'; warning: {self._warning}'
         fields = {
@@ -424,6 +445,8 @@ class ControllerNode(Node):
             **self.counters,
             **{f'status.{k}': v for k, v in status.items()
                if isinstance(v, (bool, int, float, str))},
+            **{k: v for k, v in results.items()
+               if k.startswith(('robustness.', 'autotune.')) and k != 'autotune.start'},
         }
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()

@@ -292,6 +292,11 @@ class ParameterBinding:
 
     # -------------------------------------------------------------- access
     @property
+    def writing(self) -> bool:
+        """True while :meth:`write` sets the node's own values (not a user's change)."""
+        return self._writing
+
+    @property
     def values(self) -> dict[str, ParamValue]:
         """Current accepted values (a copy), name → value with the spec's type."""
         return dict(self._values)

@@ -66,8 +66,9 @@ class PlantNode(Node):
         self.k = 0
         self.u = nominal_inputs(self.plant)
         self.d = nominal_disturbances(self.plant)
-        self.counters = {'ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0, 'late_inputs': 0,
-                         'rejected_changes': 0}
+        self._wall_t0_ns = 0               # wall: steady time of tick 0 [ns]
+        self.counters = {'ticks': 0, 'late_ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
+                         'late_inputs': 0, 'rejected_changes': 0}
 
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
@@ -201,6 +202,7 @@ class PlantNode(Node):
     def _start_timer(self) -> None:
         if self._tick_msgs is None:
             if self.mode == 'wall':        # tick 0 is now: the origin of plant time
+                self._wall_t0_ns = time.monotonic_ns()
                 self._stamp_offset_ns = self.get_clock().now().nanoseconds
                 self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
             self._publish_tick()
@@ -247,11 +249,28 @@ class PlantNode(Node):
         self.k += 1
 
     def _on_tick_timer(self) -> None:
-        """wall/sim: close the previous interval with the latest inputs, publish tick k."""
+        """wall/sim: close the previous interval with the latest inputs, publish tick k.
+
+        wall: every tick whose instant has come, none ahead of it. The executor may call
+        late (a busy process: the periods missed are made up at once and counted as
+        ``late_ticks``) or early (rclpy's EventsExecutor runs a timer that fell more than
+        a period behind twice at once, the second call up to a period ahead of its instant)."""
         if self._paused() or self._tick_msgs is None:
             return                      # a call that was due when the pause came
-        self._step()
-        self._publish_tick()
+        if self.mode != 'wall':
+            self._step()
+            self._publish_tick()
+            return
+        ahead_ns = self._wall_t0_ns + (self.k + 1) * self.ts_ns - time.monotonic_ns()
+        if ahead_ns > 0:
+            if ahead_ns > self.ts_ns // 2:
+                return                  # a made-up call: the next one is on time
+            time.sleep(ahead_ns / 1e9)  # a little early: wait for the instant
+        due = (time.monotonic_ns() - self._wall_t0_ns) // self.ts_ns
+        self.counters['late_ticks'] += max(0, due - self.k - 1)
+        while self.k < due:
+            self._step()
+            self._publish_tick()
 
     # --------------------------------------------------------------- inputs
     def _on_input(self, topic: str, msg: JointState) -> None:

@@ -8,7 +8,11 @@ from types import FrameType
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+
+#: Longest a spin_once waits [s]; the executor also wakes at once on shutdown.
+SPIN_PERIOD = 1.0
 
 
 def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
@@ -32,8 +36,17 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     during the clean-up or after this function has returned — so the
     Python-level handler raises ``KeyboardInterrupt`` only while the node is
     being built or spun, never during the clean-up.
+
+    The node is spun by rclpy's ``EventsExecutor`` (C++; a third of the CPU per
+    message of the ``SingleThreadedExecutor``, which rebuilds its wait set on
+    every wake-up: 0.25 against 0.74 ms per hop in a bare three-process ring,
+    bench/RESULTS.md, "Lockstep"). Its ``spin()`` busy-loops on
+    a whole core and ignores SIGTERM in this rclpy build (3 of 3 tries with a
+    100 Hz timer node), so it is driven by ``spin_once`` in a loop; the
+    context's shutdown wakes it, so SIGINT and SIGTERM stop it within one callback.
     """
     running = [True]
+    executor: EventsExecutor | None = None
 
     def interrupt(signum: int, frame: FrameType | None) -> None:
         if running[0]:
@@ -45,7 +58,10 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     try:
         try:
             node = factory()
-            rclpy.spin(node)
+            executor = EventsExecutor()
+            executor.add_node(node)
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=SPIN_PERIOD)
         finally:
             running[0] = False
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -56,7 +72,14 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
         if rclpy.ok():
             raise
     finally:
+        # Out of the executor before it goes: destroying a node wakes its executor, and
+        # waking an EventsExecutor that was shut down once busy-looped for good (a bench
+        # process, bench/bench_lockstep.py, 1 in about 25 runs).
+        if executor is not None and node is not None:
+            executor.remove_node(node)
         if node is not None:
             node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
         rclpy.try_shutdown()
     return 0

@@ -12,6 +12,9 @@ from support.ros2cli import Streaming, fixture_argv, ros2, ros2_parallel, until_
 from tank_control.harness.processes import ProcessGroup
 
 PERIOD = next(spec.default for spec in SPECS if spec.name == 'period')   # [s] of /signal
+# Discovery waits of the commands that must succeed. The default (5 s) covers the 3.5 s a
+# missed discovery exchange takes on a quiet host, not a CI host running other suites.
+WAIT = ('--timeout', '30')
 
 
 @pytest.fixture(scope='module')
@@ -32,18 +35,20 @@ def test_topic_list_info_type_echo(graph, ros_env):
     # Echo subscribes to /signal, so it runs after the commands that count endpoints.
     listed, typed, info, verbose, topic_type = ros2_parallel(
         ros_env,
-        ('topic', 'list'), ('topic', 'list', '-t'), ('topic', 'info', '/signal'),
-        ('topic', 'info', 'signal', '-v'), ('topic', 'type', '/signal'))
-    once, field = ros2_parallel(ros_env, ('topic', 'echo', '--once', '/signal'),
-                                ('topic', 'echo', '/signal', '--once', '--field', 'name'))
+        ('topic', 'list'), ('topic', 'list', '-t'), ('topic', 'info', '/signal', *WAIT),
+        ('topic', 'info', 'signal', '-v', *WAIT), ('topic', 'type', '/signal', *WAIT))
+    once, field = ros2_parallel(ros_env, ('topic', 'echo', '--once', '/signal', *WAIT),
+                                ('topic', 'echo', '/signal', '--once', '--field', 'name', *WAIT))
     for result in (listed, typed, info, verbose, topic_type, once, field):
         assert result.returncode == 0, (result.args, result.stderr)
-    listed = until_complete(ros_env, listed, lambda out: '/signal' in out.split())
-    typed = until_complete(ros_env, typed, lambda out: '/signal [' in out)
+    # A participant's endpoints are discovered one by one: wait for every line asserted.
+    topics = {'/signal', '/command', '/parameter_events', '/rosout'}
+    typed_lines = {'/signal [sensor_msgs/msg/JointState]', '/command [std_msgs/msg/Float64]'}
+    listed = until_complete(ros_env, listed, lambda r: topics <= set(r.stdout.split()))
+    typed = until_complete(ros_env, typed, lambda r: typed_lines <= set(r.stdout.splitlines()))
 
-    assert {'/signal', '/command', '/parameter_events', '/rosout'} <= set(listed.stdout.split())
-    assert '/signal [sensor_msgs/msg/JointState]' in typed.stdout.splitlines()
-    assert '/command [std_msgs/msg/Float64]' in typed.stdout.splitlines()
+    assert topics <= set(listed.stdout.split())
+    assert typed_lines <= set(typed.stdout.splitlines())
     assert info.stdout.splitlines() == ['Type: sensor_msgs/msg/JointState',
                                         'Publisher count: 1', 'Subscription count: 0']
     assert 'Node name: fixture' in verbose.stdout and 'Endpoint type: PUBLISHER' in verbose.stdout
@@ -98,10 +103,10 @@ def test_topic_pub(graph, ros_env):
     graph.node.create_subscription(JointState, '/cli_test/state', states.append, 10)
     once, times = ros2_parallel(
         ros_env,
-        ('topic', 'pub', '--once', '/cli_test/value', 'std_msgs/msg/Float64', '{data: 1.5}'),
+        ('topic', 'pub', '--once', '/cli_test/value', 'std_msgs/msg/Float64', '{data: 1.5}', *WAIT),
         ('topic', 'pub', '-t', '3', '-r', '20', '/cli_test/state', 'sensor_msgs/JointState',
          '{header: {stamp: {sec: 7, nanosec: 5}, frame_id: tank}, name: [h, T_out], '
-         'position: [12, 30.5]}'))
+         'position: [12, 30.5]}', *WAIT))
     assert once.returncode == 0, once.stderr
     assert once.stdout.startswith('publisher: beginning loop\npublishing #1: std_msgs.msg.Float64')
     assert times.returncode == 0, times.stderr
@@ -125,39 +130,54 @@ def test_topic_pub(graph, ros_env):
         assert all(word in result.stderr for word in words), result.stderr
 
 
+def _sections(text: str) -> dict[str, set[str]]:
+    """`ros2 node info` output as {section title: its entry lines, stripped}."""
+    sections = re.split(r'\n  (?=\S)', text)
+    return {title.strip(): {line.strip() for line in body.splitlines()}
+            for title, _, body in (section.partition(':\n') for section in sections[1:])}
+
+
+def _has_entries(by_title: dict[str, set[str]], expected: dict[str, set[str]]) -> bool:
+    return all(entries <= by_title.get(title, set()) for title, entries in expected.items())
+
+
 def test_node_and_service_verbs(graph, ros_env):
     nodes, info, services, params, trigger, set_bool = ros2_parallel(
         ros_env,
-        ('node', 'list'), ('node', 'info', '/fixture'), ('service', 'list', '-t'),
+        ('node', 'list'), ('node', 'info', '/fixture', *WAIT), ('service', 'list', '-t'),
         ('param', 'list', '--timeout', '2'),
-        ('service', 'call', '/fixture/trigger', 'std_srvs/srv/Trigger'),
-        ('service', 'call', 'fixture/enable', 'std_srvs/srv/SetBool', '{data: true}'))
+        ('service', 'call', '/fixture/trigger', 'std_srvs/srv/Trigger', *WAIT),
+        ('service', 'call', 'fixture/enable', 'std_srvs/srv/SetBool', '{data: true}', *WAIT))
     for result in (nodes, info, services, params, trigger, set_bool):
         assert result.returncode == 0, (result.args, result.stderr)
-    nodes = until_complete(ros_env, nodes, lambda out: '/fixture' in out.split())
-    services = until_complete(ros_env, services, lambda out: '/fixture/trigger [' in out)
-    params = until_complete(ros_env, params, lambda out: '/fixture:' in out.split())
+    nodes = until_complete(ros_env, nodes, lambda r: '/fixture' in r.stdout.split())
+    service_lines = {'/fixture/trigger [std_srvs/srv/Trigger]',
+                     '/fixture/get_parameters [rcl_interfaces/srv/GetParameters]'}
+    services = until_complete(ros_env, services,
+                              lambda r: service_lines <= set(r.stdout.splitlines()))
+    probe_silent = f"'{graph.node.get_fully_qualified_name()}' did not answer"
+    params = until_complete(ros_env, params, lambda r: '/fixture:' in r.stdout.split() and
+                            probe_silent in r.stderr)
     assert '/fixture' in nodes.stdout.splitlines()
     assert not any('_ros2cli' in line for line in nodes.stdout.splitlines())   # hidden
 
-    text = info.stdout
-    assert text.startswith('/fixture\n  Subscribers:\n')
-    sections = re.split(r'\n  (?=\S)', text)
-    by_title = {s.split(':\n')[0].strip(): s for s in sections[1:]}
-    assert '/command: std_msgs/msg/Float64' in by_title['Subscribers']
-    assert '/signal: sensor_msgs/msg/JointState' in by_title['Publishers']
-    assert '/fixture/trigger: std_srvs/srv/Trigger' in by_title['Service Servers']
-    assert '/fixture/enable: std_srvs/srv/SetBool' in by_title['Service Servers']
+    expected = {'Subscribers': {'/command: std_msgs/msg/Float64'},
+                'Publishers': {'/signal: sensor_msgs/msg/JointState'},
+                'Service Servers': {'/fixture/trigger: std_srvs/srv/Trigger',
+                                    '/fixture/enable: std_srvs/srv/SetBool'}}
+    info = until_complete(ros_env, info, lambda r: _has_entries(_sections(r.stdout), expected))
+    assert info.stdout.startswith('/fixture\n  Subscribers:\n')
+    by_title = _sections(info.stdout)
+    for title, entries in expected.items():
+        assert entries <= by_title[title], (title, info.stdout)
 
-    listed = services.stdout.splitlines()
-    assert '/fixture/trigger [std_srvs/srv/Trigger]' in listed
-    assert '/fixture/get_parameters [rcl_interfaces/srv/GetParameters]' in listed
+    assert service_lines <= set(services.stdout.splitlines())
 
     # Without a node name: every node with parameter services, its parameters indented.
     lines = params.stdout.splitlines()
     assert '/fixture:' in lines and '  gain' in lines[lines.index('/fixture:'):]
     # The test's own probe node is not spinning: reported on stderr, the rest still listed.
-    assert f"'{graph.node.get_fully_qualified_name()}' did not answer" in params.stderr
+    assert probe_silent in params.stderr
 
     assert trigger.stdout.startswith(
         'requester: making request: std_srvs.srv.Trigger_Request()\n\nresponse:\n'

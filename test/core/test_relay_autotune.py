@@ -315,8 +315,8 @@ BASE = {'kp': 20.0, 'ti': 12.0, 'sample_time': 0.1, 'u_min': 0.0, 'u_max': 1e4,
 
 def test_kind_builds_offers_commands_and_reports_valid_parameters():
     kind = relay_kind.KIND
-    assert kind.name == 'relay_autotune' and set(kind.commands) == {'start_autotune',
-                                                                      'abort_autotune'}
+    assert kind.name == 'relay_autotune' and set(kind.commands) == {
+        'start_autotune', 'abort_autotune', 'apply_autotune', 'revert_gains'}
     settings = resolve(kind, BASE)
     with pytest.raises(ConfigError, match='tuning.rule: unknown parameter'):
         resolve(kind, {**BASE, 'tuning.rule': 'mdp'})          # the test sets the gains
@@ -324,7 +324,7 @@ def test_kind_builds_offers_commands_and_reports_valid_parameters():
     tuner.reset(np.array([R]), np.array([U0]))
     assert kind.commands['start_autotune'](tuner)[0] and tuner.state == 'settling'
     assert kind.commands['abort_autotune'](tuner)[0] and tuner.state == 'aborted'
-    with pytest.raises(ValueError, match='allowed start_autotune, abort_autotune'):
+    with pytest.raises(ValueError, match='allowed start_autotune, abort_autotune, apply_autotune'):
         tuner.command('tune_harder')
     tuner.command('start_autotune')
     closed_loop(tuner, _plant(), R, 800, 0.01 * AMP, seed=1)

@@ -53,6 +53,10 @@ def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_pa
     run = metrics['run']
     assert run['missed_samples'] == 0 and run['late_samples'] == 0 and run['max_jitter'] == 0.0
     assert run['ticks'] == 61 and run['sim_duration'] == pytest.approx(6.0)
+    # CPU per tick of every node process and of the harness, during the run
+    assert set(run['cpu_ms_per_tick']) == set(run['exit_codes']) | {'harness'}
+    assert all(0 <= ms < 1e3 for ms in run['cpu_ms_per_tick'].values())
+    assert run['cpu_ms_per_tick']['harness'] > 0
     assert metrics['controller']['final_gains'] == {'kp': 1.5, 'ti': 4.0, 'td': 0.0, 'n': 10.0,
                                                     'b': 0.5, 'c': 1.0}
     (step,) = metrics['outputs']['y']['steps']

@@ -8,32 +8,17 @@ import math
 
 import numpy as np
 import pytest
-from support import CONFIG
+from support import CONFIG, relay
 from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
 from tank_control.core import params_file
-from tank_control.core.loop import run_loop
-from tank_control.core.scenario import build, run_in_process
+from tank_control.core.scenario import run_in_process
 
 
 def run_logged(params, duration: float, reset: tuple[float, float] | None = None):
-    """Run ``params`` in-process; returns (trace, controller, [(t, state) at each change])."""
-    built = build(params)
-    tuner = built.controller
-    if reset is not None:
-        tuner.reset(np.array([reset[0]]), np.array([reset[1]]))
-    log: list[tuple[float, str]] = []
-    step = tuner.step
-
-    def logged(t, y, r, d):
-        u = step(t, y, r, d)
-        if not log or log[-1][1] != tuner.state:
-            log.append((t, tuner.state))
-        return u
-    tuner.step = logged
-    trace = run_loop(built.plant, tuner, built.reference, sample_time=built.sample_time,
-                     duration=duration, noise=built.noise.sample)
-    return trace, tuner, log
+    """(trace, tuner, state log) of ``params`` run in-process (``support.relay.run_logged``)."""
+    trace, built, log = relay.run_logged(params, duration, reset)
+    return trace, built.controller, log
 
 
 def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():

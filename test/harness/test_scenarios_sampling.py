@@ -46,7 +46,8 @@ def plant_values(params: dict) -> dict:
             'sample_time': setup.node.sample_time}
 
 
-SHIPPED_PID = sorted(str(p.relative_to(CONFIG)) for p in CONFIG.rglob('*.yaml') if _controller_kind(p) == 'pid')
+SHIPPED_PID = sorted(str(p.relative_to(CONFIG)) for p in CONFIG.rglob('*.yaml')
+                     if 'studies' not in p.parts and _controller_kind(p) == 'pid')
 
 # Overshoot [%] of the continuous loop (exact delay, filtered derivative n = 10), simulated
 # independently in SPEC-supplement §1.1 (000; ±20 % dead time: "MDP PID 4.6 % / 0.96 %") and

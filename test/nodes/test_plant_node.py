@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import time
 
 import pytest
@@ -92,6 +93,26 @@ def test_wall_mode_measures_every_sample_time_with_exact_stamps(procs, ros_env, 
     # A running wall clock cannot be paused (only its first tick can be held).
     result = rec.set_param('lockstep.paused', True)
     assert not result.successful and 'wall' in result.reason
+
+
+def test_wall_mode_makes_up_ticks_a_stalled_process_missed_and_counts_them(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.02,
+                       diagnostics_period=0.1)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: len(rec.measurements) >= 10, 30), proc.tail()
+    proc.popen.send_signal(signal.SIGSTOP)          # the plant process misses ~15 periods
+    probe.wait_for(lambda: False, 0.3)
+    proc.popen.send_signal(signal.SIGCONT)
+    seen = len(rec.measurements)
+    assert probe.wait_for(lambda: len(rec.measurements) >= seen + 30, 30), proc.tail()
+    stamps = [s for s, _, _ in rec.measurements]
+    # every tick, stamped on the wall-clock grid, none published before its instant
+    assert all(b - a == 20_000_000 for a, b in zip(stamps, stamps[1:]))
+    assert all(s <= t for s, t in zip(stamps, rec.arrived['measurement']))
+    assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['late_ticks']) > 0,
+                          10), rec.diagnostics[-1:]
+    assert int(rec.diagnostics[-1]['late_ticks']) <= int(rec.diagnostics[-1]['ticks'])
 
 
 def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs, ros_env,

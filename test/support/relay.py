@@ -124,3 +124,26 @@ def closed_loop(controller, plant: ExactDelayPlant, setpoint: Callable[[float], 
             out[key].append(value)
         plant.step(np.array([u]), np.zeros(1), ts)
     return {k: np.array(v) for k, v in out.items()}
+
+
+def run_logged(params: dict, duration: float, reset: tuple[float, float] | None = None):
+    """Run ``params`` (a relay_autotune scenario) in-process for ``duration`` [s]; returns
+    (trace, the built objects, [(t, state) at each change of the tuner's state])."""
+    from tank_control.core.loop import run_loop
+    from tank_control.core.scenario import build
+    built = build(params)
+    tuner = built.controller
+    if reset is not None:
+        tuner.reset(np.array([reset[0]]), np.array([reset[1]]))
+    log: list[tuple[float, str]] = []
+    step = tuner.step
+
+    def logged(t, y, r, d):
+        u = step(t, y, r, d)
+        if not log or log[-1][1] != tuner.state:
+            log.append((t, tuner.state))
+        return u
+    tuner.step = logged
+    trace = run_loop(built.plant, tuner, built.reference, sample_time=built.sample_time,
+                     duration=duration, noise=built.noise.sample)
+    return trace, built, log

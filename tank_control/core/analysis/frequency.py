@@ -4,7 +4,8 @@ A :class:`FrequencyResponse` is a rational part times the exact dead time ``e^(�
 (continuous) or ``z^(−d)`` (discrete, sampled loop with ZOH, also fractional dead time); no
 Padé approximation anywhere. Models: plants (:func:`ipdt`, :func:`fopdt`, :func:`rational`),
 the 2-DOF PID of 000 eq. 19 and 002's compensators, the discrete transfer functions of the
-implemented ``Pid2Dof``. Analysis: :func:`ultimate_point`, :func:`margins`,
+implemented ``Pid2Dof``, exact ZOH models of any strictly proper rational plant with dead time
+(:func:`rational_zoh`). Analysis: :func:`ultimate_point`, :func:`margins`,
 :func:`closed_loop_poles_unstable`, :func:`gang_of_four`, :func:`tuning_report`. Units: ω in
 rad/s, times in s, phases in degrees at the API (continuous, from the ω → 0+ limit), gains as
 ratios. Overview and the documents' tunings: README, "Frequency-domain analysis (core)".
@@ -342,6 +343,71 @@ def fopdt_zoh(gain: float, time_constant: float, dead_time: float, sample_time: 
                              (1.0 / t,) + _delay_corner(dead))
 
 
+@dataclass(frozen=True)
+class ZohStateSpace:
+    """Exact ZOH model of a strictly proper ``num(s)/den(s)·e^(−L·s)`` at sample time ``h``
+    with ``L = d·h + θ`` (0 ≤ θ < h): ``x(k+1) = Φ·x(k) + Γ0·u(k−d) + Γ1·u(k−d−1)``,
+    ``y(k) = C·x(k)``; ``Φ = e^(A·h)``, ``Γ0 = ∫_0^(h−θ) e^(A·s) ds·B``,
+    ``Γ1 = e^(A·(h−θ))·∫_0^θ e^(A·s) ds·B`` (001 eq. 6.7 generalised)."""
+
+    phi: np.ndarray
+    gamma0: np.ndarray
+    gamma1: np.ndarray
+    c: np.ndarray
+    delay_samples: int
+    sample_time: float
+
+
+def zoh_state_space(num: Sequence[float], den: Sequence[float], dead_time: float,
+                    sample_time: float) -> ZohStateSpace:
+    """:class:`ZohStateSpace` of ``num(s)/den(s)·e^(−L·s)`` (``dead_time`` L [s],
+    ``sample_time`` h [s]); the state space of num/den is scipy's controllable form."""
+    from scipy.linalg import expm
+    num, den = _poly('num', num), _poly('den', den)
+    if num.size >= den.size:
+        raise ValueError('num: an exact ZOH model needs a strictly proper num(s)/den(s)')
+    dead = _non_negative('dead_time', dead_time)
+    h = _sample_time(sample_time)
+    d, theta = _split_delay(dead, h)
+    m = den.size - 1                         # controllable canonical form of num/den
+    a = np.zeros((m, m))
+    a[0, :] = -den[1:] / den[0]
+    a[1:, :-1] = np.eye(m - 1)
+    b = np.zeros((m, 1))
+    b[0, 0] = 1.0
+    c = np.zeros((1, m))
+    c[0, m - num.size:] = num / den[0]
+
+    def hold(tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """(e^(A·τ), ∫_0^τ e^(A·s) ds·B) from one matrix exponential (Van Loan)."""
+        big = np.zeros((m + 1, m + 1))
+        big[:m, :m], big[:m, m:] = a * tau, b * tau
+        e = expm(big)
+        return e[:m, :m], e[:m, m:]
+    phi, _ = hold(h)
+    phi_a, gamma0 = hold(h - theta)
+    _, int_theta = hold(theta)
+    return ZohStateSpace(phi, gamma0, phi_a @ int_theta, np.asarray(c, float), d, h)
+
+
+def rational_zoh(num: Sequence[float], den: Sequence[float], dead_time: float,
+                 sample_time: float) -> FrequencyResponse:
+    """Exact ZOH (step-invariant) model of the strictly proper ``num(s)/den(s)·e^(−L·s)``,
+    also with a fractional dead time (:class:`ZohStateSpace`; 001 eq. 6.7 generalised,
+    SPEC §3): ``G(z) = z^(−d)·C·(z·I − Φ)^(−1)·(Γ0 + Γ1/z)``. :func:`fopdt_zoh` and
+    :func:`ipdt_zoh` are its closed forms. Times in s."""
+    ss = zoh_state_space(num, den, dead_time, sample_time)
+    m = ss.phi.shape[0]
+    big_a = np.zeros((m + 1, m + 1))             # state (x, u(k−d−1)), input u(k−d)
+    big_a[:m, :m], big_a[:m, m:] = ss.phi, ss.gamma1
+    big_b = np.vstack([ss.gamma0, [[1.0]]])
+    big_c = np.hstack([ss.c, [[0.0]]])
+    zd = np.real(np.poly(big_a))                 # C·(zI − A)⁻¹·B = (det(zI − A + B·C) − det(zI − A))/det(zI − A)
+    zn = np.real(np.poly(big_a - big_b @ big_c)) - zd
+    zn[np.abs(zn) < 1e-12 * max(float(np.max(np.abs(zn))), 1e-300)] = 0.0
+    return rational_discrete(zn, zd, ss.sample_time, ss.delay_samples)
+
+
 def rational_discrete(num: Sequence[float], den: Sequence[float], sample_time: float,
                       delay_samples: int = 0) -> FrequencyResponse:
     """``num(z)/den(z) · z^(−d)``, coefficients in z highest power first,
@@ -358,8 +424,9 @@ def rational_discrete(num: Sequence[float], den: Sequence[float], sample_time: f
     roots_num = np.roots(num) if num.size > 1 else np.array([])
     at_one = int(np.sum(np.abs(roots_den - 1.0) < 1e-7)) - int(np.sum(np.abs(roots_num - 1.0) < 1e-7))
     unstable = int(np.sum(np.abs(roots_den) > 1.0 + 1e-12))
-    corners = tuple(float(abs(np.log(r)) / h) for r in np.concatenate([roots_den, roots_num])
-                    if r != 0 and abs(np.log(r)) > 1e-12)
+    corners = tuple(float(abs(np.log(complex(r))) / h)
+                    for r in np.concatenate([roots_den, roots_num])
+                    if r != 0 and abs(np.log(complex(r))) > 1e-12)
     return FrequencyResponse(lambda z: np.polyval(num, z) / np.polyval(den, z), delay_samples * h, h,
                              at_one, unstable, corners + _delay_corner(delay_samples * h))
 
@@ -723,11 +790,35 @@ def tuning_report(plant: FrequencyResponse | Any, kp: float, ti: float | None = 
     else:
         ctrl = pid_feedback(kp, ti, td, n)
         ref = pid_setpoint(kp, ti, td, n, b, c)
+    return controller_report(ctrl, plant, ref)
+
+
+def controller_report(ctrl: FrequencyResponse, plant: FrequencyResponse,
+                      ref: FrequencyResponse | None = None,
+                      characteristic: FrequencyResponse | None = None) -> dict[str, float | bool]:
+    """Frequency-domain report of the loop ``L = ctrl·plant`` for any controller response
+    ``ctrl`` = −U/Y (same keys as :func:`tuning_report`); ``ref`` = U/R (default ``ctrl``:
+    one degree of freedom) for ``setpoint_peak``; ``stable`` is the Nyquist count on
+    ``characteristic`` when given (a loop whose closed-loop poles are those of ``L``, e.g. a
+    Smith predictor's delay-free ``C·Gm0``), else on ``L``."""
+    ref = ctrl if ref is None else ref
     loop = ctrl * plant
     w, val, ph = _refined(loop)
     peak, _ = _peak(lambda x: ref(x) * plant(x) / (1.0 + loop(x)), w)
-    out: dict[str, float | bool] = dict(_margins_on(loop, w, val, ph).as_dict())
-    out['stable'] = _nyquist_count_on(loop, w, val) == 0
+    m = _margins_on(loop, w, val, ph)
+    out: dict[str, float | bool] = dict(m.as_dict())
+    if characteristic is None:
+        out['stable'] = _nyquist_count_on(loop, w, val) == 0
+    else:
+        out['stable'] = closed_loop_poles_unstable(characteristic) == 0
+        if out['stable'] and m.gain_crossovers:
+            # L may have open-loop unstable poles (a Smith predictor's equivalent controller):
+            # the phase a delay may still remove at each crossover is 180° + ∠L modulo 360°.
+            pms = [(math.pi + _phase_scalar(loop, x, w, ph)) % (2 * math.pi)
+                   for x in m.gain_crossovers]
+            j = int(np.argmin(pms))
+            out['phase_margin'], out['wc'] = math.degrees(pms[j]), m.gain_crossovers[j]
+            out['delay_margin'] = min(p / x for p, x in zip(pms, m.gain_crossovers))
     out['setpoint_peak'] = peak
     return out
 

@@ -61,6 +61,7 @@ from tank_control.core.control.pid import (ANTI_WINDUP_CHOICES, BIG, anti_windup
                                            sample_time_param)
 from tank_control.core.control.siso_law import SisoController, SisoLaw
 from tank_control.core.params import ConfigError, check_config, param
+from tank_control.core.tuning.model import ProcessModel
 
 ALPHA_MIN, ALPHA_MAX = 0.01, 0.99
 
@@ -287,47 +288,10 @@ class LeadLagTuning:
         return None
 
     def process(self) -> ProcessModel:
-        return ProcessModel(self.model, self.gain, self.time_constant, self.time_constant2,
-                            self.dead_time)
-
-
-@dataclass(frozen=True)
-class ProcessModel:
-    """The design's process (002's 4/((s+1)(s+2)) is ``sopdt`` K 2, T 1 s, T2 0.5 s;
-    FOPDT 001 eq. 6.14; IPDT 000 eq. 1): magnitude and continuous phase in closed form."""
-
-    model: str
-    gain: float
-    time_constant: float = 0.0
-    time_constant2: float = 0.0
-    dead_time: float = 0.0
-
-    @property
-    def static_gain(self) -> float:
-        return math.inf if self.model == 'ipdt' else self.gain
-
-    def magnitude(self, w: float) -> float:
-        if self.model == 'ipdt':
-            return self.gain / w
-        return self.gain / math.sqrt((1 + (w * self.time_constant) ** 2)
-                                     * (1 + (w * self.time_constant2) ** 2))
-
-    def phase(self, w: float) -> float:
-        """Continuous phase [rad] from its ω → 0+ limit (0, or −π/2 for ipdt)."""
-        lag = -math.pi / 2 if self.model == 'ipdt' else (
-            -math.atan(w * self.time_constant) - math.atan(w * self.time_constant2))
-        return lag - w * self.dead_time
-
-    def response(self) -> fr.FrequencyResponse:
-        if self.model == 'ipdt':
-            return fr.ipdt(self.gain, self.dead_time)
-        den = np.convolve([self.time_constant, 1.0], [self.time_constant2, 1.0])
-        return fr.rational([self.gain], den, self.dead_time)
-
-    def corners(self) -> list[float]:
-        out = [1.0 / t for t in (self.time_constant, self.time_constant2, self.dead_time)
-               if t > 0.0]
-        return out or [self.gain]
+        """The model (002's 4/((s+1)(s+2)) is ``sopdt`` K 2, T 1 s, T2 0.5 s; FOPDT 001 eq.
+        6.14; IPDT 000 eq. 1) with its closed-form magnitude and phase."""
+        return ProcessModel(self.model, self.gain, self.dead_time, self.time_constant,
+                            self.time_constant2)
 
 
 @dataclass(frozen=True)
@@ -499,13 +463,13 @@ def _design_pi(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> De
     if not margin_at(low) > 0.0:
         raise ConfigError(f'tuning.phase_margin: {target:g} deg is more than a PI with the '
                           f'integral corner {ratio:g} times below the crossover can give on '
-                          f'tuning.model {process.model!r}; allowed below '
+                          f'tuning.model {process.kind!r}; allowed below '
                           f'{target + margin_at(low):.1f} deg')
     high = low
     while margin_at(high) > 0.0:
         high *= 2.0
         if high > max(process.corners()) * 1e6:
-            raise ConfigError(f'tuning.model: {process.model!r} without dead time keeps the PI '
+            raise ConfigError(f'tuning.model: {process.kind!r} without dead time keeps the PI '
                               f'loop above {target:g} deg phase margin at every gain, so 002 '
                               'fixes no gain; give tuning.dead_time or use tuning.model sopdt')
     w_p = brentq(margin_at, high / 2.0, high, xtol=1e-14, rtol=1e-13)
@@ -513,7 +477,7 @@ def _design_pi(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> De
     pm, wc = loop_margin(process, kp, 0.0, alpha, ti)
     if not _stable(process, kp, 0.0, alpha, ti):
         raise ConfigError(f'tuning.phase_margin: the PI design for {target:g} deg is unstable '
-                          f'on tuning.model {process.model!r}; change the target')
+                          f'on tuning.model {process.kind!r}; change the target')
     return Design(kp, 0.0, ti, pm, wc, pi_gain=kp, pi_wc=w_p)
 
 

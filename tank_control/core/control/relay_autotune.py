@@ -1,32 +1,45 @@
 """Relay auto-tuner: a PID that identifies its process with a relay test and tunes itself.
 
 001 §1.3 (Fig. 6.16, PID and on-off controller in parallel) and 004 §3.2–3.3, made safe to run
-on a live loop: ``idle → settling → relay → measuring → tuned → running``, with ``failed`` /
-``aborted`` restoring the previous gains bumplessly. The ultimate point comes from
-:func:`~tank_control.core.tuning.identification.identify_relay`, the gains from
-:func:`~tank_control.core.tuning.rules.tune`. Times in s, signals in the loop's units.
-States, faults and starting: docs/controllers.md ("relay_autotune").
+on a live loop: ``idle → settling → relay → measuring → proposed/tuned → running``, with
+``failed`` / ``aborted`` / ``reverted`` restoring the previous gains bumplessly. The ultimate
+point and model come from :func:`~tank_control.core.tuning.identification.identify_relay`, the
+gains from :func:`~tank_control.core.tuning.rules.tune`; the identified model is kept, so a rule
+or target change re-derives the proposal without a new test. Each proposal carries its margins
+and predicted response (``core/analysis/robustness.py``); it is applied at once or previewed,
+reverted on request and verified against its prediction after the apply. Times in s, signals in
+the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.md
+("relay_autotune").
 """
 from __future__ import annotations
 
 import math
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from tank_control.core.analysis.robustness import (LoopReport, Prediction, finite_or,
+                                                   loop_report, predict)
+from tank_control.core.analysis.step_metrics import iae, step_metrics
 from tank_control.core.control.pid import PidConfig, Pid2Dof
 from tank_control.core.params import check_config, param
 from tank_control.core.tuning import identification as ident
+from tank_control.core.tuning.model import DiscretePlant, ProcessModel, from_identified
 
-STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'failed', 'aborted')
+STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'proposed', 'reverted',
+          'failed', 'aborted')
 TESTING = ('settling', 'relay', 'measuring')
 RULES_ULTIMATE = ('zn', 'zn_001', 'zn_004_q0', 'zn_004_q1')
 RULES_IPDT = ('mdp', 'experimental')
 RULES_FOPDT = ('oppelt', 'cohen_coon')
-RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT
+RULES_MODEL = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan')
+RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT + RULES_MODEL
+DESIGN_FIELDS = ('rule', 'kind', 'ms_target', 'tau_c', 'gain_margin', 'phase_margin', 'method')
+"""Settings a design depends on: a change re-derives the gains from the stored model."""
+VERIFY_STATES = ('none', 'waiting', 'measuring', 'ok', 'worse', 'cancelled')
 
 
 _BIG = 1e12
@@ -79,9 +92,38 @@ class AutotuneConfig:
                               '0 = identify', 'process_gain', unit='y units per u unit',
                               min=0.0, max=_BIG)
     rule: str = _at('zn_001', 'tuning rule: zn / zn_001 / zn_004_q0 / zn_004_q1 from ku, tu; mdp / '
-                    'experimental from the IPDT model; oppelt / cohen_coon from the FOPDT model',
+                    'experimental from the IPDT model; oppelt / cohen_coon from the FOPDT model; '
+                    'ms (largest integral gain with Ms <= autotune.ms_target on the implemented '
+                    'loop), amigo, simc, lambda, ho, tan from the identified model (see '
+                    'core/tuning/rules.py); a change re-derives the gains from the stored model',
                     'rule', choices=RULES)
     kind: str = _at('pid', 'controller type the rule designs', 'kind', choices=('p', 'pi', 'pid'))
+    ms_target: float = _at(1.4, 'rule ms: the sensitivity peak Ms the design may reach',
+                           'ms_target', unit='-', min=1.05, max=5.0, source='004 eq. 3.4.7')
+    tau_c: float = _at(0.0, "rules simc, lambda: desired closed-loop time constant (0 = the rule's "
+                       'default)', 'tau_c', unit='s', min=0.0, max=_BIG)
+    gain_margin: float = _at(0.0, 'rules ho, tan: gain margin A_r (0 = 3)', 'gain_margin',
+                             unit='-', min=0.0, max=100.0, source='004 eqs. 3.4.17, 3.4.22')
+    phase_margin: float = _at(0.0, 'rule ho: phase margin (0 = 60)', 'phase_margin', unit='deg',
+                              min=0.0, max=89.0, source='004 eq. 3.4.18')
+    apply: str = _at('auto', 'auto: the tuned gains take over at the end of the test; preview: '
+                     'they are proposed (autotune.proposed_*, predicted margins and response) and '
+                     'applied by the ~/apply_autotune service or autotune.apply_time', 'apply',
+                     choices=('auto', 'preview'))
+    apply_time: float = _at(0.0, 'apply a pending proposal at the first sample at or after this '
+                            "time (the loop's time), once; 0 = only by the service",
+                            'apply_time', unit='s', min=0.0, max=_BIG)
+    verify_step: float = _at(0.0, 'after an apply: a setpoint step of this size added by the '
+                             'controller for the verification window (then removed), measured '
+                             'against its prediction; 0 = verify on the next setpoint change',
+                             'verify_step', unit='y units', min=-_BIG, max=_BIG)
+    verify_window: float = _at(0.0, 'length of the verified response; 0 = twice the predicted '
+                               'settling time, at least 4 Tu', 'verify_window', unit='s',
+                               min=0.0, max=_BIG)
+    verify_tolerance: float = _at(1.5, 'a measured IAE above this times the predicted one (or '
+                                  'overshoot above this times the predicted + 5 points) is '
+                                  'reported as a warning', 'verify_tolerance', unit='-',
+                                  min=1.0, max=100.0)
     start_time: float = _at(0.0, "start a test at the first sample at or after this time (the "
                             "loop's simulated time), once; 0 = no scheduled start. Lets an "
                             'in-process run and a lockstep ROS run start at the same sample',
@@ -124,6 +166,89 @@ class AutotuneResults:
                                      unit='s', min=0.0, max=_BIG, read_only=True)
     model_dead_time: float = _at(0.0, 'model dead time L or To', 'model_dead_time', unit='s',
                                  min=0.0, max=_BIG, read_only=True)
+    proposed_kp: float = _at(0.0, 'gains of the design from the identified model (autotune.rule)',
+                             'proposed_kp', min=0.0, max=_BIG, read_only=True)
+    proposed_ti: float = _at(0.0, 'proposed integral time (0 = none)', 'proposed_ti', unit='s',
+                             min=0.0, max=_BIG, read_only=True)
+    proposed_td: float = _at(0.0, 'proposed derivative time', 'proposed_td', unit='s', min=0.0,
+                             max=_BIG, read_only=True)
+    proposed_b: float = _at(1.0, 'proposed setpoint weight b', 'proposed_b', min=0.0, max=1.0,
+                            read_only=True)
+    proposed_c: float = _at(1.0, 'proposed setpoint weight c', 'proposed_c', min=0.0, max=1.0,
+                            read_only=True)
+    proposed_stable: bool = _at(False, 'proposed loop stable on the model', 'proposed_stable',
+                                read_only=True)
+    proposed_ms: float = _at(0.0, 'Ms of the proposed loop on the model (implemented discrete '
+                             'loop)', 'proposed_ms', min=0.0, max=_BIG, read_only=True)
+    proposed_gain_margin: float = _at(0.0, 'gain margin of the proposed loop (0 = infinite)',
+                                      'proposed_gain_margin', min=0.0, max=_BIG, read_only=True)
+    proposed_phase_margin: float = _at(0.0, 'phase margin of the proposed loop',
+                                       'proposed_phase_margin', unit='deg', min=-_BIG, max=_BIG,
+                                       read_only=True)
+    predicted_overshoot: float = _at(0.0, 'predicted overshoot of a setpoint step (simulated on '
+                                     'the model)', 'predicted_overshoot', unit='%', min=0.0,
+                                     max=_BIG, read_only=True)
+    predicted_iae_setpoint: float = _at(0.0, 'predicted IAE of a unit setpoint step',
+                                        'predicted_iae_setpoint', unit='y units*s', min=0.0,
+                                        max=_BIG, read_only=True)
+    predicted_iae_load: float = _at(0.0, 'predicted IAE of a unit load step at the plant input',
+                                    'predicted_iae_load', unit='y units*s', min=0.0, max=_BIG,
+                                    read_only=True)
+    verify_state: str = _at('none', 'verification of the applied gains: waiting (for a setpoint '
+                            'change or the verification step), measuring, ok, worse (than '
+                            'predicted), cancelled', 'verify_state', choices=VERIFY_STATES,
+                            read_only=True)
+    verify_step_size: float = _at(0.0, 'size of the verified setpoint step', 'verify_step_size',
+                                  unit='y units', min=-_BIG, max=_BIG, read_only=True)
+    verify_overshoot_measured: float = _at(0.0, 'measured overshoot of the verified step',
+                                           'verify_overshoot_measured', unit='%', min=0.0,
+                                           max=_BIG, read_only=True)
+    verify_overshoot_predicted: float = _at(0.0, 'predicted overshoot of the verified step',
+                                            'verify_overshoot_predicted', unit='%', min=0.0,
+                                            max=_BIG, read_only=True)
+    verify_iae_measured: float = _at(0.0, 'measured IAE over the verification window',
+                                     'verify_iae_measured', unit='y units*s', min=0.0, max=_BIG,
+                                     read_only=True)
+    verify_iae_predicted: float = _at(0.0, 'predicted IAE over the verification window',
+                                      'verify_iae_predicted', unit='y units*s', min=0.0,
+                                      max=_BIG, read_only=True)
+    warning: str = _at('', 'non-empty when the verified response was much worse than predicted '
+                       '(the numbers) or a proposal was not applied (why)', 'warning',
+                       read_only=True)
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A design from the identified model: the PID fields it sets (``kp`` signed as the
+    running PID's, ``ti`` inf for none), the rule's raw result, its robustness ``report`` and
+    predicted ``prediction`` on the model (implemented discrete loop)."""
+
+    gains: dict[str, float]
+    tuned: dict[str, float | None]
+    report: LoopReport
+    prediction: Prediction
+
+
+@dataclass
+class _Check:
+    """Verification of applied gains (see the module docstring)."""
+
+    state: str = 'none'
+    window: float = 0.0
+    r_prev: float | None = None
+    r_base: float = 0.0
+    r_new: float = 0.0
+    step: float = 0.0
+    offset: float = 0.0
+    t0: float = 0.0
+    y0: float = 0.0
+    t: list[float] = field(default_factory=list)
+    y: list[float] = field(default_factory=list)
+    overshoot_predicted: float = 0.0
+    iae_predicted: float = 0.0
+    overshoot_measured: float = 0.0
+    iae_measured: float = 0.0
+    calm_since: float | None = None
 
 
 class RelayAutotuner:
@@ -156,6 +281,13 @@ class RelayAutotuner:
         self._gains: dict[str, float | None] | None = None
         self._cycles = 0
         self._scheduled_done = False            # autotune.start_time has fired
+        self._apply_done = False                # autotune.apply_time has fired
+        self._model: ProcessModel | None = None   # the identified model, kept
+        self._proposal: Proposal | None = None
+        self._warning = ''
+        self._check = _Check()
+        self.ms_max = 0.0
+        """Bound on Ms of an applied design (``robustness.ms_max``; 0 = none)."""
         self._clear_test()
 
     # ------------------------------------------------------------------ API
@@ -176,14 +308,76 @@ class RelayAutotuner:
         """The identification of the last successful test."""
         return self._result
 
+    @property
+    def model(self) -> ProcessModel | None:
+        """The process model identified by the last successful test (kept)."""
+        return self._model
+
+    @property
+    def proposal(self) -> Proposal | None:
+        """The design from the identified model under the current settings."""
+        return self._proposal
+
     def configure(self, autotune: AutotuneConfig) -> None:
-        """Replace the test settings (not while a test runs: ValueError)."""
+        """Replace the test settings (not while a test runs: ValueError). A change of a design
+        setting (:data:`DESIGN_FIELDS`) re-derives the proposal from the stored model and, with
+        ``apply`` auto, applies it; a design the model does not allow raises ValueError and
+        leaves everything unchanged."""
         if self._state in TESTING:
             raise ValueError('autotune: settings cannot change while a test is running; abort it first')
         self._check_config(autotune)
+        redesign = self._result is not None and any(
+            getattr(autotune, name) != getattr(self._cfg, name) for name in DESIGN_FIELDS)
+        proposal = self._design(self._result, autotune) if redesign else None
         if autotune.start_time != self._cfg.start_time:
             self._scheduled_done = False          # a new scheduled start is armed
+        if autotune.apply_time != self._cfg.apply_time:
+            self._apply_done = False
         self._cfg = autotune
+        if proposal is not None:
+            self._proposal = proposal
+            self._offer(proposal)
+
+    def refusal(self, proposal: Proposal) -> str:
+        """Why ``proposal`` may not run ('' if it may): unstable on the model, or Ms above
+        ``ms_max``."""
+        rep = proposal.report
+        if not rep.stable:
+            return f'the proposed loop is unstable on the model {rep.model}'
+        if self.ms_max > 0 and rep.ms > self.ms_max:
+            return (f'Ms would be {rep.ms:.3g} > robustness.ms_max {self.ms_max:g} on the model '
+                    f'{rep.model}')
+        return ''
+
+    def apply(self) -> tuple[bool, str]:
+        """Apply the pending proposal bumplessly (state ``running``) and arm the verification.
+        Returns ``(accepted, message)``."""
+        if self._state in TESTING:
+            return False, f'autotune: a test is running (state {self._state})'
+        if self._proposal is None:
+            return False, 'autotune: no proposal to apply; run a test first'
+        refusal = self.refusal(self._proposal)
+        if refusal:
+            return False, f'autotune: proposal not applied: {refusal}'
+        self.pid.set_gains(**self._proposal.gains)
+        self._state, self._reason, self._warning = 'running', '', ''
+        self._arm_check()
+        g = self._proposal.gains
+        return True, (f"autotune: applied kp {abs(g['kp']):.4g}, ti {g['ti']:.4g} s, "
+                      f"td {g['td']:.4g} s (predicted Ms {self._proposal.report.ms:.3g})")
+
+    def revert(self) -> tuple[bool, str]:
+        """Return to the gains from before the last test, bumplessly (state ``reverted``; a
+        running test is aborted, which restores them too)."""
+        if self._saved_gains is None:
+            return False, 'autotune: no gains from before a test to return to'
+        if self._state in TESTING:
+            self._end('aborted', 'revert requested')
+            return True, 'autotune: test aborted, gains from before the test restored'
+        self.pid.set_gains(**self._saved_gains)
+        self._state, self._reason = 'reverted', ''
+        self._cancel_check()
+        return True, 'autotune: gains from before the test restored'
 
     def start(self) -> tuple[bool, str]:
         """Begin a test (from idle, running, tuned, failed or aborted). Returns ``(accepted, message)``."""
@@ -191,6 +385,7 @@ class RelayAutotuner:
             return False, f'autotune: a test is already running (state {self._state})'
         self._saved_gains = _gain_fields(self.pid.config)
         self._clear_test()
+        self._cancel_check()
         self._state = 'settling'
         self._reason = ''
         return True, 'autotune: test started (settling)'
@@ -203,12 +398,13 @@ class RelayAutotuner:
         return True, 'autotune: test aborted, previous gains restored'
 
     def command(self, name: str) -> tuple[bool, str]:
-        """Operator commands for a node's std_srvs/Trigger services: ``start_autotune``, ``abort_autotune``."""
-        if name == 'start_autotune':
-            return self.start()
-        if name == 'abort_autotune':
-            return self.abort()
-        raise ValueError(f'command: {name!r} is unknown; allowed start_autotune, abort_autotune')
+        """Operator commands for a node's std_srvs/Trigger services: ``start_autotune``,
+        ``abort_autotune``, ``apply_autotune``, ``revert_gains``."""
+        commands = {'start_autotune': self.start, 'abort_autotune': self.abort,
+                    'apply_autotune': self.apply, 'revert_gains': self.revert}
+        if name not in commands:
+            raise ValueError(f'command: {name!r} is unknown; allowed ' + ', '.join(commands))
+        return commands[name]()
 
     def results(self) -> dict[str, Any]:
         """Parameter values the tuner produced (see :class:`AutotuneResults`), the PID's
@@ -233,7 +429,38 @@ class RelayAutotuner:
             'autotune.model_dead_time': float(model.dead_time) if model else 0.0,
             'kp': abs(cfg.kp), 'ti': cfg.ti if math.isfinite(cfg.ti) else 0.0, 'td': cfg.td,
             'b': cfg.b, 'c': cfg.c,
+            **self._proposal_values(), **self._check_values(),
+            'autotune.warning': self._warning,
         }
+
+    def _proposal_values(self) -> dict[str, Any]:
+        p = self._proposal
+        if p is None:
+            return {'autotune.proposed_kp': 0.0, 'autotune.proposed_ti': 0.0,
+                    'autotune.proposed_td': 0.0, 'autotune.proposed_b': 1.0,
+                    'autotune.proposed_c': 1.0, 'autotune.proposed_stable': False,
+                    'autotune.proposed_ms': 0.0, 'autotune.proposed_gain_margin': 0.0,
+                    'autotune.proposed_phase_margin': 0.0, 'autotune.predicted_overshoot': 0.0,
+                    'autotune.predicted_iae_setpoint': 0.0, 'autotune.predicted_iae_load': 0.0}
+        g, rep, pred = p.gains, p.report, p.prediction
+        return {'autotune.proposed_kp': abs(g['kp']),
+                'autotune.proposed_ti': g['ti'] if math.isfinite(g['ti']) else 0.0,
+                'autotune.proposed_td': g['td'], 'autotune.proposed_b': g['b'],
+                'autotune.proposed_c': g['c'], 'autotune.proposed_stable': rep.stable,
+                'autotune.proposed_ms': finite_or(rep.ms),
+                'autotune.proposed_gain_margin': finite_or(rep.gain_margin),
+                'autotune.proposed_phase_margin': finite_or(rep.phase_margin),
+                'autotune.predicted_overshoot': finite_or(pred.overshoot),
+                'autotune.predicted_iae_setpoint': finite_or(pred.iae_setpoint),
+                'autotune.predicted_iae_load': finite_or(pred.iae_load)}
+
+    def _check_values(self) -> dict[str, Any]:
+        c = self._check
+        return {'autotune.verify_state': c.state, 'autotune.verify_step_size': c.step,
+                'autotune.verify_overshoot_measured': c.overshoot_measured,
+                'autotune.verify_overshoot_predicted': c.overshoot_predicted,
+                'autotune.verify_iae_measured': c.iae_measured,
+                'autotune.verify_iae_predicted': c.iae_predicted}
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
         """Bumpless (re)start of normal PID operation from ``u``; a running test is abandoned
@@ -260,13 +487,19 @@ class RelayAutotuner:
                 and float(t) >= self._cfg.start_time - 1e-9):
             self._scheduled_done = True
             self.start()          # refused (no effect) if a test is already running
+        if (self._cfg.apply_time > 0 and not self._apply_done
+                and float(t) >= self._cfg.apply_time - 1e-9):
+            self._apply_done = True
+            if self._state == 'proposed':
+                self.apply()
         u = None
         if self._state in TESTING:
             u = self._test_step(float(t), yv, rv)
         elif self._state == 'tuned':
             self._state = 'running'
         if u is None:
-            u = self._limit(self._pid_step(yv, rv))
+            r_used = self._verify_sample(float(t), yv, rv) if self._state not in TESTING else rv
+            u = self._limit(self._pid_step(yv, r_used))
         self._last_out = u
         if self._state != self._stepped_state:   # also a start()/abort() between samples
             self._stepped_state, self._state_time = self._state, max(float(t), 0.0)
@@ -462,24 +695,137 @@ class RelayAutotuner:
         try:
             res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
                                        gain=cfg.process_gain or None, kind=cfg.model)
-            gains = self._tune(res)
-            sign = -1.0 if self.pid.config.kp < 0 else 1.0   # keep a reverse action by negative kp
-            new = {'kp': sign * gains['kp'],
-                   'ti': gains['ti'] if gains.get('ti') else math.inf,
-                   'td': gains['td'] if gains.get('td') else 0.0,
-                   'b': gains['b'] if gains.get('b') is not None else 1.0,
-                   'c': gains['c'] if gains.get('c') is not None else 1.0}
-            self.pid.set_gains(**new)
+            proposal = self._design(res, cfg)
         except (ValueError, ArithmeticError) as exc:
             self._end('failed', f'identification/tuning failed: {exc}')
             return True
-        self._result, self._gains = res, gains
+        self._result, self._gains = res, proposal.tuned
+        self._model, self._proposal = from_identified(res.model), proposal
         # The PID takes over from the bias u0, the equilibrium input, not from the last relay
         # value u0 ± d, which would disturb the loop by d.
         self._pending = self._u0
-        self._state = 'tuned'
-        self._reason = ''
+        self._state, self._reason = 'proposed', ''
+        self._offer(proposal, after_test=True)
         return True
+
+    def _design(self, res: ident.RelayIdentification, cfg: AutotuneConfig) -> Proposal:
+        """The proposal of ``cfg.rule`` from the identification ``res``: gains (the sign of the
+        running kp kept: a reverse action by negative kp), margins and predicted response on
+        the identified model, for the running PID's sample time, filter and limits."""
+        gains = self._tune(res, cfg)
+        sign = -1.0 if (self._saved_gains or _gain_fields(self.pid.config))['kp'] < 0 else 1.0
+        new = {'kp': sign * abs(gains['kp']),
+               'ti': gains['ti'] if gains.get('ti') else math.inf,
+               'td': gains['td'] if gains.get('td') else 0.0,
+               'b': gains['b'] if gains.get('b') is not None else 1.0,
+               'c': gains['c'] if gains.get('c') is not None else 1.0}
+        config = replace(self.pid.config, **new)
+        if config.reason():
+            raise ValueError(config.reason())
+        model = from_identified(res.model)
+        return Proposal(new, dict(gains), loop_report(model, config), predict(model, config))
+
+    def _offer(self, proposal: Proposal, after_test: bool = False) -> None:
+        """A new proposal: applied at once with ``apply`` auto (unless refused), else pending
+        (state ``proposed``)."""
+        refusal = self.refusal(proposal)
+        self._warning = f'proposal not applied: {refusal}' if refusal else ''
+        if self._cfg.apply == 'auto' and not refusal:
+            self.pid.set_gains(**proposal.gains)
+            self._state = 'tuned' if after_test else 'running'
+            self._arm_check()
+        else:
+            self._state = 'proposed'
+            self._cancel_check()
+
+    # ----------------------------------------------------------- verification
+    def _arm_check(self) -> None:
+        """After an apply: wait for the next setpoint change (or make the verification step)."""
+        self._check = _Check(state='waiting', r_prev=self._check.r_prev,
+                             window=self._verify_window())
+
+    def _cancel_check(self, state: str = 'none') -> None:
+        self._check = _Check(state=state, r_prev=self._check.r_prev)
+
+    def _verify_window(self) -> float:
+        if self._cfg.verify_window > 0:
+            return self._cfg.verify_window
+        settle = self._proposal.prediction.settling_time if self._proposal else math.nan
+        tu = self._result.tu if self._result else 0.0
+        if not math.isfinite(settle):
+            settle = float(self._proposal.prediction.t[-1]) if self._proposal else 0.0
+        return max(2.0 * settle, 4.0 * tu, 10.0 * self.sample_time)
+
+    def _verify_sample(self, t: float, y: float, r: float) -> float:
+        """The setpoint the PID uses this sample (the verification step added while it runs);
+        detects the verified step, records it and compares it with its prediction."""
+        c = self._check
+        r_used = r + c.offset
+        if c.state == 'waiting' and math.isfinite(y) and math.isfinite(r):
+            step, cfg = self._cfg.verify_step, self._cfg
+            noise = cfg.noise_band * self._sigma if math.isfinite(self._sigma) else 0.0
+            band = max(0.02 * abs(step), noise)       # at rest: 2 % of the step, or the noise
+            if abs(y - r) > band or c.r_prev != r:
+                c.calm_since = None
+            elif c.calm_since is None:
+                c.calm_since = t
+            if step == 0.0 and c.r_prev is not None and r != c.r_prev:
+                self._begin_check(t, y, r, c.r_prev, r)
+            elif (step != 0.0 and c.calm_since is not None
+                  and t - c.calm_since >= cfg.settle_time - 1e-9):
+                self._begin_check(t, y, r, r, r + step)      # the loop is at rest: step now
+                c.offset, r_used = step, r + step
+        elif c.state == 'measuring':
+            if r != c.r_base or not math.isfinite(y):
+                self._cancel_check('cancelled')
+                r_used = r
+            else:
+                c.t.append(t)
+                c.y.append(y)
+                if t - c.t0 >= c.window - 1e-9:
+                    self._finish_check()
+                    r_used = r
+        self._check.r_prev = r
+        return r_used
+
+    def _begin_check(self, t: float, y: float, r_base: float, r_old: float, r_new: float) -> None:
+        """Start measuring a setpoint step r_old → r_new; its prediction is the same step
+        simulated on the model from the operating point (output limits and rate limit of the
+        running PID around the last output)."""
+        c = self._check
+        c.state, c.r_base, c.r_new, c.step = 'measuring', r_base, r_new, r_new - r_old
+        c.t0, c.y0, c.t, c.y = t, y, [t], [y]
+        cfg = self.pid.config
+        u_op = self._last_out if self._last_out is not None else 0.0
+        sign = -1.0 if cfg.direct_action != (cfg.kp < 0) else 1.0
+        lo, hi = sorted((sign * (cfg.u_min - u_op), sign * (cfg.u_max - u_op)))
+        sim = Pid2Dof(replace(cfg, kp=abs(cfg.kp), direct_action=False, u_min=lo, u_max=hi))
+        sim.reset(0.0, 0.0, 0.0)
+        plant = DiscretePlant(self._model, self.sample_time)
+        steps = int(round(c.window / self.sample_time)) + 1
+        yp = np.empty(steps)
+        for k in range(steps):
+            yp[k] = plant.output()
+            plant.step(sim.update(c.step, yp[k]))
+        tp = self.sample_time * np.arange(steps)
+        c.overshoot_predicted = float(step_metrics(tp, yp, c.step, y0=0.0).overshoot)
+        c.iae_predicted = iae(tp, c.step - yp)
+
+    def _finish_check(self) -> None:
+        c = self._check
+        t, y = np.array(c.t), np.array(c.y)
+        c.overshoot_measured = float(step_metrics(t, y, c.r_new, y0=c.y0, t_step=c.t0).overshoot)
+        c.iae_measured = iae(t, c.r_new - y)
+        tol = self._cfg.verify_tolerance
+        worse = (c.iae_measured > tol * c.iae_predicted
+                 or c.overshoot_measured > tol * c.overshoot_predicted + 5.0)
+        c.state, c.offset = ('worse' if worse else 'ok'), 0.0
+        if worse:
+            self._warning = (f'verification: the response is much worse than predicted: '
+                             f'overshoot {c.overshoot_measured:.1f} % (predicted '
+                             f'{c.overshoot_predicted:.1f} %), IAE {c.iae_measured:.4g} '
+                             f'(predicted {c.iae_predicted:.4g}) over {c.window:g} s for a '
+                             f'setpoint step of {c.step:g}')
 
     def _identification_input(self) -> tuple[np.ndarray, float]:
         """Recorded u as seen by a positive-gain plant and the current relay centre.
@@ -491,9 +837,9 @@ class RelayAutotuner:
             return 2.0 * self._u0_start - uu, 2.0 * self._u0_start - self._u0
         return uu, self._u0
 
-    def _tune(self, res: ident.RelayIdentification) -> dict[str, float | None]:
+    def _tune(self, res: ident.RelayIdentification, cfg: AutotuneConfig
+              ) -> dict[str, float | None]:
         from tank_control.core.tuning.rules import tune   # sibling package, imported when needed
-        cfg = self._cfg
         if cfg.rule in RULES_ULTIMATE:
             ku, tu = (res.ku, res.tu) if cfg.method == 'first_harmonic' else (res.ku_df, res.tu_df)
             return dict(tune(cfg.rule, cfg.kind, ku=ku, tu=tu))
@@ -503,11 +849,26 @@ class RelayAutotuner:
                 raise ValueError(f'autotune.rule: {cfg.rule} needs an integrating (IPDT) model, '
                                  f'the relay data gave {model.kind}')
             return dict(tune(cfg.rule, cfg.kind, gain=model.gain, dead_time=model.dead_time))
+        if cfg.rule in RULES_MODEL:
+            return dict(tune(cfg.rule, cfg.kind, **design_arguments(
+                from_identified(model), cfg, self.pid.config)))
         if not isinstance(model, ident.FopdtModel):
             raise ValueError(f'autotune.rule: {cfg.rule} needs an FOPDT model, the relay data gave '
                              f'{model.kind}')
         return dict(tune(cfg.rule, cfg.kind, gain=model.gain, time_constant=model.time_constant,
                          dead_time=model.dead_time))
+
+
+def design_arguments(model: ProcessModel, cfg: AutotuneConfig, pid: PidConfig) -> dict[str, Any]:
+    """``tune`` arguments of a model-based rule: the model, the design targets of ``cfg``
+    (0 = the rule's default) and the implemented loop (sample time, filter) of ``pid``."""
+    args = {**model.tune_arguments(), 'sample_time': pid.sample_time, 'filter_n': pid.n}
+    if cfg.rule == 'ms':
+        args['ms'] = cfg.ms_target
+    for name in ('tau_c', 'gain_margin', 'phase_margin'):
+        if getattr(cfg, name):
+            args[name] = getattr(cfg, name)
+    return args
 
 
 def _gain_fields(cfg: PidConfig) -> dict[str, Any]:

@@ -1,14 +1,78 @@
 """Controller kind ``lead_lag``: the lead-lag compensator K·(Td·s + 1)/(α·Td·s + 1)·(1 + 1/(Ti·s))
-with 002's frequency-domain design (``tuning.rule: frequency_002``) from a process model."""
+with 002's frequency-domain design (``tuning.rule: frequency_002``) from a process model, and
+the robustness of the running loop on that model (``robustness.*``, the ``ms_max`` guard)."""
 from __future__ import annotations
 
+from typing import Any
+
+from tank_control.core.analysis.robustness import LoopReport, response_report
 from tank_control.core.control.kinds import base
-from tank_control.core.control.kinds.base import ControllerKind
+from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
 from tank_control.core.control.lead_lag import (LeadLagConfig, LeadLagController, LeadLagTuning,
-                                                design)
+                                                design, discrete_response)
 from tank_control.core.params import config_from
+from tank_control.core.tuning.model import ProcessModel
 
 TUNING = base.group('tuning', LeadLagTuning)
+GUARDED = ('lead_lag.kp', 'lead_lag.td', 'lead_lag.alpha', 'lead_lag.ti', 'sample_time',
+           'direct_action', 'robustness.ms_max')
+"""Parameters whose change the robustness guard checks."""
+
+
+def process_model(values: base.Values) -> ProcessModel | None:
+    """The process model of the ``tuning.*`` group (``tuning.model`` with its gain, time
+    constants and dead time), or None when it is incomplete."""
+    t1, t2 = float(values['tuning.time_constant']), float(values['tuning.time_constant2'])
+    kind = str(values['tuning.model'])
+    model = ProcessModel(kind, float(values['tuning.gain']), float(values['tuning.dead_time']),
+                         max(t1, t2) if kind != 'ipdt' else 0.0,
+                         min(t1, t2) if kind == 'sopdt' else 0.0)
+    return None if model.reason() is not None else model
+
+
+def loop_report(model: ProcessModel, config: LeadLagConfig) -> LoopReport:
+    """Robustness of the implemented discrete lead-lag (:func:`discrete_response`, one degree
+    of freedom) on the exact ZOH ``model`` at ``config.sample_time``."""
+    return response_report(model, discrete_response(config.kp, config.td, config.alpha,
+                                                    config.ti, config.sample_time))
+
+
+def _key(config: LeadLagConfig) -> tuple[float, ...]:
+    return (config.kp, config.td, config.alpha, config.ti, config.sample_time)
+
+
+def _gains(config: LeadLagConfig) -> str:
+    return (f'lead_lag.kp {config.kp:.4g}, td {config.td:.4g} s, alpha {config.alpha:.3g}, '
+            f'ti {config.ti:.4g} s')
+
+
+_build = base.siso_build(LeadLagController)
+
+
+def build(settings: Settings) -> LeadLagController:
+    controller = _build(settings)
+    controller.loop_watch = LoopWatch(process_model(settings.values),  # type: ignore[attr-defined]
+                                      settings.robustness.ms_max, loop_report, _key)
+    return controller
+
+
+def update(controller: LeadLagController, settings: Settings, changed: frozenset[str]) -> bool:
+    """:func:`base.siso_update`; the model of the analysis."""
+    base.siso_update(controller, settings, changed)
+    watch = controller.loop_watch          # type: ignore[attr-defined]
+    watch.model, watch.ms_max = process_model(settings.values), settings.robustness.ms_max
+    return True
+
+
+def reason(settings: Settings) -> str | None:
+    """SISO relations, then the robustness guard on the ``tuning.*`` model."""
+    return base.siso_reason(settings) or base.guard_reason(
+        settings, process_model(settings.values), settings.config, loop_report, GUARDED, _gains)
+
+
+def results(controller: LeadLagController) -> dict[str, Any]:
+    """``robustness.*`` of the running loop."""
+    return controller.loop_watch.values(controller.lead_lag.config)   # type: ignore[attr-defined]
 
 
 def derive(values: base.Values) -> dict[str, float]:
@@ -26,9 +90,8 @@ KIND = ControllerKind(
                 "anti-windup and 002's frequency-domain design (002 §1)",
     config=LeadLagConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
-            TUNING),
-    build=base.siso_build(LeadLagController), update=base.siso_update, derive=derive,
-    reason=base.siso_reason,
+            TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+    build=build, update=update, derive=derive, reason=reason, results=results,
     gains=('lead_lag.kp', 'lead_lag.td', 'lead_lag.alpha', 'lead_lag.ti'),
     input_limits=base.scalar_limits,
 )

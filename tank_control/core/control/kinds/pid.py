@@ -1,9 +1,40 @@
-"""Controller kind ``pid``: the SISO 2-DOF PID of 000 eq. 19 with limits, anti-windup, tuning."""
+"""Controller kind ``pid``: the SISO 2-DOF PID of 000 eq. 19 with limits, anti-windup, tuning,
+and the robustness of the running loop on the ``tuning.*`` model (``robustness.*``)."""
 from __future__ import annotations
 
+from typing import Any
+
 from tank_control.core.control.kinds import base
-from tank_control.core.control.kinds.base import ControllerKind
+from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
 from tank_control.core.control.pid import PidConfig, PidController
+
+_build_pid = base.siso_build(PidController)
+
+
+def build(settings: Settings) -> PidController:
+    controller = _build_pid(settings)
+    controller.loop_watch = LoopWatch(base.tuning_model(settings.values),  # type: ignore[attr-defined]
+                                      settings.robustness.ms_max)
+    return controller
+
+
+def update(controller: PidController, settings: Settings, changed: frozenset[str]) -> bool:
+    """:func:`base.siso_update` (gains bumplessly, then the mode); the model of the analysis."""
+    base.siso_update(controller, settings, changed)
+    watch = controller.loop_watch          # type: ignore[attr-defined]
+    watch.model, watch.ms_max = base.tuning_model(settings.values), settings.robustness.ms_max
+    return True
+
+
+def reason(settings: Settings) -> str | None:
+    """SISO relations, then the robustness guard on the ``tuning.*`` model."""
+    return base.siso_reason(settings) or base.guard_reason(
+        settings, base.tuning_model(settings.values), settings.config)
+
+
+def results(controller: PidController) -> dict[str, Any]:
+    """``robustness.*`` of the running loop."""
+    return controller.loop_watch.values(controller.pid.config)   # type: ignore[attr-defined]
 
 
 KIND = ControllerKind(
@@ -11,7 +42,7 @@ KIND = ControllerKind(
     description='SISO 2-DOF PID (000 eq. 19) with filter, limits, anti-windup, tuning rules',
     config=PidConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
-            base.TUNING),
-    build=base.siso_build(PidController), update=base.siso_update, derive=base.tuned_gains, reason=base.siso_reason,
+            base.TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+    build=build, update=update, derive=base.tuned_gains, reason=reason, results=results,
     gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
 )

@@ -1,23 +1,43 @@
 """Controller kind ``relay_autotune``: a PID with a relay auto-tuning test (001 §1.3, 004
-§3.2–3.3). Commands ``~/start_autotune``, ``~/abort_autotune``; the results are written back
-to the read-only ``autotune.*`` parameters and the gains."""
+§3.2–3.3) and the design, preview, apply, verify and revert of its gains. Commands
+``~/start_autotune``, ``~/abort_autotune``, ``~/apply_autotune``, ``~/revert_gains``; the
+results are written back to the read-only ``autotune.*`` parameters, the gains and the
+``robustness.*`` analysis of the running loop on the identified model."""
 from __future__ import annotations
 
 from dataclasses import asdict
+from typing import Any
 
 from tank_control.core.control.kinds import base
-from tank_control.core.control.kinds.base import ControllerKind, Settings
+from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
 from tank_control.core.control.pid import PidConfig
-from tank_control.core.control.relay_autotune import (TESTING, AutotuneCommand, AutotuneConfig,
-                                                      AutotuneResults, RelayAutotuner)
+from tank_control.core.control.relay_autotune import (DESIGN_FIELDS, RULES_IPDT, RULES_MODEL,
+                                                      RULES_ULTIMATE, TESTING, AutotuneCommand,
+                                                      AutotuneConfig, AutotuneResults,
+                                                      RelayAutotuner, design_arguments)
+from tank_control.core.tuning.model import ProcessModel
+from tank_control.core.tuning.rules import tune
 
-COMMANDS = ('start_autotune', 'abort_autotune')
+COMMANDS = ('start_autotune', 'abort_autotune', 'apply_autotune', 'revert_gains')
+
+
+def identified_model(values: base.Values) -> ProcessModel | None:
+    """The model the auto-tuner reported in its result parameters (``autotune.model_*``)."""
+    kind = values.get('autotune.model_kind', 'none')
+    if kind not in ('fopdt', 'ipdt'):
+        return None
+    model = ProcessModel(kind, abs(values['autotune.model_gain']),
+                         values['autotune.model_dead_time'],
+                         values['autotune.model_time_constant'] if kind == 'fopdt' else 0.0)
+    return None if model.reason() else model
 
 
 def build(settings: Settings) -> RelayAutotuner:
     tuner = RelayAutotuner(settings.config, settings.autotune,
                            output_name=settings.channels.output_names[0],
                            input_name=settings.channels.input_names[0])
+    tuner.ms_max = settings.robustness.ms_max
+    tuner.loop_watch = LoopWatch(None, settings.robustness.ms_max)   # type: ignore[attr-defined]
     if settings.mode.mode == 'manual':
         tuner.pid.set_manual(float(settings.mode.manual_output))
     if settings.command.start:
@@ -32,7 +52,8 @@ def update(tuner: RelayAutotuner, settings: Settings, changed: frozenset[str]) -
     'parameters changed during the test'). ``autotune.start`` = true starts a test. Only PID
     settings named in ``changed`` are applied: the running gains may be tuned ones that the
     parameters show only once the node has written the results back. Result parameters
-    (``autotune.state`` …) change nothing.
+    (``autotune.state`` …) change nothing. A design setting (``autotune.rule``, …) re-derives
+    the gains from the stored model.
     """
     pid_changed = any(k in changed and getattr(tuner.pid.config, k) != v
                       for k, v in asdict(settings.config).items())
@@ -40,6 +61,8 @@ def update(tuner: RelayAutotuner, settings: Settings, changed: frozenset[str]) -
     if (pid_changed or new_cfg != tuner.config) and tuner.state in TESTING:
         tuner.abort('parameters changed during the test')
     base.set_changed_gains(tuner.pid, settings.config, changed)
+    tuner.ms_max = settings.robustness.ms_max
+    tuner.loop_watch.ms_max = settings.robustness.ms_max           # type: ignore[attr-defined]
     if new_cfg != tuner.config:
         tuner.configure(new_cfg)
     base.apply_mode(tuner.pid, tuner.pid.mode, settings, changed)
@@ -48,15 +71,60 @@ def update(tuner: RelayAutotuner, settings: Settings, changed: frozenset[str]) -
     return True
 
 
+def design_reason(settings: Settings) -> str | None:
+    """A design setting changed while a model is stored: the rule must apply to that model."""
+    values = settings.values
+    if not any(f'autotune.{name}' in settings.given for name in DESIGN_FIELDS):
+        return None
+    cfg = settings.autotune
+    model = identified_model(values)
+    try:
+        if cfg.rule in RULES_ULTIMATE:
+            if values['autotune.ku'] > 0:
+                tune(cfg.rule, cfg.kind, ku=values['autotune.ku'], tu=values['autotune.tu'])
+            return None
+        if model is None:
+            return None
+        if cfg.rule in RULES_IPDT and model.kind != 'ipdt':
+            return (f'autotune.rule: {cfg.rule} needs an integrating (IPDT) model, the stored '
+                    f'model is {model.kind}')
+        if cfg.rule in RULES_MODEL:
+            tune(cfg.rule, cfg.kind, **design_arguments(model, cfg, settings.config))
+        elif cfg.rule not in RULES_IPDT:
+            if model.kind != 'fopdt':
+                return (f'autotune.rule: {cfg.rule} needs an FOPDT model, the stored model is '
+                        f'{model.kind}')
+            tune(cfg.rule, cfg.kind, gain=model.gain, time_constant=model.time_constant,
+                 dead_time=model.dead_time)
+        else:
+            tune(cfg.rule, cfg.kind, gain=model.gain, dead_time=model.dead_time)
+    except ValueError as exc:
+        text = str(exc).removeprefix('tune: ')
+        return f'autotune.rule {cfg.rule!r} with autotune.kind {cfg.kind!r}: {text}'
+    return None
+
+
+def reason(settings: Settings) -> str | None:
+    """SISO relations, a design the stored model allows, the robustness guard on it."""
+    return (base.siso_reason(settings) or design_reason(settings)
+            or base.guard_reason(settings, identified_model(settings.values), settings.config))
+
+
+def results(tuner: RelayAutotuner) -> dict[str, Any]:
+    """The tuner's results and ``robustness.*`` of the running loop on the identified model."""
+    watch = tuner.loop_watch                                       # type: ignore[attr-defined]
+    watch.model = tuner.model
+    return {**tuner.results(), **watch.values(tuner.pid.config)}
+
+
 KIND = ControllerKind(
     name='relay_autotune',
     description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3)',
     config=PidConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             base.group('autotune', AutotuneConfig), base.group('command', AutotuneCommand),
-            base.group('results', AutotuneResults)),
-    build=build, update=update, reason=base.siso_reason,
-    results=lambda tuner: tuner.results(), state='autotune.state',
+            base.group('results', AutotuneResults), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+    build=build, update=update, reason=reason, results=results, state='autotune.state',
     commands={name: (lambda tuner, name=name: tuner.command(name)) for name in COMMANDS},
     gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
 )

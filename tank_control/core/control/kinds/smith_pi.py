@@ -1,15 +1,51 @@
-"""Controller kind ``smith_pi``: Smith predictor with a PI primary (004 §3.6.1)."""
+"""Controller kind ``smith_pi``: Smith predictor with a PI primary (004 §3.6.1), and the
+robustness of the running loop on its internal model (``robustness.*``, the ``ms_max`` guard)."""
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+from typing import Any
+
+from tank_control.core.analysis.robustness import LoopReport, smith_report
 from tank_control.core.control.kinds import base
-from tank_control.core.control.kinds.base import ControllerKind, Settings, Tuning
+from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings, Tuning
 from tank_control.core.control.pid import PidConfig
 from tank_control.core.control.smith import SmithModel, SmithPredictor
+from tank_control.core.tuning.model import ProcessModel
 
 PRIMARY = ('kp', 'ti', 'b', 'sample_time', 'u_min', 'u_max', 'du_max', 'anti_windup',
            'tracking_time')
 """The PI primary's parameters (the PID's, td = c = 0)."""
 TUNING = ('tuning.rule', 'tuning.te', 'tuning.xi', 'tuning.order')
+GUARDED = ('kp', 'ti', 'b', 'sample_time', 'robustness.ms_max')
+"""Parameters whose change the robustness guard checks (smith.* is the model: not refused)."""
+
+
+def process_model(model: SmithModel) -> ProcessModel:
+    """The internal model as a process model (the gain's magnitude; its sign is the loop's,
+    :func:`analyse`)."""
+    return ProcessModel(model.model, abs(model.gain), model.dead_time,
+                        model.time_constant if model.model == 'fopdt' else 0.0)
+
+
+def analyse(model: ProcessModel, loop: tuple[PidConfig, float]) -> LoopReport:
+    """:func:`smith_report` of the primary on the model; ``loop`` = (primary, sign of the
+    model gain): the loop gain is ``kp·sign(K)·|K|``."""
+    primary, sign = loop
+    return smith_report(model, replace(primary, kp=primary.kp * sign))
+
+
+def _loop(model: SmithModel, primary: PidConfig) -> tuple[PidConfig, float]:
+    return primary, math.copysign(1.0, model.gain)
+
+
+def _key(loop: tuple[PidConfig, float]) -> tuple[float, ...]:
+    primary, sign = loop
+    return (primary.kp * sign, primary.ti, primary.b, primary.sample_time)
+
+
+def _gains(loop: tuple[PidConfig, float]) -> str:
+    return f'kp {loop[0].kp:.4g}, ti {loop[0].ti:.4g} s'
 
 
 def derive(values: base.Values) -> dict[str, float]:
@@ -34,7 +70,9 @@ def reason(settings: Settings) -> str | None:
     if rule == 'smith_pi' and settings.config.gain < 0:
         return ('smith.gain: tuning.rule smith_pi needs a positive model gain (the primary has '
                 'kp > 0); allowed (0, 1e9]')
-    return base.siso_reason(settings, settings.primary)
+    return base.siso_reason(settings, settings.primary) or base.guard_reason(
+        settings, process_model(settings.config), _loop(settings.config, settings.primary),
+        analyse, GUARDED, _gains)
 
 
 def build(settings: Settings) -> SmithPredictor:
@@ -43,6 +81,8 @@ def build(settings: Settings) -> SmithPredictor:
                                 input_name=settings.channels.input_names[0])
     if settings.mode.mode == 'manual':
         controller.set_manual(float(settings.mode.manual_output))
+    controller.loop_watch = LoopWatch(process_model(settings.config),  # type: ignore[attr-defined]
+                                      settings.robustness.ms_max, analyse, _key)
     return controller
 
 
@@ -55,7 +95,14 @@ def update(controller: SmithPredictor, settings: Settings, changed: frozenset[st
     primary = controller.primary
     base.set_changed_gains(primary, settings.primary, PRIMARY)
     base.apply_mode(controller, primary.mode, settings, changed)
+    controller.loop_watch.ms_max = settings.robustness.ms_max   # type: ignore[attr-defined]
     return True
+
+
+def results(controller: SmithPredictor) -> dict[str, Any]:
+    """``robustness.*`` of the running loop on the internal model."""
+    return controller.loop_watch.values(  # type: ignore[attr-defined]
+        _loop(controller.model, controller.primary.config))
 
 
 KIND = ControllerKind(
@@ -64,8 +111,8 @@ KIND = ControllerKind(
     config=SmithModel,
     groups=(base.group('primary', PidConfig, only=PRIMARY), base.channels(('y',), ('u',)),
             base.MODE, base.fail_safe(), base.warm_start(),
-            base.group('tuning', Tuning, only=TUNING)),
-    build=build, update=update, derive=derive, reason=reason,
+            base.group('tuning', Tuning, only=TUNING), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+    build=build, update=update, derive=derive, reason=reason, results=results,
     gains=('kp', 'ti', 'b'),
     input_limits=lambda s: {s.channels.input_names[0]: (s.primary.u_min, s.primary.u_max)},
 )

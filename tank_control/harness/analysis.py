@@ -1,0 +1,187 @@
+"""Robustness of a scenario's SISO PID loop on its process models: a table and ``analysis.png``.
+
+A SISO loop is a ``pid`` or ``relay_autotune`` controller on a plant that is a process model
+(``fopdt``, ``ipdt``, ``sopdt``: ``core/tuning/model.from_plant``).
+The loop analysed is the implemented one: the exact ZOH model at the controller's sample time
+and the transfer function of ``Pid2Dof`` with the given gains (``core/analysis/robustness.py``;
+exact dead time, SPEC §3, 002's gang of four). The plant section gives the true model; the
+controller's own model (``tuning.*``, or the auto-tuner's identified one) is analysed beside it
+when there is one. Frequencies in rad/s, phase in degrees, delay margin in s.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tank_control.core import scenario as core_scenario
+from tank_control.core.analysis import frequency as fr
+from tank_control.core.analysis.robustness import LoopReport, loop_report
+from tank_control.core.control.kinds import base
+from tank_control.core.control.kinds.relay_autotune import identified_model
+from tank_control.core.control.pid import PidConfig
+from tank_control.core.params import ConfigError
+from tank_control.core.tuning.model import ProcessModel, from_plant
+
+PID_KINDS = ('pid', 'relay_autotune')
+
+
+@dataclass(frozen=True)
+class LoopCase:
+    """One model a SISO loop is analysed on: ``label`` (plant / controller's model), the
+    ``model``, the PID settings (``config``: gains, filter, sample time) and the channels."""
+
+    label: str
+    model: ProcessModel
+    config: PidConfig
+    output: str
+    input: str
+
+    def report(self) -> LoopReport:
+        return loop_report(self.model, self.config)
+
+
+def loop_cases(sections: Mapping[str, Mapping[str, Any]],
+               controller_values: Mapping[str, Any] | None = None) -> list[LoopCase]:
+    """The SISO loop of a scenario on the plant's model and on the controller's own model;
+    ``controller_values``: the controller's parameters after a run (final gains, identified
+    model), default the file's. Empty for other controllers and plants."""
+    values = controller_values
+    if values is None:
+        setup = core_scenario.controller_setup(core_scenario.node_values(sections, 'controller'))
+        values = setup.values()
+    kind = values.get('controller')
+    if kind not in PID_KINDS:
+        return []
+    setup = core_scenario.controller_setup(values, given=())
+    config = setup.settings.config
+    if not isinstance(config, PidConfig):
+        return []
+    config = replace(config, kp=abs(config.kp), direct_action=False)
+    out_name = setup.settings.channels.output_names[0]
+    in_name = setup.settings.channels.input_names[0]
+    cases = []
+    try:
+        plant = core_scenario.plant_setup(core_scenario.node_values(sections, 'plant'))
+        model = from_plant(plant.kind.name, plant.model)
+    except ConfigError:
+        model = None
+    if model is not None:
+        cases.append(LoopCase(f'plant ({model.describe()})', model, config, out_name, in_name))
+    own = (base.tuning_model(setup.settings.values) if kind == 'pid'
+           else identified_model(setup.settings.values))
+    if own is not None and own != model:
+        source = 'tuning.*' if kind == 'pid' else 'identified'
+        cases.append(LoopCase(f'{source} model ({own.describe()})', own, config, out_name,
+                              in_name))
+    return cases
+
+
+def _num(value: float, fmt: str = '.3g') -> str:
+    if isinstance(value, float) and math.isinf(value):
+        return 'inf'
+    if isinstance(value, float) and math.isnan(value):
+        return '-'
+    return format(value, fmt)
+
+
+def robustness_table(cases: list[LoopCase]) -> str:
+    """A Markdown table: one row per case with stability (Nyquist, exact delay), gain margin,
+    phase margin [deg], Ms, Mt, delay margin [s], crossover [rad/s]."""
+    if not cases:
+        return ''
+    c = cases[0].config
+    head = (f'loop {cases[0].output} <- {cases[0].input}: PID kp {c.kp:.4g}, ti {_num(c.ti, ".4g")} '
+            f's, td {c.td:.4g} s, n {c.n:g}, b {c.b:g}, c {c.c:g}; implemented discrete loop, '
+            f'h = {c.sample_time:g} s\n\n')
+    lines = ['| model | stable | GM | PM [deg] | Ms | Mt | delay margin [s] | crossover [rad/s] |',
+             '|---|---|---|---|---|---|---|---|']
+    for case in cases:
+        r = case.report()
+        lines.append(f'| {case.label} | {"yes" if r.stable else "NO"} | {_num(r.gain_margin)} | '
+                     f'{_num(r.phase_margin, ".1f")} | {_num(r.ms)} | {_num(r.mt)} | '
+                     f'{_num(r.delay_margin)} | {_num(r.wc)} |')
+    return head + '\n'.join(lines) + '\n'
+
+
+def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> Path:
+    """``analysis.png``: Bode of the loop gain L with the margins marked, Nyquist of L with
+    the Ms circle (centre −1, radius 1/Ms) and the unit circle's −1 point, and the gang of
+    four |S|, |T|, |PS|, |CS| — one colour per case, exact delay, up to the Nyquist frequency."""
+    from tank_control.harness.plotting import plt, save_figure   # the Agg backend
+    path = Path(path)
+    fig, axes = plt.subplots(2, 2, figsize=(12, 9))
+    (ax_mag, ax_nyq), (ax_ph, ax_g4) = axes
+    for i, case in enumerate(cases):
+        color = f'C{i}'
+        h = case.config.sample_time
+        plant = case.model.response(h)
+        ctrl = fr.pid_feedback_discrete(case.config.kp, case.config.ti, case.config.td,
+                                        case.config.n, sample_time=h)
+        loop = ctrl * plant
+        rep = case.report()
+        wu = case.model.ultimate_point().wu if case.model.dead_time > 0 else 1.0
+        w = np.logspace(math.log10(wu / 200.0), math.log10(math.pi / h * (1 - 1e-9)), 1500)
+        w, mag, phase = fr.bode(loop, w)
+        ax_mag.loglog(w, mag, color=color, label=case.label)
+        ax_ph.semilogx(w, phase, color=color)
+        if math.isfinite(rep.wc):
+            ax_mag.axvline(rep.wc, color=color, ls=':', lw=0.8)
+            ax_ph.plot([rep.wc], [rep.phase_margin - 180.0], 'o', color=color)
+            ax_ph.annotate(f'PM {rep.phase_margin:.1f}°', (rep.wc, rep.phase_margin - 180.0),
+                           textcoords='offset points', xytext=(5, 5 + 12 * i), color=color,
+                           fontsize='small')
+        if math.isfinite(rep.w180):
+            ax_mag.plot([rep.w180], [1.0 / rep.gain_margin], 's', color=color)
+            ax_mag.annotate(f'GM {rep.gain_margin:.2f}', (rep.w180, 1.0 / rep.gain_margin),
+                            textcoords='offset points', xytext=(5, -12 - 12 * i), color=color,
+                            fontsize='small')
+        values = loop(w)
+        ax_nyq.plot(values.real, values.imag, color=color, label=f'{case.label}: Ms {rep.ms:.2f}')
+        theta = np.linspace(0, 2 * math.pi, 200)
+        ax_nyq.plot(-1 + np.cos(theta) / rep.ms, np.sin(theta) / rep.ms, '--', color=color,
+                    lw=0.8)
+        g4 = fr.gang_of_four(ctrl, plant, w)
+        for name, style in (('S', '-'), ('T', '--'), ('PS', '-.'), ('CS', ':')):
+            ax_g4.loglog(w, np.abs(g4[name]), style, color=color,
+                         label=f'|{name}|' if i == 0 else None)
+    ax_mag.axhline(1.0, color='k', lw=0.6)
+    ax_mag.set_ylabel('|L(jω)|')
+    ax_mag.set_title('loop gain L = C·G (exact delay, ZOH)')
+    ax_mag.legend(fontsize='small')
+    ax_ph.axhline(-180.0, color='k', lw=0.6)
+    ax_ph.set_ylim(-540.0, 0.0)                       # the dead time's phase falls without end
+    ax_ph.set_ylabel('phase of L [deg]')
+    ax_ph.set_xlabel('ω [rad/s]')
+    ax_nyq.plot([-1], [0], 'k+', ms=10)
+    ax_nyq.set_xlim(-3, 1.5)
+    ax_nyq.set_ylim(-2.5, 2.0)
+    ax_nyq.set_aspect('equal')
+    ax_nyq.set_title('Nyquist of L with the Ms circle')
+    ax_nyq.set_xlabel('Re L')
+    ax_nyq.set_ylabel('Im L')
+    ax_nyq.legend(fontsize='small')
+    ax_g4.set_title('gang of four (002)')
+    ax_g4.set_xlabel('ω [rad/s]')
+    ax_g4.legend(fontsize='small')
+    for ax in axes.flat:
+        ax.grid(True, alpha=0.3, which='both')
+    return save_figure(fig, path, title, dpi=90)
+
+
+def analyze(path: str | Path, overrides: tuple[str, ...] = ()) -> str:
+    """The robustness table of a scenario file's controller on its plant model (and on the
+    controller's own model), without running it; a line saying so when there is no SISO
+    PID loop on a process model."""
+    from tank_control.harness.scenario_file import load_scenario
+    scenario = load_scenario(path, overrides)
+    cases = loop_cases(scenario.sections)
+    if not cases:
+        return (f'{scenario.path}: no SISO PID loop on a process model to analyse (controller '
+                f"{scenario.params('controller').get('controller', 'pid')}, plant "
+                f"{scenario.params('plant').get('plant', 'fopdt')})\n")
+    return robustness_table(cases)
