@@ -13,16 +13,19 @@ RUN_NODE_NAMES = ('plant', 'controller', 'reference')
 
 def foreign_graph(node: Any, spin_once: Callable[[float], None], topics: Iterable[str],
                   duration: float, own_names: Iterable[str] = (),
-                  check: Callable[[], None] = lambda: None) -> str | None:
-    """Spin ``node`` (which must have no publishers or subscriptions on ``topics``) for
-    ``duration`` wall seconds, stopping early at the first sign of another graph: a node
-    named as one of ``RUN_NODE_NAMES`` or ``own_names`` (besides ``node`` itself) or a
+                  check: Callable[[], None] = lambda: None,
+                  since: float | None = None) -> str | None:
+    """Spin ``node`` (which must have no publishers or subscriptions on ``topics``) until
+    ``duration`` wall seconds after ``since`` (``time.monotonic()`` when its participant
+    joined the domain; default now), stopping early at the first sign of another graph: a
+    node named as one of ``RUN_NODE_NAMES`` or ``own_names`` (besides ``node`` itself) or a
     publisher on one of ``topics``. Returns what was found, or None. ``check()`` runs every
-    iteration and may raise (a stop signal)."""
+    iteration and may raise (a stop signal). DDS discovers in threads of its own, so the
+    time between ``since`` and the call counts (the harness does other work in it)."""
     names = {*RUN_NODE_NAMES, *own_names}
     own = node.get_name()
     topics = [t if t.startswith('/') else '/' + t for t in topics]
-    deadline = time.monotonic() + duration
+    deadline = (time.monotonic() if since is None else since) + duration
     report_by: float | None = None        # once found: a moment more for the nodes' names
     while True:
         found, unnamed = _look(node, names, own, topics)

@@ -30,10 +30,8 @@ from tank_control.core import scenario as core_scenario
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
-from tank_control.harness.analysis import loop_cases, plot_analysis
 from tank_control.harness.domains import domain_of, lock_run
 from tank_control.harness.graph_check import foreign_graph
-from tank_control.harness.plotting import plot_runs
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import TraceMessages
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
@@ -173,6 +171,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
+    from tank_control.harness.analysis import loop_cases
     cases, analysis_note = [], ''
     if 'controller' in scenario.harness.nodes and controller_params:
         try:
@@ -209,6 +208,8 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'controller': measured['controller'],
         'loop_analysis': measured['loop_analysis'],
     }
+    from tank_control.harness.analysis import plot_analysis
+    from tank_control.harness.plotting import plot_runs
     files = {**files, 'metrics': out / 'metrics.json'}
     if cases:
         files['analysis'] = plot_analysis(cases, out / 'analysis.png',
@@ -346,6 +347,13 @@ def _report_in_process(progress: ProgressFn, sim: float, duration: float, ticks:
 # ----------------------------------------------------------------------------------------------
 # ROS run
 
+def _warm_up() -> None:
+    """Import what writes the results (matplotlib: about a second on a loaded machine) while
+    the harness waits for discovery anyway, instead of at the end."""
+    import tank_control.harness.analysis  # noqa: F401
+    import tank_control.harness.plotting  # noqa: F401
+
+
 class _RosRun:
     def __init__(self, scenario: Scenario, out: Path, env: Mapping[str, str] | None,
                  progress: ProgressFn | None, node_command: NodeCommand,
@@ -444,9 +452,12 @@ class _RosRun:
         run_start: float | None = None
         try:
             recorder = Recorder(context, subscribe=False)
+            joined = time.monotonic()              # its participant is on the domain
             self.recorder = recorder
+            _warm_up()                             # while DDS discovers the domain
             found = foreign_graph(recorder.node, recorder.spin_once, GRAPH_TOPICS,
-                                  self.config.discovery_time, (RECORDER_NAME,), self.stop.check)
+                                  self.config.discovery_time, (RECORDER_NAME,), self.stop.check,
+                                  since=joined)
             if found:
                 raise RunFailed(f'another graph is running on ROS_DOMAIN_ID {self.domain} '
                                 f'({found}); this run would mix with it, so it did not start; '

@@ -236,6 +236,41 @@ def test_a_second_run_refuses_at_once_and_leaves_the_first_untouched(tmp_path, p
     assert trace.t[-1] >= at_refusal / 1e9 + 2.0 - 0.1 - 1e-9
 
 
+class _Graph:
+    """A node's view of the graph for ``foreign_graph``: the names and publishers it sees,
+    and how often it was spun (each spin a wall-time wait in a real node)."""
+
+    def __init__(self, names=(), publishers=None) -> None:
+        self.names = [('graph_look', '/'), *((name, '/') for name in names)]
+        self.publishers = publishers or {}
+        self.spins = 0
+
+    def get_name(self) -> str:
+        return 'graph_look'
+
+    def get_node_names_and_namespaces(self):
+        return self.names
+
+    def get_publishers_info_by_topic(self, topic):
+        return [type('Info', (), {'node_name': node})() for node in self.publishers.get(topic, ())]
+
+    def spin_once(self, timeout: float) -> None:
+        self.spins += 1
+
+
+def test_the_graph_look_counts_the_time_since_the_participant_joined():
+    """Discovery runs in DDS's own threads from the moment the participant joins: time the
+    harness spent on other work since then is part of the look, which then only looks."""
+    from tank_control.harness.graph_check import foreign_graph
+    empty = _Graph()
+    joined = time.monotonic() - 10.0
+    assert foreign_graph(empty, empty.spin_once, ['measurement'], 4.0, since=joined) is None
+    assert empty.spins == 0
+    running = _Graph(['plant'], {'/measurement': ['plant']})
+    found = foreign_graph(running, running.spin_once, ['measurement'], 4.0, since=joined)
+    assert found == 'node plant; publisher of /measurement (plant)'
+
+
 # ------------------------------------------------------------------------------ no silent end
 def test_a_run_that_records_nothing_fails(tmp_path, ros_env):
     """A plant whose clock is already beyond the duration (as a left-over plant of another run
