@@ -16,6 +16,7 @@ Channels are matched by name (``output_names``, ``disturbance_names``, ``input_n
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -23,6 +24,8 @@ import numpy as np
 from tank_control.core.interfaces import Controller, Plant, seconds, to_ns
 from tank_control.core.reference import Reference
 from tank_control.core.trace import Trace
+
+_FLOAT64 = np.dtype(np.float64)
 
 Noise = Callable[[], np.ndarray]
 """One measurement-noise draw per call, ordered as the plant's outputs."""
@@ -122,35 +125,56 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     cts_ns = to_ns(controller.sample_time)
     n_ticks = to_ns(duration) // ts_ns + 1
 
+    # Signals are held as Python floats in the plant's channel order; a controller's or the
+    # reference's channel writes the plant position of its name (later names win, as in a
+    # dict update). The objects are called with 1-D float64 arrays, as the nodes call them.
     u_all = nominal_inputs(plant)
     d_all = nominal_disturbances(plant)
+    u_plant = list(u_all.values())
+    d_plant = list(d_all.values())
+    u_pos = [plant.input_names.index(n) for n in controller.input_names]
+    d_ref_pos = [plant.disturbance_names.index(n) for n in reference.disturbance_names]
+    d_ctrl_pos = [plant.disturbance_names.index(n) for n in controller.disturbance_names]
     y_index = [plant.output_names.index(n) for n in controller.output_names]
     r_index = [reference.setpoint_names.index(n) for n in controller.output_names]
+    y_whole = y_index == list(range(len(plant.output_names)))       # y[y_index] is y
+    r_whole = r_index == list(range(len(reference.setpoint_names)))
     names = (['t'] + [f'y.{n}' for n in plant.output_names]
              + [f'r.{n}' for n in reference.setpoint_names]
              + [f'u.{n}' for n in controller.input_names]
              + [f'd.{n}' for n in reference.disturbance_names])
-    rows = np.empty((n_ticks, len(names)))
-    u_ctrl = np.array([u_all[n] for n in controller.input_names], dtype=float)
+    table: list[float] = []          # the rows one after another
+    u_ctrl = [u_all[n] for n in controller.input_names]
+    no_d_ctrl = np.empty(0) if not d_ctrl_pos else None
     started = False
+    setpoints, disturbances = reference.setpoints, reference.values
+    outputs, plant_step, controller_step = plant.outputs, plant.step, controller.step
+    isfinite = math.isfinite
     for k in range(n_ticks):
         t_ns = k * ts_ns
         t = seconds(t_ns)
-        r_all = reference.setpoints(t)
-        d_ref = reference.disturbances(t)
-        d_all.update(zip(reference.disturbance_names, d_ref.tolist()))
-        y = plant.outputs()
+        r_all = setpoints(t)
+        d_ref = disturbances('disturbance', t)
+        for i, j in enumerate(d_ref_pos):
+            d_plant[j] = d_ref[i]
+        y = outputs()
         if noise is not None:
             y = y + noise()
+        y_row = y.tolist()
+        r_row = r_all.tolist()
         if t_ns % cts_ns == 0:
-            d_ctrl = np.array([d_all[n] for n in controller.disturbance_names], dtype=float)
-            if not started and np.all(np.isfinite(y[y_index])):
-                warm_start(controller, y[y_index])      # the first good sample: bumpless take-over
+            y_c = y if y_whole else y[y_index]
+            if not started and all(isfinite(y_row[i]) for i in y_index):
+                warm_start(controller, y_c)      # the first good sample: bumpless take-over
                 started = True
-            u_ctrl = np.asarray(controller.step(t, y[y_index], r_all[r_index], d_ctrl), dtype=float)
-            u_all.update(zip(controller.input_names, u_ctrl.tolist()))
-        rows[k] = np.concatenate(([t], y, r_all, u_ctrl, d_ref))
-        plant.step(np.array([u_all[n] for n in plant.input_names], dtype=float),
-                   np.array([d_all[n] for n in plant.disturbance_names], dtype=float),
-                   sample_time)
-    return Trace.from_rows(names, rows)
+            d_c = no_d_ctrl if no_d_ctrl is not None else np.array(
+                [d_plant[j] for j in d_ctrl_pos], dtype=float)
+            u_out = controller_step(t, y_c, r_all if r_whole else r_all[r_index], d_c)
+            if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
+                u_out = np.asarray(u_out, dtype=float)
+            u_ctrl = u_out.tolist()
+            for i, j in enumerate(u_pos):
+                u_plant[j] = u_ctrl[i]
+        table += [t, *y_row, *r_row, *u_ctrl, *d_ref]
+        plant_step(np.array(u_plant, dtype=float), np.array(d_plant, dtype=float), sample_time)
+    return Trace.from_rows(names, np.array(table, dtype=float).reshape(n_ticks, len(names)))

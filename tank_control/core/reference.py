@@ -125,11 +125,16 @@ class Reference:
 
     def setpoints(self, t: float) -> np.ndarray:
         """Setpoints at ``t`` [s], ordered as ``setpoint_names``."""
-        return np.array([s.at(t) for s in self._channels['setpoint'].values()], dtype=float)
+        return np.array(self.values('setpoint', t), dtype=float)
 
     def disturbances(self, t: float) -> np.ndarray:
         """Disturbances at ``t`` [s], ordered as ``disturbance_names``."""
-        return np.array([s.at(t) for s in self._channels['disturbance'].values()], dtype=float)
+        return np.array(self.values('disturbance', t), dtype=float)
+
+    def values(self, kind: str, t: float) -> list[float]:
+        """The channels of ``kind`` (``setpoint`` or ``disturbance``) at ``t`` [s] as floats,
+        in channel order."""
+        return [s.at(t) for s in self._channels[kind].values()]
 
     def set_value(self, kind: str, name: str, value: float, t: float) -> str | None:
         """Operator override: target ``value`` from ``t`` on. Returns a reason if rejected."""

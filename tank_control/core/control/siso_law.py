@@ -16,6 +16,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 ConfigT = TypeVar('ConfigT')
+_FLOAT64 = np.dtype(np.float64)
 LawT = TypeVar('LawT', bound='SisoLaw[Any]')
 
 
@@ -35,7 +36,7 @@ class SisoLaw(Generic[ConfigT]):
 
     def __init__(self, config: ConfigT) -> None:
         self._check(config)
-        self._cfg: Any = replace(config)  # type: ignore[type-var]
+        self._set_config(replace(config))  # type: ignore[type-var]
         self._mode = 'auto'
         self._manual_u: float | None = None
         self._x = 0.0            # low-pass state of the law [units of its error]
@@ -78,6 +79,15 @@ class SisoLaw(Generic[ConfigT]):
     def _default_tracking_time(self) -> float:
         """Back-calculation tracking time Tt [s] when ``tracking_time`` is None."""
         raise NotImplementedError
+
+    def _set_config(self, cfg: ConfigT) -> None:
+        """Take ``cfg`` (validated) into use with the constants every sample needs: the signed
+        gain, whether there is integral action and the anti-windup tracking time Tt [s]."""
+        self._cfg: Any = cfg
+        self._k = self._gain()
+        self._has_integral = math.isfinite(self._cfg.ti)
+        self._tt = (self._cfg.tracking_time or self._default_tracking_time()
+                    if self._has_integral else math.inf)
 
     # ----------------------------------------------------------------- state
     @property
@@ -195,13 +205,12 @@ class SisoLaw(Generic[ConfigT]):
         (no step that drives further into the limit), or none. ``ti = inf``: no integral."""
         cfg = self._cfg
         self._aw_active = False
-        if not math.isfinite(cfg.ti):
+        if not self._has_integral:
             return
         h = cfg.sample_time
         di = k * h / cfg.ti * e
         if cfg.anti_windup == 'back_calculation':
-            tt = cfg.tracking_time or self._default_tracking_time()
-            self._i += di + min(h / tt, 1.0) * (u - v)
+            self._i += di + min(h / self._tt, 1.0) * (u - v)
             self._aw_active = u != v
         elif cfg.anti_windup == 'conditional_integration':
             if (v > u and di > 0.0) or (v < u and di < 0.0):
@@ -225,7 +234,7 @@ class SisoLaw(Generic[ConfigT]):
         self._check(new)
         if self._initialised and self._last is not None:
             self._retune(self._cfg, new, *self._last)
-        self._cfg = new
+        self._set_config(new)
 
     def set_manual(self, u: float | None = None) -> None:
         """Switch to manual: the output becomes ``u`` (limited) from the next sample; without
@@ -288,6 +297,8 @@ class SisoController(Generic[LawT]):
         return self._law.status
 
     def _scalar(self, value: Any, name: str) -> float:
+        if type(value) is np.ndarray and value.shape == (1,) and value.dtype is _FLOAT64:
+            return value.item()
         arr = np.asarray(value, dtype=float).reshape(-1)
         if arr.size != 1:
             raise ValueError(f'{name}: expected 1 value for a SISO {self.law_name}, '

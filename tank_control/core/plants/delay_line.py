@@ -11,7 +11,7 @@ from __future__ import annotations
 import bisect
 import math
 
-from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.interfaces import NS_PER_S, to_ns
 
 _PRUNE_BATCH = 64
 """Stale entries are dropped in batches of this many (amortised list deletion)."""
@@ -109,22 +109,25 @@ class DelayLine:
         ``seconds(t_switch − t0) + delay``, so they are exact to rounding and
         never snapped to a grid.
         """
-        _check_delay(delay, self.max_delay)
+        if not 0.0 <= delay <= self.max_delay:     # also NaN
+            _check_delay(delay, self.max_delay)
         if dt < 0.0 or not math.isfinite(dt):
             raise ValueError(f'dt: {dt!r} must be finite and >= 0')
         # Start from the last breakpoint that is certainly in force at t0 − delay
         # (a 2 ns margin absorbs the rounding of delay to nanoseconds) and walk
         # forward; delayed positions are exact relative times in seconds.
-        if self._now_ns is not None and t0_ns - to_ns(delay) < self._now_ns - self._keep_ns:
+        read_ns = t0_ns - to_ns(delay)
+        if self._now_ns is not None and read_ns < self._now_ns - self._keep_ns:
             raise ValueError(f't0_ns: {t0_ns} minus the delay reads history older than max_delay')
         times, values = self._times, self._values
-        k = bisect.bisect_right(times, t0_ns - to_ns(delay) - 2) - 1
+        k = bisect.bisect_right(times, read_ns - 2) - 1
         value = self._initial if k < 0 else values[k]
         pieces: list[Segment] = []
         start = 0.0
+        end = dt - _SNAP
         for i in range(max(k + 1, 0), len(times)):
-            r = seconds(times[i] - t0_ns) + delay
-            if r >= dt - _SNAP:
+            r = (times[i] - t0_ns) / NS_PER_S + delay
+            if r >= end:
                 break
             if r > start + _SNAP:
                 pieces.append((r - start, value))
