@@ -267,6 +267,14 @@ class TwoLoopPi:
         self._guard = cfg.guard
         self._loop_pair = (cfg.h_loop, cfg.t_loop)
         self._v_lo, self._v_hi = self._v_range()
+        h = cfg.sample_time
+        # per loop: kp, the integral gain per sample ki·h, and the back-calculation gain
+        # min(h/Tt, 1) with Tt = tracking_time, else kp/ki, else h
+        self._pi = tuple(
+            (loop.kp, loop.ki * h,
+             min(h / (loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0
+                                              else h)), 1.0))
+            for loop in self._loop_pair)
 
     @property
     def sample_time(self) -> float:
@@ -339,12 +347,11 @@ class TwoLoopPi:
 
     def _compute(self, e: list[float]) -> np.ndarray:
         cfg = self.config
-        h = cfg.sample_time
         lo, hi = self._v_lo, self._v_hi
         u_min, u_max = cfg.u_min, cfg.u_max
-        loops = self._loop_pair
         integral = self._integral
-        w = [loop.kp * e[i] + integral[i] for i, loop in enumerate(loops)]
+        pi = self._pi
+        w = [pi[0][0] * e[0] + integral[0], pi[1][0] * e[1] + integral[1]]
         v = [_clip(w[0], lo, hi), _clip(w[1], lo, hi)]
         if cfg.decoupling == 'none':
             cross = [0.0, 0.0]
@@ -356,13 +363,13 @@ class TwoLoopPi:
         # term into u_i), within the PI output range
         v_eff = [_clip(u[0] - cross[0], lo, hi), _clip(u[1] - cross[1], lo, hi)]
         aw = [False, False]
-        for i, loop in enumerate(loops):
-            di = loop.ki * h * e[i]
-            if cfg.anti_windup == 'back_calculation':
-                tt = loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0 else h)
-                integral[i] += di + min(h / tt, 1.0) * (v_eff[i] - w[i])
+        method = cfg.anti_windup
+        for i in (0, 1):
+            di = pi[i][1] * e[i]                           # ki·h·e
+            if method == 'back_calculation':
+                integral[i] += di + pi[i][2] * (v_eff[i] - w[i])
                 aw[i] = v_eff[i] != w[i]
-            elif cfg.anti_windup == 'conditional_integration':
+            elif method == 'conditional_integration':
                 push = w[i] - v_eff[i]
                 if push != 0 and di * push > 0:
                     aw[i] = True
@@ -371,12 +378,13 @@ class TwoLoopPi:
             else:
                 integral[i] += di
         self._u = u
-        saturated = [u[i] != v[i] + cross[i] or v[i] != w[i] for i in range(2)]
+        sat_h = u[0] != v[0] + cross[0] or v[0] != w[0]
+        sat_t = u[1] != v[1] + cross[1] or v[1] != w[1]
         self._status = {
             'decoupling': cfg.decoupling,
-            'saturated': saturated[0] or saturated[1],
-            'saturated.F_H': saturated[0],
-            'saturated.F_Cin': saturated[1],
+            'saturated': sat_h or sat_t,
+            'saturated.F_H': sat_h,
+            'saturated.F_Cin': sat_t,
             'anti_windup_active': aw[0] or aw[1],
             'input_fault': False,
             'v.h': v[0], 'v.T_out': v[1],

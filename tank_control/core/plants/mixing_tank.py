@@ -140,7 +140,7 @@ class _Inflow(NamedTuple):
 
 def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]) -> _Inflow:
     present = [t for f, t in zip(flows, temps) if f > 0.0]
-    return _Inflow(sum(flows), sum(f * t for f, t in zip(flows, temps)),
+    return _Inflow(sum(flows), sum([f * t for f, t in zip(flows, temps)]),
                    min(present, default=math.inf), max(present, default=-math.inf))
 
 
@@ -346,6 +346,8 @@ class MixingTank:
 
     # ---- integration ---------------------------------------------------------------
     def _clip(self, name: str, value: float, low: float, high: float) -> float:
+        if low <= value <= high:
+            return float(value)
         clipped = min(max(float(value), low), high)
         if clipped != value:
             self._counts[f'clipped_{name}'] += 1
@@ -374,26 +376,29 @@ class MixingTank:
     def _advance(self, inflow: _Inflow, h: float, t_b: float) -> None:
         """One RK4 step of length ``h`` ending at grid instant ``t_b``; records T there."""
         V0, T0 = self._V, self._T
-        substeps = 1
         rate = self._stiffness(V0, inflow)
-        if rate * h > 1.0:
+        exact_t = False
+        if rate * h <= 1.0:     # one RK4 step (rate·h ≤ 1 is within RK4's stability limit)
+            start = self._rhs(V0, T0, inflow)
+            V, T = self._rk4(V0, T0, inflow, h, start)
+            V = self._guard_volume(V)
+        else:
             substeps = _MAX_SUBSTEPS if rate * h >= _MAX_SUBSTEPS else math.ceil(rate * h)
             self._counts['stiff_substeps'] += 1
-        delta = h / substeps
-        exact_t = False
-        V, T = V0, T0
-        start = None        # the right-hand side at (V0, T0), if the first sub-step has it
-        for i in range(substeps):
-            # the first sub-step starts at V0: its stiffness is ``rate``
-            if (rate if i == 0 else self._stiffness(V, inflow)) * delta <= _RK4_STABLE:
-                k1 = self._rhs(V, T, inflow)
-                if i == 0:
-                    start = k1
-                V, T = self._rk4(V, T, inflow, delta, k1)
-            else:
-                V, T = self._frozen_volume_step(V, T, inflow, delta)
-                exact_t = True
-            V = self._guard_volume(V)
+            delta = h / substeps
+            V, T = V0, T0
+            start = None    # the right-hand side at (V0, T0), if the first sub-step has it
+            for i in range(substeps):
+                # the first sub-step starts at V0: its stiffness is ``rate``
+                if (rate if i == 0 else self._stiffness(V, inflow)) * delta <= _RK4_STABLE:
+                    k1 = self._rhs(V, T, inflow)
+                    if i == 0:
+                        start = k1
+                    V, T = self._rk4(V, T, inflow, delta, k1)
+                else:
+                    V, T = self._frozen_volume_step(V, T, inflow, delta)
+                    exact_t = True
+                V = self._guard_volume(V)
         low, high = min(T0, inflow.t_low), max(T0, inflow.t_high)
         T = min(max(T, low), high)
         self._V, self._T = V, T
@@ -402,8 +407,9 @@ class MixingTank:
         else:
             slope_a = (start or self._rhs(V0, T0, inflow))[1]
             slope_b = self._rhs(V, T, inflow)[1]
-        if t_b > self._temperature.last_time:
-            self._temperature.append(t_b, T, slope_a, slope_b)
+        temperature = self._temperature
+        if t_b > temperature.last_time:
+            temperature.append(t_b, T, slope_a, slope_b)
 
     def _rk4(self, V: float, T: float, inflow: _Inflow, h: float,
              k1: tuple[float, float, float] | None = None) -> tuple[float, float]:
