@@ -335,17 +335,15 @@ class TwoLoopPi:
             self._d21.settle(0.0)
             self._initialised = True
         self._fault = False
-        u = self._compute(e)
-        self._status['setpoint_limited'] = limited
-        self._status['r.h'], self._status['r.T_out'] = r_h, r_t
-        return u
+        return self._compute(e, {'setpoint_limited': limited, 'r.h': r_h, 'r.T_out': r_t})
 
     def _held(self) -> np.ndarray:
         if all(map(math.isfinite, self._u)):
             return np.array(self._u)
         return np.clip(np.zeros(2), self.config.u_min, self.config.u_max)
 
-    def _compute(self, e: list[float]) -> np.ndarray:
+    def _compute(self, e: list[float], setpoints: dict[str, Any]) -> np.ndarray:
+        """One sample at the errors ``e``; ``setpoints``: the guard's entries of the status."""
         cfg = self.config
         lo, hi = self._v_lo, self._v_hi
         u_min, u_max = cfg.u_min, cfg.u_max
@@ -389,6 +387,7 @@ class TwoLoopPi:
             'input_fault': False,
             'v.h': v[0], 'v.T_out': v[1],
             'i.h': integral[0], 'i.T_out': integral[1],
+            **setpoints,
         }
         return np.array(u)
 

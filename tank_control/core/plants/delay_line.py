@@ -198,19 +198,20 @@ class HermiteDelayLine:
 
     def value_at(self, t: float) -> float:
         """The signal at instant ``t`` [s] (``t`` at most the newest grid instant)."""
-        if t <= self._t[0]:
-            return self._initial if t < self._t[0] else self._y[0]
-        if t >= self._t[-1]:
-            if t - self._t[-1] > 1e-9 * max(1.0, abs(t)):
-                raise ValueError(f't: {t!r} is after the newest grid point {self._t[-1]!r}')
-            return self._y[-1]
-        i = bisect.bisect_right(self._t, t) - 1
-        t_a, t_b = self._t[i], self._t[i + 1]
+        grid, ys = self._t, self._y
+        if t <= grid[0]:
+            return self._initial if t < grid[0] else ys[0]
+        if t >= grid[-1]:
+            if t - grid[-1] > 1e-9 * max(1.0, abs(t)):
+                raise ValueError(f't: {t!r} is after the newest grid point {grid[-1]!r}')
+            return ys[-1]
+        i = bisect.bisect_right(grid, t) - 1
+        t_a, t_b = grid[i], grid[i + 1]
         h = t_b - t_a
         s = (t - t_a) / h
         if s == 0.0:
-            return self._y[i]
-        y_a, y_b = self._y[i], self._y[i + 1]
+            return ys[i]
+        y_a, y_b = ys[i], ys[i + 1]
         m_a, m_b = self._slope_start[i] * h, self._slope_end[i] * h
         s2, s3 = s * s, s * s * s
         return ((2 * s3 - 3 * s2 + 1) * y_a + (s3 - 2 * s2 + s) * m_a
@@ -218,5 +219,6 @@ class HermiteDelayLine:
 
     def delayed(self, now: float, delay: float) -> float:
         """The signal ``delay`` seconds before ``now``."""
-        _check_delay(delay, self.max_delay)
+        if not 0.0 <= delay <= self.max_delay:     # also NaN
+            _check_delay(delay, self.max_delay)
         return self.value_at(now - delay)
