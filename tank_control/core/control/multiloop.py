@@ -223,12 +223,6 @@ def _floats(values: Any) -> list[float]:
     return np.asarray(values, dtype=float).reshape(-1).tolist()
 
 
-def _clip(x: float, lo: float, hi: float) -> float:
-    """``np.clip`` of one float (``lo <= hi``; NaN passes through)."""
-    x = lo if x < lo else x
-    return hi if x > hi else x
-
-
 class TwoLoopPi:
     """Two-loop PI of 003 behind the Controller protocol.
 
@@ -350,16 +344,17 @@ class TwoLoopPi:
         integral = self._integral
         pi = self._pi
         w = [pi[0][0] * e[0] + integral[0], pi[1][0] * e[1] + integral[1]]
-        v = [_clip(w[0], lo, hi), _clip(w[1], lo, hi)]
+        v = [min(max(w[0], lo), hi), min(max(w[1], lo), hi)]
         if cfg.decoupling == 'none':
             cross = [0.0, 0.0]
         else:
             c21 = self._d21.step(v[0]) if cfg.decoupling == 'dynamic' else cfg.d21 * v[0]
-            cross = [_clip(cfg.d12 * v[1], lo, hi), _clip(c21, lo, hi)]   # 003 §3.1: decoupler outputs clipped
-        u = [_clip(v[0] + cross[0], u_min, u_max), _clip(v[1] + cross[1], u_min, u_max)]
+            # 003 §3.1: decoupler outputs clipped
+            cross = [min(max(cfg.d12 * v[1], lo), hi), min(max(c21, lo), hi)]
+        u = [min(max(v[0] + cross[0], u_min), u_max), min(max(v[1] + cross[1], u_min), u_max)]
         # anti-windup sees the applied flows: loop i's effective output is u_i − (decoupler
         # term into u_i), within the PI output range
-        v_eff = [_clip(u[0] - cross[0], lo, hi), _clip(u[1] - cross[1], lo, hi)]
+        v_eff = [min(max(u[0] - cross[0], lo), hi), min(max(u[1] - cross[1], lo), hi)]
         aw = [False, False]
         method = cfg.anti_windup
         for i in (0, 1):

@@ -73,13 +73,16 @@ class DelayLine:
                 self._drop_repeat()
                 return
             if value == self._values[-1]:
-                self._prune(t_ns)
+                if len(self._times) > _PRUNE_BATCH:
+                    self._prune(t_ns)
                 return
         elif value == self._initial:
             return
-        self._times.append(int(t_ns))
+        times = self._times
+        times.append(int(t_ns))
         self._values.append(value)
-        self._prune(t_ns)
+        if len(times) > _PRUNE_BATCH and times[_PRUNE_BATCH] <= t_ns - self._keep_ns:
+            self._prune(t_ns)       # (else there is nothing to drop yet)
 
     def _drop_repeat(self) -> None:
         previous = self._values[-2] if len(self._values) > 1 else self._initial
@@ -182,7 +185,9 @@ class HermiteDelayLine:
         self._y.append(float(y))
         self._slope_start.append(float(slope_start))
         self._slope_end.append(float(slope_end))
-        self._prune(t)
+        grid = self._t
+        if len(grid) > _PRUNE_BATCH and grid[_PRUNE_BATCH] <= t - self.max_delay:
+            self._prune(t)          # (else there is nothing to drop yet)
 
     def _prune(self, now: float) -> None:
         cutoff = now - self.max_delay

@@ -361,7 +361,7 @@ class MixingTank:
         """(dV/dt, dT/dt, spill rate): 003 §1, with the level pinned at the brim h_max
         while the net inflow is positive (the excess spills)."""
         total = inflow.total
-        dV = total - self._outflow(V)
+        dV = total - self._alpha * math.sqrt(math.sqrt(max(V, 0.0) / self._c))   # _outflow(V)
         dT = (inflow.heat - total * T) / V if V > 0.0 else 0.0
         if dV > 0.0 and V >= self._v_brim:
             return 0.0, dT, dV
