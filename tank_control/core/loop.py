@@ -144,6 +144,7 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
              + [f'u.{n}' for n in controller.input_names]
              + [f'd.{n}' for n in reference.disturbance_names])
     table: list[float] = []          # the rows one after another
+    d_ref: list[float] = []
     u_ctrl = [u_all[n] for n in controller.input_names]
     no_d_ctrl = np.empty(0) if not d_ctrl_pos else None
     started = False
@@ -154,9 +155,10 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
         t_ns = k * ts_ns
         t = seconds(t_ns)
         r_all = setpoints(t)
-        d_ref = disturbances('disturbance', t)
-        for i, j in enumerate(d_ref_pos):
-            d_plant[j] = d_ref[i]
+        if d_ref_pos:
+            d_ref = disturbances('disturbance', t)
+            for i, j in enumerate(d_ref_pos):
+                d_plant[j] = d_ref[i]
         y = outputs()
         if noise is not None:
             y = y + noise()

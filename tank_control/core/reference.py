@@ -66,8 +66,8 @@ class ChannelSchedule:
 
     def at(self, t: float) -> float:
         """The channel value at ``t`` [s]: the target, rate-limited by ``ramp_rate``."""
-        if self.ramp_rate <= 0.0:
-            return self.target(t)
+        if self.ramp_rate <= 0.0:      # the target
+            return self.values[max(bisect.bisect_right(self.times, t) - 1, 0)]
         x = self.values[0]
         n = bisect.bisect_right(self.times, t)
         for i in range(n):

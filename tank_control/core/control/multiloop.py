@@ -248,7 +248,7 @@ class TwoLoopPi:
         self._pending: np.ndarray | None = None
         self._initialised = False
         self._fault = False
-        self._status: dict[str, Any] = {}
+        self._last_sample: tuple[Any, ...] | None = None   # what status reports
 
     @property
     def config(self) -> TwoLoopPiConfig:
@@ -314,7 +314,6 @@ class TwoLoopPi:
         if not (isfinite(y_l[0]) and isfinite(y_l[1]) and isfinite(r_l[0])
                 and isfinite(r_l[1])):
             self._fault = True
-            self._status['input_fault'] = True
             return self._held()
         r_h, r_t = self._guard.limit_pair(r_l[0], r_l[1])
         limited = r_h != r_l[0] or r_t != r_l[1]
@@ -329,15 +328,16 @@ class TwoLoopPi:
             self._d21.settle(0.0)
             self._initialised = True
         self._fault = False
-        return self._compute(e, {'setpoint_limited': limited, 'r.h': r_h, 'r.T_out': r_t})
+        return self._compute(e, (limited, r_h, r_t))
 
     def _held(self) -> np.ndarray:
         if all(map(math.isfinite, self._u)):
             return np.array(self._u)
         return np.clip(np.zeros(2), self.config.u_min, self.config.u_max)
 
-    def _compute(self, e: list[float], setpoints: dict[str, Any]) -> np.ndarray:
-        """One sample at the errors ``e``; ``setpoints``: the guard's entries of the status."""
+    def _compute(self, e: list[float], setpoints: tuple[bool, float, float]) -> np.ndarray:
+        """One sample at the errors ``e``; ``setpoints``: whether the guard limited them, and
+        the setpoints used (for :attr:`status`)."""
         cfg = self.config
         lo, hi = self._v_lo, self._v_hi
         u_min, u_max = cfg.u_min, cfg.u_max
@@ -373,19 +373,19 @@ class TwoLoopPi:
         self._u = u
         sat_h = u[0] != v[0] + cross[0] or v[0] != w[0]
         sat_t = u[1] != v[1] + cross[1] or v[1] != w[1]
-        self._status = {
-            'decoupling': cfg.decoupling,
-            'saturated': sat_h or sat_t,
-            'saturated.F_H': sat_h,
-            'saturated.F_Cin': sat_t,
-            'anti_windup_active': aw[0] or aw[1],
-            'input_fault': False,
-            'v.h': v[0], 'v.T_out': v[1],
-            'i.h': integral[0], 'i.T_out': integral[1],
-            **setpoints,
-        }
+        self._last_sample = (cfg.decoupling, sat_h, sat_t, aw[0] or aw[1], v[0], v[1],
+                             integral[0], integral[1], *setpoints)
         return np.array(u)
 
     @property
     def status(self) -> Mapping[str, Any]:
-        return dict(self._status)
+        """The last sample: decoupling, saturation flags, anti-windup, input fault, the PI
+        outputs ``v.*`` and integrals ``i.*``, and the setpoints used (guard)."""
+        if self._last_sample is None:
+            return {'input_fault': True} if self._fault else {}
+        (decoupling, sat_h, sat_t, aw, v_h, v_t, i_h, i_t, limited, r_h, r_t
+         ) = self._last_sample
+        return {'decoupling': decoupling, 'saturated': sat_h or sat_t, 'saturated.F_H': sat_h,
+                'saturated.F_Cin': sat_t, 'anti_windup_active': aw, 'input_fault': self._fault,
+                'v.h': v_h, 'v.T_out': v_t, 'i.h': i_h, 'i.T_out': i_t,
+                'setpoint_limited': limited, 'r.h': r_h, 'r.T_out': r_t}

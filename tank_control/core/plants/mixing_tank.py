@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.linalg import expm
 
-from tank_control.core.interfaces import StatusValue, seconds
+from tank_control.core.interfaces import NS_PER_S, StatusValue, seconds
 from tank_control.core.params import check_config, config_from, param
 from tank_control.core.plants.delay_line import DelayLine, HermiteDelayLine
 from tank_control.core.plants.siso import StepLength, as_floats
@@ -139,9 +139,16 @@ class _Inflow(NamedTuple):
 
 
 def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]) -> _Inflow:
-    present = [t for f, t in zip(flows, temps) if f > 0.0]
-    return _Inflow(sum(flows), sum([f * t for f, t in zip(flows, temps)]),
-                   min(present, default=math.inf), max(present, default=-math.inf))
+    """Total flow, heat flow and the range of the temperatures of the flows present (> 0)."""
+    (f_1, f_2, f_3), (t_1, t_2, t_3) = flows, temps
+    t_low, t_high = math.inf, -math.inf
+    for f, t in ((f_1, t_1), (f_2, t_2), (f_3, t_3)):
+        if f > 0.0:
+            if t < t_low:
+                t_low = t
+            if t > t_high:
+                t_high = t
+    return _Inflow(sum(flows), sum((f_1 * t_1, f_2 * t_2, f_3 * t_3)), t_low, t_high)
 
 
 class MixingTank:
@@ -260,8 +267,8 @@ class MixingTank:
         t_ns = self._t_ns
         self._cold.push(t_ns, f_cold_in)
         self._overflow = False
-        t_start, span = seconds(t_ns), seconds(dt_ns)
-        t_end = seconds(t_ns + dt_ns)
+        t_start, span = t_ns / NS_PER_S, dt_ns / NS_PER_S        # seconds(...)
+        t_end = (t_ns + dt_ns) / NS_PER_S
         offset = 0.0
         pieces = self._cold.segments(t_ns, span, cfg.tau_cold)
         last_piece = len(pieces) - 1
