@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from tank_control.core.interfaces import Controller, Plant, seconds, to_ns
+from tank_control.core.interfaces import NS_PER_S, Controller, Plant, to_ns
 from tank_control.core.reference import Reference
 from tank_control.core.trace import Trace
 
@@ -153,7 +153,7 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     isfinite = math.isfinite
     for k in range(n_ticks):
         t_ns = k * ts_ns
-        t = seconds(t_ns)
+        t = t_ns / NS_PER_S                      # seconds(t_ns)
         r_all = setpoints(t)
         if d_ref_pos:
             d_ref = disturbances('disturbance', t)

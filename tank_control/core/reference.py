@@ -125,7 +125,7 @@ class Reference:
 
     def setpoints(self, t: float) -> np.ndarray:
         """Setpoints at ``t`` [s], ordered as ``setpoint_names``."""
-        return np.array(self.values('setpoint', t), dtype=float)
+        return np.array([s.at(t) for s in self._channels['setpoint'].values()], dtype=float)
 
     def disturbances(self, t: float) -> np.ndarray:
         """Disturbances at ``t`` [s], ordered as ``disturbance_names``."""

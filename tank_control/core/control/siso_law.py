@@ -281,7 +281,11 @@ class SisoController(Generic[LawT]):
         self._pending = u0
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y0, r0 = self._scalar(y, 'y'), self._scalar(r, 'r')
+        if (type(y) is np.ndarray and type(r) is np.ndarray and y.shape == r.shape == (1,)
+                and y.dtype is r.dtype is _FLOAT64):
+            y0, r0 = y.item(), r.item()                # what _scalar gives, without the calls
+        else:
+            y0, r0 = self._scalar(y, 'y'), self._scalar(r, 'r')
         if self._pending is not None and math.isfinite(y0) and math.isfinite(r0):
             self._law.reset(r0, y0, self._pending)
             self._pending = None
