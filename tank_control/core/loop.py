@@ -127,7 +127,8 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
 
     # Signals are held as Python floats in the plant's channel order; a controller's or the
     # reference's channel writes the plant position of its name (later names win, as in a
-    # dict update). The objects are called with 1-D float64 arrays, as the nodes call them.
+    # dict update). The objects are called with 1-D float64 arrays, as the nodes call them; an
+    # array is made anew when its values change (the objects do not modify their inputs).
     u_all = nominal_inputs(plant)
     d_all = nominal_disturbances(plant)
     u_plant = list(u_all.values())
@@ -139,44 +140,57 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     r_index = [reference.setpoint_names.index(n) for n in controller.output_names]
     y_whole = y_index == list(range(len(plant.output_names)))       # y[y_index] is y
     r_whole = r_index == list(range(len(reference.setpoint_names)))
+    u_whole = u_pos == list(range(len(plant.input_names)))          # u of the plant is u_ctrl
     names = (['t'] + [f'y.{n}' for n in plant.output_names]
              + [f'r.{n}' for n in reference.setpoint_names]
              + [f'u.{n}' for n in controller.input_names]
              + [f'd.{n}' for n in reference.disturbance_names])
     table: list[float] = []          # the rows one after another
-    d_ref: list[float] = []
     u_ctrl = [u_all[n] for n in controller.input_names]
-    no_d_ctrl = np.empty(0) if not d_ctrl_pos else None
+    u_arr = np.array(u_plant, dtype=float)
+    d_arr = np.array(d_plant, dtype=float)
+    d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
+    r_row: list[float] | None = None
+    r_all = np.empty(0)
+    d_ref: list[float] = []
     started = False
-    setpoints, disturbances = reference.setpoints, reference.values
-    outputs, plant_step, controller_step = plant.outputs, plant.step, controller.step
+    values, outputs, plant_step = reference.values, plant.outputs, plant.step
+    controller_step = controller.step
     isfinite = math.isfinite
     for k in range(n_ticks):
         t_ns = k * ts_ns
         t = t_ns / NS_PER_S                      # seconds(t_ns)
-        r_all = setpoints(t)
+        r_now = values('setpoint', t)            # the values of reference.setpoints(t)
+        if r_now != r_row:
+            r_row = r_now
+            r_all = np.array(r_row, dtype=float)
         if d_ref_pos:
-            d_ref = disturbances('disturbance', t)
-            for i, j in enumerate(d_ref_pos):
-                d_plant[j] = d_ref[i]
+            d_now = values('disturbance', t)
+            if d_now != d_ref:
+                d_ref = d_now
+                for i, j in enumerate(d_ref_pos):
+                    d_plant[j] = d_ref[i]
+                d_arr = np.array(d_plant, dtype=float)
+                d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
         y = outputs()
         if noise is not None:
             y = y + noise()
         y_row = y.tolist()
-        r_row = r_all.tolist()
         if t_ns % cts_ns == 0:
             y_c = y if y_whole else y[y_index]
             if not started and all(isfinite(y_row[i]) for i in y_index):
                 warm_start(controller, y_c)      # the first good sample: bumpless take-over
                 started = True
-            d_c = no_d_ctrl if no_d_ctrl is not None else np.array(
-                [d_plant[j] for j in d_ctrl_pos], dtype=float)
-            u_out = controller_step(t, y_c, r_all if r_whole else r_all[r_index], d_c)
+            u_out = controller_step(t, y_c, r_all if r_whole else r_all[r_index], d_ctrl)
             if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
                 u_out = np.asarray(u_out, dtype=float)
             u_ctrl = u_out.tolist()
-            for i, j in enumerate(u_pos):
-                u_plant[j] = u_ctrl[i]
+            if u_whole and len(u_ctrl) == len(u_plant):
+                u_arr = u_out
+            else:
+                for i, j in enumerate(u_pos):
+                    u_plant[j] = u_ctrl[i]
+                u_arr = np.array(u_plant, dtype=float)
         table += [t, *y_row, *r_row, *u_ctrl, *d_ref]
-        plant_step(np.array(u_plant, dtype=float), np.array(d_plant, dtype=float), sample_time)
+        plant_step(u_arr, d_arr, sample_time)
     return Trace.from_rows(names, np.array(table, dtype=float).reshape(n_ticks, len(names)))
