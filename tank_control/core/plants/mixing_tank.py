@@ -180,6 +180,7 @@ class MixingTank:
         self._config = cfg
         self._alpha, self._c = cfg.alpha, cfg.C
         self._v_brim = cfg.C * cfg.h_max ** 2
+        self._end_rhs: tuple[float, float, _Inflow, tuple[float, float, float]] | None = None
 
     # ---- configuration -------------------------------------------------------------
     @property
@@ -214,6 +215,7 @@ class MixingTank:
         self._spilled = 0.0
         self._overflow = False
         self._empty = False
+        self._end_rhs = None
 
     @property
     def time(self) -> float:
@@ -386,7 +388,11 @@ class MixingTank:
         rate = self._stiffness(V0, inflow)
         exact_t = False
         if rate * h <= 1.0:     # one RK4 step (rate·h ≤ 1 is within RK4's stability limit)
-            start = self._rhs(V0, T0, inflow)
+            last = self._end_rhs    # the right-hand side where the previous step ended
+            if last is not None and last[2] is inflow and last[0] == V0 and last[1] == T0:
+                start = last[3]
+            else:
+                start = self._rhs(V0, T0, inflow)
             V, T = self._rk4(V0, T0, inflow, h, start)
             V = self._guard_volume(V)
         else:
@@ -409,11 +415,14 @@ class MixingTank:
         low, high = min(T0, inflow.t_low), max(T0, inflow.t_high)
         T = min(max(T, low), high)
         self._V, self._T = V, T
+        self._end_rhs = None
         if exact_t:     # slopes meaningless across a stiff transient: interpolate linearly
             slope_a = slope_b = (T - T0) / h
         else:
             slope_a = (start or self._rhs(V0, T0, inflow))[1]
-            slope_b = self._rhs(V, T, inflow)[1]
+            end = self._rhs(V, T, inflow)
+            slope_b = end[1]
+            self._end_rhs = (V, T, inflow, end)
         temperature = self._temperature
         if t_b > temperature.last_time:
             temperature.append(t_b, T, slope_a, slope_b)
