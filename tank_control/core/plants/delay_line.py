@@ -127,12 +127,13 @@ class DelayLine:
         value = self._initial if k < 0 else values[k]
         pieces: list[Segment] = []
         start = 0.0
-        end = dt - _SNAP
-        for i in range(max(k + 1, 0), len(times)):
+        snap = _SNAP
+        end = dt - snap
+        for i in range(k + 1, len(times)):          # k >= -1
             r = (times[i] - t0_ns) / NS_PER_S + delay
             if r >= end:
                 break
-            if r > start + _SNAP:
+            if r > start + snap:
                 pieces.append((r - start, value))
                 start = r
             value = values[i]

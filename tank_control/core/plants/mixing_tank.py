@@ -258,12 +258,16 @@ class MixingTank:
         if not d_vec:
             d_vec = self.nominal_disturbances().tolist()
         dt_ns = self._dt.ns(dt)
-        f_hot = self._clip('F_H', u_vec[0], 0.0, math.inf)
-        f_cold_in = self._clip('F_Cin', u_vec[1], 0.0, math.inf)
-        f_dist = self._clip('F_D', d_vec[0], 0.0, math.inf)
-        t_dist = self._clip('T_D', d_vec[1], T_MIN, T_MAX)
-        t_hot = self._clip('T_H', d_vec[2], T_MIN, T_MAX)
-        t_cold = self._clip('T_C', d_vec[3], T_MIN, T_MAX)
+        f_hot, f_cold_in = u_vec
+        f_dist, t_dist, t_hot, t_cold = d_vec
+        if not (f_hot >= 0.0 and f_cold_in >= 0.0 and f_dist >= 0.0 and T_MIN <= t_dist <= T_MAX
+                and T_MIN <= t_hot <= T_MAX and T_MIN <= t_cold <= T_MAX):
+            f_hot = self._clip('F_H', f_hot, 0.0, math.inf)
+            f_cold_in = self._clip('F_Cin', f_cold_in, 0.0, math.inf)
+            f_dist = self._clip('F_D', f_dist, 0.0, math.inf)
+            t_dist = self._clip('T_D', t_dist, T_MIN, T_MAX)
+            t_hot = self._clip('T_H', t_hot, T_MIN, T_MAX)
+            t_cold = self._clip('T_C', t_cold, T_MIN, T_MAX)
 
         cfg = self._config
         t_ns = self._t_ns
