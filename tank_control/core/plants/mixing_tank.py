@@ -398,7 +398,8 @@ class MixingTank:
             else:
                 start = self._rhs(V0, T0, inflow)
             V, T = self._rk4(V0, T0, inflow, h, start)
-            V = self._guard_volume(V)
+            if not 0.0 <= V <= self._v_brim:     # (else the guard changes nothing)
+                V = self._guard_volume(V)
         else:
             substeps = _MAX_SUBSTEPS if rate * h >= _MAX_SUBSTEPS else math.ceil(rate * h)
             self._counts['stiff_substeps'] += 1
