@@ -153,6 +153,8 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     r_row: list[float] | None = None
     r_all = np.empty(0)
     d_ref: list[float] = []
+    r_until = d_until = -math.inf      # the schedules hold their values before these instants
+    held_until = reference.held_until
     started = False
     values, outputs, plant_step = reference.values, plant.outputs, plant.step
     controller_step = controller.step
@@ -160,12 +162,15 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     for k in range(n_ticks):
         t_ns = k * ts_ns
         t = t_ns / NS_PER_S                      # seconds(t_ns)
-        r_now = values('setpoint', t)            # the values of reference.setpoints(t)
-        if r_now != r_row:
-            r_row = r_now
-            r_all = np.array(r_row, dtype=float)
-        if d_ref_pos:
+        if t >= r_until:
+            r_now = values('setpoint', t)        # the values of reference.setpoints(t)
+            r_until = held_until('setpoint', t)
+            if r_now != r_row:
+                r_row = r_now
+                r_all = np.array(r_row, dtype=float)
+        if d_ref_pos and t >= d_until:
             d_now = values('disturbance', t)
+            d_until = held_until('disturbance', t)
             if d_now != d_ref:
                 d_ref = d_now
                 for i, j in enumerate(d_ref_pos):

@@ -75,6 +75,15 @@ class ChannelSchedule:
             x = _approach(x, self.values[i], self.ramp_rate * (end - self.times[i]))
         return x
 
+    def held_until(self, t: float) -> float:
+        """The first instant after ``t`` [s] at which the value may differ from ``at(t)``: the
+        next scheduled time (``inf`` after the last); ``t`` itself with a ``ramp_rate``
+        (the value may move at any instant)."""
+        if self.ramp_rate > 0.0:
+            return t
+        i = bisect.bisect_right(self.times, t)
+        return self.times[i] if i < len(self.times) else math.inf
+
     def compacted(self, t: float) -> ChannelSchedule:
         """The same values from ``t`` on, with the past folded into the value at ``t``
         (held from 0) — so limits are never judged on values already past."""
@@ -130,6 +139,11 @@ class Reference:
     def disturbances(self, t: float) -> np.ndarray:
         """Disturbances at ``t`` [s], ordered as ``disturbance_names``."""
         return np.array(self.values('disturbance', t), dtype=float)
+
+    def held_until(self, kind: str, t: float) -> float:
+        """The first instant after ``t`` [s] at which a channel of ``kind`` may change
+        (:meth:`ChannelSchedule.held_until`; ``inf`` if none will)."""
+        return min((s.held_until(t) for s in self._channels[kind].values()), default=math.inf)
 
     def values(self, kind: str, t: float) -> list[float]:
         """The channels of ``kind`` (``setpoint`` or ``disturbance``) at ``t`` [s] as floats,
