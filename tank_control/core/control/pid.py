@@ -171,6 +171,12 @@ class Pid2Dof(SisoLaw[PidConfig]):
     def _flags(self) -> dict[str, bool]:
         return {'rate_limited': self._rate_limited}
 
+    @property
+    def rate_step(self) -> float | None:
+        """The largest output change per sample, ``du_max·sample_time`` [u units] (None without
+        a rate limit)."""
+        return self._du_step
+
     def _terms(self) -> dict[str, float]:
         """The p, i, d terms of the last sample."""
         return {'p': self._p, 'i': self._i_out, 'd': self._d}

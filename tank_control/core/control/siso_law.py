@@ -105,6 +105,12 @@ class SisoLaw(Generic[ConfigT]):
         return self._mode
 
     @property
+    def limits(self) -> tuple[float, float]:
+        """The output limits ``(u_min, u_max)`` in force [u units] (without copying the
+        configuration as :attr:`config` does)."""
+        return self._cfg.u_min, self._cfg.u_max
+
+    @property
     def status(self) -> dict[str, Any]:
         """mode, saturated, the subclass's flags, anti_windup_active, input_fault, the
         subclass's terms, the unlimited ``v`` and applied ``u`` of the last sample."""

@@ -68,11 +68,15 @@ _FLOAT64 = np.dtype(np.float64)
 def as_floats(name: str, values: Any, size: int, allow_empty: bool = False) -> list[float]:
     """:func:`as_vector` as a list of Python floats (same checks, same ``ValueError``).
 
-    A 1-D float64 array (what the nodes and the in-process loop pass) is checked element by
-    element without building another array.
+    A 1-D float64 array (what the nodes and the in-process loop pass) or a tuple or list of
+    Python floats is checked element by element without building another array.
     """
+    items = None
     if type(values) is np.ndarray and values.dtype is _FLOAT64 and values.ndim == 1:
         items = values.tolist()
+    elif type(values) in (tuple, list) and all(type(item) is float for item in values):
+        items = list(values)
+    if items is not None:
         if len(items) == size:
             for item in items:
                 if not math.isfinite(item):
