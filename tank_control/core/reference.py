@@ -77,9 +77,9 @@ class ChannelSchedule:
 
     def held_until(self, t: float) -> float:
         """The first instant after ``t`` [s] at which the value may differ from ``at(t)``: the
-        next scheduled time (``inf`` after the last); ``t`` itself with a ``ramp_rate``
-        (the value may move at any instant)."""
-        if self.ramp_rate > 0.0:
+        next scheduled time (``inf`` after the last); ``t`` itself while a ramp is moving the
+        value (it has not reached its target)."""
+        if self.ramp_rate > 0.0 and self.at(t) != self.target(t):
             return t
         i = bisect.bisect_right(self.times, t)
         return self.times[i] if i < len(self.times) else math.inf
