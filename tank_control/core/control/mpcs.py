@@ -258,6 +258,7 @@ class _Design:
         self.u_low = (self.u_min + m.u0).tolist()
         self.u_high = (self.u_max + m.u0).tolist()
         self.du_high = self.du_max.tolist()
+        self.y0 = m.y0.tolist()                       # the model's operating point [h, T_out]
 
 
 class Mpcs:
@@ -440,7 +441,8 @@ class Mpcs:
         cfg, m = self._design.cfg, self._design.model
         if r.shape != m.y0.shape or not _finite(r):
             return
-        if abs(r[0] - m.y0[0]) <= cfg.relinearize_h and abs(r[1] - m.y0[1]) <= cfg.relinearize_T:
+        (r_h, r_t), (y0_h, y0_t) = r.tolist(), self._design.y0
+        if abs(r_h - y0_h) <= cfg.relinearize_h and abs(r_t - y0_t) <= cfg.relinearize_T:
             return
         f_d, t_d = (d[0], d[1]) if self._valid_d(d, m) else (cfg.op_F_D, cfg.op_T_D)
         op = replace(cfg.operating_point(), F_D=float(f_d), T_D=float(t_d))
