@@ -259,6 +259,7 @@ class TwoLoopPi:
     def config(self, cfg: TwoLoopPiConfig) -> None:
         self._config = cfg
         self._guard = cfg.guard
+        self._guarded: tuple[float, float, float, float] | None = None   # last (r, r_used)
         self._loop_pair = (cfg.h_loop, cfg.t_loop)
         self._v_lo, self._v_hi = self._v_range()
         h = cfg.sample_time
@@ -315,7 +316,12 @@ class TwoLoopPi:
                 and isfinite(r_l[1])):
             self._fault = True
             return self._held()
-        r_h, r_t = self._guard.limit_pair(r_l[0], r_l[1])
+        last = self._guarded           # the guard is a function of r: reuse its last result
+        if last is not None and last[0] == r_l[0] and last[1] == r_l[1]:
+            r_h, r_t = last[2], last[3]
+        else:
+            r_h, r_t = self._guard.limit_pair(r_l[0], r_l[1])
+            self._guarded = (r_l[0], r_l[1], r_h, r_t)
         limited = r_h != r_l[0] or r_t != r_l[1]
         e = [r_h - y_l[0], r_t - y_l[1]]
         if self._pending is not None:
@@ -357,19 +363,18 @@ class TwoLoopPi:
         v_eff = [min(max(u[0] - cross[0], lo), hi), min(max(u[1] - cross[1], lo), hi)]
         aw = [False, False]
         method = cfg.anti_windup
-        for i in (0, 1):
-            di = pi[i][1] * e[i]                           # ki·h·e
-            if method == 'back_calculation':
-                integral[i] += di + pi[i][2] * (v_eff[i] - w[i])
+        if method == 'back_calculation':
+            for i in (0, 1):
+                integral[i] += pi[i][1] * e[i] + pi[i][2] * (v_eff[i] - w[i])   # ki·h·e + ...
                 aw[i] = v_eff[i] != w[i]
-            elif method == 'conditional_integration':
+        else:
+            for i in (0, 1):
+                di = pi[i][1] * e[i]                       # ki·h·e
                 push = w[i] - v_eff[i]
-                if push != 0 and di * push > 0:
+                if method == 'conditional_integration' and push != 0 and di * push > 0:
                     aw[i] = True
                 else:
                     integral[i] += di
-            else:
-                integral[i] += di
         self._u = u
         sat_h = u[0] != v[0] + cross[0] or v[0] != w[0]
         sat_t = u[1] != v[1] + cross[1] or v[1] != w[1]
