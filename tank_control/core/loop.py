@@ -13,6 +13,9 @@ The arithmetic of the nodes' lockstep protocol (docs/nodes.md), without ROS. Wit
    ``[t_k, t_k+1)``.
 
 Channels are matched by name (``output_names``, ``disturbance_names``, ``input_names``).
+The reference is read again only at the instants its schedules may change
+(:meth:`Reference.held_until`), and the arrays passed to the objects are made anew only when
+their values change: the same values as reading and building them every tick.
 """
 from __future__ import annotations
 
