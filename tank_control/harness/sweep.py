@@ -807,21 +807,9 @@ def _fmt(value: Any) -> str:
 
 
 def write_summary(summary: Mapping[str, Any], out: Path) -> dict[str, Path]:
-    (out / 'summary.json').write_text(json.dumps(_jsonable(summary), indent=2,
+    from tank_control.harness.runner import jsonable
+    (out / 'summary.json').write_text(json.dumps(jsonable(summary), indent=2,
                                                  allow_nan=False) + '\n')
     (out / 'summary.md').write_text(summary_markdown(summary))
     return {'summary': out / 'summary.md', 'summary_json': out / 'summary.json'}
 
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        value = float(value)
-        return value if math.isfinite(value) else ('inf' if value > 0 else '-inf'
-                                                    if value < 0 else None)
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
