@@ -173,7 +173,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         files['analysis'] = plot_analysis(cases, out / 'analysis.png',
                                           title=f'{scenario.harness.title or scenario.name}: '
                                                 'final gains')
-    files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
+    files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
     return RunResult(scenario.name, out, trace, metrics, files)
 
 
@@ -189,11 +189,12 @@ def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
     return [warning] if warning else []
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
+    """``value`` as strict JSON: numpy numbers as Python numbers, non-finite floats as null."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, (np.floating, float)):
         value = float(value)
         return value if math.isfinite(value) else None
