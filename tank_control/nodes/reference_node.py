@@ -13,6 +13,7 @@ from typing import Any
 
 from builtin_interfaces.msg import Time
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
@@ -74,6 +75,7 @@ class ReferenceNode(Node):
             self._timer = self.create_timer(period, self._on_timer, clock=steady_clock(),
                                             autostart=False)
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+            self.add_post_set_parameters_callback(self._after_set)
         sp, dist = channel_lists(self.params.values)
         self.get_logger().info(
             f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, '
@@ -164,10 +166,20 @@ class ReferenceNode(Node):
         self._origin_ns, self._last_t_ns = origin, -1
         self._on_timer()
 
-    def _on_timer(self) -> None:
+    def _after_set(self, parameters: list[Parameter]) -> None:
+        """wall: a new ``sample_time`` re-arms the timer on the new grid at once (otherwise
+        the wait for the next instant of the old grid, up to a whole old period, runs out
+        first). rclpy calls post-set callbacks last-added first, so this runs before
+        ParameterBinding stores the value: the period is taken from the request."""
+        for param in parameters:
+            if param.name == 'sample_time' and self._origin_ns is not None:
+                self._on_timer(to_ns(float(param.value)))
+
+    def _on_timer(self, period_ns: int | None = None) -> None:
         """wall: publish the latest instant reached (if not yet), re-arm for the next."""
         self._timer.cancel()
-        period_ns = to_ns(float(self.params.values['sample_time']))
+        if period_ns is None:
+            period_ns = to_ns(float(self.params.values['sample_time']))
         elapsed = self.get_clock().now().nanoseconds - self._origin_ns
         if elapsed < 0:                  # before the plant's tick 0: wait for instant 0
             self._timer.timer_period_ns = -elapsed
