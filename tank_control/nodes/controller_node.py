@@ -95,8 +95,10 @@ class ControllerNode(Node):
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
                                           event_callbacks=quiet_publisher_events())
         self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
-        if self._mode == 'wall':
-            self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+        # wall: the loop's time base; sim/lockstep: a check that the plant is not on the wall
+        # clock (its origin is then not 0), which would leave this node waiting for good
+        self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+        self._clock_conflict = ''
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
                                  event_callbacks=quiet_subscription_events())
@@ -252,8 +254,22 @@ class ControllerNode(Node):
                                                   [r_used.get(n, math.nan) for n in names]))
 
     def _on_origin(self, msg: Time) -> None:
-        """wall: the plant's time origin (a new one when the plant restarted)."""
+        """wall: the plant's time origin (a new one when the plant restarted). sim/lockstep:
+        an origin other than 0 comes from a plant on the wall clock, which publishes no
+        /clock ticks to answer: /diagnostics ERROR with the remedy."""
         origin = stamp_to_ns(msg)
+        if self._mode != 'wall':
+            conflict = (f'the plant runs on the wall clock (time_origin {origin} ns) but this '
+                        f'node samples in {self._mode} (clock_mode {self._params.values["clock_mode"]}'
+                        f', use_sim_time {self.get_parameter("use_sim_time").value}): it will never '
+                        'sample; start it with clock_mode wall and use_sim_time false'
+                        ) if origin != 0 else ''
+            if conflict != self._clock_conflict:
+                self._clock_conflict = conflict
+                if conflict:
+                    self.get_logger().error(conflict)
+                self._publish_diagnostics()
+            return
         if origin != self._origin_ns:
             self.get_logger().info(f'plant time origin {origin} ns: loop time = stamp - origin')
             self._origin_ns = origin
@@ -457,8 +473,14 @@ class ControllerNode(Node):
             message += '; ' + '; '.join(warnings)
         if self._warning:
             message += f'; warning: {self._warning}'
+        if self._clock_conflict:
+            level = DiagnosticStatus.ERROR
+            message = f'not sampling: {self._clock_conflict}'
+        if self._clock_conflict:
+            level = DiagnosticStatus.ERROR
+            message = f'not sampling: {self._clock_conflict}'
         if self._saturated_samples >= SATURATION_WARN_SAMPLES:
-            level = DiagnosticStatus.WARN
+            level = DiagnosticStatus.ERROR if self._clock_conflict else DiagnosticStatus.WARN
             message += f'; {self._saturation_text(status)}'
         fields = {
             'controller': self._params.values['controller'],

@@ -12,6 +12,7 @@ import sys
 from typing import Any
 
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -24,7 +25,8 @@ from tank_control.core.reference import Reference, channel_lists, channel_specs,
 from tank_control.core.scenario import reference_setup
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_CLOCK,
-                                         TOPIC_DISTURBANCE, TOPIC_SETPOINT, TOPIC_TIME_ORIGIN,
+                                         TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE, TOPIC_SETPOINT,
+                                         TOPIC_TIME_ORIGIN,
                                          quiet_publisher_events, quiet_subscription_events,
                                          stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
@@ -68,6 +70,10 @@ class ReferenceNode(Node):
         if self.use_sim_time:
             self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
                                      event_callbacks=quiet_subscription_events())
+            # a plant on the wall clock latches a non-zero origin and sends no /clock
+            self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._check_origin, ORIGIN_QOS)
+            self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+            self._conflict = ''
         else:
             period = float(self.params.values['sample_time'])
             self._origin_ns: int | None = None
@@ -154,6 +160,30 @@ class ReferenceNode(Node):
             ahead = 2 * t_ns - previous   # the plant's ticks are evenly spaced
             if ahead not in self._answered:
                 self._publish(ahead, seconds(ahead))
+
+    def _check_origin(self, msg: Time) -> None:
+        """/clock mode: a non-zero time origin is a wall-clock plant, whose ticks this node
+        would wait for forever: logged, and /diagnostics ERROR with the remedy every second
+        from then on."""
+        origin = stamp_to_ns(msg)
+        if origin == 0 or self._conflict:
+            return
+        self._conflict = (f'the plant runs on the wall clock (time_origin {origin} ns) but this '
+                          f'node answers /clock ticks (clock_mode '
+                          f'{self.params.values["clock_mode"]}, use_sim_time '
+                          f'{self.get_parameter("use_sim_time").value}): it will never publish; '
+                          'start it with clock_mode wall and use_sim_time false')
+        self.get_logger().error(self._conflict)
+        self._report_conflict()
+        self.create_timer(1.0, self._report_conflict, clock=steady_clock())
+
+    def _report_conflict(self) -> None:
+        status = DiagnosticStatus(level=DiagnosticStatus.ERROR, name='reference',
+                                  message=f'not publishing: {self._conflict}',
+                                  hardware_id='tank_control')
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
 
     def _on_origin(self, msg: Time) -> None:
         """wall: the plant's time origin; (re)start the grid of instants from it."""

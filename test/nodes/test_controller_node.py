@@ -6,6 +6,7 @@ test starts one controller process and runs several checks on it.
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 from builtin_interfaces.msg import Time
@@ -353,3 +354,17 @@ def test_an_input_held_at_its_limit_is_reported(procs, node_cmd, ros_env, probe)
     assert probe.wait_for(lambda: loop.diag.get('saturated_samples') == '0', 20.0), loop.diag
     assert 'at their limits' not in loop.diag_message
     assert loop.diag_level == DiagnosticStatus.OK
+
+
+def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, node_cmd, ros_env, probe):
+    """use_sim_time true makes the controller follow plant ticks (lockstep); a plant on the
+    wall clock publishes a non-zero time origin and no ticks to answer: ERROR with the remedy
+    instead of a silent stop."""
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true')
+    loop = Loop(probe)
+    origin_pub = probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS)
+    origin_pub.publish(ns_to_stamp(time.time_ns()))          # what a wall plant latches
+    assert probe.wait_for(lambda: 'not sampling' in loop.diag_message, 20), loop.diag_message
+    assert loop.diag_level == DiagnosticStatus.ERROR
+    assert 'the plant runs on the wall clock' in loop.diag_message
+    assert 'use_sim_time false' in loop.diag_message

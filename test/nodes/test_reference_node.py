@@ -116,6 +116,26 @@ def test_wall_mode_a_shorter_sample_time_acts_at_once(procs, ros_env, node_cmd, 
     assert all(b - a == 200_000_000 for a, b in zip(stamps[1:], stamps[2:]))
 
 
+def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, ros_env, node_cmd, probe,
+                                                            tmp_path):
+    """With use_sim_time the reference answers /clock ticks; a wall-clock plant sends none
+    (it latches a non-zero time origin): ERROR on /diagnostics with the remedy, not silence."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    reports = []
+    probe.node.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda m: reports.extend(s for s in m.status if s.name == 'reference'), 10)
+    proc = procs.start('reference', node_cmd('reference_node', '--params-file',
+                                             params_file(tmp_path), '-p', 'use_sim_time:=true'),
+                       env=ros_env)
+    probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(
+        ns_to_stamp(time.time_ns()))
+    assert probe.wait_for(lambda: reports, 20), proc.tail()
+    assert reports[0].level == DiagnosticStatus.ERROR
+    assert 'the plant runs on the wall clock' in reports[0].message
+    assert 'use_sim_time false' in reports[0].message
+
+
 def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
         procs, ros_env, node_cmd, probe, tmp_path):
     procs.start('reference', node_cmd('reference_node', '--params-file',
