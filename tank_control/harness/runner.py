@@ -95,6 +95,9 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
                  node_command: NodeCommand = node_module_command) -> RunResult:
     """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md)."""
+    reason = size_reason(scenario, in_process)
+    if reason:
+        raise ScenarioError(f'{scenario.path}: {reason}')
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for stale in OUTPUT_FILES:                    # a failed run must not leave old results
@@ -103,6 +106,37 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
     if in_process:
         return _run_in_process(scenario, params_file, out, progress)
     return _RosRun(scenario, params_file, out, env, progress, node_command).execute()
+
+
+#: memory a run holds per plant tick, an upper estimate [bytes]: in-process the trace table
+#: and its copies (up to 16 columns of float64, 4 copies); a ROS run's recorder and trace rows
+BYTES_PER_TICK = {'in_process': 16 * 8 * 4, 'ros': 4096}
+
+
+def available_memory() -> int | None:
+    """MemAvailable of /proc/meminfo [bytes], None where it cannot be read."""
+    try:
+        for line in Path('/proc/meminfo').read_text().splitlines():
+            if line.startswith('MemAvailable:'):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def size_reason(scenario: Scenario, in_process: bool) -> str | None:
+    """Why a run is too long for this machine: its ticks (``harness.duration`` over the
+    plant's ``sample_time``) would need more than half the available memory; None if it fits."""
+    duration = scenario.harness.duration
+    sample_time = float(scenario.params('plant').get('sample_time', 0.1))
+    ticks = int(duration / sample_time) + 1
+    need = ticks * BYTES_PER_TICK['in_process' if in_process else 'ros']
+    available = available_memory()
+    if available is None or need <= available / 2:
+        return None
+    return (f'harness.duration: {duration:g} s at the plant sample_time {sample_time:g} s is '
+            f'{ticks:.3g} ticks, which would need about {need / 2**30:.3g} GiB of memory; '
+            f'{available / 2**30:.3g} GiB are available: shorten the run or lengthen the tick')
 
 
 # ----------------------------------------------------------------------------------------------
@@ -210,6 +244,9 @@ def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
     """Run a loaded scenario through core/loop.py for its ``harness.duration``: the sections
     the node processes would read (``node_parameters``), built as the nodes build them.
     ``ScenarioError`` (one line) for a value the core objects reject."""
+    reason = size_reason(scenario, in_process=True)
+    if reason:
+        raise ScenarioError(f'{scenario.path}: {reason}')
     try:
         built = core_scenario.build(node_parameters(scenario))
         return core_scenario.run(built, scenario.harness.duration).until(

@@ -373,7 +373,13 @@ class Mpcs:
         des = self._design
         est = des.estimator
         n = des.model.n_x
+        lo, hi = des.u_min + des.model.u0, des.u_max + des.model.u0     # absolute limits
+        at_limit = [bool(u <= a + 1e-9 * (1 + abs(a)) or u >= b - 1e-9 * (1 + abs(b)))
+                    for u, a, b in zip(self._u.tolist(), lo.tolist(), hi.tolist())]
         return {
+            # the applied input at an absolute limit (u_min/u_max), as SISO 'saturated'
+            'saturated': any(at_limit),
+            **{f'saturated.{name}': flag for name, flag in zip(self.input_names, at_limit)},
             'solver': des.cfg.solver,
             'horizon': des.cfg.horizon,
             'control_horizon': des.cfg.control_horizon,
