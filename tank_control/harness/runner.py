@@ -155,10 +155,12 @@ def controller_report(scenario: Scenario, controller_params: Mapping[str, Any]
     return limits, {name: settings.values[name] for name in kind.gains}
 
 
-def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any]
-                ) -> tuple[dict[str, Any], list[Any]]:
+def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any],
+                plant_only: bool = False) -> tuple[dict[str, Any], list[Any]]:
     """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
-    analysis) and the loop cases it was analysed on; also what a sweep records per run."""
+    analysis) and the loop cases it was analysed on; also what a sweep records per run
+    (``plant_only``: the loop analysed on the plant's model only, not also on the
+    controller's own model, which a sweep does not report)."""
     limits, gains = controller_report(scenario, controller_params)
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
@@ -168,6 +170,8 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     if 'controller' in scenario.harness.nodes and controller_params:
         try:
             cases = loop_cases(scenario.sections, controller_params)
+            if plant_only:
+                cases = [case for case in cases if case.label.startswith('plant')]
         except (ConfigError, ValueError) as exc:
             analysis_note = f'analysis.png not written: {exc}'
     metrics = {

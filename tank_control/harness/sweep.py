@@ -387,7 +387,8 @@ def run_case(payload: Mapping[str, Any]) -> dict[str, Any]:
         else:
             from tank_control.harness.runner import run_metrics, simulate
             trace, built = simulate(scenario)
-            metrics, _ = run_metrics(scenario, trace, built.controller_values())
+            metrics, _ = run_metrics(scenario, trace, built.controller_values(),
+                                     plant_only=True)
         record['metrics'] = flat_metrics(metrics)
         keep = [n for n in trace.names if n == 't' or n[:2] in ('y.', 'r.', 'u.', 'd.')]
         buffer = io.BytesIO()                      # compressed here, in parallel, not in the parent
