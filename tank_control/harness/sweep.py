@@ -421,11 +421,12 @@ def _run_ros(scenario: Scenario) -> tuple[dict[str, Any], Any]:
         return result.metrics, result.trace
 
 
-def _worst(values: Iterable[Any], smaller_is_worse: bool = False) -> float | None:
+def _worst(values: Iterable[Any]) -> float | None:
+    """The largest of the values given (None ignored; None if there are none)."""
     numbers = [float(v) for v in values if v is not None]
     if not numbers:
         return None
-    return min(numbers) if smaller_is_worse else max(numbers)
+    return max(numbers)
 
 
 def flat_metrics(metrics: Mapping[str, Any]) -> dict[str, Any]:
