@@ -13,16 +13,23 @@ The arithmetic of the nodes' lockstep protocol (docs/nodes.md), without ROS. Wit
    ``[t_k, t_k+1)``.
 
 Channels are matched by name (``output_names``, ``disturbance_names``, ``input_names``).
+The reference is read again only at the instants its schedules may change
+(:meth:`Reference.held_until`), and the arrays passed to the objects are made anew only when
+their values change: the same values as reading and building them every tick.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from itertools import chain
 
 import numpy as np
 
-from tank_control.core.interfaces import Controller, Plant, seconds, to_ns
+from tank_control.core.interfaces import NS_PER_S, Controller, Plant, to_ns
 from tank_control.core.reference import Reference
 from tank_control.core.trace import Trace
+
+_FLOAT64 = np.dtype(np.float64)
 
 Noise = Callable[[], np.ndarray]
 """One measurement-noise draw per call, ordered as the plant's outputs."""
@@ -127,21 +134,19 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     ``sample_time`` is the plant's tick [s]; the controller's ``sample_time``
     must be an integer multiple of it.
     """
-    rows_iter = iter_loop(plant, controller, reference, sample_time=sample_time,
-                          duration=duration, noise=noise)
+    rows = iter_loop(plant, controller, reference, sample_time=sample_time,
+                     duration=duration, noise=noise)
     names = loop_columns(plant, controller, reference)
-    rows = np.empty((loop_ticks(sample_time, duration), len(names)))
-    for k, row in enumerate(rows_iter):
-        rows[k] = row
-    return Trace.from_rows(names, rows)
+    table = np.fromiter(chain.from_iterable(rows), dtype=float)   # to the end: the last step
+    return Trace.from_rows(names, table.reshape(-1, len(names)))
 
 
 def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
               sample_time: float, duration: float, noise: Noise | None = None
-              ) -> Iterator[np.ndarray]:
-    """``run_loop`` one row at a time (columns ``loop_columns``), for a caller that writes
-    the rows as they come instead of holding them. The wiring and sample times are checked
-    before the first row."""
+              ) -> Iterator[list[float]]:
+    """``run_loop`` one row at a time (a list of floats, columns ``loop_columns``), for a
+    caller that writes the rows as they come instead of holding them. The wiring and sample
+    times are checked before the first row."""
     check_wiring(plant, controller, reference)
     reason = sample_time_reason(sample_time, controller.sample_time)
     if reason:
@@ -150,34 +155,76 @@ def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
 
 
 def _rows(plant: Plant, controller: Controller, reference: Reference, sample_time: float,
-          duration: float, noise: Noise | None) -> Iterator[np.ndarray]:
+          duration: float, noise: Noise | None) -> Iterator[list[float]]:
     ts_ns = to_ns(sample_time)
     cts_ns = to_ns(controller.sample_time)
     n_ticks = loop_ticks(sample_time, duration)
 
+    # Signals are held as Python floats in the plant's channel order; a controller's or the
+    # reference's channel writes the plant position of its name (later names win, as in a
+    # dict update). The objects are called with 1-D float64 arrays, as the nodes call them; an
+    # array is made anew when its values change (the objects do not modify their inputs).
     u_all = nominal_inputs(plant)
     d_all = nominal_disturbances(plant)
+    u_plant = list(u_all.values())
+    d_plant = list(d_all.values())
+    u_pos = [plant.input_names.index(n) for n in controller.input_names]
+    d_ref_pos = [plant.disturbance_names.index(n) for n in reference.disturbance_names]
+    d_ctrl_pos = [plant.disturbance_names.index(n) for n in controller.disturbance_names]
     y_index = [plant.output_names.index(n) for n in controller.output_names]
     r_index = [reference.setpoint_names.index(n) for n in controller.output_names]
-    u_ctrl = np.array([u_all[n] for n in controller.input_names], dtype=float)
+    y_whole = y_index == list(range(len(plant.output_names)))       # y[y_index] is y
+    r_whole = r_index == list(range(len(reference.setpoint_names)))
+    u_whole = u_pos == list(range(len(plant.input_names)))          # u of the plant is u_ctrl
+    u_ctrl = [u_all[n] for n in controller.input_names]
+    u_arr = np.array(u_plant, dtype=float)
+    d_arr = np.array(d_plant, dtype=float)
+    d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
+    r_row: list[float] | None = None
+    r_all = np.empty(0)
+    d_ref: list[float] = []
+    r_until = d_until = -math.inf      # the schedules hold their values before these instants
+    held_until = reference.held_until
     started = False
+    values, outputs, plant_step = reference.values, plant.outputs, plant.step
+    controller_step = controller.step
+    isfinite = math.isfinite
     for k in range(n_ticks):
         t_ns = k * ts_ns
-        t = seconds(t_ns)
-        r_all = reference.setpoints(t)
-        d_ref = reference.disturbances(t)
-        d_all.update(zip(reference.disturbance_names, d_ref.tolist()))
-        y = plant.outputs()
+        t = t_ns / NS_PER_S                      # seconds(t_ns)
+        if t >= r_until:
+            r_now = values('setpoint', t)        # the values of reference.setpoints(t)
+            r_until = held_until('setpoint', t)
+            if r_now != r_row:
+                r_row = r_now
+                r_all = np.array(r_row, dtype=float)
+        if d_ref_pos and t >= d_until:
+            d_now = values('disturbance', t)
+            d_until = held_until('disturbance', t)
+            if d_now != d_ref:
+                d_ref = d_now
+                for i, j in enumerate(d_ref_pos):
+                    d_plant[j] = d_ref[i]
+                d_arr = np.array(d_plant, dtype=float)
+                d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
+        y = outputs()
         if noise is not None:
             y = y + noise()
+        y_row = y.tolist()
         if t_ns % cts_ns == 0:
-            d_ctrl = np.array([d_all[n] for n in controller.disturbance_names], dtype=float)
-            if not started and np.all(np.isfinite(y[y_index])):
-                warm_start(controller, y[y_index])      # the first good sample: bumpless take-over
+            y_c = y if y_whole else y[y_index]
+            if not started and all(isfinite(y_row[i]) for i in y_index):
+                warm_start(controller, y_c)      # the first good sample: bumpless take-over
                 started = True
-            u_ctrl = np.asarray(controller.step(t, y[y_index], r_all[r_index], d_ctrl), dtype=float)
-            u_all.update(zip(controller.input_names, u_ctrl.tolist()))
-        yield np.concatenate(([t], y, r_all, u_ctrl, d_ref))
-        plant.step(np.array([u_all[n] for n in plant.input_names], dtype=float),
-                   np.array([d_all[n] for n in plant.disturbance_names], dtype=float),
-                   sample_time)
+            u_out = controller_step(t, y_c, r_all if r_whole else r_all[r_index], d_ctrl)
+            if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
+                u_out = np.asarray(u_out, dtype=float)
+            u_ctrl = u_out.tolist()
+            if u_whole and len(u_ctrl) == len(u_plant):
+                u_arr = u_out
+            else:
+                for i, j in enumerate(u_pos):
+                    u_plant[j] = u_ctrl[i]
+                u_arr = np.array(u_plant, dtype=float)
+        yield [t, *y_row, *r_row, *u_ctrl, *d_ref]
+        plant_step(u_arr, d_arr, sample_time)

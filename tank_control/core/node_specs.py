@@ -7,6 +7,7 @@ the same lists, so a misspelt name is refused alike everywhere.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -123,14 +124,21 @@ def unknown_names(specs: tuple[ParamSpec, ...], values: dict[str, Any]) -> None:
             raise ConfigError(unknown_reason(name, known))
 
 
-def all_names() -> set[str]:
+def all_names() -> frozenset[str]:
     """Every parameter name some node of this package declares (any plant or controller kind,
     the reference's own; not the reference's channel fields, which depend on its channels)."""
+    return _all_names(tuple((name, id(kind)) for name, kind in plants.KINDS.items()),
+                      tuple((name, id(kind)) for name, kind in controllers.KINDS.items()))
+
+
+@functools.lru_cache(maxsize=4)
+def _all_names(plant_kinds: tuple, controller_kinds: tuple) -> frozenset[str]:
+    """Computed once per content of the kind tables (the arguments identify it)."""
     specs = specs_of(PlantNode) + specs_of(NoiseConfig) + specs_of(ControllerNode) + specs_of(
         ReferenceNode)
     specs += tuple(s for kind in plants.KINDS.values() for s in kind.specs())
     specs += tuple(s for kind in controllers.KINDS.values() for s in kind.specs())
-    return {s.name for s in specs}
+    return frozenset(s.name for s in specs)
 
 
 def declared_anywhere(name: str) -> bool:

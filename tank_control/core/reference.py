@@ -66,14 +66,23 @@ class ChannelSchedule:
 
     def at(self, t: float) -> float:
         """The channel value at ``t`` [s]: the target, rate-limited by ``ramp_rate``."""
-        if self.ramp_rate <= 0.0:
-            return self.target(t)
+        if self.ramp_rate <= 0.0:      # the target
+            return self.values[max(bisect.bisect_right(self.times, t) - 1, 0)]
         x = self.values[0]
         n = bisect.bisect_right(self.times, t)
         for i in range(n):
             end = self.times[i + 1] if i + 1 < n else t
             x = _approach(x, self.values[i], self.ramp_rate * (end - self.times[i]))
         return x
+
+    def held_until(self, t: float) -> float:
+        """The first instant after ``t`` [s] at which the value may differ from ``at(t)``: the
+        next scheduled time (``inf`` after the last); ``t`` itself while a ramp is moving the
+        value (it has not reached its target)."""
+        if self.ramp_rate > 0.0 and self.at(t) != self.target(t):
+            return t
+        i = bisect.bisect_right(self.times, t)
+        return self.times[i] if i < len(self.times) else math.inf
 
     def compacted(self, t: float) -> ChannelSchedule:
         """The same values from ``t`` on, with the past folded into the value at ``t``
@@ -129,7 +138,17 @@ class Reference:
 
     def disturbances(self, t: float) -> np.ndarray:
         """Disturbances at ``t`` [s], ordered as ``disturbance_names``."""
-        return np.array([s.at(t) for s in self._channels['disturbance'].values()], dtype=float)
+        return np.array(self.values('disturbance', t), dtype=float)
+
+    def held_until(self, kind: str, t: float) -> float:
+        """The first instant after ``t`` [s] at which a channel of ``kind`` may change
+        (:meth:`ChannelSchedule.held_until`; ``inf`` if none will)."""
+        return min((s.held_until(t) for s in self._channels[kind].values()), default=math.inf)
+
+    def values(self, kind: str, t: float) -> list[float]:
+        """The channels of ``kind`` (``setpoint`` or ``disturbance``) at ``t`` [s] as floats,
+        in channel order."""
+        return [s.at(t) for s in self._channels[kind].values()]
 
     def set_value(self, kind: str, name: str, value: float, t: float) -> str | None:
         """Operator override: target ``value`` from ``t`` on. Returns a reason if rejected."""

@@ -30,7 +30,9 @@ class Trace:
 
     @classmethod
     def from_rows(cls, names: Sequence[str], rows: Iterable[Sequence[float]]) -> Trace:
-        data = np.asarray(list(rows), dtype=float).reshape(-1, len(names))
+        if not isinstance(rows, np.ndarray):
+            rows = list(rows)
+        data = np.asarray(rows, dtype=float).reshape(-1, len(names))
         return cls({name: data[:, i].copy() for i, name in enumerate(names)})
 
     @classmethod

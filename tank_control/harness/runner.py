@@ -111,6 +111,9 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
                  node_command: NodeCommand = node_module_command) -> RunResult:
     """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md). SIGINT,
     SIGTERM and SIGHUP stop the run cleanly while it goes (when called from the main thread)."""
+    reason = size_reason(scenario, in_process)
+    if reason:
+        raise ScenarioError(f'{scenario.path}: {reason}')
     out = Path(out_dir)
     with StopSignals() as stop:
         if in_process:
@@ -124,6 +127,37 @@ def prepare_output(scenario: Scenario, out: Path) -> Path:
     for stale in OUTPUT_FILES:                    # a failed run must not leave old results
         (out / stale).unlink(missing_ok=True)
     return write_params_file(scenario, out / 'scenario.yaml')
+
+
+#: memory a run holds per plant tick, an upper estimate [bytes]: in-process the trace table
+#: and its copies (up to 16 columns of float64, 4 copies); a ROS run's recorder and trace rows
+BYTES_PER_TICK = {'in_process': 16 * 8 * 4, 'ros': 4096}
+
+
+def available_memory() -> int | None:
+    """MemAvailable of /proc/meminfo [bytes], None where it cannot be read."""
+    try:
+        for line in Path('/proc/meminfo').read_text().splitlines():
+            if line.startswith('MemAvailable:'):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def size_reason(scenario: Scenario, in_process: bool) -> str | None:
+    """Why a run is too long for this machine: its ticks (``harness.duration`` over the
+    plant's ``sample_time``) would need more than half the available memory; None if it fits."""
+    duration = scenario.harness.duration
+    sample_time = float(scenario.params('plant').get('sample_time', 0.1))
+    ticks = int(duration / sample_time) + 1
+    need = ticks * BYTES_PER_TICK['in_process' if in_process else 'ros']
+    available = available_memory()
+    if available is None or need <= available / 2:
+        return None
+    return (f'harness.duration: {duration:g} s at the plant sample_time {sample_time:g} s is '
+            f'{ticks:.3g} ticks, which would need about {need / 2**30:.3g} GiB of memory; '
+            f'{available / 2**30:.3g} GiB are available: shorten the run or lengthen the tick')
 
 
 # ----------------------------------------------------------------------------------------------
@@ -152,10 +186,12 @@ def _planned_report(scenario: Scenario) -> tuple[dict[str, tuple[float, float]],
 
 
 def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any],
-                complete: bool = True) -> tuple[dict[str, Any], list[Any]]:
+                complete: bool = True, plant_only: bool = False
+                ) -> tuple[dict[str, Any], list[Any]]:
     """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
-    analysis) and the loop cases it was analysed on; also what a sweep records per run.
-    ``complete=False`` (a failed or stopped run): what can be known, the controller's limits
+    analysis) and the loop cases it was analysed on; also what a sweep records per run
+    (``plant_only``: the loop analysed on the plant's model only, not also on the
+    controller's own model, which a sweep does not report). ``complete=False`` (a failed or stopped run): what can be known, the controller's limits
     and gains from the file when the node could not be asked, no error from the report."""
     if complete:
         limits, gains = controller_report(scenario, controller_params)
@@ -176,6 +212,8 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     if 'controller' in scenario.harness.nodes and controller_params:
         try:
             cases = loop_cases(scenario.sections, controller_params)
+            if plant_only:
+                cases = [case for case in cases if case.label.startswith('plant')]
         except (ConfigError, ValueError) as exc:
             analysis_note = f'analysis.png not written: {exc}'
     metrics = {
@@ -215,7 +253,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         files['analysis'] = plot_analysis(cases, out / 'analysis.png',
                                           title=f'{scenario.harness.title or scenario.name}: '
                                                 'final gains')
-    files['metrics'].write_text(json.dumps(_jsonable(metrics), indent=2, allow_nan=False) + '\n')
+    files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
     if len(trace):
         files['plot'] = plot_runs([(scenario.name, trace)], out / 'plot.png',
                                   title=scenario.harness.title or scenario.name)
@@ -239,11 +277,12 @@ def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
     return [warning] if warning else []
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
+    """``value`` as strict JSON: numpy numbers as Python numbers, non-finite floats as null."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, (np.floating, float)):
         value = float(value)
         return value if math.isfinite(value) else None
@@ -278,7 +317,10 @@ def _build(scenario: Scenario) -> core_scenario.Built:
 def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
     """Run a loaded scenario through core/loop.py for its ``harness.duration`` (the table
     in memory, nothing written); ``ScenarioError`` (one line) for a value the core objects
-    reject."""
+    reject or a run too large for the memory (``size_reason``)."""
+    reason = size_reason(scenario, in_process=True)
+    if reason:
+        raise ScenarioError(f'{scenario.path}: {reason}')
     built = _build(scenario)
     try:
         return core_scenario.run(built, scenario.harness.duration).until(

@@ -28,12 +28,12 @@ from __future__ import annotations
 import concurrent.futures as cf
 import csv
 import hashlib
+import io
 import itertools
 import json
 import math
 import os
 import re
-import sys
 import tempfile
 import time
 import traceback
@@ -374,23 +374,27 @@ def run_case(payload: Mapping[str, Any]) -> dict[str, Any]:
     """Run one case (in any process: a local worker, a Dask worker) and return its record.
 
     Never raises for a run that fails: the record has ``status`` ``failed`` and a one-line
-    ``reason``; the trace, if any, as ``names`` and a float32 ``data`` array.
+    ``reason``; the trace, if any, as the bytes of an ``.npz`` file (``names``, float32
+    ``data``).
     """
     start = time.monotonic()
     scenario = Scenario(Path(payload['path']), payload['sections'])
     record: dict[str, Any] = {'key': payload['key'], 'status': 'ok', 'reason': '',
-                              'metrics': {}, 'wall_s': 0.0, 'names': [], 'data': None}
+                              'metrics': {}, 'wall_s': 0.0, 'trace_npz': None}
     try:
         if payload['ros']:
             metrics, trace = _run_ros(scenario)
         else:
             from tank_control.harness.runner import run_metrics, simulate
             trace, built = simulate(scenario)
-            metrics, _ = run_metrics(scenario, trace, built.controller_values())
+            metrics, _ = run_metrics(scenario, trace, built.controller_values(),
+                                     plant_only=True)
         record['metrics'] = flat_metrics(metrics)
         keep = [n for n in trace.names if n == 't' or n[:2] in ('y.', 'r.', 'u.', 'd.')]
-        record['names'] = keep
-        record['data'] = np.column_stack([trace.columns[n] for n in keep]).astype(np.float32)
+        buffer = io.BytesIO()                      # compressed here, in parallel, not in the parent
+        np.savez_compressed(buffer, names=np.array(keep), data=np.column_stack(
+            [trace.columns[n] for n in keep]).astype(np.float32))
+        record['trace_npz'] = buffer.getvalue()
     except Exception as exc:                        # noqa: BLE001  (one bad run never kills the sweep)
         record['status'] = 'failed'
         record['reason'] = _one_line(exc)
@@ -420,11 +424,12 @@ def _run_ros(scenario: Scenario) -> tuple[dict[str, Any], Any]:
         return result.metrics, result.trace
 
 
-def _worst(values: Iterable[Any], smaller_is_worse: bool = False) -> float | None:
+def _worst(values: Iterable[Any]) -> float | None:
+    """The largest of the values given (None ignored; None if there are none)."""
     numbers = [float(v) for v in values if v is not None]
     if not numbers:
         return None
-    return min(numbers) if smaller_is_worse else max(numbers)
+    return max(numbers)
 
 
 def flat_metrics(metrics: Mapping[str, Any]) -> dict[str, Any]:
@@ -611,11 +616,10 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: cf.Executor,
         if log.tell() and not log_path.read_bytes().endswith(b'\n'):
             log.write('\n')                       # after a line torn by an interruption
         def finish(record: dict[str, Any]) -> None:
-            data = record.pop('data', None)
-            names = record.pop('names', [])
-            if data is not None:
+            npz = record.pop('trace_npz', None)
+            if npz is not None:
                 tmp = out / 'traces' / f'{record["key"]}.tmp.npz'
-                np.savez_compressed(tmp, data=data, names=np.array(names))
+                tmp.write_bytes(npz)
                 tmp.replace(out / 'traces' / f'{record["key"]}.npz')
             log.write(json.dumps(record, default=float) + '\n')    # Infinity/NaN kept
             log.flush()
@@ -807,21 +811,9 @@ def _fmt(value: Any) -> str:
 
 
 def write_summary(summary: Mapping[str, Any], out: Path) -> dict[str, Path]:
-    (out / 'summary.json').write_text(json.dumps(_jsonable(summary), indent=2,
+    from tank_control.harness.runner import jsonable
+    (out / 'summary.json').write_text(json.dumps(jsonable(summary), indent=2,
                                                  allow_nan=False) + '\n')
     (out / 'summary.md').write_text(summary_markdown(summary))
     return {'summary': out / 'summary.md', 'summary_json': out / 'summary.json'}
 
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        value = float(value)
-        return value if math.isfinite(value) else ('inf' if value > 0 else '-inf'
-                                                    if value < 0 else None)
-    if isinstance(value, np.integer):
-        return int(value)
-    return value

@@ -120,6 +120,7 @@ def _metrics_plot(out: Path, rows: Sequence[Mapping[str, Any]], swept: Sequence[
 
 def _heatmap(out: Path, rows: Sequence[Mapping[str, Any]], grid: Sequence[str],
              metrics: Sequence[str]) -> Path | None:
+    from tank_control.harness.sweep import SMALLER_IS_WORSE
     ok = [r for r in rows if r['status'] == 'ok']
     if len(grid) < 2 or not ok:
         return None
@@ -136,8 +137,7 @@ def _heatmap(out: Path, rows: Sequence[Mapping[str, Any]], grid: Sequence[str],
                              figsize=(4.6 * len(shown), 3.4 * len(scenarios)))
     for i, name in enumerate(scenarios):
         for j, metric in enumerate(shown):
-            smaller = metric.split('.')[-1] in ('gain_margin', 'phase_margin', 'delay_margin',
-                                                'stable')
+            smaller = metric.split('.')[-1] in SMALLER_IS_WORSE
             grid_values = np.full((len(ys), len(xs)), np.nan)
             for r in ok:
                 v = r.get(metric)

@@ -44,6 +44,8 @@ from tank_control.nodes.runtime import main as run_node_main
 #: one-sample state such as ``tuned`` is not overwritten before delivery); a late subscriber
 #: gets the recent states, the last one is the current state.
 STATE_QOS = reliable_qos(10, latched=True)
+#: consecutive samples with an input at its limit after which /diagnostics says WARN
+SATURATION_WARN_SAMPLES = 20
 
 
 class ControllerNode(Node):
@@ -88,12 +90,15 @@ class ControllerNode(Node):
         self._r_stamp: int | None = None           # stamp of the setpoint held (wall/sim)
         self._last_sample: tuple[int, dict[str, float]] | None = None   # (plant time, r used)
         self._compute_s = math.nan
+        self._saturated_samples = 0                # consecutive samples at an input limit
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
                                           event_callbacks=quiet_publisher_events())
         self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
-        if self._mode == 'wall':
-            self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+        # wall: the loop's time base; sim/lockstep: a check that the plant is not on the wall
+        # clock (its origin is then not 0), which would leave this node waiting for good
+        self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+        self._clock_conflict = ''
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
                                  event_callbacks=quiet_subscription_events())
@@ -249,8 +254,22 @@ class ControllerNode(Node):
                                                   [r_used.get(n, math.nan) for n in names]))
 
     def _on_origin(self, msg: Time) -> None:
-        """wall: the plant's time origin (a new one when the plant restarted)."""
+        """wall: the plant's time origin (a new one when the plant restarted). sim/lockstep:
+        an origin other than 0 comes from a plant on the wall clock, which publishes no
+        /clock ticks to answer: /diagnostics ERROR with the remedy."""
         origin = stamp_to_ns(msg)
+        if self._mode != 'wall':
+            conflict = (f'the plant runs on the wall clock (time_origin {origin} ns) but this '
+                        f'node samples in {self._mode} (clock_mode {self._params.values["clock_mode"]}'
+                        f', use_sim_time {self.get_parameter("use_sim_time").value}): it will never '
+                        'sample; start it with clock_mode wall and use_sim_time false'
+                        ) if origin != 0 else ''
+            if conflict != self._clock_conflict:
+                self._clock_conflict = conflict
+                if conflict:
+                    self.get_logger().error(conflict)
+                self._publish_diagnostics()
+            return
         if origin != self._origin_ns:
             self.get_logger().info(f'plant time origin {origin} ns: loop time = stamp - origin')
             self._origin_ns = origin
@@ -333,9 +352,32 @@ class ControllerNode(Node):
         u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
         self._compute_s = time.perf_counter() - start
         self._u = u
+        self._check_saturation()
         self._check_warning()
         self._write_results()
         return u
+
+    def _check_saturation(self) -> None:
+        """Count consecutive samples with an input at its limit (the controller's
+        ``saturated``); from ``SATURATION_WARN_SAMPLES`` on, /diagnostics is WARN naming the
+        inputs (a setpoint the inputs cannot reach), logged once per episode."""
+        status = self._controller.status
+        if not status.get('saturated', False):
+            if self._saturated_samples >= SATURATION_WARN_SAMPLES:
+                self._saturated_samples = 0
+                self._publish_diagnostics()
+            self._saturated_samples = 0
+            return
+        self._saturated_samples += 1
+        if self._saturated_samples == SATURATION_WARN_SAMPLES:
+            self.get_logger().warning(f'{self._saturation_text(status)}: the setpoint may be '
+                                      'out of reach')
+            self._publish_diagnostics()
+
+    def _saturation_text(self, status: Mapping[str, Any]) -> str:
+        names = [n for n in self._inputs if status.get(f'saturated.{n}', False)]
+        which = ', '.join(names) if names else ', '.join(self._inputs)
+        return f'input(s) {which} at their limits for {self._saturated_samples} samples'
 
     def _write_results(self) -> None:
         """Values the controller produced (kind.results) → parameters, when they changed."""
@@ -431,11 +473,21 @@ class ControllerNode(Node):
             message += '; ' + '; '.join(warnings)
         if self._warning:
             message += f'; warning: {self._warning}'
+        if self._clock_conflict:
+            level = DiagnosticStatus.ERROR
+            message = f'not sampling: {self._clock_conflict}'
+        if self._clock_conflict:
+            level = DiagnosticStatus.ERROR
+            message = f'not sampling: {self._clock_conflict}'
+        if self._saturated_samples >= SATURATION_WARN_SAMPLES:
+            level = DiagnosticStatus.ERROR if self._clock_conflict else DiagnosticStatus.WARN
+            message += f'; {self._saturation_text(status)}'
         fields = {
             'controller': self._params.values['controller'],
             'clock_mode': self._mode,
             'mode': status.get('mode', 'auto'),
             'saturated': status.get('saturated', False),
+            'saturated_samples': self._saturated_samples,
             'anti_windup_active': status.get('anti_windup_active', False),
             'fault': self._fault or 'none',
             'stale_inputs': self._fault == 'stale',

@@ -118,6 +118,11 @@ class PlantNode(Node):
             self._set_pacing(rtf)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady)
+        self._pace_mark: tuple[float, int] | None = None   # (wall s, tick) at the last report
+        self._step_s = 0.0                 # computation time of plant.step since the report
+        self._steps = 0
+        self._step_ms = 0.0                # its mean over the last report's period [ms]
+        self._late_until = 0               # wall: ticks below this were counted as late
         self._resend_period = float(values['lockstep.resend_period'])
         self.add_post_set_parameters_callback(self._on_params_set)
         if self.mode != 'wall':
@@ -244,8 +249,11 @@ class PlantNode(Node):
         if self.mode != 'lockstep':        # remembered for ~/late_inputs
             self._integrated[self.k * self.ts_ns] = {**self.u, **self.d}
             self._integrated.pop((self.k - _LOOKAHEAD) * self.ts_ns, None)
+        start = time.perf_counter()
         self.plant.step(np.array([self.u[n] for n in self.plant.input_names]),
                         np.array([self.d[n] for n in self.plant.disturbance_names]), self.ts)
+        self._step_s += time.perf_counter() - start
+        self._steps += 1
         self.k += 1
 
     def _on_tick_timer(self) -> None:
@@ -254,7 +262,9 @@ class PlantNode(Node):
         wall: every tick whose instant has come, none ahead of it. The executor may call
         late (a busy process: the periods missed are made up at once and counted as
         ``late_ticks``) or early (rclpy's EventsExecutor runs a timer that fell more than
-        a period behind twice at once, the second call up to a period ahead of its instant)."""
+        a period behind twice at once, the second call up to a period ahead of its instant).
+        Making up stops after one period of work, so parameter services and diagnostics
+        still run when a tick costs more than its period."""
         if self._paused() or self._tick_msgs is None:
             return                      # a call that was due when the pause came
         if self.mode != 'wall':
@@ -266,11 +276,16 @@ class PlantNode(Node):
             if ahead_ns > self.ts_ns // 2:
                 return                  # a made-up call: the next one is on time
             time.sleep(ahead_ns / 1e9)  # a little early: wait for the instant
-        due = (time.monotonic_ns() - self._wall_t0_ns) // self.ts_ns
-        self.counters['late_ticks'] += max(0, due - self.k - 1)
+        now_ns = time.monotonic_ns()
+        due = (now_ns - self._wall_t0_ns) // self.ts_ns
+        # ticks k .. due-2 are late (tick due-1 is the current one); each counted once
+        self.counters['late_ticks'] += max(0, due - 1 - max(self.k, self._late_until))
+        self._late_until = max(self._late_until, due - 1)
         while self.k < due:
             self._step()
             self._publish_tick()
+            if time.monotonic_ns() - now_ns > self.ts_ns:
+                break                   # the rest at the next call: let the others run first
 
     # --------------------------------------------------------------- inputs
     def _on_input(self, topic: str, msg: JointState) -> None:
@@ -358,6 +373,24 @@ class PlantNode(Node):
             self._send()
 
     # ----------------------------------------------------------- diagnostics
+    def _pace_report(self) -> str:
+        """wall and sim: '' while simulated time keeps its pace (1 s per wall second in wall,
+        ``real_time_factor`` in sim), else how far behind it is and what a tick costs (e.g. a
+        tiny ``integration_step``): measured over the time since the last report."""
+        now, mark = time.monotonic(), self._pace_mark
+        self._pace_mark = None if self._paused() else (now, self.k)
+        step_ms = self._step_s / self._steps * 1e3 if self._steps else 0.0
+        self._step_s, self._steps = 0.0, 0
+        self._step_ms = step_ms
+        if self.mode == 'lockstep' or self._paused() or mark is None or now - mark[0] < 0.5:
+            return ''
+        target = 1.0 if self.mode == 'wall' else float(self.params.values['real_time_factor'])
+        rate = (self.k - mark[1]) * self.ts / (now - mark[0])
+        if rate >= 0.9 * target:
+            return ''
+        return (f'behind real time: {rate:.3g}x instead of {target:g}x (plant.step takes '
+                f'{step_ms:.3g} ms per {self.ts * 1e3:g} ms tick)')
+
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
         model = dict(self.plant.status)
@@ -368,11 +401,15 @@ class PlantNode(Node):
             problems.append(f"{model['clipped_flows']} clipped flows")
         if model.get('overflow'):
             problems.append('overflowing')
+        behind = self._pace_report()
+        if behind:
+            problems.append(behind)
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status.message = ', '.join(problems) or 'ok'
         items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}',
                  'time_origin_ns': self._stamp_offset_ns, **self.counters}
         items['paused'] = self._is_paused
+        items['step_time_ms'] = f'{self._step_ms:.4g}'
         if self.mode == 'lockstep' and self._awaiting:
             items['waiting_for'] = ', '.join(self.inbox.missing(self.k * self.ts_ns))
         for name, value in model.items():

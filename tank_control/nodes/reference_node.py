@@ -12,7 +12,9 @@ import sys
 from typing import Any
 
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
@@ -23,7 +25,8 @@ from tank_control.core.reference import Reference, channel_lists, channel_specs,
 from tank_control.core.scenario import reference_setup
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_CLOCK,
-                                         TOPIC_DISTURBANCE, TOPIC_SETPOINT, TOPIC_TIME_ORIGIN,
+                                         TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE, TOPIC_SETPOINT,
+                                         TOPIC_TIME_ORIGIN,
                                          quiet_publisher_events, quiet_subscription_events,
                                          stamp_to_ns, to_joint_state)
 from tank_control.nodes.params import ParameterBinding, ParameterError
@@ -67,6 +70,10 @@ class ReferenceNode(Node):
         if self.use_sim_time:
             self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
                                      event_callbacks=quiet_subscription_events())
+            # a plant on the wall clock latches a non-zero origin and sends no /clock
+            self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._check_origin, ORIGIN_QOS)
+            self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+            self._conflict = ''
         else:
             period = float(self.params.values['sample_time'])
             self._origin_ns: int | None = None
@@ -74,6 +81,7 @@ class ReferenceNode(Node):
             self._timer = self.create_timer(period, self._on_timer, clock=steady_clock(),
                                             autostart=False)
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+            self.add_post_set_parameters_callback(self._after_set)
         sp, dist = channel_lists(self.params.values)
         self.get_logger().info(
             f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, '
@@ -153,6 +161,30 @@ class ReferenceNode(Node):
             if ahead not in self._answered:
                 self._publish(ahead, seconds(ahead))
 
+    def _check_origin(self, msg: Time) -> None:
+        """/clock mode: a non-zero time origin is a wall-clock plant, whose ticks this node
+        would wait for forever: logged, and /diagnostics ERROR with the remedy every second
+        from then on."""
+        origin = stamp_to_ns(msg)
+        if origin == 0 or self._conflict:
+            return
+        self._conflict = (f'the plant runs on the wall clock (time_origin {origin} ns) but this '
+                          f'node answers /clock ticks (clock_mode '
+                          f'{self.params.values["clock_mode"]}, use_sim_time '
+                          f'{self.get_parameter("use_sim_time").value}): it will never publish; '
+                          'start it with clock_mode wall and use_sim_time false')
+        self.get_logger().error(self._conflict)
+        self._report_conflict()
+        self.create_timer(1.0, self._report_conflict, clock=steady_clock())
+
+    def _report_conflict(self) -> None:
+        status = DiagnosticStatus(level=DiagnosticStatus.ERROR, name='reference',
+                                  message=f'not publishing: {self._conflict}',
+                                  hardware_id='tank_control')
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(array)
+
     def _on_origin(self, msg: Time) -> None:
         """wall: the plant's time origin; (re)start the grid of instants from it."""
         origin = stamp_to_ns(msg)
@@ -164,10 +196,20 @@ class ReferenceNode(Node):
         self._origin_ns, self._last_t_ns = origin, -1
         self._on_timer()
 
-    def _on_timer(self) -> None:
+    def _after_set(self, parameters: list[Parameter]) -> None:
+        """wall: a new ``sample_time`` re-arms the timer on the new grid at once (otherwise
+        the wait for the next instant of the old grid, up to a whole old period, runs out
+        first). rclpy calls post-set callbacks last-added first, so this runs before
+        ParameterBinding stores the value: the period is taken from the request."""
+        for param in parameters:
+            if param.name == 'sample_time' and self._origin_ns is not None:
+                self._on_timer(to_ns(float(param.value)))
+
+    def _on_timer(self, period_ns: int | None = None) -> None:
         """wall: publish the latest instant reached (if not yet), re-arm for the next."""
         self._timer.cancel()
-        period_ns = to_ns(float(self.params.values['sample_time']))
+        if period_ns is None:
+            period_ns = to_ns(float(self.params.values['sample_time']))
         elapsed = self.get_clock().now().nanoseconds - self._origin_ns
         if elapsed < 0:                  # before the plant's tick 0: wait for instant 0
             self._timer.timer_period_ns = -elapsed

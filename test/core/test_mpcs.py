@@ -147,6 +147,20 @@ def test_unreachable_temperature_setpoint_does_not_wind_up():
     assert e[:, 0].max() <= 0.05 and e[:, 1].max() <= 0.02
 
 
+def test_status_says_which_input_sits_at_its_limit():
+    """The unreachable T_out = 24 °C drives F_H to its lower limit 0 (see the test above):
+    ``saturated`` is True, for F_H only; at a reachable setpoint nothing is saturated."""
+    ctl = Mpcs(MpcsConfig(solver='qp'))
+    y, r, u = run(ctl, make_tank(), 1200, lambda t: np.array([81.0, 24.0]), lambda t: D0)
+    assert u[-1, 0] <= 1e-12                              # F_H at 0 cm³/s
+    status = ctl.status
+    assert status['saturated'] is True
+    assert status['saturated.F_H'] is True and status['saturated.F_Cin'] is False
+    ctl = Mpcs(MpcsConfig(solver='qp'))
+    run(ctl, make_tank(), 600, lambda t: np.array([81.0, T0]), lambda t: D0)
+    assert ctl.status['saturated'] is False
+
+
 def test_analytic_and_qp_agree_when_no_constraint_is_active():
     base = MpcsConfig(du_max=(100.0, 100.0), u_min=(0.0, 0.0), u_max=(500.0, 500.0))
     ref = lambda t: np.array([81.5, T0 + 0.2])

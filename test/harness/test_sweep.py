@@ -183,7 +183,13 @@ def test_the_command_runs_a_study_on_a_dask_cluster(tmp_path, capsys):
                       dashboard_address=None) as cluster:
         code = cli.main(['sweep', str(study), '--out', str(tmp_path / 'out'), '--quiet',
                          '--cluster', cluster.scheduler_address])
-    out = capsys.readouterr().out
+        out = capsys.readouterr().out
+        scheduler_file = tmp_path / 'scheduler.json'      # what `dask scheduler` writes
+        scheduler_file.write_text(json.dumps({'address': cluster.scheduler_address}))
+        again = cli.main(['sweep', str(study), '--out', str(tmp_path / 'again'), '--quiet',
+                          '--scheduler-file', str(scheduler_file)])
+    assert again == 0
+    assert '6 runs: 6 ok, 0 failed (6 ran now' in capsys.readouterr().out
     assert code == 0
     assert '6 runs: 6 ok, 0 failed' in out
     assert '| ipdt_exp_pi | y.overshoot_pct | 6 |' in out
@@ -283,3 +289,16 @@ def test_study_keys_are_checked(tmp_path):
     path.write_text(f'study:\n  scenarios: [{MDP_PID}]\n  gird: {{}}\n')
     with pytest.raises(ScenarioError, match='did you mean grid'):
         sweep.load_study(path)
+
+
+def test_progress_bar_counts_runs_and_prints_a_line_per_tenth_in_a_pipe():
+    import io
+    stream = io.StringIO()
+    bar = sweep.ProgressBar(stream, tty=False)
+    for done in range(0, 21):
+        bar(sweep.SweepProgress(done=done, total=20, failed=done // 10, skipped=0,
+                                elapsed=done * 0.5))
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 11                            # 0 %, 10 %, ..., 100 %
+    assert lines[-1].startswith('sweep [####################] 20/20 runs, 2 failed, 2.0 runs/s')
+    assert 'ETA 5 s' in lines[5]                       # 10 of 20 done in 5 s

@@ -6,10 +6,11 @@ test starts one controller process and runs several checks on it.
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import JointState
@@ -39,6 +40,7 @@ class Loop:
         self.answers: list[tuple[int, list[str], list[float]]] = []
         self.diag: dict[str, str] = {}
         self.diag_message = ''
+        self.diag_level = DiagnosticStatus.OK
         node.create_subscription(JointState, 'manipulated', self._on_u, SIGNAL_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(node, 'controller')
@@ -52,6 +54,7 @@ class Loop:
             if status.name.startswith('controller'):
                 self.diag = {kv.key: kv.value for kv in status.values}
                 self.diag_message = status.message
+                self.diag_level = status.level
 
     def call(self, future, timeout: float = 10.0):
         assert self.probe.wait_for(future.done, timeout)
@@ -328,3 +331,40 @@ def test_bad_start_up_parameter_exits_with_a_reason(procs, node_cmd, ros_env, pr
     assert probe.wait_for(lambda: proc.returncode is not None, 20.0)
     assert proc.returncode == 2
     assert 'kp' in proc.tail(5) and 'minimum' in proc.tail(5)
+
+
+def test_an_input_held_at_its_limit_is_reported(procs, node_cmd, ros_env, probe):
+    """A setpoint the input cannot reach: after SATURATION_WARN_SAMPLES samples at the limit
+    /diagnostics is WARN naming the input; it clears when the input leaves the limit."""
+    from tank_control.nodes.controller_node import SATURATION_WARN_SAMPLES
+    _start(procs, node_cmd, ros_env, 'clock_mode:=lockstep', 'kp:=1.0', 'ti:=1000.0',
+           'u_max:=1.0')
+    loop = Loop(probe)
+    tick = to_ns(1.0)                                  # the default sample_time
+    assert loop.tick(0, 0.0, 0.0) == 0.0               # the take-over at initial_output
+    for k in range(1, SATURATION_WARN_SAMPLES + 2):    # setpoint step 10: kp·10 limited to 1
+        assert loop.tick(k * tick, 0.0, 10.0) == 1.0
+    assert probe.wait_for(lambda: 'at their limits' in loop.diag_message, 20.0), loop.diag_message
+    assert loop.diag_level == DiagnosticStatus.WARN
+    assert 'input(s) u at their limits' in loop.diag_message
+    assert int(loop.diag['saturated_samples']) >= SATURATION_WARN_SAMPLES
+    assert loop.diag['saturated'] == 'True'
+    k = SATURATION_WARN_SAMPLES + 2
+    assert loop.tick(k * tick, 10.0, 10.0) < 1.0       # error gone: off the limit
+    assert probe.wait_for(lambda: loop.diag.get('saturated_samples') == '0', 20.0), loop.diag
+    assert 'at their limits' not in loop.diag_message
+    assert loop.diag_level == DiagnosticStatus.OK
+
+
+def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, node_cmd, ros_env, probe):
+    """use_sim_time true makes the controller follow plant ticks (lockstep); a plant on the
+    wall clock publishes a non-zero time origin and no ticks to answer: ERROR with the remedy
+    instead of a silent stop."""
+    _start(procs, node_cmd, ros_env, 'use_sim_time:=true')
+    loop = Loop(probe)
+    origin_pub = probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS)
+    origin_pub.publish(ns_to_stamp(time.time_ns()))          # what a wall plant latches
+    assert probe.wait_for(lambda: 'not sampling' in loop.diag_message, 20), loop.diag_message
+    assert loop.diag_level == DiagnosticStatus.ERROR
+    assert 'the plant runs on the wall clock' in loop.diag_message
+    assert 'use_sim_time false' in loop.diag_message

@@ -7,7 +7,7 @@ import time
 
 import pytest
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.srv import SetParameters
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -113,6 +113,24 @@ def test_wall_mode_makes_up_ticks_a_stalled_process_missed_and_counts_them(
     assert probe.wait_for(lambda: rec.diagnostics and int(rec.diagnostics[-1]['late_ticks']) > 0,
                           10), rec.diagnostics[-1:]
     assert int(rec.diagnostics[-1]['late_ticks']) <= int(rec.diagnostics[-1]['ticks'])
+
+
+def test_wall_mode_says_when_the_plant_cannot_keep_real_time(procs, ros_env, node_cmd, probe,
+                                                             tmp_path):
+    """An integration step far below the tick (10^4 RK4 steps per 50 ms tick) makes each tick
+    cost more than its period: /diagnostics is WARN, saying how far behind and what a tick
+    costs, instead of ok."""
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='mixing_tank',
+                       sample_time=0.05, integration_step=5e-6, diagnostics_period=0.5)
+    rec = Recorder(probe)
+
+    def behind():
+        return any('behind real time' in d['message'] for d in rec.diagnostics)
+    assert probe.wait_for(behind, 60), (rec.diagnostics[-1:], proc.tail())
+    report = next(d for d in rec.diagnostics if 'behind real time' in d['message'])
+    assert report['level'] == DiagnosticStatus.WARN
+    assert float(report['step_time_ms']) > 50.0               # a tick costs more than 50 ms
+    assert 'instead of 1x' in report['message']
 
 
 def test_lockstep_ticks_carry_k_times_ts_and_a_live_dead_time_change_acts(procs, ros_env,

@@ -97,6 +97,45 @@ def test_wall_mode_publishes_the_schedule_on_the_plant_time_base_and_applies_cha
     assert all(s <= t for s, t in zip(stamps, arrivals))
 
 
+def test_wall_mode_a_shorter_sample_time_acts_at_once(procs, ros_env, node_cmd, probe,
+                                                       tmp_path):
+    """sample_time 30 s → 0.2 s: the next message comes on the new grid, not after the
+    rest of the old 30 s period (instant 30 s of plant time)."""
+    setpoints = collect(probe, 'setpoint')
+    proc = procs.start('reference', node_cmd('reference_node', '--params-file',
+                                             params_file(tmp_path, sample_time=30.0)), env=ros_env)
+    origin = time.time_ns()
+    probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(ns_to_stamp(origin))
+    assert probe.wait_for(lambda: len(setpoints) >= 1, 20), proc.tail()
+    assert setpoints[0][0] == origin                      # instant 0
+    assert set_param(probe, 'sample_time', 0.2).successful
+    assert probe.wait_for(lambda: len(setpoints) >= 3, 20), proc.tail()
+    stamps = [s - origin for s, _, _ in setpoints]
+    assert all(s % 200_000_000 == 0 for s in stamps)      # on the new grid ...
+    assert stamps[1] < 30_000_000_000                     # ... without waiting out the old period
+    assert all(b - a == 200_000_000 for a, b in zip(stamps[1:], stamps[2:]))
+
+
+def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, ros_env, node_cmd, probe,
+                                                            tmp_path):
+    """With use_sim_time the reference answers /clock ticks; a wall-clock plant sends none
+    (it latches a non-zero time origin): ERROR on /diagnostics with the remedy, not silence."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    reports = []
+    probe.node.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda m: reports.extend(s for s in m.status if s.name == 'reference'), 10)
+    proc = procs.start('reference', node_cmd('reference_node', '--params-file',
+                                             params_file(tmp_path), '-p', 'use_sim_time:=true'),
+                       env=ros_env)
+    probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(
+        ns_to_stamp(time.time_ns()))
+    assert probe.wait_for(lambda: reports, 20), proc.tail()
+    assert reports[0].level == DiagnosticStatus.ERROR
+    assert 'the plant runs on the wall clock' in reports[0].message
+    assert 'use_sim_time false' in reports[0].message
+
+
 def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
         procs, ros_env, node_cmd, probe, tmp_path):
     procs.start('reference', node_cmd('reference_node', '--params-file',

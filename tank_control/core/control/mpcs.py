@@ -191,6 +191,19 @@ def horizon_warning(cfg: MpcsConfig, model: DelayedModel | None = None) -> str:
     return '; '.join(parts)
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _finite(a: Any) -> bool:
+    """``np.all(np.isfinite(a))``; a short float vector is checked item by item."""
+    if type(a) is np.ndarray and a.dtype is _FLOAT64 and a.ndim == 1 and a.size <= 8:
+        for item in a.tolist():
+            if not math.isfinite(item):
+                return False
+        return True
+    return bool(np.all(np.isfinite(a)))
+
+
 def _two(values: tuple[float, ...]) -> np.ndarray:
     arr = np.asarray(values, dtype=float)
     return np.full(2, arr[0]) if arr.size == 1 else arr
@@ -239,6 +252,13 @@ class _Design:
             self.lb, self.ub = -du, du
         self.n_var = h.shape[0]
         self.qp = DenseQp(h, a, cfg.qp_iter_limit) if cfg.solver == 'qp' else None
+        # per sample: the input of every planned move (np.tile of an input vector) and the
+        # limits as floats (absolute inputs, rate)
+        self.move_inputs = np.tile(np.arange(nu), p.n_moves)
+        self.u_low = (self.u_min + m.u0).tolist()
+        self.u_high = (self.u_max + m.u0).tolist()
+        self.du_high = self.du_max.tolist()
+        self.y0 = m.y0.tolist()                       # the model's operating point [h, T_out]
 
 
 class Mpcs:
@@ -284,10 +304,10 @@ class Mpcs:
         m = self._design.model
         y = np.asarray(y, dtype=float)
         u = np.asarray(u, dtype=float)
-        if y.shape != m.y0.shape or not np.all(np.isfinite(y)):
+        if y.shape != m.y0.shape or not _finite(y):
             self._counters['bad_measurements'] += 1
             y = m.y0
-        if u.shape != m.u0.shape or not np.all(np.isfinite(u)):
+        if u.shape != m.u0.shape or not _finite(u):
             self._counters['bad_setpoints'] += 1
             u = np.clip(m.u0, self._design.u_min + m.u0, self._design.u_max + m.u0)
         self._u, self._y = u.copy(), y.copy()
@@ -312,7 +332,7 @@ class Mpcs:
         y = np.asarray(y, dtype=float)
         r = np.asarray(r, dtype=float)
         d = self._fill_d(d)
-        if self._needs_init and y.shape == self._y.shape and np.all(np.isfinite(y)):
+        if self._needs_init and y.shape == self._y.shape and _finite(y):
             self.reset(y, self._u, d)   # bumpless from the operating point's inputs
         if self._design.cfg.relinearize and self._fixed_model is None:
             self._relinearize(r, d)
@@ -324,7 +344,7 @@ class Mpcs:
                 est.reset(self._y - m.y0, self._u_eff(m) - m.u0, self._d_dev(m))
         self._pending_d = False
         d_dev = self._d_dev(m)
-        if np.all(np.isfinite(y)):
+        if _finite(y):
             self._y = y.copy()
             est.correct(y - m.y0)
         else:
@@ -332,7 +352,7 @@ class Mpcs:
         u_prev = self._u
         z = pred.z_vector(est.xi, [b - m.u0[i] for i, b in enumerate(self._buffers)],
                           u_prev - m.u0, d_dev)
-        if not np.all(np.isfinite(r)) or len(r) != m.n_y:
+        if not _finite(r) or len(r) != m.n_y:
             self._counters['bad_setpoints'] += 1
             u = u_prev.copy()
         else:
@@ -353,7 +373,13 @@ class Mpcs:
         des = self._design
         est = des.estimator
         n = des.model.n_x
+        lo, hi = des.u_min + des.model.u0, des.u_max + des.model.u0     # absolute limits
+        at_limit = [bool(u <= a + 1e-9 * (1 + abs(a)) or u >= b - 1e-9 * (1 + abs(b)))
+                    for u, a, b in zip(self._u.tolist(), lo.tolist(), hi.tolist())]
         return {
+            # the applied input at an absolute limit (u_min/u_max), as SISO 'saturated'
+            'saturated': any(at_limit),
+            **{f'saturated.{name}': flag for name, flag in zip(self.input_names, at_limit)},
             'solver': des.cfg.solver,
             'horizon': des.cfg.horizon,
             'control_horizon': des.cfg.control_horizon,
@@ -419,9 +445,10 @@ class Mpcs:
         """Gain scheduling on the setpoint: a new operating point at the equilibrium of
         ``r`` (003 §4: the linearisation error grows with the distance from it)."""
         cfg, m = self._design.cfg, self._design.model
-        if r.shape != m.y0.shape or not np.all(np.isfinite(r)):
+        if r.shape != m.y0.shape or not _finite(r):
             return
-        if abs(r[0] - m.y0[0]) <= cfg.relinearize_h and abs(r[1] - m.y0[1]) <= cfg.relinearize_T:
+        (r_h, r_t), (y0_h, y0_t) = r.tolist(), self._design.y0
+        if abs(r_h - y0_h) <= cfg.relinearize_h and abs(r_t - y0_t) <= cfg.relinearize_T:
             return
         f_d, t_d = (d[0], d[1]) if self._valid_d(d, m) else (cfg.op_F_D, cfg.op_T_D)
         op = replace(cfg.operating_point(), F_D=float(f_d), T_D=float(t_d))
@@ -443,11 +470,13 @@ class Mpcs:
         d = np.asarray(d, dtype=float)
         if d.shape != self._d.shape:
             return d
+        if _finite(d):
+            return d.copy()
         return np.where(np.isfinite(d), d, self._d)
 
     def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> bool:
         return (self._design.cfg.feedforward and d is not None and len(d) == m.n_d
-                and bool(np.all(np.isfinite(d))))
+                and _finite(d))
 
     def _d_dev(self, m: DelayedModel) -> np.ndarray:
         """Measured disturbance deviation used in the model (zero without feed-forward)."""
@@ -495,8 +524,8 @@ class Mpcs:
         if des.qp is not None:
             u_prev_dev = u_prev - m.u0
             f = pred.f_z @ z - pred.f_r @ r_dev
-            cum_lo = np.tile(des.u_min - u_prev_dev, pred.n_moves)
-            cum_hi = np.tile(des.u_max - u_prev_dev, pred.n_moves)
+            cum_lo = (des.u_min - u_prev_dev)[des.move_inputs]       # tiled over the moves
+            cum_hi = (des.u_max - u_prev_dev)[des.move_inputs]
             if des.soft:
                 y_free = pred.m_z @ z
                 f = np.concatenate([f, np.zeros(m.n_y)])
@@ -511,7 +540,7 @@ class Mpcs:
                 u = u_prev + res.x[:m.n_u]
             else:
                 self._counters['fallbacks'] += 1
-        if u is None or not np.all(np.isfinite(u)):
+        if u is None or not _finite(u):
             if u is not None:
                 self._counters['fallbacks'] += 1
             u = self._clip(des, u_prev, du_analytic, u_prev)
@@ -526,13 +555,15 @@ class Mpcs:
     def _clip(self, des: _Design, u_prev: np.ndarray, du: np.ndarray, fallback: np.ndarray
               ) -> np.ndarray:
         """Rate limit, then absolute limits (the absolute limits always win)."""
-        m = des.model
-        if not np.all(np.isfinite(du)):
+        if not _finite(du):
             du = np.zeros_like(du)
-        du_c = np.clip(du, -des.du_max, des.du_max)
-        u = np.clip(u_prev + du_c, des.u_min + m.u0, des.u_max + m.u0)
-        self._last_clipped = bool(np.any(np.abs(u - (u_prev + du)) > 1e-9))
-        return u if np.all(np.isfinite(u)) else fallback
+        # elementwise as np.clip: the rate limit, then the absolute limits
+        wanted = [a + b for a, b in zip(u_prev.tolist(), du.tolist())]
+        u_l = [min(max(a + min(max(b, -c), c), lo), hi) for a, b, c, lo, hi in
+               zip(u_prev.tolist(), du.tolist(), des.du_high, des.u_low, des.u_high)]
+        self._last_clipped = any(abs(a - b) > 1e-9 for a, b in zip(u_l, wanted))
+        u = np.array(u_l)
+        return u if _finite(u) else fallback
 
     def _advance(self, m: DelayedModel, est: KalmanEstimator, u: np.ndarray,
                  d_dev: np.ndarray) -> None:

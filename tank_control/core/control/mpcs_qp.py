@@ -50,8 +50,8 @@ class DenseQp:
               lo: np.ndarray, hi: np.ndarray) -> QpResult:
         """Solve; bounds may contain ±inf. Never raises for numerical failures."""
         start = time.perf_counter()
-        upper = np.clip(np.concatenate([ub, hi]), -BIG, BIG)
-        lower = np.clip(np.concatenate([lb, lo]), -BIG, BIG)
+        upper = np.minimum(np.maximum(np.concatenate([ub, hi]), -BIG), BIG)   # np.clip
+        lower = np.minimum(np.maximum(np.concatenate([lb, lo]), -BIG), BIG)
         f = np.ascontiguousarray(f, dtype=float)
         try:
             if self._model is None:
@@ -68,7 +68,7 @@ class DenseQp:
             self._model = None
             return QpResult(None, -99, 0, 0, time.perf_counter() - start)
         x = np.asarray(x, dtype=float)
-        ok = flag >= 1 and np.all(np.isfinite(x))
+        ok = flag >= 1 and bool(np.isfinite(x).all())
         lam = np.asarray(info.get('lam', ()), dtype=float)
         active = int(np.count_nonzero(np.abs(lam) > 1e-9)) if lam.size else 0
         if not ok:

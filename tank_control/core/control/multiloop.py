@@ -60,13 +60,19 @@ class SetpointGuard:
         """Setpoints [h, T_out] limited to what the tank can hold at steady state."""
         if not self.enabled:
             return r
-        h = min(max(r[0], self.h_min), self.h_max)
+        return np.array(self.limit_pair(float(r[0]), float(r[1])))
+
+    def limit_pair(self, r_h: float, r_t: float) -> tuple[float, float]:
+        """:meth:`limit` of the setpoints ``r_h`` [cm], ``r_t`` [°C] as floats."""
+        if not self.enabled:
+            return r_h, r_t
+        h = min(max(r_h, self.h_min), self.h_max)
         total = self.alpha * math.sqrt(h)
         free = max(total - self.F_D, 0.0)
         lo = (free * self.T_C + self.F_D * self.T_D) / total + self.margin
         hi = (free * self.T_H + self.F_D * self.T_D) / total - self.margin
-        t = 0.5 * (lo + hi) if lo > hi else min(max(r[1], lo), hi)
-        return np.array([h, t])
+        t = 0.5 * (lo + hi) if lo > hi else min(max(r_t, lo), hi)
+        return h, t
 
 
 @dataclass
@@ -207,6 +213,16 @@ class D21Filter:
         return y
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _floats(values: Any) -> list[float]:
+    """A signal vector as a flat list of floats (a 1-D float64 array without conversion)."""
+    if type(values) is np.ndarray and values.dtype is _FLOAT64 and values.ndim == 1:
+        return values.tolist()
+    return np.asarray(values, dtype=float).reshape(-1).tolist()
+
+
 class TwoLoopPi:
     """Two-loop PI of 003 behind the Controller protocol.
 
@@ -226,20 +242,41 @@ class TwoLoopPi:
         if reason:
             raise ValueError(reason)
         self.config = cfg
-        self._integral = np.zeros(2)
+        self._integral = [0.0, 0.0]
         self._d21 = D21Filter()
-        self._u = np.full(2, np.nan)
+        self._u = [math.nan, math.nan]
         self._pending: np.ndarray | None = None
         self._initialised = False
         self._fault = False
-        self._status: dict[str, Any] = {}
+        self._last_sample: tuple[Any, ...] | None = None   # what status reports
+
+    @property
+    def config(self) -> TwoLoopPiConfig:
+        """The settings in use (assign a new, valid configuration to change them)."""
+        return self._config
+
+    @config.setter
+    def config(self, cfg: TwoLoopPiConfig) -> None:
+        self._config = cfg
+        self._guard = cfg.guard
+        self._guarded: tuple[float, float, float, float] | None = None   # last (r, r_used)
+        self._loop_pair = (cfg.h_loop, cfg.t_loop)
+        self._v_lo, self._v_hi = self._v_range()
+        h = cfg.sample_time
+        # per loop: kp, the integral gain per sample ki·h, and the back-calculation gain
+        # min(h/Tt, 1) with Tt = tracking_time, else kp/ki, else h
+        self._pi = tuple(
+            (loop.kp, loop.ki * h,
+             min(h / (loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0
+                                              else h)), 1.0))
+            for loop in self._loop_pair)
 
     @property
     def sample_time(self) -> float:
         return self.config.sample_time
 
     def _loops(self) -> tuple[PiLoop, PiLoop]:
-        return self.config.h_loop, self.config.t_loop
+        return self._loop_pair
 
     def _v_range(self) -> tuple[float, float]:
         cfg = self.config
@@ -254,7 +291,7 @@ class TwoLoopPi:
             raise ValueError(f'reset: u must be 2 finite flows (F_H, F_Cin), got {u!r}')
         self._pending = np.clip(u, self.config.u_min, self.config.u_max)
 
-    def _init_from(self, e: np.ndarray, u: np.ndarray) -> None:
+    def _init_from(self, e: list[float], u: np.ndarray) -> None:
         """States such that the PI outputs reproduce the flows u at error e."""
         cfg = self.config
         lo, hi = self._v_range()
@@ -264,88 +301,96 @@ class TwoLoopPi:
             g21 = _d21_gain(cfg)
             v = np.linalg.solve(np.array([[1.0, cfg.d12], [g21, 1.0]]), u)
             v = np.clip(v, lo, hi)
-            self._d21.settle(v[0])
+            self._d21.settle(float(v[0]))
         for i, loop in enumerate(self._loops()):
-            self._integral[i] = v[i] - loop.kp * e[i]
-        self._u = u.copy()
+            self._integral[i] = float(v[i] - loop.kp * e[i])
+        self._u = u.tolist()
         self._initialised = True
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y = np.asarray(y, dtype=float).reshape(-1)
-        r = np.asarray(r, dtype=float).reshape(-1)
-        if y.size != 2 or r.size != 2:
-            raise ValueError(f'y, r: expected 2 values (h, T_out), got {y.size} and {r.size}')
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(r))):
+        y_l, r_l = _floats(y), _floats(r)
+        if len(y_l) != 2 or len(r_l) != 2:
+            raise ValueError(f'y, r: expected 2 values (h, T_out), got {len(y_l)} and {len(r_l)}')
+        isfinite = math.isfinite
+        if not (isfinite(y_l[0]) and isfinite(y_l[1]) and isfinite(r_l[0])
+                and isfinite(r_l[1])):
             self._fault = True
-            self._status['input_fault'] = True
             return self._held()
-        r_used = self.config.guard.limit(r)
-        limited = bool(np.any(r_used != r))
-        e = r_used - y
+        last = self._guarded           # the guard is a function of r: reuse its last result
+        if last is not None and last[0] == r_l[0] and last[1] == r_l[1]:
+            r_h, r_t = last[2], last[3]
+        else:
+            r_h, r_t = self._guard.limit_pair(r_l[0], r_l[1])
+            self._guarded = (r_l[0], r_l[1], r_h, r_t)
+        limited = r_h != r_l[0] or r_t != r_l[1]
+        e = [r_h - y_l[0], r_t - y_l[1]]
         if self._pending is not None:
             self._init_from(e, self._pending)
             self._pending = None
         elif self._fault:
             self._init_from(e, self._held())
         elif not self._initialised:
-            self._integral[:] = 0.0
+            self._integral[:] = [0.0, 0.0]
             self._d21.settle(0.0)
             self._initialised = True
         self._fault = False
-        u = self._compute(e)
-        self._status['setpoint_limited'] = limited
-        self._status['r.h'], self._status['r.T_out'] = float(r_used[0]), float(r_used[1])
-        return u
+        return self._compute(e, (limited, r_h, r_t))
 
     def _held(self) -> np.ndarray:
-        if np.all(np.isfinite(self._u)):
-            return self._u.copy()
+        if all(map(math.isfinite, self._u)):
+            return np.array(self._u)
         return np.clip(np.zeros(2), self.config.u_min, self.config.u_max)
 
-    def _compute(self, e: np.ndarray) -> np.ndarray:
+    def _compute(self, e: list[float], setpoints: tuple[bool, float, float]) -> np.ndarray:
+        """One sample at the errors ``e``; ``setpoints``: whether the guard limited them, and
+        the setpoints used (for :attr:`status`)."""
         cfg = self.config
-        h = cfg.sample_time
-        lo, hi = self._v_range()
-        loops = self._loops()
-        w = np.array([loop.kp * e[i] + self._integral[i] for i, loop in enumerate(loops)])
-        v = np.clip(w, lo, hi)
+        lo, hi = self._v_lo, self._v_hi
+        u_min, u_max = cfg.u_min, cfg.u_max
+        integral = self._integral
+        pi = self._pi
+        w = [pi[0][0] * e[0] + integral[0], pi[1][0] * e[1] + integral[1]]
+        v = [min(max(w[0], lo), hi), min(max(w[1], lo), hi)]
         if cfg.decoupling == 'none':
-            cross = np.zeros(2)
+            cross = [0.0, 0.0]
         else:
             c21 = self._d21.step(v[0]) if cfg.decoupling == 'dynamic' else cfg.d21 * v[0]
-            cross = np.clip(np.array([cfg.d12 * v[1], c21]), lo, hi)   # 003 §3.1: decoupler outputs clipped
-        u = np.clip(v + cross, cfg.u_min, cfg.u_max)
+            # 003 §3.1: decoupler outputs clipped
+            cross = [min(max(cfg.d12 * v[1], lo), hi), min(max(c21, lo), hi)]
+        u = [min(max(v[0] + cross[0], u_min), u_max), min(max(v[1] + cross[1], u_min), u_max)]
         # anti-windup sees the applied flows: loop i's effective output is u_i − (decoupler
         # term into u_i), within the PI output range
-        v_eff = np.clip(u - cross, lo, hi)
+        v_eff = [min(max(u[0] - cross[0], lo), hi), min(max(u[1] - cross[1], lo), hi)]
         aw = [False, False]
-        for i, loop in enumerate(loops):
-            di = loop.ki * h * e[i]
-            if cfg.anti_windup == 'back_calculation':
-                tt = loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0 else h)
-                self._integral[i] += di + min(h / tt, 1.0) * (v_eff[i] - w[i])
-                aw[i] = bool(v_eff[i] != w[i])
-            elif cfg.anti_windup == 'conditional_integration':
+        method = cfg.anti_windup
+        if method == 'back_calculation':
+            for i in (0, 1):
+                integral[i] += pi[i][1] * e[i] + pi[i][2] * (v_eff[i] - w[i])   # ki·h·e + ...
+                aw[i] = v_eff[i] != w[i]
+        else:
+            for i in (0, 1):
+                di = pi[i][1] * e[i]                       # ki·h·e
                 push = w[i] - v_eff[i]
-                if push != 0 and di * push > 0:
+                if method == 'conditional_integration' and push != 0 and di * push > 0:
                     aw[i] = True
                 else:
-                    self._integral[i] += di
-            else:
-                self._integral[i] += di
+                    integral[i] += di
         self._u = u
-        self._status = {
-            'decoupling': cfg.decoupling,
-            'saturated': bool(np.any(u != v + cross) or np.any(v != w)),
-            'saturated.F_H': bool(u[0] != v[0] + cross[0] or v[0] != w[0]),
-            'saturated.F_Cin': bool(u[1] != v[1] + cross[1] or v[1] != w[1]),
-            'anti_windup_active': bool(aw[0] or aw[1]),
-            'input_fault': False,
-            'v.h': float(v[0]), 'v.T_out': float(v[1]),
-            'i.h': float(self._integral[0]), 'i.T_out': float(self._integral[1]),
-        }
-        return u.copy()
+        sat_h = u[0] != v[0] + cross[0] or v[0] != w[0]
+        sat_t = u[1] != v[1] + cross[1] or v[1] != w[1]
+        self._last_sample = (cfg.decoupling, sat_h, sat_t, aw[0] or aw[1], v[0], v[1],
+                             integral[0], integral[1], *setpoints)
+        return np.array(u)
 
     @property
     def status(self) -> Mapping[str, Any]:
-        return dict(self._status)
+        """The last sample: decoupling, saturation flags, anti-windup, input fault, the PI
+        outputs ``v.*`` and integrals ``i.*``, and the setpoints used (guard)."""
+        if self._last_sample is None:
+            return {'input_fault': True} if self._fault else {}
+        (decoupling, sat_h, sat_t, aw, v_h, v_t, i_h, i_t, limited, r_h, r_t
+         ) = self._last_sample
+        return {'decoupling': decoupling, 'saturated': sat_h or sat_t, 'saturated.F_H': sat_h,
+                'saturated.F_Cin': sat_t, 'anti_windup_active': aw, 'input_fault': self._fault,
+                'v.h': v_h, 'v.T_out': v_t, 'i.h': i_h, 'i.T_out': i_t,
+                'setpoint_limited': limited, 'r.h': r_h, 'r.T_out': r_t}

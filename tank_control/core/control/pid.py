@@ -156,6 +156,13 @@ class Pid2Dof(SisoLaw[PidConfig]):
         self._d = 0.0
         self._rate_limited = False
 
+    def _set_config(self, cfg: PidConfig) -> None:
+        """Also the derivative filter pole β (None without derivative action) and the largest
+        output change per sample (None without a rate limit)."""
+        super()._set_config(cfg)
+        self._beta = _beta(cfg) if cfg.td > 0.0 else None
+        self._du_step = cfg.du_max * cfg.sample_time if math.isfinite(cfg.du_max) else None
+
     def _check(self, config: PidConfig) -> None:
         reason = config_reason(config)
         if reason:
@@ -163,6 +170,12 @@ class Pid2Dof(SisoLaw[PidConfig]):
 
     def _flags(self) -> dict[str, bool]:
         return {'rate_limited': self._rate_limited}
+
+    @property
+    def rate_step(self) -> float | None:
+        """The largest output change per sample, ``du_max·sample_time`` [u units] (None without
+        a rate limit)."""
+        return self._du_step
 
     def _terms(self) -> dict[str, float]:
         """The p, i, d terms of the last sample."""
@@ -182,21 +195,23 @@ class Pid2Dof(SisoLaw[PidConfig]):
     def _limit(self, v: float) -> float:
         """Limits, then rate limit relative to the last output, then limits again."""
         cfg = self._cfg
-        u = self._clip(v)
-        if self._u is not None and math.isfinite(cfg.du_max):
-            step = cfg.du_max * cfg.sample_time
-            u = min(max(u, self._u - step), self._u + step)
-        u = self._clip(u)
-        self._rate_limited = u != self._clip(v)
+        lo, hi = cfg.u_min, cfg.u_max
+        clipped = min(max(v, lo), hi)
+        step = self._du_step
+        if self._u is not None and step is not None:
+            u = min(max(min(max(clipped, self._u - step), self._u + step), lo), hi)
+        else:
+            u = clipped                                # the limits again change nothing
+        self._rate_limited = u != clipped
         return u
 
     def _update_auto(self, r: float, y: float) -> float:
         cfg = self._cfg
-        k = self._gain()
+        k = self._k
         p = k * (cfg.b * r - y)
         ed = cfg.c * r - y
-        if cfg.td > 0.0:
-            beta = _beta(cfg)                          # Tf/(Tf + h), backward difference
+        beta = self._beta
+        if beta is not None:                           # Tf/(Tf + h), backward difference
             x_next = beta * self._x + (1.0 - beta) * ed
             d = k * cfg.n * (ed - x_next)
         else:

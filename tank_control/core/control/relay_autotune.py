@@ -564,8 +564,8 @@ class RelayAutotuner:
         return self.pid.update(r, y)
 
     def _clip(self, u: float) -> float:
-        cfg = self.pid.config
-        return min(max(u, cfg.u_min), cfg.u_max)
+        u_min, u_max = self.pid.limits
+        return min(max(u, u_min), u_max)
 
     def _amplitude(self) -> float:
         """``autotune.relay_amplitude``, reduced so that ``u0 ± d`` stays within the output limits
@@ -575,9 +575,8 @@ class RelayAutotuner:
 
     def _limit(self, u: float) -> float:
         """The PID's output limits and rate limit (du_max per second) applied to the relay output."""
-        cfg = self.pid.config
-        if self._last_out is not None and math.isfinite(cfg.du_max):
-            step = cfg.du_max * cfg.sample_time
+        step = self.pid.rate_step                 # du_max·sample_time, None without a limit
+        if self._last_out is not None and step is not None:
             u = min(max(u, self._last_out - step), self._last_out + step)
         return self._clip(u)
 
@@ -875,7 +874,12 @@ def _gain_fields(cfg: PidConfig) -> dict[str, Any]:
     return {'kp': cfg.kp, 'ti': cfg.ti, 'td': cfg.td, 'n': cfg.n, 'b': cfg.b, 'c': cfg.c}
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
 def _scalar(value: Any, name: str) -> float:
+    if type(value) is np.ndarray and value.shape == (1,) and value.dtype is _FLOAT64:
+        return value.item()
     arr = np.asarray(value, dtype=float).reshape(-1)
     if arr.size != 1:
         raise ValueError(f'{name}: expected 1 value for the SISO relay auto-tuner, got {arr.size}')

@@ -16,6 +16,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 ConfigT = TypeVar('ConfigT')
+_FLOAT64 = np.dtype(np.float64)
 LawT = TypeVar('LawT', bound='SisoLaw[Any]')
 
 
@@ -35,7 +36,7 @@ class SisoLaw(Generic[ConfigT]):
 
     def __init__(self, config: ConfigT) -> None:
         self._check(config)
-        self._cfg: Any = replace(config)  # type: ignore[type-var]
+        self._set_config(replace(config))  # type: ignore[type-var]
         self._mode = 'auto'
         self._manual_u: float | None = None
         self._x = 0.0            # low-pass state of the law [units of its error]
@@ -79,6 +80,15 @@ class SisoLaw(Generic[ConfigT]):
         """Back-calculation tracking time Tt [s] when ``tracking_time`` is None."""
         raise NotImplementedError
 
+    def _set_config(self, cfg: ConfigT) -> None:
+        """Take ``cfg`` (validated) into use with the constants every sample needs: the signed
+        gain, whether there is integral action and the anti-windup tracking time Tt [s]."""
+        self._cfg: Any = cfg
+        self._k = self._gain()
+        self._has_integral = math.isfinite(self._cfg.ti)
+        self._tt = (self._cfg.tracking_time or self._default_tracking_time()
+                    if self._has_integral else math.inf)
+
     # ----------------------------------------------------------------- state
     @property
     def config(self) -> ConfigT:
@@ -93,6 +103,12 @@ class SisoLaw(Generic[ConfigT]):
     @property
     def mode(self) -> str:
         return self._mode
+
+    @property
+    def limits(self) -> tuple[float, float]:
+        """The output limits ``(u_min, u_max)`` in force [u units] (without copying the
+        configuration as :attr:`config` does)."""
+        return self._cfg.u_min, self._cfg.u_max
 
     @property
     def status(self) -> dict[str, Any]:
@@ -195,13 +211,12 @@ class SisoLaw(Generic[ConfigT]):
         (no step that drives further into the limit), or none. ``ti = inf``: no integral."""
         cfg = self._cfg
         self._aw_active = False
-        if not math.isfinite(cfg.ti):
+        if not self._has_integral:
             return
         h = cfg.sample_time
         di = k * h / cfg.ti * e
         if cfg.anti_windup == 'back_calculation':
-            tt = cfg.tracking_time or self._default_tracking_time()
-            self._i += di + min(h / tt, 1.0) * (u - v)
+            self._i += di + min(h / self._tt, 1.0) * (u - v)
             self._aw_active = u != v
         elif cfg.anti_windup == 'conditional_integration':
             if (v > u and di > 0.0) or (v < u and di < 0.0):
@@ -225,7 +240,7 @@ class SisoLaw(Generic[ConfigT]):
         self._check(new)
         if self._initialised and self._last is not None:
             self._retune(self._cfg, new, *self._last)
-        self._cfg = new
+        self._set_config(new)
 
     def set_manual(self, u: float | None = None) -> None:
         """Switch to manual: the output becomes ``u`` (limited) from the next sample; without
@@ -272,7 +287,11 @@ class SisoController(Generic[LawT]):
         self._pending = u0
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y0, r0 = self._scalar(y, 'y'), self._scalar(r, 'r')
+        if (type(y) is np.ndarray and type(r) is np.ndarray and y.shape == r.shape == (1,)
+                and y.dtype is r.dtype is _FLOAT64):
+            y0, r0 = y.item(), r.item()                # what _scalar gives, without the calls
+        else:
+            y0, r0 = self._scalar(y, 'y'), self._scalar(r, 'r')
         if self._pending is not None and math.isfinite(y0) and math.isfinite(r0):
             self._law.reset(r0, y0, self._pending)
             self._pending = None
@@ -288,6 +307,8 @@ class SisoController(Generic[LawT]):
         return self._law.status
 
     def _scalar(self, value: Any, name: str) -> float:
+        if type(value) is np.ndarray and value.shape == (1,) and value.dtype is _FLOAT64:
+            return value.item()
         arr = np.asarray(value, dtype=float).reshape(-1)
         if arr.size != 1:
             raise ValueError(f'{name}: expected 1 value for a SISO {self.law_name}, '

@@ -11,7 +11,7 @@ from __future__ import annotations
 import bisect
 import math
 
-from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.interfaces import NS_PER_S, to_ns
 
 _PRUNE_BATCH = 64
 """Stale entries are dropped in batches of this many (amortised list deletion)."""
@@ -73,13 +73,16 @@ class DelayLine:
                 self._drop_repeat()
                 return
             if value == self._values[-1]:
-                self._prune(t_ns)
+                if len(self._times) > _PRUNE_BATCH:
+                    self._prune(t_ns)
                 return
         elif value == self._initial:
             return
-        self._times.append(int(t_ns))
+        times = self._times
+        times.append(int(t_ns))
         self._values.append(value)
-        self._prune(t_ns)
+        if len(times) > _PRUNE_BATCH and times[_PRUNE_BATCH] <= t_ns - self._keep_ns:
+            self._prune(t_ns)       # (else there is nothing to drop yet)
 
     def _drop_repeat(self) -> None:
         previous = self._values[-2] if len(self._values) > 1 else self._initial
@@ -109,24 +112,28 @@ class DelayLine:
         ``seconds(t_switch − t0) + delay``, so they are exact to rounding and
         never snapped to a grid.
         """
-        _check_delay(delay, self.max_delay)
+        if not 0.0 <= delay <= self.max_delay:     # also NaN
+            _check_delay(delay, self.max_delay)
         if dt < 0.0 or not math.isfinite(dt):
             raise ValueError(f'dt: {dt!r} must be finite and >= 0')
         # Start from the last breakpoint that is certainly in force at t0 − delay
         # (a 2 ns margin absorbs the rounding of delay to nanoseconds) and walk
         # forward; delayed positions are exact relative times in seconds.
-        if self._now_ns is not None and t0_ns - to_ns(delay) < self._now_ns - self._keep_ns:
+        read_ns = t0_ns - to_ns(delay)
+        if self._now_ns is not None and read_ns < self._now_ns - self._keep_ns:
             raise ValueError(f't0_ns: {t0_ns} minus the delay reads history older than max_delay')
         times, values = self._times, self._values
-        k = bisect.bisect_right(times, t0_ns - to_ns(delay) - 2) - 1
+        k = bisect.bisect_right(times, read_ns - 2) - 1
         value = self._initial if k < 0 else values[k]
         pieces: list[Segment] = []
         start = 0.0
-        for i in range(max(k + 1, 0), len(times)):
-            r = seconds(times[i] - t0_ns) + delay
-            if r >= dt - _SNAP:
+        snap = _SNAP
+        end = dt - snap
+        for i in range(k + 1, len(times)):          # k >= -1
+            r = (times[i] - t0_ns) / NS_PER_S + delay
+            if r >= end:
                 break
-            if r > start + _SNAP:
+            if r > start + snap:
                 pieces.append((r - start, value))
                 start = r
             value = values[i]
@@ -179,7 +186,9 @@ class HermiteDelayLine:
         self._y.append(float(y))
         self._slope_start.append(float(slope_start))
         self._slope_end.append(float(slope_end))
-        self._prune(t)
+        grid = self._t
+        if len(grid) > _PRUNE_BATCH and grid[_PRUNE_BATCH] <= t - self.max_delay:
+            self._prune(t)          # (else there is nothing to drop yet)
 
     def _prune(self, now: float) -> None:
         cutoff = now - self.max_delay
@@ -195,19 +204,20 @@ class HermiteDelayLine:
 
     def value_at(self, t: float) -> float:
         """The signal at instant ``t`` [s] (``t`` at most the newest grid instant)."""
-        if t <= self._t[0]:
-            return self._initial if t < self._t[0] else self._y[0]
-        if t >= self._t[-1]:
-            if t - self._t[-1] > 1e-9 * max(1.0, abs(t)):
-                raise ValueError(f't: {t!r} is after the newest grid point {self._t[-1]!r}')
-            return self._y[-1]
-        i = bisect.bisect_right(self._t, t) - 1
-        t_a, t_b = self._t[i], self._t[i + 1]
+        grid, ys = self._t, self._y
+        if t <= grid[0]:
+            return self._initial if t < grid[0] else ys[0]
+        if t >= grid[-1]:
+            if t - grid[-1] > 1e-9 * max(1.0, abs(t)):
+                raise ValueError(f't: {t!r} is after the newest grid point {grid[-1]!r}')
+            return ys[-1]
+        i = bisect.bisect_right(grid, t) - 1
+        t_a, t_b = grid[i], grid[i + 1]
         h = t_b - t_a
         s = (t - t_a) / h
         if s == 0.0:
-            return self._y[i]
-        y_a, y_b = self._y[i], self._y[i + 1]
+            return ys[i]
+        y_a, y_b = ys[i], ys[i + 1]
         m_a, m_b = self._slope_start[i] * h, self._slope_end[i] * h
         s2, s3 = s * s, s * s * s
         return ((2 * s3 - 3 * s2 + 1) * y_a + (s3 - 2 * s2 + s) * m_a
@@ -215,5 +225,6 @@ class HermiteDelayLine:
 
     def delayed(self, now: float, delay: float) -> float:
         """The signal ``delay`` seconds before ``now``."""
-        _check_delay(delay, self.max_delay)
+        if not 0.0 <= delay <= self.max_delay:     # also NaN
+            _check_delay(delay, self.max_delay)
         return self.value_at(now - delay)

@@ -18,10 +18,10 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.linalg import expm
 
-from tank_control.core.interfaces import StatusValue, seconds
+from tank_control.core.interfaces import NS_PER_S, StatusValue, seconds
 from tank_control.core.params import check_config, config_from, param
 from tank_control.core.plants.delay_line import DelayLine, HermiteDelayLine
-from tank_control.core.plants.siso import as_vector, checked_dt
+from tank_control.core.plants.siso import StepLength, as_floats
 
 T_MIN, T_MAX = 0.0, 100.0
 """Physical range of the inflow temperatures [°C] (liquid water)."""
@@ -139,9 +139,16 @@ class _Inflow(NamedTuple):
 
 
 def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]) -> _Inflow:
-    present = [t for f, t in zip(flows, temps) if f > 0.0]
-    return _Inflow(sum(flows), sum(f * t for f, t in zip(flows, temps)),
-                   min(present, default=math.inf), max(present, default=-math.inf))
+    """Total flow, heat flow and the range of the temperatures of the flows present (> 0)."""
+    (f_1, f_2, f_3), (t_1, t_2, t_3) = flows, temps
+    t_low, t_high = math.inf, -math.inf
+    for f, t in ((f_1, t_1), (f_2, t_2), (f_3, t_3)):
+        if f > 0.0:
+            if t < t_low:
+                t_low = t
+            if t > t_high:
+                t_high = t
+    return _Inflow(sum(flows), sum((f_1 * t_1, f_2 * t_2, f_3 * t_3)), t_low, t_high)
 
 
 class MixingTank:
@@ -161,10 +168,19 @@ class MixingTank:
     input_names: tuple[str, ...] = ('F_H', 'F_Cin')
     disturbance_names: tuple[str, ...] = ('F_D', 'T_D', 'T_H', 'T_C')
     def __init__(self, config: MixingTankConfig | None = None) -> None:
-        self._config = check_config(config if config is not None else MixingTankConfig())
+        self._set_config(check_config(config if config is not None else MixingTankConfig()))
         self._cold = DelayLine(self._config.max_dead_time, initial=self._config.F_C)
         self._temperature = HermiteDelayLine(self._config.max_dead_time)
+        self._dt = StepLength()
         self.reset()
+
+    def _set_config(self, cfg: MixingTankConfig) -> None:
+        """Take ``cfg`` into use, with the constants of the right-hand side: α, C and the
+        brim volume C·h_max² [cm³]."""
+        self._config = cfg
+        self._alpha, self._c = cfg.alpha, cfg.C
+        self._v_brim = cfg.C * cfg.h_max ** 2
+        self._end_rhs: tuple[float, float, _Inflow, tuple[float, float, float]] | None = None
 
     # ---- configuration -------------------------------------------------------------
     @property
@@ -181,7 +197,7 @@ class MixingTank:
         ``linearize`` and ``nominal_*``. ``max_dead_time`` is read-only.
         Raises ``ValueError`` with a one-line reason.
         """
-        self._config = config_from(MixingTankConfig, changes, self._config, live=True)
+        self._set_config(config_from(MixingTankConfig, changes, self._config, live=True))
 
     # ---- Plant protocol ------------------------------------------------------------
     def reset(self) -> None:
@@ -199,6 +215,7 @@ class MixingTank:
         self._spilled = 0.0
         self._overflow = False
         self._empty = False
+        self._end_rhs = None
 
     @property
     def time(self) -> float:
@@ -236,25 +253,32 @@ class MixingTank:
         non-finite value or bad ``dt``; out-of-range physical values are clipped
         and counted instead.
         """
-        u_vec = as_vector('u', u, 2)
-        d_vec = as_vector('d', d, 4, allow_empty=True)
-        if d_vec.size == 0:
-            d_vec = self.nominal_disturbances()
-        dt_ns = checked_dt(dt)
-        f_hot = self._clip('F_H', u_vec[0], 0.0, math.inf)
-        f_cold_in = self._clip('F_Cin', u_vec[1], 0.0, math.inf)
-        f_dist = self._clip('F_D', d_vec[0], 0.0, math.inf)
-        t_dist = self._clip('T_D', d_vec[1], T_MIN, T_MAX)
-        t_hot = self._clip('T_H', d_vec[2], T_MIN, T_MAX)
-        t_cold = self._clip('T_C', d_vec[3], T_MIN, T_MAX)
+        u_vec = as_floats('u', u, 2)
+        d_vec = as_floats('d', d, 4, allow_empty=True)
+        if not d_vec:
+            d_vec = self.nominal_disturbances().tolist()
+        dt_ns = self._dt.ns(dt)
+        f_hot, f_cold_in = u_vec
+        f_dist, t_dist, t_hot, t_cold = d_vec
+        if not (f_hot >= 0.0 and f_cold_in >= 0.0 and f_dist >= 0.0 and T_MIN <= t_dist <= T_MAX
+                and T_MIN <= t_hot <= T_MAX and T_MIN <= t_cold <= T_MAX):
+            f_hot = self._clip('F_H', f_hot, 0.0, math.inf)
+            f_cold_in = self._clip('F_Cin', f_cold_in, 0.0, math.inf)
+            f_dist = self._clip('F_D', f_dist, 0.0, math.inf)
+            t_dist = self._clip('T_D', t_dist, T_MIN, T_MAX)
+            t_hot = self._clip('T_H', t_hot, T_MIN, T_MAX)
+            t_cold = self._clip('T_C', t_cold, T_MIN, T_MAX)
 
         cfg = self._config
-        self._cold.push(self._t_ns, f_cold_in)
+        t_ns = self._t_ns
+        self._cold.push(t_ns, f_cold_in)
         self._overflow = False
-        t_start, span = seconds(self._t_ns), seconds(dt_ns)
-        t_end = seconds(self._t_ns + dt_ns)
+        t_start, span = t_ns / NS_PER_S, dt_ns / NS_PER_S        # seconds(...)
+        t_end = (t_ns + dt_ns) / NS_PER_S
         offset = 0.0
-        pieces = self._cold.segments(self._t_ns, span, cfg.tau_cold)
+        pieces = self._cold.segments(t_ns, span, cfg.tau_cold)
+        last_piece = len(pieces) - 1
+        advance = self._advance
         for index, (duration, f_cold) in enumerate(pieces):
             if duration <= 0.0:
                 continue
@@ -262,16 +286,17 @@ class MixingTank:
             n = max(1, math.ceil(duration / cfg.integration_step - 1e-9))
             h = duration / n
             for j in range(n):
-                last = index == len(pieces) - 1 and j == n - 1
+                last = index == last_piece and j == n - 1
                 t_b = t_end if last else t_start + offset + (j + 1) * h
-                self._advance(inflow, h, t_b)
+                advance(inflow, h, t_b)
             offset += duration
             self._F_C = f_cold
         self._empty = self._V <= 0.0
-        self._counts['overflow_steps'] += self._overflow
-        self._counts['empty_steps'] += self._empty
-        self._counts['steps'] += 1
-        self._t_ns += dt_ns
+        counts = self._counts
+        counts['overflow_steps'] += self._overflow
+        counts['empty_steps'] += self._empty
+        counts['steps'] += 1
+        self._t_ns = t_ns + dt_ns
 
     @property
     def status(self) -> Mapping[str, StatusValue]:
@@ -334,6 +359,8 @@ class MixingTank:
 
     # ---- integration ---------------------------------------------------------------
     def _clip(self, name: str, value: float, low: float, high: float) -> float:
+        if low <= value <= high:
+            return float(value)
         clipped = min(max(float(value), low), high)
         if clipped != value:
             self._counts[f'clipped_{name}'] += 1
@@ -341,14 +368,15 @@ class MixingTank:
 
     def _outflow(self, V: float) -> float:
         """F(h) = α·√h with h = √(V/C): α·(V/C)^(1/4) [cm³/s]; 0 for an empty tank."""
-        return self._config.alpha * math.sqrt(math.sqrt(max(V, 0.0) / self._config.C))
+        return self._alpha * math.sqrt(math.sqrt(max(V, 0.0) / self._c))
 
     def _rhs(self, V: float, T: float, inflow: _Inflow) -> tuple[float, float, float]:
         """(dV/dt, dT/dt, spill rate): 003 §1, with the level pinned at the brim h_max
         while the net inflow is positive (the excess spills)."""
-        dV = inflow.total - self._outflow(V)
-        dT = (inflow.heat - inflow.total * T) / V if V > 0.0 else 0.0
-        if dV > 0.0 and V >= self._config.C * self._config.h_max ** 2:
+        total = inflow.total
+        dV = total - self._alpha * math.sqrt(math.sqrt(max(V, 0.0) / self._c))   # _outflow(V)
+        dT = (inflow.heat - total * T) / V if V > 0.0 else 0.0
+        if dV > 0.0 and V >= self._v_brim:
             return 0.0, dT, dV
         return dV, dT, 0.0
 
@@ -361,37 +389,58 @@ class MixingTank:
     def _advance(self, inflow: _Inflow, h: float, t_b: float) -> None:
         """One RK4 step of length ``h`` ending at grid instant ``t_b``; records T there."""
         V0, T0 = self._V, self._T
-        substeps = 1
         rate = self._stiffness(V0, inflow)
-        if rate * h > 1.0:
+        exact_t = False
+        if rate * h <= 1.0:     # one RK4 step (rate·h ≤ 1 is within RK4's stability limit)
+            last = self._end_rhs    # the right-hand side where the previous step ended
+            if last is not None and last[2] is inflow and last[0] == V0 and last[1] == T0:
+                start = last[3]
+            else:
+                start = self._rhs(V0, T0, inflow)
+            V, T = self._rk4(V0, T0, inflow, h, start)
+            if not 0.0 <= V <= self._v_brim:     # (else the guard changes nothing)
+                V = self._guard_volume(V)
+        else:
             substeps = _MAX_SUBSTEPS if rate * h >= _MAX_SUBSTEPS else math.ceil(rate * h)
             self._counts['stiff_substeps'] += 1
-        delta = h / substeps
-        exact_t = False
-        V, T = V0, T0
-        for _ in range(substeps):
-            if self._stiffness(V, inflow) * delta <= _RK4_STABLE:
-                V, T = self._rk4(V, T, inflow, delta)
-            else:
-                V, T = self._frozen_volume_step(V, T, inflow, delta)
-                exact_t = True
-            V = self._guard_volume(V)
+            delta = h / substeps
+            V, T = V0, T0
+            start = None    # the right-hand side at (V0, T0), if the first sub-step has it
+            for i in range(substeps):
+                # the first sub-step starts at V0: its stiffness is ``rate``
+                if (rate if i == 0 else self._stiffness(V, inflow)) * delta <= _RK4_STABLE:
+                    k1 = self._rhs(V, T, inflow)
+                    if i == 0:
+                        start = k1
+                    V, T = self._rk4(V, T, inflow, delta, k1)
+                else:
+                    V, T = self._frozen_volume_step(V, T, inflow, delta)
+                    exact_t = True
+                V = self._guard_volume(V)
         low, high = min(T0, inflow.t_low), max(T0, inflow.t_high)
         T = min(max(T, low), high)
         self._V, self._T = V, T
+        self._end_rhs = None
         if exact_t:     # slopes meaningless across a stiff transient: interpolate linearly
             slope_a = slope_b = (T - T0) / h
         else:
-            slope_a = self._rhs(V0, T0, inflow)[1]
-            slope_b = self._rhs(V, T, inflow)[1]
-        if t_b > self._temperature.last_time:
-            self._temperature.append(t_b, T, slope_a, slope_b)
+            slope_a = (start or self._rhs(V0, T0, inflow))[1]
+            end = self._rhs(V, T, inflow)
+            slope_b = end[1]
+            self._end_rhs = (V, T, inflow, end)
+        temperature = self._temperature
+        if t_b > temperature.last_time:
+            temperature.append(t_b, T, slope_a, slope_b)
 
-    def _rk4(self, V: float, T: float, inflow: _Inflow, h: float) -> tuple[float, float]:
-        k1 = self._rhs(V, T, inflow)
-        k2 = self._rhs(V + 0.5 * h * k1[0], T + 0.5 * h * k1[1], inflow)
-        k3 = self._rhs(V + 0.5 * h * k2[0], T + 0.5 * h * k2[1], inflow)
-        k4 = self._rhs(V + h * k3[0], T + h * k3[1], inflow)
+    def _rk4(self, V: float, T: float, inflow: _Inflow, h: float,
+             k1: tuple[float, float, float] | None = None) -> tuple[float, float]:
+        """One classical RK4 step of length ``h`` (``k1``: the right-hand side at (V, T) if
+        already known)."""
+        rhs = self._rhs
+        k1 = k1 or rhs(V, T, inflow)
+        k2 = rhs(V + 0.5 * h * k1[0], T + 0.5 * h * k1[1], inflow)
+        k3 = rhs(V + 0.5 * h * k2[0], T + 0.5 * h * k2[1], inflow)
+        k4 = rhs(V + h * k3[0], T + h * k3[1], inflow)
         spill = h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
         if spill > 0.0:
             self._spilled += spill
@@ -418,7 +467,7 @@ class MixingTank:
         """Level ≥ 0; above h_max the excess spills (counted in ``spilled_volume``)."""
         if V < 0.0:
             return 0.0
-        V_max = self._config.C * self._config.h_max ** 2
+        V_max = self._v_brim
         if V > V_max:
             self._spilled += V - V_max
             self._overflow = True

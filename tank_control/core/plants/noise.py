@@ -54,7 +54,7 @@ class MeasurementNoise:
             raise ValueError(f'seed: {seed!r} must be an integer >= 0')
         self.n_outputs = int(n_outputs)
         self.seed = int(seed)
-        self._std = _std_vector(std, self.n_outputs)
+        self._set_std(_std_vector(std, self.n_outputs))
         self.reset()
 
     @property
@@ -62,9 +62,14 @@ class MeasurementNoise:
         """Standard deviation per channel (a copy)."""
         return self._std.copy()
 
+    def _set_std(self, values: np.ndarray) -> None:
+        self._std = values.copy()
+        self._all_noisy = bool(np.all(values > 0.0))     # std·z on every channel
+        self._silent = not np.any(values > 0.0)          # exactly 0 on every channel
+
     def set_std(self, std: float | Sequence[float]) -> None:
         """Change the standard deviations live; the random stream is unaffected."""
-        self._std = _std_vector(std, self.n_outputs)
+        self._set_std(_std_vector(std, self.n_outputs))
 
     def reset(self) -> None:
         """Restart the random stream from ``seed``."""
@@ -73,6 +78,10 @@ class MeasurementNoise:
     def sample(self) -> np.ndarray:
         """The noise of the next sample instant (always ``n_outputs`` draws)."""
         z = self._rng.standard_normal(self.n_outputs)
+        if self._all_noisy:
+            return self._std * z
+        if self._silent:
+            return np.zeros(self.n_outputs)
         return np.where(self._std > 0.0, self._std * z, 0.0)
 
     def apply(self, y: np.ndarray) -> np.ndarray:

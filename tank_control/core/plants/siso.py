@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.interfaces import StatusValue, seconds, to_ns
+from tank_control.core.interfaces import NS_PER_S, StatusValue, seconds, to_ns
 from tank_control.core.params import check_config, config_from, param
 from tank_control.core.plants.delay_line import DelayLine
 
@@ -62,11 +62,54 @@ def as_vector(name: str, values: Any, size: int, allow_empty: bool = False) -> n
     return vector
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def as_floats(name: str, values: Any, size: int, allow_empty: bool = False) -> list[float]:
+    """:func:`as_vector` as a list of Python floats (same checks, same ``ValueError``).
+
+    A 1-D float64 array (what the nodes and the in-process loop pass) or a tuple or list of
+    Python floats is checked element by element without building another array.
+    """
+    items = None
+    if type(values) is np.ndarray and values.dtype is _FLOAT64 and values.ndim == 1:
+        items = values.tolist()
+    elif type(values) in (tuple, list) and all(type(item) is float for item in values):
+        items = list(values)
+    if items is not None:
+        if len(items) == size:
+            for item in items:
+                if not math.isfinite(item):
+                    break
+            else:
+                return items
+        elif allow_empty and not items:
+            return items
+    return as_vector(name, values, size, allow_empty).tolist()
+
+
 def checked_dt(dt: float) -> int:
     """A step length in seconds → integer nanoseconds (finite, >= 0), else ``ValueError``."""
     if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt >= 0.0):
         raise ValueError(f'dt: {dt!r} must be a finite number of seconds >= 0')
     return to_ns(float(dt))
+
+
+class StepLength:
+    """:func:`checked_dt` remembering the last float step length (a plant steps with one
+    ``dt`` again and again)."""
+
+    def __init__(self) -> None:
+        self._dt = math.nan
+        self._dt_ns = 0
+
+    def ns(self, dt: float) -> int:
+        """``checked_dt(dt)``: integer nanoseconds, ``ValueError`` for a bad ``dt``."""
+        if type(dt) is float and dt == self._dt:
+            return self._dt_ns
+        dt_ns = checked_dt(dt)
+        self._dt, self._dt_ns = float(dt), dt_ns
+        return dt_ns
 
 
 class DeadTimePlant:
@@ -83,6 +126,7 @@ class DeadTimePlant:
     def __init__(self, config: Any) -> None:
         self._config = check_config(config)
         self._line = DelayLine(self._config.max_dead_time, initial=0.0)
+        self._dt = StepLength()
         self.reset()
 
     @property
@@ -127,18 +171,20 @@ class DeadTimePlant:
 
         Raises ``ValueError`` (state untouched) on a wrong size or non-finite value.
         """
-        u_vec = as_vector('u', u, 1)
-        d_vec = as_vector('d', d, 1, allow_empty=True)
-        dt_ns = checked_dt(dt)
-        w = float(u_vec[0] + (d_vec[0] if d_vec.size else 0.0))   # 000 Fig. 1: G·(u + v)
-        self._line.push(self._t_ns, w)
+        u_vec = as_floats('u', u, 1)
+        d_vec = as_floats('d', d, 1, allow_empty=True)
+        dt_ns = self._dt.ns(dt)
+        w = u_vec[0] + (d_vec[0] if d_vec else 0.0)   # 000 Fig. 1: G·(u + v)
+        t_ns = self._t_ns
+        line = self._line
+        line.push(t_ns, w)
         x = self._x
-        for duration, w_delayed in self._line.segments(self._t_ns, seconds(dt_ns),
-                                                       self._config.dead_time):
+        advance = self._advance
+        for duration, w_delayed in line.segments(t_ns, dt_ns / NS_PER_S, self._config.dead_time):
             if duration > 0.0:
-                x = self._advance(x, w_delayed, duration)
+                x = advance(x, w_delayed, duration)
         self._x = x
-        self._t_ns += dt_ns
+        self._t_ns = t_ns + dt_ns
         self._steps += 1
 
     def _advance(self, x: float, w: float, duration: float) -> float:
