@@ -196,6 +196,17 @@ class Recorder:
     def spin_once(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)
 
+    def drain(self, timeout: float, quiet: float = 0.1) -> None:
+        """Take in what was already sent (after the publishers stopped): spin until no message
+        came for ``quiet`` seconds, at most ``timeout`` wall seconds."""
+        deadline = time.monotonic() + timeout
+        last, last_change = sum(self.counts.values()), time.monotonic()
+        while (now := time.monotonic()) < deadline and now - last_change < quiet:
+            self.spin_once(0.02)
+            count = sum(self.counts.values())
+            if count != last:
+                last, last_change = count, time.monotonic()
+
     def spin_until(self, condition: Callable[[], bool], timeout: float,
                    check: Callable[[], None] = lambda: None) -> bool:
         """Spin until ``condition()`` holds (True) or ``timeout`` wall seconds pass (False);

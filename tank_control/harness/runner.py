@@ -533,6 +533,8 @@ class _RosRun:
             if self.group is not None:
                 codes = self.group.stop_all()
             if recorder is not None:
+                if failure is not None and self.stream is not None:
+                    recorder.drain(1.0)            # what the nodes sent before they stopped
                 recorder.destroy()
             rclpy.try_shutdown(context=context)
         if self.stream is None:                    # refused or failed before writing anything
