@@ -20,7 +20,8 @@ their values change: the same values as reading and building them every tick.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from itertools import chain
 
 import numpy as np
 
@@ -113,6 +114,19 @@ def check_wiring(plant: Plant, controller: Controller, reference: Reference) -> 
                              f'{plant.disturbance_names}')
 
 
+def loop_columns(plant: Plant, controller: Controller, reference: Reference) -> list[str]:
+    """The column names of the rows ``iter_loop`` yields (``t`` first)."""
+    return (['t'] + [f'y.{n}' for n in plant.output_names]
+            + [f'r.{n}' for n in reference.setpoint_names]
+            + [f'u.{n}' for n in controller.input_names]
+            + [f'd.{n}' for n in reference.disturbance_names])
+
+
+def loop_ticks(sample_time: float, duration: float) -> int:
+    """How many ticks (rows) a run of ``duration`` seconds has: 0..K inclusive."""
+    return to_ns(duration) // to_ns(sample_time) + 1
+
+
 def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
              sample_time: float, duration: float, noise: Noise | None = None) -> Trace:
     """Run the closed loop for ``duration`` seconds of simulated time (ticks 0..K inclusive).
@@ -120,13 +134,31 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     ``sample_time`` is the plant's tick [s]; the controller's ``sample_time``
     must be an integer multiple of it.
     """
+    rows = iter_loop(plant, controller, reference, sample_time=sample_time,
+                     duration=duration, noise=noise)
+    names = loop_columns(plant, controller, reference)
+    table = np.fromiter(chain.from_iterable(rows), dtype=float)   # to the end: the last step
+    return Trace.from_rows(names, table.reshape(-1, len(names)))
+
+
+def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
+              sample_time: float, duration: float, noise: Noise | None = None
+              ) -> Iterator[list[float]]:
+    """``run_loop`` one row at a time (a list of floats, columns ``loop_columns``), for a
+    caller that writes the rows as they come instead of holding them. The wiring and sample
+    times are checked before the first row."""
     check_wiring(plant, controller, reference)
     reason = sample_time_reason(sample_time, controller.sample_time)
     if reason:
         raise ValueError(reason)
+    return _rows(plant, controller, reference, sample_time, duration, noise)
+
+
+def _rows(plant: Plant, controller: Controller, reference: Reference, sample_time: float,
+          duration: float, noise: Noise | None) -> Iterator[list[float]]:
     ts_ns = to_ns(sample_time)
     cts_ns = to_ns(controller.sample_time)
-    n_ticks = to_ns(duration) // ts_ns + 1
+    n_ticks = loop_ticks(sample_time, duration)
 
     # Signals are held as Python floats in the plant's channel order; a controller's or the
     # reference's channel writes the plant position of its name (later names win, as in a
@@ -144,11 +176,6 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
     y_whole = y_index == list(range(len(plant.output_names)))       # y[y_index] is y
     r_whole = r_index == list(range(len(reference.setpoint_names)))
     u_whole = u_pos == list(range(len(plant.input_names)))          # u of the plant is u_ctrl
-    names = (['t'] + [f'y.{n}' for n in plant.output_names]
-             + [f'r.{n}' for n in reference.setpoint_names]
-             + [f'u.{n}' for n in controller.input_names]
-             + [f'd.{n}' for n in reference.disturbance_names])
-    table: list[float] = []          # the rows one after another
     u_ctrl = [u_all[n] for n in controller.input_names]
     u_arr = np.array(u_plant, dtype=float)
     d_arr = np.array(d_plant, dtype=float)
@@ -199,6 +226,5 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
                 for i, j in enumerate(u_pos):
                     u_plant[j] = u_ctrl[i]
                 u_arr = np.array(u_plant, dtype=float)
-        table += [t, *y_row, *r_row, *u_ctrl, *d_ref]
+        yield [t, *y_row, *r_row, *u_ctrl, *d_ref]
         plant_step(u_arr, d_arr, sample_time)
-    return Trace.from_rows(names, np.array(table, dtype=float).reshape(n_ticks, len(names)))

@@ -9,8 +9,11 @@
                      [--duration S] [--workers N | --cluster ADDRESS | --scheduler-file F]
                      [--ros]
 
-Exit status: 0 done (a sweep: some runs succeeded), 1 the run failed (a node crashed, did not start or
-stalled: its last log lines are printed), 2 bad command line or scenario.
+Exit status: 0 done (a sweep: some runs succeeded), 1 the run failed (a node crashed, did not
+start or stalled: its last log lines are printed; another run or graph on the ROS_DOMAIN_ID;
+nothing recorded), 2 bad command line or scenario, 128 + N stopped by signal N (130 SIGINT,
+143 SIGTERM, 129 SIGHUP). A failed or stopped run leaves what it recorded, with
+``"complete": false`` and the reason in metrics.json.
 """
 from __future__ import annotations
 
@@ -164,9 +167,15 @@ def _print_result(result) -> None:
             print(f'{key}: {result.files[key]}')
 
 
+def _partial(err: BaseException) -> str:
+    """Where a failed or stopped run left what it recorded (nothing if it wrote nothing)."""
+    out = getattr(err, 'partial_results', None)
+    return f'\nthe results so far are in {out} ("complete": false)' if out else ''
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from tank_control.harness.runner import RunFailed
+    from tank_control.harness.runner import RunFailed, RunInterrupted
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))
@@ -196,8 +205,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'tank-control: {err}', file=sys.stderr)
         return 2
     except RunFailed as err:
-        print(f'tank-control: run failed: {err}', file=sys.stderr)
+        print(f'tank-control: run failed: {err}{_partial(err)}', file=sys.stderr)
         return 1
+    except RunInterrupted as stop:
+        print(f'tank-control: {stop}{_partial(stop)}', file=sys.stderr)
+        return stop.exit_code
     except KeyboardInterrupt:
         print('tank-control: interrupted', file=sys.stderr)
         return 130

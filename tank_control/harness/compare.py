@@ -6,7 +6,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tank_control.harness.plotting import plot_runs
 from tank_control.harness.runner import RunResult
 
 
@@ -67,6 +66,7 @@ def write_comparison(results: Sequence[RunResult], out_dir: str | Path) -> dict[
     runs = '\n'.join(f'- `{r.name}`: {r.out_dir}' for r in results)
     md = out / 'comparison.md'
     md.write_text(f'# Comparison\n\n{table}\nRuns:\n\n{runs}\n')
+    from tank_control.harness.plotting import plot_runs   # matplotlib: only when plotting
     plot = plot_runs([(r.name, r.trace) for r in results], out / 'overlay.png',
                      title='comparison: ' + ', '.join(r.name for r in results))
     return {'table': md, 'plot': plot}

@@ -231,12 +231,39 @@ def sampling_metrics(stamps_ns: np.ndarray, sample_time: float | None,
     """Ticks that should have been there but are not (gaps in the measurement stamps, and
     before the first one when the clock starts at ``start_ns``), and the largest deviation
     of the measurement stamp spacing from the plant sample time [s]."""
-    if len(stamps_ns) < 2 or not sample_time:
-        return {'missed_samples': 0, 'max_jitter': 0.0}
-    ts_ns = int(round(sample_time * 1e9))
-    gaps = np.diff(np.asarray(stamps_ns, dtype=np.int64))
-    missed = int(np.sum(np.maximum(np.round(gaps / ts_ns) - 1, 0)))
-    if start_ns is not None:
-        missed += int(round((int(stamps_ns[0]) - start_ns) / ts_ns))
-    jitter = float(np.max(np.abs(gaps - ts_ns)) / 1e9)
-    return {'missed_samples': missed, 'max_jitter': jitter}
+    stats = SamplingStats(sample_time, start_ns)
+    for stamp in np.asarray(stamps_ns, dtype=np.int64).tolist():
+        stats.add(stamp)
+    return stats.result()
+
+
+class SamplingStats:
+    """``sampling_metrics`` fed one stamp [ns] at a time, in order (a run's rows as they are
+    written)."""
+
+    def __init__(self, sample_time: float | None, start_ns: int | None = None) -> None:
+        self.ts_ns = int(round(sample_time * 1e9)) if sample_time else 0
+        self.start_ns = start_ns
+        self.count = 0
+        self.first: int | None = None
+        self.last: int | None = None
+        self.missed = 0
+        self.jitter_ns = 0
+
+    def add(self, stamp_ns: int) -> None:
+        self.count += 1
+        if self.first is None:
+            self.first = stamp_ns
+        elif self.ts_ns:
+            gap = stamp_ns - self.last
+            self.missed += max(round(gap / self.ts_ns) - 1, 0)
+            self.jitter_ns = max(self.jitter_ns, abs(gap - self.ts_ns))
+        self.last = stamp_ns
+
+    def result(self) -> dict[str, Any]:
+        if self.count < 2 or not self.ts_ns:
+            return {'missed_samples': 0, 'max_jitter': 0.0}
+        missed = self.missed
+        if self.start_ns is not None:
+            missed += int(round((self.first - self.start_ns) / self.ts_ns))
+        return {'missed_samples': int(missed), 'max_jitter': self.jitter_ns / 1e9}

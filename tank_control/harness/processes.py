@@ -4,6 +4,13 @@ Used by the scenario harness and by the tests: every process is a session
 leader (``start_new_session``), so stopping signals its whole group, and a stop
 escalates SIGINT → SIGTERM → SIGKILL.
 
+A started process dies with the process that started it even when that one
+cannot stop it (SIGKILL, a crash): Linux's parent-death signal
+(``prctl(PR_SET_PDEATHSIG, SIGKILL)``, kept across ``exec``) is set in the child
+before it runs its program. The kernel sends it when the *thread* that started
+the child ends, so start processes from a thread that outlives them (the
+harness and the tests start them from the main thread).
+
 A process that has exited is not reaped until it is stopped: ``returncode``
 looks without reaping (``waitid`` with ``WNOWAIT``). While the exited leader
 is a zombie its pid — the group id — cannot be reused, so the final SIGKILL
@@ -13,10 +20,12 @@ every thread takes one).
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import subprocess
-from collections.abc import Mapping, Sequence
+import sys
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -73,6 +82,23 @@ def exit_code(popen: subprocess.Popen) -> int | None:
     return info.si_status if info.si_code == os.CLD_EXITED else -info.si_status
 
 
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> Callable[[], None] | None:
+    """A ``preexec_fn``: in the child, before ``exec``, SIGKILL on the parent's end; if the
+    parent already ended between ``fork`` and here, end now. None off Linux."""
+    if not sys.platform.startswith('linux'):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl      # looked up here, not in the child
+    parent = os.getpid()
+
+    def hook() -> None:
+        if prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0 or os.getppid() != parent:
+            os._exit(127)
+    return hook
+
+
 def _signal_group(popen: subprocess.Popen, sig: signal.Signals) -> None:
     try:
         os.killpg(popen.pid, sig)
@@ -114,14 +140,16 @@ class ProcessGroup:
     def start(self, name: str, argv: Sequence[str],
               env: Mapping[str, str] | None = None,
               cwd: str | os.PathLike | None = None) -> ManagedProcess:
-        """Start ``argv`` as a new session, output to ``<log_dir>/<name>.log``."""
+        """Start ``argv`` as a new session, output to ``<log_dir>/<name>.log``; it is killed
+        when this process ends (see the module doc)."""
         if name in self.processes:
             raise ValueError(f'process name {name!r} already used')
         log_path = self.log_dir / f'{name}.log'
         log = open(log_path, 'wb')
         popen = subprocess.Popen(list(argv), stdin=subprocess.DEVNULL, stdout=log,
                                  stderr=subprocess.STDOUT, env=dict(env) if env else None,
-                                 cwd=cwd, start_new_session=True)
+                                 cwd=cwd, start_new_session=True,
+                                 preexec_fn=_die_with_parent())
         proc = ManagedProcess(name, popen, log_path, log)
         self.processes[name] = proc
         return proc

@@ -1,7 +1,8 @@
 """The recorder node that lives in the harness process: it subscribes to every topic of
-the loop and keeps the serialized messages as they arrive (cheap callbacks, no
-deserialisation while the run goes), and reads the controller's final
-parameters through its parameter services."""
+the loop and hands each serialized message to a sink as it arrives (the harness writes it
+to ``run.mcap`` and joins the signals into ``trace.csv`` at once; without a sink the
+messages are kept in ``messages``, for short recordings in tests), and reads the
+controller's final parameters through its parameter services."""
 from __future__ import annotations
 
 import struct
@@ -14,12 +15,14 @@ from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
-from rclpy.serialization import deserialize_message
 
 from tank_control.harness.recording import RawMessage
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
 from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, quiet_publisher_events,
                                          quiet_subscription_events, reliable_qos)
+
+#: The recorder's node name (another graph's recorder on the domain is another run).
+RECORDER_NAME = 'tank_control_recorder'
 
 #: (topic, type) of everything recorded. Signal topics are relative names (remapping works).
 TOPICS: tuple[tuple[str, str], ...] = (
@@ -56,10 +59,57 @@ def cdr_stamp_ns(data: bytes) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
-class Recorder:
-    """Subscriptions on a node of its own (in ``context``), spun by ``spin_once``."""
+def joint_state_from_cdr(data: bytes) -> tuple[int, tuple[str, ...], tuple[float, ...]]:
+    """``header.stamp`` [ns], ``name`` and ``position`` of a CDR ``sensor_msgs/JointState``,
+    read directly (a few times faster than ``deserialize_message``, which matters in the
+    recorder's callbacks). Plain CDR (XCDR1, 8-byte alignment of float64) or XCDR2
+    (4-byte), either byte order, as the encapsulation header says."""
+    endian = '<' if data[1] & 1 else '>'
+    wide = 8 if data[1] in (0, 1) else 4
+    body = 4
 
-    def __init__(self, context: Context, name: str = 'tank_control_recorder') -> None:
+    def align(offset: int, size: int) -> int:
+        return body + -(-(offset - body) // size) * size
+
+    sec, nanosec = struct.unpack_from(endian + 'iI', data, body)
+    offset = body + 8
+    (length,) = struct.unpack_from(endian + 'I', data, offset)       # header.frame_id
+    offset = align(offset + 4 + length, 4)
+    (count,) = struct.unpack_from(endian + 'I', data, offset)
+    offset += 4
+    names = []
+    for _ in range(count):
+        offset = align(offset, 4)
+        (length,) = struct.unpack_from(endian + 'I', data, offset)
+        names.append(bytes(data[offset + 4:offset + 3 + length]).decode())
+        offset += 4 + length
+    offset = align(offset, 4)
+    (count,) = struct.unpack_from(endian + 'I', data, offset)
+    offset += 4
+    if count:
+        offset = align(offset, wide)
+    values = struct.unpack_from(f'{endian}{count}d', data, offset)
+    return sec * 1_000_000_000 + nanosec, tuple(names), values
+
+
+def signal_message(raw: RawMessage) -> SignalMessage:
+    """A recorded JointState message as the trace join reads it."""
+    stamp, names, values = joint_state_from_cdr(raw.data)
+    return SignalMessage(raw.topic.lstrip('/'), stamp, names, values)
+
+
+Sink = Callable[[RawMessage], None]
+
+
+class Recorder:
+    """Subscriptions on a node of its own (in ``context``), spun by ``spin_once``.
+
+    ``subscribe=False`` creates the node only (the harness first looks at the graph from it,
+    ``graph_check.foreign_graph``) and ``subscribe(sink)`` starts recording. Each message goes to
+    ``sink`` as it arrives; without a sink it is kept in ``messages``."""
+
+    def __init__(self, context: Context, name: str = RECORDER_NAME, sink: Sink | None = None,
+                 subscribe: bool = True) -> None:
         self.node = Node(name, context=context)
         # rclpy's C++ events executor: a third of the CPU per message of the
         # SingleThreadedExecutor (bench/RESULTS.md, "Lockstep"); spun by spin_once only
@@ -67,6 +117,7 @@ class Recorder:
         self.executor = EventsExecutor(context=context)
         self.executor.add_node(self.node)
         self.messages: list[RawMessage] = []
+        self.sink: Sink = sink if sink is not None else self.messages.append
         self.latest: dict[str, int] = {}        # topic → largest stamp seen [ns]
         self.first: dict[str, int] = {}         # topic → first stamp seen [ns]
         self.counts: dict[str, int] = {}
@@ -74,6 +125,17 @@ class Recorder:
         self._gate_stamps: dict[str, set[int]] = {}
         self._gate_disturbance: dict[int, bytes] = {}
         self.relayed = 0
+        self._subscribed = False
+        if subscribe:
+            self.subscribe()
+
+    def subscribe(self, sink: Sink | None = None) -> None:
+        """Start recording every topic of ``TOPICS`` (into ``sink`` if given)."""
+        if sink is not None:
+            self.sink = sink
+        if self._subscribed:
+            return
+        self._subscribed = True
         for topic, type_name in TOPICS:
             qos = ORIGIN_RECORD_QOS if topic == 'time_origin' else RECORD_QOS
             self.node.create_subscription(_message_class(type_name), topic,
@@ -88,7 +150,7 @@ class Recorder:
         def record(data: bytes) -> None:
             now = time.time_ns()
             stamp = cdr_stamp_ns(data) if stamped else now
-            self.messages.append(RawMessage(full, type_name, bytes(data), now, stamp))
+            self.sink(RawMessage(full, type_name, bytes(data), now, stamp))
             self.counts[key] = self.counts.get(key, 0) + 1
             if stamped:
                 self.first.setdefault(key, stamp)
@@ -120,6 +182,8 @@ class Recorder:
             self.relayed += 1
             for old in [s for s in self._gate_disturbance if s < stamp]:
                 del self._gate_disturbance[old]
+            for seen in self._gate_stamps.values():      # ticks before this one are done
+                seen.difference_update([s for s in seen if s < stamp])
 
     def subscriber_count(self, topic: str) -> int:
         return self.node.count_subscribers(topic)
@@ -131,6 +195,17 @@ class Recorder:
 
     def spin_once(self, timeout: float) -> None:
         self.executor.spin_once(timeout_sec=timeout)
+
+    def drain(self, timeout: float, quiet: float = 0.1) -> None:
+        """Take in what was already sent (after the publishers stopped): spin until no message
+        came for ``quiet`` seconds, at most ``timeout`` wall seconds."""
+        deadline = time.monotonic() + timeout
+        last, last_change = sum(self.counts.values()), time.monotonic()
+        while (now := time.monotonic()) < deadline and now - last_change < quiet:
+            self.spin_once(0.02)
+            count = sum(self.counts.values())
+            if count != last:
+                last, last_change = count, time.monotonic()
 
     def spin_until(self, condition: Callable[[], bool], timeout: float,
                    check: Callable[[], None] = lambda: None) -> bool:
@@ -157,19 +232,9 @@ class Recorder:
         return counts
 
     def signal_messages(self, topics: Iterable[str] = TOPIC_PREFIX) -> list[SignalMessage]:
-        """The recorded messages of JointState ``topics`` (default: the signals), deserialised
-        (after the run)."""
-        from sensor_msgs.msg import JointState
+        """The kept messages (no sink) of JointState ``topics`` (default: the signals)."""
         wanted = set(topics)
-        out = []
-        for raw in self.messages:
-            topic = raw.topic.lstrip('/')
-            if topic not in wanted:
-                continue
-            msg = deserialize_message(raw.data, JointState)
-            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            out.append(SignalMessage(topic, stamp, tuple(msg.name), tuple(msg.position)))
-        return out
+        return [signal_message(raw) for raw in self.messages if raw.topic.lstrip('/') in wanted]
 
     def node_parameters(self, node: str, timeout: float = 5.0,
                         check: Callable[[], None] = lambda: None) -> dict[str, Any]:

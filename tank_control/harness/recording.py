@@ -1,7 +1,8 @@
 """``run.mcap``: every topic of a run in the MCAP ``ros2`` profile (CDR messages, ``ros2msg``
 schemas), readable by the ``mcap`` / ``mcap-ros2-support`` readers, Foxglove and PlotJuggler.
 
-A ROS run stores the serialized bytes exactly as they came off the wire. An
+A ROS run stores the serialized bytes exactly as they came off the wire, written as they
+arrive (chunks of 1 MiB, compressed). An
 in-process run (no ROS graph) writes the trace as the messages a ROS run would
 have carried: ``measurement``, ``setpoint``, ``manipulated``, ``disturbance``
 (``sensor_msgs/msg/JointState``, one per tick, stamped t_k) and ``/clock``.
@@ -11,7 +12,7 @@ from __future__ import annotations
 import os
 import re
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -126,8 +127,15 @@ class McapRecording:
         self.count += 1
 
     def close(self) -> None:
-        self._writer.finish()
-        self._handle.close()
+        """Write the summary and close: a valid file with every message added (also after a
+        failure; a harness killed by SIGKILL leaves the chunks written so far, without
+        the summary, which MCAP readers can still read in order)."""
+        if self._handle.closed:
+            return
+        try:
+            self._writer.finish()
+        finally:
+            self._handle.close()
 
     def __enter__(self) -> McapRecording:
         return self
@@ -146,28 +154,45 @@ def write_raw(path: str | Path, messages: Iterable[RawMessage]) -> Path:
 
 def write_trace(path: str | Path, trace: Trace, t0_ns: int = 0) -> Path:
     """Write a trace as the signal messages (and ``/clock``) a lockstep run would carry."""
-    from rclpy.serialization import serialize_message
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
-
-    def stamp(msg_stamp, t_ns: int) -> None:
-        msg_stamp.sec, msg_stamp.nanosec = divmod(t_ns, 1_000_000_000)
-
     with McapRecording(path) as recording:
-        for i, t in enumerate(trace.t):
-            t_ns = t0_ns + int(round(float(t) * 1e9))
-            clock = Clock()
-            stamp(clock.clock, t_ns)
-            recording.add(RawMessage('/clock', 'rosgraph_msgs/msg/Clock', serialize_message(clock),
-                                     t_ns, t_ns))
-            for topic, prefix in TOPIC_PREFIX.items():
-                names = trace.channels(prefix)
-                if not names and topic != 'disturbance':
-                    continue
-                msg = JointState()
-                stamp(msg.header.stamp, t_ns)
-                msg.name = names
-                msg.position = [float(trace.columns[f'{prefix}.{n}'][i]) for n in names]
-                recording.add(RawMessage('/' + topic, 'sensor_msgs/msg/JointState',
-                                         serialize_message(msg), t_ns, t_ns))
+        rows = TraceMessages(recording, trace.names, t0_ns)
+        for row in zip(*trace.columns.values()):
+            rows.add(row)
     return Path(path)
+
+
+class TraceMessages:
+    """Rows of a trace (columns ``names``) written to ``recording`` as the messages a
+    lockstep run carries: ``/clock`` and, per tick, ``measurement``, ``setpoint``,
+    ``manipulated``, ``disturbance`` (JointState stamped t_k)."""
+
+    def __init__(self, recording: McapRecording, names: Sequence[str], t0_ns: int = 0) -> None:
+        from rclpy.serialization import serialize_message
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+        self._serialize, self._clock, self._joint_state = serialize_message, Clock, JointState
+        self.recording = recording
+        self.t0_ns = t0_ns
+        index = {name: i for i, name in enumerate(names)}
+        self._t = index['t']
+        self._topics = []
+        for topic, prefix in TOPIC_PREFIX.items():
+            channels = [n.split('.', 1)[1] for n in names if n.startswith(prefix + '.')]
+            if channels or topic == 'disturbance':
+                self._topics.append(('/' + topic, channels,
+                                     [index[f'{prefix}.{n}'] for n in channels]))
+
+    def add(self, row: Sequence[float]) -> None:
+        t_ns = self.t0_ns + int(round(float(row[self._t]) * 1e9))
+        sec, nanosec = divmod(t_ns, 1_000_000_000)
+        clock = self._clock()
+        clock.clock.sec, clock.clock.nanosec = sec, nanosec
+        self.recording.add(RawMessage('/clock', 'rosgraph_msgs/msg/Clock',
+                                      self._serialize(clock), t_ns, t_ns))
+        for topic, channels, columns in self._topics:
+            msg = self._joint_state()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            msg.name = channels
+            msg.position = [float(row[i]) for i in columns]
+            self.recording.add(RawMessage(topic, 'sensor_msgs/msg/JointState',
+                                          self._serialize(msg), t_ns, t_ns))

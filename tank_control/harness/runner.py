@@ -4,6 +4,11 @@
 ``plot.png``, ``analysis.png`` (a SISO PID loop on a process model: ``harness/analysis.py``)
 and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds (start
 paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
+``trace.csv`` and ``run.mcap`` are written as the run goes (``stream.py``); a failed or
+interrupted run (SIGINT, SIGTERM, SIGHUP: ``signals.py``) leaves them valid up to that
+moment, with ``"complete": false`` and the ``reason`` in metrics.json (docs/harness.md,
+"Interrupted and failed runs"). The domain is checked before anything starts (``domains.py``,
+``graph_check.py``) and the node processes die with the harness (``processes.py``).
 Times in the results are plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
@@ -20,18 +25,24 @@ from typing import Any
 
 import numpy as np
 
+from tank_control.core import loop as core_loop
 from tank_control.core import scenario as core_scenario
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
-from tank_control.harness.analysis import loop_cases, plot_analysis
-from tank_control.harness.plotting import plot_runs
+from tank_control.harness.domains import domain_of, lock_run
+from tank_control.harness.graph_check import foreign_graph
 from tank_control.harness.processes import ProcessGroup
-from tank_control.harness.recording import write_raw, write_trace
+from tank_control.harness.recording import TraceMessages
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
                                                 load_scenario, node_parameters,
                                                 write_params_file)
-from tank_control.harness.trace import GATED_DISTURBANCE, LATE_TOPICS, from_messages
+from tank_control.harness.signals import RunInterrupted, StopSignals
+from tank_control.harness.stream import RecordingStream, RunOutputs
+from tank_control.harness.trace import GATED_DISTURBANCE
+
+__all__ = ['RunFailed', 'RunInterrupted', 'RunResult', 'Progress', 'run', 'run_scenario',
+           'run_metrics', 'simulate']
 
 NS = 1_000_000_000
 OUTPUT_FILES = ('trace.csv', 'run.mcap', 'metrics.json', 'plot.png', 'analysis.png')
@@ -42,10 +53,14 @@ SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
 #: wall: the reference and the controller schedule on the plant's time origin instead of /clock
 SUBSCRIBES_WALL = {**SUBSCRIBES, 'reference': ('time_origin',),
                    'controller': ('measurement', 'setpoint', 'time_origin')}
+#: Topics whose publishers mean another graph on the domain (besides the node names).
+GRAPH_TOPICS = ('measurement', 'setpoint', 'manipulated', 'disturbance', '/clock',
+                GATED_DISTURBANCE)
 
 
 class RunFailed(RuntimeError):
-    """The run could not complete; the message says which node and shows its last log lines."""
+    """The run could not complete; the message says why (a node's last log lines). Whatever
+    was recorded is in the output directory, marked ``"complete": false``."""
 
 
 @dataclass(frozen=True)
@@ -94,18 +109,24 @@ def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = No
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
                  node_command: NodeCommand = node_module_command) -> RunResult:
-    """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md)."""
+    """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md). SIGINT,
+    SIGTERM and SIGHUP stop the run cleanly while it goes (when called from the main thread)."""
     reason = size_reason(scenario, in_process)
     if reason:
         raise ScenarioError(f'{scenario.path}: {reason}')
     out = Path(out_dir)
+    with StopSignals() as stop:
+        if in_process:
+            return _run_in_process(scenario, out, progress, stop)
+        return _RosRun(scenario, out, env, progress, node_command, stop).execute()
+
+
+def prepare_output(scenario: Scenario, out: Path) -> Path:
+    """Create ``out`` without the results of an earlier run; write ``scenario.yaml``."""
     out.mkdir(parents=True, exist_ok=True)
     for stale in OUTPUT_FILES:                    # a failed run must not leave old results
         (out / stale).unlink(missing_ok=True)
-    params_file = write_params_file(scenario, out / 'scenario.yaml')
-    if in_process:
-        return _run_in_process(scenario, params_file, out, progress)
-    return _RosRun(scenario, params_file, out, env, progress, node_command).execute()
+    return write_params_file(scenario, out / 'scenario.yaml')
 
 
 #: memory a run holds per plant tick, an upper estimate [bytes]: in-process the trace table
@@ -155,17 +176,38 @@ def controller_report(scenario: Scenario, controller_params: Mapping[str, Any]
     return limits, {name: settings.values[name] for name in kind.gains}
 
 
+def _planned_report(scenario: Scenario) -> tuple[dict[str, tuple[float, float]], dict[str, Any]]:
+    """``controller_report`` from the file's values (a run that ended before the node could
+    be asked); nothing for a controller this package does not know."""
+    try:
+        return controller_report(scenario, scenario.params('controller'))
+    except (ConfigError, ValueError, KeyError, TypeError):
+        return {}, {}
+
+
 def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any],
-                plant_only: bool = False) -> tuple[dict[str, Any], list[Any]]:
+                complete: bool = True, plant_only: bool = False
+                ) -> tuple[dict[str, Any], list[Any]]:
     """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
     analysis) and the loop cases it was analysed on; also what a sweep records per run
     (``plant_only``: the loop analysed on the plant's model only, not also on the
-    controller's own model, which a sweep does not report)."""
-    limits, gains = controller_report(scenario, controller_params)
+    controller's own model, which a sweep does not report). ``complete=False`` (a failed or stopped run): what can be known, the controller's limits
+    and gains from the file when the node could not be asked, no error from the report."""
+    if complete:
+        limits, gains = controller_report(scenario, controller_params)
+        warnings = controller_warnings(controller_params)
+    else:
+        limits, gains = (controller_report(scenario, controller_params) if controller_params
+                         else _planned_report(scenario))
+        try:
+            warnings = controller_warnings(controller_params)
+        except (ConfigError, ValueError, KeyError, TypeError):
+            warnings = []
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
+    from tank_control.harness.analysis import loop_cases
     cases, analysis_note = [], ''
     if 'controller' in scenario.harness.nodes and controller_params:
         try:
@@ -178,7 +220,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
         **body,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
                        **({'robustness': robustness} if robustness else {}),
-                       'warnings': controller_warnings(controller_params),
+                       'warnings': warnings,
                        'parameters': dict(controller_params)},
         'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
                           for case in cases} or analysis_note or None,
@@ -187,32 +229,40 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
 
 
 def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
-           controller_params: Mapping[str, Any], mcap_writer: Callable[[Path], Path]) -> RunResult:
-    """Write trace.csv, run.mcap, metrics.json and plot.png."""
-    measured, cases = run_metrics(scenario, trace, controller_params)
+           controller_params: Mapping[str, Any], files: Mapping[str, Path],
+           reason: str | None = None) -> RunResult:
+    """Write metrics.json, plot.png and analysis.png next to the trace and recording already
+    written; ``reason``: why the run is not complete (None: it is)."""
+    measured, cases = run_metrics(scenario, trace, controller_params, complete=reason is None)
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
         'claim': scenario.harness.claim,
         'mode': run_info.get('mode'),
+        'complete': reason is None,
+        'reason': reason,
         **{k: measured[k] for k in ('outputs', 'inputs', 'events')},
         'run': run_info,
         'controller': measured['controller'],
         'loop_analysis': measured['loop_analysis'],
     }
-    files = {
-        'trace': trace.write_csv(out / 'trace.csv'),
-        'recording': mcap_writer(out / 'run.mcap'),
-        'metrics': out / 'metrics.json',
-        'plot': plot_runs([(scenario.name, trace)], out / 'plot.png',
-                          title=scenario.harness.title or scenario.name),
-    }
+    from tank_control.harness.analysis import plot_analysis
+    from tank_control.harness.plotting import plot_runs
+    files = {**files, 'metrics': out / 'metrics.json'}
     if cases:
         files['analysis'] = plot_analysis(cases, out / 'analysis.png',
                                           title=f'{scenario.harness.title or scenario.name}: '
                                                 'final gains')
     files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
+    if len(trace):
+        files['plot'] = plot_runs([(scenario.name, trace)], out / 'plot.png',
+                                  title=scenario.harness.title or scenario.name)
     return RunResult(scenario.name, out, trace, metrics, files)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0]
 
 
 def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:
@@ -241,62 +291,126 @@ def jsonable(value: Any) -> Any:
     return value
 
 
+def _as_failure(exc: BaseException, out: Path) -> BaseException:
+    """What to raise for ``exc`` after the partial results were written to ``out`` (noted
+    on the exception as ``partial_results`` for the command line's message)."""
+    if isinstance(exc, OSError):
+        exc = RunFailed(str(exc))
+    if isinstance(exc, (RunFailed, RunInterrupted)):
+        exc.partial_results = out
+    return exc
+
+
 # ----------------------------------------------------------------------------------------------
 # In-process (core/loop.py, no ROS)
 
-def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
-    """Run a loaded scenario through core/loop.py for its ``harness.duration``: the sections
-    the node processes would read (``node_parameters``), built as the nodes build them.
-    ``ScenarioError`` (one line) for a value the core objects reject."""
-    reason = size_reason(scenario, in_process=True)
-    if reason:
-        raise ScenarioError(f'{scenario.path}: {reason}')
+def _build(scenario: Scenario) -> core_scenario.Built:
+    """The core objects of the sections the node processes would read (``node_parameters``,
+    what scenario.yaml holds), built as the nodes build them; ``ScenarioError`` (one line)
+    for a value the core objects reject."""
     try:
-        built = core_scenario.build(node_parameters(scenario))
-        return core_scenario.run(built, scenario.harness.duration).until(
-            scenario.harness.duration), built
-    except ConfigError as exc:
+        return core_scenario.build(node_parameters(scenario))
+    except (ConfigError, ValueError) as exc:
         raise ScenarioError(f'{scenario.path}: {exc}') from None
 
 
-def _run_in_process(scenario: Scenario, _params_file: Path, out: Path,
-                    progress: ProgressFn | None) -> RunResult:
+def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
+    """Run a loaded scenario through core/loop.py for its ``harness.duration`` (the table
+    in memory, nothing written); ``ScenarioError`` (one line) for a value the core objects
+    reject or a run too large for the memory (``size_reason``)."""
+    reason = size_reason(scenario, in_process=True)
+    if reason:
+        raise ScenarioError(f'{scenario.path}: {reason}')
+    built = _build(scenario)
+    try:
+        return core_scenario.run(built, scenario.harness.duration).until(
+            scenario.harness.duration), built
+    except (ConfigError, ValueError) as exc:
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
 
+
+def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
+                    stop: StopSignals) -> RunResult:
     config = scenario.harness
-    start = time.monotonic()
-    trace, built = simulate(scenario)
+    built = _build(scenario)
+    try:
+        rows = core_loop.iter_loop(built.plant, built.controller, built.reference,
+                                   sample_time=built.sample_time, duration=config.duration,
+                                   noise=built.noise.sample)
+    except (ConfigError, ValueError) as exc:    # a parameter the core objects reject: one line
+        raise ScenarioError(f'{scenario.path}: {exc}') from None
+    names = core_loop.loop_columns(built.plant, built.controller, built.reference)
+    prepare_output(scenario, out)
+    outputs = RunOutputs(out)
+    start = last_report = time.monotonic()
+    failure: BaseException | None = None
+    try:
+        messages = TraceMessages(outputs.recording, names)
+        for k, row in enumerate(rows):
+            outputs.trace.add(names, row)
+            messages.add(row)
+            if k % 64 == 0:
+                stop.check()
+                outputs.flush_now_and_then()
+                now = time.monotonic()
+                if progress and now - last_report >= 0.5:
+                    last_report = now
+                    _report_in_process(progress, float(row[0]), config.duration, k + 1,
+                                       now - start)
+    except BaseException as exc:               # noqa: B902 - partial results, then re-raised
+        failure = exc
     wall = time.monotonic() - start
+    trace = outputs.close()
     ticks = len(trace)
-    if progress:
-        progress(Progress(config.duration, config.duration, config.duration / max(wall, 1e-9),
-                          ticks / max(wall, 1e-9), 0.0))
+    sim = float(trace.t[-1]) if ticks else 0.0
+    if progress and failure is None:
+        _report_in_process(progress, config.duration, config.duration, ticks, wall)
     run_info = {
-        'mode': 'in_process', 'sim_duration': float(trace.t[-1]) if ticks else 0.0,
+        'mode': 'in_process', 'sim_duration': sim,
         'wall_time': wall, 'ticks': ticks, 'ticks_per_s': ticks / max(wall, 1e-9),
         'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
         'late_by_signal': {prefix: 0 for prefix in ('r', 'u', 'd') if trace.channels(prefix)},
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
     }
-    return finish(scenario, out, trace, run_info, built.controller_values(),
-                  lambda path: write_trace(path, trace))
+    files = {'trace': outputs.trace.path, 'recording': outputs.recording.path}
+    if failure is not None:
+        finish(scenario, out, trace, run_info, {}, files, _first_line(failure))
+        raise _as_failure(failure, out)
+    return finish(scenario, out, trace, run_info, built.controller_values(), files)
+
+
+def _report_in_process(progress: ProgressFn, sim: float, duration: float, ticks: int,
+                       wall: float) -> None:
+    rate = sim / max(wall, 1e-9)
+    progress(Progress(sim, duration, rate, ticks / max(wall, 1e-9),
+                      (duration - sim) / rate if rate > 0 else math.inf))
 
 
 # ----------------------------------------------------------------------------------------------
 # ROS run
 
+def _warm_up() -> None:
+    """Import what writes the results (matplotlib: about a second on a loaded machine) while
+    the harness waits for discovery anyway, instead of at the end."""
+    import tank_control.harness.analysis  # noqa: F401
+    import tank_control.harness.plotting  # noqa: F401
+
+
 class _RosRun:
-    def __init__(self, scenario: Scenario, params_file: Path, out: Path,
-                 env: Mapping[str, str] | None, progress: ProgressFn | None,
-                 node_command: NodeCommand = node_module_command) -> None:
+    def __init__(self, scenario: Scenario, out: Path, env: Mapping[str, str] | None,
+                 progress: ProgressFn | None, node_command: NodeCommand,
+                 stop: StopSignals) -> None:
         self.node_command = node_command
         self.scenario = scenario
         self.config = scenario.harness
-        self.params_file = params_file
         self.out = out
+        self.params_file = out / 'scenario.yaml'
         self.env = dict(env if env is not None else os.environ)
         self.env['PYTHONUNBUFFERED'] = '1'
+        self.domain = domain_of(self.env)
         self.progress = progress
-        self.group = ProcessGroup(out / 'logs')
+        self.stop = stop
+        self.group: ProcessGroup | None = None
         self.duration_ns = int(round(self.config.duration * NS))
         self.mode = self.config.clock_mode
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
@@ -305,6 +419,11 @@ class _RosRun:
         plant = scenario.params('plant')
         self.gated = (self.mode == 'lockstep' and {'plant', 'reference'} <= set(self.config.nodes)
                       and plant.get('lockstep.wait_for_reference', True) is True)
+        sample_time = plant.get('sample_time')
+        self.sample_time = (float(sample_time) if isinstance(sample_time, (int, float))
+                            and not isinstance(sample_time, bool) and sample_time > 0 else None)
+        self.tick_ns = int(round(self.sample_time * NS)) if self.sample_time else None
+        self.stream: RecordingStream | None = None
 
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
@@ -320,28 +439,72 @@ class _RosRun:
         return argv
 
     def _check_alive(self) -> None:
-        for name, proc in self.group.processes.items():
+        self.stop.check()
+        for name, proc in (self.group.processes.items() if self.group else ()):
             code = proc.returncode
             if code is not None:
                 raise RunFailed(f'node {name} exited with code {code} {self.phase}; '
                                 f'last lines of {proc.log_path}:\n{proc.tail(15)}')
 
+    # -- recording ----------------------------------------------------------------------------
+    def _origin(self) -> int:
+        """The plant's time origin [ns] (wall: its ``time_origin``, else the first measurement)."""
+        if self.t0_ns is None:
+            rec = self.recorder
+            self.t0_ns = rec.latest.get('time_origin', rec.first.get('measurement', 0))
+        return self.t0_ns
+
+    def _start_recording(self, recorder: Any) -> None:
+        prepare_output(self.scenario, self.out)
+        self.group = ProcessGroup(self.out / 'logs')
+        due = self._due_periods(self.tick_ns, self.scenario.params('controller'),
+                                self.scenario.params('reference'))
+        self.stream = RecordingStream(self.out, self._origin, self.duration_ns, self.tick_ns, due,
+                                      self.sample_time)
+        recorder.subscribe(self.stream.on_message)
+
     # -- run ----------------------------------------------------------------------------------
     def execute(self) -> RunResult:
+        if not self.domain.isdigit():
+            raise RunFailed(f'ROS_DOMAIN_ID {self.domain!r} is not a domain number')
+        lock, reason = lock_run(self.domain, str(self.out.resolve()))
+        if reason:
+            raise RunFailed(reason)
+        try:
+            return self._execute()
+        finally:
+            lock.release()
+
+    def _execute(self) -> RunResult:
         import rclpy
         from rclpy.context import Context
 
-        from tank_control.harness.recorder import Recorder
+        from tank_control.harness.recorder import RECORDER_NAME, Recorder
 
         context = Context()
-        domain = self.env.get('ROS_DOMAIN_ID', '').strip()     # the nodes' domain, not ours
         rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'],
-                   domain_id=int(domain) if domain.isdigit() else None)
+                   domain_id=int(self.domain))     # the nodes' domain
         recorder: Recorder | None = None
+        failure: BaseException | None = None
+        controller_params: dict[str, Any] = {}
+        reference_params: dict[str, Any] = {}
+        codes: dict[str, int] = {}
         wall_start = time.monotonic()
+        run_wall = 0.0
+        run_start: float | None = None
         try:
-            recorder = Recorder(context)
+            recorder = Recorder(context, subscribe=False)
+            joined = time.monotonic()              # its participant is on the domain
             self.recorder = recorder
+            _warm_up()                             # while DDS discovers the domain
+            found = foreign_graph(recorder.node, recorder.spin_once, GRAPH_TOPICS,
+                                  self.config.discovery_time, (RECORDER_NAME,), self.stop.check,
+                                  since=joined)
+            if found:
+                raise RunFailed(f'another graph is running on ROS_DOMAIN_ID {self.domain} '
+                                f'({found}); this run would mix with it, so it did not start; '
+                                'stop it or set a different ROS_DOMAIN_ID')
+            self._start_recording(recorder)
             if self.gated:
                 recorder.enable_gate()
             nodes = self.config.nodes
@@ -360,16 +523,24 @@ class _RosRun:
             self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
                                  if 'controller' in self.config.nodes else {})
-            plant_params = recorder.node_parameters('plant', 5.0, self._check_alive)
             reference_params = (recorder.node_parameters('reference', 5.0, self._check_alive)
                                 if 'reference' in self.config.nodes else {})
+        except BaseException as exc:               # noqa: B902 - results so far, then re-raised
+            failure = exc
+            if run_start is not None:
+                run_wall = time.monotonic() - run_start
         finally:
-            codes = self.group.stop_all()
+            if self.group is not None:
+                codes = self.group.stop_all()
             if recorder is not None:
+                if failure is not None and self.stream is not None:
+                    recorder.drain(1.0)            # what the nodes sent before they stopped
                 recorder.destroy()
             rclpy.try_shutdown(context=context)
-        return self._results(recorder, controller_params, plant_params, reference_params, codes,
-                             run_wall, time.monotonic() - wall_start)
+        if self.stream is None:                    # refused or failed before writing anything
+            raise failure if failure is not None else RunFailed('the run did not start')
+        return self._results(failure, controller_params, reference_params, codes, run_wall,
+                             time.monotonic() - wall_start)
 
     def _cpu_seconds(self) -> dict[str, float | None]:
         """CPU time used so far by each node process and by this (harness) process [s]."""
@@ -417,10 +588,9 @@ class _RosRun:
         taken = [name for name in self.config.nodes if counts.get(name, 0) > (
             1 if name in self.group.processes else 0)]
         if taken:
-            domain = self.env.get('ROS_DOMAIN_ID', '0')
             raise RunFailed(f'node name(s) {", ".join(taken)} already in use on ROS_DOMAIN_ID '
-                            f'{domain}: another graph is running there and would mix into this '
-                            'run; stop it or set a different ROS_DOMAIN_ID')
+                            f'{self.domain}: another graph is running there and would mix into '
+                            'this run; stop it or set a different ROS_DOMAIN_ID')
 
     def _sim_ns(self) -> int | None:
         """Plant time of the latest measurement (wall: from the plant's time origin, or the
@@ -428,10 +598,7 @@ class _RosRun:
         stamp = self.recorder.latest.get('measurement')
         if stamp is None:
             return None
-        if self.t0_ns is None:
-            self.t0_ns = self.recorder.latest.get('time_origin',
-                                                  self.recorder.first['measurement'])
-        return stamp - self.t0_ns
+        return stamp - self._origin()
 
     def _run_loop(self, run_start: float) -> None:
         rec = self.recorder
@@ -440,6 +607,7 @@ class _RosRun:
         while True:
             self._check_alive()
             rec.spin_once(0.05)
+            self.stream.advance()
             now = time.monotonic()
             if now - last_graph_check >= 0.5:      # a graph that joins later mixes in too
                 last_graph_check = now
@@ -506,42 +674,27 @@ class _RosRun:
         due.update(r=reference, d=reference)
         return {k: v for k, v in due.items() if v}
 
-    def _late_stamps(self, recorder: Any, signals: Sequence[Any]) -> dict[str, list[int]]:
-        """Stamps reported late by their consumers, per prefix (plant: u or d by channel)."""
-        inputs = {n for m in signals if m.topic == 'manipulated' for n in m.names}
-        out: dict[str, list[int]] = {'r': [], 'u': [], 'd': []}
-        for m in recorder.signal_messages(LATE_TOPICS):
-            if m.topic.startswith('controller'):
-                out['r'].append(m.stamp_ns)
-            else:
-                out['u' if set(m.names) <= inputs else 'd'].append(m.stamp_ns)
-        return out
-
-    def _results(self, recorder: Any, controller_params: dict[str, Any],
-                 plant_params: dict[str, Any], reference_params: dict[str, Any],
-                 codes: Mapping[str, int], run_wall: float, total_wall: float) -> RunResult:
-        t0 = self.t0_ns or 0
-        sample_time = plant_params.get('sample_time', self.scenario.params('plant').get('sample_time'))
-        tick_ns = (int(round(sample_time * NS)) if isinstance(sample_time, (int, float))
-                   and sample_time > 0 else None)
-        signals = recorder.signal_messages()                                      # deserialises
-        trace = from_messages(signals, t0, self.duration_ns, tick_ns=tick_ns,
-                              due_ns=self._due_periods(tick_ns, controller_params,
-                                                       reference_params),
-                              late_stamps=self._late_stamps(recorder, signals))
-        stamps = np.array([s for s in sorted({m.stamp_ns for m in signals
-                                              if m.topic == 'measurement'})
-                           if s - t0 <= self.duration_ns], dtype=np.int64)
-        has_origin = 'time_origin' in recorder.latest
-        sampling = metrics_mod.sampling_metrics(stamps, sample_time,
-                                               t0 if self.mode != 'wall' or has_origin else None)
+    def _results(self, failure: BaseException | None, controller_params: dict[str, Any],
+                 reference_params: dict[str, Any], codes: Mapping[str, int], run_wall: float,
+                 total_wall: float) -> RunResult:
+        """Finish trace.csv and run.mcap with everything received, write metrics.json and
+        plot.png; raise the failure (or ``RunFailed`` for a run that recorded nothing) after."""
+        stream = self.stream
+        trace = stream.close(complete=failure is None)
+        ticks = len(trace)
+        if failure is None and ticks == 0:
+            failure = RunFailed(f'the recording holds no measurement within the '
+                                f'{self.config.duration:g} s of the run (topic measurement: '
+                                f'{self.recorder.counts.get("measurement", 0)} messages)')
+        rec = self.recorder
+        has_origin = 'time_origin' in rec.latest
+        if self.mode != 'wall' or has_origin:
+            stream.stamps.start_ns = self.t0_ns if self.t0_ns is not None else 0
+        sampling = stream.stamps.result()
         if self.mode == 'wall':
             # Stamps of a wall-clock plant lie on its timer's grid; the jitter a consumer sees
             # is in the arrival times (timer jitter plus transport), measured by the recorder.
-            arrivals = np.array([m.log_time_ns for m in recorder.messages
-                                 if m.topic == '/measurement'], dtype=np.int64)[:len(stamps)]
-            sampling['max_jitter'] = metrics_mod.sampling_metrics(arrivals, sample_time)['max_jitter']
-        ticks = len(trace)
+            sampling['max_jitter'] = stream.arrivals.result()['max_jitter']
         run_info = {
             'mode': self.mode,
             'real_time_factor': self.config.real_time_factor,
@@ -558,10 +711,15 @@ class _RosRun:
             'late_samples': int(sum(trace.late.values())),
             'late_by_signal': trace.late,
             'max_jitter': sampling['max_jitter'],
-            'messages': dict(recorder.counts),
+            'messages': dict(rec.counts),
+            'messages_after_row_written': stream.joiner.after_written,
+            'unreadable_messages': stream.unreadable,
             'recorder_gate': self.gated,
             'exit_codes': dict(codes),
         }
-        messages = recorder.messages
-        return finish(self.scenario, self.out, trace, run_info, controller_params,
-                      lambda path: write_raw(path, messages))
+        files = stream.files
+        if failure is None:
+            return finish(self.scenario, self.out, trace, run_info, controller_params, files)
+        finish(self.scenario, self.out, trace, run_info, controller_params, files,
+               _first_line(failure))
+        raise _as_failure(failure, self.out)

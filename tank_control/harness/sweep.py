@@ -417,7 +417,10 @@ def _run_ros(scenario: Scenario) -> tuple[dict[str, Any], Any]:
     with domains.claimed() as domain, tempfile.TemporaryDirectory(prefix='sweep_') as tmp:
         env = {**os.environ, 'ROS_DOMAIN_ID': str(domain),
                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
-        result = runner.run_scenario(scenario, tmp, env=env)
+        try:
+            result = runner.run_scenario(scenario, tmp, env=env)
+        except runner.RunInterrupted:          # a stop signal stops the sweep (its files are
+            raise KeyboardInterrupt from None  # temporary), finished runs are kept
         return result.metrics, result.trace
 
 

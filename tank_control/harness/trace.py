@@ -3,18 +3,20 @@
 The ``measurement``, ``setpoint``, ``manipulated`` and ``disturbance`` messages are joined on
 their stamps into the table the in-process loop writes: row k holds what acts over
 ``[t_k, t_k+1)`` (zero-order hold). The join rule and the late-sample rule (``Trace.late``):
-docs/harness.md ("trace.csv", "Late samples"). Stamps in integer ns.
+docs/harness.md ("trace.csv", "Late samples"). Stamps in integer ns. ``TraceJoiner`` joins
+the messages as they arrive, row by row, with the same result (docs/harness.md, "Interrupted
+and failed runs").
 """
 from __future__ import annotations
 
+import heapq
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
 from tank_control.core.interfaces import NS_PER_S
-from tank_control.core.trace import Trace
+from tank_control.core.trace import PREFIX_ORDER, Trace
 
 #: Topic → column prefix.
 TOPIC_PREFIX = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
@@ -22,6 +24,11 @@ TOPIC_PREFIX = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'distur
 LATE_TOPICS = ('plant/late_inputs', 'controller/late_inputs')
 #: The plant's ``disturbance`` input in a gated lockstep run (see ``Recorder.enable_gate``).
 GATED_DISTURBANCE = 'disturbance_gated'
+
+_ANSWERS = {'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
+_NEVER = math.inf
+#: Applied messages remembered per topic to recognise a late repetition of one.
+_RECENT = 256
 
 
 @dataclass(frozen=True)
@@ -32,6 +39,209 @@ class SignalMessage:
     stamp_ns: int
     names: tuple[str, ...]
     values: tuple[float, ...]
+
+
+RowSink = Callable[[Sequence[str], Sequence[float]], None]
+"""Receives each finished row: column names (``t`` first) and values."""
+
+
+class _Signal:
+    """Messages of one topic not yet applied to a row, and the values held so far."""
+
+    def __init__(self) -> None:
+        self.pending: dict[int, dict[str, float]] = {}
+        self.order: list[int] = []             # heap of pending stamps
+        self.held: dict[str, float] = {}        # zero-order hold: the latest applied values
+        self.channels: list[str] = []
+        self.seen = False
+        self.recent: OrderedDict[int, dict[str, float]] = OrderedDict()
+
+    def repeats(self, stamp: int, names: Sequence[str], values: Sequence[float]) -> bool:
+        """Is this a repetition of a message already applied?"""
+        applied = self.recent.get(stamp)
+        return applied is not None and all(applied.get(n) == v for n, v in zip(names, values))
+
+    def add(self, stamp: int, names: Sequence[str], values: Sequence[float]) -> None:
+        self.seen = True
+        slot = self.pending.get(stamp)
+        if slot is None:
+            slot = self.pending[stamp] = {}
+            heapq.heappush(self.order, stamp)
+        for name, value in zip(names, values):
+            slot[name] = value        # a re-sent message of the same stamp is identical
+            if name not in self.channels:
+                self.channels.append(name)
+
+    def apply_before(self, end: int) -> None:
+        while self.order and self.order[0] < end:
+            stamp = heapq.heappop(self.order)
+            values = self.pending.pop(stamp)
+            self.held.update(values)
+            self.recent[stamp] = values
+            if len(self.recent) > _RECENT:
+                self.recent.popitem(last=False)
+
+
+class _Due:
+    """Late counting of one answer signal (module docstring): due instants waiting for their
+    answer window to close, and the answer and report stamps not yet looked at."""
+
+    def __init__(self, period: int) -> None:
+        self.period = period
+        self.waiting: deque[int] = deque()        # due instants, plant time [ns]
+        self.answers: list[int] = []              # heaps of absolute stamps
+        self.reported: list[int] = []
+        self.late = 0
+
+    def settle(self, t0: int, horizon: float) -> None:
+        """Count every waiting instant whose window ``[t_e, t_e + period)`` ends by ``horizon``."""
+        while self.waiting and t0 + self.waiting[0] + self.period <= horizon:
+            start = t0 + self.waiting.popleft()
+            end = start + self.period
+            answered = _pop_before(self.answers, start, end)
+            reported = _pop_before(self.reported, start, end)
+            self.late += (not answered) or reported
+
+
+def _pop_before(heap: list[int], start: int, end: int) -> bool:
+    """Drop stamps before ``start`` (windows already counted); is one in ``[start, end)``?"""
+    while heap and heap[0] < start:
+        heapq.heappop(heap)
+    return bool(heap) and heap[0] < end
+
+
+class TraceJoiner:
+    """The join of the module docstring, row by row as messages arrive.
+
+    ``origin`` gives ``t0`` [ns] (the plant's time origin), asked once, when the first row
+    is finished; ``t_end_ns`` [ns after t0] drops later rows; ``tick_ns``, ``due_ns`` as for
+    ``from_messages``. Each finished row goes to ``sink``.
+    """
+
+    def __init__(self, sink: RowSink, origin: Callable[[], int] = lambda: 0,
+                 t_end_ns: int | None = None, tick_ns: int | None = None,
+                 due_ns: Mapping[str, int] | None = None) -> None:
+        self.sink = sink
+        self.origin = origin
+        self.t_end_ns = t_end_ns
+        self.tick_ns = tick_ns
+        self.due_ns = dict(due_ns or {})
+        self.t0: int | None = None
+        self.signals = {topic: _Signal() for topic in TOPIC_PREFIX}
+        self.rows: list[int] = []                  # heap of measurement stamps not yet written
+        self.row_stamps: set[int] = set()
+        self.due = {prefix: _Due(self.due_ns.get(prefix) or tick_ns or 1)
+                    for prefix in _ANSWERS.values()}
+        self.inputs: set[str] = set()              # channels of ``manipulated`` seen
+        self.written = 0
+        self.written_until = -_NEVER               # rows end before this: every row is written
+        self.after_written = 0
+        self.last_row_ns: int | None = None
+
+    # -- input -------------------------------------------------------------------------------
+    def add(self, msg: SignalMessage) -> None:
+        """A signal message (``TOPIC_PREFIX``) or a late report (``LATE_TOPICS``)."""
+        if msg.topic in LATE_TOPICS:
+            self._add_report(msg)
+            return
+        signal = self.signals.get(msg.topic)
+        if signal is None:
+            return
+        stamp = msg.stamp_ns
+        if msg.topic == 'manipulated':
+            self.inputs.update(msg.names)
+        if stamp < self.written_until:
+            signal.seen = True
+            if not signal.repeats(stamp, msg.names, msg.values):
+                self.after_written += 1
+            return
+        signal.add(stamp, msg.names, msg.values)
+        prefix = _ANSWERS.get(msg.topic)
+        if prefix is not None:
+            heapq.heappush(self.due[prefix].answers, stamp)
+        elif stamp not in self.row_stamps and self._within(stamp):
+            self.row_stamps.add(stamp)
+            heapq.heappush(self.rows, stamp)
+
+    def _add_report(self, msg: SignalMessage) -> None:
+        if msg.topic.startswith('controller'):
+            prefix = 'r'
+        else:
+            prefix = 'u' if set(msg.names) <= self.inputs else 'd'
+        heapq.heappush(self.due[prefix].reported, msg.stamp_ns)
+
+    def _within(self, stamp: int) -> bool:
+        if self.t_end_ns is None:
+            return True
+        t0 = self.t0 if self.t0 is not None else None
+        # before the origin is known a row is kept; it is dropped when written if beyond
+        return t0 is None or stamp - t0 <= self.t_end_ns
+
+    # -- output ------------------------------------------------------------------------------
+    def advance(self, horizon: float) -> None:
+        """Every message stamped before ``horizon`` [ns] is in: write the rows that end by then."""
+        while self.rows:
+            stamp = self.rows[0]
+            after = self._next_row_after(stamp)
+            end = stamp + self.tick_ns if self.tick_ns else stamp + 1
+            if after is not None:
+                end = min(end, after)
+            if end > horizon:
+                break
+            heapq.heappop(self.rows)
+            self.row_stamps.discard(stamp)
+            self._write_row(stamp, end)
+        if self.t0 is not None:
+            for due in self.due.values():
+                due.settle(self.t0, horizon)
+
+    def _next_row_after(self, stamp: int) -> int | None:
+        rows = self.rows
+        if len(rows) < 2:
+            return None
+        # the heap's second-smallest element is one of its two children of the root
+        return min(rows[1:3])
+
+    def _write_row(self, stamp: int, end: int) -> None:
+        if self.t0 is None:
+            self.t0 = self.origin()
+        t_rel = stamp - self.t0
+        if self.t_end_ns is not None and t_rel > self.t_end_ns:
+            return
+        for signal in self.signals.values():
+            signal.apply_before(end)
+        self.written_until = max(self.written_until, end)
+        names = ['t']
+        values = [t_rel / NS_PER_S]
+        for prefix in PREFIX_ORDER:
+            topic = _TOPIC_OF[prefix]
+            signal = self.signals[topic]
+            for name in signal.channels:
+                names.append(f'{prefix}.{name}')
+                values.append(signal.held.get(name, math.nan))
+        for prefix, due in self.due.items():
+            if t_rel % due.period == 0:
+                due.waiting.append(t_rel)
+        self.written += 1
+        self.last_row_ns = stamp                   # before the sink, which may read it
+        self.sink(names, values)
+
+    def flush(self) -> None:
+        """Write every remaining row and count every remaining due instant (end of the run)."""
+        self.advance(_NEVER)
+        if self.t0 is None:
+            self.t0 = self.origin() if self.written else 0
+        for due in self.due.values():
+            due.settle(self.t0, _NEVER)
+
+    @property
+    def late(self) -> dict[str, int]:
+        """Late answers per prefix, for the answer signals that had any message."""
+        return {prefix: self.due[prefix].late for topic, prefix in _ANSWERS.items()
+                if self.signals[topic].seen}
+
+
+_TOPIC_OF = {prefix: topic for topic, prefix in TOPIC_PREFIX.items()}
 
 
 def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
@@ -48,65 +258,22 @@ def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
     each signal prefix (default: the tick) and ``late_stamps`` the stamps its
     consumer reported late, per prefix.
     """
-    by_topic: dict[str, dict[int, dict[str, float]]] = {topic: {} for topic in TOPIC_PREFIX}
-    channels: dict[str, list[str]] = {topic: [] for topic in TOPIC_PREFIX}
+    rows: list[tuple[Sequence[str], Sequence[float]]] = []
+    joiner = TraceJoiner(lambda names, values: rows.append((names, values)), lambda: t0_ns,
+                         t_end_ns, tick_ns, due_ns)
+    joiner.t0 = t0_ns
     for msg in messages:
-        if msg.topic not in by_topic:
-            continue
-        slot = by_topic[msg.topic].setdefault(msg.stamp_ns, {})
-        for name, value in zip(msg.names, msg.values):
-            slot[name] = value        # a re-sent message of the same stamp is identical
-            if name not in channels[msg.topic]:
-                channels[msg.topic].append(name)
-    stamps = sorted(s for s in by_topic['measurement'] if t_end_ns is None or s - t0_ns <= t_end_ns)
-    if tick_ns:      # row k: [t_k, t_k+1), at most one tick (a lost row leaves a gap)
-        ends = [min(a + tick_ns, b) for a, b in zip(stamps, [*stamps[1:], stamps[-1] + tick_ns])] \
-            if stamps else []
-    else:
-        ends = [s + 1 for s in stamps]
-    columns: dict[str, np.ndarray] = {
-        't': np.array([(s - t0_ns) / NS_PER_S for s in stamps], dtype=float)}
-    late: dict[str, int] = {}
-    for topic, prefix in TOPIC_PREFIX.items():
-        held = _zoh_join(stamps, ends, by_topic[topic], channels[topic])
-        for name in channels[topic]:
-            columns[f'{prefix}.{name}'] = held[name]
-        if topic != 'measurement' and by_topic[topic]:
-            period = (due_ns or {}).get(prefix) or tick_ns or 1
-            reported = (late_stamps or {}).get(prefix, ())
-            late[prefix] = _late_count([s - t0_ns for s in stamps],
-                                       [s - t0_ns for s in by_topic[topic]],
-                                       [s - t0_ns for s in reported], period)
+        joiner.add(msg)
+    for prefix, stamps in (late_stamps or {}).items():
+        for stamp in stamps:
+            heapq.heappush(joiner.due[prefix].reported, stamp)
+    joiner.flush()
+    names = rows[-1][0] if rows else ['t']
+    columns: dict[str, list[float]] = {name: [] for name in names}
+    for row_names, values in rows:
+        row = dict(zip(row_names, values))
+        for name in names:
+            columns[name].append(row.get(name, math.nan))
     table = Trace.ordered(columns)
-    table.late = late
+    table.late = joiner.late
     return table
-
-
-def _late_count(rows: Sequence[int], answers: Sequence[int], reported: Iterable[int],
-                period: int) -> int:
-    """Due instants (rows on the ``period`` grid of plant time) with no answer stamped in
-    ``[t_e, t_e + period)``, plus due instants whose answer was reported late."""
-    if not rows:
-        return 0
-    due = [t for t in rows if t % period == 0]
-    answered = {a // period * period for a in answers}
-    reported_due = {r // period * period for r in reported} & set(due)
-    missing = {t for t in due if t not in answered}
-    return len(missing) + len(reported_due - missing)
-
-
-def _zoh_join(stamps: Sequence[int], ends: Sequence[int],
-              messages: Mapping[int, Mapping[str, float]],
-              names: Sequence[str]) -> dict[str, np.ndarray]:
-    """Per channel: the latest value stamped before each row's end (NaN before any)."""
-    out = {name: np.full(len(stamps), math.nan) for name in names}
-    order = sorted(messages)
-    current: dict[str, float] = {}
-    j = 0
-    for i, end in enumerate(ends):
-        while j < len(order) and order[j] < end:
-            current.update(messages[order[j]])
-            j += 1
-        for name, value in current.items():
-            out[name][i] = value
-    return out

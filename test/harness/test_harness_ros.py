@@ -4,44 +4,17 @@ independent computation, files written, final gains read back, failures reported
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from support import CONFIG
 from support.mcap import read_mcap
+from support.standins import SCENARIO, standin_command, standin_scenario
 from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.trace import Trace
 from tank_control.harness.runner import RunFailed, run_scenario
 from tank_control.harness.scenario_file import ScenarioError, load_scenario
-
-STANDINS = Path(__file__).parents[1] / 'support' / 'standin_nodes.py'
-
-SCENARIO = """
-plant:
-  ros__parameters: {sample_time: 0.1}
-controller:
-  ros__parameters: {controller: pid, sample_time: 0.2, kp: 1.5, ti: 4.0, b: 0.5,
-                    u_min: -1.0, u_max: 1.2}
-reference:
-  ros__parameters: {step_time: 1.0, step_value: 1.0}
-harness:
-  ros__parameters: {duration: 6.0, clock_mode: lockstep, startup_timeout: 60.0}
-"""
-
-
-def standin_command(node: str) -> list[str]:
-    if node == 'controller':
-        return [sys.executable, '-m', 'tank_control.nodes.controller_node']
-    return [sys.executable, str(STANDINS), node]
-
-
-def standin_scenario(path: Path, overrides: tuple[str, ...] = ()):
-    """The stand-ins have parameters of their own: only the harness section is checked."""
-    return load_scenario(path, overrides, check_nodes=False)
-
 
 @pytest.fixture
 def scenario_path(tmp_path):
@@ -100,12 +73,30 @@ def test_lockstep_run_matches_independent_loop_and_writes_every_file(scenario_pa
     assert (tmp_path / 'out' / 'logs' / 'controller.log').exists()
 
 
-def test_a_crashing_node_ends_the_run_with_its_last_log_lines(scenario_path, tmp_path, ros_env):
+def test_a_crashing_node_ends_the_run_with_its_last_log_lines_and_keeps_what_was_recorded(
+        scenario_path, tmp_path, ros_env):
+    """The plant dies at t = 2 s of 6: the run fails with its log lines, and the ticks recorded
+    until then stay — trace.csv equal to the independent loop, run.mcap readable, metrics.json
+    marked incomplete with the reason."""
     scenario = standin_scenario(scenario_path, ('plant.crash_at=2.0',))
+    out = tmp_path / 'out'
     with pytest.raises(RunFailed, match='node plant exited with code 3') as info:
-        run_scenario(scenario, tmp_path / 'out', env=ros_env, node_command=standin_command)
+        run_scenario(scenario, out, env=ros_env, node_command=standin_command)
     assert 'crashing on purpose' in str(info.value)
-    assert not (tmp_path / 'out' / 'trace.csv').exists()
+
+    trace = Trace.read_csv(out / 'trace.csv')
+    expected = expected_trace()
+    assert 1 <= len(trace) <= 20                 # ticks 0 … 1.9 s at most: tick 2.0 never came
+    for i, name in enumerate(['t', 'y.y', 'r.y', 'u.u']):
+        np.testing.assert_allclose(trace.columns[name], expected[:len(trace), i], rtol=0,
+                                   atol=1e-9)
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['complete'] is False
+    assert metrics['reason'].startswith('node plant exited with code 3')
+    assert metrics['run']['ticks'] == len(trace)
+    stamps = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+              for m in read_mcap(out / 'run.mcap')['/measurement']}
+    assert {round(t * 1e9) for t in trace.t} <= stamps
 
 
 def test_a_node_that_refuses_its_parameters_fails_the_start(scenario_path, tmp_path, ros_env):
@@ -119,12 +110,29 @@ def test_a_node_that_refuses_its_parameters_fails_the_start(scenario_path, tmp_p
     assert 'n: 100 is above the maximum' in str(info.value)
 
 
-def test_another_graph_on_the_same_domain_is_refused(scenario_path, tmp_path, ros_env, procs,
-                                                     probe):
-    """A second `reference` already running on this ROS_DOMAIN_ID would answer our plant too."""
+def test_another_graph_on_the_same_domain_is_refused_before_anything_starts(
+        scenario_path, tmp_path, ros_env, procs, probe):
+    """A `reference` already running on this ROS_DOMAIN_ID (not started by tank-control) would
+    answer our plant too: the run refuses before it starts a node or writes a file."""
     foreign = procs.start('foreign', [*standin_command('reference'), '--ros-args', '-p',
                                       'step_value:=5.0'], env=ros_env)
     assert probe.wait_for(lambda: 'reference' in probe.node.get_node_names(), 30), foreign.tail()
-    with pytest.raises(RunFailed, match='reference already in use on ROS_DOMAIN_ID'):
-        run_scenario(standin_scenario(scenario_path), tmp_path / 'out', env=ros_env,
+    out = tmp_path / 'out'
+    with pytest.raises(RunFailed, match='another graph is running on ROS_DOMAIN_ID') as info:
+        run_scenario(standin_scenario(scenario_path), out, env=ros_env,
                      node_command=standin_command)
+    assert 'reference' in str(info.value)
+    assert not out.exists()
+    assert foreign.returncode is None                     # and it is left alone
+
+
+def test_a_foreign_clock_publisher_is_refused(scenario_path, tmp_path, ros_env, probe):
+    """Any node publishing a topic of the run (here /clock, as a simulator would) is another
+    graph, whatever its name."""
+    from rosgraph_msgs.msg import Clock
+    probe.node.create_publisher(Clock, '/clock', 10)
+    out = tmp_path / 'out'
+    with pytest.raises(RunFailed, match=r'publisher of /clock \(test_probe'):
+        run_scenario(standin_scenario(scenario_path), out, env=ros_env,
+                     node_command=standin_command)
+    assert not out.exists()

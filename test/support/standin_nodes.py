@@ -5,7 +5,9 @@ input ``u``, no disturbance channel; it follows the lockstep protocol of
 docs/nodes.md (tick k: /clock and measurement stamped t_k; advance once ``manipulated``
 and ``disturbance`` stamped t_k are in; re-send every 0.5 s; ``lockstep.paused``
 holds tick 0 until set to false, as plant_node does). Parameter
-``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time.
+``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time;
+``first_tick`` starts its clock at that tick instead of 0 (a plant already far
+ahead, as another run's would be).
 ``reference``: setpoint ``y`` = ``step_value`` from ``step_time`` on (0 before),
 an empty disturbance message, answering each /clock.
 
@@ -37,7 +39,8 @@ class StandinPlant(Node):
         self.crash_ns = int(round(self.declare_parameter('crash_at', 0.0).value * 1e9))
         self.declare_parameter('clock_mode', 'lockstep')
         self.declare_parameter('real_time_factor', 0.0)
-        self.y, self.k = float(self.declare_parameter('initial_output', 0.0).value), 0
+        self.y = float(self.declare_parameter('initial_output', 0.0).value)
+        self.k = int(self.declare_parameter('first_tick', 0).value)
         self.u: dict[int, float] = {}
         self.d: set[int] = set()
         self.clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS)
