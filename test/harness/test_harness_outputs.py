@@ -164,6 +164,26 @@ def test_mcap_from_trace_opens_with_the_mcap_reader(tmp_path):
     assert list(seen['/disturbance'][0].name) == ['F_D']
 
 
+@pytest.mark.parametrize('names', [(), ('y',), ('h', 'T_out'), ('F_H', 'F_Cin', 'x'),
+                                   ('abcd', 'e'), ('T_D', 'F_D', 'long_channel_name')])
+def test_the_direct_cdr_encoding_is_the_message_rclpy_reads(names):
+    from rclpy.serialization import deserialize_message
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    from tank_control.harness.recorder import cdr_stamp_ns, joint_state_from_cdr
+    from tank_control.harness.recording import JointStateCdr, clock_cdr
+    positions = [math.pi * (i + 1) for i in range(len(names))]
+    data = JointStateCdr(names).encode(12, 345_678_901, positions)
+    msg = deserialize_message(data, JointState)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (12, 345_678_901)
+    assert (tuple(msg.name), list(msg.position)) == (names, positions)
+    assert (msg.header.frame_id, list(msg.velocity), list(msg.effort)) == ('', [], [])
+    assert joint_state_from_cdr(data) == (12_345_678_901, names, tuple(positions))
+    clock = deserialize_message(clock_cdr(7, 9), Clock)
+    assert (clock.clock.sec, clock.clock.nanosec) == (7, 9) and cdr_stamp_ns(clock_cdr(7, 9)) == 7e9 + 9
+
+
 def test_plot_is_a_png(tmp_path):
     from tank_control.harness.plotting import plot_runs
     path = plot_runs([('a', _trace()), ('b', _trace())], tmp_path / 'plot.png', title='x')

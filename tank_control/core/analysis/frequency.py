@@ -202,11 +202,14 @@ def fopdt(gain: float, time_constant: float, dead_time: float) -> FrequencyRespo
 
 def plant_response(config: Any) -> FrequencyResponse:
     """The response of a plant configuration of ``core.plants`` (``IpdtConfig``:
-    gain, dead_time; ``FopdtConfig``: gain, time_constant, dead_time), of a plant
+    gain, dead_time; ``FopdtConfig``: gain, time_constant, dead_time;
+    ``TransferFunctionConfig``: num, den, dead_time), of a plant
     object with such a ``config``, or of an identified model of
     ``core.tuning.identification`` (``FopdtModel`` with ``order`` 1 or 2:
     ``K/(T·s + 1)^n·e^(−L·s)``, 004 eq. 3.6.1; ``IpdtModel``)."""
     config = getattr(config, 'config', config)
+    if hasattr(config, 'num') and hasattr(config, 'den'):        # TransferFunctionConfig
+        return rational(config.num, config.den, config.dead_time)
     order = getattr(config, 'order', 1)
     if hasattr(config, 'time_constant') and order != 1:
         if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order < 1:

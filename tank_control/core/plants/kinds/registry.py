@@ -6,7 +6,7 @@ from typing import Any
 
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import by_name, finder
-from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank, sopdt
+from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank, sopdt, transfer_function
 from tank_control.core.plants.kinds.base import PlantKind
 
 KINDS: dict[str, PlantKind] = by_name(
@@ -14,6 +14,7 @@ KINDS: dict[str, PlantKind] = by_name(
     fopdt.KIND,
     mixing_tank.KIND,
     sopdt.KIND,
+    transfer_function.KIND,
 )
 
 
