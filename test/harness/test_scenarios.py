@@ -262,7 +262,7 @@ def _tank_files_at_the_operating_point() -> list[Path]:
     files = []
     for path in sorted(CONFIG.glob('*.yaml')) + sorted(SCENARIOS.glob('*.yaml')):
         plant = read_params_file(path).get('plant', {})
-        if plant.get('plant') == 'mixing_tank' and 'initial_T' not in plant:
+        if plant.get('plant') in ('mixing_tank', 'mixing_tank_linear') and 'initial_T' not in plant:
             files.append(path)
     return files
 
@@ -287,6 +287,25 @@ def test_003_unreachable_temperature_setpoint_winds_up_and_raises_the_level(resu
     h = result.trace.columns['y.h']
     assert h[-1] > 81.0 + 10.0                                   # level far above its setpoint
     assert result.metrics['inputs']['F_H']['min'] == 0.0         # hot water shut off
+
+
+def test_003_the_linearised_tank_makes_the_unreachable_setpoint_look_reachable(results):
+    """003 §2.3 (Figs. 4–6): on the linearised plant the same loop looks better behaved at
+    the extreme setpoint — dangerous, since the tank cannot get there. The linear model's T
+    equation reaches 24 °C with F_H = 0 at a cold flow the tank would need twice of."""
+    linear, tank = results('tank_pi_linear_extreme'), results('tank_pi_unreachable')
+    t_lin, t_tank = (r.trace.columns['y.T_out'] for r in (linear, tank))
+    assert t_lin[-1] - 24.0 < 0.5 * (t_tank[-1] - 24.0)          # much closer to 24 °C
+    assert t_lin[-1] < t_lin[-1000]                                 # and still approaching
+    assert linear.trace.columns['y.h'].max() < tank.trace.columns['y.h'].max()
+    assert linear.metrics['inputs']['F_H']['min'] == 0.0            # hot water shut as well
+    # Steady mixing balance with F_H = 0: the tank's T = 24 °C needs
+    # F_C = F_D·(T_D − 24)/(24 − T_C) = 108 cm³/s. Linearised at the operating point,
+    # dT·F_in = Σ (T_i − T0)·dF_i with dF_H = −14 reaches 24 °C at F_C ≈ 56 cm³/s.
+    t0, f_in = T0, 63.0
+    f_c_linear = 37.0 + ((24.0 - t0) * f_in + 14.0 * (62.0 - t0)) / (23.0 - t0)
+    assert f_c_linear < 0.6 * 108.0
+    assert linear.trace.columns['u.F_Cin'][-1] == pytest.approx(f_c_linear, rel=0.05)
 
 
 def test_003_setpoint_guard_keeps_the_level_when_the_temperature_is_unreachable(results):

@@ -6,13 +6,15 @@ from typing import Any
 
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import by_name, finder
-from tank_control.core.plants.kinds import fopdt, ipdt, mixing_tank, sopdt, transfer_function
+from tank_control.core.plants.kinds import (fopdt, ipdt, mixing_tank, mixing_tank_linear, sopdt,
+                                            transfer_function)
 from tank_control.core.plants.kinds.base import PlantKind
 
 KINDS: dict[str, PlantKind] = by_name(
     ipdt.KIND,
     fopdt.KIND,
     mixing_tank.KIND,
+    mixing_tank_linear.KIND,
     sopdt.KIND,
     transfer_function.KIND,
 )
