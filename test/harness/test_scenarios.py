@@ -308,6 +308,18 @@ def test_003_the_linearised_tank_makes_the_unreachable_setpoint_look_reachable(r
     assert linear.trace.columns['u.F_Cin'][-1] == pytest.approx(f_c_linear, rel=0.05)
 
 
+def test_003_decoupled_loop_on_the_linearised_tank_undershoots_below_t_c(results):
+    """003 §3.3 (Figs. 10–12): with decoupling, the linear model is "even more dangerous": it
+    lets the temperature fall below T_C = 23 °C, which no mixture of the tank's inflows
+    (23, 33 and 62 °C) can produce. The same loop on the tank stays physical (and overflows
+    the tank instead: docs/scenarios.md)."""
+    linear = results('tank_pi_decoupled_linear_extreme')
+    tank = results('tank_pi_decoupled_linear_extreme', 'plant.plant=mixing_tank')
+    assert linear.trace.columns['y.T_out'].min() < 23.0 - 5.0
+    assert tank.trace.columns['y.T_out'].min() >= 23.0 - 1e-9
+    assert tank.trace.columns['y.h'].max() == pytest.approx(200.0)          # at the brim
+
+
 def test_003_setpoint_guard_keeps_the_level_when_the_temperature_is_unreachable(results):
     """Our answer to that failure mode (the controller's two_loop.setpoint_guard, on by
     default): the same unreachable request leaves the level at its setpoint and T_out at
