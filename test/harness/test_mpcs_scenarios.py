@@ -218,3 +218,38 @@ def test_on_the_linearised_tank_mpcs_is_almost_ideal_as_003_reports():
             assert max(_step_overshoots(trace, changes, duration)) < 0.01
     assert settled['linear'] < 1e-6 and settled['free'] < 1e-6
     assert settled['tank'] > 100 * settled['linear']
+
+
+def _level_overshoot_and_iae(params: dict) -> tuple[float, float]:
+    trace = run_in_process(params)
+    duration = float(params['harness']['duration'])
+    return (max(_step_overshoots(trace, _changes(params['reference']), duration)[:1]),
+            _iae(trace, 'h'))
+
+
+def test_analytic_and_qp_at_the_document_horizons_differ_by_the_rate_limit_alone():
+    """003 §6–7 (Figs. 23–25): the two solvers at identical (N, Nu, λ). The QP plans with
+    |ΔF| <= 0.2 per sample and does not overshoot the level; the analytic solver clips an
+    unconstrained plan and overshoots strongly (003 §7.2 (i)). At (50, 10, 0.2) the QP's
+    slower rise costs it level IAE; lifting the rate limit makes the two the same loop; at
+    long horizons the QP is no worse."""
+    def case(solver: str, n: int, nu: int, lam: float, du_max: float | None = None) -> dict:
+        params = _params('tank_mpcs_solvers_003')
+        ctrl = params['controller']
+        ctrl.update({'mpcs.solver': solver, 'mpcs.horizon': n, 'mpcs.control_horizon': nu,
+                     'mpcs.lambda': [lam]})
+        if du_max is not None:
+            ctrl['mpcs.du_max'] = [du_max, du_max]
+        return params
+    for n, nu, lam in ((50, 10, 0.2), (100, 50, 0.5), (80, 30, 0.3)):
+        qp_over, qp_iae = _level_overshoot_and_iae(case('qp', n, nu, lam))
+        an_over, an_iae = _level_overshoot_and_iae(case('analytic', n, nu, lam))
+        assert qp_over < 1.0 and an_over > 10.0, (n, nu, lam, qp_over, an_over)
+        if (n, nu) == (50, 10):
+            assert qp_iae > 2 * an_iae                      # 7835 against 3416
+            free = [_level_overshoot_and_iae(case(s, n, nu, lam, 100.0))[1]
+                    for s in ('qp', 'analytic')]
+            assert free[0] == pytest.approx(free[1], rel=0.01)
+    long_qp = _level_overshoot_and_iae(case('qp', 300, 100, 0.2))[1]
+    long_an = _level_overshoot_and_iae(case('analytic', 300, 100, 0.2))[1]
+    assert long_qp < long_an
