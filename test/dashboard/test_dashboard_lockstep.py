@@ -1,7 +1,9 @@
 """A lockstep run with the dashboard attached (dashboard_node and a page in headless Chromium
 watching it) equals the in-process run to 1e-9 on every signal: the dashboard only subscribes,
-it cannot disturb the loop. And the page got every tick: 100 ticks per second of plant time
-(config/ipdt_pid.yaml at 10x real time) reach the browser without a loss."""
+it cannot disturb the loop. And the page got every tick with the recorded values
+(config/ipdt_pid.yaml at 2x real time, 20 ticks per wall second: the publishers keep the last 10
+messages for a reader, so this leaves a starved dashboard process half a second; the rate the
+dashboard sustains is measured by bench/bench_dashboard.py, not asserted here)."""
 from __future__ import annotations
 
 import subprocess
@@ -16,7 +18,7 @@ from tank_control.core.trace import Trace
 
 SCENARIO = CONFIG / 'ipdt_pid.yaml'
 DURATION = '20'        # s of plant time: 201 ticks of 0.1 s
-RTF = '10'             # 100 ticks per wall second
+RTF = '2'              # 20 ticks per wall second
 
 
 def tank_control(*args: str, env) -> subprocess.CompletedProcess:

@@ -33,7 +33,8 @@ def headless_chromium(width: int = 1400, height: int = 1000) -> Iterator[object]
     options = webdriver.ChromeOptions()
     options.binary_location = str(CHROMIUM)
     for arg in ('--headless=new', '--no-sandbox', '--disable-dev-shm-usage', '--disable-gpu',
-                '--disable-extensions', '--no-first-run', f'--window-size={width},{height}'):
+                '--disable-extensions', '--no-first-run', '--disable-crash-reporter',
+                '--disable-breakpad', f'--window-size={width},{height}'):
         options.add_argument(arg)
     service = Service(str(CHROMEDRIVER),
                       popen_kw={'start_new_session': True, 'preexec_fn': _die_with_parent()})
