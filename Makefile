@@ -5,9 +5,22 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup colcon clean
+.PHONY: demo test setup colcon clean browser
 
-setup: $(STAMP)
+setup: $(STAMP) browser
+
+# Debian's chromium and its driver for the dashboard's browser tests (test/dashboard): installed
+# when missing and we are root (CI is); otherwise a one-line note. Idempotent, quiet.
+browser:
+	@if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    echo 'installing chromium and chromium-driver (apt-get) for the dashboard browser tests'; \
+	    apt-get update -qq >/dev/null && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	  else \
+	    echo 'note: /usr/bin/chromium or /usr/bin/chromedriver missing (apt-get install chromium chromium-driver as root): the dashboard browser tests will fail'; \
+	  fi; \
+	fi
 
 $(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,7 +31,7 @@ $(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml
 demo: $(STAMP)
 	$(BIN)/python -m tank_control.demo
 
-test: $(STAMP)
+test: $(STAMP) browser
 	$(BIN)/python -m pytest -q test
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.

@@ -16,6 +16,8 @@ setup(
         ('share/' + PACKAGE + '/config/scenarios', glob('config/scenarios/*.yaml')),
         ('share/' + PACKAGE + '/config/studies', glob('config/studies/*.yaml')),
     ],
+    # the dashboard's page and its vendored plotting library (scripts/vendor_uplot.sh)
+    package_data={'tank_control.dashboard': ['static/*.*', 'static/vendor/*']},
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='tank_control team',
@@ -28,6 +30,7 @@ setup(
             'plant_node = tank_control.nodes.plant_node:main',
             'controller_node = tank_control.nodes.controller_node:main',
             'reference_node = tank_control.nodes.reference_node:main',
+            'dashboard_node = tank_control.nodes.dashboard_node:main',
             'ros2 = tank_control.ros2cli.main:main',
             'tank-control = tank_control.harness.cli:main',
         ],

@@ -1,0 +1,172 @@
+"""The dashboard in a real browser (headless Chromium) on a live loop over real DDS: plant,
+relay-autotune controller and reference of config/fopdt_autotune.yaml in lockstep at 10x real
+time, dashboard_node beside them. The page shows growing trends, edits reach the node through
+its set_parameters service, a refusal shows the node's own reason, a change made elsewhere
+appears in the page, and a command button calls the controller's Trigger service."""
+from __future__ import annotations
+
+import pytest
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.parameter import Parameter, parameter_value_to_python
+from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
+from selenium.webdriver.support.ui import WebDriverWait
+from support import CONFIG
+from support.browser import dashboard_url, group_members, headless_chromium
+from support.ros2cli import ros2
+
+SCENARIO = CONFIG / 'fopdt_autotune.yaml'
+WAIT = 60.0          # s: a loaded 2-core machine; every wait ends at its event
+
+
+@pytest.fixture
+def live_loop(procs, ros_env, node_cmd, tmp_path):
+    """The three nodes of the scenario (the test starts the auto-tuner itself) and the
+    dashboard on a free port; returns the dashboard's URL."""
+    text = SCENARIO.read_text()
+    scheduled = 'autotune.start_time: 60.0'
+    assert scheduled in text
+    params = tmp_path / 'fopdt_autotune_by_command.yaml'
+    params.write_text(text.replace(scheduled, 'autotune.start_time: 0.0'))   # 0: by command
+    for module in ('plant_node', 'controller_node', 'reference_node'):
+        procs.start(module, node_cmd(module, '--params-file', str(params)), env=ros_env)
+    dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
+    return dashboard_url(dash)
+
+
+@pytest.fixture
+def page(live_loop):
+    with headless_chromium() as driver:
+        driver.get(live_loop)
+        yield driver
+    assert not group_members(driver.service.process.pid)
+
+
+def call(probe, srv, name, request):
+    client = probe.node.create_client(srv, name)
+    try:
+        assert probe.wait_for(client.service_is_ready, WAIT), f'{name} not available'
+        future = client.call_async(request)
+        assert probe.wait_for(future.done, WAIT), f'{name} did not answer'
+        return future.result()
+    finally:
+        probe.node.destroy_client(client)
+
+
+def controller_param(probe, name):
+    response = call(probe, GetParameters, '/controller/get_parameters',
+                    GetParameters.Request(names=[name]))
+    return parameter_value_to_python(response.values[0])
+
+
+def param_input(driver, name, node='/controller'):
+    return driver.find_element(By.CSS_SELECTOR,
+                               f'input[data-node="{node}"][data-param="{name}"]')
+
+
+def reason_text(driver, name, node='/controller'):
+    return driver.find_element(By.CSS_SELECTOR,
+                               f'.reason[data-node="{node}"][data-param="{name}"]').text
+
+
+def type_into(driver, name, text):
+    box = param_input(driver, name)
+    box.click()
+    box.send_keys(Keys.CONTROL, 'a')
+    box.send_keys(text, Keys.ENTER)
+
+
+def set_window(driver, seconds):
+    box = driver.find_element(By.ID, 'window')
+    box.click()
+    box.send_keys(Keys.CONTROL, 'a')
+    box.send_keys(seconds, Keys.ENTER)
+
+
+def points(driver, chart):
+    found = driver.find_elements(By.CSS_SELECTOR, f'.chart[data-chart="{chart}"]')
+    return int(found[0].get_attribute('data-points')) if found else 0
+
+
+def test_trends_grow_with_live_data_and_show_the_input_limits(page):
+    wait = WebDriverWait(page, WAIT)
+    wait.until(lambda d: d.find_element(By.ID, 'connection').text == 'live')
+    set_window(page, '3600')          # longer than the test: every sample stays in view
+    wait.until(lambda d: points(d, 'y-y') > 0 and points(d, 'u-u') > 0)
+    before = points(page, 'y-y'), points(page, 'u-u')
+    wait.until(lambda d: points(d, 'y-y') > before[0] and points(d, 'u-u') > before[1])
+    # measurement and setpoint in one chart, the input with the controller's u_min/u_max
+    legend_y = page.find_element(By.CSS_SELECTOR, '.chart[data-chart="y-y"] .u-legend').text
+    assert 'y measured' in legend_y and 'y setpoint' in legend_y
+    wait.until(lambda d: 'max' in d.find_element(
+        By.CSS_SELECTOR, '.chart[data-chart="u-u"] .u-legend').text)
+    stats = page.execute_script('return window.tankDashboard.stats')
+    assert stats['lost'] == 0 and stats['received'] > 0
+    # every measurement the page holds is on the plant's 0.1 s grid, in order
+    times = page.execute_script('return window.tankDashboard.topics.measurement.t')
+    assert times == sorted(times)
+    assert all(abs(t * 10 - round(t * 10)) < 1e-6 for t in times)
+    # a 5 s window holds the last 5 s: 50 ticks of 0.1 s (51 with both ends)
+    set_window(page, '5')
+    wait.until(lambda d: 45 <= points(d, 'y-y') <= 51)
+    # pause holds the plot, resume goes on
+    page.find_element(By.ID, 'pause').click()
+    held = page.execute_script('return window.tankDashboard.stats.frames')
+    received = page.execute_script('return window.tankDashboard.stats.received')
+    wait.until(lambda d: d.execute_script('return window.tankDashboard.stats.received')
+               > received + 50)
+    assert page.execute_script('return window.tankDashboard.stats.frames') == held
+    page.find_element(By.ID, 'pause').click()
+    wait.until(lambda d: d.execute_script('return window.tankDashboard.stats.frames') > held)
+
+
+def test_an_edit_reaches_the_node_and_a_refusal_shows_its_reason(page, probe, ros_env):
+    wait = WebDriverWait(page, WAIT)
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR,
+                                         'input[data-node="/controller"][data-param="kp"]'))
+    type_into(page, 'kp', '25')
+    wait.until(lambda d: 'pending' not in param_input(d, 'kp').get_attribute('class'))
+    assert reason_text(page, 'kp') == ''
+    assert controller_param(probe, 'kp') == 25.0
+    got = ros2(ros_env, 'param', 'get', '/controller', 'kp')
+    assert got.stdout.strip() == 'Double value is: 25.0', got.stderr
+
+    # refused: the node's own reason, as its set_parameters service gives it to anyone
+    refused = call(probe, SetParameters, '/controller/set_parameters', SetParameters.Request(
+        parameters=[Parameter('kp', value=-1.0).to_parameter_msg()])).results[0]
+    assert not refused.successful and refused.reason
+    type_into(page, 'kp', '-1')
+    wait.until(lambda d: refused.reason in reason_text(d, 'kp'))
+    typed = call(probe, SetParameters, '/controller/set_parameters', SetParameters.Request(
+        parameters=[ParameterMsg(name='kp', value=Parameter('kp', value='abc')
+                                 .to_parameter_msg().value)])).results[0]
+    assert not typed.successful and 'kp' in typed.reason
+    type_into(page, 'kp', 'abc')
+    wait.until(lambda d: typed.reason in reason_text(d, 'kp'))
+    assert controller_param(probe, 'kp') == 25.0
+    wait.until(lambda d: param_input(d, 'kp').get_attribute('value') == '25')
+
+    # changed elsewhere (`ros2 param set`): the page follows
+    done = ros2(ros_env, 'param', 'set', '/controller', 'ti', '15.5')
+    assert done.returncode == 0, done.stderr
+    wait.until(lambda d: param_input(d, 'ti').get_attribute('value') == '15.5')
+
+
+def test_a_command_button_starts_the_autotuner_and_its_state_is_shown(page, probe):
+    wait = WebDriverWait(page, WAIT)
+    selector = 'button[data-node="/controller"][data-command="start_autotune"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, selector))
+    state = '.state[data-node="/controller"][data-topic="/controller/autotune_state"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, state))
+    assert page.find_element(By.CSS_SELECTOR, state).text == 'idle'
+    page.find_element(By.CSS_SELECTOR, selector).click()
+    result = ('.command-result[data-node="/controller"]'
+              '[data-command="start_autotune"]')
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, result).text.startswith('ok'))
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, state).text != 'idle')
+    assert controller_param(probe, 'autotune.state') != 'idle'
+    # the abort button ends the test: the state shown follows the node's
+    page.find_element(By.CSS_SELECTOR, selector.replace('start_autotune', 'abort_autotune')).click()
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, state).text == 'aborted')
+    assert controller_param(probe, 'autotune.state') == 'aborted'

@@ -1,0 +1,80 @@
+"""A headless Chromium driven by Selenium (Debian's chromium and chromium-driver, installed by
+the Makefile's setup), and the dashboard_node a test starts.
+
+chromedriver runs in a session of its own (chromium is its child, in the same process group),
+dies with the test process, and the whole group is killed when the browser is closed, so no
+chromedriver or chromium is left behind."""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from tank_control.harness.processes import ManagedProcess, _die_with_parent
+
+CHROMIUM = Path('/usr/bin/chromium')
+CHROMEDRIVER = Path('/usr/bin/chromedriver')
+URL_LINE = re.compile(r'dashboard at (http://\S+)')
+
+
+@contextmanager
+def headless_chromium(width: int = 1400, height: int = 1000) -> Iterator[object]:
+    """A Selenium WebDriver on a headless Chromium; everything is stopped on exit."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.exists()]
+    assert not missing, (f'{", ".join(missing)} missing: `make setup` as root installs '
+                         'chromium and chromium-driver')
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for arg in ('--headless=new', '--no-sandbox', '--disable-dev-shm-usage', '--disable-gpu',
+                '--disable-extensions', '--no-first-run', '--disable-crash-reporter',
+                '--disable-breakpad', f'--window-size={width},{height}'):
+        options.add_argument(arg)
+    service = Service(str(CHROMEDRIVER),
+                      popen_kw={'start_new_session': True, 'preexec_fn': _die_with_parent()})
+    driver = webdriver.Chrome(service=service, options=options)
+    pid = service.process.pid
+    try:
+        yield driver
+    finally:
+        try:
+            driver.quit()
+        finally:
+            if group_members(pid):                   # anything of the group still there
+                os.killpg(pid, signal.SIGKILL)
+            deadline = time.monotonic() + 30.0
+            while group_members(pid) and time.monotonic() < deadline:
+                time.sleep(0.05)                     # SIGKILL delivered; the kernel ends them
+
+
+def group_members(pgid: int) -> list[int]:
+    """Pids of the live (not zombie) processes in process group ``pgid`` (from /proc)."""
+    members = []
+    for entry in Path('/proc').iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / 'stat').read_bytes().rsplit(b')', 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != b'Z':   # state, ppid, pgrp; zombies ended
+            members.append(int(entry.name))
+    return members
+
+
+def dashboard_url(proc: ManagedProcess, timeout: float = 60.0) -> str:
+    """The URL dashboard_node logs once its web server listens (port 0: any free port)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = URL_LINE.search(proc.log_path.read_text(errors='replace'))
+        if found:
+            return found.group(1)
+        assert proc.returncode is None, f'dashboard_node exited:\n{proc.tail()}'
+        time.sleep(0.1)            # polling a log file: no event to wait on
+    raise AssertionError(f'dashboard_node logged no URL in {timeout:g} s:\n{proc.tail()}')
