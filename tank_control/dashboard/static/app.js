@@ -187,11 +187,33 @@
       series.push({label: l.label, stroke: '#999', width: 1, dash: [2, 3], points: {show: false}});
     }
     const width = Math.max(300, chart.body.clientWidth || chart.el.clientWidth || 600);
-    const opts = {width, height: 200, series, scales: {x: {time: false}},
+    const opts = {width, height: 200, series,
+                  scales: {x: {time: false}, y: {range: (u) => yRange(chart, u)}},
+                  axes: [{}, {size: 70}],
                   legend: {live: true}, cursor: {drag: {x: true, y: false}}};
     chart.plot = new uPlot(opts, series.map(() => []), chart.body);
     state.dirty = true;
     schedule();
+  }
+
+  // The y range of the signals themselves; a limit line widens it only when it lies near them
+  // (an input limit of 1e4 would otherwise flatten the input to a line at 0).
+  function yRange(chart, u) {
+    let lo = Infinity, hi = -Infinity;
+    for (let k = 1; k <= chart.sources.length; k++) {
+      for (const v of u.data[k] || []) {
+        if (v !== null && finite(v)) { if (v < lo) lo = v; if (v > hi) hi = v; }
+      }
+    }
+    if (lo === Infinity) return [0, 1];
+    const span = Math.max(hi - lo, Math.abs(hi) * 0.05, 1e-9);
+    for (const l of limitSeries(chart)) {
+      if (l.value >= lo - span && l.value <= hi + span) {
+        lo = Math.min(lo, l.value); hi = Math.max(hi, l.value);
+      }
+    }
+    const pad = Math.max(hi - lo, span) * 0.05;
+    return [lo - pad, hi + pad];
   }
 
   // Union of the sources' times inside the window, each series null where it has no sample.
