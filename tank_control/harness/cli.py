@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
     run = sub.add_parser('run', help='run one scenario')
     run.add_argument('scenario', type=Path)
     options(run)
+    run.add_argument('--dashboard', nargs='?', type=int, const=8080, metavar='PORT',
+                     help='watch the run in a web page: start dashboard_node on PORT '
+                          '(default 8080) for the run (docs/dashboard.md)')
     compare = sub.add_parser('compare', help='run several scenarios and compare their metrics')
     compare.add_argument('scenarios', type=Path, nargs='+')
     options(compare)
@@ -150,8 +153,12 @@ def _sweep(args: argparse.Namespace) -> int:
 def _run_one(path: Path, out: Path, args: argparse.Namespace):
     from tank_control.harness import runner
     progress = None if args.quiet else ProgressPrinter(sys.stderr, path.stem)
+    dashboard = getattr(args, 'dashboard', None)
+    if dashboard is not None and not args.in_process:
+        print(f'dashboard: http://127.0.0.1:{dashboard}/ (until the run ends)', file=sys.stderr)
     return runner.run(path, out, mode=args.mode, rtf=args.rtf, duration=args.duration,
-                      overrides=args.overrides, in_process=args.in_process, progress=progress)
+                      overrides=args.overrides, in_process=args.in_process, progress=progress,
+                      dashboard=dashboard)
 
 
 def _print_result(result) -> None:

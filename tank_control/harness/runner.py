@@ -100,17 +100,23 @@ def node_module_command(node: str) -> list[str]:
 def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = None,
         rtf: float | None = None, duration: float | None = None, overrides: Sequence[str] = (),
         in_process: bool = False, env: Mapping[str, str] | None = None,
-        progress: ProgressFn | None = None) -> RunResult:
+        progress: ProgressFn | None = None, dashboard: int | None = None) -> RunResult:
     """Load ``scenario_path`` with ``overrides`` and the command-line settings, and run it."""
     scenario = effective_harness(load_scenario(scenario_path, overrides), mode, rtf, duration)
-    return run_scenario(scenario, out_dir, in_process=in_process, env=env, progress=progress)
+    return run_scenario(scenario, out_dir, in_process=in_process, env=env, progress=progress,
+                        dashboard=dashboard)
 
 
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
-                 node_command: NodeCommand = node_module_command) -> RunResult:
+                 node_command: NodeCommand = node_module_command,
+                 dashboard: int | None = None) -> RunResult:
     """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md). SIGINT,
-    SIGTERM and SIGHUP stop the run cleanly while it goes (when called from the main thread)."""
+    SIGTERM and SIGHUP stop the run cleanly while it goes (when called from the main thread).
+    ``dashboard``: also start dashboard_node on this port for the run (a ROS run only)."""
+    if dashboard is not None and in_process:
+        raise ScenarioError('--dashboard watches the nodes of a ROS run; an --in-process run '
+                            'has none')
     reason = size_reason(scenario, in_process)
     if reason:
         raise ScenarioError(f'{scenario.path}: {reason}')
@@ -118,7 +124,7 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
     with StopSignals() as stop:
         if in_process:
             return _run_in_process(scenario, out, progress, stop)
-        return _RosRun(scenario, out, env, progress, node_command, stop).execute()
+        return _RosRun(scenario, out, env, progress, node_command, stop, dashboard).execute()
 
 
 def prepare_output(scenario: Scenario, out: Path) -> Path:
@@ -399,8 +405,9 @@ def _warm_up() -> None:
 class _RosRun:
     def __init__(self, scenario: Scenario, out: Path, env: Mapping[str, str] | None,
                  progress: ProgressFn | None, node_command: NodeCommand,
-                 stop: StopSignals) -> None:
+                 stop: StopSignals, dashboard: int | None = None) -> None:
         self.node_command = node_command
+        self.dashboard = dashboard
         self.scenario = scenario
         self.config = scenario.harness
         self.out = out
@@ -510,6 +517,9 @@ class _RosRun:
             nodes = self.config.nodes
             for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
+            if self.dashboard is not None:       # watches only; stopped with the nodes
+                self.group.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
+                                               '-p', f'port:={self.dashboard}'], env=self.env)
             self._await_graph(nodes)
             cpu_start = self._cpu_seconds()
             run_start = time.monotonic()

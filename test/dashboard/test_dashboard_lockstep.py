@@ -57,3 +57,58 @@ def test_lockstep_with_the_dashboard_attached_equals_in_process(tmp_path, procs,
     for name in expected.columns:
         np.testing.assert_allclose(trace.columns[name], expected.columns[name], rtol=0,
                                    atol=1e-9, err_msg=name)
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def _running_with(text: str) -> list[int]:
+    from pathlib import Path
+    found = []
+    for entry in Path('/proc').iterdir():
+        if entry.name.isdigit():
+            try:
+                cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode()
+            except OSError:
+                continue
+            if text in cmdline:
+                found.append(int(entry.name))
+    return found
+
+
+def test_tank_control_run_dashboard_serves_the_run_and_stops_with_it(tmp_path, procs, ros_env):
+    """`tank-control run ... --dashboard PORT` starts dashboard_node for the run: the page shows
+    the run's measurement while it goes, and the node ends with the run."""
+    import time
+    port = _free_port()
+    out = tmp_path / 'run'
+    harness = procs.start('harness', [sys.executable, '-m', 'tank_control.harness.cli', 'run',
+                                      str(SCENARIO), '--out', str(out), '--duration', '40',
+                                      '--rtf', '4', '--quiet', '--dashboard', str(port)],
+                          env=ros_env)
+    log = out / 'logs' / 'dashboard.log'
+    deadline = time.monotonic() + 120
+    while not (log.exists() and 'dashboard at' in log.read_text(errors='replace')):
+        assert harness.returncode is None and time.monotonic() < deadline, harness.tail()
+        time.sleep(0.1)            # polling a log file: no event to wait on
+    with headless_chromium() as page:
+        page.get(f'http://127.0.0.1:{port}/')
+        script = ('const m = window.tankDashboard && window.tankDashboard.topics.measurement;'
+                  'return m ? m.t.length : 0;')
+        WebDriverWait(page, 60).until(lambda d: d.execute_script(script) >= 20)
+    assert harness.popen.wait(timeout=300) == 0, harness.tail()
+    assert _running_with(f'port:={port}') == []
+    assert len(Trace.read_csv(out / 'trace.csv')) == 401
+
+
+def test_dashboard_with_an_in_process_run_is_refused(tmp_path):
+    import pytest
+
+    from tank_control.harness.runner import ScenarioError, run
+    with pytest.raises(ScenarioError, match='--dashboard watches the nodes of a ROS run'):
+        run(SCENARIO, tmp_path / 'x', in_process=True, dashboard=8080)
+    assert not (tmp_path / 'x').exists()
