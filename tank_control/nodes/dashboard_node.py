@@ -142,7 +142,8 @@ class DashboardNode(Node):
         self.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self._on_diagnostics, 10)
         self.robustness = RobustnessWorker(lambda message: self.server.broadcast(message))
         self.server = DashboardServer(self.store, self, str(values['host']), int(values['port']),
-                                      float(values['update_period']))
+                                      float(values['update_period']),
+                                      str(values['runs_dir']))
         try:
             self.url = self.server.start()
         except OSError as exc:
