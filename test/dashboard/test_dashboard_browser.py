@@ -238,3 +238,21 @@ def test_the_robustness_panel_shows_the_margins_of_the_analysis_and_follows_kp(p
     after = expected_margins(40.0)
     assert after.gain_margin < before.gain_margin
     check_margins(shown_margins(page), after)
+
+
+def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env, node_cmd):
+    """The mixing tank under the two-loop PI (config/tank_two_loop.yaml): no Bode, one line."""
+    params = str(CONFIG / 'tank_two_loop.yaml')
+    for module in ('plant_node', 'controller_node'):
+        procs.start(module, node_cmd(module, '--params-file', params), env=ros_env)
+    dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
+    with headless_chromium() as driver:
+        driver.get(dashboard_url(dash))
+        wait = WebDriverWait(driver, WAIT)
+        line = 'controller two_loop_pi: the frequency analysis describes a SISO loop'
+        wait.until(lambda d: line in d.find_element(By.ID, 'robustness-reason').text)
+        panel = driver.find_element(By.ID, 'robustness')
+        assert panel.get_attribute('data-available') == 'false'
+        assert not driver.find_element(By.ID, 'robustness-body').is_displayed()
+        assert '\n' not in driver.find_element(By.ID, 'robustness-reason').text
+    assert not group_members(driver.service.process.pid)
