@@ -116,8 +116,8 @@ def loop_analysis(plant_values: Mapping[str, Any] | None,
         return _unavailable(f'the loop cannot be analysed: {exc}')
     pid = {'kp': config.kp, 'ti': config.ti, 'td': config.td, 'n': config.n, 'b': config.b,
            'c': config.c, 'sample_time': config.sample_time}
-    return {'available': True, 'reason': '', 'pid': {k: jsonable(v) for k, v in pid.items()}, 'w': jsonable(w),
-            'cases': cases}
+    return {'available': True, 'reason': '', 'pid': {k: jsonable(v) for k, v in pid.items()},
+            'w': jsonable(w), 'cases': cases}
 
 
 class RobustnessWorker:

@@ -187,8 +187,9 @@ class DashboardServer:
         if path is None:
             raise web.HTTPNotFound(text='no such file in runs_dir')
         body = await asyncio.get_running_loop().run_in_executor(None, path.read_bytes)
-        return web.Response(body=body, content_type=CONTENT_TYPES.get(
-            path.suffix.lower(), 'application/octet-stream'), headers={'Cache-Control': 'no-cache'})
+        kind = CONTENT_TYPES.get(path.suffix.lower(), 'application/octet-stream')
+        return web.Response(body=body, content_type=kind,
+                            headers={'Cache-Control': 'no-cache'})
 
     async def _websocket(self, request: web.Request) -> web.WebSocketResponse:
         ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=1 << 20)
