@@ -28,3 +28,6 @@ class DashboardConfig:
     discovery_period: float = param(1.0, 'period of the look at the graph (nodes, their '
                                     'services and state topics)', unit='s, wall clock',
                                     min=0.1, max=60.0, read_only=True)
+    runs_dir: str = param('', 'folder of past runs listed at /runs (tank-control run --out '
+                          'folders, also nested up to 3 deep); empty: none, the page says how '
+                          'to set it', read_only=True)

@@ -9,7 +9,12 @@ WebSocket messages (JSON objects, ``type`` says which): to the page ``hello`` (t
 ``samples`` (every ``update_period``: the rows since the last batch, store.py), and the
 backend's events (``node``, ``node_gone``, ``param``, ``state``, ``limits``, ``origin``,
 ``set_result``, ``command_result``); from the page ``set`` (``node``, ``name``, ``text``,
-``id``) and ``command`` (``node``, ``command``, ``id``).
+``id``) and ``command`` (``node``, ``command``, ``id``). The backend's ``robustness`` event
+(dashboard/robustness.py) is also part of the snapshot.
+
+The runs page (``/runs``, dashboard/runs.py): ``/api/runs`` lists the run folders under
+``runs_dir`` as JSON, ``/runs/file/<run>/<file>`` serves a file of one (read-only, only from
+inside ``runs_dir``).
 """
 from __future__ import annotations
 
@@ -23,12 +28,14 @@ from typing import Any, Protocol
 
 from aiohttp import WSMsgType, web
 
+from tank_control.dashboard.runs import list_runs, run_file
 from tank_control.dashboard.store import SampleStore
 
 #: Rows in one ``samples`` message at most (a page catching up gets several).
 BATCH_LIMIT = 20_000
 CONTENT_TYPES = {'.html': 'text/html', '.js': 'text/javascript', '.css': 'text/css',
-                 '.txt': 'text/plain', '.svg': 'image/svg+xml'}
+                 '.txt': 'text/plain', '.svg': 'image/svg+xml', '.png': 'image/png',
+                 '.json': 'application/json', '.csv': 'text/csv', '.yaml': 'text/plain'}
 Reply = Callable[[dict[str, Any]], None]
 
 
@@ -55,6 +62,7 @@ def load_assets() -> dict[str, tuple[bytes, str]]:
 
     walk(resources.files('tank_control.dashboard') / 'static', '/static/')
     assets['/'] = assets['/static/index.html']
+    assets['/runs'] = assets['/static/runs.html']
     return assets
 
 
@@ -69,8 +77,9 @@ class DashboardServer:
     ``broadcast`` hands an event to every page; ``stop()`` closes the pages and the thread."""
 
     def __init__(self, store: SampleStore, backend: Backend, host: str, port: int,
-                 update_period: float) -> None:
+                 update_period: float, runs_dir: str = '') -> None:
         self._store = store
+        self._runs_dir = runs_dir
         self._backend = backend
         self._host = host
         self._port = port
@@ -139,6 +148,8 @@ class DashboardServer:
         self._stop = asyncio.Event()
         app = web.Application()
         app.router.add_get('/ws', self._websocket)
+        app.router.add_get('/api/runs', self._runs)
+        app.router.add_get('/runs/file/{path:.*}', self._run_file)
         app.router.add_get('/{path:.*}', self._asset)
         runner = web.AppRunner(app, handle_signals=False, access_log=None)
         await runner.setup()
@@ -163,6 +174,21 @@ class DashboardServer:
             raise web.HTTPNotFound()
         body, content_type = found
         return web.Response(body=body, content_type=content_type,
+                            headers={'Cache-Control': 'no-cache'})
+
+    async def _runs(self, request: web.Request) -> web.Response:
+        table = await asyncio.get_running_loop().run_in_executor(None, list_runs,
+                                                                 self._runs_dir)
+        return web.json_response(table, dumps=lambda v: json.dumps(v, allow_nan=False),
+                                 headers={'Cache-Control': 'no-cache'})
+
+    async def _run_file(self, request: web.Request) -> web.StreamResponse:
+        path = run_file(self._runs_dir, request.match_info['path'])
+        if path is None:
+            raise web.HTTPNotFound(text='no such file in runs_dir')
+        body = await asyncio.get_running_loop().run_in_executor(None, path.read_bytes)
+        kind = CONTENT_TYPES.get(path.suffix.lower(), 'application/octet-stream')
+        return web.Response(body=body, content_type=kind,
                             headers={'Cache-Control': 'no-cache'})
 
     async def _websocket(self, request: web.Request) -> web.WebSocketResponse:

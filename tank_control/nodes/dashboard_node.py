@@ -34,6 +34,7 @@ from std_srvs.srv import Trigger
 from tank_control.core.node_specs import is_ros_own
 from tank_control.core.params import specs_of
 from tank_control.dashboard.config import DashboardConfig
+from tank_control.dashboard.robustness import RobustnessWorker
 from tank_control.dashboard.server import DashboardServer, Reply
 from tank_control.dashboard.store import SampleStore
 from tank_control.dashboard.values import jsonable, parse_text
@@ -139,11 +140,14 @@ class DashboardNode(Node):
         self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
                                  qos_profile_parameter_events)
         self.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self._on_diagnostics, 10)
+        self.robustness = RobustnessWorker(lambda message: self.server.broadcast(message))
         self.server = DashboardServer(self.store, self, str(values['host']), int(values['port']),
-                                      float(values['update_period']))
+                                      float(values['update_period']),
+                                      str(values['runs_dir']))
         try:
             self.url = self.server.start()
         except OSError as exc:
+            self.robustness.stop()
             raise ParameterError(f'host/port: {exc}') from None
         self.create_timer(PUMP_PERIOD, self._pump, clock=steady_clock())
         self.create_timer(float(values['discovery_period']), self._discover,
@@ -152,6 +156,7 @@ class DashboardNode(Node):
         self._discover()
 
     def destroy_node(self) -> None:
+        self.robustness.stop()
         self.server.stop()
         super().destroy_node()
 
@@ -179,7 +184,7 @@ class DashboardNode(Node):
         with self._lock:
             return {'nodes': {name: view.as_json() for name, view in self._views.items()},
                     'limits': dict(self._limits), 'origin': self._origin_ns / NS_PER_S,
-                    'topics': list(SIGNAL_TOPICS)}
+                    'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest}
 
     def request(self, message: dict[str, Any], reply: Reply) -> None:
         """A page's request (web thread): handled by the next pump in the executor thread."""
@@ -314,6 +319,7 @@ class DashboardNode(Node):
         for sub in view.state_subs.values():
             self.destroy_subscription(sub)
         self.server.broadcast({'type': 'node_gone', 'node': full})
+        self._update_robustness()
 
     def _look_at(self, view: _NodeView, name: str, namespace: str) -> None:
         """The node's Trigger services (commands) and std_msgs/String topics (states)."""
@@ -366,6 +372,7 @@ class DashboardNode(Node):
                         view.params = params
                         view.loaded, view.loading = True, False
                     self._update_limits(view)
+                    self._update_robustness()
                     self._send_node(view)
 
             def described(r: DescribeParameters.Response) -> None:
@@ -404,6 +411,7 @@ class DashboardNode(Node):
             self.server.broadcast(update)
         if updates:
             self._update_limits(view)
+            self._update_robustness()
 
     def _on_state(self, view: _NodeView, topic: str, msg: String) -> None:
         with self._lock:
@@ -445,6 +453,22 @@ class DashboardNode(Node):
                 return
             self._limits = table
         self.server.broadcast({'type': 'limits', 'limits': table})
+
+    def _update_robustness(self) -> None:
+        """Bode, Nyquist and margins of the loop of the shown plant and controller nodes
+        (the nodes with a ``plant`` / ``controller`` kind parameter), recomputed in the
+        worker's thread when their values changed (``dashboard/robustness.py``)."""
+        found: dict[str, dict[str, Any]] = {}
+        with self._lock:
+            for view in self._views.values():
+                if not view.loaded:
+                    continue
+                for role in ('controller', 'plant'):
+                    if role in view.params and role not in found:
+                        found[role] = {k: _from_json(e['value']) for k, e in view.params.items()
+                                       if not is_ros_own(k)}
+                        break
+        self.robustness.submit(found.get('plant'), found.get('controller'))
 
 
 def _from_json(value: Any) -> Any:

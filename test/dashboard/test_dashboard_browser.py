@@ -5,6 +5,8 @@ its set_parameters service, a refusal shows the node's own reason, a change made
 appears in the page, and a command button calls the controller's Trigger service."""
 from __future__ import annotations
 
+import math
+
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import GetParameters, SetParameters
@@ -170,3 +172,87 @@ def test_a_command_button_starts_the_autotuner_and_its_state_is_shown(page, prob
     page.find_element(By.CSS_SELECTOR, selector.replace('start_autotune', 'abort_autotune')).click()
     wait.until(lambda d: d.find_element(By.CSS_SELECTOR, state).text == 'aborted')
     assert controller_param(probe, 'autotune.state') == 'aborted'
+
+
+def expected_margins(kp):
+    """The analysis functions on the scenario's plant model and controller settings with
+    ``kp``: ``loop_report`` (Nyquist with the exact delay, margins, Ms) — what
+    ``tank-control analyze`` prints for the same parameters."""
+    from dataclasses import replace
+
+    from tank_control.core import scenario as core_scenario
+    from tank_control.core.analysis.robustness import loop_report
+    from tank_control.core.tuning.model import from_plant
+    from tank_control.harness.scenario_file import load_scenario
+    sections = load_scenario(SCENARIO).sections
+    plant = core_scenario.plant_setup(core_scenario.node_values(sections, 'plant'))
+    model = from_plant(plant.kind.name, plant.model)
+    config = core_scenario.controller_setup(
+        core_scenario.node_values(sections, 'controller')).settings.config
+    return loop_report(model, replace(config, kp=kp))
+
+
+def shown_margins(driver):
+    cells = driver.find_elements(By.CSS_SELECTOR, '#margins td.margin[data-case="0"]')
+    return {c.get_attribute('data-margin'): c.text for c in cells}
+
+
+def agrees(text, value, digits):
+    """``text`` is ``value`` rounded to ``digits`` significant digits (the page's display)."""
+    shown = float(text)
+    scale = 10 ** (math.floor(math.log10(abs(value))) - digits + 1)
+    return abs(shown - value) <= 0.5 * scale * (1 + 1e-9)
+
+
+def check_margins(shown, report):
+    assert shown['stable'] == ('yes' if report.stable else 'NO')
+    assert abs(float(shown['phase_margin']) - report.phase_margin) <= 0.05 + 1e-9
+    for key in ('gain_margin', 'ms', 'mt', 'delay_margin', 'wc', 'w180'):
+        assert agrees(shown[key], getattr(report, key), 3), (key, shown[key], report)
+
+
+def test_the_robustness_panel_shows_the_margins_of_the_analysis_and_follows_kp(page, probe):
+    wait = WebDriverWait(page, WAIT)
+    wait.until(lambda d: d.find_element(By.ID, 'robustness').get_attribute('data-available')
+               == 'true')
+    before = expected_margins(20.0)
+    assert before.stable and math.isfinite(before.gain_margin)
+    wait.until(lambda d: shown_margins(d).get('gain_margin'))
+    check_margins(shown_margins(page), before)
+    # Bode and Nyquist drawn: both charts hold the curve, the Nyquist canvas the case
+    assert int(page.find_element(By.ID, 'bode-mag').get_attribute('data-points')) > 100
+    assert page.find_element(By.ID, 'nyquist').get_attribute('data-cases') == '1'
+    # Bode: |L| = 1/GM at the phase crossover, as the curves sent to the page say
+    curves = page.execute_script('return window.tankRobustness.state.msg')
+    w, mag = curves['w'], curves['cases'][0]['mag']
+    i = min(range(len(w)), key=lambda k: abs(math.log(w[k] / before.w180)))
+    assert abs(mag[i] * before.gain_margin - 1.0) < 0.05
+
+    updates = int(page.find_element(By.ID, 'robustness').get_attribute('data-updates'))
+    done = call(probe, SetParameters, '/controller/set_parameters', SetParameters.Request(
+        parameters=[Parameter('kp', value=40.0).to_parameter_msg()])).results[0]
+    assert done.successful, done.reason
+    wait.until(lambda d: int(d.find_element(By.ID, 'robustness').get_attribute('data-updates'))
+               > updates and float(shown_margins(d)['gain_margin'])
+               != float(f'{before.gain_margin:.3g}'))
+    after = expected_margins(40.0)
+    assert after.gain_margin < before.gain_margin
+    check_margins(shown_margins(page), after)
+
+
+def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env, node_cmd):
+    """The mixing tank under the two-loop PI (config/tank_two_loop.yaml): no Bode, one line."""
+    params = str(CONFIG / 'tank_two_loop.yaml')
+    for module in ('plant_node', 'controller_node'):
+        procs.start(module, node_cmd(module, '--params-file', params), env=ros_env)
+    dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
+    with headless_chromium() as driver:
+        driver.get(dashboard_url(dash))
+        wait = WebDriverWait(driver, WAIT)
+        line = 'controller two_loop_pi: the frequency analysis describes a SISO loop'
+        wait.until(lambda d: line in d.find_element(By.ID, 'robustness-reason').text)
+        panel = driver.find_element(By.ID, 'robustness')
+        assert panel.get_attribute('data-available') == 'false'
+        assert not driver.find_element(By.ID, 'robustness-body').is_displayed()
+        assert '\n' not in driver.find_element(By.ID, 'robustness-reason').text
+    assert not group_members(driver.service.process.pid)

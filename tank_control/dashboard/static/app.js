@@ -60,7 +60,9 @@
         for (const name of Object.keys(state.nodes)) removeNode(name);
         for (const view of Object.values(msg.nodes)) setNode(view);
         refreshLimits();
+        if (msg.robustness) window.tankRobustness.update(msg.robustness);
         break;
+      case 'robustness': window.tankRobustness.update(msg); break;
       case 'samples': onSamples(msg); break;
       case 'node': setNode(msg.node); break;
       case 'node_gone': removeNode(msg.node); break;
