@@ -485,14 +485,17 @@ class InlineExecutor(cf.Executor):
 
 def local_executor(workers: int | None = None) -> cf.Executor:
     """Processes on this machine: ``workers`` (default every core this process may use);
-    one worker runs in this process."""
+    one worker runs in this process. Workers are forked from a fresh single-threaded server
+    process (``forkserver``), not from this one: a process with threads (DDS, a Dask client)
+    can be forked holding a lock that then never opens in the child."""
     n = workers or len(os.sched_getaffinity(0))
     if n < 1:
         raise SweepError(f'--workers {n}: at least 1')
     if n == 1:
         return InlineExecutor()
     import multiprocessing
-    return cf.ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context('fork'))
+    return cf.ProcessPoolExecutor(max_workers=n,
+                                  mp_context=multiprocessing.get_context('forkserver'))
 
 
 def dask_executor(address: str | None = None, scheduler_file: str | None = None
