@@ -322,7 +322,8 @@ def test_lockstep_across_two_hosts_equals_in_process_and_a_link_cut_loses_nothin
     copies = sum(1 for m in measured if m.stamp_ns == before_up + TS_NS)
     print(f'\n[two hosts, lockstep, static peers] tick 0 {run.tick0_after:.1f} s after the '
           f'start; {run.lease_report(measured[-1].log_ns)}; link down at tick '
-          f'{before_down // TS_NS} for {(up - down) / 1e9:.2f} s; next tick recorded '
+          f'{before_down // TS_NS} for {(up - down) / 1e9:.2f} s (last tick recorded before '
+          f'link up: {before_up // TS_NS}); next tick recorded '
           f'{(resumed - up) / 1e9:.2f} s after link up, in {copies} copies (re-sent while the '
           f'link was down); worst |ros - in-process| '
           f'{max(worst.values()):.3g}; UDP ports (ROS_DOMAIN_ID {ros_env["ROS_DOMAIN_ID"]}): '
