@@ -357,7 +357,7 @@ def test_wall_clock_across_two_hosts_fails_safe_within_stale_samples_and_resumes
     # One episode: fail-safe from then on while the link was down, control after it.
     episode = after[safe[0]:safe[-1] + 1]
     assert all(m.values == (FAIL_SAFE,) for m in episode)
-    assert episode[-1].stamp_ns >= up - TS_NS
+    assert all(m.values == (FAIL_SAFE,) for m in after[safe[0]:] if m.stamp_ns < up)
     resumed = after[safe[-1] + 1:]
     assert len(resumed) >= 10 and FAIL_SAFE not in {v for m in resumed for v in m.values}
     log = (out / 'logs' / 'controller.log').read_text()
