@@ -24,6 +24,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterEvent, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import qos_profile_parameter_events
@@ -42,7 +43,7 @@ from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (ORIGIN_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN, from_joint_state,
-                                         quiet_subscription_events, reliable_qos, stamp_to_ns)
+                                         reliable_qos, stamp_to_ns)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -131,11 +132,15 @@ class DashboardNode(Node):
         self.received = {topic: 0 for topic in SIGNAL_TOPICS}
         self.ignored = 0
         self.store = SampleStore(int(values['buffer_messages']))
+        self.missed = {topic: 0 for topic in SIGNAL_TOPICS}
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
                                      lambda msg, t=topic: self._on_signal(t, msg),
                                      DASHBOARD_SIGNAL_QOS,
-                                     event_callbacks=quiet_subscription_events())
+                                     event_callbacks=SubscriptionEventCallbacks(
+                                         message_lost=lambda info, t=topic: self._on_lost(
+                                             t, info.total_count_change),
+                                         use_default_callbacks=False))
         self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
                                  qos_profile_parameter_events)
@@ -170,6 +175,15 @@ class DashboardNode(Node):
         self.received[topic] += 1
         self.store.add(topic, (t_ns - self._origin_ns) / NS_PER_S, names, values)
 
+    def _on_lost(self, topic: str, count: int) -> None:
+        """The middleware's message-lost event: ``count`` messages of ``topic`` were published
+        but never reached this node (the publishers keep the last 10 for a reader that lags:
+        a starved dashboard process). Counted and shown on the page as "missed", never silent."""
+        with self._lock:
+            self.missed[topic] += count
+            missed = dict(self.missed)
+        self.server.broadcast({'type': 'missed', 'missed': missed})
+
     def _on_origin(self, msg: Time) -> None:
         origin = stamp_to_ns(msg)
         with self._lock:
@@ -184,7 +198,8 @@ class DashboardNode(Node):
         with self._lock:
             return {'nodes': {name: view.as_json() for name, view in self._views.items()},
                     'limits': dict(self._limits), 'origin': self._origin_ns / NS_PER_S,
-                    'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest}
+                    'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest,
+                    'missed': dict(self.missed)}
 
     def request(self, message: dict[str, Any], reply: Reply) -> None:
         """A page's request (web thread): handled by the next pump in the executor thread."""

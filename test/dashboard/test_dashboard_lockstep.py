@@ -1,11 +1,14 @@
 """A lockstep run with the dashboard attached (dashboard_node and a page in headless Chromium
 watching it) equals the in-process run to 1e-9 on every signal: the dashboard only subscribes,
-it cannot disturb the loop. And the page got every tick with the recorded values
-(config/ipdt_pid.yaml at 2x real time, 20 ticks per wall second: the publishers keep the last 10
-messages for a reader, so this leaves a starved dashboard process half a second; the rate the
-dashboard sustains is measured by bench/bench_dashboard.py, not asserted here)."""
+it cannot disturb the loop — not even when its process is frozen for seconds (SIGSTOP). And the
+page never hides a gap: every tick of the run is either shown with the recorded value or
+counted as "missed" (the middleware's message-lost count: the publishers keep the last 10
+messages for a reader that lags). config/ipdt_pid.yaml at 2x real time, 20 ticks per wall
+second; the rate the dashboard sustains without loss is measured by bench/bench_dashboard.py."""
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 
@@ -18,7 +21,13 @@ from tank_control.core.trace import Trace
 
 SCENARIO = CONFIG / 'ipdt_pid.yaml'
 DURATION = '20'        # s of plant time: 201 ticks of 0.1 s
+TICKS = 201
 RTF = '2'              # 20 ticks per wall second
+FROZEN = 3.0           # s the dashboard process is stopped: 60 ticks, beyond the writers' 10
+
+SHOWN = ('const m = window.tankDashboard.topics.measurement;'
+         'return m ? [m.t.map((t) => Math.round(t * 10)), m.ch.y] : [[], []];')
+MISSED = 'return window.tankDashboard.stats.missed.measurement || 0;'
 
 
 def tank_control(*args: str, env) -> subprocess.CompletedProcess:
@@ -28,32 +37,50 @@ def tank_control(*args: str, env) -> subprocess.CompletedProcess:
 
 def test_lockstep_with_the_dashboard_attached_equals_in_process(tmp_path, procs, ros_env,
                                                                 node_cmd):
+    import time
     dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
     with headless_chromium() as page:
         page.get(dashboard_url(dash))
         WebDriverWait(page, 60).until(lambda d: d.execute_script(
             'return document.getElementById("connection").textContent') == 'live')
-        ros = tank_control('run', str(SCENARIO), '--out', str(tmp_path / 'ros'), '--duration',
-                           DURATION, '--rtf', RTF, '--quiet', env=ros_env)
-        assert ros.returncode == 0, ros.stderr[-3000:]
+        run = procs.start('harness', [sys.executable, '-m', 'tank_control.harness.cli', 'run',
+                                      str(SCENARIO), '--out', str(tmp_path / 'ros'),
+                                      '--duration', DURATION, '--rtf', RTF, '--quiet'],
+                          env=ros_env)
+        # the page shows the run, then the dashboard process is frozen for FROZEN s
+        WebDriverWait(page, 120).until(lambda d: len(d.execute_script(SHOWN)[0]) >= 20)
+        os.kill(dash.popen.pid, signal.SIGSTOP)
+        try:
+            time.sleep(FROZEN)     # the freeze itself is what is tested: a duration, no event
+        finally:
+            os.kill(dash.popen.pid, signal.SIGCONT)
+        assert run.popen.wait(timeout=300) == 0, run.tail()
         trace = Trace.read_csv(tmp_path / 'ros' / 'trace.csv')
-        ticks = sorted(round(t * 10) for t in trace.t)
-        # every tick of the run reaches the page (the last batch within one update period)
-        script = ('const m = window.tankDashboard.topics.measurement;'
-                  'return m ? m.t.map((t) => Math.round(t * 10)) : [];')
-        WebDriverWait(page, 60).until(
-            lambda d: set(ticks) <= set(d.execute_script(script)))
+        ticks = [round(t * 10) for t in trace.t]
+        assert ticks == list(range(TICKS))
+
+        def accounted(d) -> bool:
+            shown = {k for k in d.execute_script(SHOWN)[0] if k < TICKS}
+            return len(shown) + d.execute_script(MISSED) >= TICKS
+        # every tick is shown or counted as missed (the last batch within an update period)
+        WebDriverWait(page, 60).until(accounted)
+        shown_t, shown_y = page.execute_script(SHOWN)
+        missed = page.execute_script(MISSED)
         assert page.execute_script('return window.tankDashboard.stats.lost') == 0
+        assert missed > 0, 'the frozen dashboard lost nothing: the freeze did not happen'
+        assert int(page.find_element('id', 'missed').text) >= missed
         # the values shown are the ones recorded (the plant may tick past the run's end)
-        shown = page.execute_script('const m = window.tankDashboard.topics.measurement;'
-                                    'return [m.t, m.ch.y];')
-        by_tick = dict(zip((round(t * 10) for t in shown[0]), shown[1]))
-        np.testing.assert_array_equal([by_tick[k] for k in ticks], trace.columns['y.y'])
+        by_tick = dict(zip(shown_t, shown_y))
+        recorded = dict(zip(ticks, trace.columns['y.y']))
+        assert {k: by_tick[k] for k in by_tick if k < TICKS} == {
+            k: recorded[k] for k in by_tick if k < TICKS}
+        print(f'\n[dashboard frozen {FROZEN} s] shown {sum(k < TICKS for k in by_tick)} of '
+              f'{TICKS} ticks, missed (message lost) {missed}')
     ref = tank_control('run', str(SCENARIO), '--out', str(tmp_path / 'ref'), '--duration',
                        DURATION, '--in-process', '--quiet', env=ros_env)
     assert ref.returncode == 0, ref.stderr[-3000:]
     expected = Trace.read_csv(tmp_path / 'ref' / 'trace.csv')
-    assert list(trace.columns) == list(expected.columns) and len(trace) == len(expected) == 201
+    assert list(trace.columns) == list(expected.columns) and len(trace) == len(expected) == TICKS
     for name in expected.columns:
         np.testing.assert_allclose(trace.columns[name], expected.columns[name], rtol=0,
                                    atol=1e-9, err_msg=name)

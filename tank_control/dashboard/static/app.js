@@ -16,7 +16,8 @@
     limits: {},         // input channel -> [min, max]
     nodes: {},          // '/controller' -> node view (server.py, dashboard_node.py)
     charts: {},         // id -> {el, plot, title, sources: [{topic, channel, label}], limits}
-    stats: {received: 0, byTopic: {}, lost: 0, batches: 0, frames: 0, fps: 0, restarts: 0},
+    stats: {received: 0, byTopic: {}, lost: 0, missed: {}, batches: 0, frames: 0, fps: 0,
+            restarts: 0},
     dirty: false,
     nextId: 1,
   };
@@ -61,8 +62,10 @@
         for (const view of Object.values(msg.nodes)) setNode(view);
         refreshLimits();
         if (msg.robustness) window.tankRobustness.update(msg.robustness);
+        if (msg.missed) onMissed(msg.missed);
         break;
       case 'robustness': window.tankRobustness.update(msg); break;
+      case 'missed': onMissed(msg.missed); break;
       case 'samples': onSamples(msg); break;
       case 'node': setNode(msg.node); break;
       case 'node_gone': removeNode(msg.node); break;
@@ -108,6 +111,13 @@
     $('#lost').textContent = state.stats.lost;
     state.dirty = true;
     schedule();
+  }
+
+  // Messages the publishers sent that never reached the dashboard node (the middleware's
+  // message-lost count per topic, totals since the node started).
+  function onMissed(missed) {
+    state.stats.missed = missed;
+    $('#missed').textContent = Object.values(missed).reduce((a, b) => a + b, 0);
   }
 
   function trim(buf) {
