@@ -3,7 +3,7 @@
 The first-order Taylor expansion of 003 §1 around ``x_op = [V_op, T_op]`` (``V_op = C·h_op²``)
 and the operating-point inflows ``w_op = [F_H, F_C, F_D, T_H, T_C, T_D]``:
 
-    dx/dt = f(x_op, w_op) + A·(x − x_op) + B·(w − w_op)        (A, B: ``MixingTank.jacobian``)
+    dx/dt = f(x_op, w_op) + A·(x − x_op) + B·(w − w_op)        (A, B: ``mixing_tank.jacobian``)
     h = h_op + (V − V_op)/(2·C·h_op),   T_out(t) = T(t − τ),   F_C(t) = F_Cin(t − τ_C)
 
 The constant term ``f(x_op, w_op)`` (003's k_const) makes the equilibrium of the linear
@@ -29,7 +29,7 @@ from scipy.linalg import expm
 from tank_control.core.interfaces import NS_PER_S, StatusValue, seconds
 from tank_control.core.params import check_config, config_from
 from tank_control.core.plants.delay_line import DelayLine
-from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
+from tank_control.core.plants.mixing_tank import MixingTankConfig, jacobian
 from tank_control.core.plants.siso import StepLength, as_floats
 
 _SHARED = ('C', 'alpha', 'F_H', 'F_C', 'F_D', 'T_H', 'T_C', 'T_D', 'h_op', 'T_op', 'tau_cold',
@@ -61,9 +61,7 @@ LinearTankConfig = dataclasses.make_dataclass(
 def _expanded(cfg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(A, B, f0, w_op)``: the Jacobians at the operating point, the nonlinear right-hand
     side there and the operating-point inflows (module docstring)."""
-    tank = MixingTank(MixingTankConfig(**{name: getattr(cfg, name) for name in (
-        'C', 'alpha', 'F_H', 'F_C', 'F_D', 'T_H', 'T_C', 'T_D', 'h_op', 'T_op')}))
-    a, b = tank.jacobian()
+    a, b = jacobian(cfg)
     w_op = np.array([cfg.F_H, cfg.F_C, cfg.F_D, cfg.T_H, cfg.T_C, cfg.T_D])
     v_op = cfg.C * cfg.h_op ** 2
     f_in = cfg.F_H + cfg.F_C + cfg.F_D

@@ -151,6 +151,30 @@ def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]
     return _Inflow(sum(flows), sum((f_1 * t_1, f_2 * t_2, f_3 * t_3)), t_low, t_high)
 
 
+def jacobian(cfg: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous-time (A, B) of 003 §1 at the operating point of ``cfg`` (any object with
+    ``C, alpha, F_H, F_C, F_D, T_H, T_C, T_D, h_op, T_op``), derived analytically with
+    x = [V, T] (cm³, °C), u = [F_H, F_C, F_D, T_H, T_C, T_D] (cm³/s, °C).
+
+    ∂(dV/dt)/∂V = −F(h)/(4V) since F = α·(V/C)^(1/4); ∂(dT/dt)/∂V = −(Q − F_in·T)/V²;
+    ∂(dT/dt)/∂T = −F_in/V; ∂(dT/dt)/∂F_i = (T_i − T)/V; ∂(dT/dt)/∂T_i = F_i/V.
+    """
+    V = cfg.C * cfg.h_op ** 2
+    T = cfg.T_op
+    flows = (cfg.F_H, cfg.F_C, cfg.F_D)
+    temps = (cfg.T_H, cfg.T_C, cfg.T_D)
+    f_in = sum(flows)
+    heat = sum(f * t for f, t in zip(flows, temps))
+    outflow = cfg.alpha * math.sqrt(math.sqrt(V / cfg.C))        # F(h_op) = α·√h_op
+    a = np.array([[-outflow / (4.0 * V), 0.0],
+                  [-(heat - f_in * T) / V ** 2, -f_in / V]])
+    b = np.zeros((2, 6))
+    b[0, :3] = 1.0
+    b[1, :3] = [(t - T) / V for t in temps]
+    b[1, 3:] = [f / V for f in flows]
+    return a, b
+
+
 class MixingTank:
     """The nonlinear mixing tank of 003 §1 with delays on F_Cin (τ_C) and T_out (τ).
 
@@ -319,26 +343,8 @@ class MixingTank:
 
     # ---- linear model --------------------------------------------------------------
     def jacobian(self) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous-time (A, B) at the operating point (h_op, T_op, F_*, T_*), derived
-        analytically from 003 §1 with x = [V, T], u = [F_H, F_C, F_D, T_H, T_C, T_D].
-
-        ∂(dV/dt)/∂V = −F(h)/(4V) since F = α·(V/C)^(1/4); ∂(dT/dt)/∂V = −(Q − F_in·T)/V²;
-        ∂(dT/dt)/∂T = −F_in/V; ∂(dT/dt)/∂F_i = (T_i − T)/V; ∂(dT/dt)/∂T_i = F_i/V.
-        """
-        cfg = self._config
-        V = cfg.C * cfg.h_op ** 2
-        T = cfg.T_op
-        flows = (cfg.F_H, cfg.F_C, cfg.F_D)
-        temps = (cfg.T_H, cfg.T_C, cfg.T_D)
-        f_in = sum(flows)
-        heat = sum(f * t for f, t in zip(flows, temps))
-        a = np.array([[-self._outflow(V) / (4.0 * V), 0.0],
-                      [-(heat - f_in * T) / V ** 2, -f_in / V]])
-        b = np.zeros((2, 6))
-        b[0, :3] = 1.0
-        b[1, :3] = [(t - T) / V for t in temps]
-        b[1, 3:] = [f / V for f in flows]
-        return a, b
+        """Continuous-time (A, B) at this tank's operating point: :func:`jacobian`."""
+        return jacobian(self._config)
 
     def linearize(self, ts: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Discrete (A, B, C, D) at the operating point, sampling ``ts`` [s] (003 eqs. 4–6).
