@@ -15,7 +15,8 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
-from support.browser import dashboard_url, group_members, headless_chromium
+from support.browser import dashboard_url, headless_chromium
+from support.procfs import group_members
 from support.ros2cli import ros2
 
 SCENARIO = CONFIG / 'fopdt_autotune.yaml'

@@ -16,6 +16,7 @@ import numpy as np
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
 from support.browser import dashboard_url, headless_chromium
+from support.procfs import processes_with
 
 from tank_control.core.trace import Trace
 
@@ -93,20 +94,6 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _running_with(text: str) -> list[int]:
-    from pathlib import Path
-    found = []
-    for entry in Path('/proc').iterdir():
-        if entry.name.isdigit():
-            try:
-                cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode()
-            except OSError:
-                continue
-            if text in cmdline:
-                found.append(int(entry.name))
-    return found
-
-
 def test_tank_control_run_dashboard_serves_the_run_and_stops_with_it(tmp_path, procs, ros_env):
     """`tank-control run ... --dashboard PORT` starts dashboard_node for the run: the page shows
     the run's measurement while it goes, and the node ends with the run."""
@@ -128,7 +115,7 @@ def test_tank_control_run_dashboard_serves_the_run_and_stops_with_it(tmp_path, p
                   'return m ? m.t.length : 0;')
         WebDriverWait(page, 60).until(lambda d: d.execute_script(script) >= 20)
     assert harness.popen.wait(timeout=300) == 0, harness.tail()
-    assert _running_with(f'port:={port}') == []
+    assert processes_with(f'port:={port}') == []
     assert len(Trace.read_csv(out / 'trace.csv')) == 401
 
 

@@ -20,7 +20,8 @@ import pytest
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
-from support.browser import dashboard_url, group_members, headless_chromium
+from support.browser import dashboard_url, headless_chromium
+from support.procfs import group_members
 
 from tank_control.dashboard.runs import list_runs, run_file
 

@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 from support import CONFIG
 from support.mcap import read_mcap
+from support.procfs import processes_with
 from support.standins import SCENARIO, standin_command, standin_scenario
 
 from tank_control.core.scenario import run_in_process
@@ -41,21 +42,6 @@ SIGNALS = {'SIGTERM': signal.SIGTERM, 'SIGHUP': signal.SIGHUP, 'SIGKILL': signal
 
 
 # ------------------------------------------------------------------------------------ helpers
-def processes_with(text: str) -> list[int]:
-    """Pids of the processes whose command line contains ``text``."""
-    pids = []
-    for entry in Path('/proc').iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            cmdline = (entry / 'cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace')
-        except OSError:
-            continue
-        if text in cmdline:
-            pids.append(int(entry.name))
-    return pids
-
-
 def wait_gone(pids: list[int], timeout: float) -> list[int]:
     """Wait (on pidfds: the kernel says when a process ends) until every process of ``pids``
     has ended; return those still running after ``timeout`` seconds."""

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from support.procfs import group_members
+
 from tank_control.harness.processes import ManagedProcess, _die_with_parent
 
 CHROMIUM = Path('/usr/bin/chromium')
@@ -51,21 +53,6 @@ def headless_chromium(width: int = 1400, height: int = 1000) -> Iterator[object]
             deadline = time.monotonic() + 30.0
             while group_members(pid) and time.monotonic() < deadline:
                 time.sleep(0.05)                     # SIGKILL delivered; the kernel ends them
-
-
-def group_members(pgid: int) -> list[int]:
-    """Pids of the live (not zombie) processes in process group ``pgid`` (from /proc)."""
-    members = []
-    for entry in Path('/proc').iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / 'stat').read_bytes().rsplit(b')', 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[2]) == pgid and fields[0] != b'Z':   # state, ppid, pgrp; zombies ended
-            members.append(int(entry.name))
-    return members
 
 
 def dashboard_url(proc: ManagedProcess, timeout: float = 60.0) -> str:
