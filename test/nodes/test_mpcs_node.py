@@ -17,13 +17,14 @@ fast as possible), controller (MPCS, QP) and reference in three processes.
 """
 from __future__ import annotations
 
+import threading
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import get_default_context
 from sensor_msgs.msg import JointState
 from support import SCENARIOS
 
@@ -32,12 +33,12 @@ from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds.base import resolve
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build
+from tank_control.harness.recorder import Recorder
+from tank_control.harness.trace import GATED_DISTURBANCE
 from tank_control.nodes.messages import ORIGIN_QOS, from_joint_state, ns_to_stamp, to_joint_state
 
 NODES = ('plant', 'controller', 'reference')
 TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
-#: The recorder keeps every sample: the lockstep loop runs faster than the probe spins.
-RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 TS_NS = 1_000_000_000
 
 
@@ -61,15 +62,27 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
     # the file's clock mode is the harness's; here every node is told lockstep directly
     path = params_file.write({'/**': {'clock_mode': 'lockstep'}, **{n: params[n] for n in NODES}},
                              tmp_path / 'mpcs.yaml')
-    node = probe.node
-    seen: dict[str, dict[int, tuple]] = {topic: {} for topic in TOPICS}
+    # The harness's recorder with its lockstep gate, spun in a thread of its own: the plant
+    # starts tick k+1 only once tick k is recorded whole, so nothing is lost however slowly
+    # this process runs (a subscriber of its own would lose samples the publishers no longer
+    # keep when the test thread is starved).
+    recorder = Recorder(get_default_context(), name='test_mpcs_recorder')
+    recorder.enable_gate()
+    spinning = threading.Event()
+    spinning.set()
+    spinner = threading.Thread(target=lambda: [recorder.spin_once(0.05)
+                                               for _ in iter(spinning.is_set, False)])
+    spinner.start()
+    try:
+        _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, recorder)
+    finally:
+        spinning.clear()
+        spinner.join()
+        recorder.destroy()
 
-    def record(topic):
-        def callback(msg):
-            stamp, names, values = from_joint_state(msg)
-            seen[topic].setdefault(stamp, (names, values))
-        return callback
-    subs = [node.create_subscription(JointState, t, record(t), RECORD_QOS) for t in TOPICS]
+
+def _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, recorder):
+    node = probe.node
     plant_diag: list[dict[str, str]] = []
     node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: plant_diag.extend(
         {kv.key: kv.value for kv in st.values} for st in msg.status if st.name == 'plant'), 50)
@@ -79,11 +92,15 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
          st.message, {kv.key: kv.value for kv in st.values})
         for st in msg.status if st.name.startswith('controller')), 50)
     for name in NODES:
-        procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
+        argv = node_cmd(f'{name}_node', '--params-file', str(path))
+        if name == 'plant':
+            argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']     # through the recorder
+        procs.start(name, argv, env=ros_env)
 
     def logs() -> str:
         return '\n'.join(p.tail() for p in procs.processes.values())
-    assert probe.wait_for(lambda: all(s.get_publisher_count() for s in subs), 30), logs()
+    assert probe.wait_for(lambda: all(recorder.publisher_count(t) for t in TOPICS)
+                          and recorder.subscriber_count(GATED_DISTURBANCE), 30), logs()
     controller = AsyncParameterClient(node, 'controller')
     plant = AsyncParameterClient(node, 'plant')
     assert probe.wait_for(lambda: controller.services_are_ready()
@@ -103,7 +120,7 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
     assert 'analytic' in desc[1].description
 
     def last(topic: str) -> int:
-        return max(seen[topic], default=-1)
+        return recorder.latest.get(topic, -1)
 
     # run to tick >= 100, pause, let the answers of the last published tick arrive
     assert set_params(plant, **{'lockstep.paused': False}).results[0].successful
@@ -168,9 +185,12 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
                      duration=float(last_tick), noise=built.noise.sample)
     assert inner.config.horizon == 300
 
+    seen: dict[str, dict[int, tuple]] = {topic: {} for topic in TOPICS}
+    for m in recorder.signal_messages():
+        assert seen[m.topic].setdefault(m.stamp_ns, (m.names, m.values)) == (m.names, m.values)
     worst: dict[str, float] = {}
     for topic, prefix in TOPICS.items():
-        assert all(k * TS_NS in seen[topic] for k in range(last_tick + 1)), topic   # KEEP_ALL
+        assert all(k * TS_NS in seen[topic] for k in range(last_tick + 1)), topic   # the gate
         names = seen[topic][0][0]
         for i, name in enumerate(names):
             ros = np.array([seen[topic][k * TS_NS][1][i] for k in range(last_tick + 1)])
