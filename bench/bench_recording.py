@@ -1,0 +1,142 @@
+"""run.mcap of an in-process run: direct CDR encoding against rclpy's serializer, in one run.
+
+An in-process run writes its trace as the messages a lockstep run carries (``/clock`` and four
+``sensor_msgs/JointState`` per tick; ``harness/recording.py`` ``write_trace``). Two encoders,
+interleaved repeat by repeat so both see the same machine:
+
+* ``JointStateCdr`` / ``clock_cdr`` (this tree): the CDR bytes packed with ``struct``;
+* the baseline, what the harness did before: build the ROS message object and call
+  ``rclpy.serialization.serialize_message`` (the same bytes; test_harness_outputs.py checks the
+  round trip).
+
+Reported: µs per JointState message (2 channels) and rows (ticks) per second of writing a whole
+trace to run.mcap, medians (min–max) of ``--repeats`` and the ratio of the medians.
+
+    .venv/bin/python bench/bench_recording.py [--repeats 5] [--messages 20000]
+                                              [--scenario config/scenarios/tf_002_pi.yaml]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class SerializedTraceMessages:
+    """The baseline: ``TraceMessages`` with every message built and serialized by rclpy."""
+
+    def __init__(self, recording, names, t0_ns: int = 0) -> None:
+        from tank_control.harness.recording import RawMessage
+        from tank_control.harness.trace import TOPIC_PREFIX
+        self.recording, self.t0_ns, self.raw = recording, t0_ns, RawMessage
+        index = {name: i for i, name in enumerate(names)}
+        self._t = index['t']
+        self._topics = []
+        for topic, prefix in TOPIC_PREFIX.items():
+            channels = [n.split('.', 1)[1] for n in names if n.startswith(prefix + '.')]
+            if channels or topic == 'disturbance':
+                self._topics.append(('/' + topic, channels,
+                                     [index[f'{prefix}.{n}'] for n in channels]))
+
+    def add(self, row) -> None:
+        from rclpy.serialization import serialize_message
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState
+        t_ns = self.t0_ns + int(round(float(row[self._t]) * 1e9))
+        sec, nanosec = divmod(t_ns, 1_000_000_000)
+        clock = Clock()
+        clock.clock.sec, clock.clock.nanosec = sec, nanosec
+        add = self.recording.add
+        add(self.raw('/clock', 'rosgraph_msgs/msg/Clock', serialize_message(clock), t_ns, t_ns))
+        for topic, channels, columns in self._topics:
+            msg = JointState()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            msg.name = list(channels)
+            msg.position = [float(row[i]) for i in columns]
+            add(self.raw(topic, 'sensor_msgs/msg/JointState', serialize_message(msg), t_ns, t_ns))
+
+
+def per_message(kind: str, count: int) -> float:
+    """µs per encoded JointState of 2 channels."""
+    from tank_control.harness.recording import JointStateCdr
+    names, values = ('h', 'T_out'), (81.0, 33.5)
+    if kind == 'cdr':
+        encoder = JointStateCdr(names)
+        start = time.perf_counter()
+        for k in range(count):
+            encoder.encode(k, 0, values)
+    else:
+        from rclpy.serialization import serialize_message
+        from sensor_msgs.msg import JointState
+        start = time.perf_counter()
+        for k in range(count):
+            msg = JointState()
+            msg.header.stamp.sec = k
+            msg.name = list(names)
+            msg.position = list(values)
+            serialize_message(msg)
+    return 1e6 * (time.perf_counter() - start) / count
+
+
+def whole_trace(kind: str, trace, folder: Path) -> float:
+    """Rows per second of writing ``trace`` to a run.mcap."""
+    from tank_control.harness.recording import McapRecording, TraceMessages
+    cls = TraceMessages if kind == 'cdr' else SerializedTraceMessages
+    path = folder / f'{kind}.mcap'
+    start = time.perf_counter()
+    with McapRecording(path) as recording:
+        rows = cls(recording, trace.names)
+        for row in zip(*trace.columns.values()):
+            rows.add(row)
+    elapsed = time.perf_counter() - start
+    path.unlink()
+    return len(trace) / elapsed
+
+
+def _median_range(values: list[float], fmt: str) -> str:
+    return f'{statistics.median(values):{fmt}} ({min(values):{fmt}}–{max(values):{fmt}})'
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--repeats', type=int, default=5)
+    parser.add_argument('--messages', type=int, default=20000)
+    parser.add_argument('--scenario', default=str(REPO / 'config/scenarios/tf_002_pi.yaml'))
+    args = parser.parse_args()
+    from tank_control.core import params_file
+    from tank_control.core.scenario import run_in_process
+    trace = run_in_process(params_file.read(args.scenario))
+    load_before = os.getloadavg()
+    results: dict[tuple[str, str], list[float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for repeat in range(args.repeats):
+            for kind in ('cdr', 'rclpy'):
+                us = per_message(kind, args.messages)
+                rate = whole_trace(kind, trace, Path(tmp))
+                results.setdefault(('message', kind), []).append(us)
+                results.setdefault(('trace', kind), []).append(rate)
+                print(f'repeat {repeat + 1}: {kind}: {us:.2f} µs/message, {rate:.0f} rows/s '
+                      f'({len(trace)} rows)', flush=True)
+    load_after = os.getloadavg()
+    print(f'\nload average (1 min) before {load_before[0]:.2f}, after {load_after[0]:.2f}; '
+          f'{args.repeats} repeats, medians (min–max); trace of {Path(args.scenario).name}, '
+          f'{len(trace)} rows\n')
+    print('| measurement | JointStateCdr | rclpy serialize_message | ratio |')
+    print('|---|---|---|---|')
+    for what, unit, fmt, better_low in (('message', 'µs per JointState message', '.2f', True),
+                                        ('trace', 'rows/s writing run.mcap', '.0f', False)):
+        cdr, ser = results[(what, 'cdr')], results[(what, 'rclpy')]
+        ratio = (statistics.median(ser) / statistics.median(cdr) if better_low
+                 else statistics.median(cdr) / statistics.median(ser))
+        print(f'| {unit} | {_median_range(cdr, fmt)} | {_median_range(ser, fmt)} | '
+              f'{ratio:.1f}x |')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
