@@ -25,7 +25,7 @@ from tank_control.core.control.pid import PidConfig
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup, plant_setup
 from tank_control.dashboard.values import jsonable
-from tank_control.harness.analysis import PID_KINDS, loop_cases
+from tank_control.core.analysis.loops import PID_KINDS, loop_cases
 
 #: Points of the Bode and Nyquist curves sent to the page.
 CURVE_POINTS = 600

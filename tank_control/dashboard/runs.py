@@ -3,7 +3,7 @@
 A run folder is one ``tank-control run --out`` folder (docs/harness.md): it holds
 ``metrics.json`` (scenario, title, complete flag, measured sections) and, when they were
 written, ``plot.png`` and ``analysis.png``. The key metrics are those of a sweep's table
-(``harness/sweep.flat_metrics``: IAE, worst step, input use, loop robustness). Files are served
+(``core/analysis/metrics_row.flat_metrics``: IAE, worst step, input use, loop robustness). Files are served
 only from inside ``runs_dir``: :func:`run_file` refuses any path that resolves outside it.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from tank_control.dashboard.values import jsonable
-from tank_control.harness.sweep import flat_metrics
+from tank_control.core.analysis.metrics_row import flat_metrics
 
 #: How deep run folders are looked for below ``runs_dir`` (a sweep nests its runs).
 MAX_DEPTH = 3

@@ -213,7 +213,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
-    from tank_control.harness.analysis import loop_cases
+    from tank_control.core.analysis.loops import loop_cases
     cases, analysis_note = [], ''
     if 'controller' in scenario.harness.nodes and controller_params:
         try:

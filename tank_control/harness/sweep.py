@@ -37,7 +37,7 @@ import re
 import tempfile
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -46,6 +46,7 @@ import numpy as np
 import yaml
 
 from tank_control.core import node_specs
+from tank_control.core.analysis.metrics_row import flat_metrics
 from tank_control.core.params import ConfigError, specs_of, unknown_reason
 from tank_control.core.scenario import HARNESS
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
@@ -422,52 +423,6 @@ def _run_ros(scenario: Scenario) -> tuple[dict[str, Any], Any]:
         except runner.RunInterrupted:          # a stop signal stops the sweep (its files are
             raise KeyboardInterrupt from None  # temporary), finished runs are kept
         return result.metrics, result.trace
-
-
-def _worst(values: Iterable[Any]) -> float | None:
-    """The largest of the values given (None ignored; None if there are none)."""
-    numbers = [float(v) for v in values if v is not None]
-    if not numbers:
-        return None
-    return max(numbers)
-
-
-def flat_metrics(metrics: Mapping[str, Any]) -> dict[str, Any]:
-    """One row of numbers per run from ``metrics.json``'s measured sections: per output the
-    IAE and ISE, the worst setpoint step (overshoot, rise, settling, steady-state error) and
-    the worst disturbance step (peak error, recovery); per input min, max, total variation
-    and constraint violations; the loop's robustness on the plant when it can be analysed.
-    A step that does not settle in its window has settling time ``inf``."""
-    row: dict[str, Any] = {}
-    for name, out in (metrics.get('outputs') or {}).items():
-        row[f'{name}.iae'] = out.get('iae')
-        row[f'{name}.ise'] = out.get('ise')
-        steps = out.get('steps') or []
-        if steps:
-            row[f'{name}.overshoot_pct'] = _worst(s.get('overshoot_pct') for s in steps)
-            row[f'{name}.rise_time'] = _worst(
-                math.inf if s.get('rise_time') is None else s['rise_time'] for s in steps)
-            row[f'{name}.settling_time'] = _worst(
-                math.inf if s.get('settling_time') is None else s['settling_time'] for s in steps)
-            row[f'{name}.ss_error'] = _worst(abs(s['ss_error']) for s in steps
-                                             if s.get('ss_error') is not None)
-        loads = out.get('disturbance_steps') or []
-        if loads:
-            row[f'{name}.peak_error'] = _worst(s.get('peak_error') for s in loads)
-            row[f'{name}.recovery_time'] = _worst(
-                math.inf if s.get('recovery_time') is None else s['recovery_time'] for s in loads)
-    for name, inp in (metrics.get('inputs') or {}).items():
-        for key in ('min', 'max', 'total_variation', 'constraint_violations'):
-            row[f'{name}.{key}'] = inp.get(key)
-    analysis = metrics.get('loop_analysis')
-    if isinstance(analysis, dict):
-        plant = next((v for k, v in analysis.items() if k.startswith('plant')), None)
-        if plant:
-            for key in ('stable', 'gain_margin', 'phase_margin', 'delay_margin', 'ms', 'mt'):
-                value = plant.get(key)
-                row[f'loop.{key}'] = float(value) if value is not None else None
-    return {k: (float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
-                else v) for k, v in row.items()}
 
 
 # ------------------------------------------------------------------------------ executors

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from support import CONFIG
+from tank_control.core.analysis.metrics_row import flat_metrics
 from tank_control.harness import cli, runner, sweep
 from tank_control.harness.scenario_file import ScenarioError
 
@@ -113,7 +114,7 @@ def test_a_sweep_row_is_the_in_process_run_with_those_overrides(tmp_path):
     for row in result.rows:
         single = runner.run(MDP_PID, tmp_path / f'run{row["run"]}', duration=200.0,
                             in_process=True, overrides=[f'plant.dead_time={row["plant.dead_time"]}'])
-        expected = sweep.flat_metrics(single.metrics)
+        expected = flat_metrics(single.metrics)
         assert {k: row[k] for k in expected} == expected
         assert row['y.overshoot_pct'] == single.metrics['outputs']['y']['steps'][0][
             'overshoot_pct']
