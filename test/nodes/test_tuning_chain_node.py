@@ -45,6 +45,7 @@ class Operator:
         self.states: list[str] = []
         self.diag: dict[str, str] = {}
         self.diag_level = 0
+        self.diag_message = ''
         self.sub = node.create_subscription(String, '/controller/autotune_state',
                                             lambda m: self.states.append(m.data), STATE_QOS)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
@@ -63,6 +64,7 @@ class Operator:
         for status in msg.status:
             if status.name.startswith('controller:'):
                 self.diag = {kv.key: kv.value for kv in status.values}
+                self.diag_message = status.message
                 self.diag_level = int.from_bytes(status.level, 'little') \
                     if isinstance(status.level, bytes) else int(status.level)
 
@@ -148,6 +150,13 @@ def test_live_robustness_and_guard_of_a_pid(procs, ros_env, node_cmd, probe, tmp
     warning = op.wait_param('robustness.warning', bool)
     assert f'Ms {slower.ms:.3g} > robustness.ms_max 3' in warning
     assert probe.wait_for(lambda: op.diag_level == 1 and 'robustness.warning' in op.diag, 20)
+    # 001's sampling advice follows the model: L = 0.3 s puts sample_time 0.1 s above 0.3·L
+    assert op.get('sampling.warning')['sampling.warning'] == ''
+    assert all(r.successful for r in op.set(op.controller, tuning__dead_time=0.3))
+    advice = op.wait_param('sampling.warning', bool)
+    assert advice.startswith('sample_time 0.1 s is above 0.3·L = 0.09 s'), advice
+    assert probe.wait_for(lambda: 'sampling.warning: sample_time 0.1 s' in op.diag_message, 20)
+    assert probe.wait_for(lambda: 'sampling.warning: sample_time 0.1 s' in op.logs(), 20)
 
 
 def test_preview_rule_change_apply_verify_revert_over_dds(procs, ros_env, node_cmd, probe,

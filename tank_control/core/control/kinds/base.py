@@ -22,6 +22,7 @@ from tank_control.core.params import (ConfigError, ParamSpec, coerce, config_fro
                                       param, specs_of, unknown_reason)
 from tank_control.core.tuning.model import KINDS as MODEL_KINDS, ProcessModel
 from tank_control.core.tuning.rules import RULES, tune
+from tank_control.core.tuning.sampling import sampling_advice
 
 BIG = 1e12
 
@@ -224,6 +225,15 @@ class RobustnessResults:
                        'exceeds robustness.ms_max (e.g. after the model changed)', 'warning')
 
 
+@dataclass(frozen=True)
+class SamplingResults:
+    """001's sampling-time advice on the process model (``core/tuning/sampling.py``)."""
+
+    warning: str = param('', "non-empty when sample_time is above 001's advice for the process "
+                         'model of the analysis (T ≈ 0.3·L, Oppelt; T ≈ (0.1…0.3)·Tu, '
+                         'Ziegler–Nichols)', name='sampling.warning', read_only=True)
+
+
 ROBUSTNESS_NAMES = ('kp', 'ti', 'td', 'n', 'sample_time', 'direct_action', 'robustness.ms_max')
 """Parameters whose change the guard checks (the loop's gains, and the bound itself)."""
 
@@ -262,12 +272,23 @@ class LoopWatch:
         self.model = model
         self.ms_max = ms_max
         self._monitor = RobustnessMonitor(analyse, key)
+        self._sampling_key: Any = None
+        self._sampling = ''
 
     def report(self, config: Any) -> LoopReport | None:
         return self._monitor.report(self.model, config)
 
     def values(self, config: Any) -> dict[str, Any]:
         return robustness_values(self.report(config), self.ms_max)
+
+    def sampling(self, sample_time: float) -> dict[str, Any]:
+        """``sampling.warning``: 001's advice for ``sample_time`` [s] on the model (kept until
+        the model or the sample time changes)."""
+        key = (self.model, sample_time)
+        if key != self._sampling_key:
+            self._sampling_key = key
+            self._sampling = sampling_advice(sample_time, self.model)
+        return {'sampling.warning': self._sampling}
 
 
 def pid_gains(pid: Any) -> str:
@@ -347,6 +368,7 @@ MODE = group('mode', Mode)
 TUNING = group('tuning', Tuning)
 ROBUSTNESS = group('robustness', Robustness)
 ROBUSTNESS_RESULTS = group('robustness_results', RobustnessResults)
+SAMPLING_RESULTS = group('sampling_results', SamplingResults)
 
 
 # --------------------------------------------------------------------------- settings

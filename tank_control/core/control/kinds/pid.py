@@ -1,5 +1,6 @@
 """Controller kind ``pid``: the SISO 2-DOF PID of 000 eq. 19 with limits, anti-windup, tuning,
-and the robustness of the running loop on the ``tuning.*`` model (``robustness.*``)."""
+and the robustness of the running loop on the ``tuning.*`` model (``robustness.*``,
+``sampling.warning``)."""
 from __future__ import annotations
 
 from typing import Any
@@ -33,8 +34,10 @@ def reason(settings: Settings) -> str | None:
 
 
 def results(controller: PidController) -> dict[str, Any]:
-    """``robustness.*`` of the running loop."""
-    return controller.loop_watch.values(controller.pid.config)   # type: ignore[attr-defined]
+    """``robustness.*`` of the running loop and 001's sampling advice on the model."""
+    watch = controller.loop_watch          # type: ignore[attr-defined]
+    config = controller.pid.config
+    return {**watch.values(config), **watch.sampling(config.sample_time)}
 
 
 KIND = ControllerKind(
@@ -42,7 +45,7 @@ KIND = ControllerKind(
     description='SISO 2-DOF PID (000 eq. 19) with filter, limits, anti-windup, tuning rules',
     config=PidConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
-            base.TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+            base.TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS, base.SAMPLING_RESULTS),
     build=build, update=update, derive=base.tuned_gains, reason=reason, results=results,
     gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
 )

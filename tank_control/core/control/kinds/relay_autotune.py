@@ -111,10 +111,12 @@ def reason(settings: Settings) -> str | None:
 
 
 def results(tuner: RelayAutotuner) -> dict[str, Any]:
-    """The tuner's results and ``robustness.*`` of the running loop on the identified model."""
+    """The tuner's results, ``robustness.*`` of the running loop and 001's sampling advice on
+    the identified model."""
     watch = tuner.loop_watch                                       # type: ignore[attr-defined]
     watch.model = tuner.model
-    return {**tuner.results(), **watch.values(tuner.pid.config)}
+    return {**tuner.results(), **watch.values(tuner.pid.config),
+            **watch.sampling(tuner.pid.config.sample_time)}
 
 
 KIND = ControllerKind(
@@ -123,7 +125,8 @@ KIND = ControllerKind(
     config=PidConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             base.group('autotune', AutotuneConfig), base.group('command', AutotuneCommand),
-            base.group('results', AutotuneResults), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+            base.group('results', AutotuneResults), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS,
+            base.SAMPLING_RESULTS),
     build=build, update=update, reason=reason, results=results, state='autotune.state',
     commands={name: (lambda tuner, name=name: tuner.command(name)) for name in COMMANDS},
     gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
