@@ -51,6 +51,8 @@ from tank_control.nodes.runtime import main as run_node_main
 SIGNAL_TOPICS = (TOPIC_MEASUREMENT, TOPIC_SETPOINT, TOPIC_MANIPULATED, TOPIC_DISTURBANCE)
 #: Reliable (as published), deeper than the publishers' 10: a burst waits here, not lost.
 DASHBOARD_SIGNAL_QOS = reliable_qos(100)
+#: State changes kept for pages that connect later (marks on the trends).
+MAX_MARKS = 200
 #: A controller kind's state topic (std_msgs/String): reliable, transient local, keep-last 10.
 STATE_QOS = reliable_qos(10, latched=True)
 #: How long a service call of the page may take before the page is told it had no answer [s].
@@ -133,6 +135,7 @@ class DashboardNode(Node):
         self.ignored = 0
         self.store = SampleStore(int(values['buffer_messages']))
         self.missed = {topic: 0 for topic in SIGNAL_TOPICS}
+        self.marks: list[dict[str, Any]] = []     # state changes of the controllers' machines
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
                                      lambda msg, t=topic: self._on_signal(t, msg),
@@ -199,7 +202,7 @@ class DashboardNode(Node):
             return {'nodes': {name: view.as_json() for name, view in self._views.items()},
                     'limits': dict(self._limits), 'origin': self._origin_ns / NS_PER_S,
                     'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest,
-                    'missed': dict(self.missed)}
+                    'missed': dict(self.missed), 'marks': list(self.marks)}
 
     def request(self, message: dict[str, Any], reply: Reply) -> None:
         """A page's request (web thread): handled by the next pump in the executor thread."""
@@ -424,9 +427,26 @@ class DashboardNode(Node):
                                 'value': entry['value'], 'ptype': entry['type']})
         for update in updates:
             self.server.broadcast(update)
+        for update in updates:
+            if update['name'].endswith('.state_time'):
+                self._mark(view, update['name'].rsplit('.', 1)[0])
         if updates:
             self._update_limits(view)
             self._update_robustness()
+
+    def _mark(self, view: _NodeView, machine: str) -> None:
+        """A state machine's change (``<machine>.state`` entered at ``<machine>.state_time``,
+        the loop's time in s, e.g. the relay auto-tuner's) as a mark on the trends."""
+        with self._lock:
+            entry_t = view.params.get(f'{machine}.state_time')
+            entry_state = view.params.get(f'{machine}.state')
+            if entry_t is None or entry_state is None:
+                return
+            mark = {'node': view.name, 'machine': machine, 't': entry_t['value'],
+                    'label': str(entry_state['value'])}
+            self.marks.append(mark)
+            del self.marks[:-MAX_MARKS]
+        self.server.broadcast({'type': 'mark', **mark})
 
     def _on_state(self, view: _NodeView, topic: str, msg: String) -> None:
         with self._lock:

@@ -173,6 +173,13 @@ def test_a_command_button_starts_the_autotuner_and_its_state_is_shown(page, prob
     page.find_element(By.CSS_SELECTOR, selector.replace('start_autotune', 'abort_autotune')).click()
     wait.until(lambda d: d.find_element(By.CSS_SELECTOR, state).text == 'aborted')
     assert controller_param(probe, 'autotune.state') == 'aborted'
+    # the state history is marked on the trends at the loop time of each change
+    marks = 'return window.tankDashboard.marks.filter((m) => m.machine === "autotune");'
+    wait.until(lambda d: [m['label'] for m in d.execute_script(marks)][-1:] == ['aborted'])
+    shown = page.execute_script(marks)
+    assert shown[-1]['t'] == controller_param(probe, 'autotune.state_time')
+    assert len(shown) >= 2 and shown[0]['label'] not in ('idle', 'aborted')
+    assert [m['t'] for m in shown] == sorted(m['t'] for m in shown)
 
 
 def expected_margins(kp):

@@ -18,6 +18,7 @@
     charts: {},         // id -> {el, plot, title, sources: [{topic, channel, label}], limits}
     stats: {received: 0, byTopic: {}, lost: 0, missed: {}, batches: 0, frames: 0, fps: 0,
             restarts: 0},
+    marks: [],          // state changes {node, machine, t, label} drawn on every trend
     dirty: false,
     nextId: 1,
   };
@@ -63,9 +64,11 @@
         refreshLimits();
         if (msg.robustness) window.tankRobustness.update(msg.robustness);
         if (msg.missed) onMissed(msg.missed);
+        state.marks = (msg.marks || []).slice();
         break;
       case 'robustness': window.tankRobustness.update(msg); break;
       case 'missed': onMissed(msg.missed); break;
+      case 'mark': onMark(msg); break;
       case 'samples': onSamples(msg); break;
       case 'node': setNode(msg.node); break;
       case 'node_gone': removeNode(msg.node); break;
@@ -118,6 +121,34 @@
   function onMissed(missed) {
     state.stats.missed = missed;
     $('#missed').textContent = Object.values(missed).reduce((a, b) => a + b, 0);
+  }
+
+  function onMark(msg) {
+    state.marks.push({node: msg.node, machine: msg.machine, t: msg.t, label: msg.label});
+    if (state.marks.length > 200) state.marks.splice(0, state.marks.length - 200);
+    state.dirty = true;
+    schedule();
+  }
+
+  // A dashed vertical line with the state's name at each mark inside the x range.
+  function drawMarks(u) {
+    const [x0, x1] = [u.scales.x.min, u.scales.x.max];
+    const ctx = u.ctx;
+    ctx.save();
+    ctx.strokeStyle = '#777';
+    ctx.fillStyle = '#444';
+    ctx.setLineDash([3, 3]);
+    ctx.font = `${Math.round(10 * devicePixelRatio)}px sans-serif`;
+    for (const m of state.marks) {
+      if (!(m.t >= x0 && m.t <= x1)) continue;
+      const x = Math.round(u.valToPos(m.t, 'x', true));
+      ctx.beginPath();
+      ctx.moveTo(x, u.bbox.top);
+      ctx.lineTo(x, u.bbox.top + u.bbox.height);
+      ctx.stroke();
+      ctx.fillText(m.label, x + 3, u.bbox.top + 12 * devicePixelRatio);
+    }
+    ctx.restore();
   }
 
   function trim(buf) {
@@ -202,7 +233,8 @@
     const opts = {width, height: 200, series,
                   scales: {x: {time: false}, y: {range: (u) => yRange(chart, u)}},
                   axes: [{}, {size: 70}],
-                  legend: {live: true}, cursor: {drag: {x: true, y: false}}};
+                  legend: {live: true}, cursor: {drag: {x: true, y: false}},
+                  hooks: {draw: [drawMarks]}};
     chart.plot = new uPlot(opts, series.map(() => []), chart.body);
     state.dirty = true;
     schedule();
