@@ -27,38 +27,33 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
-class SerializedTraceMessages:
-    """The baseline: ``TraceMessages`` with every message built and serialized by rclpy."""
+def serialized_trace_messages():
+    """The baseline class: ``TraceMessages`` with every message built and serialized by rclpy
+    (made on first use: the module imports without the package's heavy imports)."""
+    from tank_control.harness.recording import TraceMessages
 
-    def __init__(self, recording, names, t0_ns: int = 0) -> None:
-        from tank_control.harness.recording import RawMessage
-        from tank_control.harness.trace import TOPIC_PREFIX
-        self.recording, self.t0_ns, self.raw = recording, t0_ns, RawMessage
-        index = {name: i for i, name in enumerate(names)}
-        self._t = index['t']
-        self._topics = []
-        for topic, prefix in TOPIC_PREFIX.items():
-            channels = [n.split('.', 1)[1] for n in names if n.startswith(prefix + '.')]
-            if channels or topic == 'disturbance':
-                self._topics.append(('/' + topic, channels,
-                                     [index[f'{prefix}.{n}'] for n in channels]))
+    class SerializedTraceMessages(TraceMessages):
+        def add(self, row) -> None:
+            from rclpy.serialization import serialize_message
+            from rosgraph_msgs.msg import Clock
+            from sensor_msgs.msg import JointState
 
-    def add(self, row) -> None:
-        from rclpy.serialization import serialize_message
-        from rosgraph_msgs.msg import Clock
-        from sensor_msgs.msg import JointState
-        t_ns = self.t0_ns + int(round(float(row[self._t]) * 1e9))
-        sec, nanosec = divmod(t_ns, 1_000_000_000)
-        clock = Clock()
-        clock.clock.sec, clock.clock.nanosec = sec, nanosec
-        add = self.recording.add
-        add(self.raw('/clock', 'rosgraph_msgs/msg/Clock', serialize_message(clock), t_ns, t_ns))
-        for topic, channels, columns in self._topics:
-            msg = JointState()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
-            msg.name = list(channels)
-            msg.position = [float(row[i]) for i in columns]
-            add(self.raw(topic, 'sensor_msgs/msg/JointState', serialize_message(msg), t_ns, t_ns))
+            from tank_control.harness.recording import RawMessage
+            t_ns = self.t0_ns + int(round(float(row[self._t]) * 1e9))
+            sec, nanosec = divmod(t_ns, 1_000_000_000)
+            clock = Clock()
+            clock.clock.sec, clock.clock.nanosec = sec, nanosec
+            add = self.recording.add
+            add(RawMessage('/clock', 'rosgraph_msgs/msg/Clock', serialize_message(clock), t_ns,
+                           t_ns))
+            for topic, _, columns in self._topics:
+                msg = JointState()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+                msg.name = list(self.channels[topic])
+                msg.position = [float(row[i]) for i in columns]
+                add(RawMessage(topic, 'sensor_msgs/msg/JointState', serialize_message(msg),
+                               t_ns, t_ns))
+    return SerializedTraceMessages
 
 
 def per_message(kind: str, count: int) -> float:
@@ -86,7 +81,7 @@ def per_message(kind: str, count: int) -> float:
 def whole_trace(kind: str, trace, folder: Path) -> float:
     """Rows per second of writing ``trace`` to a run.mcap."""
     from tank_control.harness.recording import McapRecording, TraceMessages
-    cls = TraceMessages if kind == 'cdr' else SerializedTraceMessages
+    cls = TraceMessages if kind == 'cdr' else serialized_trace_messages()
     path = folder / f'{kind}.mcap'
     start = time.perf_counter()
     with McapRecording(path) as recording:

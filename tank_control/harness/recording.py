@@ -220,9 +220,11 @@ class TraceMessages:
         index = {name: i for i, name in enumerate(names)}
         self._t = index['t']
         self._topics = []
+        self.channels: dict[str, list[str]] = {}        # '/topic' -> its channel names
         for topic, prefix in TOPIC_PREFIX.items():
             channels = [n.split('.', 1)[1] for n in names if n.startswith(prefix + '.')]
             if channels or topic == 'disturbance':
+                self.channels['/' + topic] = channels
                 self._topics.append(('/' + topic, JointStateCdr(channels),
                                      [index[f'{prefix}.{n}'] for n in channels]))
 
