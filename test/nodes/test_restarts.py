@@ -173,10 +173,14 @@ def test_a_restarted_plant_starts_a_new_session_the_loop_answers(procs, ros_env,
     first = watch.sent_after('measurement', started)[0][1]
     last_old = max(m[1] for m in watch.sent_before('measurement', started))
     assert first < last_old if mode != 'wall' else first > last_old
-    # ... whose ticks the controller answers: the new plant applies a changing input (and in
-    # lockstep its clock advances only then)
-    watch.wait(lambda: len({m[2] for m in watch.sent_after('applied_input', started)
-                            if m[2]}) >= 5, 60,
+    # ... whose ticks the controller answers: outputs stamped on the new plant's time over
+    # 2 s from its first tick seen (20 ticks; in lockstep its clock advances only then)
+    t0 = plant_time(watch, first)
+
+    def answered():
+        return {plant_time(watch, m[1]) for m in watch.sent_after('manipulated', started)
+                if t0 <= plant_time(watch, m[1]) <= t0 + 2 * S}
+    watch.wait(lambda: len(answered()) >= 15, 60,
                'the controller does not answer the restarted plant', loop.logs)
     watch.wait(lambda: any(m[1] >= first + 2 * S
                            for m in watch.sent_after('measurement', started)), 60,
