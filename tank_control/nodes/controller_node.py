@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -134,7 +136,11 @@ class ControllerNode(Node):
             self.create_service(Trigger, f'~/{command}',
                                 lambda request, response, c=command: self._on_command(c, response))
         if self._mode != 'lockstep':
-            self.create_timer(self._controller.sample_time, self._on_timer)
+            self._timer = self.create_timer(self._controller.sample_time, self._on_timer)
+        if self._mode == 'sim':   # a restarted plant's /clock goes back: sample on it at once
+            self._jump = self.get_clock().create_jump_callback(
+                JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1),
+                              on_clock_change=False), post_callback=self._on_clock_back)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
         self.get_logger().info(
@@ -277,6 +283,13 @@ class ControllerNode(Node):
             self._last_sample = None
         self.get_logger().info('new plant session (its clock restarted at 0): ticks answered '
                                'from 0 again, control continues from the current state')
+
+    def _on_clock_back(self, jump: Any) -> None:
+        """sim: the simulated clock went back (a new plant session): the sample timer, due at
+        the old clock's next instant, restarts on the new clock."""
+        self._timer.reset()
+        self._r_stamp = None
+        self._last_sample = None
 
     def _on_applied(self, msg: JointState) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet)."""
