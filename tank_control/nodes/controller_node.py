@@ -100,7 +100,9 @@ class ControllerNode(Node):
         self._saturated_samples = 0                # consecutive samples at an input limit
         # take-over: the plant's applied manipulated values (None: not heard yet), the wall
         # time the first sample started waiting for them, the lockstep tick left unanswered
-        self._applied: dict[str, float] | None = None
+        # by plant session (header.frame_id): a dead plant's latched sample may still come
+        self._applied: dict[str, dict[str, float]] = {}
+        self._session = ''                         # the session of the latest measurement
         self._takeover_since: float | None = None
         self._deferred_tick: int | None = None
         self._last_y_stamp: int | None = None      # wall/sim: stamp of the latest measurement
@@ -237,6 +239,7 @@ class ControllerNode(Node):
             return
         t_ns, values = parsed
         mine = {name: values[name] for name in self._outputs if name in values}
+        self._session = msg.header.frame_id
         self._check_new_session(t_ns)
         if self._mode == 'lockstep':
             self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
@@ -292,11 +295,13 @@ class ControllerNode(Node):
         self._last_sample = None
 
     def _on_applied(self, msg: JointState) -> None:
-        """The plant's latched applied manipulated values (an empty message: none yet)."""
+        """The plant's latched applied manipulated values (an empty message: none yet), kept per
+        plant session (``header.frame_id``, also on its measurements)."""
         parsed = self._parse(TOPIC_APPLIED_INPUT, msg)
         if parsed is None:
             return
-        self._applied = {n: v for n, v in parsed[1].items() if math.isfinite(v)}
+        self._applied[msg.header.frame_id] = {n: v for n, v in parsed[1].items()
+                                              if math.isfinite(v)}
         if self._deferred_tick is not None:    # lockstep: the tick that waited for it
             t_ns, self._deferred_tick = self._deferred_tick, None
             self._maybe_answer(t_ns)
@@ -308,9 +313,10 @@ class ControllerNode(Node):
         they may still be on their way (a plant publishing ``applied_input`` is known but
         its latched message has not come, or a lockstep tick after 0), at most
         ``TAKEOVER_WAIT_S``."""
-        if self._applied is not None:
-            if all(n in self._applied for n in self._inputs):
-                return True, np.array([self._applied[n] for n in self._inputs], dtype=float)
+        applied = self._applied.get(self._session)
+        if applied is not None:
+            if all(n in applied for n in self._inputs):
+                return True, np.array([applied[n] for n in self._inputs], dtype=float)
             return True, None
         may_come = (self.count_publishers(TOPIC_APPLIED_INPUT) > 0
                     or (self._mode == 'lockstep' and t_ns > 0))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import uuid
 from typing import Any
 
 import numpy as np
@@ -92,9 +93,12 @@ class PlantNode(Node):
         # the manipulated values applied, latched: channels a controller sent (none yet: an
         # empty message, so a controller that starts now knows it starts a new loop)
         self.applied_pub = self.create_publisher(JointState, TOPIC_APPLIED_INPUT, APPLIED_QOS)
+        # this plant process's session: header.frame_id of its measurements and applied inputs,
+        # so a controller takes over from this plant's values, never a dead one's
+        self._session = uuid.uuid4().hex[:16]
         self._applied_names: list[str] = []
         self._applied_sent: tuple[float, ...] | None = None
-        self.applied_pub.publish(to_joint_state(0, [], []))
+        self.applied_pub.publish(self._stamped(to_joint_state(0, [], [])))
         # stall watch: wall time tick k was first published (lockstep); per input topic the
         # last arrival and the interval before it (wall/sim) [s, time.monotonic]
         self._tick_published_at = time.monotonic()
@@ -242,7 +246,7 @@ class PlantNode(Node):
         t_ns = self.k * self.ts_ns
         y = self.plant.outputs() + self.noise.sample()
         stamp = self._stamp_offset_ns + t_ns
-        msg = to_joint_state(stamp, self.plant.output_names, y)
+        msg = self._stamped(to_joint_state(stamp, self.plant.output_names, y))
         clock = clock_msg(t_ns) if self.clock_pub is not None else None
         self._tick_msgs = (msg, clock)
         self._send()
@@ -286,8 +290,12 @@ class PlantNode(Node):
         values = tuple(self.u[n] for n in self._applied_names)
         if values != self._applied_sent:
             self._applied_sent = values
-            self.applied_pub.publish(to_joint_state(self._stamp_offset_ns + self.k * self.ts_ns,
-                                                    self._applied_names, values))
+            self.applied_pub.publish(self._stamped(to_joint_state(
+                self._stamp_offset_ns + self.k * self.ts_ns, self._applied_names, values)))
+
+    def _stamped(self, msg: JointState) -> JointState:
+        msg.header.frame_id = self._session
+        return msg
 
     def _note_applied(self, names: Any) -> None:
         """Channels of ``manipulated`` received from a controller (in the plant's order)."""

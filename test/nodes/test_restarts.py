@@ -66,6 +66,7 @@ class Watch:
     signals: dict[str, list[tuple[int, int, tuple, int]]] = field(default_factory=dict)
     diagnostics: list[tuple[int, bytes, str]] = field(default_factory=list)  # source ts, level, text
     origins: list[int] = field(default_factory=list)
+    session: str = ''             # header.frame_id of the latest measurement: the plant's session
 
     def __post_init__(self) -> None:
         node = self.probe.node
@@ -81,6 +82,8 @@ class Watch:
     def _record(self, topic: str, msg: JointState, info: dict) -> None:
         self.seq += 1
         stamp, _, values = from_joint_state(msg)
+        if topic == 'measurement':
+            self.session = msg.header.frame_id
         self.signals[topic].append((self.seq, stamp, values, info['source_timestamp']))
 
     def _on_diag(self, msg: DiagnosticArray, info: dict) -> None:
@@ -105,11 +108,13 @@ class Watch:
                            for src, level, text in self.diagnostics)
 
     def latched_applied_input(self) -> tuple[float, ...]:
-        """What a node that subscribes now gets: the plant's current applied input."""
+        """What a node that subscribes now gets from the running plant (its session; a plant
+        killed in an earlier test may still deliver its latched sample): its applied input."""
         got = []
         sub = self.probe.node.create_subscription(
-            JointState, 'applied_input', lambda m: got.append(from_joint_state(m)[2]),
-            LATCHED_QOS)
+            JointState, 'applied_input',
+            lambda m: got.append(from_joint_state(m)[2]) if m.header.frame_id == self.session
+            else None, LATCHED_QOS)
         try:
             assert self.probe.wait_for(lambda: got, 30), 'no latched applied_input'
         finally:
