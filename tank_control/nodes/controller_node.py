@@ -106,6 +106,7 @@ class ControllerNode(Node):
         self._takeover_since: float | None = None
         self._deferred_tick: int | None = None
         self._last_y_stamp: int | None = None      # wall/sim: stamp of the latest measurement
+        self._clock_went_back = False              # sim: restart the sample timer
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
                                           event_callbacks=quiet_publisher_events())
@@ -240,6 +241,11 @@ class ControllerNode(Node):
         t_ns, values = parsed
         mine = {name: values[name] for name in self._outputs if name in values}
         self._session = msg.header.frame_id
+        if self._clock_went_back:
+            self._clock_went_back = False
+            self._timer.reset()
+            self._r_stamp = None
+            self._last_sample = None
         self._check_new_session(t_ns)
         if self._mode == 'lockstep':
             self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
@@ -289,10 +295,9 @@ class ControllerNode(Node):
 
     def _on_clock_back(self, jump: Any) -> None:
         """sim: the simulated clock went back (a new plant session): the sample timer, due at
-        the old clock's next instant, restarts on the new clock."""
-        self._timer.reset()
-        self._r_stamp = None
-        self._last_sample = None
+        the old clock's next instant, is restarted on the new clock by the next measurement
+        (not here: this runs inside the clock's update)."""
+        self._clock_went_back = True
 
     def _on_applied(self, msg: JointState) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet), kept per

@@ -182,8 +182,10 @@ class ReferenceNode(Node):
         """Answer tick t_k once (idempotent: a re-sent /clock gets the same messages);
         with ``lockstep.anticipate`` also answer the next tick ahead."""
         t_ns = stamp_to_ns(msg.clock)
-        if t_ns == 0 and self._last_clock:  # the plant (re)started: a new run
-            self.get_logger().info('/clock restarted at 0: answering a new run')
+        if self._last_clock is not None and t_ns < self._last_clock:
+            # /clock went back: the plant (re)started, a new run (the plant re-sends only its
+            # current tick, so an earlier one is no duplicate; its tick 0 may have been missed)
+            self.get_logger().info('/clock restarted: answering a new run')
             self._answered.clear()
             self._last_clock = None
             self._last_t = 0.0
