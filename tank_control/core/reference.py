@@ -231,10 +231,12 @@ def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedul
     reason = schedule.check(name)
     if reason:
         raise ValueError(reason)
-    if value is not None and value != schedule.at(0.0):
+    if value is not None and value not in (schedule.at(0.0), schedule.values[-1]):
         raise ValueError(f'{name}.value: {value!r} with times/values; give either value (a '
                          'constant) or times/values, not both (with both, value must be the '
-                         f'schedule\'s value at t = 0, {schedule.at(0.0):g}, as a dump writes it)')
+                         f'schedule\'s value at t = 0, {schedule.at(0.0):g}, or after an '
+                         f'override its last target, {schedule.values[-1]:g}, as a dump writes '
+                         'it)')
     return schedule
 
 

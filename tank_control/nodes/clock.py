@@ -100,6 +100,11 @@ class StampedInbox:
         for stamp in [s for s in self._slots if s < t_ns]:
             del self._slots[stamp]
 
+    def drop_from(self, t_ns: int) -> None:
+        """Forget every stamp at or after ``t_ns`` (a restarted plant's old session)."""
+        for stamp in [s for s in self._slots if s >= t_ns]:
+            del self._slots[stamp]
+
     def stamps(self) -> Iterable[int]:
         return sorted(self._slots)
 

@@ -1,8 +1,9 @@
 """controller_node: a core controller kind (parameter ``controller``) sampled on the ROS 2 graph.
 
 Subscribes ``measurement``, ``setpoint`` (and ``disturbance`` when the kind uses measured
-disturbances); publishes ``manipulated``, ``/diagnostics``, ``~/late_inputs``, the kind's state
-topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
+disturbances) and the plant's latched ``applied_input`` (a controller that starts on a running
+loop takes over from it, bumplessly); publishes ``manipulated``, ``/diagnostics``,
+``~/late_inputs``, the kind's state topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
 parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
 Samples on a timer (``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start,
 measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
@@ -18,6 +19,8 @@ from typing import Any
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -31,7 +34,8 @@ from tank_control.core.scenario import controller_setup
 from tank_control.core.loop import warm_start
 from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
                                       sim_sample_instant, steady_clock)
-from tank_control.nodes.messages import (LATE_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
+from tank_control.nodes.messages import (APPLIED_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
+                                         TOPIC_APPLIED_INPUT, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN, from_joint_state,
@@ -46,6 +50,9 @@ from tank_control.nodes.runtime import main as run_node_main
 STATE_QOS = reliable_qos(10, latched=True)
 #: consecutive samples with an input at its limit after which /diagnostics says WARN
 SATURATION_WARN_SAMPLES = 20
+#: longest wait for the plant's ``applied_input`` before the first sample on a running loop
+#: (wall clock) [s]; then the controller starts from ``initial_output`` (logged)
+TAKEOVER_WAIT_S = 2.0
 
 
 class ControllerNode(Node):
@@ -91,6 +98,15 @@ class ControllerNode(Node):
         self._last_sample: tuple[int, dict[str, float]] | None = None   # (plant time, r used)
         self._compute_s = math.nan
         self._saturated_samples = 0                # consecutive samples at an input limit
+        # take-over: the plant's applied manipulated values (None: not heard yet), the wall
+        # time the first sample started waiting for them, the lockstep tick left unanswered
+        # by plant session (header.frame_id): a dead plant's latched sample may still come
+        self._applied: dict[str, dict[str, float]] = {}
+        self._session = ''                         # the session of the latest measurement
+        self._takeover_since: float | None = None
+        self._deferred_tick: int | None = None
+        self._last_y_stamp: int | None = None      # wall/sim: stamp of the latest measurement
+        self._clock_went_back = False              # sim: restart the sample timer
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
                                           event_callbacks=quiet_publisher_events())
@@ -98,6 +114,7 @@ class ControllerNode(Node):
         # wall: the loop's time base; sim/lockstep: a check that the plant is not on the wall
         # clock (its origin is then not 0), which would leave this node waiting for good
         self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
+        self.create_subscription(JointState, TOPIC_APPLIED_INPUT, self._on_applied, APPLIED_QOS)
         self._clock_conflict = ''
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
@@ -122,7 +139,11 @@ class ControllerNode(Node):
             self.create_service(Trigger, f'~/{command}',
                                 lambda request, response, c=command: self._on_command(c, response))
         if self._mode != 'lockstep':
-            self.create_timer(self._controller.sample_time, self._on_timer)
+            self._timer = self.create_timer(self._controller.sample_time, self._on_timer)
+        if self._mode == 'sim':   # a restarted plant's /clock goes back: sample on it at once
+            self._jump = self.get_clock().create_jump_callback(
+                JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1),
+                              on_clock_change=False), post_callback=self._on_clock_back)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
         self.get_logger().info(
@@ -219,6 +240,13 @@ class ControllerNode(Node):
             return
         t_ns, values = parsed
         mine = {name: values[name] for name in self._outputs if name in values}
+        self._session = msg.header.frame_id
+        if self._clock_went_back:
+            self._clock_went_back = False
+            self._timer.reset()
+            self._r_stamp = None
+            self._last_sample = None
+        self._check_new_session(t_ns)
         if self._mode == 'lockstep':
             self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
             self._maybe_answer(t_ns, resent=True)
@@ -241,6 +269,72 @@ class ControllerNode(Node):
         if self._mode == 'lockstep':
             self._inbox.put('setpoint', t_ns, values)
             self._maybe_answer(t_ns)
+
+    def _check_new_session(self, t_ns: int) -> None:
+        """A plant that (re)started: its tick 0 after later ticks (lockstep), or a measurement
+        stamped before the previous one (sim: /clock went back). The bookkeeping of the old
+        session (answers, inputs stamped at or after the last tick answered, the stamps of
+        held values) is dropped, so the new ticks are not taken for late duplicates; the
+        controller's state continues (its output does not jump)."""
+        if self._mode == 'lockstep':
+            last = self._answers.stamp
+            if t_ns != 0 or last is None or last <= 0:
+                return
+            self._answers = Answers()
+            self._inbox.drop_from(last)
+            self._deferred_tick = None
+        else:
+            last = self._last_y_stamp
+            self._last_y_stamp = t_ns
+            if last is None or t_ns >= last:
+                return
+            self._r_stamp = None
+            self._last_sample = None
+        self.get_logger().info('new plant session (its clock restarted at 0): ticks answered '
+                               'from 0 again, control continues from the current state')
+
+    def _on_clock_back(self, jump: Any) -> None:
+        """sim: the simulated clock went back (a new plant session): the sample timer, due at
+        the old clock's next instant, is restarted on the new clock by the next measurement
+        (not here: this runs inside the clock's update)."""
+        self._clock_went_back = True
+
+    def _on_applied(self, msg: JointState) -> None:
+        """The plant's latched applied manipulated values (an empty message: none yet), kept per
+        plant session (``header.frame_id``, also on its measurements)."""
+        parsed = self._parse(TOPIC_APPLIED_INPUT, msg)
+        if parsed is None:
+            return
+        self._applied[msg.header.frame_id] = {n: v for n, v in parsed[1].items()
+                                              if math.isfinite(v)}
+        if self._deferred_tick is not None:    # lockstep: the tick that waited for it
+            t_ns, self._deferred_tick = self._deferred_tick, None
+            self._maybe_answer(t_ns)
+
+    def _takeover(self, t_ns: int) -> tuple[bool, np.ndarray | None]:
+        """Before the first sample: ``(ready, u)`` — ``u`` the plant's applied values of this
+        controller's inputs to take over from (a running loop), ``None`` to start from
+        ``initial_output`` (a new loop: the plant has applied none of them); not ready while
+        they may still be on their way (a plant publishing ``applied_input`` is known but
+        its latched message has not come, or a lockstep tick after 0), at most
+        ``TAKEOVER_WAIT_S``."""
+        applied = self._applied.get(self._session)
+        if applied is not None:
+            if all(n in applied for n in self._inputs):
+                return True, np.array([applied[n] for n in self._inputs], dtype=float)
+            return True, None
+        may_come = (self.count_publishers(TOPIC_APPLIED_INPUT) > 0
+                    or (self._mode == 'lockstep' and t_ns > 0))
+        if not may_come:
+            return True, None
+        now = time.monotonic()
+        if self._takeover_since is None:
+            self._takeover_since = now
+        if now - self._takeover_since < TAKEOVER_WAIT_S:
+            return False, None
+        self._log_once(f"no {TOPIC_APPLIED_INPUT} from the plant within {TAKEOVER_WAIT_S:g} s: "
+                       'starting from initial_output')
+        return True, None
 
     def _check_late_setpoint(self, t_ns: int, values: Mapping[str, float]) -> None:
         """wall/sim: a setpoint stamped at or before the latest sample came too late for it."""
@@ -303,8 +397,14 @@ class ControllerNode(Node):
         y = self._inbox.values(t_ns, 'measurement')
         r = self._inbox.values(t_ns, 'setpoint')
         d = {**self._d, **self._inbox.values(t_ns, 'disturbance')}
+        takeover = None
+        if not self._started:
+            ready, takeover = self._takeover(t_ns)
+            if not ready:
+                self._deferred_tick = t_ns     # answered when applied_input comes (or re-sent)
+                return
         if is_sample_instant(t_ns, self._ts_ns) or self._u is None:
-            u = self._sample(t_ns, y, r, d, stale=False)
+            u = self._sample(t_ns, y, r, d, stale=False, takeover=takeover)
         else:
             u = self._u
         msg = to_joint_state(t_ns, self._inputs, u)
@@ -323,14 +423,22 @@ class ControllerNode(Node):
         now = self.get_clock().now().nanoseconds
         t_ns = sim_sample_instant(now, self._ts_ns) if self._mode == 'sim' else now
         stale = self._since_measurement >= int(self._params.values['stale_samples'])
+        takeover = None
+        if not self._started:
+            ready, takeover = self._takeover(t_ns - self._origin_ns)
+            if not ready:
+                return      # the plant's applied_input is on its way
         self._last_sample = (t_ns - self._origin_ns, dict(self._r))
-        u = self._sample(t_ns - self._origin_ns, self._y, self._r, self._d, stale=stale)
+        u = self._sample(t_ns - self._origin_ns, self._y, self._r, self._d, stale=stale,
+                         takeover=takeover)
         self._pub.publish(to_joint_state(t_ns, self._inputs, u))
 
     def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
-                d: Mapping[str, float], stale: bool) -> np.ndarray:
+                d: Mapping[str, float], stale: bool,
+                takeover: np.ndarray | None = None) -> np.ndarray:
         """One controller sample at plant time ``t_ns`` (accepted changes take effect) — or
-        hold on a fault."""
+        hold on a fault. The first good sample starts from ``takeover`` (the plant's applied
+        input on a running loop), else from ``initial_output``."""
         y_vec = np.array([y[name] for name in self._outputs], dtype=float)
         r_vec = np.array([r[name] for name in self._outputs], dtype=float)
         d_vec = np.array([d.get(name, math.nan) for name in self._disturbances], dtype=float)
@@ -345,6 +453,11 @@ class ControllerNode(Node):
                                    'control resumed bumplessly')
             self._fault = ''
             self._publish_diagnostics()
+        elif not self._started and takeover is not None:   # a running loop: bumpless take-over
+            self._controller.reset(y_vec, takeover)
+            self._started = True
+            self.get_logger().info(f"took over from the plant's applied input "
+                                   f'{dict(zip(self._inputs, takeover.tolist()))} (bumpless)')
         elif not self._started:      # first good sample: reset(y, initial_output), as core/loop.py
             warm_start(self._controller, y_vec)
             self._started = True

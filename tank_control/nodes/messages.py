@@ -38,6 +38,9 @@ LATE_QOS = reliable_qos(1000)
 #: ``time_origin`` (``builtin_interfaces/msg/Time``): the plant's time origin, latched —
 #: reliable, transient local, keep-last 1, so a node that starts later still gets it.
 ORIGIN_QOS = reliable_qos(1, latched=True)
+#: ``applied_input``: the manipulated values the plant applies, latched (reliable, transient
+#: local, keep-last 1) so that a controller that (re)starts on a running loop reads them.
+APPLIED_QOS = reliable_qos(1, latched=True)
 
 
 def quiet_publisher_events() -> PublisherEventCallbacks:
@@ -65,6 +68,8 @@ TOPIC_CLOCK = '/clock'
 TOPIC_DIAGNOSTICS = '/diagnostics'
 #: The ROS time of the plant's tick 0 (0 in sim/lockstep): plant time = stamp − origin.
 TOPIC_TIME_ORIGIN = 'time_origin'
+#: The plant's applied manipulated values (only the channels a controller has sent).
+TOPIC_APPLIED_INPUT = 'applied_input'
 #: Per node (``~/late_inputs``): answers that came after the node had used their tick.
 TOPIC_LATE_INPUTS = '~/late_inputs'
 

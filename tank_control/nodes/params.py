@@ -14,8 +14,10 @@ from typing import Any
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.parameter_service import ParameterService
 
 from tank_control.core import params_file
 from tank_control.core.node_specs import declared_anywhere, is_ros_own
@@ -305,3 +307,30 @@ class ParameterBinding:
         """Changes accepted since the last call (applied by the node at its next sample)."""
         pending, self._pending = self._pending, {}
         return pending
+
+
+class GroupedParameterService(ParameterService):
+    """rclpy's parameter services, except that a ``set_parameters`` call carrying several
+    parameters is one change: validated and set atomically, all or none.
+
+    rclpy sets the parameters of a ``set_parameters`` request one by one, each validated
+    alone, so values that must change together (a schedule's ``times`` and ``values``, as
+    ``ros2 param load`` sends them) are refused one at a time, or half applied. Here every
+    result of the call carries the one outcome (and its reason). A node uses it instead of
+    rclpy's own: ``Node(..., start_parameter_services=False)``, then
+    ``GroupedParameterService(node)``.
+    """
+
+    def _set_parameters_callback(self, request, response):
+        if len(request.parameters) <= 1:
+            return super()._set_parameters_callback(request, response)
+        node = self._get_node()
+        try:
+            result = node.set_parameters_atomically(
+                [Parameter.from_parameter_msg(p) for p in request.parameters])
+        except ParameterNotDeclaredException as exc:
+            result = SetParametersResult(successful=False, reason=str(exc))
+        response.results = [SetParametersResult(successful=result.successful,
+                                                reason=result.reason)
+                            for _ in request.parameters]
+        return response

@@ -1,8 +1,9 @@
 """plant_node: simulates a core plant kind (parameter ``plant``) and is the clock master.
 
 Publishes ``measurement`` (outputs plus seeded noise), ``/clock`` (sim, lockstep),
-``time_origin``, ``~/late_inputs``, ``/diagnostics``; subscribes ``manipulated`` and
-``disturbance`` by channel name. Clock modes ``wall``/``sim``/``lockstep``, the lockstep
+``time_origin``, ``applied_input`` (latched: what a restarted controller takes over from),
+``~/late_inputs``, ``/diagnostics`` (WARN on a stalled loop, naming what it waits for);
+subscribes ``manipulated`` and ``disturbance`` by channel name. Clock modes ``wall``/``sim``/``lockstep``, the lockstep
 protocol and ``lockstep.paused``: docs/nodes.md. Units: those of the plant kind; times in s.
 """
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import uuid
 from typing import Any
 
 import numpy as np
@@ -27,8 +29,9 @@ from tank_control.core.params import ConfigError, names_of
 from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
 from tank_control.nodes.clock import StampedInbox, steady_clock
-from tank_control.nodes.messages import (CLOCK_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
-                                         TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
+from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGIN_QOS,
+                                         SIGNAL_QOS, TOPIC_APPLIED_INPUT, TOPIC_CLOCK,
+                                         TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_LATE_INPUTS, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
                                          TOPIC_TIME_ORIGIN, ChannelFilter, clock_msg,
                                          ns_to_stamp, quiet_publisher_events,
@@ -38,6 +41,14 @@ from tank_control.nodes.runtime import main as run_node_main
 
 _NODE_ONLY = frozenset(names_of(PlantNodeConfig)) | frozenset(names_of(NoiseConfig))
 _LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
+#: lockstep: a tick unanswered for this many ``lockstep.resend_period`` is a stall (WARN)
+STALL_RESENDS = 2
+#: wall/sim: ``manipulated`` silent for this many of its recent intervals (and at least
+#: ``STALL_MIN_S``) is a stall (WARN; the inputs are held)
+STALL_INTERVALS = 3
+STALL_MIN_S = 1.0
+#: who answers each input topic (named in the stall report)
+_ANSWERED_BY = {TOPIC_MANIPULATED: 'controller', TOPIC_DISTURBANCE: 'reference'}
 
 
 class PlantNode(Node):
@@ -79,6 +90,19 @@ class PlantNode(Node):
                                                event_callbacks=quiet_publisher_events())
         self.origin_pub = self.create_publisher(Time, TOPIC_TIME_ORIGIN, ORIGIN_QOS)
         self.late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
+        # the manipulated values applied, latched: channels a controller sent (none yet: an
+        # empty message, so a controller that starts now knows it starts a new loop)
+        self.applied_pub = self.create_publisher(JointState, TOPIC_APPLIED_INPUT, APPLIED_QOS)
+        # this plant process's session: header.frame_id of its measurements and applied inputs,
+        # so a controller takes over from this plant's values, never a dead one's
+        self._session = uuid.uuid4().hex[:16]
+        self._applied_names: list[str] = []
+        self._applied_sent: tuple[float, ...] | None = None
+        self.applied_pub.publish(self._stamped(to_joint_state(0, [], [])))
+        # stall watch: wall time tick k was first published (lockstep); per input topic the
+        # last arrival and the interval before it (wall/sim) [s, time.monotonic]
+        self._tick_published_at = time.monotonic()
+        self._arrivals: dict[str, tuple[float, float]] = {}
         # sim/wall: stamp of the input message held per topic, and the inputs each recent
         # tick was integrated with (for ~/late_inputs)
         self._held_stamp: dict[str, int] = {}
@@ -222,10 +246,11 @@ class PlantNode(Node):
         t_ns = self.k * self.ts_ns
         y = self.plant.outputs() + self.noise.sample()
         stamp = self._stamp_offset_ns + t_ns
-        msg = to_joint_state(stamp, self.plant.output_names, y)
+        msg = self._stamped(to_joint_state(stamp, self.plant.output_names, y))
         clock = clock_msg(t_ns) if self.clock_pub is not None else None
         self._tick_msgs = (msg, clock)
         self._send()
+        self._tick_published_at = self._sent_at
         self.counters['ticks'] += 1
         self._awaiting = self.mode == 'lockstep'
 
@@ -249,12 +274,34 @@ class PlantNode(Node):
         if self.mode != 'lockstep':        # remembered for ~/late_inputs
             self._integrated[self.k * self.ts_ns] = {**self.u, **self.d}
             self._integrated.pop((self.k - _LOOKAHEAD) * self.ts_ns, None)
+        self._publish_applied()
         start = time.perf_counter()
         self.plant.step(np.array([self.u[n] for n in self.plant.input_names]),
                         np.array([self.d[n] for n in self.plant.disturbance_names]), self.ts)
         self._step_s += time.perf_counter() - start
         self._steps += 1
         self.k += 1
+
+    def _publish_applied(self) -> None:
+        """``applied_input``: the manipulated values of the step about to be integrated
+        (channels a controller has sent), stamped with its tick, when they changed."""
+        if not self._applied_names:
+            return
+        values = tuple(self.u[n] for n in self._applied_names)
+        if values != self._applied_sent:
+            self._applied_sent = values
+            self.applied_pub.publish(self._stamped(to_joint_state(
+                self._stamp_offset_ns + self.k * self.ts_ns, self._applied_names, values)))
+
+    def _stamped(self, msg: JointState) -> JointState:
+        msg.header.frame_id = self._session
+        return msg
+
+    def _note_applied(self, names: Any) -> None:
+        """Channels of ``manipulated`` received from a controller (in the plant's order)."""
+        if any(n not in self._applied_names for n in names):
+            known = set(self._applied_names) | set(names)
+            self._applied_names = [n for n in self.plant.input_names if n in known]
 
     def _on_tick_timer(self) -> None:
         """wall/sim: close the previous interval with the latest inputs, publish tick k.
@@ -294,6 +341,9 @@ class PlantNode(Node):
         for reason in new_reasons:
             self.get_logger().warning(reason + ' (logged once)')
         self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
+        now = time.monotonic()
+        last = self._arrivals.get(topic)
+        self._arrivals[topic] = (now, now - last[0] if last else 0.0)
         if self.mode != 'lockstep':
             self._take_latest(topic, t_ns, accepted)
             return
@@ -324,9 +374,13 @@ class PlantNode(Node):
             return                      # older than the values held: out of order
         self._held_stamp[topic] = t_ns
         (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
+        if topic == TOPIC_MANIPULATED:
+            self._note_applied(accepted)
 
     def _advance(self, t_ns: int) -> None:
-        self.u.update(self.inbox.values(t_ns, TOPIC_MANIPULATED))
+        manipulated = self.inbox.values(t_ns, TOPIC_MANIPULATED)
+        self._note_applied(manipulated)
+        self.u.update(manipulated)
         self.d.update(self.inbox.values(t_ns, TOPIC_DISTURBANCE))
         self._awaiting = False
         self._step()
@@ -391,6 +445,33 @@ class PlantNode(Node):
         return (f'behind real time: {rate:.3g}x instead of {target:g}x (plant.step takes '
                 f'{step_ms:.3g} ms per {self.ts * 1e3:g} ms tick)')
 
+    def _stall_report(self) -> str:
+        """'' while the loop moves, else what the plant waits for and for how long.
+
+        lockstep: tick k unanswered for ``STALL_RESENDS`` re-send periods (a node is down, or
+        restarting): ``stalled <s> s at t = <t> s: waiting for manipulated.u (controller)``.
+        wall/sim: ``manipulated`` silent for ``STALL_INTERVALS`` of its recent intervals (at
+        least ``STALL_MIN_S``) after it had come: ``no manipulated (controller) for <s> s:
+        inputs held``."""
+        now = time.monotonic()
+        if self._is_paused:
+            return ''
+        if self.mode == 'lockstep':
+            waited = now - self._tick_published_at
+            if not self._awaiting or waited < STALL_RESENDS * self._resend_period:
+                return ''
+            missing = self.inbox.missing(self.k * self.ts_ns)
+            named = ', '.join(f'{m} ({_ANSWERED_BY.get(m.split(".")[0], "?")})' for m in missing)
+            return f'stalled {waited:.3g} s at t = {self._t():g} s: waiting for {named}'
+        arrival = self._arrivals.get(TOPIC_MANIPULATED)
+        if arrival is None:
+            return ''
+        silent = now - arrival[0]
+        if silent < max(STALL_MIN_S, STALL_INTERVALS * arrival[1]):
+            return ''
+        return (f'no {TOPIC_MANIPULATED} ({_ANSWERED_BY[TOPIC_MANIPULATED]}) for {silent:.3g} s: '
+                'inputs held')
+
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
         model = dict(self.plant.status)
@@ -404,6 +485,9 @@ class PlantNode(Node):
         behind = self._pace_report()
         if behind:
             problems.append(behind)
+        stall = self._stall_report()
+        if stall:
+            problems.append(stall)
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
         status.message = ', '.join(problems) or 'ok'
         items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}',

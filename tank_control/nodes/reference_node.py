@@ -2,8 +2,11 @@
 
 Publishes ``setpoint`` and ``disturbance`` (``sensor_msgs/JointState`` by channel name): in
 ``wall`` mode every ``sample_time`` of plant time from the plant's ``time_origin`` on, otherwise
-one idempotent answer per ``/clock`` tick (in ``lockstep`` also one tick ahead). Parameter
-layout, runtime overrides and timing: docs/nodes.md ("reference_node"). Times in s.
+one idempotent answer per ``/clock`` tick (in ``lockstep`` also one tick ahead). The channel
+parameters always equal the schedules it runs: a change (an override ``value``, new limits) is
+written back to ``times``/``values``, and several parameters set in one call (``ros2 param
+load``) are one atomic change. Parameter layout, runtime overrides and timing: docs/nodes.md
+("reference_node"). Times in s.
 """
 from __future__ import annotations
 
@@ -21,7 +24,8 @@ from sensor_msgs.msg import JointState
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.node_specs import ReferenceNode as ReferenceNodeConfig
 from tank_control.core.params import ConfigError, specs_of
-from tank_control.core.reference import Reference, channel_lists, channel_specs, split_param_name
+from tank_control.core.reference import (FIELDS, Reference, channel_lists, channel_specs,
+                                         split_param_name)
 from tank_control.core.scenario import reference_setup
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_CLOCK,
@@ -29,7 +33,7 @@ from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPI
                                          TOPIC_TIME_ORIGIN,
                                          quiet_publisher_events, quiet_subscription_events,
                                          stamp_to_ns, to_joint_state)
-from tank_control.nodes.params import ParameterBinding, ParameterError
+from tank_control.nodes.params import GroupedParameterService, ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
 
@@ -45,19 +49,21 @@ class ReferenceNode(Node):
     """Setpoint/disturbance publisher around a core ``Reference``."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('reference', allow_undeclared_parameters=True, **kwargs)
+        super().__init__('reference', allow_undeclared_parameters=True,
+                         start_parameter_services=False, **kwargs)
+        self._parameter_service = GroupedParameterService(self)   # times + values together
         try:
             reference = reference_setup(_channel_values(self)).reference
         except ConfigError as exc:
             raise ParameterError(str(exc)) from None
         self.reference: Reference = reference
+        self._last_t = 0.0                 # the latest instant published [s]
         self.params = ParameterBinding(self, specs_of(ReferenceNodeConfig) + channel_specs(reference),
-                                       cross_check=self._cross_check)
+                                       cross_check=self._cross_check, derive=self._derive)
         self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, SIGNAL_QOS,
                                                   event_callbacks=quiet_publisher_events())
         self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
-        self._last_t = 0.0
         self._answered: dict[int, tuple[JointState, JointState]] = {}
         self._last_clock: int | None = None
         # Only in an explicit lockstep: in sim the others use the latest message, which
@@ -89,40 +95,76 @@ class ReferenceNode(Node):
                f'every {period:g} s of plant time (waiting for the plant\'s {TOPIC_TIME_ORIGIN})'))
 
     # ------------------------------------------------------------- parameters
-    def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
-        """The change must leave every schedule valid: it is tried on a copy of the
-        running reference (which includes earlier overrides), so nothing accepted
-        here can be refused when it is applied."""
-        params = getattr(self, 'params', None)
-        if params is None:
-            return None          # start-up: reference_from_params has checked the file
-        current = params.values
+    def _trial(self, values: dict[str, Any], names: frozenset[str]) -> tuple[Reference, str | None]:
+        """The running reference with the channel fields ``names`` set to ``values``, as from
+        the latest published instant on: ``(reference, None)`` or ``(_, reason)``.
+
+        ``value`` alone is an override (target from that instant on); ``min``/``max``/
+        ``ramp_rate`` alone keep the future of the schedule and fold its past into the value
+        reached (no past value is judged against new limits); ``times``/``values`` replace the
+        schedule, and a ``value`` set with them is an override only when it is neither the new
+        schedule's value at 0 nor its last target (what a dump holds)."""
         trial = copy.deepcopy(self.reference)
         by_channel: dict[tuple[str, str], dict[str, Any]] = {}
-        for name, value in values.items():
-            parts = split_param_name(name)
-            if parts and current.get(name) != value:
-                by_channel.setdefault(parts[:2], {})[parts[2]] = value
-        for (kind, ch), changes in by_channel.items():
-            reason = trial.update(kind, ch, changes, self._last_t)
-            if reason:
-                return reason
-        return None
-
-    def _apply_pending(self, t: float) -> None:
-        """Accepted parameter changes take effect at instant ``t`` [s]."""
-        pending = self.params.take_pending()   # (wall: a new sample_time acts at re-arming)
-        by_channel: dict[tuple[str, str], dict[str, Any]] = {}
-        for name, value in pending.items():
+        for name in names:
             parts = split_param_name(name)
             if parts:
-                by_channel.setdefault(parts[:2], {})[parts[2]] = value
+                by_channel.setdefault(parts[:2], {})[parts[2]] = values[name]
         for (kind, ch), changes in by_channel.items():
-            reason = self.reference.update(kind, ch, changes, t)
-            if reason:   # accepted as parameters but inconsistent with the running schedule
-                self.get_logger().warning(f'change of {kind}.{ch} not applied: {reason}')
+            value = changes.pop('value', None)
+            reason = trial.update(kind, ch, changes, self._last_t) if changes else None
+            if reason:
+                return trial, reason
+            if value is None:
+                continue
+            schedule = trial.schedule(kind, ch)
+            if {'times', 'values'} & set(changes) and value in (schedule.at(0.0),
+                                                                 schedule.values[-1]):
+                continue
+            reason = trial.update(kind, ch, {'value': value}, self._last_t)
+            if reason:
+                return trial, reason
+        return trial, None
+
+    def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
+        """The change must leave every schedule valid: it is tried on a copy of the
+        running reference, so nothing accepted here can be refused when it is applied."""
+        if getattr(self, 'params', None) is None:
+            return None          # start-up: reference_from_params has checked the file
+        return self._trial(values, changed)[1]
+
+    def _derive(self, values: dict[str, Any], changed: frozenset[str]) -> dict[str, Any]:
+        """The schedule a change makes, as parameters set with it: ``times``/``values`` (and
+        ``value``, the schedule's value at 0, unless the change is an override) of each channel
+        it touches, so the parameters always equal what runs."""
+        if getattr(self, 'params', None) is None:
+            return {}            # start-up: the declared values are the file's schedules
+        trial, reason = self._trial(values, changed)
+        if reason:
+            return {}            # refused by the cross-check, with this reason
+        extra: dict[str, Any] = {}
+        for kind, ch in {split_param_name(n)[:2] for n in changed if split_param_name(n)}:
+            schedule, prefix = trial.schedule(kind, ch), f'{kind}.{ch}.'
+            extra[prefix + 'times'] = list(schedule.times)
+            extra[prefix + 'values'] = list(schedule.values)
+            if prefix + 'value' not in changed:
+                extra[prefix + 'value'] = schedule.at(0.0)
+        return {k: v for k, v in extra.items() if k not in changed}
+
+    def _apply_pending(self, t: float) -> None:
+        """Accepted parameter changes act from instant ``t`` [s] on: each channel touched runs
+        exactly the schedule its parameters now hold."""
+        pending = self.params.take_pending()   # (wall: a new sample_time acts at re-arming)
+        values = self.params.values
+        for kind, ch in sorted({split_param_name(n)[:2] for n in pending if split_param_name(n)}):
+            prefix = f'{kind}.{ch}.'
+            fields = {f: values[prefix + f] for f in FIELDS if f != 'value'}
+            reason = self.reference.update(kind, ch, fields, t)
+            if reason:   # never expected: the same schedule passed the cross-check
+                self.get_logger().error(f'change of {kind}.{ch} not applied: {reason}')
             else:
-                self.get_logger().info(f'{kind}.{ch}: {changes} from t = {t:g} s')
+                self.get_logger().info(f'{kind}.{ch}: times {fields["times"]}, values '
+                                       f'{fields["values"]} from t = {t:g} s')
 
     # ---------------------------------------------------------------- publish
     def _publish(self, stamp_ns: int, t: float) -> None:
@@ -140,10 +182,13 @@ class ReferenceNode(Node):
         """Answer tick t_k once (idempotent: a re-sent /clock gets the same messages);
         with ``lockstep.anticipate`` also answer the next tick ahead."""
         t_ns = stamp_to_ns(msg.clock)
-        if t_ns == 0 and self._last_clock:  # the plant (re)started: a new run
-            self.get_logger().info('/clock restarted at 0: answering a new run')
+        if self._last_clock is not None and t_ns < self._last_clock:
+            # /clock went back: the plant (re)started, a new run (the plant re-sends only its
+            # current tick, so an earlier one is no duplicate; its tick 0 may have been missed)
+            self.get_logger().info('/clock restarted: answering a new run')
             self._answered.clear()
             self._last_clock = None
+            self._last_t = 0.0
         if self._last_clock is not None and t_ns < self._last_clock:
             return                        # a stale duplicate of an earlier tick
         cached = self._answered.get(t_ns)
@@ -193,7 +238,7 @@ class ReferenceNode(Node):
         if self._origin_ns is not None:
             self.get_logger().info('new plant time origin (the plant restarted): schedule '
                                    'restarts at 0')
-        self._origin_ns, self._last_t_ns = origin, -1
+        self._origin_ns, self._last_t_ns, self._last_t = origin, -1, 0.0
         self._on_timer()
 
     def _after_set(self, parameters: list[Parameter]) -> None:
