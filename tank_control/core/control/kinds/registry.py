@@ -80,12 +80,21 @@ class PreparedChange:
     changed: frozenset[str]
     candidate: Controller
     in_place: bool
+    deferred: bool = False
+    """the running controller could not be copied: ``update`` is applied to it at
+    :meth:`take_effect` (no trial before acceptance)"""
 
     def take_effect(self, running: Controller, t: float, y: np.ndarray, r: np.ndarray,
                     d: np.ndarray) -> tuple[Controller, np.ndarray]:
         """:func:`step_with_changes` with the prepared candidate: ``(controller from now on,
         output of this sample)``. An in-place candidate is a copy of ``running`` taken when it
         was prepared: ``running`` must not have been stepped or reset since."""
+        if self.deferred:
+            if self.kind.update(running, self.settings, self.changed) is not False:
+                return running, np.asarray(running.step(t, y, r, d), dtype=float)
+            return PreparedChange(self.kind, self.settings, self.changed,
+                                  build(self.kind, self.settings), False
+                                  ).take_effect(running, t, y, r, d)
         if self.in_place:
             return self.candidate, np.asarray(self.candidate.step(t, y, r, d), dtype=float)
         u = np.asarray(running.step(t, y, r, d), dtype=float)
@@ -111,7 +120,9 @@ def prepare_change(kind: ControllerKind, controller: Controller, settings_: Sett
     try:
         in_place = False
         if kind.update is not None:
-            target = copy.deepcopy(controller) if copy_running else controller
+            target = _copy(controller) if copy_running else controller
+            if target is None:     # a controller that cannot be copied: updated when it acts
+                return PreparedChange(kind, settings_, changed, controller, True, deferred=True)
             if kind.update(target, settings_, changed) is not False:
                 candidate, in_place = target, True
         if not in_place:
@@ -122,6 +133,14 @@ def prepare_change(kind: ControllerKind, controller: Controller, settings_: Sett
     if trial is not None:
         _trial(candidate, in_place, trial, u_last, changed)
     return PreparedChange(kind, settings_, changed, candidate, in_place)
+
+
+def _copy(controller: Controller) -> Controller | None:
+    """A deep copy of ``controller``, or None if some part of it cannot be copied."""
+    try:
+        return copy.deepcopy(controller)
+    except (TypeError, copy.Error):
+        return None
 
 
 def _trial(candidate: Controller, in_place: bool, trial: Sample, u_last: np.ndarray | None,
