@@ -19,7 +19,7 @@ from tank_control.core.loop import nominal_disturbances, nominal_inputs
 from tank_control.core.plants.kinds import registry
 
 EXTREMES = (1e308, -1e308, 1e300, -1e300, 1e154, -1e154, 1e12, -1e12, 5e-324, -5e-324, 0.0)
-STEPS = ((0.1, 20), (1.0, 20), (3600.0, 3))
+STEPS = ((0.1, 20), (1.0, 20), (600.0, 2))
 """(dt [s], number of steps) the extreme value is held for."""
 
 
