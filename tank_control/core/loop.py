@@ -12,6 +12,13 @@ The arithmetic of the nodes' lockstep protocol (docs/nodes.md), without ROS. Wit
 4. record ``t, y.*, r.*, u.*, d.*``; ``plant.step(u, d, sample_time)`` — ZOH over
    ``[t_k, t_k+1)``.
 
+With ``guards`` (:class:`Guards`, what the nodes refuse on their inputs) a value outside its
+channel's plausible range (``core/ranges.py``) or non-finite is refused as controller_node and
+plant_node refuse it: a setpoint or disturbance keeps its last good value, a measurement makes
+the controller hold its last output (or send its fail-safe output), and a later good sample
+resumes it bumplessly with ``reset(y, u held)``; a non-finite controller output is replaced
+the same way; a plant input keeps its last good value.
+
 Channels are matched by name (``output_names``, ``disturbance_names``, ``input_names``).
 The reference is read again only at the instants its schedules may change
 (:meth:`Reference.held_until`), and the arrays passed to the objects are made anew only when
@@ -21,11 +28,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from itertools import chain
 
 import numpy as np
 
 from tank_control.core.interfaces import NS_PER_S, Controller, Plant, to_ns
+from tank_control.core.ranges import Ranges
 from tank_control.core.reference import Reference
 from tank_control.core.trace import Trace
 
@@ -33,6 +42,19 @@ _FLOAT64 = np.dtype(np.float64)
 
 Noise = Callable[[], np.ndarray]
 """One measurement-noise draw per call, ordered as the plant's outputs."""
+
+
+@dataclass(frozen=True)
+class Guards:
+    """What the nodes refuse on their inputs: ``controller`` ranges (measurements, setpoints,
+    measured disturbances: controller_node's ``range.*``), ``plant`` ranges (inputs and
+    disturbances: plant_node's), and the controller's fail-safe: ``fail_safe_output`` (one value
+    per input) sent on a bad measurement when ``hold`` is False or before any output."""
+
+    controller: Ranges = field(default_factory=Ranges)
+    plant: Ranges = field(default_factory=Ranges)
+    fail_safe_output: tuple[float, ...] = ()
+    hold: bool = True
 
 
 def nominal_inputs(plant: Plant) -> dict[str, float]:
@@ -128,22 +150,24 @@ def loop_ticks(sample_time: float, duration: float) -> int:
 
 
 def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
-             sample_time: float, duration: float, noise: Noise | None = None) -> Trace:
+             sample_time: float, duration: float, noise: Noise | None = None,
+             guards: Guards | None = None) -> Trace:
     """Run the closed loop for ``duration`` seconds of simulated time (ticks 0..K inclusive).
 
     ``sample_time`` is the plant's tick [s]; the controller's ``sample_time``
-    must be an integer multiple of it.
+    must be an integer multiple of it. ``guards``: the nodes' refusal of implausible values
+    (module docstring); None: every value passes.
     """
     rows = iter_loop(plant, controller, reference, sample_time=sample_time,
-                     duration=duration, noise=noise)
+                     duration=duration, noise=noise, guards=guards)
     names = loop_columns(plant, controller, reference)
     table = np.fromiter(chain.from_iterable(rows), dtype=float)   # to the end: the last step
     return Trace.from_rows(names, table.reshape(-1, len(names)))
 
 
 def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
-              sample_time: float, duration: float, noise: Noise | None = None
-              ) -> Iterator[list[float]]:
+              sample_time: float, duration: float, noise: Noise | None = None,
+              guards: Guards | None = None) -> Iterator[list[float]]:
     """``run_loop`` one row at a time (a list of floats, columns ``loop_columns``), for a
     caller that writes the rows as they come instead of holding them. The wiring and sample
     times are checked before the first row."""
@@ -151,11 +175,74 @@ def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
     reason = sample_time_reason(sample_time, controller.sample_time)
     if reason:
         raise ValueError(reason)
-    return _rows(plant, controller, reference, sample_time, duration, noise)
+    if guards is not None and len(guards.fail_safe_output) != len(controller.input_names):
+        raise ValueError(f'fail_safe_output: {list(guards.fail_safe_output)} must hold one value '
+                         f'per input {list(controller.input_names)}')
+    return _rows(plant, controller, reference, sample_time, duration, noise, guards)
+
+
+class _Guard:
+    """The refusals of :class:`Guards` as the nodes apply them (state: the last good values,
+    the fault)."""
+
+    def __init__(self, guards: Guards, plant: Plant, controller: Controller,
+                 reference: Reference, u_plant: list[float], d_plant: list[float]) -> None:
+        self.c, self.p = guards.controller, guards.plant
+        self.fail_safe = [float(v) for v in guards.fail_safe_output]
+        self.hold = guards.hold
+        self.r_names = reference.setpoint_names
+        self.r_good: dict[str, float] = {}
+        self.d_names = plant.disturbance_names
+        self.u_names = plant.input_names
+        self.y_names = controller.output_names
+        self.u_good = list(u_plant)
+        self.d_good = list(d_plant)
+        self.d_ctrl_names = controller.disturbance_names
+        self.d_ctrl_good: dict[str, float] = {}
+        self.u_last: list[float] | None = None      # the controller's last output
+        self.fault = False
+
+    def setpoints(self, r: list[float]) -> list[float]:
+        """Setpoints as controller_node takes them (a refused one: last good, else NaN)."""
+        out = []
+        for name, value in zip(self.r_names, r):
+            if self.c.accepts(name, value):
+                self.r_good[name] = value
+            out.append(self.r_good.get(name, math.nan))
+        return out
+
+    def plant_inputs(self, values: list[float], good: list[float], names: Sequence[str]
+                     ) -> list[float]:
+        """Inputs (or disturbances) as plant_node takes them: a refused one keeps its last
+        good value (``good``, updated)."""
+        for i, (name, value) in enumerate(zip(names, values)):
+            if self.p.accepts(name, value):
+                good[i] = value
+        return list(good)
+
+    def controller_disturbances(self, d: list[float]) -> list[float]:
+        out = []
+        for name, value in zip(self.d_ctrl_names, d):
+            if self.c.accepts(name, value):
+                self.d_ctrl_good[name] = value
+            out.append(self.d_ctrl_good.get(name, math.nan))
+        return out
+
+    def measurement_ok(self, y: list[float]) -> bool:
+        return all(self.c.accepts(name, value) for name, value in zip(self.y_names, y))
+
+    def held(self) -> list[float]:
+        """controller_node's output on a fault: the last output (``hold``) or the fail-safe."""
+        self.fault = True
+        if self.hold and self.u_last is not None:
+            return list(self.u_last)
+        self.u_last = list(self.fail_safe)
+        return list(self.fail_safe)
 
 
 def _rows(plant: Plant, controller: Controller, reference: Reference, sample_time: float,
-          duration: float, noise: Noise | None) -> Iterator[list[float]]:
+          duration: float, noise: Noise | None, guards: Guards | None = None
+          ) -> Iterator[list[float]]:
     ts_ns = to_ns(sample_time)
     cts_ns = to_ns(controller.sample_time)
     n_ticks = loop_ticks(sample_time, duration)
@@ -189,6 +276,8 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
     values, outputs, plant_step = reference.values, plant.outputs, plant.step
     controller_step = controller.step
     isfinite = math.isfinite
+    guard = (None if guards is None else
+             _Guard(guards, plant, controller, reference, u_plant, d_plant))
     for k in range(n_ticks):
         t_ns = k * ts_ns
         t = t_ns / NS_PER_S                      # seconds(t_ns)
@@ -197,7 +286,7 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
             r_until = held_until('setpoint', t)
             if r_now != r_row:
                 r_row = r_now
-                r_all = np.array(r_row, dtype=float)
+                r_all = np.array(r_row if guard is None else guard.setpoints(r_row), dtype=float)
         if d_ref_pos and t >= d_until:
             d_now = values('disturbance', t)
             d_until = held_until('disturbance', t)
@@ -205,13 +294,27 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 d_ref = d_now
                 for i, j in enumerate(d_ref_pos):
                     d_plant[j] = d_ref[i]
-                d_arr = np.array(d_plant, dtype=float)
-                d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
+                if guard is None:
+                    d_arr = np.array(d_plant, dtype=float)
+                    d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
+                else:
+                    d_ctrl = np.array(guard.controller_disturbances(
+                        [d_plant[j] for j in d_ctrl_pos]), dtype=float)
+                    d_arr = np.array(guard.plant_inputs(d_plant, guard.d_good, guard.d_names),
+                                     dtype=float)
         y = outputs()
         if noise is not None:
             y = y + noise()
         y_row = y.tolist()
-        if t_ns % cts_ns == 0:
+        if t_ns % cts_ns == 0 and guard is not None:
+            u_ctrl = _guarded_sample(guard, controller, t, y if y_whole else y[y_index],
+                                     r_all if r_whole else r_all[r_index], d_ctrl, started)
+            started = True
+            for i, j in enumerate(u_pos):
+                u_plant[j] = u_ctrl[i]
+            u_arr = np.array(guard.plant_inputs(u_plant, guard.u_good, guard.u_names),
+                             dtype=float)
+        elif t_ns % cts_ns == 0:
             y_c = y if y_whole else y[y_index]
             if not started and all(isfinite(y_row[i]) for i in y_index):
                 warm_start(controller, y_c)      # the first good sample: bumpless take-over
@@ -228,3 +331,22 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 u_arr = np.array(u_plant, dtype=float)
         yield [t, *y_row, *r_row, *u_ctrl, *d_ref]
         plant_step(u_arr, d_arr, sample_time)
+
+
+def _guarded_sample(guard: _Guard, controller: Controller, t: float, y: np.ndarray,
+                    r: np.ndarray, d: np.ndarray, started: bool) -> list[float]:
+    """controller_node's sample (``_sample``): a refused measurement or a non-finite output
+    gives the held or fail-safe output; the first good sample after a fault resets the
+    controller to the output held (bumpless), the first good sample of all warm-starts it."""
+    if not guard.measurement_ok(y.tolist()):
+        return guard.held()
+    if guard.fault and guard.u_last is not None:
+        controller.reset(y, np.array(guard.u_last, dtype=float))
+    elif not started:
+        warm_start(controller, y)
+    u = np.asarray(controller.step(t, y, r, d), dtype=float).tolist()
+    if not all(math.isfinite(v) for v in u):
+        return guard.held()
+    guard.fault = False
+    guard.u_last = u
+    return list(u)

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any
 
+from tank_control.core import ranges
 from tank_control.core.control.kinds import registry as controllers
 from tank_control.core.params import ConfigError, ParamSpec, param, specs_of, unknown_reason
 from tank_control.core.plants.kinds import registry as plants
@@ -96,14 +98,36 @@ class ReferenceNode:
                              'one)', name='lockstep.anticipate', read_only=True)
 
 
+def plant_channels(kind: str) -> tuple[str, ...]:
+    """The channels a plant_node simulating ``kind`` receives: its inputs and disturbances."""
+    model = plants.get_kind(kind).build
+    return (*model.input_names, *model.disturbance_names)
+
+
+def controller_channels(kind: str, values: Mapping[str, Any] | None = None) -> tuple[str, ...]:
+    """The channels a controller_node running ``kind`` receives: its measured outputs (also the
+    setpoints' channels, as ``output_names`` of ``values`` or the kind's default) and measured
+    disturbances."""
+    controller_kind = controllers.get_kind(kind)
+    defaults = {s.name: s.default for s in controller_kind.specs()}
+    outputs = (values or {}).get('output_names', defaults.get('output_names', []))
+    if not isinstance(outputs, (list, tuple)) or not all(isinstance(n, str) for n in outputs):
+        outputs = defaults.get('output_names', [])     # a bad value is refused by its spec
+    return (*outputs, *controller_kind.disturbances)
+
+
 def plant_specs(kind: str) -> tuple[ParamSpec, ...]:
     """Every parameter of a plant_node simulating ``kind``."""
-    return specs_of(PlantNode) + specs_of(NoiseConfig) + plants.get_kind(kind).specs()
+    return (specs_of(PlantNode) + specs_of(NoiseConfig) + plants.get_kind(kind).specs()
+            + ranges.range_specs(plant_channels(kind)))
 
 
-def controller_specs(kind: str) -> tuple[ParamSpec, ...]:
-    """Every parameter of a controller_node running ``kind``."""
-    return specs_of(ControllerNode) + controllers.get_kind(kind).specs()
+def controller_specs(kind: str, values: Mapping[str, Any] | None = None
+                     ) -> tuple[ParamSpec, ...]:
+    """Every parameter of a controller_node running ``kind`` (``values``: its parameter values,
+    whose ``output_names`` name the ``range.*`` parameters)."""
+    return (specs_of(ControllerNode) + controllers.get_kind(kind).specs()
+            + ranges.range_specs(controller_channels(kind, values)))
 
 
 def kind_of(node: str, values: dict[str, Any]) -> str:
@@ -134,15 +158,14 @@ def all_names() -> frozenset[str]:
 @functools.lru_cache(maxsize=4)
 def _all_names(plant_kinds: tuple, controller_kinds: tuple) -> frozenset[str]:
     """Computed once per content of the kind tables (the arguments identify it)."""
-    specs = specs_of(PlantNode) + specs_of(NoiseConfig) + specs_of(ControllerNode) + specs_of(
-        ReferenceNode)
-    specs += tuple(s for kind in plants.KINDS.values() for s in kind.specs())
-    specs += tuple(s for kind in controllers.KINDS.values() for s in kind.specs())
+    specs = specs_of(ReferenceNode)
+    specs += tuple(s for kind in plants.KINDS for s in plant_specs(kind))
+    specs += tuple(s for kind in controllers.KINDS for s in controller_specs(kind))
     return frozenset(s.name for s in specs)
 
 
 def declared_anywhere(name: str) -> bool:
     """True if some node of this package declares ``name``: a value a node does not know may
     then come from a ``/**`` section meant for another node, not from a typo."""
-    return (is_ros_own(name) or name.split('.')[0] in ('setpoint', 'disturbance')
+    return (is_ros_own(name) or name.split('.')[0] in ('setpoint', 'disturbance', 'range')
             or name in all_names())

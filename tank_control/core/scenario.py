@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tank_control.core import node_specs, params_file
+from tank_control.core import node_specs, params_file, ranges
 from tank_control.core.control.kinds import registry as controllers
 from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.interfaces import Controller, Plant
-from tank_control.core.loop import run_loop, sample_time_reason
+from tank_control.core.loop import Guards, run_loop, sample_time_reason
 from tank_control.core.trace import Trace
 from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNode
 from tank_control.core.params import (ConfigError, coerce, config_from, names_of, specs_of,
@@ -46,6 +46,8 @@ class PlantSetup:
     noise: NoiseConfig
     kind: PlantKind
     model: Any
+    ranges: ranges.Ranges = ranges.Ranges()
+    """plausible ranges of the inputs and disturbances it receives (``range.*``)"""
 
     def build_plant(self) -> Plant:
         return self.kind.build(self.model)
@@ -67,7 +69,8 @@ def plant_setup(values: Mapping[str, Any]) -> PlantSetup:
         node=config_from(PlantNode, _own(PlantNode, values)),
         noise=config_from(NoiseConfig, _own(NoiseConfig, values)),
         kind=kind,
-        model=config_from(kind.config, {k: v for k, v in values.items() if k in model_names}))
+        model=config_from(kind.config, {k: v for k, v in values.items() if k in model_names}),
+        ranges=ranges.ranges_from(values, node_specs.plant_channels(kind.name)))
 
 
 # ------------------------------------------------------------------------------ controller
@@ -78,13 +81,17 @@ class ControllerSetup:
     node: ControllerNode
     kind: ControllerKind
     settings: Settings
+    ranges: ranges.Ranges = ranges.Ranges()
+    """plausible ranges of the measurements, setpoints and disturbances it reads"""
 
     def build_controller(self) -> Controller:
         return controllers.build(self.kind, self.settings)
 
     def values(self) -> dict[str, Any]:
-        """Every parameter value of the node (its own and the kind's, derived ones included)."""
-        return {**values_of(self.node), **self.settings.values}
+        """Every parameter value of the node (its own and the kind's, derived ones included,
+        the ranges)."""
+        return {**values_of(self.node), **self.settings.values,
+                **{ranges.name_of(c): list(b) for c, b in self.ranges.bounds.items()}}
 
 
 def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = None
@@ -92,12 +99,15 @@ def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = No
     """controller_node's settings from its parameter values (``given``: the names the user set,
     default all; a tuning rule's gains among them must agree with the rule)."""
     kind = controllers.get_kind(node_specs.kind_of('controller', dict(values)))
-    node_specs.unknown_names(node_specs.controller_specs(kind.name), dict(values))
+    node_specs.unknown_names(node_specs.controller_specs(kind.name, values), dict(values))
     node_names = set(names_of(ControllerNode))
-    own = {k: v for k, v in values.items() if k not in node_names and not node_specs.is_ros_own(k)}
+    own = {k: v for k, v in values.items() if k not in node_names and not node_specs.is_ros_own(k)
+           and not k.startswith(ranges.PREFIX)}
+    settings = controllers.settings(kind, own, given)
     return ControllerSetup(
         node=config_from(ControllerNode, _own(ControllerNode, values)), kind=kind,
-        settings=controllers.settings(kind, own, given))
+        settings=settings, ranges=ranges.ranges_from(values, node_specs.controller_channels(
+            kind.name, settings.values)))
 
 
 # ------------------------------------------------------------------------------- reference
@@ -145,6 +155,17 @@ class Built:
     def sample_time(self) -> float:
         return self.plant_setup.node.sample_time
 
+    def guards(self) -> Guards:
+        """What the nodes would refuse on their inputs (``range.*``, the fail-safe output)."""
+        values = self.controller_setup.settings.values
+        n = len(self.controller.input_names)
+        fail_safe = values.get('fail_safe_output', 0.0)
+        if not isinstance(fail_safe, (list, tuple)):
+            fail_safe = [fail_safe] * n
+        return Guards(controller=self.controller_setup.ranges, plant=self.plant_setup.ranges,
+                      fail_safe_output=tuple(float(v) for v in fail_safe)[:n] or (0.0,) * n,
+                      hold=values.get('fail_safe', 'hold') != 'output')
+
     def controller_values(self) -> dict[str, Any]:
         """The controller's parameter values as controller_node holds them after the run: the
         settings (derived gains included) updated by what the controller produced."""
@@ -169,7 +190,7 @@ def node_values(sections: Mapping[str, Mapping[str, Any]], node: str) -> dict[st
         known = {s.name for s in node_specs.plant_specs(node_specs.kind_of('plant', probe))}
     elif node == 'controller':
         known = {s.name for s in node_specs.controller_specs(
-            node_specs.kind_of('controller', probe))}
+            node_specs.kind_of('controller', probe), probe)}
     else:
         known = set(names_of(ReferenceNode))
         known |= {k for k in wildcard if k.split('.')[0] in ('setpoint', 'disturbance')}
@@ -216,7 +237,7 @@ def typed(sections: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]
         if node == 'plant':
             specs = node_specs.plant_specs(node_specs.kind_of('plant', probe))
         elif node == 'controller':
-            specs = node_specs.controller_specs(node_specs.kind_of('controller', probe))
+            specs = node_specs.controller_specs(node_specs.kind_of('controller', probe), probe)
         else:
             specs = specs_of(ReferenceNode) + channel_specs(reference_setup(probe).reference)
         by_name = {s.name: s for s in specs}
@@ -252,7 +273,8 @@ def duration_of(sections: Mapping[str, Mapping[str, Any]], duration: float | Non
 def run(built: Built, duration: float) -> Trace:
     """Run built objects through ``core/loop.py`` for ``duration`` simulated seconds."""
     return run_loop(built.plant, built.controller, built.reference,
-                    sample_time=built.sample_time, duration=duration, noise=built.noise.sample)
+                    sample_time=built.sample_time, duration=duration, noise=built.noise.sample,
+                    guards=built.guards())
 
 
 def run_in_process(scenario: str | Path | Mapping[str, Mapping[str, Any]],

@@ -124,8 +124,8 @@ def _declared_default(scenario: Scenario, section: str, name: str) -> Any:
     elif section == 'plant':
         specs = node_specs.plant_specs(node_specs.kind_of('plant', scenario.params('plant')))
     elif section == 'controller':
-        specs = node_specs.controller_specs(
-            node_specs.kind_of('controller', scenario.params('controller')))
+        values = scenario.params('controller')
+        specs = node_specs.controller_specs(node_specs.kind_of('controller', values), values)
     else:
         specs = specs_of(node_specs.ReferenceNode)
     for spec in specs:

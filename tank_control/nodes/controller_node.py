@@ -26,7 +26,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from tank_control.core import node_specs
+from tank_control.core import node_specs, ranges
 from tank_control.core.control.kinds import registry
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.params import ConfigError
@@ -65,11 +65,17 @@ class ControllerNode(Node):
         kind_name = self._kind_from_overrides()
         self._kind = registry.get_kind(kind_name)
         self._kind_names = frozenset(s.name for s in self._kind.specs())
-        self._params = ParameterBinding(self, node_specs.controller_specs(kind_name),
-                                        cross_check=self._cross_check, derive=self._derive)
+        self._prepared: tuple[registry.PreparedChange, int] | None = None   # (change, _gen)
+        self._gen = 0                 # bumped whenever the running controller steps or resets
+        self._params = ParameterBinding(
+            self, node_specs.controller_specs(kind_name, self._override_values()),
+            cross_check=self._cross_check, derive=self._derive)
         values = self._params.values
-        self._controller = controller_setup(values).build_controller()
+        setup = controller_setup(values)
+        self._controller = setup.build_controller()
+        self._ranges = setup.ranges
         self._params.take_pending()
+        self.add_post_set_parameters_callback(self._on_params_set)
         self._outputs = tuple(self._controller.output_names)
         self._inputs = tuple(self._controller.input_names)
         self._disturbances = tuple(self._controller.disturbance_names)
@@ -87,11 +93,15 @@ class ControllerNode(Node):
         self._d: dict[str, float] = {name: math.nan for name in self._disturbances}
         self._fresh = False
         self._since_measurement = 0
-        self._fault = ''                 # '' | 'stale' | 'non-finite'
+        self._fault = ''         # '' | 'stale' | 'non-finite' | 'out-of-range' | 'controller'
+        self._fault_reason = ''
+        self._update_error = ''          # a parameter change that could not be applied
+        self._last_sample_io: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._logged: set[str] = set()
         self.counters = {'samples': 0, 'stale_samples': 0, 'nonfinite_measurements': 0,
-                         'rejected_inputs': 0, 'late_setpoints': 0, 'fault_episodes': 0,
-                         'update_errors': 0}
+                         'out_of_range_measurements': 0, 'rejected_inputs': 0,
+                         'late_setpoints': 0, 'fault_episodes': 0, 'update_errors': 0,
+                         'controller_faults': 0}
         # plant time base: origin of the stamps (wall: from the plant, None until then)
         self._origin_ns: int | None = None if self._mode == 'wall' else 0
         self._r_stamp: int | None = None           # stamp of the setpoint held (wall/sim)
@@ -162,16 +172,40 @@ class ControllerNode(Node):
         except ConfigError as exc:
             raise ParameterError(str(exc)) from None
 
+    def _override_values(self) -> dict[str, Any]:
+        return {name: p.value for name, p in getattr(self, '_parameter_overrides', {}).items()}
+
     def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
         # the node's own results (tuned gains, an identified model) are not a user's change:
         # they are checked as values, not against a guard on changes (robustness.ms_max)
-        given = frozenset() if getattr(self, '_params', None) is not None \
-            and self._params.writing else changed
+        writing = getattr(self, '_params', None) is not None and self._params.writing
+        given = frozenset() if writing else changed
         try:
-            controller_setup(values, given=given)
+            setup = controller_setup(values, given=given)
         except ConfigError as exc:
             return str(exc)
+        mine = changed & self._kind_names
+        if writing or not mine or getattr(self, '_controller', None) is None:
+            return None
+        # a user's change of the controller: build the candidate now and try it from the last
+        # sample (the derived quantities must give finite outputs); it takes effect next sample
+        if self._prepared is not None and self._prepared[1] == self._gen:
+            mine |= self._prepared[0].changed          # accepted earlier, not applied yet
+        try:
+            prepared = registry.prepare_change(
+                self._kind, self._controller, setup.settings, frozenset(mine),
+                trial=self._last_sample_io, u_last=self._u)
+        except ValueError as exc:
+            return str(exc)
+        self._prepared = (prepared, self._gen)
         return None
+
+    def _on_params_set(self, parameters: list) -> None:
+        """Accepted ``range.*`` changes act at once (on the next message)."""
+        given = {p.name: p.value for p in parameters if p.name.startswith(ranges.PREFIX)}
+        if given:
+            values = {**self._params.values, **given}
+            self._ranges = ranges.ranges_from(values, tuple(self._ranges.bounds))
 
     def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
         extra = {}
@@ -189,15 +223,24 @@ class ControllerNode(Node):
     def _step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One controller step; accepted parameter changes take effect at it, bumplessly."""
         changed = [name for name in self._params.take_pending() if name in self._kind_names]
+        prepared, self._prepared = self._prepared, None
+        gen, self._gen = self._gen, self._gen + 1
         if changed:
             try:
-                settings = controller_setup(self._params.values, given=()).settings
-                self._controller, u = registry.step_with_changes(
-                    self._kind, self._controller, settings, frozenset(changed), t, y, r, d)
+                # the candidate checked on acceptance, unless it is a copy of a running
+                # controller that has stepped or reset since (then it is made anew)
+                if prepared is None or (prepared[0].in_place and prepared[1] != gen):
+                    settings = controller_setup(self._params.values, given=()).settings
+                    prepared = (registry.prepare_change(self._kind, self._controller, settings,
+                                                        frozenset(changed)), gen)
+                self._controller, u = prepared[0].take_effect(self._controller, t, y, r, d)
+                self._update_error = ''
                 return u
-            except ValueError as exc:    # validated before acceptance; never expected
+            except ValueError as exc:    # checked before acceptance; never expected
                 self.counters['update_errors'] += 1
-                self.get_logger().error(f'parameter change could not be applied: {exc}')
+                self._update_error = f'parameter change could not be applied: {exc}'
+                self.get_logger().error(self._update_error)
+                self._publish_diagnostics()
         return np.asarray(self._controller.step(t, y, r, d), dtype=float)
 
     # ---------------------------------------------------------------- inputs
@@ -220,19 +263,32 @@ class ControllerNode(Node):
 
     def _finite_or_last(self, topic: str, values: Mapping[str, float], names: tuple[str, ...],
                         last: dict[str, float]) -> dict[str, float]:
-        """Channels ``names`` from ``values``; a non-finite one is rejected (last valid kept)."""
+        """Channels ``names`` from ``values``; a non-finite one or one outside its
+        ``range.*`` is rejected (last valid kept)."""
         out = {}
         for name in names:
             if name not in values:
                 continue
-            if math.isfinite(values[name]):
+            reason = self._ranges.reason(name, values[name])
+            if reason is None:
                 out[name] = last[name] = values[name]
             else:
-                self._reject_input(f'{topic}: non-finite value for {name!r} ignored; '
-                                   'last valid kept')
+                self._reject_input(f'{topic}: {reason} ignored; last valid kept')
                 if name in last:
                     out[name] = last[name]
         return out
+
+    def _measurement_fault(self, y: np.ndarray) -> str:
+        """'' for a good measurement, else 'non-finite' or 'out-of-range' (logged once)."""
+        for name, value in zip(self._outputs, y.tolist()):
+            reason = self._ranges.reason(name, value)
+            if reason is not None:
+                if math.isfinite(value):
+                    self._log_once(f'{TOPIC_MEASUREMENT}: {reason} refused like a non-finite '
+                                   'one (logged once)')
+                    return 'out-of-range'
+                return 'non-finite'
+        return 
 
     def _on_measurement(self, msg: JointState) -> None:
         parsed = self._parse(TOPIC_MEASUREMENT, msg)
@@ -443,27 +499,45 @@ class ControllerNode(Node):
         r_vec = np.array([r[name] for name in self._outputs], dtype=float)
         d_vec = np.array([d.get(name, math.nan) for name in self._disturbances], dtype=float)
         self.counters['samples'] += 1
-        fault = 'stale' if stale else ('' if np.all(np.isfinite(y_vec)) else 'non-finite')
+        fault = 'stale' if stale else self._measurement_fault(y_vec)
         if fault:
             return self._hold(fault)
+        recovered = ''
         if self._fault and self._u is not None:
+            self._gen += 1
             self._controller.reset(y_vec, self._u)       # continue from what the plant got
             self._started = True
-            self.get_logger().info(f'measurement recovered after {self._fault} episode; '
-                                   'control resumed bumplessly')
-            self._fault = ''
-            self._publish_diagnostics()
+            recovered = self._fault
         elif not self._started and takeover is not None:   # a running loop: bumpless take-over
+            self._gen += 1
             self._controller.reset(y_vec, takeover)
             self._started = True
             self.get_logger().info(f"took over from the plant's applied input "
                                    f'{dict(zip(self._inputs, takeover.tolist()))} (bumpless)')
         elif not self._started:      # first good sample: reset(y, initial_output), as core/loop.py
+            self._gen += 1
             warm_start(self._controller, y_vec)
             self._started = True
         start = time.perf_counter()
-        u = np.array(self._step(seconds(t_ns), y_vec, r_vec, d_vec), dtype=float)
+        t = seconds(t_ns)
+        try:
+            u = np.array(self._step(t, y_vec, r_vec, d_vec), dtype=float)
+        except (ArithmeticError, ValueError) as exc:
+            u = np.full(len(self._inputs), math.nan)
+            self._fault_reason = f'{type(exc).__name__}: {exc}'
         self._compute_s = time.perf_counter() - start
+        if not np.all(np.isfinite(u)):
+            # a controller that cannot compute: the fail-safe path, said loudly
+            self._fault_reason = self._fault_reason or f'non-finite output {u.tolist()}'
+            return self._hold('controller')
+        if recovered:
+            what = 'controller' if recovered == 'controller' else 'measurement'
+            self.get_logger().info(f'{what} recovered after {recovered} episode; '
+                                   'control resumed bumplessly')
+            self._fault = ''
+            self._publish_diagnostics()
+        self._fault_reason = ''
+        self._last_sample_io = (t, y_vec, r_vec, d_vec)
         self._u = u
         self._check_saturation()
         self._check_warning()
@@ -527,6 +601,7 @@ class ControllerNode(Node):
 
     def _on_command(self, command: str, response: Trigger.Response) -> Trigger.Response:
         """An operator command (std_srvs/Trigger ``~/<command>``) for the running controller."""
+        self._gen += 1               # the command may change the running controller
         try:
             response.success, response.message = self._kind.commands[command](self._controller)
         except ValueError as exc:
@@ -535,8 +610,14 @@ class ControllerNode(Node):
         self._write_results()
         return response
 
+    _FAULT_COUNTERS = {'stale': 'stale_samples', 'non-finite': 'nonfinite_measurements',
+                       'out-of-range': 'out_of_range_measurements',
+                       'controller': 'controller_faults'}
+
     def _hold(self, fault: str) -> np.ndarray:
-        self.counters['stale_samples' if fault == 'stale' else 'nonfinite_measurements'] += 1
+        """The output on a fault: the last output (``fail_safe: hold``) or ``fail_safe_output``
+        (``output``, or no output yet); a new episode is logged once and reported."""
+        self.counters[self._FAULT_COUNTERS[fault]] += 1
         values = self._params.values
         fail_safe = values.get('fail_safe', 'hold') == 'output' or self._u is None
         if fail_safe:
@@ -547,8 +628,12 @@ class ControllerNode(Node):
         if self._fault != fault:
             self.counters['fault_episodes'] += 1
             action = 'fail_safe_output' if fail_safe else 'last output held'
-            self.get_logger().warning(f'measurement {fault}: {action} {u.tolist()} until good '
-                                      'measurements return')
+            if fault == 'controller':
+                self.get_logger().error(f'controller fault ({self._fault_reason}): {action} '
+                                        f'{u.tolist()} until it computes again')
+            else:
+                self.get_logger().warning(f'measurement {fault}: {action} {u.tolist()} until '
+                                          'good measurements return')
             self._fault = fault
             self._u = u
             self._publish_diagnostics()
@@ -573,7 +658,8 @@ class ControllerNode(Node):
         level = (DiagnosticStatus.WARN if self._fault or self._warning
                  else DiagnosticStatus.OK)
         waiting = len(self._y) < len(self._outputs) and self._mode != 'lockstep'
-        message = (f'measurement {self._fault}: holding' if self._fault
+        message = (f'controller fault: {self._fault_reason}; holding' if self._fault == 'controller'
+                   else f'measurement {self._fault}: holding' if self._fault
                    else 'waiting for measurement' if waiting
                    else "waiting for the plant's time_origin" if self._origin_ns is None
                    else 'running')
@@ -586,9 +672,10 @@ class ControllerNode(Node):
             message += '; ' + '; '.join(warnings)
         if self._warning:
             message += f'; warning: {self._warning}'
-        if self._clock_conflict:
+        if self._update_error:
+            message += f'; {self._update_error}'
+        if self._fault == 'controller' or self._update_error:
             level = DiagnosticStatus.ERROR
-            message = f'not sampling: {self._clock_conflict}'
         if self._clock_conflict:
             level = DiagnosticStatus.ERROR
             message = f'not sampling: {self._clock_conflict}'

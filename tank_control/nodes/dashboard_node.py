@@ -10,7 +10,6 @@ s of plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
 
-import math
 import queue
 import sys
 import threading

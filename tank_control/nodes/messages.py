@@ -17,6 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import NS_PER_S
+from tank_control.core.ranges import Ranges
 
 def reliable_qos(depth: int, latched: bool = False) -> QoSProfile:
     """Reliable keep-last ``depth``; ``latched``: transient local (a late joiner gets the
@@ -120,13 +121,17 @@ class ChannelFilter:
 
     A value is ignored (the last valid one is kept by the caller) when the
     message is malformed, the channel is not one of ``known`` or the value is
-    not finite. Every distinct reason is reported once through ``first_seen``
-    (for a log line), every ignored item is counted in ``ignored``.
+    not finite or outside the channel's plausible range (``ranges``,
+    ``core/ranges.py``; also counted in ``out_of_range``). Every distinct reason
+    is reported once through ``first_seen`` (for a log line), every ignored item
+    is counted in ``ignored``.
     """
 
     known: tuple[str, ...]
     ignored: int = 0
     reasons: set[str] = field(default_factory=set)
+    ranges: Ranges = field(default_factory=Ranges)
+    out_of_range: int = 0
 
     def accept(self, topic: str, msg: JointState) -> tuple[int | None, dict[str, float], list[str]]:
         """``(stamp_ns or None, accepted {name: value}, new reasons to log once)``."""
@@ -146,6 +151,11 @@ class ChannelFilter:
             elif not math.isfinite(value):
                 self.ignored += 1
                 self._note(f'{topic}: non-finite value for {name!r} ignored; last valid kept', new)
+            elif not self.ranges.accepts(name, value):
+                self.ignored += 1
+                self.out_of_range += 1
+                self._note(f'{topic}: {self.ranges.reason(name, value)} ignored; last valid kept',
+                           new)
             else:
                 accepted[name] = value
         return t_ns, accepted, new

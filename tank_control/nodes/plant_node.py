@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.core import node_specs
+from tank_control.core import node_specs, ranges
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import nominal_disturbances, nominal_inputs
 from tank_control.core.node_specs import PlantNode as PlantNodeConfig
@@ -40,6 +40,7 @@ from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
 _NODE_ONLY = frozenset(names_of(PlantNodeConfig)) | frozenset(names_of(NoiseConfig))
+_NODE_ONLY_PREFIX = ranges.PREFIX      # range.*: the filters', not the model's
 _LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
 #: lockstep: a tick unanswered for this many ``lockstep.resend_period`` is a stall (WARN)
 STALL_RESENDS = 2
@@ -79,7 +80,7 @@ class PlantNode(Node):
         self.d = nominal_disturbances(self.plant)
         self._wall_t0_ns = 0               # wall: steady time of tick 0 [ns]
         self.counters = {'ticks': 0, 'late_ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
-                         'late_inputs': 0, 'rejected_changes': 0}
+                         'late_inputs': 0, 'rejected_changes': 0, 'out_of_range_inputs': 0}
 
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
@@ -107,8 +108,11 @@ class PlantNode(Node):
         # tick was integrated with (for ~/late_inputs)
         self._held_stamp: dict[str, int] = {}
         self._integrated: dict[int, dict[str, float]] = {}
-        self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names),
-                        TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names)}
+        # a value outside its range.* is ignored like a non-finite one (last valid kept)
+        self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names,
+                                                         ranges=setup.ranges),
+                        TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names,
+                                                         ranges=setup.ranges)}
         self.create_subscription(JointState, TOPIC_MANIPULATED,
                                  lambda m: self._on_input(TOPIC_MANIPULATED, m), SIGNAL_QOS,
                                  event_callbacks=quiet_subscription_events())
@@ -182,7 +186,8 @@ class PlantNode(Node):
         pending = self.params.take_pending()
         if not pending:
             return
-        model = {k: v for k, v in pending.items() if k not in _NODE_ONLY}
+        model = {k: v for k, v in pending.items()
+                 if k not in _NODE_ONLY and not k.startswith(_NODE_ONLY_PREFIX)}
         if model:
             try:
                 self.plant.configure(**model)
@@ -206,6 +211,12 @@ class PlantNode(Node):
         """(Un-)pausing acts at once (other changes wait for the next step)."""
         # rclpy may run this before the binding's own post-set callback: read the new value.
         was_paused = self._is_paused
+        given = {p.name: p.value for p in parameters if p.name.startswith(ranges.PREFIX)}
+        if given:                         # range.* act on the next message
+            limits = ranges.ranges_from({**self.params.values, **given},
+                                        node_specs.plant_channels(self.params.values['plant']))
+            for flt in self.filters.values():
+                flt.ranges = limits
         for p in parameters:
             if p.name == 'lockstep.paused':
                 self._is_paused = bool(p.value)
@@ -341,6 +352,7 @@ class PlantNode(Node):
         for reason in new_reasons:
             self.get_logger().warning(reason + ' (logged once)')
         self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
+        self.counters['out_of_range_inputs'] = sum(f.out_of_range for f in self.filters.values())
         now = time.monotonic()
         last = self._arrivals.get(topic)
         self._arrivals[topic] = (now, now - last[0] if last else 0.0)

@@ -113,7 +113,8 @@ def lead_constants(td: float, alpha: float, h: float) -> tuple[float, float]:
     ``gd = (z0 − p0)/(1 − z0)``, ``z0 = e^(−h/td)``; ``(0, 0)`` without a lead (``td = 0``)."""
     if td <= 0.0:
         return 0.0, 0.0
-    a, b = -h / td, -h / (alpha * td)
+    pole_time = alpha * td               # may underflow to 0 for a tiny td: no lead pole
+    a, b = -h / td, (-h / pole_time if pole_time > 0.0 else -math.inf)
     return math.exp(b), (math.expm1(a) - math.expm1(b)) / -math.expm1(a)
 
 

@@ -46,6 +46,16 @@ class DenseQp:
         self.iter_limit = iter_limit
         self._model = None
 
+    def __deepcopy__(self, memo: dict) -> DenseQp:
+        """A copy with its own workspace, made at its first solve (DAQP's workspace cannot be
+        copied): the same QP; only the warm start of the first solve is lost."""
+        copy = DenseQp.__new__(DenseQp)
+        copy.h, copy.a, copy.n, copy.iter_limit = self.h.copy(), self.a.copy(), self.n, \
+            self.iter_limit
+        copy._model = None
+        memo[id(self)] = copy
+        return copy
+
     def solve(self, f: np.ndarray, lb: np.ndarray, ub: np.ndarray,
               lo: np.ndarray, hi: np.ndarray) -> QpResult:
         """Solve; bounds may contain ±inf. Never raises for numerical failures."""

@@ -149,7 +149,7 @@ def config_reason(cfg: TwoLoopPiConfig) -> str | None:
                 return f'two_loop.{attr}_{name}: {value!r} is not a finite number'
         if loop.kp == 0.0 and loop.ki == 0.0:
             return f'two_loop.kp_{name}, two_loop.ki_{name}: both 0; at least one must be non-zero'
-        if loop.kp * loop.ki < 0:
+        if (loop.kp > 0 > loop.ki) or (loop.kp < 0 < loop.ki):   # signs: kp·ki may underflow
             return (f'two_loop.ki_{name}: {loop.ki:g} must have the sign of two_loop.kp_{name} '
                     f'({loop.kp:g})')
     if cfg.decoupling not in DECOUPLING_CHOICES:
@@ -179,6 +179,16 @@ def config_reason(cfg: TwoLoopPiConfig) -> str | None:
 
 def _finite(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _tracking_gain(loop: PiLoop, h: float) -> float:
+    """The back-calculation gain min(h/Tt, 1) per sample of ``h`` seconds, Tt = tracking_time,
+    else kp/ki, else h; a Tt that underflows to 0 (kp/ki of extreme gains) gives 1 and one that
+    overflows gives 0 (the limits of h/Tt), never a division by zero."""
+    tt = loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0 else h)
+    if not tt > 0.0:
+        return 1.0
+    return min(h / tt, 1.0)
 
 
 def _d21_gain(cfg: TwoLoopPiConfig) -> float:
@@ -265,11 +275,8 @@ class TwoLoopPi:
         h = cfg.sample_time
         # per loop: kp, the integral gain per sample ki·h, and the back-calculation gain
         # min(h/Tt, 1) with Tt = tracking_time, else kp/ki, else h
-        self._pi = tuple(
-            (loop.kp, loop.ki * h,
-             min(h / (loop.tracking_time or (loop.kp / loop.ki if loop.kp != 0 and loop.ki != 0
-                                              else h)), 1.0))
-            for loop in self._loop_pair)
+        self._pi = tuple((loop.kp, loop.ki * h, _tracking_gain(loop, h))
+                         for loop in self._loop_pair)
 
     @property
     def sample_time(self) -> float:

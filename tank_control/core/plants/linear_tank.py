@@ -8,8 +8,9 @@ and the operating-point inflows ``w_op = [F_H, F_C, F_D, T_H, T_C, T_D]``:
 
 The constant term ``f(x_op, w_op)`` (003's k_const) makes the equilibrium of the linear
 plant that of the tank to first order (003 §1 prints T_op = 33.57; the steady state is
-2115/63). Nothing is clipped: flows may go negative and T may leave [T_C, T_H] — what 003
-§2.3/§3.3 call the danger of trusting the linear model. Exact: the inputs are held over
+2115/63). Nothing physical is clipped: flows may go negative and T may leave [T_C, T_H] — what
+003 §2.3/§3.3 call the danger of trusting the linear model (only a value beyond ±FLOW_MAX is,
+so the state stays finite). Exact: the inputs are held over
 each step and F_C is delayed exactly (``DelayLine``); the state is advanced over every
 constant piece by ``exp([[A, B·w + f], [0, 0]]·τ)``, and T_out is the state ``τ`` seconds
 back, advanced exactly from the piece it falls in, so no delay is rounded to the tick.
@@ -29,7 +30,7 @@ from scipy.linalg import expm
 from tank_control.core.interfaces import NS_PER_S, StatusValue, seconds
 from tank_control.core.params import check_config, config_from
 from tank_control.core.plants.delay_line import DelayLine
-from tank_control.core.plants.mixing_tank import MixingTankConfig, jacobian
+from tank_control.core.plants.mixing_tank import FLOW_MAX, MixingTankConfig, jacobian
 from tank_control.core.plants.siso import StepLength, as_floats
 
 _SHARED = ('C', 'alpha', 'F_H', 'F_C', 'F_D', 'T_H', 'T_C', 'T_D', 'h_op', 'T_op', 'tau_cold',
@@ -109,6 +110,7 @@ class LinearTank:
         self._cold.reset(cfg.F_C)
         self._F_C = cfg.F_C
         self._steps = 0
+        self._clipped_inputs = 0
         # (start [ns], state there, affine input b·(w − w_op) + f0 held from there on)
         self._history: list[tuple[int, np.ndarray, np.ndarray]] = []
         self._starts: list[int] = []
@@ -177,9 +179,15 @@ class LinearTank:
     def step(self, u: Any, d: Any, dt: float) -> None:
         """Advance ``dt`` seconds with ``u = [F_H, F_Cin]`` and ``d = [F_D, T_D, T_H, T_C]``
         held (empty ``d``: operating point). ``ValueError`` (state untouched) on a wrong size,
-        non-finite value or bad ``dt``; no value is clipped (module docstring)."""
+        non-finite value or bad ``dt``; no physical value is clipped (module docstring), only a
+        value beyond ±FLOW_MAX (a numeric guard)."""
         f_hot, f_cold_in = as_floats('u', u, 2)
         d_vec = as_floats('d', d, 4, allow_empty=True) or self.nominal_disturbances().tolist()
+        if not all(-FLOW_MAX <= v <= FLOW_MAX for v in (f_hot, f_cold_in, *d_vec)):
+            # a numeric guard, not physics: |value| <= FLOW_MAX keeps the state finite
+            self._clipped_inputs += 1
+            f_hot, f_cold_in = (min(max(v, -FLOW_MAX), FLOW_MAX) for v in (f_hot, f_cold_in))
+            d_vec = [min(max(v, -FLOW_MAX), FLOW_MAX) for v in d_vec]
         dt_ns = self._dt.ns(dt)
         f_dist, t_dist, t_hot, t_cold = d_vec
         cfg = self._config
@@ -212,6 +220,8 @@ class LinearTank:
     @property
     def status(self) -> Mapping[str, StatusValue]:
         """``time`` [s], ``steps``, the state ``V`` [cm³], ``T`` [°C], ``h`` [cm] and ``F_C``,
-        the delayed cold inflow now entering [cm³/s]."""
+        the delayed cold inflow now entering [cm³/s]; ``clipped_inputs``: steps with a value
+        beyond ±FLOW_MAX, clipped to it."""
         return {'time': self.time, 'steps': self._steps, 'V': float(self._x[0]),
-                'T': float(self._x[1]), 'h': self.level(), 'F_C': self._F_C}
+                'T': float(self._x[1]), 'h': self.level(), 'F_C': self._F_C,
+                'clipped_inputs': self._clipped_inputs}

@@ -25,6 +25,9 @@ from tank_control.core.plants.siso import StepLength, as_floats
 
 T_MIN, T_MAX = 0.0, 100.0
 """Physical range of the inflow temperatures [°C] (liquid water)."""
+FLOW_MAX = 1e6
+"""Largest flow [cm³/s] the tank takes (the bound of its flow parameters): a larger inflow is
+clipped to it and counted, so the volume and temperature stay finite."""
 
 _MAX_SUBSTEPS = 64          # sub-steps of one RK4 step near an empty tank
 _RK4_STABLE = 2.5           # |λ·δ| below which RK4 is used (its stability limit is 2.78)
@@ -284,11 +287,12 @@ class MixingTank:
         dt_ns = self._dt.ns(dt)
         f_hot, f_cold_in = u_vec
         f_dist, t_dist, t_hot, t_cold = d_vec
-        if not (f_hot >= 0.0 and f_cold_in >= 0.0 and f_dist >= 0.0 and T_MIN <= t_dist <= T_MAX
+        if not (0.0 <= f_hot <= FLOW_MAX and 0.0 <= f_cold_in <= FLOW_MAX
+                and 0.0 <= f_dist <= FLOW_MAX and T_MIN <= t_dist <= T_MAX
                 and T_MIN <= t_hot <= T_MAX and T_MIN <= t_cold <= T_MAX):
-            f_hot = self._clip('F_H', f_hot, 0.0, math.inf)
-            f_cold_in = self._clip('F_Cin', f_cold_in, 0.0, math.inf)
-            f_dist = self._clip('F_D', f_dist, 0.0, math.inf)
+            f_hot = self._clip('F_H', f_hot, 0.0, FLOW_MAX)
+            f_cold_in = self._clip('F_Cin', f_cold_in, 0.0, FLOW_MAX)
+            f_dist = self._clip('F_D', f_dist, 0.0, FLOW_MAX)
             t_dist = self._clip('T_D', t_dist, T_MIN, T_MAX)
             t_hot = self._clip('T_H', t_hot, T_MIN, T_MAX)
             t_cold = self._clip('T_C', t_cold, T_MIN, T_MAX)

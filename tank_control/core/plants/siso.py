@@ -24,6 +24,12 @@ from tank_control.core.plants.delay_line import DelayLine
 
 MAX_DEAD_TIME_LIMIT = 1e4
 """Largest ``max_dead_time`` [s] a plant may be built with."""
+INPUT_LIMIT = 1e12
+"""|u + v| beyond this is clipped (counted in ``status['clipped_inputs']``): with the gains'
+bounds the delay-free state's changes stay finite."""
+STATE_LIMIT = 1e15
+"""|state| beyond this is clipped (counted in ``status['clipped_states']``): an integrating or
+unstable plant driven for long stays finite (its output saturates there)."""
 
 
 def dead_time_param(default: float) -> Any:
@@ -148,6 +154,8 @@ class DeadTimePlant:
         self._x = 0.0
         self._t_ns = 0
         self._steps = 0
+        self._clipped_inputs = 0
+        self._clipped_states = 0
 
     @property
     def time(self) -> float:
@@ -175,6 +183,9 @@ class DeadTimePlant:
         d_vec = as_floats('d', d, 1, allow_empty=True)
         dt_ns = self._dt.ns(dt)
         w = u_vec[0] + (d_vec[0] if d_vec else 0.0)   # 000 Fig. 1: G·(u + v)
+        if not -INPUT_LIMIT <= w <= INPUT_LIMIT:       # finite inputs keep finite states
+            w = min(max(w, -INPUT_LIMIT), INPUT_LIMIT)
+            self._clipped_inputs += 1
         t_ns = self._t_ns
         line = self._line
         line.push(t_ns, w)
@@ -183,16 +194,33 @@ class DeadTimePlant:
         for duration, w_delayed in line.segments(t_ns, dt_ns / NS_PER_S, self._config.dead_time):
             if duration > 0.0:
                 x = advance(x, w_delayed, duration)
-        self._x = x
+        self._x = self._bounded(x)
         self._t_ns = t_ns + dt_ns
         self._steps += 1
 
     def _advance(self, x: float, w: float, duration: float) -> float:
         raise NotImplementedError
 
+    def _bounded(self, x: Any) -> Any:
+        """``x`` (a float, a tuple of floats or an array) with every item within
+        ±STATE_LIMIT; a clipped step is counted."""
+        if type(x) is float:
+            if -STATE_LIMIT <= x <= STATE_LIMIT:
+                return x
+            self._clipped_states += 1
+            return min(max(x, -STATE_LIMIT), STATE_LIMIT) if x == x else 0.0
+        items = np.asarray(x, dtype=float)
+        if np.all(np.abs(items) <= STATE_LIMIT):
+            return x
+        self._clipped_states += 1
+        items = np.clip(np.nan_to_num(items, nan=0.0), -STATE_LIMIT, STATE_LIMIT)
+        return tuple(items.tolist()) if isinstance(x, tuple) else items
+
     @property
     def status(self) -> Mapping[str, StatusValue]:
-        """``time`` [s], ``steps``, ``dead_time`` [s] in force, ``history_breakpoints``."""
+        """``time`` [s], ``steps``, ``dead_time`` [s] in force, ``history_breakpoints``,
+        ``clipped_inputs``/``clipped_states``: steps whose input or state was clipped."""
         return {'time': self.time, 'steps': self._steps,
                 'dead_time': self._config.dead_time,
-                'history_breakpoints': len(self._line)}
+                'history_breakpoints': len(self._line),
+                'clipped_inputs': self._clipped_inputs, 'clipped_states': self._clipped_states}

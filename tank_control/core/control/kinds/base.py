@@ -414,7 +414,8 @@ class ControllerKind:
       parameters); ``state``: the ``results`` entry that is a state machine's state;
     * ``commands``: operator commands, offered as ``std_srvs/Trigger`` services ``~/<name>``;
     * ``gains``: parameters reported as the run's final gains; ``input_limits(settings)``:
-      ``{input channel: (min, max)}`` for constraint metrics.
+      ``{input channel: (min, max)}`` for constraint metrics; ``disturbances``: the measured
+      disturbance channels the controller reads (feed-forward).
     """
 
     name: str
@@ -431,6 +432,7 @@ class ControllerKind:
         default_factory=dict)
     gains: tuple[str, ...] = ()
     input_limits: Callable[[Settings], Mapping[str, tuple[float, float]]] | None = None
+    disturbances: tuple[str, ...] = ()
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The kind's parameters: its configuration's, then each group's."""

@@ -38,5 +38,5 @@ KIND = ControllerKind(
     build=build, update=update,
     gains=('mpcs.horizon', 'mpcs.control_horizon', 'mpcs.lambda', 'mpcs.output_weights',
            'mpcs.terminal_weight'),
-    input_limits=input_limits,
+    input_limits=input_limits, disturbances=Mpcs.disturbance_names,
 )
