@@ -477,3 +477,21 @@ def test_status_shows_the_warning_of_the_design_in_use_and_counts_them():
     assert ctl.status['warning'].startswith('mpcs.horizon') and ctl.status['warnings'] == 1
     ctl.configure(horizon=600)
     assert ctl.status['warning'] == '' and ctl.status['warnings'] == 1
+
+
+def test_an_output_dead_time_beyond_the_estimators_register_is_refused_with_the_cost():
+    """mpcs.model.tau of 3600 s at 1 s would take minutes to design (the Riccati equation grows
+    with the cube of the delay register): refused before anything is built, naming the bound
+    in samples and in seconds at the current sample time; the bound itself is accepted."""
+    from tank_control.core.control.kinds import registry
+    from tank_control.core.control.kinds.base import resolve
+    from tank_control.core.control.mpcs import MAX_OUTPUT_DELAY_SAMPLES
+    from tank_control.core.params import ConfigError
+    kind = registry.KINDS['mpcs']
+    with pytest.raises(ConfigError, match=r'mpcs.model.tau: 3600 s is 3600 samples at '
+                                          r'sample_time 1 s; .* at most 900 s'):
+        resolve(kind, {'mpcs.model.tau': 3600.0})
+    with pytest.raises(ConfigError, match='at most 450 s'):
+        resolve(kind, {'mpcs.model.tau': 600.0, 'sample_time': 0.5})
+    bound = float(MAX_OUTPUT_DELAY_SAMPLES)
+    assert resolve(kind, {'mpcs.model.tau': bound}).values['mpcs.model.tau'] == bound

@@ -31,6 +31,11 @@ SOLVERS = ('analytic', 'qp')
 
 _UNITS_IN = 'cm³/s'
 _OP = OPERATING_POINT
+#: Longest output dead time ``model.tau`` the estimator carries, in samples. Its delay register
+#: makes the Kalman design's Riccati equation (dense) grow with the cube of it: 600 samples
+#: built in 1.75 s, so 900 in about 6 s and 3600 in minutes (measured on the 2-core VM,
+#: docs/mpcs.md) — a live set that long would stall the node's sampling.
+MAX_OUTPUT_DELAY_SAMPLES = 900
 
 
 def _m(default: Any, description: str, name: str, lo: float | None = None,
@@ -139,6 +144,12 @@ class MpcsConfig:
                     'cm³/s')
         if len(self.output_weights) not in (1, 2):
             return 'mpcs.output_weights: 1 or 2 values ([h, T_out])'
+        samples = self.model_tau / self.sample_time
+        if samples > MAX_OUTPUT_DELAY_SAMPLES:
+            return (f'mpcs.model.tau: {self.model_tau:g} s is {samples:.0f} samples at sample_time '
+                    f'{self.sample_time:g} s; the estimator carries at most '
+                    f'{MAX_OUTPUT_DELAY_SAMPLES} (its design grows with the cube of it: minutes '
+                    f'beyond that), so at most {MAX_OUTPUT_DELAY_SAMPLES * self.sample_time:g} s')
         return None
 
 
