@@ -10,6 +10,7 @@ s of plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
 
+import math
 import queue
 import sys
 import threading
@@ -135,6 +136,7 @@ class DashboardNode(Node):
         self.store = SampleStore(int(values['buffer_messages']))
         self.missed = {topic: 0 for topic in SIGNAL_TOPICS}
         self.marks: list[dict[str, Any]] = []     # state changes of the controllers' machines
+        self._latest_t = -math.inf                # plant time [s] of the newest signal sample
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
                                      lambda msg, t=topic: self._on_signal(t, msg),
@@ -175,7 +177,9 @@ class DashboardNode(Node):
             self.ignored += 1
             return
         self.received[topic] += 1
-        self.store.add(topic, (t_ns - self._origin_ns) / NS_PER_S, names, values)
+        t = (t_ns - self._origin_ns) / NS_PER_S
+        self._latest_t = max(self._latest_t, t)
+        self.store.add(topic, t, names, values)
 
     def _on_lost(self, topic: str, count: int) -> None:
         """The middleware's message-lost event: ``count`` messages of ``topic`` were published
@@ -426,25 +430,40 @@ class DashboardNode(Node):
                                 'value': entry['value'], 'ptype': entry['type']})
         for update in updates:
             self.server.broadcast(update)
-        for update in updates:
-            if update['name'].endswith('.state_time'):
-                self._mark(view, update['name'].rsplit('.', 1)[0])
+        changed = {update['name'] for update in updates}
+        for name in sorted(changed):
+            machine, _, field = name.rpartition('.')
+            if field == 'state':
+                self._mark(view, machine, timed=f'{machine}.state_time' in changed)
+            elif field == 'state_time' and f'{machine}.state' not in changed:
+                self._mark(view, machine, timed=True, update=True)
         if updates:
             self._update_limits(view)
             self._update_robustness()
 
-    def _mark(self, view: _NodeView, machine: str) -> None:
-        """A state machine's change (``<machine>.state`` entered at ``<machine>.state_time``,
-        the loop's time in s, e.g. the relay auto-tuner's) as a mark on the trends."""
+    def _mark(self, view: _NodeView, machine: str, timed: bool, update: bool = False) -> None:
+        """A state machine's change (``<machine>.state``, e.g. the relay auto-tuner's) as a mark
+        on the trends at ``<machine>.state_time`` (the loop time in s of the first sample in
+        the state) when ``timed``; a state entered by a command is written before that sample,
+        so it is marked at the newest sample time seen and moved (``update``) when its
+        ``state_time`` comes."""
         with self._lock:
             entry_t = view.params.get(f'{machine}.state_time')
             entry_state = view.params.get(f'{machine}.state')
             if entry_t is None or entry_state is None:
                 return
-            mark = {'node': view.name, 'machine': machine, 't': entry_t['value'],
-                    'label': str(entry_state['value'])}
-            self.marks.append(mark)
-            del self.marks[:-MAX_MARKS]
+            t = entry_t['value'] if timed or not math.isfinite(self._latest_t) else self._latest_t
+            mark = {'node': view.name, 'machine': machine, 't': t,
+                    'label': str(entry_state['value']), 'update': update}
+            last = next((m for m in reversed(self.marks) if m['node'] == view.name
+                         and m['machine'] == machine), None)
+            if update:
+                if last is None or last['label'] != mark['label']:
+                    return
+                last['t'] = t
+            else:
+                self.marks.append({k: v for k, v in mark.items() if k != 'update'})
+                del self.marks[:-MAX_MARKS]
         self.server.broadcast({'type': 'mark', **mark})
 
     def _on_state(self, view: _NodeView, topic: str, msg: String) -> None:

@@ -123,9 +123,16 @@
     $('#missed').textContent = Object.values(missed).reduce((a, b) => a + b, 0);
   }
 
+  // A state change; `update`: the last mark of that machine moves to the time the node
+  // reported for it (a state entered by a command is timed at the next sample).
   function onMark(msg) {
-    state.marks.push({node: msg.node, machine: msg.machine, t: msg.t, label: msg.label});
-    if (state.marks.length > 200) state.marks.splice(0, state.marks.length - 200);
+    if (msg.update) {
+      const same = state.marks.filter((m) => m.node === msg.node && m.machine === msg.machine);
+      if (same.length) same[same.length - 1].t = msg.t;
+    } else {
+      state.marks.push({node: msg.node, machine: msg.machine, t: msg.t, label: msg.label});
+      if (state.marks.length > 200) state.marks.splice(0, state.marks.length - 200);
+    }
     state.dirty = true;
     schedule();
   }
