@@ -229,9 +229,12 @@ def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env
     watch.wait(watch.stall_reported(killed, *words), 30, 'no stall reported', loop.logs)
     applied = watch.latched_applied_input()
     # sim: the plant does not wait for the new controller, whose first outputs (volatile)
-    # reach the test only once it has matched the new publisher (seen: the 8th output came
-    # first); the plant is paused over the restart until then
+    # reach the test only once both sides matched (seen: its 8th output came first); the
+    # plant is paused over the restart until the test's subscription matched the new
+    # publisher and the new controller answered a parameter request of a client created
+    # after that subscription (it knows the test's later endpoints: the earlier ones too)
     plant = AsyncParameterClient(watch.probe.node, 'plant')
+    controller = AsyncParameterClient(watch.probe.node, 'controller')
     matched = watch.matched['manipulated']
     if mode == 'sim':
         set_parameter(watch, plant, 'lockstep.paused', True, loop.logs)
@@ -240,6 +243,13 @@ def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env
     if mode == 'sim':
         watch.wait(lambda: watch.matched['manipulated'] > matched, 60,
                    'the new controller not matched', loop.logs)
+        answered = []
+        for _ in range(30):   # a request sent before the new server matched is lost: again
+            future = controller.get_parameters(['clock_mode'])
+            if watch.probe.wait_for(future.done, 2.0):
+                answered.append(future.result())
+                break
+        assert answered, f'the new controller does not answer\n{loop.logs()}'
         set_parameter(watch, plant, 'lockstep.paused', False, loop.logs)
     watch.wait(lambda: watch.sent_after('manipulated', started), 60,
                'no output after the restart', loop.logs)
