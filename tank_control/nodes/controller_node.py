@@ -19,8 +19,6 @@ from typing import Any
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.clock import JumpThreshold
-from rclpy.duration import Duration
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -116,7 +114,7 @@ class ControllerNode(Node):
         self._takeover_since: float | None = None
         self._deferred_tick: int | None = None
         self._last_y_stamp: int | None = None      # wall/sim: stamp of the latest measurement
-        self._clock_went_back = False              # sim: restart the sample timer
+        self._sim_instant: int | None = None       # sim: the latest timer call's instant [ns]
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
                                           event_callbacks=quiet_publisher_events())
@@ -150,10 +148,6 @@ class ControllerNode(Node):
                                 lambda request, response, c=command: self._on_command(c, response))
         if self._mode != 'lockstep':
             self._timer = self.create_timer(self._controller.sample_time, self._on_timer)
-        if self._mode == 'sim':   # a restarted plant's /clock goes back: sample on it at once
-            self._jump = self.get_clock().create_jump_callback(
-                JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1),
-                              on_clock_change=False), post_callback=self._on_clock_back)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
         self.get_logger().info(
@@ -297,11 +291,6 @@ class ControllerNode(Node):
         t_ns, values = parsed
         mine = {name: values[name] for name in self._outputs if name in values}
         self._session = msg.header.frame_id
-        if self._clock_went_back:
-            self._clock_went_back = False
-            self._timer.reset()
-            self._r_stamp = None
-            self._last_sample = None
         self._check_new_session(t_ns)
         if self._mode == 'lockstep':
             self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
@@ -348,12 +337,6 @@ class ControllerNode(Node):
             self._last_sample = None
         self.get_logger().info('new plant session (its clock restarted at 0): ticks answered '
                                'from 0 again, control continues from the current state')
-
-    def _on_clock_back(self, jump: Any) -> None:
-        """sim: the simulated clock went back (a new plant session): the sample timer, due at
-        the old clock's next instant, is restarted on the new clock by the next measurement
-        (not here: this runs inside the clock's update)."""
-        self._clock_went_back = True
 
     def _on_applied(self, msg: JointState) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet), kept per
@@ -469,7 +452,17 @@ class ControllerNode(Node):
         self._pub.publish(msg)
 
     def _on_timer(self) -> None:
-        """wall/sim: one sample with the latest data."""
+        """wall/sim: one sample with the latest data.
+
+        sim: rclpy's EventsExecutor may run the timer twice at one instant (two clock updates
+        queued before the timer's dispatch): an instant is sampled once. A /clock that goes
+        back (a restarted plant) needs nothing here: rcl re-arms the timer one period after
+        the new time."""
+        if self._mode == 'sim':
+            instant = sim_sample_instant(self.get_clock().now().nanoseconds, self._ts_ns)
+            if instant == self._sim_instant:
+                return
+            self._sim_instant = instant
         self._since_measurement = 0 if self._fresh else self._since_measurement + 1
         self._fresh = False
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
