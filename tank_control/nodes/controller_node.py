@@ -506,7 +506,8 @@ class ControllerNode(Node):
             self._controller.reset(y_vec, takeover)
             self._started = True
             self.get_logger().info(f"took over from the plant's applied input "
-                                   f'{dict(zip(self._inputs, takeover.tolist()))} (bumpless)')
+                                   f'{dict(zip(self._inputs, takeover.tolist()))} at plant time '
+                                   f'{t_ns} ns (bumpless)')
         elif not self._started:      # first good sample: reset(y, initial_output), as core/loop.py
             self._gen += 1
             warm_start(self._controller, y_vec)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
 from dataclasses import dataclass, field
@@ -236,11 +237,11 @@ def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env
     plant = AsyncParameterClient(watch.probe.node, 'plant')
     controller = AsyncParameterClient(watch.probe.node, 'controller')
     matched = watch.matched['manipulated']
-    if mode == 'sim':
+    if mode != 'wall':            # lockstep too: its first answer may precede the match
         set_parameter(watch, plant, 'lockstep.paused', True, loop.logs)
     # initial_output 2.0: far from anything this loop applies, so a jump to it shows
     started = loop.start('controller', '-p', 'initial_output:=[2.0]')
-    if mode == 'sim':
+    if mode != 'wall':
         watch.wait(lambda: watch.matched['manipulated'] > matched, 60,
                    'the new controller not matched', loop.logs)
         answered = []
@@ -253,8 +254,26 @@ def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env
         set_parameter(watch, plant, 'lockstep.paused', False, loop.logs)
     watch.wait(lambda: watch.sent_after('manipulated', started), 60,
                'no output after the restart', loop.logs)
-    _, stamp, first, _ = watch.sent_after('manipulated', started)[0]
-    assert abs(first[0] - applied[0]) <= 1e-9, (first, applied)      # bumpless
+    # the controller took over from exactly the latched applied input, at its first sample
+    line = r"took over from the plant's applied input \{'u': (\S+)\} at plant time (\d+) ns"
+    log = loop.procs.processes['controller_2'].log_path
+
+    def logged():
+        return re.search(line, log.read_text(errors='replace'))
+    watch.wait(logged, 30, 'no take-over logged', loop.logs)
+    taken, at_ns = float(logged().group(1)), int(logged().group(2))
+    assert abs(taken - applied[0]) <= 1e-9, (taken, applied)
+    outputs = watch.sent_after('manipulated', started)
+    _, stamp, first, _ = outputs[0]
+    if mode != 'wall':
+        # paused over the restart: the test got the first output, the take-over's, = applied
+        assert plant_time(watch, stamp) == at_ns
+        assert abs(first[0] - applied[0]) <= 1e-9, (first, applied)      # bumpless
+    else:
+        # wall cannot be paused: the new publisher's first outputs may go out before it
+        # matched the test's subscription; the take-over sample's output, if seen, = applied
+        at = [m[2] for m in outputs if plant_time(watch, m[1]) == at_ns]
+        assert all(abs(v[0] - applied[0]) <= 1e-9 for v in at), (at, applied)
     assert stamp > max(m[1] for m in watch.sent_before('manipulated', started))
     watch.wait(lambda: any(m[1] >= stamp + 2 * S for m in watch.sent_after('manipulated', started)),
                60, 'the loop did not resume', loop.logs)
