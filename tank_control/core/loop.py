@@ -202,14 +202,20 @@ class _Guard:
         self.u_last: list[float] | None = None      # the controller's last output
         self.fault = False
 
-    def setpoints(self, r: list[float]) -> list[float]:
-        """Setpoints as controller_node takes them (a refused one: last good, else NaN)."""
+    def _controller_takes(self, names: Sequence[str], values: list[float],
+                          good: dict[str, float]) -> list[float]:
+        """Values as controller_node takes them: a refused one is its last good value (kept in
+        ``good``, updated), else NaN."""
         out = []
-        for name, value in zip(self.r_names, r):
+        for name, value in zip(names, values):
             if self.c.accepts(name, value):
-                self.r_good[name] = value
-            out.append(self.r_good.get(name, math.nan))
+                good[name] = value
+            out.append(good.get(name, math.nan))
         return out
+
+    def setpoints(self, r: list[float]) -> list[float]:
+        """Setpoints as controller_node takes them."""
+        return self._controller_takes(self.r_names, r, self.r_good)
 
     def plant_inputs(self, values: list[float], good: list[float], names: Sequence[str]
                      ) -> list[float]:
@@ -221,12 +227,8 @@ class _Guard:
         return list(good)
 
     def controller_disturbances(self, d: list[float]) -> list[float]:
-        out = []
-        for name, value in zip(self.d_ctrl_names, d):
-            if self.c.accepts(name, value):
-                self.d_ctrl_good[name] = value
-            out.append(self.d_ctrl_good.get(name, math.nan))
-        return out
+        """Measured disturbances as controller_node takes them."""
+        return self._controller_takes(self.d_ctrl_names, d, self.d_ctrl_good)
 
     def measurement_ok(self, y: list[float]) -> bool:
         return all(self.c.accepts(name, value) for name, value in zip(self.y_names, y))
