@@ -76,6 +76,7 @@ def probe(rclpy_session: None) -> Iterator['Probe']:
     yield Probe(node, executor)
     executor.remove_node(node)
     node.destroy_node()
+    executor.shutdown()
 
 
 class Probe:

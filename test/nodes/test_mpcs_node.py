@@ -17,23 +17,21 @@ fast as possible), controller (MPCS, QP) and reference in three processes.
 """
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from rclpy.utilities import get_default_context
 from sensor_msgs.msg import JointState
 from support import SCENARIOS
+from support.gated_recorder import GATE_REMAP, gated_recorder
 
 from tank_control.core import params_file
 from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds.base import resolve
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build
-from tank_control.harness.recorder import Recorder
 from tank_control.harness.trace import GATED_DISTURBANCE
 from tank_control.nodes.messages import ORIGIN_QOS, from_joint_state, ns_to_stamp, to_joint_state
 
@@ -62,23 +60,9 @@ def test_mpcs_lockstep_equals_in_process_with_a_runtime_horizon_change(procs, ro
     # the file's clock mode is the harness's; here every node is told lockstep directly
     path = params_file.write({'/**': {'clock_mode': 'lockstep'}, **{n: params[n] for n in NODES}},
                              tmp_path / 'mpcs.yaml')
-    # The harness's recorder with its lockstep gate, spun in a thread of its own: the plant
-    # starts tick k+1 only once tick k is recorded whole, so nothing is lost however slowly
-    # this process runs (a subscriber of its own would lose samples the publishers no longer
-    # keep when the test thread is starved).
-    recorder = Recorder(get_default_context(), name='test_mpcs_recorder')
-    recorder.enable_gate()
-    spinning = threading.Event()
-    spinning.set()
-    spinner = threading.Thread(target=lambda: [recorder.spin_once(0.05)
-                                               for _ in iter(spinning.is_set, False)])
-    spinner.start()
-    try:
+    # every tick recorded, however slowly this process runs (test/support/gated_recorder.py)
+    with gated_recorder('test_mpcs_recorder') as recorder:
         _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, recorder)
-    finally:
-        spinning.clear()
-        spinner.join()
-        recorder.destroy()
 
 
 def _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, recorder):
@@ -94,7 +78,7 @@ def _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, reco
     for name in NODES:
         argv = node_cmd(f'{name}_node', '--params-file', str(path))
         if name == 'plant':
-            argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']     # through the recorder
+            argv += GATE_REMAP                                       # through the recorder
         procs.start(name, argv, env=ros_env)
 
     def logs() -> str:

@@ -8,6 +8,7 @@ Tu = 10.82 s (SPEC §1.2); the tuner must find them within 3 % and 2 %.
 """
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -15,23 +16,21 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from support import CONFIG
+from support.gated_recorder import GATE_REMAP, gated_recorder
 from support.relay import exact_fopdt_ultimate
 
 from tank_control.core import params_file
 from tank_control.core.loop import run_loop
 from tank_control.core.scenario import build
+from tank_control.harness.recorder import joint_state_from_cdr
+from tank_control.harness.trace import GATED_DISTURBANCE
 from tank_control.nodes.controller_node import STATE_QOS
-from tank_control.nodes.messages import from_joint_state
 
 KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
 NODES = ('plant', 'controller', 'reference')
-#: The recorder keeps every sample: the lockstep loop runs faster than the probe spins.
-RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def fopdt_params(paused: bool, **controller) -> dict:
@@ -42,11 +41,42 @@ def fopdt_params(paused: bool, **controller) -> dict:
     return params
 
 
+class Signals:
+    """``measurement`` and ``manipulated`` by stamp [ns] → {channel: value}, filled from the
+    gated recorder's thread."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.by_topic: dict[str, dict[int, dict[str, float]]] = {'measurement': {},
+                                                                 'manipulated': {}}
+
+    def add(self, raw) -> None:
+        ticks = self.by_topic.get(raw.topic.lstrip('/'))
+        if ticks is not None:
+            stamp, names, values = joint_state_from_cdr(raw.data)
+            with self.lock:
+                ticks.setdefault(stamp, {}).update(zip(names, values))
+
+    def __getitem__(self, topic: str) -> dict[int, dict[str, float]]:
+        """A copy of what ``topic`` holds now."""
+        with self.lock:
+            return dict(self.by_topic[topic])
+
+
+@pytest.fixture
+def gate():
+    """Every tick of the run recorded (test/support/gated_recorder.py)."""
+    signals = Signals()
+    with gated_recorder('test_autotune_recorder', signals.add) as recorder:
+        recorder.signals = signals
+        yield recorder
+
+
 class Graph:
     """plant, controller, reference (+ ``extra`` controller_node processes, by node name) from
-    ``params`` (node name → flat parameters); the probe as operator and recorder."""
+    ``params`` (node name → flat parameters); the probe as operator, ``gate`` as recorder."""
 
-    def __init__(self, procs, ros_env, node_cmd, probe, tmp_path: Path, params: dict,
+    def __init__(self, procs, ros_env, node_cmd, probe, gate, tmp_path: Path, params: dict,
                  extra: tuple[str, ...] = ()) -> None:
         self.params = params
         path = params_file.write({n: params[n] for n in ('/**', *NODES, *extra) if n in params},
@@ -54,22 +84,21 @@ class Graph:
         self.probe, self.procs = probe, procs
         node = probe.node
         self.states: list[str] = []
-        self.signals: dict[str, dict[int, dict[str, float]]] = {'measurement': {},
-                                                                'manipulated': {}}
+        self.recorder, self.signals = gate, gate.signals
         self.diag_messages: list[str] = []
         self.diag: dict[str, str] = {}
         subs = [node.create_subscription(String, '/controller/autotune_state',
                                          lambda m: self.states.append(m.data), STATE_QOS)]
-        for topic in self.signals:
-            subs.append(node.create_subscription(JointState, topic, self._recorder(topic),
-                                                 RECORD_QOS))
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         for name in NODES:
-            procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
+            argv = node_cmd(f'{name}_node', '--params-file', str(path))
+            procs.start(name, argv + GATE_REMAP if name == 'plant' else argv, env=ros_env)
         for name in extra:
             procs.start(name, node_cmd('controller_node', '--params-file', str(path), '-r',
                                        f'__node:={name}'), env=ros_env)
-        assert probe.wait_for(lambda: all(s.get_publisher_count() for s in subs), 30), self.logs()
+        assert probe.wait_for(lambda: all(s.get_publisher_count() for s in subs)
+                              and all(gate.publisher_count(t) for t in self.signals.by_topic)
+                              and gate.subscriber_count(GATED_DISTURBANCE), 30), self.logs()
         self.controller = AsyncParameterClient(node, 'controller')
         self.plant = AsyncParameterClient(node, 'plant')
         self.start = node.create_client(Trigger, '/controller/start_autotune')
@@ -77,12 +106,6 @@ class Graph:
         assert probe.wait_for(lambda: self.controller.services_are_ready()
                               and self.plant.services_are_ready() and self.start.service_is_ready()
                               and self.abort.service_is_ready(), 20), self.logs()
-
-    def _recorder(self, topic: str):
-        def record(msg: JointState) -> None:
-            stamp, names, values = from_joint_state(msg)
-            self.signals[topic].setdefault(stamp, {}).update(zip(names, values))
-        return record
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -121,7 +144,7 @@ class Graph:
         assert first() == state, (self.states, self.get('autotune.reason'))
 
     def last_stamp(self) -> int:
-        return max(self.signals['measurement'], default=-1)
+        return self.recorder.latest.get('measurement', -1)
 
     def state_time(self, after: float) -> float:
         """``autotune.state_time`` once it is later than ``after`` [s] (a command changes the
@@ -148,8 +171,8 @@ def _msg(name, value):
 
 
 def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env, node_cmd,
-                                                                  probe, tmp_path):
-    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(paused=True))
+                                                                  probe, gate, tmp_path):
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, fopdt_params(paused=True))
     graph.wait_state('idle', 30)                       # transient local: the current state
     reply = graph.trigger(graph.start)                 # before tick 0 (the plant is paused)
     assert reply.success and 'settling' in reply.message
@@ -192,16 +215,17 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
     trace = run_loop(built.plant, built.controller, built.reference,
                      sample_time=built.sample_time, duration=last / 1e9, noise=built.noise.sample)
     ticks = np.arange(len(trace)) * 100_000_000
-    y = np.array([graph.signals['measurement'][int(k)]['y'] for k in ticks])
-    u = np.array([graph.signals['manipulated'][int(k)]['u'] for k in ticks])
+    measured, manipulated = graph.signals['measurement'], graph.signals['manipulated']
+    y = np.array([measured[int(k)]['y'] for k in ticks])
+    u = np.array([manipulated[int(k)]['u'] for k in ticks])
     assert np.max(np.abs(y - trace['y.y'])) <= 1e-9 and np.max(np.abs(u - trace['u.u'])) <= 1e-9
     assert built.controller.status['ku'] == pytest.approx(ku, abs=1e-9)
 
 
 def test_abort_and_amplitude_failure_restore_the_gains_and_keep_the_loop_running(
-        procs, ros_env, node_cmd, probe, tmp_path):
+        procs, ros_env, node_cmd, probe, gate, tmp_path):
     # min_cycles 100: the test keeps measuring until it is aborted
-    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, fopdt_params(
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, fopdt_params(
         paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
     before = graph.get('kp', 'ti', 'td')
     assert before == {'kp': 20.0, 'ti': 12.0, 'td': 0.0}
@@ -246,7 +270,7 @@ def _assert_loop_runs_at_setpoint(graph: Graph, t_event: float) -> None:
 
 
 def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env, node_cmd,
-                                                                  probe, tmp_path):
+                                                                  probe, gate, tmp_path):
     """003's tank: T_out ← F_Cin is tuned (relay_autotune by channel names, reverse acting);
     the level loop h ← F_H is a second controller_node (pid, renamed) in manual at the
     operating point, so the lockstep plant gets both inputs each tick. Exact point from the
@@ -272,7 +296,7 @@ def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env
                       'setpoint.h.times': [0.0], 'setpoint.h.values': [81.0],
                       'setpoint.T_out.times': [0.0], 'setpoint.T_out.values': [t_op]},
     }
-    graph = Graph(procs, ros_env, node_cmd, probe, tmp_path, params,
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, params,
                   extra=('level_controller',))
     # operator: run in manual at the operating point, switch to auto (bumpless from the
     # manual output once the PID has run a sample), then tune
