@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 from support.relay import (
     ExactDelayPlant,
     exact_fopdt_ultimate,
@@ -18,6 +19,7 @@ from support.relay import (
 )
 
 from tank_control.core.tuning import identification as ident
+from tank_control.core.tuning.model import from_identified
 
 LT_RATIOS = (0.1, 0.3, 1.0, 3.0)
 
@@ -200,3 +202,57 @@ def test_known_static_gain_gives_the_fopdt_by_eq_3_6_2():
     assert res.model_method == 'eq_3_6_2'
     assert res.model.time_constant == pytest.approx(10.0, rel=0.03)
     assert res.model.dead_time == pytest.approx(3.0, rel=0.03)
+
+
+@pytest.mark.parametrize('abc_tm', [(2.0, 3.0, 1.0, 1.5), (1.0, 0.6, 1.0, 0.5), (10.0, 7.0, 1.0, 2.0)])
+def test_sopdt_from_the_two_points_of_004_eqs_3_5_8_to_3_5_14(abc_tm):
+    """SPEC-supplement §2.11's round trips: the −180° and −90° points of e^(−Tm·s)/(a·s² + b·s
+    + c) (found here by bisection on the phase) return (a, b, c, Tm); so do two other points.
+    For (2, 3, 1, 1.5) the supplement lists ω_b 0.3766, ω_c 0.8981, |H_b| 0.7475, |H_c| 0.3619."""
+    a, b, c, tm = abc_tm
+
+    def g(w):
+        return np.exp(-1j * w * tm) / (c - a * w * w + 1j * b * w)
+
+    def lag(w):
+        return w * tm + math.atan2(b * w, c - a * w * w)
+    w_b = brentq(lambda w: lag(w) - math.pi / 2, 1e-9, 10.0)
+    w_c = brentq(lambda w: lag(w) - math.pi, w_b, 50.0)
+    if abc_tm == (2.0, 3.0, 1.0, 1.5):
+        assert (w_b, w_c, abs(g(w_b)), abs(g(w_c))) == pytest.approx(
+            (0.3766, 0.8981, 0.7475, 0.3619), abs=6e-5)
+    for w1, w2 in ((w_c, w_b), (0.3 * w_b, 1.2 * w_c)):
+        m = ident.sopdt_from_two_points(w1, g(w1), w2, g(w2))
+        assert (m.a, m.b, m.c, m.dead_time) == pytest.approx((a, b, c, tm), rel=1e-9)
+    # eq. 3.5.13 with ω_c in both places (the copy's ω_b fails the round trip)
+    assert m.b == pytest.approx(math.sin(w_c * tm) / (w_c * abs(g(w_c))), rel=1e-9)
+
+
+def test_sopdt_from_two_points_of_a_first_order_process_is_first_order():
+    """For an FOPDT, Tm is a double root of 004 eq. 3.5.10 (both points' linear terms in Tm are
+    equal), so 0.2 % error on one point either splits it into two roots — the smaller one trades
+    dead time for a small second lag, L + T2 ≈ 3 s — or lifts the touching point off zero, and
+    the closest approach gives a ≈ 0, first order (T2 below 0.1 % of T1)."""
+    def g(w):
+        return 0.05 / (10j * w + 1) * np.exp(-3j * w)
+    w_c, w_b = 0.5805, 0.1633
+    exact = ident.sopdt_from_two_points(w_c, g(w_c), w_b, g(w_b))
+    assert (exact.gain, exact.time_constant, exact.dead_time) == pytest.approx((0.05, 10.0, 3.0), rel=1e-4)
+    split = ident.sopdt_from_two_points(w_c, g(w_c) * 0.998, w_b, g(w_b))
+    assert 0.05 < split.time_constant2 < 0.2 and split.dead_time < 2.95
+    touching = ident.sopdt_from_two_points(w_c, g(w_c) * 1.002, w_b, g(w_b))
+    assert touching.time_constant2 < 1e-3 * touching.time_constant
+    assert from_identified(touching).kind == 'fopdt'
+    for m in (split, touching):
+        assert (m.gain, m.time_constant) == pytest.approx((0.05, 10.0), rel=0.01)
+        assert m.dead_time + m.time_constant2 == pytest.approx(3.0, rel=0.01)
+
+
+def test_sopdt_from_two_points_refuses_points_no_lag_fits():
+    with pytest.raises(ValueError, match='two different positive frequencies'):
+        ident.sopdt_from_two_points(1.0, -0.5 + 0j, 1.0, -0.5 + 0j)
+    with pytest.raises(ValueError, match='no dead time fits|not those of a stable'):
+        ident.sopdt_from_two_points(1.0, -0.5 + 0j, 0.5, 2.0 + 0j)      # a phase lead
+    underdamped = ident.SopdtModel(a=1.0, b=0.6, c=1.0, dead_time=0.5)
+    with pytest.raises(ValueError, match='underdamped'):
+        from_identified(underdamped)

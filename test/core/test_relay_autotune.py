@@ -27,7 +27,7 @@ from tank_control.core.control.relay_autotune import (
     RelayAutotuner,
 )
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
+from tank_control.core.params import ConfigError, check_config, config_from, defaults_of, specs_of
 
 # 001 §1.2.2: K = 0.05, T = 10 s, L = 3 s, setpoint 100 (u = 2000 at rest)
 K, T, L, R, U0 = 0.05, 10.0, 3.0, 100.0, 2000.0
@@ -111,6 +111,47 @@ def test_ku_tu_through_the_state_machine_with_noise(case):
     assert tuner.status['ku'] == pytest.approx(ku, rel=0.03)
     assert tuner.status['tu'] == pytest.approx(tu, rel=0.02)
     assert tuner.status['model']['kind'] == ('ipdt' if case == 'ipdt' else 'fopdt')
+
+
+@pytest.mark.parametrize('bias', (60.0, -60.0))
+def test_biased_relay_identifies_the_static_gain_and_the_fopdt_of_004_eqs_3_3_12_to_3_3_17(bias):
+    """001's FOPDT under a live relay u0 + μ0 ± d (μ0 = ±0.3 d): the asymmetric cycle gives
+    kP = 0.05 (004 eq. 3.3.13) and T = 10 s, L = 3 s (eqs. 3.3.15–3.3.17; the sampled relay
+    switches up to one 0.1 s sample late, which the dead time absorbs: L ≤ 3 + Ts); the
+    first-harmonic ultimate point is unaffected by the bias; the PID takes over from u0, not
+    u0 + μ0; the model-based rule runs on that model."""
+    tuner = _tuner(relay_bias=bias, rule='simc', kind='pi')
+    log = _run(tuner, 2500)
+    st = tuner.status
+    assert log['state'][-1] == 'running', st['reason']
+    assert st['model_method'] == 'eq_3_3_15'
+    assert st['model']['gain'] == pytest.approx(K, rel=0.01)
+    assert st['model']['time_constant'] == pytest.approx(T, rel=0.02)
+    assert L - 0.01 <= st['model']['dead_time'] <= L + 0.1
+    assert st['ku'] == pytest.approx(117.8, rel=0.03) and st['tu'] == pytest.approx(10.82, rel=0.02)
+    assert tuner.result.relay_bias == pytest.approx(bias, rel=1e-9)
+    relay = log['u'][np.isin(log['state'], ('relay', 'measuring'))]
+    assert set(np.round(relay - st['u0'], 9)) == {bias - D, bias + D}     # u0: from settling
+    k = list(log['state']).index('tuned')
+    assert log['u'][k] == pytest.approx(st['u0'], abs=1e-6) and st['u0'] == pytest.approx(U0, abs=1)
+    assert tuner.results()['autotune.model_method'] == 'eq_3_3_15'
+    # SIMC PI (Skogestad 2003) with tau_c = L from the identified model
+    m = st['model']
+    assert tuner.pid.config.kp == pytest.approx(
+        m['time_constant'] / (m['gain'] * 2 * m['dead_time']), rel=1e-6)
+
+
+def test_relay_bias_must_stay_below_the_relay_amplitude():
+    with pytest.raises(ConfigError, match='autotune.relay_bias.*below autotune.relay_amplitude'):
+        check_config(AutotuneConfig(relay_amplitude=1.0, relay_bias=1.0))
+    # output limits that leave less room than the bias: the test fails with the reason
+    tuner = RelayAutotuner(PidConfig(sample_time=0.1, u_min=0.0, u_max=2150.0, **PID_BEFORE),
+                           AutotuneConfig(relay_amplitude=D, relay_bias=95.0, settle_time=0.0))
+    tuner.reset(np.array([R]), np.array([U0]))
+    log = _run(tuner, 50, start_k=0)
+    assert log['state'][-1] == 'failed'
+    assert 'relay_bias 95 is not below the relay amplitude the output limits leave' in \
+        tuner.status['reason']
 
 
 def test_ipdt_model_based_rule_and_bias_correction():

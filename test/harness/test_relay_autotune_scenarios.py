@@ -1,6 +1,6 @@
 """controller: relay_autotune in the in-process loop (core/loop.py) from the flat parameters the
-nodes receive — the shipped config/fopdt_autotune.yaml with its scheduled start, an IPDT, and
-one loop of the mixing tank (T_out ← F_Cin) by channel names. Exact ultimate points are solved
+nodes receive — the shipped config/fopdt_autotune.yaml with its scheduled start, the biased
+relay of config/scenarios/fopdt_biased_relay.yaml, an IPDT, and one loop of the mixing tank (T_out ← F_Cin) by channel names. Exact ultimate points are solved
 here independently of the tuner."""
 from __future__ import annotations
 
@@ -8,10 +8,11 @@ import math
 
 import numpy as np
 import pytest
-from support import CONFIG, relay
+from support import CONFIG, SCENARIOS, relay
 from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
 from tank_control.core import params_file
+from tank_control.core.analysis.step_metrics import step_metrics
 from tank_control.core.scenario import run_in_process
 
 
@@ -122,3 +123,94 @@ def test_scheduled_start_fires_once_and_is_rearmed_by_a_new_start_time():
     KIND.update(tuner, resolve(KIND, {**values, 'autotune.start_time': 3.0}),
                 frozenset({'autotune.start_time'}))
     assert state_after(2.5) == 'aborted' and state_after(3.0) == 'settling'
+
+
+def test_shipped_biased_relay_scenario_identifies_the_static_gain_and_tunes_simc_pi():
+    """config/scenarios/fopdt_biased_relay.yaml (004 eqs. 3.3.12–3.3.17): one biased relay test
+    on 001's FOPDT gives kP, T and L; SIMC PI from that model follows the later setpoint step."""
+    params = params_file.read(SCENARIOS / 'fopdt_biased_relay.yaml')
+    duration = float(params['harness']['duration'])
+    trace, tuner, log = run_logged(params, duration)
+    assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+    st = tuner.status
+    assert st['model_method'] == 'eq_3_3_15'
+    model = st['model']
+    assert model['gain'] == pytest.approx(0.05, rel=0.05)
+    assert model['time_constant'] == pytest.approx(10.0, rel=0.05)
+    assert 3.0 - 0.01 <= model['dead_time'] <= 3.0 + 0.1          # + up to one sample
+    # the relay really was biased: u0 + 60 ± 200 around the settled bias u0
+    relay = trace['u.u'][(trace['t'] > log[2][0]) & (trace['t'] < log[4][0])]
+    assert set(np.round(relay - st['u0'], 6)) == {60.0 - 200.0, 60.0 + 200.0}
+    # SIMC PI (tau_c = L): kp = T/(K·2L), Ti = min(T, 8L)
+    cfg = tuner.pid.config
+    assert cfg.kp == pytest.approx(model['time_constant'] / (model['gain'] * 2 * model['dead_time']))
+    assert cfg.ti == pytest.approx(min(model['time_constant'], 8 * model['dead_time']))
+    t_step = params['reference']['setpoint.y.times'][1]
+    m = step_metrics(trace['t'], trace['y.y'], 110.0, 100.0, t_step=t_step)
+    assert m.overshoot < 10.0 and abs(m.steady_state_error) < 0.1
+
+
+def _sopdt_run(**plant):
+    params = params_file.read(SCENARIOS / 'sopdt_relay_two_points.yaml')
+    if plant.get('plant', 'sopdt') != 'sopdt':
+        params['plant'] = {k: params['plant'][k] for k in ('sample_time', 'noise_std', 'seed')}
+    params['plant'].update(plant)
+    trace, tuner, log = run_logged(params, float(params['harness']['duration']))
+    return params, trace, tuner, log
+
+
+def test_shipped_sopdt_scenario_fits_the_two_relay_points_and_tunes_simc_pid():
+    """config/scenarios/sopdt_relay_two_points.yaml: the relay (−180°) and the relay with an
+    integrator (−90°, both in state measuring) give an SOPDT through both points (004 eqs.
+    3.5.8–3.5.14) close to the plant; the −90° point is the process's own response there."""
+    params, trace, tuner, log = _sopdt_run()
+    assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+    res = tuner.results()
+    assert res['autotune.model_kind'] == 'sopdt' and res['autotune.model_method'] == 'two_points'
+    assert res['autotune.model_gain'] == pytest.approx(1.0, rel=0.02)
+    assert res['autotune.model_time_constant'] == pytest.approx(10.0, rel=0.05)
+    assert res['autotune.model_time_constant2'] == pytest.approx(4.0, rel=0.05)
+    assert res['autotune.model_dead_time'] == pytest.approx(2.0, abs=0.1)
+    w = res['autotune.omega_90']
+    g = np.exp(-2j * w) / ((10j * w + 1) * (4j * w + 1))
+    assert res['autotune.gain_90'] == pytest.approx(abs(g), rel=0.01)
+    assert -100.0 < math.degrees(np.angle(g)) < -80.0          # near the −90° point
+    # the integrator phase: a triangle input (steps of rate·Ts), not two relay levels
+    t_measuring, t_tuned = log[3][0], log[4][0]
+    u = trace['u.u'][(trace['t'] > t_measuring + 100.0) & (trace['t'] < t_tuned)]
+    assert len(set(np.round(u, 9))) > 50
+    # SIMC PID (tau_c = L), series (Kc, τI, τD = T2) in the ideal form the PID runs
+    k, t1, t2, dead = (res[f'autotune.model_{n}'] for n in
+                       ('gain', 'time_constant', 'time_constant2', 'dead_time'))
+    kc, ti_s = t1 / (k * 2 * dead), min(t1, 8 * dead)
+    cfg = tuner.pid.config
+    assert (cfg.kp, cfg.ti, cfg.td) == pytest.approx(
+        (kc * (1 + t2 / ti_s), ti_s + t2, ti_s * t2 / (ti_s + t2)), rel=1e-9)
+    t_step = params['reference']['setpoint.y.times'][1]
+    m = step_metrics(trace['t'], trace['y.y'], 1.5, 1.0, t_step=t_step)
+    assert m.overshoot < 15.0 and abs(m.steady_state_error) < 0.01
+
+
+@pytest.mark.parametrize('plant, kind', [
+    ({'plant': 'fopdt', 'gain': 1.0, 'time_constant': 10.0, 'dead_time': 2.0}, 'fopdt'),
+    ({'time_constant_1': 10.0, 'time_constant_2': 10.0}, 'sopdt')])
+def test_sopdt_relay_on_a_first_order_and_a_double_lag(plant, kind):
+    """An FOPDT gives a first-order fit (T2 ≈ 0, reported as fopdt; SIMC PI then); two equal lags
+    give the denominator (T1·T2 = a/c, T1 + T2 = b/c), though not each lag closely: a double root
+    splits under measurement error (ζ = 1 moves to either side)."""
+    params, trace, tuner, log = _sopdt_run(**plant)
+    if kind == 'fopdt':
+        params['controller']['autotune.kind'] = 'pi'
+        trace, tuner, log = run_logged(params, float(params['harness']['duration']))
+    res = tuner.results()
+    assert res['autotune.state'] == 'running', res['autotune.reason']
+    assert res['autotune.model_kind'] == kind and res['autotune.model_method'] == 'two_points'
+    assert res['autotune.model_gain'] == pytest.approx(1.0, rel=0.02)
+    t1, t2 = res['autotune.model_time_constant'], res['autotune.model_time_constant2']
+    if kind == 'sopdt':
+        assert (t1 * t2, t1 + t2) == pytest.approx((100.0, 20.0), rel=0.05)
+        assert res['autotune.model_dead_time'] == pytest.approx(2.0, abs=0.15)
+    else:
+        assert t1 == pytest.approx(10.0, rel=0.05)
+        assert res['autotune.model_dead_time'] + res['autotune.model_time_constant2'] == \
+            pytest.approx(2.0, abs=0.15)

@@ -39,6 +39,7 @@ RULES_MODEL = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan')
 RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT + RULES_MODEL
 DESIGN_FIELDS = ('rule', 'kind', 'ms_target', 'tau_c', 'gain_margin', 'phase_margin', 'method')
 """Settings a design depends on: a change re-derives the gains from the stored model."""
+MODEL_METHODS = ('none', 'harmonic', 'time_domain', 'eq_3_6_2', 'eq_3_3_15', 'two_points')
 VERIFY_STATES = ('none', 'waiting', 'measuring', 'ok', 'worse', 'cancelled')
 
 
@@ -56,6 +57,12 @@ class AutotuneConfig:
     relay_amplitude: float = _at(1.0, 'relay amplitude d around the bias u0', 'relay_amplitude',
                                  unit='u units', min=1e-9, max=_BIG,
                                  source='001 eq. 6.22, 004 eq. 3.2.1')
+    relay_bias: float = _at(0.0, 'relay bias μ0: the relay switches between u0 + μ0 ± d (004 eq. '
+                            '3.3.12, in the frame of a positive-gain plant); the asymmetric cycle '
+                            'gives the static gain kP (004 eq. 3.3.13) and the FOPDT of 004 eqs. '
+                            '3.3.14–3.3.17; |μ0| must stay below relay_amplitude; 0 = symmetric '
+                            'relay', 'relay_bias', unit='u units', min=-_BIG, max=_BIG,
+                            source='004 eqs. 3.3.12–3.3.17')
     hysteresis: float = _at(0.0, 'relay hysteresis ε (noise band, 004 Fig. 3.3); the larger of '
                             'this and noise_band·σ is used', 'hysteresis', unit='y units',
                             min=0.0, max=_BIG)
@@ -63,7 +70,8 @@ class AutotuneConfig:
                             'σ estimated while settling; 0 = off', 'noise_band', unit='-',
                             min=0.0, max=100.0)
     bias_correction: bool = _at(True, 'move the relay bias u0 to the mean input of a cycle whose '
-                                'half-periods are asymmetric', 'bias_correction')
+                                'half-periods are asymmetric (symmetric relay only: not with '
+                                'relay_bias)', 'bias_correction')
     asymmetry_tol: float = _at(0.1, '|Tu1 − Tu2|/period above which the bias is corrected',
                                'asymmetry_tol', unit='-', min=0.0, max=1.0)
     min_cycles: int = _at(4, 'stationary relay periods used for identification (004 §3.3: at '
@@ -86,8 +94,10 @@ class AutotuneConfig:
     method: str = _at('first_harmonic', 'ultimate point used for tuning: first_harmonic (004 '
                       'eqs. 3.3.19–3.3.21, corrected to −180°) or describing_function (001 eq. '
                       '6.22)', 'method', choices=('first_harmonic', 'describing_function'))
-    model: str = _at('auto', 'model identified from the relay data (004 §3.3, 3.6.2)', 'model',
-                     choices=('auto', 'fopdt', 'ipdt'))
+    model: str = _at('auto', 'model identified from the relay data (004 §3.3, 3.6.2); sopdt: '
+                     'after the relay, a second relay phase with an integrator in series finds '
+                     'the −90° point, and the SOPDT goes through both points (004 §3.3 intro, '
+                     'eqs. 3.5.8–3.5.14)', 'model', choices=('auto', 'fopdt', 'ipdt', 'sopdt'))
     process_gain: float = _at(0.0, 'known static gain kP for the FOPDT model (004 eq. 3.6.2); '
                               '0 = identify', 'process_gain', unit='y units per u unit',
                               min=0.0, max=_BIG)
@@ -129,6 +139,14 @@ class AutotuneConfig:
                             'in-process run and a lockstep ROS run start at the same sample',
                             'start_time', unit='s', min=0.0, max=_BIG)
 
+    def reason(self) -> str | None:
+        """Why the settings do not fit together (None if they do)."""
+        if abs(self.relay_bias) >= self.relay_amplitude:
+            return (f'autotune.relay_bias: |{self.relay_bias:g}| must be below '
+                    f'autotune.relay_amplitude {self.relay_amplitude:g}: the relay output would '
+                    'not change sides around u0 and no cycle forms (004 eq. 3.3.12)')
+        return None
+
 
 @dataclass(frozen=True)
 class AutotuneCommand:
@@ -158,14 +176,27 @@ class AutotuneResults:
                        max=_BIG, read_only=True)
     tu_df: float = _at(0.0, 'mean relay period', 'tu_df', unit='s', min=0.0, max=_BIG,
                        read_only=True)
-    model_kind: str = _at('none', 'identified model', 'model_kind', choices=('none', 'fopdt', 'ipdt'),
-                          read_only=True)
+    model_kind: str = _at('none', 'identified model', 'model_kind',
+                          choices=('none', 'fopdt', 'ipdt', 'sopdt'), read_only=True)
+    model_method: str = _at('none', 'how the model was found: time_domain (fit on the relay '
+                            'record), eq_3_6_2 (known static gain, 004 eq. 3.6.2), eq_3_3_15 '
+                            '(biased relay, 004 eqs. 3.3.13–3.3.17), two_points (SOPDT through '
+                            'the −180° and −90° points, 004 eqs. 3.5.8–3.5.14)', 'model_method',
+                            choices=MODEL_METHODS, read_only=True)
     model_gain: float = _at(0.0, 'model gain K (FOPDT) or k1 (IPDT, per s)', 'model_gain',
                             min=-_BIG, max=_BIG, read_only=True)
     model_time_constant: float = _at(0.0, 'model time constant T', 'model_time_constant',
                                      unit='s', min=0.0, max=_BIG, read_only=True)
     model_dead_time: float = _at(0.0, 'model dead time L or To', 'model_dead_time', unit='s',
                                  min=0.0, max=_BIG, read_only=True)
+    model_time_constant2: float = _at(0.0, 'second (smaller) time constant T2 of an SOPDT model',
+                                      'model_time_constant2', unit='s', min=0.0, max=_BIG,
+                                      read_only=True)
+    omega_90: float = _at(0.0, 'frequency of the −90° point found by the relay with an integrator '
+                          '(autotune.model sopdt; 0 = none)', 'omega_90', unit='rad/s', min=0.0,
+                          max=_BIG, read_only=True)
+    gain_90: float = _at(0.0, 'process gain |G| at omega_90', 'gain_90',
+                         unit='y units per u unit', min=0.0, max=_BIG, read_only=True)
     proposed_kp: float = _at(0.0, 'gains of the design from the identified model (autotune.rule)',
                              'proposed_kp', min=0.0, max=_BIG, read_only=True)
     proposed_ti: float = _at(0.0, 'proposed integral time (0 = none)', 'proposed_ti', unit='s',
@@ -411,7 +442,7 @@ class RelayAutotuner:
         gains in parameter convention (ti = 0: no integral action) and ``autotune.start`` = False
         (so a node re-arms its start parameter)."""
         res = self._result
-        model = res.model if res else None
+        model = self._model if res else None     # the ProcessModel the design used
         cfg = self.pid.config
         return {
             'autotune.start': False,
@@ -424,9 +455,13 @@ class RelayAutotuner:
             'autotune.ku_df': float(res.ku_df) if res else 0.0,
             'autotune.tu_df': float(res.tu_df) if res else 0.0,
             'autotune.model_kind': model.kind if model else 'none',
+            'autotune.model_method': res.model_method if res else 'none',
             'autotune.model_gain': float(model.gain) if model else 0.0,
-            'autotune.model_time_constant': float(getattr(model, 'time_constant', 0.0)) if model else 0.0,
+            'autotune.model_time_constant': float(model.time_constant) if model else 0.0,
             'autotune.model_dead_time': float(model.dead_time) if model else 0.0,
+            'autotune.model_time_constant2': float(model.time_constant2) if model else 0.0,
+            'autotune.omega_90': float(res.point_90[0]) if res and res.point_90 else 0.0,
+            'autotune.gain_90': float(abs(res.point_90[1])) if res and res.point_90 else 0.0,
             'kp': abs(cfg.kp), 'ti': cfg.ti if math.isfinite(cfg.ti) else 0.0, 'td': cfg.td,
             'b': cfg.b, 'c': cfg.c,
             **self._proposal_values(), **self._check_values(),
@@ -554,6 +589,11 @@ class RelayAutotuner:
         self._rec_y: list[float] = []
         self._first_cycle = 0
         self._cycles = 0
+        self._integrating = False              # the second phase: relay with an integrator
+        self._first: ident.RelayIdentification | None = None   # the −180° phase's result
+        self._rate = 0.0                       # integrator rate [u units/s]
+        self._u_int = 0.0                      # integrator output [u units]
+        self._rec_s: list[float] = []          # relay sign before the integrator
 
     def _pid_step(self, y: float, r: float) -> float:
         if self._pending is not None:
@@ -567,11 +607,16 @@ class RelayAutotuner:
         u_min, u_max = self.pid.limits
         return min(max(u, u_min), u_max)
 
+    def _centre(self) -> float:
+        """The relay's centre u0 + μ0 (``autotune.relay_bias``, signed as the loop acts)."""
+        return self._u0 + self._direction() * self._cfg.relay_bias
+
     def _amplitude(self) -> float:
-        """``autotune.relay_amplitude``, reduced so that ``u0 ± d`` stays within the output limits
-        (a clipped, asymmetric relay would defeat the bias correction)."""
-        cfg = self.pid.config
-        return min(self._cfg.relay_amplitude, cfg.u_max - self._u0, self._u0 - cfg.u_min)
+        """``autotune.relay_amplitude``, reduced so that ``u0 + μ0 ± d`` stays within the output
+        limits (a clipped, asymmetric relay would defeat the bias correction and falsify the
+        biased relay's equations)."""
+        cfg, centre = self.pid.config, self._centre()
+        return min(self._cfg.relay_amplitude, cfg.u_max - centre, centre - cfg.u_min)
 
     def _limit(self, u: float) -> float:
         """The PID's output limits and rate limit (du_max per second) applied to the relay output."""
@@ -635,6 +680,11 @@ class RelayAutotuner:
                 self._end('failed', f'relay has no amplitude: the bias u0 = {self._u0:g} is within '
                                     f'10 % of autotune.relay_amplitude from an output limit')
                 return None
+            if abs(self._cfg.relay_bias) >= 0.9 * self._amplitude():
+                self._end('failed', f'autotune.relay_bias {self._cfg.relay_bias:g} is not below '
+                                    f'the relay amplitude the output limits leave '
+                                    f'({self._amplitude():g}) by 10 %: no cycle would form')
+                return None
             return self._relay(t, y, r)
         return u
 
@@ -650,7 +700,9 @@ class RelayAutotuner:
         elif e < -self._eps:
             self._relay_high = False
         sign = 1.0 if self._relay_high else -1.0
-        u = self._limit(self._u0 + self._direction() * sign * self._amplitude())
+        if self._integrating:
+            return self._integrator_relay(t, y, sign)
+        u = self._limit(self._centre() + self._direction() * sign * self._amplitude())
         switched = bool(self._rec_u) and (u != self._rec_u[-1])
         self._rec_t.append(t)
         self._rec_u.append(u)
@@ -679,7 +731,8 @@ class RelayAutotuner:
         if last.end != len(tt) - 1:
             return False      # this switch closed a half cycle only
         asym = [(c.high_time - c.low_time) / c.period for c in cycles[-2:]]
-        if (cfg.bias_correction and len(asym) == 2 and min(abs(a) for a in asym) > cfg.asymmetry_tol
+        if (cfg.bias_correction and cfg.relay_bias == 0.0 and len(asym) == 2
+                and min(abs(a) for a in asym) > cfg.asymmetry_tol
                 and asym[0] * asym[1] > 0.0):     # two cycles in a row, same side: not noise
             seg = slice(last.start, last.end)
             self._u0 = float(np.mean(np.array(self._rec_u)[seg]))
@@ -691,13 +744,87 @@ class RelayAutotuner:
         tail = ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack)
         if tail is None:
             return False
+        sopdt = cfg.model == 'sopdt'
         try:
             res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
-                                       gain=cfg.process_gain or None, kind=cfg.model)
+                                       gain=cfg.process_gain or None,
+                                       kind='auto' if sopdt else cfg.model)
+            if sopdt:
+                self._begin_integrator(res)
+                return False
             proposal = self._design(res, cfg)
         except (ValueError, ArithmeticError) as exc:
             self._end('failed', f'identification/tuning failed: {exc}')
             return True
+        self._finish(res, proposal)
+        return True
+
+    def _begin_integrator(self, first: ident.RelayIdentification) -> None:
+        """Second phase of ``autotune.model`` sopdt (004 §3.3 intro): the relay drives an
+        integrator, so the loop oscillates where arg G = −π/2. The integrator's rate makes the
+        input a triangle of about ±d at the −90° frequency of the first phase's FOPDT (an IPDT
+        has none: then at the period 3·Tu); it starts at the far side of the relay's direction,
+        so the triangle is centred on u0."""
+        w90 = (first.model.lag_frequency(0.5 * math.pi) if first.model.kind == 'fopdt'
+               else 2.0 * math.pi / (3.0 * first.tu))
+        amp = self._amplitude()
+        self._rate = 2.0 * amp * w90 / math.pi          # 4·d/P90 with P90 = 2π/ω90
+        self._first, self._integrating = first, True
+        sign = 1.0 if self._relay_high else -1.0
+        self._u_int = self._u0 - self._direction() * sign * amp
+        for record in (self._rec_t, self._rec_u, self._rec_y, self._rec_s):
+            record.clear()
+        self._cycles = 0
+
+    def _integrator_relay(self, t: float, y: float, sign: float) -> float | None:
+        """One sample of the relay with an integrator in series (``sign``: the relay's state)."""
+        self._u_int += self._direction() * sign * self._rate * self.sample_time
+        u = self._limit(self._u_int)
+        self._u_int = u                                  # no windup beyond the limits
+        switched = bool(self._rec_s) and sign != self._rec_s[-1]
+        self._rec_t.append(t)
+        self._rec_u.append(u)
+        self._rec_y.append(y)
+        self._rec_s.append(sign)
+        if switched:
+            self._analyse_integrator()
+            if self._state not in TESTING:
+                return None
+        if t - self._t_start > self._cfg.timeout:
+            self._end('failed', f'no stationary oscillation with the integrator within '
+                                f'autotune.timeout = {self._cfg.timeout:g} s')
+            return None
+        return u
+
+    def _analyse_integrator(self) -> None:
+        """At a switch of the integrator phase: when enough cycles are stationary, ``G(jω90)``
+        by the first harmonic (004 eqs. 3.3.19–3.3.21) and the SOPDT through it and the
+        ultimate point (004 eqs. 3.5.8–3.5.14)."""
+        cfg, first = self._cfg, self._first
+        tt, yy = np.array(self._rec_t), np.array(self._rec_y)
+        cycles = ident.relay_cycles(tt, np.array(self._rec_s), yy, 0.0)[1:]
+        if not cycles or cycles[-1].end != len(tt) - 1:
+            return
+        self._cycles = len(cycles)
+        tail = ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol,
+                                       2.0 * self.sample_time)
+        if tail is None or first is None:
+            return
+        uu, _ = self._identification_input()
+        try:
+            w90, g = ident.harmonic_response(tt, uu, yy, tail[0].start, tail[-1].end,
+                                             len(tail), (1,))
+            model = ident.sopdt_from_two_points(2.0 * math.pi / first.tu, complex(-1.0 / first.ku),
+                                                w90, g[1])
+            res = replace(first, model=model, model_method='two_points', point_90=(w90, g[1]))
+            proposal = self._design(res, cfg)
+        except (ValueError, ArithmeticError) as exc:
+            self._end('failed', f'identification/tuning failed: {exc}')
+            return
+        self._finish(res, proposal)
+
+    def _finish(self, res: ident.RelayIdentification, proposal: Proposal) -> None:
+        """The test succeeded: keep the identification and offer its design."""
         self._result, self._gains = res, proposal.tuned
         self._model, self._proposal = from_identified(res.model), proposal
         # The PID takes over from the bias u0, the equilibrium input, not from the last relay
@@ -705,7 +832,6 @@ class RelayAutotuner:
         self._pending = self._u0
         self._state, self._reason = 'proposed', ''
         self._offer(proposal, after_test=True)
-        return True
 
     def _design(self, res: ident.RelayIdentification, cfg: AutotuneConfig) -> Proposal:
         """The proposal of ``cfg.rule`` from the identification ``res``: gains (the sign of the

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
+from scipy.optimize import brentq, least_squares, minimize_scalar
 from scipy.signal import lfilter
 
 # --------------------------------------------------------------------------- models
@@ -38,21 +38,26 @@ class FopdtModel:
         s = 1j * omega
         return self.gain / (self.time_constant * s + 1.0) ** self.order * np.exp(-self.dead_time * s)
 
-    def ultimate_point(self) -> tuple[float, float]:
-        """Exact ``(ku, tu)``: solve ``ω·L + n·arctan(ω·T) = π``, ``ku = 1/|G(jωu)|`` (SPEC §1.2)."""
+    def lag_frequency(self, lag: float) -> float:
+        """The frequency [rad/s] where the model lags by ``lag`` [rad]:
+        ``ω·L + n·arctan(ω·T) = lag``."""
         n, tc, dt = self.order, self.time_constant, self.dead_time
-        if dt <= 0.0 and n == 1:
-            raise ValueError('dead_time: a first-order plant without dead time has no ultimate point')
 
         def phase_gap(w: float) -> float:
-            return w * dt + n * math.atan(w * tc) - math.pi
+            return w * dt + n * math.atan(w * tc) - lag
 
         hi = 1.0
         while phase_gap(hi) < 0.0:
             hi *= 2.0
             if hi > 1e12:
-                raise ValueError('no phase crossover found')
-        wu = brentq(phase_gap, 0.0, hi, xtol=1e-14, rtol=1e-13)
+                raise ValueError(f'no frequency with a lag of {math.degrees(lag):g}° found')
+        return brentq(phase_gap, 0.0, hi, xtol=1e-14, rtol=1e-13)
+
+    def ultimate_point(self) -> tuple[float, float]:
+        """Exact ``(ku, tu)``: solve ``ω·L + n·arctan(ω·T) = π``, ``ku = 1/|G(jωu)|`` (SPEC §1.2)."""
+        if self.dead_time <= 0.0 and self.order == 1:
+            raise ValueError('dead_time: a first-order plant without dead time has no ultimate point')
+        wu = self.lag_frequency(math.pi)
         return 1.0 / abs(self.frequency_response(wu)), 2.0 * math.pi / wu
 
     def as_dict(self) -> dict[str, float | str | int]:
@@ -424,6 +429,115 @@ def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: floa
     return FopdtModel(gain=gain, time_constant=tc, dead_time=tau * tc)
 
 
+# ----------------------------------------------- 004 §3.5.2, SOPDT from two points
+
+
+@dataclass(frozen=True)
+class SopdtModel:
+    """``G(s) = e^(−Tm·s)/(a·s² + b·s + c)`` (004 eq. 3.5.8): static gain 1/c, ``dead_time``
+    Tm [s], ``a`` [s²], ``b`` [s], ``c`` [-] per output unit/input unit. ``time_constant`` ≥
+    ``time_constant2`` are the lags of ``a·s² + b·s + c = c·(T1·s + 1)(T2·s + 1)`` when its poles
+    are real (NaN when they are complex: ``damping`` < 1)."""
+
+    a: float
+    b: float
+    c: float
+    dead_time: float
+    kind: str = field(default='sopdt', init=False)
+
+    @property
+    def gain(self) -> float:
+        return 1.0 / self.c
+
+    @property
+    def damping(self) -> float:
+        """ζ = b/(2·√(a·c)) (infinite for a = 0: first order)."""
+        root = math.sqrt(self.a * self.c)
+        return self.b / (2.0 * root) if root > 0.0 else math.inf
+
+    def _lags(self) -> tuple[float, float]:
+        p, q = self.b / self.c, self.a / self.c          # T1 + T2, T1·T2
+        disc = p * p - 4.0 * q
+        if disc < 0.0:
+            return math.nan, math.nan
+        root = math.sqrt(disc)
+        return 0.5 * (p + root), 0.5 * (p - root)
+
+    @property
+    def time_constant(self) -> float:
+        return self._lags()[0]
+
+    @property
+    def time_constant2(self) -> float:
+        return self._lags()[1]
+
+    def frequency_response(self, omega: float) -> complex:
+        s = 1j * omega
+        return complex(np.exp(-self.dead_time * s) / (self.a * s * s + self.b * s + self.c))
+
+    def as_dict(self) -> dict[str, float | str]:
+        return {'kind': self.kind, 'gain': self.gain, 'time_constant': self.time_constant,
+                'time_constant2': self.time_constant2, 'dead_time': self.dead_time,
+                'a': self.a, 'b': self.b, 'c': self.c, 'damping': self.damping}
+
+
+def sopdt_from_two_points(omega_1: float, g_1: complex, omega_2: float, g_2: complex
+                          ) -> SopdtModel:
+    """The SOPDT of 004 eq. 3.5.8 through two measured points ``G(jω1) = g_1``,
+    ``G(jω2) = g_2`` (004 §3.5.2, Wang 1999), frequencies in rad/s.
+
+    With ``Z_i = e^(−jω_i·Tm)/G(jω_i) = c − a·ω_i² + j·b·ω_i``, Tm is the smallest positive root
+    of ``Im Z_1/ω_1 = Im Z_2/ω_2`` and then ``b = Im Z_i/ω_i``,
+    ``a = (Re Z_1 − Re Z_2)/(ω_2² − ω_1²)``, ``c = Re Z_1 + a·ω_1²``. At the document's two
+    points (arg G = −π at ω_c, −π/2 at ω_b) these are eqs. 3.5.10–3.5.14 (Tm from
+    ``sin(ω_c·Tm)/(ω_c·|G_c|) = cos(ω_b·Tm)/(ω_b·|G_b|)``); any two points of a true SOPDT
+    return it exactly. Raises ``ValueError`` when no positive Tm below the smaller point's
+    half period exists or the coefficients are not those of a stable, causal lag (a, b, c ≥ 0,
+    b, c > 0)."""
+    w1, w2 = float(omega_1), float(omega_2)
+    if not (w1 > 0.0 and w2 > 0.0 and w1 != w2 and g_1 != 0 and g_2 != 0):
+        raise ValueError('sopdt_from_two_points: two different positive frequencies with '
+                         'non-zero responses are needed')
+
+    def z(w: float, g: complex, tm: float) -> complex:
+        return complex(np.exp(-1j * w * tm)) / g
+
+    def gap(tm: float) -> float:
+        return z(w1, g_1, tm).imag / w1 - z(w2, g_2, tm).imag / w2
+
+    hi = math.pi / max(w1, w2)              # the rational part lags by less than π
+    grid = np.linspace(0.0, hi, 400)
+    values = np.array([gap(x) for x in grid])
+    tm = None
+    for k in range(1, len(grid)):
+        if values[k - 1] * values[k] <= 0.0:
+            tm = brentq(gap, grid[k - 1], grid[k], xtol=1e-14, rtol=1e-13)
+            break
+    if tm is None:
+        # A first-order process makes Tm a double root (the gap touches zero: its linear
+        # terms in Tm are equal at both points), so measurement error can lift the touching
+        # point just above zero: take the closest approach if it is within 2 % of b.
+        k = int(np.argmin(np.abs(values)))
+        found = minimize_scalar(lambda x: abs(gap(x)), method='bounded',
+                                bounds=(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]),
+                                options={'xatol': 1e-12})
+        tm = float(found.x)
+        scale = abs(z(w1, g_1, tm).imag / w1)
+        if not abs(gap(tm)) <= 0.02 * scale:
+            raise ValueError('sopdt_from_two_points: no dead time fits both points '
+                             '(004 eq. 3.5.10)')
+    z1, z2 = z(w1, g_1, tm), z(w2, g_2, tm)
+    b = 0.5 * (z1.imag / w1 + z2.imag / w2)
+    a = (z1.real - z2.real) / (w2 * w2 - w1 * w1)
+    c = z1.real + a * w1 * w1
+    if c > 0.0 and -0.01 * b * b / c < a < 0.0:
+        a = 0.0              # a first-order process measured with a little error
+    if not (a >= 0.0 and b > 0.0 and c > 0.0):
+        raise ValueError(f'sopdt_from_two_points: a = {a:.4g}, b = {b:.4g}, c = {c:.4g} are not '
+                         'those of a stable second-order lag (004 eq. 3.5.8)')
+    return SopdtModel(a=a, b=b, c=c, dead_time=tm)
+
+
 # ------------------------------------------------------------ whole analysis
 
 
@@ -545,10 +659,14 @@ class RelayIdentification:
     ``ku_fh``/``tu_fh``: the uncorrected first-harmonic point ``1/|G(jωc)|``, ``2π/ωc``.
     ``omega`` = ωc [rad/s], ``g1``/``g3`` = ``G(jωc)``, ``G(j3ωc)``; ``amplitude``: mean
     half peak-to-peak of ``y``; ``relay_amplitude``: half the span of ``u``; ``model``:
-    the FOPDT/IPDT for model-based tuning, by ``model_method``: ``'eq_3_6_2'`` (a static
-    gain is known: 004 eq. 3.6.2 through ``ku``, ``tu``) or ``'time_domain'``
-    (:func:`fit_time_domain`); ``model_harmonic``: from ``g1``, ``g3``/kP only (its start);
-    ``static_gain``: kP supplied or from 004 eq. 3.3.13 (biased relay), else ``None``.
+    the FOPDT/IPDT for model-based tuning, by ``model_method``: ``'eq_3_3_15'`` (a biased
+    relay with a static gain: 004 eqs. 3.3.14–3.3.17 from the asymmetric limit cycle),
+    ``'eq_3_6_2'`` (a static gain is known: 004 eq. 3.6.2 through ``ku``, ``tu``) or
+    ``'time_domain'`` (:func:`fit_time_domain`); ``model_harmonic``: from ``g1``, ``g3``/kP
+    only (its start); ``static_gain``: kP supplied or from 004 eq. 3.3.13 (biased relay), else
+    ``None``; ``relay_bias``: μ0, the mean of the two relay outputs minus ``u0`` (0 for a
+    symmetric relay); ``point_90``: ``(ω, G(jω))`` of the relay with an integrator when the
+    model went through it (``model_method`` ``'two_points'``).
     """
 
     ku: float
@@ -571,6 +689,8 @@ class RelayIdentification:
     model_harmonic: Model
     model_method: str
     static_gain: float | None
+    relay_bias: float = 0.0
+    point_90: tuple[float, complex] | None = None
 
 
 def _integrating(model: Model, period: float) -> Model:
@@ -627,7 +747,14 @@ def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: f
     ku_model, tu_model = anchored_ultimate_point(model, wc, g[1])
     local = fit_local_model(wc, g[1], g[3])
     ku, tu = anchored_ultimate_point(local, wc, g[1]) if local is not None else (ku_model, tu_model)
-    if kp is not None and kind != 'ipdt' and kp * ku > 1.0:
+    mu, mu0 = 0.5 * (float(seg_u.max()) - float(seg_u.min())), \
+        0.5 * (float(seg_u.max()) + float(seg_u.min())) - u0
+    biased = abs(mu0) > 0.02 * mu
+    if kp is not None and kind != 'ipdt' and isinstance(harmonic, FopdtModel) and biased:
+        a_up = float(np.mean([c.y_max for c in cycles])) - y0
+        t_high = float(np.mean([c.high_time for c in cycles]))
+        model, method = fopdt_from_biased_relay(mu, mu0, eps, a_up, t_high, kp), 'eq_3_3_15'
+    elif kp is not None and kind != 'ipdt' and kp * ku > 1.0:
         model, method = fopdt_from_ultimate(ku, tu, kp, order=1), 'eq_3_6_2'
     return RelayIdentification(
         ku=ku, tu=tu, ku_model=ku_model, tu_model=tu_model, local_model=local,
@@ -635,4 +762,5 @@ def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: f
         tu_df=float(np.mean([c.period for c in cycles])),
         ku_fh=1.0 / abs(g[1]), tu_fh=period, omega=wc, g1=g[1], g3=g[3],
         amplitude=amp, relay_amplitude=relay_amp, hysteresis=hysteresis, cycles=n,
-        model=model, model_harmonic=harmonic, model_method=method, static_gain=kp)
+        model=model, model_harmonic=harmonic, model_method=method, static_gain=kp,
+        relay_bias=mu0 if biased else 0.0)

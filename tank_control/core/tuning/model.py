@@ -179,10 +179,22 @@ class ProcessModel:
 
 
 def from_identified(model: Any) -> ProcessModel:
-    """The :class:`ProcessModel` of an identified ``FopdtModel`` (order 1 or 2) or
-    ``IpdtModel`` of ``core/tuning/identification.py``."""
+    """The :class:`ProcessModel` of an identified ``FopdtModel`` (order 1 or 2), ``IpdtModel``
+    or ``SopdtModel`` (real poles; ζ in [0.98, 1) is taken as the double lag √(a/c), below
+    ValueError; T2 < 0.1 % of T1 is an FOPDT) of ``core/tuning/identification.py``."""
     if getattr(model, 'kind', None) == 'ipdt':
         return ProcessModel('ipdt', abs(float(model.gain)), float(model.dead_time))
+    if getattr(model, 'kind', None) == 'sopdt':
+        if not model.damping >= 0.98:
+            raise ValueError(f'model: the SOPDT through the two points is underdamped (ζ = '
+                             f'{model.damping:.3g}); the tuning rules take real lags only')
+        if model.damping < 1.0:    # measurement error puts a double lag on either side of ζ = 1
+            t1 = t2 = math.sqrt(model.a / model.c)
+        else:
+            t1, t2 = float(model.time_constant), float(model.time_constant2)
+        if t2 < 1e-3 * t1:                    # a ≈ 0: the points are those of a first order
+            return ProcessModel('fopdt', abs(float(model.gain)), float(model.dead_time), t1)
+        return ProcessModel('sopdt', abs(float(model.gain)), float(model.dead_time), t1, t2)
     if getattr(model, 'order', 1) == 2:
         return ProcessModel('sopdt', abs(float(model.gain)), float(model.dead_time),
                             float(model.time_constant), float(model.time_constant))

@@ -24,11 +24,13 @@ COMMANDS = ('start_autotune', 'abort_autotune', 'apply_autotune', 'revert_gains'
 def identified_model(values: base.Values) -> ProcessModel | None:
     """The model the auto-tuner reported in its result parameters (``autotune.model_*``)."""
     kind = values.get('autotune.model_kind', 'none')
-    if kind not in ('fopdt', 'ipdt'):
+    if kind not in ('fopdt', 'ipdt', 'sopdt'):
         return None
     model = ProcessModel(kind, abs(values['autotune.model_gain']),
                          values['autotune.model_dead_time'],
-                         values['autotune.model_time_constant'] if kind == 'fopdt' else 0.0)
+                         values['autotune.model_time_constant'] if kind != 'ipdt' else 0.0,
+                         values.get('autotune.model_time_constant2', 0.0) if kind == 'sopdt'
+                         else 0.0)
     return None if model.reason() else model
 
 
