@@ -92,7 +92,7 @@ def phase_margin_for_overshoot(overshoot: float) -> float:
 def exact_phase_margin(zeta: float) -> float:
     """Not in 002 (a check of its rule): the exact phase margin [deg] of the loop
     ``ω_n²/(s·(s + 2ζω_n))`` whose closed loop is the second-order system of damping ζ,
-    ``atan(2ζ/√(√(1 + 4ζ⁴) − 2ζ²))`` (0.6 → 59.2°, 0.69 → 65.2°)."""
+    ``atan(2ζ/√(√(1 + 4ζ⁴) − 2ζ²))`` (0.6 → 59.2°, 0.69 → 64.6°)."""
     return math.degrees(math.atan(2 * zeta / math.sqrt(math.sqrt(1 + 4 * zeta ** 4)
                                                        - 2 * zeta ** 2)))
 
