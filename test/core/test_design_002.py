@@ -295,3 +295,15 @@ def test_002_pid_fast_start_and_no_final_error():
     assert y.max() <= 1.0 + 1e-3
     assert band_entry(t, y, 1.0, 0.05) < 0.4
     assert abs(y[-1] - 1.0) < 1e-3
+
+
+def test_the_command_prints_the_worked_example(capsys):
+    """``python -m tank_control.core.tuning.design_002`` (docs/tuning.md): 002's process by
+    default, the steps and the four designs; a refused design is a line, not a crash."""
+    assert d.main([]) == 0
+    out = capsys.readouterr().out
+    assert 'p    kp 9.5  td 0 s  ti inf s  PM 28.07 deg at 5.961 rad/s' in out
+    assert 'lead step: w_max 5.961 rad/s  td 0.5305 s  PM 54.64 deg at 15.52 rad/s' in out
+    assert 'pi   kp 1.839  td 0 s  ti 4.469 s  PM 60.00 deg at 2.246 rad/s' in out
+    assert d.main(['--phase-margin', '72']) == 0
+    assert 'pd   refused: tuning.phase_margin: 72 deg is out of reach' in capsys.readouterr().out

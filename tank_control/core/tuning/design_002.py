@@ -357,3 +357,56 @@ def design(process: Any, kind: str, error: float = 0.05, phase_margin: float = 6
         return design_pid(process, error, phase_margin, ratio, alpha)
     raise ConfigError(f'tuning.kind: {kind!r} is not designed by 002; allowed '
                       + ', '.join(KINDS))
+
+
+# ============================================================================= report
+def report(process: Any, error: float = 0.05, phase_margin: float = 60.0, ratio: float = 10.0,
+           alpha: float = ALPHA_002) -> str:
+    """The design steps and the four designs for ``process``, in lines (units in the text);
+    ``python -m tank_control.core.tuning.design_002`` prints it for 002's process."""
+    lines = [f'targets: steady-state error {error:g}, phase margin {phase_margin:g} deg '
+             f'(damping {damping_from_phase_margin(phase_margin):.2f}, overshoot '
+             f'{100 * overshoot_from_damping(damping_from_phase_margin(phase_margin)):.2f} %); '
+             f'5 % overshoot needs damping {damping_from_overshoot(0.05):.3f}, '
+             f'{phase_margin_for_overshoot(0.05):.1f} deg',
+             f'lead alpha {alpha:g}: largest lead {lead_max_phase(alpha):.2f} deg at '
+             f'w_max = 1/(td sqrt(alpha)); integral corner {ratio:g} x below the crossover']
+    for kind in KINDS:
+        try:
+            x = design(process, kind, error, phase_margin, ratio, alpha)
+        except ConfigError as e:
+            lines.append(f'{kind:3}  refused: {e}')
+            continue
+        lines.append(f'{kind:3}  kp {x.kp:.4g}  td {x.td:.4g} s  ti {x.ti:.4g} s  '
+                     f'PM {x.phase_margin:.2f} deg at {x.wc:.4g} rad/s')
+        for s in x.lead_steps if kind == 'pd' else ():
+            lines.append(f'     lead step: w_max {s.w_max:.4g} rad/s  td {s.td:.4g} s  '
+                         f'PM {s.phase_margin:.2f} deg at {s.wc:.4g} rad/s')
+    return '\n'.join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m tank_control.core.tuning.design_002 [--num ...] [--den ...] ...``: 002's
+    design for a transfer function (default 002's process 4/((s + 1)(s + 2)))."""
+    import argparse
+    parser = argparse.ArgumentParser(prog='python -m tank_control.core.tuning.design_002',
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument('--num', type=float, nargs='+', default=[4.0],
+                        help='numerator of G(s), highest power first')
+    parser.add_argument('--den', type=float, nargs='+', default=[1.0, 3.0, 2.0],
+                        help='denominator of G(s), highest power first')
+    parser.add_argument('--dead-time', type=float, default=0.0, help='dead time [s]')
+    parser.add_argument('--error', type=float, default=0.05,
+                        help='steady-state error (fraction of the step)')
+    parser.add_argument('--phase-margin', type=float, default=60.0, help='target [deg]')
+    parser.add_argument('--ratio', type=float, default=10.0,
+                        help='integral corner this many times below the crossover')
+    parser.add_argument('--alpha', type=float, default=ALPHA_002, help='lead ratio Tf/Td')
+    args = parser.parse_args(argv)
+    g = fr.rational(args.num, args.den, args.dead_time)
+    print(report(g, args.error, args.phase_margin, args.ratio, args.alpha))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
