@@ -39,28 +39,29 @@ output ``u``; bumpless gain changes (the integral, or without integral action th
 ``I``, absorbs them); manual/auto bumpless both ways; a non-finite ``r`` or ``y`` holds the
 last output and leaves the state untouched; ``direct_action`` reverses the sign.
 
-Design (:func:`design`, 002): P for the steady-state error ``1/(1 + kp·K) <= e`` (§1.1); PD:
-the lead's ``w_max`` at the P loop's gain crossover, moved to the mean of itself and the new
-crossover until the phase margin reaches its target (§1.2; no lead if the P loop has it);
-PI: the gain and ``ti = ratio/w_c`` (the integral corner a decade below the P loop's
-crossover) that give the target phase margin (§1.3); series PID: the PD's ``td``, the PI's
-``ti``, the mean of the two gains (§1.4). The design is continuous (exact dead time); the
+Design (:func:`design`, 002; the procedure is ``core/tuning/design_002.py``): P for the
+steady-state error ``1/(1 + kp·K) <= e`` (§1.1); PD: the lead's ``w_max`` at the P loop's gain
+crossover, moved to the mean of itself and the new crossover until the phase margin reaches
+its target (§1.2; no lead if the P loop has it); PI: the gain and ``ti = ratio/w_c`` (the
+integral corner a decade below the P loop's crossover) that give the target phase margin
+(§1.3); series PID: the PD's ``td``, the PI's ``ti``, the mean of the two gains (§1.4). The
+design is continuous (exact dead time, margins from ``core/analysis/frequency.py``); the
 sampled loop loses about ``w_c·h/2`` of phase to the hold.
 """
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.control.pid import (ANTI_WINDUP_CHOICES, BIG, anti_windup_param,
                                            sample_time_param)
 from tank_control.core.control.siso_law import SisoController, SisoLaw
 from tank_control.core.params import ConfigError, check_config, param
+from tank_control.core.tuning import design_002
+from tank_control.core.tuning.design_002 import Design, LeadStep  # noqa: F401 (re-exported)
 from tank_control.core.tuning.model import ProcessModel
 
 ALPHA_MIN, ALPHA_MAX = 0.01, 0.99
@@ -221,13 +222,9 @@ def discrete_response(kp: float, td: float, alpha: float, ti: float,
 
 def continuous_response(kp: float, td: float, alpha: float,
                         ti: float = math.inf) -> fr.FrequencyResponse:
-    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` (002 §1.4)."""
-    num, den = np.array([float(kp)]), np.array([1.0])
-    if td > 0.0:
-        num, den = np.convolve(num, [td, 1.0]), np.convolve(den, [alpha * td, 1.0])
-    if math.isfinite(ti):
-        num, den = np.convolve(num, [ti, 1.0]), np.convolve(den, [ti, 0.0])
-    return fr.rational(num, den)
+    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` (002 §1.4;
+    :func:`design_002.controller_response`)."""
+    return design_002.controller_response(kp, td, alpha, ti)
 
 
 # ================================================================================ design
@@ -295,214 +292,14 @@ class LeadLagTuning:
                             self.time_constant2)
 
 
-@dataclass(frozen=True)
-class LeadStep:
-    """One step of 002's lead iteration: ``w_max`` [rad/s], ``td`` [s] and the resulting
-    loop's ``phase_margin`` [deg] at its crossover ``wc`` [rad/s]."""
-
-    w_max: float
-    td: float
-    phase_margin: float
-    wc: float
-
-
-@dataclass(frozen=True)
-class Design:
-    """The designed ``kp``, ``td`` (0 = no lead), ``ti`` (inf = none) and the loop's
-    ``phase_margin`` [deg] at ``wc`` [rad/s]; the steps: the P gain for the steady-state
-    error and its loop (``p_*``), the lead iteration (``lead_steps``), the PI gain and the
-    crossover of its P loop (``pi_*``)."""
-
-    kp: float
-    td: float
-    ti: float
-    phase_margin: float
-    wc: float
-    p_gain: float = math.nan
-    p_phase_margin: float = math.nan
-    p_wc: float = math.nan
-    lead_steps: tuple[LeadStep, ...] = field(default=())
-    pi_gain: float = math.nan
-    pi_wc: float = math.nan
-
-    def values(self) -> dict[str, float]:
-        """As parameter values (``lead_lag.ti`` 0 = none)."""
-        return {'lead_lag.kp': self.kp, 'lead_lag.td': self.td,
-                'lead_lag.ti': self.ti if math.isfinite(self.ti) else 0.0}
-
-
-_MAX_LEAD_STEPS = 60
-
-
-Curve = Callable[[float], float]
-
-
-def _loop(process: ProcessModel, kp: float, td: float, alpha: float,
-          ti: float) -> tuple[Curve, Curve]:
-    """Closed-form magnitude and continuous phase [rad] of ``C(jω)·G(jω)``."""
-    def magnitude(w: float) -> float:
-        m = kp * process.magnitude(w)
-        if td > 0.0:
-            m *= math.sqrt((1 + (w * td) ** 2) / (1 + (alpha * w * td) ** 2))
-        if math.isfinite(ti):
-            m *= math.sqrt(1 + 1 / (w * ti) ** 2)
-        return m
-
-    def phase(w: float) -> float:
-        p = process.phase(w)
-        if td > 0.0:
-            p += math.atan(w * td) - math.atan(alpha * w * td)
-        if math.isfinite(ti):
-            p -= math.atan(1 / (w * ti))
-        return p
-    return magnitude, phase
-
-
-def _crossovers(magnitude: Curve, corners: list[float], monotone: bool) -> list[float]:
-    """Every ω [rad/s] with |L(jω)| = 1: brentq on log|L| between grid points where it changes
-    sign (a log grid five decades beyond the corners; ``monotone``: |L| strictly decreasing,
-    so one bracket, widened by factors of 4, suffices)."""
-    def f(x: float) -> float:
-        return math.log(magnitude(x))
-    if monotone:
-        lo = hi = math.sqrt(min(corners) * max(corners))
-        for _ in range(200):
-            if f(lo) > 0.0:
-                break
-            lo /= 4.0
-        for _ in range(200):
-            if f(hi) < 0.0:
-                break
-            hi *= 4.0
-        if not f(lo) > 0.0 > f(hi):
-            return []
-        return [brentq(f, lo, hi, xtol=1e-14, rtol=1e-13)]
-    w = np.logspace(math.log10(min(corners) * 1e-5), math.log10(max(corners) * 1e5), 2000)
-    lm = np.array([f(x) for x in w])
-    return [brentq(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13)
-            for i in np.flatnonzero(np.sign(lm[1:]) != np.sign(lm[:-1]))]
-
-
-def loop_margin(process: ProcessModel, kp: float, td: float, alpha: float,
-                ti: float = math.inf) -> tuple[float, float]:
-    """``(phase margin [deg], crossover [rad/s])`` of the continuous loop, the worst over its
-    gain crossovers (closed forms; no crossover: ``(inf, nan)``)."""
-    magnitude, phase = _loop(process, kp, td, alpha, ti)
-    corners = process.corners() + [1 / t for t in (td, alpha * td) if t > 0]
-    if math.isfinite(ti):
-        corners.append(1 / ti)
-    # without a lead |C·G| falls strictly (every model's |G| does, and |PI|): one crossover
-    found = [(180.0 + math.degrees(phase(w)), w)
-             for w in _crossovers(magnitude, corners, monotone=td == 0.0)]
-    return min(found) if found else (math.inf, math.nan)
-
-
-def _stable(process: ProcessModel, kp: float, td: float, alpha: float, ti: float) -> bool:
-    """Nyquist count of the loop with the exact dead time (core/analysis/frequency.py)."""
-    return fr.closed_loop_stable(continuous_response(kp, td, alpha, ti) * process.response())
-
-
-def _p_gain(tuning: LeadLagTuning, process: ProcessModel) -> float:
-    """002 §1.1: the steady-state error of a setpoint step is 1/(1 + kp·K) <= e."""
-    if not math.isfinite(process.static_gain):
-        raise ConfigError(f'tuning.kind: {tuning.kind!r} takes its gain from the steady-state '
-                          'error (002 §1.1), and an integrating process (tuning.model ipdt) has '
-                          'none at any gain; allowed pi')
-    return (1.0 / tuning.steady_state_error - 1.0) / process.static_gain
-
-
-def _design_p(tuning: LeadLagTuning, process: ProcessModel, alpha: float,
-              check: bool = True) -> Design:
-    """002 §1.1: the gain for the steady-state error (``check``: refused if unstable)."""
-    kp = _p_gain(tuning, process)
-    pm, wc = loop_margin(process, kp, 0.0, alpha)
-    if check and not _stable(process, kp, 0.0, alpha, math.inf):
-        raise ConfigError(f'tuning.steady_state_error: {tuning.steady_state_error:g} needs the '
-                          f'gain {kp:.6g}, which makes the loop unstable; allow a larger error')
-    return Design(kp, 0.0, math.inf, pm, wc, kp, pm, wc)
-
-
-def _design_pd(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> Design:
-    """002 §1.2: the lead's largest phase at the P loop's crossover, then at the mean of the
-    previous w_max and the new crossover, until the phase margin reaches the target."""
-    p = _design_p(tuning, process, alpha, check=False)
-    target = tuning.phase_margin
-    if p.phase_margin >= target and _stable(process, p.kp, 0.0, alpha, math.inf):
-        return p                                   # the P loop has the margin: no lead
-    w_max, steps, best = p.p_wc, [], -math.inf
-    for _ in range(_MAX_LEAD_STEPS):
-        td = 1.0 / (w_max * math.sqrt(alpha))
-        pm, wc = loop_margin(process, p.kp, td, alpha)
-        steps.append(LeadStep(w_max, td, pm, wc))
-        if pm >= target and _stable(process, p.kp, td, alpha, math.inf):
-            return replace(p, td=td, phase_margin=pm, wc=wc, lead_steps=tuple(steps))
-        best = max(best, pm)
-        w_next = 0.5 * (w_max + wc)
-        if not math.isfinite(w_next) or abs(w_next - w_max) <= 1e-12 * w_max:
-            break
-        w_max = w_next
-    lead = math.degrees(math.asin((1 - alpha) / (1 + alpha)))
-    raise ConfigError(f'tuning.phase_margin: {target:g} deg is out of reach of the lead '
-                      f'(lead_lag.alpha {alpha:g}: at most {lead:.1f} deg of lead) with the '
-                      f'gain {p.kp:.6g} that tuning.steady_state_error '
-                      f'{tuning.steady_state_error:g} needs; the lead iteration reached '
-                      f'{best:.1f} deg; allow a lower phase margin, a larger error or a smaller '
-                      'alpha, or use tuning.kind pi')
-
-
-def _design_pi(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> Design:
-    """002 §1.3: the P gain that puts the P loop's crossover w_p where, with the integral
-    corner at w_p/ratio, the PI loop has the target phase margin (002 lowers the gain until
-    the P loop has margin to spare, then places the corner a decade below)."""
-    target, ratio = tuning.phase_margin, tuning.integral_ratio
-
-    def margin_at(w_p: float) -> float:
-        kp = 1.0 / process.magnitude(w_p)
-        return loop_margin(process, kp, 0.0, alpha, ratio / w_p)[0] - target
-
-    low = min(process.corners()) * 1e-4
-    if not margin_at(low) > 0.0:
-        raise ConfigError(f'tuning.phase_margin: {target:g} deg is more than a PI with the '
-                          f'integral corner {ratio:g} times below the crossover can give on '
-                          f'tuning.model {process.kind!r}; allowed below '
-                          f'{target + margin_at(low):.1f} deg')
-    high = low
-    while margin_at(high) > 0.0:
-        high *= 2.0
-        if high > max(process.corners()) * 1e6:
-            raise ConfigError(f'tuning.model: {process.kind!r} without dead time keeps the PI '
-                              f'loop above {target:g} deg phase margin at every gain, so 002 '
-                              'fixes no gain; give tuning.dead_time or use tuning.model sopdt')
-    w_p = brentq(margin_at, high / 2.0, high, xtol=1e-14, rtol=1e-13)
-    kp, ti = 1.0 / process.magnitude(w_p), ratio / w_p
-    pm, wc = loop_margin(process, kp, 0.0, alpha, ti)
-    if not _stable(process, kp, 0.0, alpha, ti):
-        raise ConfigError(f'tuning.phase_margin: the PI design for {target:g} deg is unstable '
-                          f'on tuning.model {process.kind!r}; change the target')
-    return Design(kp, 0.0, ti, pm, wc, pi_gain=kp, pi_wc=w_p)
-
-
-def _design_pid(tuning: LeadLagTuning, process: ProcessModel, alpha: float) -> Design:
-    """002 §1.4: series PID = PD·PI, gain the mean of the two designed gains."""
-    pd = _design_pd(tuning, process, alpha)
-    pi = _design_pi(tuning, process, alpha)
-    kp = 0.5 * (pd.kp + pi.kp)
-    pm, wc = loop_margin(process, kp, pd.td, alpha, pi.ti)
-    if not _stable(process, kp, pd.td, alpha, pi.ti):
-        raise ConfigError('tuning.kind: the series PID of the PD and PI designs (mean gain '
-                          f'{kp:.6g}) is unstable on this model; use tuning.kind pd or pi')
-    return replace(pd, kp=kp, ti=pi.ti, phase_margin=pm, wc=wc, pi_gain=pi.kp, pi_wc=pi.pi_wc)
-
-
 def design(tuning: LeadLagTuning, alpha: float) -> Design:
-    """002's design of ``tuning.kind`` for ``tuning.process()`` with the lead ratio ``alpha``.
-    Raises :class:`ConfigError` (one line naming the parameter) when the target is out of
-    reach or the rule does not apply."""
+    """002's design of ``tuning.kind`` for ``tuning.process()`` with the lead ratio ``alpha``
+    (:func:`tank_control.core.tuning.design_002.design`). Raises :class:`ConfigError` (one
+    line naming the parameter) when the target is out of reach or the rule does not apply."""
     if tuning.rule == 'none':
         raise ConfigError("tuning.rule: 'none' designs nothing; allowed frequency_002")
     reason = tuning.reason()
     if reason:
         raise ConfigError(reason)
-    process = tuning.process()
-    return {'p': _design_p, 'pd': _design_pd, 'pi': _design_pi,
-            'pid': _design_pid}[tuning.kind](tuning, process, alpha)
+    return design_002.design(tuning.process(), tuning.kind, tuning.steady_state_error,
+                             tuning.phase_margin, tuning.integral_ratio, alpha)
