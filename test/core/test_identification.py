@@ -256,3 +256,24 @@ def test_sopdt_from_two_points_refuses_points_no_lag_fits():
     underdamped = ident.SopdtModel(a=1.0, b=0.6, c=1.0, dead_time=0.5)
     with pytest.raises(ValueError, match='underdamped'):
         from_identified(underdamped)
+
+
+@pytest.mark.parametrize('method, t_tol', [('tangent', 0.04), ('two_point', 0.01)])
+def test_fopdt_from_a_sampled_step_response(method, t_tol):
+    """001 eq. 6.15 (tangent of steepest slope) and the 28.3 %/63.2 % two-point method on the
+    exact sampled response of 001's FOPDT (K 0.05, T 10 s, L 3 s) to a step of 200, 80 s at
+    0.1 s: K from the last 10 % (e^(−7.7) of the change still to come), T, L; the tangent's
+    slope over a window of 1 % of the record is a little below the true K/T at the corner."""
+    t = np.arange(0.0, 80.0, 0.1)
+    y = 100.0 + np.where(t >= 3.0, 0.05 * 200 * (1 - np.exp(-(t - 3.0) / 10.0)), 0.0)
+    m = ident.fopdt_from_step(t, y, 100.0, 200.0, method)
+    assert m.gain == pytest.approx(0.05, rel=1e-3)
+    assert m.time_constant == pytest.approx(10.0, rel=t_tol)
+    assert m.dead_time == pytest.approx(3.0, abs=0.05)
+    # a step down: the same model
+    down = ident.fopdt_from_step(t, 200.0 - y, 100.0, -200.0, method)
+    assert (down.gain, down.time_constant) == pytest.approx((m.gain, m.time_constant))
+    res = ident.step_identification(m, 200.0, method)
+    assert (res.ku, res.tu) == pytest.approx(m.ultimate_point()) and res.static_gain == m.gain
+    with pytest.raises(ValueError, match='did not move'):
+        ident.fopdt_from_step(t, np.full_like(t, 100.0), 100.0, 200.0, method)

@@ -141,6 +141,55 @@ def test_biased_relay_identifies_the_static_gain_and_the_fopdt_of_004_eqs_3_3_12
         m['time_constant'] / (m['gain'] * 2 * m['dead_time']), rel=1e-6)
 
 
+@pytest.mark.parametrize('method', ('tangent', 'two_point'))
+@pytest.mark.parametrize('gain', (K, -K))
+def test_step_test_identifies_the_fopdt_and_tunes_oppelt(method, gain):
+    """autotune.test step (001 §1.2.1): from the settled loop a manual step of 200 (as the
+    loop acts), held until steady; the FOPDT by the tangent (001 eq. 6.15) or the two-point
+    method; Oppelt's PI (Table 6.1, a = K·L/T) takes over from u0. A reverse-acting plant
+    (direct_action) is stepped so that the output rises, and gives |K|."""
+    plant = ExactDelayPlant(gain, T, L, y0=R, u0=U0)
+    cfg = AutotuneConfig(test='step', step_size=D, step_method=method, settle_time=5.0,
+                         settle_band=0.5, rule='oppelt', kind='pi')
+    tuner = RelayAutotuner(PidConfig(sample_time=0.1, u_min=0.0, u_max=10000.0,
+                                     direct_action=gain < 0, **PID_BEFORE), cfg)
+    tuner.reset(np.array([R]), np.array([U0]))
+    log = closed_loop(tuner, plant, R, 2000, 0.01 * AMP, seed=11,
+                      before_step=lambda k, t: tuner.start() if k == 10 else None)
+    states = [s for i, s in enumerate(log['state']) if i == 0 or s != log['state'][i - 1]]
+    assert states == ['idle', 'settling', 'step', 'tuned', 'running'], tuner.status['reason']
+    st = tuner.status
+    assert st['model_method'] == f'step_{method}'
+    m = st['model']
+    assert m['gain'] == pytest.approx(K, rel=0.01)
+    assert m['time_constant'] == pytest.approx(T, rel=0.04 if method == 'tangent' else 0.02)
+    assert m['dead_time'] == pytest.approx(L, abs=0.05)
+    step = log['u'][np.array(log['state']) == 'step']
+    assert np.allclose(step, st['u0'] + (D if gain > 0 else -D))
+    assert np.all(log['y'][np.array(log['state']) == 'step'] > R - 0.5)      # the output rose
+    a = m['gain'] * m['dead_time'] / m['time_constant']
+    cfg_pid = tuner.pid.config
+    assert (abs(cfg_pid.kp), cfg_pid.ti) == pytest.approx((0.8 / a, 3 * m['dead_time']), rel=1e-9)
+    k = list(log['state']).index('tuned')
+    assert log['u'][k] == pytest.approx(st['u0'], abs=1e-6)            # back to u0, bumpless
+    assert abs(np.mean(log['y'][-100:]) - R) < 0.1
+
+
+def test_step_test_abort_and_bad_settings():
+    tuner = _tuner(test='step', step_size=D)
+    log = _run(tuner, 1500, action=lambda k, t: tuner.abort() if k == 200 else None)
+    assert 'step' in list(log['state'])
+    _assert_restored_and_running(tuner, log, 'aborted', 'abort requested')
+    with pytest.raises(ConfigError, match='autotune.step_size'):
+        check_config(AutotuneConfig(test='step', step_size=0.0))
+    with pytest.raises(ConfigError, match='autotune.model: ipdt cannot come from a step test'):
+        check_config(AutotuneConfig(test='step', model='ipdt'))
+    # an output that leaves autotune.max_amplitude fails the test and restores the gains
+    tuner = _tuner(test='step', step_size=D, max_amplitude=5.0)
+    log = _run(tuner, 1500)
+    _assert_restored_and_running(tuner, log, 'failed', 'max_amplitude')
+
+
 def test_relay_bias_must_stay_below_the_relay_amplitude():
     with pytest.raises(ConfigError, match='autotune.relay_bias.*below autotune.relay_amplitude'):
         check_config(AutotuneConfig(relay_amplitude=1.0, relay_bias=1.0))

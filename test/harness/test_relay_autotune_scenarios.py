@@ -214,3 +214,24 @@ def test_sopdt_relay_on_a_first_order_and_a_double_lag(plant, kind):
         assert t1 == pytest.approx(10.0, rel=0.05)
         assert res['autotune.model_dead_time'] + res['autotune.model_time_constant2'] == \
             pytest.approx(2.0, abs=0.15)
+
+
+def test_shipped_step_test_scenario_identifies_the_fopdt_by_the_tangent_and_tunes_oppelt():
+    """config/scenarios/fopdt_step_test.yaml (001 §1.2.1): the manual step from the settled
+    loop, the tangent construction (eq. 6.15) and Oppelt's PI (Table 6.1; SPEC-supplement §5.1
+    works the example: a = 0.015, kp 53.3, Ti 9 s), which 001 expects to be weakly damped
+    (ζ = 0.25)."""
+    params = params_file.read(SCENARIOS / 'fopdt_step_test.yaml')
+    trace, tuner, log = run_logged(params, float(params['harness']['duration']))
+    assert [s for _, s in log] == ['idle', 'settling', 'step', 'tuned', 'running']
+    st = tuner.status
+    assert st['model_method'] == 'step_tangent'
+    m = st['model']
+    assert m['gain'] == pytest.approx(0.05, rel=0.01)
+    assert m['time_constant'] == pytest.approx(10.0, rel=0.04)
+    assert m['dead_time'] == pytest.approx(3.0, abs=0.05)
+    cfg = tuner.pid.config
+    assert (cfg.kp, cfg.ti) == pytest.approx((53.3, 9.0), rel=0.04)
+    t_step = params['reference']['setpoint.y.times'][1]
+    metrics = step_metrics(trace['t'], trace['y.y'], 110.0, 100.0, t_step=t_step)
+    assert 20.0 < metrics.overshoot < 50.0 and abs(metrics.steady_state_error) < 0.1

@@ -29,9 +29,9 @@ from tank_control.core.params import check_config, param
 from tank_control.core.tuning import identification as ident
 from tank_control.core.tuning.model import DiscretePlant, ProcessModel, from_identified
 
-STATES = ('idle', 'settling', 'relay', 'measuring', 'tuned', 'running', 'proposed', 'reverted',
-          'failed', 'aborted')
-TESTING = ('settling', 'relay', 'measuring')
+STATES = ('idle', 'settling', 'relay', 'step', 'measuring', 'tuned', 'running', 'proposed',
+          'reverted', 'failed', 'aborted')
+TESTING = ('settling', 'relay', 'step', 'measuring')
 RULES_ULTIMATE = ('zn', 'zn_001', 'zn_004_q0', 'zn_004_q1')
 RULES_IPDT = ('mdp', 'experimental')
 RULES_FOPDT = ('oppelt', 'cohen_coon')
@@ -39,7 +39,8 @@ RULES_MODEL = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan')
 RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT + RULES_MODEL
 DESIGN_FIELDS = ('rule', 'kind', 'ms_target', 'tau_c', 'gain_margin', 'phase_margin', 'method')
 """Settings a design depends on: a change re-derives the gains from the stored model."""
-MODEL_METHODS = ('none', 'harmonic', 'time_domain', 'eq_3_6_2', 'eq_3_3_15', 'two_points')
+MODEL_METHODS = ('none', 'harmonic', 'time_domain', 'eq_3_6_2', 'eq_3_3_15', 'two_points',
+                 'step_tangent', 'step_two_point')
 VERIFY_STATES = ('none', 'waiting', 'measuring', 'ok', 'worse', 'cancelled')
 
 
@@ -54,6 +55,16 @@ def _at(default: Any, description: str, field_name: str, **meta: Any) -> Any:
 class AutotuneConfig:
     """Settings of the relay test; each field is the parameter ``autotune.<field>``."""
 
+    test: str = _at('relay', 'the identification test: relay (004 §3.2–3.3) or step: an '
+                    'open-loop step of autotune.step_size from the settled bias u0 in manual '
+                    'mode, held until the output is steady, FOPDT by autotune.step_method '
+                    '(001 §1.2.1)', 'test', choices=('relay', 'step'))
+    step_size: float = _at(1.0, 'step test: input change Δu from u0 (signed as the loop acts: '
+                           'positive raises the output)', 'step_size', unit='u units',
+                           min=-_BIG, max=_BIG, source='001 eq. 6.15')
+    step_method: str = _at('tangent', 'step test: tangent of steepest slope (001 eq. 6.15) or '
+                           'two_point (28.3 % and 63.2 % times)', 'step_method',
+                           choices=ident.STEP_METHODS)
     relay_amplitude: float = _at(1.0, 'relay amplitude d around the bias u0', 'relay_amplitude',
                                  unit='u units', min=1e-9, max=_BIG,
                                  source='001 eq. 6.22, 004 eq. 3.2.1')
@@ -141,6 +152,11 @@ class AutotuneConfig:
 
     def reason(self) -> str | None:
         """Why the settings do not fit together (None if they do)."""
+        if self.test == 'step' and self.step_size == 0.0:
+            return 'autotune.step_size: a step test needs a non-zero step'
+        if self.test == 'step' and self.model not in ('auto', 'fopdt'):
+            return (f'autotune.model: {self.model} cannot come from a step test (it gives an '
+                    'FOPDT); use auto or fopdt')
         if abs(self.relay_bias) >= self.relay_amplitude:
             return (f'autotune.relay_bias: |{self.relay_bias:g}| must be below '
                     f'autotune.relay_amplitude {self.relay_amplitude:g}: the relay output would '
@@ -594,6 +610,7 @@ class RelayAutotuner:
         self._rate = 0.0                       # integrator rate [u units/s]
         self._u_int = 0.0                      # integrator output [u units]
         self._rec_s: list[float] = []          # relay sign before the integrator
+        self._y_rest = math.nan                # mean output over the settling window
 
     def _pid_step(self, y: float, r: float) -> float:
         if self._pending is not None:
@@ -653,6 +670,8 @@ class RelayAutotuner:
             return None
         if self._state == 'settling':
             return self._settle(t, y, r)
+        if self._state == 'step':
+            return self._step_test(t, y, r)
         return self._relay(t, y, r)
 
     def _settle(self, t: float, y: float, r: float) -> float | None:
@@ -673,8 +692,12 @@ class RelayAutotuner:
             self._u0_start = self._u0
             self._sigma = float(np.std(np.diff(wy)) / math.sqrt(2.0)) if len(wy) > 2 else 0.0
             self._eps = max(cfg.hysteresis, cfg.noise_band * self._sigma)
-            self._state = 'relay'
             self._t_start = t
+            self._y_rest = float(np.mean(wy))
+            if cfg.test == 'step':
+                self._state = 'step'
+                return self._step_test(t, y, r)
+            self._state = 'relay'
             self._relay_high = r - y >= 0.0
             if self._amplitude() < 0.1 * self._cfg.relay_amplitude:
                 self._end('failed', f'relay has no amplitude: the bias u0 = {self._u0:g} is within '
@@ -758,6 +781,51 @@ class RelayAutotuner:
             return True
         self._finish(res, proposal)
         return True
+
+    def _step_test(self, t: float, y: float, r: float) -> float | None:
+        """One sample of the open-loop step test (001 §1.2.1): the input held at u0 + Δu; when
+        the mean of the last window (a quarter of the time since the step, at least
+        autotune.settle_time and 10 samples) differs from the window before by less than 0.5 %
+        of the change since the step, the FOPDT is identified (for a first-order tail the change
+        still to come is then below ≈ 0.8 %)."""
+        cfg = self._cfg
+        if cfg.max_amplitude > 0 and abs(y - r) > cfg.max_amplitude:
+            self._end('failed', f'output deviation |y − r| = {abs(y - r):g} above '
+                                f'autotune.max_amplitude = {cfg.max_amplitude:g}')
+            return None
+        u = self._limit(self._u0 + self._direction() * cfg.step_size)
+        self._rec_t.append(t)
+        self._rec_u.append(u)
+        self._rec_y.append(y)
+        window = max(int(round(cfg.settle_time / self.sample_time)), 10, len(self._rec_y) // 4)
+        if len(self._rec_y) >= 4 * window:
+            last = float(np.mean(self._rec_y[-window:]))
+            before = float(np.mean(self._rec_y[-2 * window:-window]))
+            change = last - self._y_rest
+            if abs(change) > max(cfg.settle_band, 10.0 * self._sigma) \
+                    and abs(last - before) <= 0.005 * abs(change):
+                self._identify_step()
+                return None if self._state not in TESTING else u
+        if t - self._t_start > cfg.timeout:
+            self._end('failed', f'no steady step response within autotune.timeout = '
+                                f'{cfg.timeout:g} s')
+            return None
+        return u
+
+    def _identify_step(self) -> None:
+        cfg = self._cfg
+        tt = np.array(self._rec_t) - self._rec_t[0]
+        step = float(self._rec_u[0] - self._u0)            # as applied (limits included)
+        sign = self._direction()        # the step in the frame of a positive-gain plant
+        try:
+            model = ident.fopdt_from_step(tt, np.array(self._rec_y), self._y_rest, sign * step,
+                                          cfg.step_method)
+            res = ident.step_identification(model, step, cfg.step_method)
+            proposal = self._design(res, cfg)
+        except (ValueError, ArithmeticError) as exc:
+            self._end('failed', f'identification/tuning failed: {exc}')
+            return
+        self._finish(res, proposal)
 
     def _begin_integrator(self, first: ident.RelayIdentification) -> None:
         """Second phase of ``autotune.model`` sopdt (004 §3.3 intro): the relay drives an

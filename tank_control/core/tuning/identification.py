@@ -429,6 +429,75 @@ def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: floa
     return FopdtModel(gain=gain, time_constant=tc, dead_time=tau * tc)
 
 
+# ------------------------------------------------- 001 §1.2.1, open-loop step test
+
+STEP_METHODS = ('tangent', 'two_point')
+
+
+def fopdt_from_step(t: np.ndarray, y: np.ndarray, y0: float, step: float,
+                    method: str = 'tangent') -> FopdtModel:
+    """FOPDT ``K·e^(−τ·s)/(T·s + 1)`` from an open-loop step response (001 eq. 6.14).
+
+    ``t`` [s] from the step (``t[0]`` = 0, uniform samples), ``y`` the response, ``y0`` the
+    output at rest before the step, ``step`` the input change Δu. K = (final − y0)/Δu with the
+    final value the mean of the last 10 % of the record. ``method``:
+
+    * ``tangent`` (001 eq. 6.15, Fig. 1.6): the tangent of steepest slope (slopes by least squares
+      over a sliding window of 1 % of the record, at least 5 samples, against noise) meets the
+      initial level at τ; its slope is K/T, so T = K/slope and a = slope·τ (per unit step);
+    * ``two_point``: the times at 28.3 % and 63.2 % of the final change give
+      T = 1.5·(t63 − t28), τ = t63 − T (Smith's two-point method for an FOPDT).
+
+    Raises ``ValueError`` when the response did not move or has no rising part."""
+    t = np.asarray(t, float)
+    z = (np.asarray(y, float) - y0) / step            # unit-step response
+    n = len(t)
+    if n < 10 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(z))):
+        raise ValueError('step record: at least 10 finite samples are needed')
+    if method not in STEP_METHODS:
+        raise ValueError(f'method: {method!r} is not a step method; allowed ' + ', '.join(STEP_METHODS))
+    gain = float(np.mean(z[-max(n // 10, 1):]))
+    if not gain > 0.0 or abs(gain * step) <= 0.0:
+        raise ValueError('step record: the output did not move in the direction of the step')
+    if method == 'two_point':
+        def crossing(level: float) -> float:
+            above = np.nonzero(z >= level * gain)[0]
+            if len(above) == 0 or above[0] == 0:
+                raise ValueError(f'step record: no crossing of {100 * level:.1f} % of the change')
+            k = int(above[0])
+            return float(t[k - 1] + (level * gain - z[k - 1]) / (z[k] - z[k - 1]) * (t[k] - t[k - 1]))
+        t28, t63 = crossing(0.283), crossing(0.632)
+        tc = 1.5 * (t63 - t28)
+        return FopdtModel(gain=gain, time_constant=tc, dead_time=max(t63 - tc, 0.0))
+    m = max(5, n // 100)
+    kernel = np.arange(m) - 0.5 * (m - 1)
+    dt = float(t[1] - t[0])
+    slopes = np.convolve(z, kernel[::-1], mode='valid') / (dt * float(np.sum(kernel ** 2)))
+    k = int(np.argmax(slopes))
+    slope = float(slopes[k])
+    if not slope > 0.0:
+        raise ValueError('step record: no rising part for the tangent (001 eq. 6.15)')
+    centre = k + 0.5 * (m - 1)
+    t_c = float(t[0] + centre * dt)
+    z_c = float(np.mean(z[k:k + m]))
+    tau = max(t_c - z_c / slope, 0.0)
+    return FopdtModel(gain=gain, time_constant=gain / slope, dead_time=tau)
+
+
+def step_identification(model: FopdtModel, step: float, method: str
+                        ) -> 'RelayIdentification':
+    """A step test's result in the form of a relay test's: the ultimate point and the responses
+    at ωu and 3ωu are the model's (``model_method`` ``step_<method>``)."""
+    ku, tu = model.ultimate_point()
+    w = 2.0 * math.pi / tu
+    return RelayIdentification(
+        ku=ku, tu=tu, ku_model=ku, tu_model=tu, local_model=None, ku_df=ku, tu_df=tu,
+        ku_fh=ku, tu_fh=tu, omega=w, g1=model.frequency_response(w),
+        g3=model.frequency_response(3.0 * w), amplitude=0.0, relay_amplitude=abs(step),
+        hysteresis=0.0, cycles=0, model=model, model_harmonic=model,
+        model_method=f'step_{method}', static_gain=model.gain)
+
+
 # ----------------------------------------------- 004 §3.5.2, SOPDT from two points
 
 
