@@ -123,7 +123,8 @@ def test_the_setpoint_response_is_the_designed_second_order_one_delayed_by_l(cas
     overshoot = 100.0 * math.exp(-math.pi * cfg.xi / math.sqrt(1 - cfg.xi ** 2))
     assert 100.0 * (y.max() - 1.0) == pytest.approx(overshoot, abs=0.05)
     fine = np.linspace(0.0, t_end, 400_001)
-    expected = settling_time(fine, second_order_step(cfg.omega0, cfg.xi, fine - 1.0 - cfg.dead_time), 1.0)
+    expected = settling_time(fine, second_order_step(cfg.omega0, cfg.xi,
+                                                     fine - 1.0 - cfg.dead_time), 1.0)
     assert settling_time(t, y, 1.0) == pytest.approx(expected, abs=2 * cfg.sample_time + 1e-9)
     assert abs(y[-1] - 1.0) < 1e-4
 
