@@ -67,3 +67,15 @@ def test_left_open_loop_it_saturates_at_the_state_limit_and_counts_it():
 def test_a_non_positive_time_constant_is_refused_with_a_reason():
     with pytest.raises(ValueError, match='time_constant: 0 is below the minimum'):
         make_plant('foupdt', {'time_constant': 0.0})
+
+
+def test_it_equals_the_transfer_function_kind_on_the_same_model():
+    """K/(T·s − 1)·e^(−L·s) as ``num [K]``, ``den [T, −1]``: the same samples, with a load."""
+    def u_of_t(t: float) -> float:
+        return math.sin(0.7 * t)
+    values = {'gain': 0.8, 'time_constant': 6.0, 'dead_time': 2.35}
+    ours = run(make_plant('foupdt', values), u_of_t, [0.1] * 200, v_of_t=lambda t: 0.3)
+    other = run(make_plant('transfer_function', {'num': [0.8], 'den': [6.0, -1.0],
+                                                 'dead_time': 2.35}),
+                u_of_t, [0.1] * 200, v_of_t=lambda t: 0.3)
+    np.testing.assert_allclose(ours, other, rtol=1e-10, atol=1e-12)
