@@ -89,6 +89,20 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     assert set(topics['/manipulated'][0].name) == {'F_H', 'F_Cin'}
 
 
+def test_fsa_on_the_unstable_plant_over_ros_equals_in_process(tmp_path, ros_env):
+    """foupdt_fsa (004 §3.6.2): controller_node runs the fsa kind on the unstable
+    1/(10s − 1)·e^(−5s); the lockstep trace over the setpoint and the load step (120 s) equals
+    the in-process one to 1e-9 and keeps the designed overshoot (4.60 %)."""
+    scenario = CONFIG / 'scenarios' / 'foupdt_fsa.yaml'
+    ros = run(scenario, tmp_path / 'ros', duration=120.0, env=ros_env)
+    ref = run(scenario, tmp_path / 'ref', duration=120.0, in_process=True)
+    assert_equal_traces(ros.files['trace'], ref.files['trace'])
+    assert ros.metrics['run']['missed_samples'] == 0
+    assert ros.metrics['outputs']['y']['steps'][0]['overshoot_pct'] == pytest.approx(4.60,
+                                                                                     abs=0.01)
+    assert ros.metrics['controller']['final_gains'] == {'fsa.omega0': 0.2, 'fsa.xi': 0.7}
+
+
 def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, ros_env):
     """fopdt_autotune: the relay test at 60 s tunes the PID. Both runs report the values the
     controller ended with (the node's parameters; in-process the controller object's), not

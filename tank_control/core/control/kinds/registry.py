@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.kinds import lead_lag, mpcs, pid, relay_autotune, smith_pi, two_loop_pi
+from tank_control.core.control.kinds import (fsa, lead_lag, mpcs, pid, relay_autotune, smith_pi,
+                                             two_loop_pi)
 from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import by_name, finder
@@ -25,6 +26,7 @@ KINDS: dict[str, ControllerKind] = by_name(
     relay_autotune.KIND,
     mpcs.KIND,
     lead_lag.KIND,
+    fsa.KIND,
 )
 
 

@@ -6,13 +6,14 @@ from typing import Any
 
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import by_name, finder
-from tank_control.core.plants.kinds import (fopdt, ipdt, mixing_tank, mixing_tank_linear, sopdt,
-                                            transfer_function)
+from tank_control.core.plants.kinds import (fopdt, foupdt, ipdt, mixing_tank, mixing_tank_linear,
+                                            sopdt, transfer_function)
 from tank_control.core.plants.kinds.base import PlantKind
 
 KINDS: dict[str, PlantKind] = by_name(
     ipdt.KIND,
     fopdt.KIND,
+    foupdt.KIND,
     mixing_tank.KIND,
     mixing_tank_linear.KIND,
     sopdt.KIND,

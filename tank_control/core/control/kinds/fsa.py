@@ -1,0 +1,53 @@
+"""Controller kind ``fsa``: finite spectrum assignment with integral action for a stable or
+unstable first-order plant with dead time (004 §3.6.2, eqs. 3.6.10–3.6.15)."""
+from __future__ import annotations
+
+from tank_control.core.control.fsa import FsaConfig, FsaController
+from tank_control.core.control.kinds import base
+from tank_control.core.control.kinds.base import ControllerKind, Settings
+
+MODEL = ('fsa.model', 'fsa.gain', 'fsa.time_constant', 'fsa.dead_time')
+"""The internal model: a change rebuilds the controller (bumpless, the input history restarts
+at the steady state of the last output)."""
+FIELDS = {'fsa.omega0': 'omega0', 'fsa.xi': 'xi', 'u_min': 'u_min', 'u_max': 'u_max',
+          'anti_windup': 'anti_windup', 'tracking_time': 'tracking_time'}
+"""Parameters changed in place (bumplessly) by their field names."""
+
+def build(settings: Settings) -> FsaController:
+    controller = FsaController(settings.config, output_name=settings.channels.output_names[0],
+                               input_name=settings.channels.input_names[0])
+    if settings.mode.mode == 'manual':
+        controller.set_manual(float(settings.mode.manual_output))
+    return controller
+
+
+def update(controller: FsaController, settings: Settings, changed: frozenset[str]) -> bool:
+    """``fsa.omega0``, ``fsa.xi``, limits and anti-windup in place (the integral absorbs the
+    change), then the mode; a change of the model (``fsa.model``, ``fsa.gain``,
+    ``fsa.time_constant``, ``fsa.dead_time``) rebuilds."""
+    if any(name in MODEL for name in changed):
+        return False
+    running, new = controller.config, settings.config
+    changes = {field: getattr(new, field) for field in FIELDS.values()
+               if getattr(running, field) != getattr(new, field)}
+    if changes:
+        controller.set_gains(**changes)
+    base.apply_mode(controller, controller.mode, settings, changed)
+    return True
+
+
+def reason(settings: Settings) -> str | None:
+    return base.siso_reason(settings)
+
+
+KIND = ControllerKind(
+    name='fsa',
+    description='finite spectrum assignment (predictor state feedback with integral action) '
+                'for K/(T s +- 1) e^(-L s), poles of p(s) = s^2 + 2 xi w0 s + w0^2 '
+                '(004 §3.6.2)',
+    config=FsaConfig,
+    groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start()),
+    build=build, update=update, reason=reason,
+    gains=('fsa.omega0', 'fsa.xi'),
+    input_limits=base.scalar_limits,
+)

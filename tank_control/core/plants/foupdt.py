@@ -1,0 +1,49 @@
+"""First-order unstable plus dead time plant, ``G(s) = K/(T·s − 1) · e^(−L·s)`` (004 §3.6.2).
+
+The process for which 004 §3.6.2 recommends the FSA controller (a Smith predictor gives an
+unstable loop). Load disturbance ``v`` at the plant input: ``y = y0 + G(s)·(u + v)``; the
+delay-free state obeys ``T·ẋ = x + K·w``, so its open-loop pole is ``+1/T`` and its
+equilibrium for a constant ``w`` is ``x = −K·w`` (unstable). Units: ``T``, ``L`` in s, ``K`` in
+output units per input unit.
+
+Exact discretisation: over a piece of constant delayed input ``w`` lasting ``τ`` seconds,
+``x ← −K·w + (x + K·w)·e^(τ/T)``. The state is bounded at ``±STATE_LIMIT`` like every
+SISO plant (an unstable plant left open-loop saturates there).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from tank_control.core.params import param
+from tank_control.core.plants.siso import (DeadTimePlant, dead_time_param, dead_time_reason,
+                                           max_dead_time_param, output_offset_param)
+
+
+@dataclass(frozen=True)
+class FoupdtConfig:
+    """Parameters of ``Foupdt`` (defaults: K = 1, T = 10 s, L = 3 s: a dead time of 0.3·T)."""
+
+    gain: float = param(1.0, 'gain K of K/(T·s − 1) (the static gain is −K)',
+                        unit='output units/input unit', min=-1e6, max=1e6,
+                        source='004 §3.6.2')
+    time_constant: float = param(10.0, 'time constant T of the unstable pole +1/T', unit='s',
+                                 min=1e-6, max=1e6)
+    dead_time: float = dead_time_param(3.0)
+    output_offset: float = output_offset_param()
+    max_dead_time: float = max_dead_time_param()
+
+    def reason(self) -> str | None:
+        return dead_time_reason(self)
+
+
+class Foupdt(DeadTimePlant):
+    """``K/(T·s − 1) · e^(−L·s)`` with input load disturbance (004 §3.6.2)."""
+
+    def __init__(self, config: FoupdtConfig | None = None) -> None:
+        super().__init__(config if config is not None else FoupdtConfig())
+
+    def _advance(self, x: float, w: float, duration: float) -> float:
+        target = -self._config.gain * w
+        # x + (x − target)·(e^(τ/T) − 1), with expm1 for accuracy on short pieces.
+        return x + (x - target) * math.expm1(duration / self._config.time_constant)
