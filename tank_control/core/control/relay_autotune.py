@@ -35,7 +35,7 @@ TESTING = ('settling', 'relay', 'step', 'measuring')
 RULES_ULTIMATE = ('zn', 'zn_001', 'zn_004_q0', 'zn_004_q1')
 RULES_IPDT = ('mdp', 'experimental')
 RULES_FOPDT = ('oppelt', 'cohen_coon')
-RULES_MODEL = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan')
+RULES_MODEL = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan', 'wang')
 RULES = RULES_ULTIMATE + RULES_IPDT + RULES_FOPDT + RULES_MODEL
 DESIGN_FIELDS = ('rule', 'kind', 'ms_target', 'tau_c', 'gain_margin', 'phase_margin', 'method')
 """Settings a design depends on: a change re-derives the gains from the stored model."""
@@ -115,7 +115,7 @@ class AutotuneConfig:
     rule: str = _at('zn_001', 'tuning rule: zn / zn_001 / zn_004_q0 / zn_004_q1 from ku, tu; mdp / '
                     'experimental from the IPDT model; oppelt / cohen_coon from the FOPDT model; '
                     'ms (largest integral gain with Ms <= autotune.ms_target on the implemented '
-                    'loop), amigo, simc, lambda, ho, tan from the identified model (see '
+                    'loop), amigo, simc, lambda, ho, tan, wang from the identified model (see '
                     'core/tuning/rules.py); a change re-derives the gains from the stored model',
                     'rule', choices=RULES)
     kind: str = _at('pid', 'controller type the rule designs', 'kind', choices=('p', 'pi', 'pid'))

@@ -429,6 +429,45 @@ def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: floa
     return FopdtModel(gain=gain, time_constant=tc, dead_time=tau * tc)
 
 
+# -------------------------------------- 004 §3.3 A, frequency points from the transient
+
+
+def transient_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: float,
+                       omegas: Sequence[float], alpha: float, horizon: float) -> np.ndarray:
+    """``G(jω)`` at ``omegas`` [rad/s] from one record of a test that starts at rest (``u0``,
+    ``y0``), e.g. a relay test from its first switch to its stationary cycles (004 eqs.
+    3.3.1–3.3.10, Wang 1997).
+
+    Both deviations are weighted by ``e^(−α·t)`` (3.3.1–3.3.2, ``alpha`` [1/s]) so that they
+    have Fourier transforms; their DFTs (zero-padded to twice the record, so that the circular
+    convolution is the linear one) give ``G(α + jω)`` at the bins (3.3.7), whose inverse DFT is
+    the weighted pulse response ``e^(−α·k·Te)·h(k·Te)`` (3.3.8); ``h`` is unweighted (3.3.9) and
+    cut after ``horizon`` [s] — the unweighting amplifies late errors, so keep it to where the
+    true pulse response has died out — and transformed at ``omegas`` (3.3.10). The sampled
+    record relates the held input to the sampled output; the hold's ``e^(−jωTe/2)·sinc(ωTe/2)``
+    is divided out. ``t`` uniform [s]."""
+    t = np.asarray(t, float)
+    te = float(t[1] - t[0])
+    if not (alpha > 0.0 and horizon > te and len(t) > 8):
+        raise ValueError('transient_response: alpha > 0, horizon > one sample and a record '
+                         'of more than 8 samples are needed')
+    weight = np.exp(-alpha * (t - t[0]))
+    du = (np.asarray(u, float) - u0) * weight
+    dy = (np.asarray(y, float) - y0) * weight
+    n = 2 * len(t)
+    uf, yf = np.fft.fft(du, n), np.fft.fft(dy, n)
+    if np.min(np.abs(uf)) <= 1e-12 * np.max(np.abs(uf)):
+        raise ValueError('transient_response: the weighted input has no energy at some '
+                         'frequency (choose another alpha)')
+    h_weighted = np.real(np.fft.ifft(yf / uf))                          # 3.3.8
+    k = np.arange(min(int(horizon / te) + 1, n))
+    h = h_weighted[k] * np.exp(alpha * k * te)                          # 3.3.9
+    w = np.asarray(omegas, float)
+    g = np.exp(-1j * np.outer(w, k) * te) @ h                           # 3.3.10
+    hold = np.exp(-0.5j * w * te) * np.sinc(w * te / (2.0 * np.pi))
+    return g / hold
+
+
 # ------------------------------------------------- 001 §1.2.1, open-loop step test
 
 STEP_METHODS = ('tangent', 'two_point')

@@ -5,12 +5,13 @@ output units per measured unit, ``ti``/``td`` in s, ``b``/``c`` dimensionless; `
 the rule gives no value), as a :class:`TuneResult` that also carries the rule's source, the
 process model it was designed on and the predicted margins on it. Process arguments: ``gain``
 (IPDT k1 [1/s], FOPDT/SOPDT K), ``dead_time`` [s], ``time_constant`` [s], ``time_constant2``
-[s] (SOPDT), ``model``, ``ku``, ``tu`` [s]; ``smith_pi`` also ``n``, ``te`` [s], ``xi``; design
+[s] (SOPDT), ``model``, ``ku``, ``tu`` [s]; ``smith_pi`` also ``n``, ``te`` [s], ``xi`` (also
+``wang``'s damping); design
 targets ``ms``, ``mt``, ``tau_c`` [s], ``gain_margin``, ``phase_margin`` [deg], ``r``; the
 implemented loop ``sample_time`` [s], ``filter_n``. Unknown or missing arguments, non-positive
 values and unknown rules or kinds raise ``ValueError`` naming them. Rules: ``mdp``,
 ``experimental``, ``zn``, ``zn_001``, ``zn_004_q0``, ``zn_004_q1``, ``oppelt``, ``cohen_coon``,
-``smith_pi``, ``ms``, ``amigo``, ``simc``, ``lambda``, ``ho``, ``tan`` — sources and notes:
+``smith_pi``, ``ms``, ``amigo``, ``simc``, ``lambda``, ``ho``, ``tan``, ``wang`` — sources and notes:
 docs/tuning.md.
 """
 from __future__ import annotations
@@ -383,10 +384,26 @@ def tan(kind: str, process: Mapping[str, Any]) -> Gains:
     return _gains(kp=_sign(process) * kp, ti=ti)
 
 
+def wang(kind: str, process: Mapping[str, Any]) -> Gains:
+    """PI/PID fitted to the desired closed loop ωn²·e^(−L·s)/(s² + 2ξωn·s + ωn²) with
+    ωn·L = 2 and ξ = ``xi`` (default 0.707) by least squares over the model's frequency
+    response (004 eqs. 3.5.1–3.5.7; ``core/tuning/loop_fit.py``)."""
+    _in_kinds('wang', kind, ('pi', 'pid'))
+    from tank_control.core.tuning.loop_fit import design
+    model = _model(process, 'wang')
+    if model.kind == 'ipdt':
+        raise ValueError('tune: rule wang needs a self-regulating model (fopdt or sopdt): with '
+                         'an integrating process the fit leaves no integral action')
+    g = model.response()
+    fit = design(lambda w: g(w), model.dead_time, kind, zeta=_optional(process, 'xi', 0.707))
+    return _gains(kp=_sign(process) * fit.kp, ti=fit.ti, td=fit.td if kind == 'pid' else None)
+
+
 RULES: dict[str, Callable[[str, Mapping[str, float]], Gains]] = {
     'mdp': mdp, 'experimental': experimental, 'zn': zn, 'zn_001': zn_001, 'zn_004_q0': zn_004_q0,
     'zn_004_q1': zn_004_q1, 'oppelt': oppelt, 'cohen_coon': cohen_coon, 'smith_pi': smith_pi,
     'ms': ms, 'amigo': amigo, 'simc': simc, 'lambda': lambda_, 'ho': ho, 'tan': tan,
+    'wang': wang,
 }
 
 SOURCES: dict[str, str] = {
@@ -406,8 +423,9 @@ SOURCES: dict[str, str] = {
     'lambda': 'lambda/IMC PI (Rivera, Morari & Skogestad 1986; Chien & Fruehauf 1990)',
     'ho': 'gain and phase margin PI, Ho, Hang & Cao 1995 (004 eqs. 3.4.16-3.4.18)',
     'tan': 'two-point PI, Tan, Lee & Wang 1996 (004 eqs. 3.4.19, 3.4.22)',
+    'wang': 'PI/PID fitted to a desired closed loop, Wang 1997 (004 eqs. 3.5.1-3.5.7)',
 }
-MODEL_RULES = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan')
+MODEL_RULES = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan', 'wang')
 """Rules designed on a process model (FOPDT, IPDT, SOPDT)."""
 
 

@@ -94,7 +94,8 @@ class Tuning:
     te: float = param(0.0, 'smith_pi n = 1: desired closed-loop time constant Te, (0.2...1)*T '
                       '(0 = not given)', unit='s', min=0.0, max=BIG, name='tuning.te',
                       source='004 eq. 3.6.7')
-    xi: float = param(0.0, 'smith_pi n = 2: damping xi in [0.5, 1] (0 = not given)', unit='-',
+    xi: float = param(0.0, 'smith_pi n = 2: damping xi in [0.5, 1]; rule wang: damping of the '
+                      'desired closed loop (0 = not given; wang: 0.707)', unit='-',
                       min=0.0, max=1.0, name='tuning.xi', source='004 eq. 3.6.9')
     order: int = param(1, 'smith_pi model order n (1 or 2)', min=1, max=2, name='tuning.order')
     model: str = param('auto', 'process model: fopdt K/(T*s+1)*e^(-L*s), ipdt k1/s*e^(-L*s), '
