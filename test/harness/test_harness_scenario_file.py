@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 import yaml
@@ -117,6 +118,20 @@ def test_malformed_files_rejected_naming_the_file(tmp_path, text, words):
         load_scenario(path)
     assert str(path) in str(info.value)
     assert '\n' not in str(info.value)
+
+
+@pytest.mark.parametrize('text, where', [
+    ('plant:\n  ros__parameters:\n    gain: [0.05\n', r':4:1: not valid YAML: expected .* '
+                                                    r'\(while parsing a flow sequence at line 3\)'),
+    ('plant:\n  ros__parameters:\n    plant: ipdt\n   gain: 1\n', r':4:4: not valid YAML: .*'),
+    ('plant:\n  ros__parameters:\n    plant: "ipdt\n', r':4:1: not valid YAML: .*quoted scalar at line 3\)'),
+])
+def test_yaml_syntax_error_names_file_line_and_column(tmp_path, text, where):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert re.fullmatch(re.escape(str(path)) + where, str(info.value)), str(info.value)
 
 
 def test_missing_file_is_a_one_line_error(tmp_path):
