@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from tank_control.core import params_file, ros_yaml
+from tank_control.core import loop, params_file, ros_yaml
 from tank_control.core import scenario as core_scenario
 from tank_control.core.node_specs import CLOCK_MODES, NODES
 from tank_control.core.params import ConfigError, config_from, param, unknown_reason
@@ -149,9 +149,22 @@ def validate(scenario: Scenario, check_nodes: bool = True) -> Scenario:
                 raise ConfigError(f'harness.nodes: {node!r} has no section in the file')
         if not check_nodes:
             return scenario
+        if {'plant', 'controller', 'reference'} <= set(config.nodes):
+            check_wiring(scenario.sections)
         return Scenario(scenario.path, core_scenario.typed(scenario.sections))
     except ConfigError as exc:
         raise ScenarioError(where + str(exc)) from None
+
+
+def check_wiring(sections: dict[str, dict[str, Any]]) -> None:
+    """The channels of plant, controller and reference connect (the check the in-process loop
+    makes before its first tick, ``core.loop.check_wiring``), so a ROS run with a misnamed
+    channel is refused before any node starts rather than stalling at tick 0."""
+    built = core_scenario.build(sections)
+    try:
+        loop.check_wiring(built.plant, built.controller, built.reference)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def effective_harness(scenario: Scenario, mode: str | None = None, rtf: float | None = None,
