@@ -193,6 +193,9 @@ def _print_result(result) -> None:
     if claim:
         print(f'documented claim: {claim}')
     print(markdown_table([result]), end='')
+    summary = result.metrics.get('controller', {}).get('summary')
+    if summary:
+        print(f'controller found: {summary}')
     for warning in result.metrics.get('controller', {}).get('warnings', []):
         print(f'controller warning: {warning}')
     for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
