@@ -36,12 +36,26 @@ def read(path: str | Path) -> dict[str, dict[str, Any]]:
     return parse(text, str(path))
 
 
+def yaml_error(where: str, exc: yaml.YAMLError) -> str:
+    """One line for a YAML syntax error: ``FILE:LINE:COLUMN: not valid YAML: <problem>
+    (<context> at line N)``, lines and columns counted from 1 as editors do."""
+    mark = getattr(exc, 'problem_mark', None)
+    problem = getattr(exc, 'problem', None)
+    if mark is None or not problem:
+        return f'{where}: not valid YAML: {str(exc).splitlines()[0]}'
+    text = f'{where}:{mark.line + 1}:{mark.column + 1}: not valid YAML: {problem}'
+    context, at = getattr(exc, 'context', None), getattr(exc, 'context_mark', None)
+    if context and at is not None:
+        text += f' ({context} at line {at.line + 1})'
+    return text
+
+
 def parse(text: str, where: str = '<text>') -> dict[str, dict[str, Any]]:
     """Sections of a parameter file's text; ``where`` names it in errors."""
     try:
         document = ros_yaml.load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f'{where}: not valid YAML: {str(exc).splitlines()[0]}') from None
+        raise ConfigError(yaml_error(where, exc)) from None
     if document is None:
         return {}
     if not isinstance(document, dict):

@@ -1,5 +1,6 @@
 """``tank-control``: run and compare scenarios.
 
+    tank-control list [--dir DIR]
     tank-control run SCENARIO.yaml --out DIR [--mode lockstep|sim|wall] [--rtf X]
                      [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
@@ -25,6 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
+from tank_control import cli_examples
 from tank_control.harness.scenario_file import CLOCK_MODES, ScenarioError
 
 
@@ -55,7 +57,8 @@ class ProgressPrinter:
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='tank-control', description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(prog='tank-control', description=__doc__.split('\n\n')[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest='command', required=True)
 
     def options(p: argparse.ArgumentParser) -> None:
@@ -69,6 +72,8 @@ def _parser() -> argparse.ArgumentParser:
                        help='run core/loop.py without ROS (same files written)')
         p.add_argument('--quiet', action='store_true', help='no progress output')
 
+    listing = sub.add_parser('list', help='the shipped scenarios and studies with their titles')
+    listing.add_argument('--dir', type=Path, help='list this folder instead (recursively)')
     run = sub.add_parser('run', help='run one scenario')
     run.add_argument('scenario', type=Path)
     options(run)
@@ -106,7 +111,28 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument('--ros', action='store_true',
                        help='each run in lockstep over ROS 2, in a ROS_DOMAIN_ID of its own')
     sweep.add_argument('--quiet', action='store_true', help='no progress bar')
-    return parser
+    return cli_examples.attach(parser)
+
+
+def _list(directory: Path | None) -> int:
+    """Print ``path  title`` per scenario (paths relative to the working directory when
+    below it, so they can be pasted into ``tank-control run``)."""
+    from tank_control.harness.scenario_file import list_scenarios, shipped_config_dir
+    directory = shipped_config_dir() if directory is None else directory
+    if not directory.is_dir():
+        print(f'tank-control: {directory}: not a directory', file=sys.stderr)
+        return 2
+    rows = []
+    for path, title in list_scenarios(directory):
+        try:
+            path = path.resolve().relative_to(Path.cwd().resolve())
+        except ValueError:
+            pass
+        rows.append((str(path), title))
+    width = max((len(p) for p, _ in rows), default=0)
+    for path, title in rows:
+        print(f'{path.ljust(width)}  {title}'.rstrip())
+    return 0
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -167,6 +193,9 @@ def _print_result(result) -> None:
     if claim:
         print(f'documented claim: {claim}')
     print(markdown_table([result]), end='')
+    summary = result.metrics.get('controller', {}).get('summary')
+    if summary:
+        print(f'controller found: {summary}')
     for warning in result.metrics.get('controller', {}).get('warnings', []):
         print(f'controller warning: {warning}')
     for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
@@ -183,6 +212,8 @@ def _partial(err: BaseException) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from tank_control.harness.runner import RunFailed, RunInterrupted
+    if args.command == 'list':
+        return _list(args.dir)
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))

@@ -27,6 +27,7 @@ import numpy as np
 
 from tank_control.core import loop as core_loop
 from tank_control.core import scenario as core_scenario
+from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
@@ -212,6 +213,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     body = metrics_mod.trace_metrics(
         trace, {name: limits.get(name, (-math.inf, math.inf)) for name in trace.channels('u')})
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
+    summary = controller_summary(controller_params)
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
     from tank_control.core.analysis.loops import loop_cases
     cases, analysis_note = [], ''
@@ -225,6 +227,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     metrics = {
         **body,
         'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+                       **({'summary': summary} if summary else {}),
                        **({'robustness': robustness} if robustness else {}),
                        'warnings': warnings,
                        'parameters': dict(controller_params)},
@@ -269,6 +272,16 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text.splitlines()[0]
+
+
+def controller_summary(controller_params: Mapping[str, Any]) -> str:
+    """The kind's one-line summary of what the controller found (``ControllerKind.summary``;
+    the relay auto-tuner: Ku, Tu, model and gains), '' when it has none."""
+    name = controller_params.get('controller')
+    if not isinstance(name, str) or name not in CONTROLLER_KINDS:
+        return ''
+    summary = CONTROLLER_KINDS[name].summary
+    return summary(controller_params) if summary is not None else ''
 
 
 def controller_warnings(controller_params: Mapping[str, Any]) -> list[str]:

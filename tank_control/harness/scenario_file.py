@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from tank_control.core import params_file, ros_yaml
+from tank_control.core import loop, params_file, ros_yaml
 from tank_control.core import scenario as core_scenario
 from tank_control.core.node_specs import CLOCK_MODES, NODES
 from tank_control.core.params import ConfigError, config_from, param, unknown_reason
@@ -149,9 +149,22 @@ def validate(scenario: Scenario, check_nodes: bool = True) -> Scenario:
                 raise ConfigError(f'harness.nodes: {node!r} has no section in the file')
         if not check_nodes:
             return scenario
+        if {'plant', 'controller', 'reference'} <= set(config.nodes):
+            check_wiring(scenario.sections)
         return Scenario(scenario.path, core_scenario.typed(scenario.sections))
     except ConfigError as exc:
         raise ScenarioError(where + str(exc)) from None
+
+
+def check_wiring(sections: dict[str, dict[str, Any]]) -> None:
+    """The channels of plant, controller and reference connect (the check the in-process loop
+    makes before its first tick, ``core.loop.check_wiring``), so a ROS run with a misnamed
+    channel is refused before any node starts rather than stalling at tick 0."""
+    built = core_scenario.build(sections)
+    try:
+        loop.check_wiring(built.plant, built.controller, built.reference)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def effective_harness(scenario: Scenario, mode: str | None = None, rtf: float | None = None,
@@ -186,3 +199,40 @@ def write_params_file(scenario: Scenario, path: str | Path) -> Path:
                    duration=float(config.duration))
     sections[HARNESS] = harness
     return params_file.write(sections, path)
+
+
+def shipped_config_dir() -> Path:
+    """The shipped scenarios: ``config/`` of this checkout, else the installed share dir."""
+    from tank_control.demo import config_dir
+    return config_dir()
+
+
+def list_scenarios(directory: str | Path) -> list[tuple[Path, str]]:
+    """Every scenario and study file under ``directory`` (recursively; a folder's files before
+    its sub-folders', sorted by name) with its title:
+    ``harness.title`` of a scenario, ``study.title`` of a study, else the first line of the
+    file's leading comment; a file that does not parse gets ``(not valid YAML: …)``."""
+    out = []
+    root = Path(directory)
+    for path in sorted(root.rglob('*.yaml'), key=lambda p: (len(p.relative_to(root).parts), p)):
+        text = path.read_text(errors='replace')
+        try:
+            data = yaml.safe_load(text) or {}
+        except yaml.YAMLError as exc:
+            out.append((path, f'(not valid YAML: {str(exc).splitlines()[0]})'))
+            continue
+        title = ''
+        if isinstance(data, dict):
+            for key, inner in (('study', None), (HARNESS, 'ros__parameters')):
+                section = data.get(key)
+                if isinstance(section, dict) and inner:
+                    section = section.get(inner)
+                if isinstance(section, dict) and section.get('title'):
+                    title = str(section['title'])
+                    break
+        if not title:
+            comments = [line.lstrip('#').strip() for line in text.splitlines()
+                        if line.startswith('#')]
+            title = comments[0] if comments else ''
+        out.append((path, title))
+    return out

@@ -578,11 +578,20 @@ class ControllerNode(Node):
                 self.get_logger().info(f'{self._state_text()}')
                 self._publish_diagnostics()
                 published = True
+            self._log_summary()
             warnings = [f'{k}: {v}' for k, v in changed.items() if k.endswith('.warning') and v]
             for text in warnings:
                 self.get_logger().warning(text)
             if (warnings or any(k.endswith('.warning') for k in changed)) and not published:
                 self._publish_diagnostics()
+
+    def _log_summary(self) -> None:
+        """Log the kind's summary of what it found (the auto-tuner: Ku, Tu, model, gains) once
+        per new result."""
+        summary = self._kind.summary(self._params.values) if self._kind.summary else ''
+        if summary and summary != getattr(self, '_summary_logged', ''):
+            self.get_logger().info(f'found: {summary}')
+        self._summary_logged = summary
 
     def _state_text(self) -> str:
         """``<state name> <state>[: reason]`` of a kind with a state machine, else ''."""

@@ -48,6 +48,9 @@ STALL_RESENDS = 2
 #: ``STALL_MIN_S``) is a stall (WARN; the inputs are held)
 STALL_INTERVALS = 3
 STALL_MIN_S = 1.0
+#: wall/sim: an input topic that has sent nothing this long after the first tick is reported
+#: as awaited (WARN; the inputs keep their initial values) [s of wall time]
+NEVER_RECEIVED_S = 3.0
 #: who answers each input topic (named in the stall report)
 _ANSWERED_BY = {TOPIC_MANIPULATED: 'controller', TOPIC_DISTURBANCE: 'reference'}
 
@@ -103,7 +106,9 @@ class PlantNode(Node):
         # stall watch: wall time tick k was first published (lockstep); per input topic the
         # last arrival and the interval before it (wall/sim) [s, time.monotonic]
         self._tick_published_at = time.monotonic()
+        self._first_tick_at: float | None = None
         self._arrivals: dict[str, tuple[float, float]] = {}
+        self._stall_logged = ''          # the stall last logged ('' = none: the loop moves)
         # sim/wall: stamp of the input message held per topic, and the inputs each recent
         # tick was integrated with (for ~/late_inputs)
         self._held_stamp: dict[str, int] = {}
@@ -262,6 +267,8 @@ class PlantNode(Node):
         self._tick_msgs = (msg, clock)
         self._send()
         self._tick_published_at = self._sent_at
+        if self._first_tick_at is None:
+            self._first_tick_at = self._sent_at
         self.counters['ticks'] += 1
         self._awaiting = self.mode == 'lockstep'
 
@@ -475,6 +482,9 @@ class PlantNode(Node):
             missing = self.inbox.missing(self.k * self.ts_ns)
             named = ', '.join(f'{m} ({_ANSWERED_BY.get(m.split(".")[0], "?")})' for m in missing)
             return f'stalled {waited:.3g} s at t = {self._t():g} s: waiting for {named}'
+        never = self._never_received(now)
+        if never:
+            return never
         arrival = self._arrivals.get(TOPIC_MANIPULATED)
         if arrival is None:
             return ''
@@ -483,6 +493,32 @@ class PlantNode(Node):
             return ''
         return (f'no {TOPIC_MANIPULATED} ({_ANSWERED_BY[TOPIC_MANIPULATED]}) for {silent:.3g} s: '
                 'inputs held')
+
+    def _never_received(self, now: float) -> str:
+        """wall/sim: '' or which input topics have sent nothing ``NEVER_RECEIVED_S`` after the
+        first tick: ``waiting for manipulated (controller), disturbance (reference): nothing
+        received in <s> s; inputs held at their initial values``."""
+        if self._first_tick_at is None or now - self._first_tick_at < NEVER_RECEIVED_S:
+            return ''
+        topics = [TOPIC_MANIPULATED] if self.plant.input_names else []
+        if self.plant.disturbance_names:
+            topics.append(TOPIC_DISTURBANCE)
+        missing = [t for t in topics if t not in self._arrivals]
+        if not missing:
+            return ''
+        named = ', '.join(f'{t} ({_ANSWERED_BY[t]})' for t in missing)
+        return (f'waiting for {named}: nothing received in {now - self._first_tick_at:.3g} s; '
+                'inputs held at their initial values')
+
+    def _log_stall(self, stall: str) -> None:
+        """A stall is logged once when it starts (WARN, the diagnostics' text) and once when
+        it ends; its kind is its text without the seconds, which grow."""
+        kind = ' '.join(w for w in stall.split() if not any(c.isdigit() for c in w))
+        if kind and kind != self._stall_logged:
+            self.get_logger().warning(stall)
+        elif not kind and self._stall_logged:
+            self.get_logger().info('inputs arrive: the loop moves')
+        self._stall_logged = kind
 
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
@@ -498,6 +534,7 @@ class PlantNode(Node):
         if behind:
             problems.append(behind)
         stall = self._stall_report()
+        self._log_stall(stall)
         if stall:
             problems.append(stall)
         status.level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK

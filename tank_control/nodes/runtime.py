@@ -4,12 +4,17 @@ from __future__ import annotations
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import FrameType
 
 import rclpy
+import yaml
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+
+from tank_control.core import params_file, ros_yaml
 
 #: Longest a spin_once waits [s]; the executor also wakes at once on shutdown.
 SPIN_PERIOD = 1.0
@@ -17,12 +22,44 @@ SPIN_PERIOD = 1.0
 
 def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """A node's console entry point: :func:`run_node`, and exit status 2 with one line on
-    stderr (``<name>: <reason>``) when its parameters are refused at start-up."""
+    stderr (``<name>: <reason>``) when its parameters are refused at start-up, a
+    ``--params-file`` cannot be read or is not valid YAML (file, line and column), or rcl
+    refuses the command line."""
+    args = list(sys.argv if args is None else args)
     try:
-        return run_node(factory, sys.argv if args is None else args)
+        reason = params_files_reason(args)
+        if reason:
+            raise ValueError(reason)
+        return run_node(factory, args)
     except ValueError as exc:           # ParameterError, ConfigError: one line, no traceback
         sys.stderr.write(f'{name}: {exc}\n')
         return 2
+    except RCLError as exc:             # rcl refused the arguments (e.g. a bad remapping)
+        sys.stderr.write(f'{name}: {str(exc).splitlines()[0]}\n')
+        return 2
+
+
+def params_files_reason(args: Sequence[str]) -> str | None:
+    """'' or why a ``--params-file`` among the ROS arguments cannot be used: unreadable, or
+    not valid YAML (``FILE:LINE:COLUMN: …``); rcl would say only "Couldn't parse params file"
+    in a traceback. What the file holds is checked by the node, parameter by parameter."""
+    in_ros_args = False
+    for i, arg in enumerate(args):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and i + 1 < len(args):
+            path = Path(args[i + 1])
+            try:
+                text = path.read_text()
+            except OSError as exc:
+                return f'--params-file {path}: cannot read ({exc.strerror})'
+            try:
+                ros_yaml.load(text)
+            except yaml.YAMLError as exc:
+                return params_file.yaml_error(str(path), exc)
+    return None
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:

@@ -12,6 +12,7 @@ import importlib.util
 import sys
 from collections.abc import Sequence
 
+from tank_control import cli_examples
 from tank_control.ros2cli import node, param, run, service, topic
 from tank_control.ros2cli.common import CliError, Interrupted
 
@@ -34,7 +35,7 @@ def hand_over() -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog='ros2', description='ros2 is an extensible command-line tool for ROS 2 '
+        prog='ros2', formatter_class=argparse.RawDescriptionHelpFormatter, description='ros2 is an extensible command-line tool for ROS 2 '
                                  '(tank_control edition: run, param, topic, node, service).')
     commands = parser.add_subparsers(
         title='Commands', dest='command',
@@ -42,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands.required = True
     for module in _COMMANDS:
         module.add_parser(commands)
-    return parser
+    return cli_examples.attach(parser)
 
 
 def run_cli(argv: Sequence[str] | None = None) -> int:

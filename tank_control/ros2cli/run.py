@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
 
+from tank_control import cli_examples
 from tank_control.ros2cli.common import CliError
 
 _INDEX = Path('share', 'ament_index', 'resource_index', 'packages')
@@ -61,6 +62,7 @@ def main_from_argv(argv: Sequence[str]) -> int:
     parser = argparse.ArgumentParser(prog='ros2 run', description=(
         'Run a package specific executable. Everything after EXECUTABLE is passed to it.'))
     _fill_parser(parser)
+    cli_examples.attach(parser)
     argv = list(argv)
     prefix = None
     while argv and argv[0].startswith('-'):

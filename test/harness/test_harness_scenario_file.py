@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 import yaml
+from support import CONFIG
 
+from tank_control.core import params_file
 from tank_control.harness.scenario_file import (
     ScenarioError,
     effective_harness,
@@ -28,6 +31,9 @@ controller:
     tuning:
       rule: none
       dead_time: 5.0
+reference:
+  ros__parameters:
+    setpoint.channels: ['y']
 harness:
   ros__parameters:
     duration: 20.0
@@ -119,6 +125,20 @@ def test_malformed_files_rejected_naming_the_file(tmp_path, text, words):
     assert '\n' not in str(info.value)
 
 
+@pytest.mark.parametrize('text, where', [
+    ('plant:\n  ros__parameters:\n    gain: [0.05\n', r':4:1: not valid YAML: expected .* '
+                                                    r'\(while parsing a flow sequence at line 3\)'),
+    ('plant:\n  ros__parameters:\n    plant: ipdt\n   gain: 1\n', r':4:4: not valid YAML: .*'),
+    ('plant:\n  ros__parameters:\n    plant: "ipdt\n', r':4:1: not valid YAML: .*quoted scalar at line 3\)'),
+])
+def test_yaml_syntax_error_names_file_line_and_column(tmp_path, text, where):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert re.fullmatch(re.escape(str(path)) + where, str(info.value)), str(info.value)
+
+
 def test_missing_file_is_a_one_line_error(tmp_path):
     with pytest.raises(ScenarioError, match='cannot read'):
         load_scenario(tmp_path / 'nope.yaml')
@@ -133,7 +153,8 @@ def test_merged_file_is_a_standard_params_file_with_the_clock_mode_for_every_nod
     assert document['controller']['ros__parameters']['tuning'] == {'rule': 'none', 'dead_time': 5.0}
     assert document['plant']['ros__parameters']['clock_mode'] == 'lockstep'
     assert document['controller']['ros__parameters']['clock_mode'] == 'lockstep'
-    assert document['reference']['ros__parameters'] == {'clock_mode': 'lockstep'}
+    assert document['reference']['ros__parameters'] == {'clock_mode': 'lockstep',
+                                                        'setpoint': {'channels': ['y']}}
     assert document['plant']['ros__parameters']['real_time_factor'] == 0.0
     assert document['harness']['ros__parameters']['duration'] == 5.0
     # The merged file loads back to the same scenario.
@@ -187,3 +208,25 @@ def test_misspelt_sections_and_names_in_a_file_are_refused(tmp_path, text, reaso
     with pytest.raises(ScenarioError) as info:
         load_scenario(path)
     assert reason in str(info.value)
+
+
+@pytest.mark.parametrize('node, name, value, words', [
+    ('controller', 'input_names', ['q'], "controller writes input 'q'; plant inputs: ('u',)"),
+    ('controller', 'output_names', ['z'], "controller reads output 'z'; plant outputs: ('y',)"),
+    ('reference', 'disturbance.channels', ['w'], "disturbance 'w' is not a plant disturbance"),
+])
+def test_channels_that_do_not_connect_are_refused_before_a_run(tmp_path, node, name, value,
+                                                               words):
+    """As the in-process loop refuses them, so a ROS run never starts to stall at tick 0."""
+    sections = params_file.read(CONFIG / 'ipdt_pid.yaml')
+    sections[node][name] = value
+    if name == 'disturbance.channels':
+        sections[node] = {k: v for k, v in sections[node].items()
+                          if not k.startswith('disturbance.v.')}
+    path = params_file.write(sections, tmp_path / 'mismatch.yaml')
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert str(info.value).startswith(f'{path}: {words}'), str(info.value)
+    # a run without the plant's partner nodes (e.g. stand-ins) is not checked
+    sections['harness']['nodes'] = ['plant']
+    load_scenario(params_file.write(sections, tmp_path / 'plant_only.yaml'))

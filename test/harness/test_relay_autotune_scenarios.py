@@ -47,6 +47,28 @@ def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
     assert max(again.max_abs_difference(trace).values()) == 0.0
 
 
+def test_harness_prints_and_records_the_identified_model_and_gains(tmp_path, capsys):
+    """tank-control run prints Ku, Tu, the model and the new gains; metrics.json holds the line."""
+    import json
+
+    from tank_control.harness import cli
+    out = tmp_path / 'run'
+    assert cli.main(['run', str(CONFIG / 'fopdt_autotune.yaml'), '--out', str(out),
+                     '--in-process', '--quiet']) == 0
+    params = json.loads((out / 'metrics.json').read_text())['controller']['parameters']
+    line = [x for x in capsys.readouterr().out.splitlines() if x.startswith('controller found:')]
+    assert line == [f"controller found: Ku {params['autotune.ku']:.4g}, Tu {params['autotune.tu']:.4g} s "
+                    f"({params['autotune.cycles']} cycles); model fopdt "
+                    f"K {params['autotune.model_gain']:.4g}, "
+                    f"T {params['autotune.model_time_constant']:.4g} s, "
+                    f"L {params['autotune.model_dead_time']:.4g} s; gains (zn_001) "
+                    f"kp {params['kp']:.4g}, ti {params['ti']:.4g} s, td {params['td']:.4g} s, "
+                    'b 1, c 1']
+    assert params['autotune.ku'] == pytest.approx(117.8, rel=0.03)
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert 'controller found: ' + metrics['controller']['summary'] == line[0]
+
+
 def test_ipdt_loop_tunes_to_the_exact_ultimate_point_with_noise():
     k1, to = 0.05, 5.0                                      # 000's process, SPEC §1.1
     amp = k1 * 1.0 * to                                     # relay output amplitude ≈ 0.25

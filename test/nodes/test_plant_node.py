@@ -335,3 +335,46 @@ def test_sim_mode_reports_inputs_that_came_after_their_tick_was_integrated(procs
         assert values[0] != answered.get(stamp)                  # not this tick's answer
     assert probe.wait_for(lambda: rec.diagnostics and
                           int(rec.diagnostics[-1]['late_inputs']) >= len(answered), 20)
+
+
+@pytest.mark.parametrize('mode', ['wall', 'sim'])
+def test_a_plant_without_controller_and_reference_says_what_it_waits_for(
+        procs, ros_env, node_cmd, probe, tmp_path, mode):
+    """Started by hand without its partners, a wall or sim plant reports WARN on /diagnostics
+    and in its log naming what it waits for (not ``ok``), and clears when they come."""
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.1,
+                       clock_mode=mode, real_time_factor=1.0)
+    rec = Recorder(probe)
+    words = ('waiting for manipulated (controller), disturbance (reference): nothing received '
+             'in ')
+
+    def warned():
+        return [d for d in rec.diagnostics
+                if d['level'] == DiagnosticStatus.WARN and words in d['message']]
+    assert probe.wait_for(warned, 30), (rec.diagnostics[-3:], proc.tail())
+    assert warned()[0]['message'].endswith('s; inputs held at their initial values')
+    assert probe.wait_for(lambda: words in proc.log_path.read_text(), 10), proc.tail()
+    assert '[WARN]' in [line for line in proc.log_path.read_text().splitlines()
+                        if words in line][0]
+    # the controller comes: only the reference is awaited; then both: ok, and logged
+    seen = len(rec.diagnostics)
+    assert probe.wait_for(lambda: rec.measurements, 10)
+
+    def send(publisher, name, value):
+        stamp = rec.measurements[-1][0]
+        publisher.publish(to_joint_state(stamp, [name], [value]))
+
+    def only_reference():
+        send(rec.manipulated, 'u', 0.0)
+        return any(d['message'].startswith('waiting for disturbance (reference): nothing')
+                   for d in rec.diagnostics[seen:])
+    assert probe.wait_for(only_reference, 30), rec.diagnostics[-3:]
+
+    def moving():       # (a loaded host may still warn that the plant is behind real time)
+        send(rec.manipulated, 'u', 0.0)
+        send(rec.disturbance, 'v', 0.0)
+        return len(rec.diagnostics) > seen and 'waiting' not in rec.diagnostics[-1]['message'] \
+            and 'held' not in rec.diagnostics[-1]['message']
+    assert probe.wait_for(moving, 30), rec.diagnostics[-3:]
+    assert probe.wait_for(lambda: 'inputs arrive: the loop moves' in proc.log_path.read_text(),
+                          10), proc.tail()

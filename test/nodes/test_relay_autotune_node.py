@@ -202,6 +202,11 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
     assert probe.wait_for(lambda: graph.diag.get('rejected_parameters') == '1', 20), graph.diag
     assert probe.wait_for(lambda: any('autotune.state running' in m
                                       for m in graph.diag_messages), 20), graph.diag_messages[-3:]
+    # the node logs what it found: Ku, Tu, the model and the new gains
+    log = procs.processes['controller'].log_path
+    found = f"found: Ku {ku:.4g}, Tu {tu:.4g} s"
+    assert probe.wait_for(lambda: found in log.read_text(), 20), graph.logs()
+    assert f"gains (zn_001) kp {got['kp']:.4g}, ti {got['ti']:.4g} s" in log.read_text()
 
     # the same objects in-process (core/loop.py): the service call before tick 0 is start()
     # Up to a tick the recorder holds in full, at least the one that entered 'running' (the

@@ -414,6 +414,8 @@ class ControllerKind:
     * ``results(controller)``: values the controller produced while running (written back to
       parameters); ``state``: the ``results`` entry that is a state machine's state;
     * ``commands``: operator commands, offered as ``std_srvs/Trigger`` services ``~/<name>``;
+    * ``summary(values)``: one line of what the controller found (e.g. an identified model and
+      its gains; '' for nothing yet), logged by the node when it changes, printed by the harness;
     * ``gains``: parameters reported as the run's final gains; ``input_limits(settings)``:
       ``{input channel: (min, max)}`` for constraint metrics; ``disturbances``: the measured
       disturbance channels the controller reads (feed-forward).
@@ -434,6 +436,7 @@ class ControllerKind:
     gains: tuple[str, ...] = ()
     input_limits: Callable[[Settings], Mapping[str, tuple[float, float]]] | None = None
     disturbances: tuple[str, ...] = ()
+    summary: Callable[[Values], str] | None = None
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The kind's parameters: its configuration's, then each group's."""

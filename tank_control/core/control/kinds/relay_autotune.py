@@ -34,6 +34,30 @@ def identified_model(values: base.Values) -> ProcessModel | None:
     return None if model.reason() else model
 
 
+def summary(values: base.Values) -> str:
+    """One line of what the last successful test found, from the result parameters, or '' before
+    one: ``Ku 118.3, Tu 10.82 s (4 cycles); model fopdt K 0.0504, T 10.08 s, L 2.997 s; gains
+    (zn_001) kp 70.96, ti 5.411 s, td 1.299 s, b 1, c 1`` (the proposal, applied or not)."""
+    ku, tu = float(values.get('autotune.ku', 0.0)), float(values.get('autotune.tu', 0.0))
+    if ku <= 0 or tu <= 0:
+        return ''
+    text = f"Ku {ku:.4g}, Tu {tu:.4g} s ({values.get('autotune.cycles', 0)} cycles)"
+    kind = values.get('autotune.model_kind', 'none')
+    if kind == 'fopdt':
+        text += (f"; model fopdt K {values['autotune.model_gain']:.4g}, "
+                 f"T {values['autotune.model_time_constant']:.4g} s, "
+                 f"L {values['autotune.model_dead_time']:.4g} s")
+    elif kind == 'ipdt':
+        text += (f"; model ipdt k1 {values['autotune.model_gain']:.4g} 1/s, "
+                 f"L {values['autotune.model_dead_time']:.4g} s")
+    if float(values.get('autotune.proposed_kp', 0.0)) > 0:
+        text += (f"; gains ({values.get('autotune.rule', '?')}) "
+                 f"kp {values['autotune.proposed_kp']:.4g}, ti {values['autotune.proposed_ti']:.4g} s, "
+                 f"td {values['autotune.proposed_td']:.4g} s, b {values['autotune.proposed_b']:.3g}, "
+                 f"c {values['autotune.proposed_c']:.3g}")
+    return text
+
+
 def build(settings: Settings) -> RelayAutotuner:
     tuner = RelayAutotuner(settings.config, settings.autotune,
                            output_name=settings.channels.output_names[0],
@@ -131,5 +155,5 @@ KIND = ControllerKind(
             base.SAMPLING_RESULTS),
     build=build, update=update, reason=reason, results=results, state='autotune.state',
     commands={name: (lambda tuner, name=name: tuner.command(name)) for name in COMMANDS},
-    gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
+    gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits, summary=summary,
 )
