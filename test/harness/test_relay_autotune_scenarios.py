@@ -13,6 +13,7 @@ from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
 from tank_control.core import params_file
 from tank_control.core.analysis.step_metrics import step_metrics
+from tank_control.core.control.kinds import relay_autotune as relay_kind
 from tank_control.core.scenario import run_in_process
 
 
@@ -61,7 +62,8 @@ def test_harness_prints_and_records_the_identified_model_and_gains(tmp_path, cap
                     f"({params['autotune.cycles']} cycles); model fopdt "
                     f"K {params['autotune.model_gain']:.4g}, "
                     f"T {params['autotune.model_time_constant']:.4g} s, "
-                    f"L {params['autotune.model_dead_time']:.4g} s; gains (zn_001) "
+                    f"L {params['autotune.model_dead_time']:.4g} s "
+                    f"({params['autotune.model_method']}); gains (zn_001) "
                     f"kp {params['kp']:.4g}, ti {params['ti']:.4g} s, td {params['td']:.4g} s, "
                     'b 1, c 1']
     assert params['autotune.ku'] == pytest.approx(117.8, rel=0.03)
@@ -193,6 +195,8 @@ def test_shipped_sopdt_scenario_fits_the_two_relay_points_and_tunes_simc_pid():
     assert res['autotune.model_time_constant'] == pytest.approx(10.0, rel=0.05)
     assert res['autotune.model_time_constant2'] == pytest.approx(4.0, rel=0.05)
     assert res['autotune.model_dead_time'] == pytest.approx(2.0, abs=0.1)
+    line = relay_kind.summary({**res, 'autotune.rule': 'simc'})
+    assert 'model sopdt K 0.99' in line and ', T2 4.0' in line and '(two_points)' in line
     w = res['autotune.omega_90']
     g = np.exp(-2j * w) / ((10j * w + 1) * (4j * w + 1))
     assert res['autotune.gain_90'] == pytest.approx(abs(g), rel=0.01)
@@ -248,6 +252,8 @@ def test_shipped_step_test_scenario_identifies_the_fopdt_by_the_tangent_and_tune
     assert [s for _, s in log] == ['idle', 'settling', 'step', 'tuned', 'running']
     st = tuner.status
     assert st['model_method'] == 'step_tangent'
+    line = relay_kind.summary({**tuner.results(), 'autotune.rule': 'oppelt'})
+    assert '(of the step model); model fopdt K 0.05' in line and '(step_tangent); gains (oppelt)' in line
     m = st['model']
     assert m['gain'] == pytest.approx(0.05, rel=0.01)
     assert m['time_constant'] == pytest.approx(10.0, rel=0.04)

@@ -14,7 +14,6 @@ normalisation is lost, relative error is ours). The document's starting values Î
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 

@@ -36,17 +36,24 @@ def identified_model(values: base.Values) -> ProcessModel | None:
 
 def summary(values: base.Values) -> str:
     """One line of what the last successful test found, from the result parameters, or '' before
-    one: ``Ku 118.3, Tu 10.82 s (4 cycles); model fopdt K 0.0504, T 10.08 s, L 2.997 s; gains
-    (zn_001) kp 70.96, ti 5.411 s, td 1.299 s, b 1, c 1`` (the proposal, applied or not)."""
+    one: ``Ku 118.3, Tu 10.82 s (4 cycles); model fopdt K 0.0504, T 10.08 s, L 2.997 s
+    (time_domain); gains (zn_001) kp 70.96, ti 5.411 s, td 1.299 s, b 1, c 1`` (the proposal,
+    applied or not; an SOPDT gives T1 and T2, a step test says so instead of the cycles)."""
     ku, tu = float(values.get('autotune.ku', 0.0)), float(values.get('autotune.tu', 0.0))
     if ku <= 0 or tu <= 0:
         return ''
-    text = f"Ku {ku:.4g}, Tu {tu:.4g} s ({values.get('autotune.cycles', 0)} cycles)"
+    method = values.get('autotune.model_method', 'none')
+    text = f"Ku {ku:.4g}, Tu {tu:.4g} s" + (
+        ' (of the step model)' if str(method).startswith('step_')
+        else f" ({values.get('autotune.cycles', 0)} cycles)")
     kind = values.get('autotune.model_kind', 'none')
-    if kind == 'fopdt':
-        text += (f"; model fopdt K {values['autotune.model_gain']:.4g}, "
-                 f"T {values['autotune.model_time_constant']:.4g} s, "
-                 f"L {values['autotune.model_dead_time']:.4g} s")
+    if kind in ('fopdt', 'sopdt'):
+        lags = f"T {values['autotune.model_time_constant']:.4g} s"
+        if kind == 'sopdt':
+            lags = (f"T1 {values['autotune.model_time_constant']:.4g} s, "
+                    f"T2 {values['autotune.model_time_constant2']:.4g} s")
+        text += (f"; model {kind} K {values['autotune.model_gain']:.4g}, {lags}, "
+                 f"L {values['autotune.model_dead_time']:.4g} s ({method})")
     elif kind == 'ipdt':
         text += (f"; model ipdt k1 {values['autotune.model_gain']:.4g} 1/s, "
                  f"L {values['autotune.model_dead_time']:.4g} s")
