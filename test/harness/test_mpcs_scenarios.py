@@ -280,3 +280,45 @@ def test_the_delay_free_model_fails_because_of_the_delays_not_the_nonlinearity()
         return case
     assert _worst_settled(linear(0.0, 0.0)) < 1e-6
     assert _worst_settled(linear(180.0, 120.0)) > 5.0
+
+
+def _settling(t, e, t0: float, t1: float, band: float) -> float:
+    """Time after ``t0`` [s] from which |e| stays within ``band`` until ``t1``."""
+    w = (t >= t0) & (t < t1)
+    outside = np.nonzero(np.abs(e[w]) > band)[0]
+    return float(t[w][outside[-1]] - t0 + 1.0) if len(outside) else 0.0
+
+
+def test_output_weights_trade_temperature_dips_for_level_excursions():
+    """docs/mpcs.md "Output weights": tank_mpcs_qp (W_y = [1, 1]) against the same file with
+    the T_out error weighted 10× and 100× (tank_mpcs_qp_tout10/100.yaml). T_out's dip on the
+    level steps (100 s, 4600 s) shrinks from 3–5.5 °C to below 0.6 and 0.05 °C; the price is
+    the level: 2 % settling of the level steps later, and the level leaving its setpoint by
+    more than 5 cm when T_out's setpoint moves (1600 s, 6100 s). All three stay offset-free."""
+    runs = {}
+    for name in ('tank_mpcs_qp', 'tank_mpcs_qp_tout10', 'tank_mpcs_qp_tout100'):
+        params = _params(name)
+        base = _params('tank_mpcs_qp')
+        assert {k: v for k, v in params['controller'].items() if k != 'mpcs.output_weights'} \
+            == base['controller'] and params['reference'] == base['reference']
+        trace = run_in_process(params)
+        t = trace['t']
+        e_h, e_t = trace['r.h'] - trace['y.h'], trace['r.T_out'] - trace['y.T_out']
+
+        def peak(e, a, b):
+            return float(np.max(np.abs(e[(t >= a) & (t < b)])))
+        runs[name] = {
+            'dip': max(peak(e_t, 100, 1600), peak(e_t, 4600, 6100)),
+            'level_excursion': max(peak(e_h, 1600, 3100), peak(e_h, 6100, 7600)),
+            'level_settling': (_settling(t, e_h, 100, 1600, 0.18),     # 2 % of 9 cm
+                               _settling(t, e_h, 4600, 6100, 0.12)),   # 2 % of 6 cm
+            'settled': max(peak(e_h, 7600 + 1200, 9101) / TOL['h'],
+                           peak(e_t, 7600 + 1200, 9101) / TOL['T_out'])}
+    equal, ten, hundred = (runs[n] for n in ('tank_mpcs_qp', 'tank_mpcs_qp_tout10',
+                                             'tank_mpcs_qp_tout100'))
+    assert equal['dip'] > 3.0 and ten['dip'] < 0.6 and hundred['dip'] < 0.05
+    assert equal['level_excursion'] < 2.5
+    assert ten['level_excursion'] > 5.0 and hundred['level_excursion'] > 5.0
+    for weighted in (ten, hundred):
+        assert all(w > e for w, e in zip(weighted['level_settling'], equal['level_settling']))
+    assert all(r['settled'] <= 1.0 for r in runs.values()), runs
