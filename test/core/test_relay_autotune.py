@@ -190,6 +190,30 @@ def test_step_test_abort_and_bad_settings():
     _assert_restored_and_running(tuner, log, 'failed', 'max_amplitude')
 
 
+@pytest.mark.parametrize('rho', (0.1, 0.3))
+def test_additional_relay_measures_the_process_at_half_the_oscillation_frequency(rho):
+    """004 eqs. 3.3.18–3.3.21 on 001's FOPDT: u2 = ±ρ·d flips at every upward switch, the
+    relay's cycles alternate (11.8 s / 10.1 s at ρ = 0.2), whole pairs are judged stationary
+    and the Fourier ratio over them gives G(j·0.5ωc) (noise 1 % of the amplitude: gain within
+    4 %, phase within 1°); the ultimate point is still found."""
+    tuner = _tuner(additional_relay=rho)
+    log = _run(tuner, 2500)
+    res = tuner.results()
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    assert res['autotune.ku'] == pytest.approx(117.8, rel=0.03)
+    assert res['autotune.tu'] == pytest.approx(10.82, rel=0.02)
+    w = res['autotune.point2_omega']
+    assert w == pytest.approx(math.pi / res['autotune.tu_df'], rel=1e-3)      # half the relay's
+    exact = K / (T * 1j * w + 1) * np.exp(-L * 1j * w)
+    assert res['autotune.point2_gain'] == pytest.approx(abs(exact), rel=0.04)
+    assert res['autotune.point2_phase'] == pytest.approx(math.degrees(np.angle(exact)), abs=1.0)
+    relay = log['u'][np.isin(log['state'], ('relay', 'measuring'))] - tuner.status['u0']
+    assert set(np.round(relay, 6)) == {round(s1 * D + s2 * rho * D, 6)
+                                       for s1 in (-1, 1) for s2 in (-1, 1)}
+    with pytest.raises(ConfigError, match='additional_relay: not with a biased relay'):
+        check_config(AutotuneConfig(additional_relay=0.2, relay_bias=0.5))
+
+
 def test_relay_bias_must_stay_below_the_relay_amplitude():
     with pytest.raises(ConfigError, match='autotune.relay_bias.*below autotune.relay_amplitude'):
         check_config(AutotuneConfig(relay_amplitude=1.0, relay_bias=1.0))

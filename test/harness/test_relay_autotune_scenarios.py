@@ -197,9 +197,9 @@ def test_shipped_sopdt_scenario_fits_the_two_relay_points_and_tunes_simc_pid():
     assert res['autotune.model_dead_time'] == pytest.approx(2.0, abs=0.1)
     line = relay_kind.summary({**res, 'autotune.rule': 'simc'})
     assert 'model sopdt K 0.99' in line and ', T2 4.0' in line and '(two_points)' in line
-    w = res['autotune.omega_90']
+    w = res['autotune.point2_omega']
     g = np.exp(-2j * w) / ((10j * w + 1) * (4j * w + 1))
-    assert res['autotune.gain_90'] == pytest.approx(abs(g), rel=0.01)
+    assert res['autotune.point2_gain'] == pytest.approx(abs(g), rel=0.01)
     assert -100.0 < math.degrees(np.angle(g)) < -80.0          # near the −90° point
     # the integrator phase: a triangle input (steps of rate·Ts), not two relay levels
     t_measuring, t_tuned = log[3][0], log[4][0]
@@ -263,3 +263,22 @@ def test_shipped_step_test_scenario_identifies_the_fopdt_by_the_tangent_and_tune
     t_step = params['reference']['setpoint.y.times'][1]
     metrics = step_metrics(trace['t'], trace['y.y'], 110.0, 100.0, t_step=t_step)
     assert 20.0 < metrics.overshoot < 50.0 and abs(metrics.steady_state_error) < 0.1
+
+
+def test_sopdt_from_the_additional_relay_in_one_phase():
+    """autotune.additional_relay 0.3 with model sopdt: the second point is G(j·0.5ωc) of the
+    same relay test (004 eqs. 3.3.18–3.3.21), no integrator phase: the SOPDT (K 1, 10 s, 4 s,
+    2 s) within 3 %, 5 %, 10 %, 0.1 s, tuned in less than half the time of the two phases."""
+    params, _, _, log_two_phases = _sopdt_run()
+    params['controller']['autotune.additional_relay'] = 0.3
+    trace, tuner, log = run_logged(params, float(params['harness']['duration']))
+    res = tuner.results()
+    assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+    assert res['autotune.model_kind'] == 'sopdt' and res['autotune.model_method'] == 'two_points'
+    assert res['autotune.model_gain'] == pytest.approx(1.0, rel=0.03)
+    assert res['autotune.model_time_constant'] == pytest.approx(10.0, rel=0.05)
+    assert res['autotune.model_time_constant2'] == pytest.approx(4.0, rel=0.1)
+    assert res['autotune.model_dead_time'] == pytest.approx(2.0, abs=0.1)
+    assert res['autotune.point2_omega'] == pytest.approx(math.pi / res['autotune.tu_df'], rel=1e-3)
+    duration = log[4][0] - log[2][0]
+    assert duration < 0.5 * (log_two_phases[4][0] - log_two_phases[2][0])

@@ -74,6 +74,14 @@ class AutotuneConfig:
                             '3.3.14–3.3.17; |μ0| must stay below relay_amplitude; 0 = symmetric '
                             'relay', 'relay_bias', unit='u units', min=-_BIG, max=_BIG,
                             source='004 eqs. 3.3.12–3.3.17')
+    additional_relay: float = _at(0.0, 'amplitude ratio ρ of the additional relay (004 eq. '
+                                  '3.3.18): ±ρ·d added to the relay output, changing sign at '
+                                  'every upward switch of the relay, so that the oscillation '
+                                  'also holds 0.5·ωc, 1.5·ωc; G(j0.5ωc) becomes point2 and, '
+                                  'with autotune.model sopdt, the second point of the SOPDT '
+                                  'without the integrator phase; 004 recommends 0.1–0.3; 0 = '
+                                  'off', 'additional_relay', unit='-', min=0.0, max=0.5,
+                                  source='004 eqs. 3.3.18–3.3.21')
     hysteresis: float = _at(0.0, 'relay hysteresis ε (noise band, 004 Fig. 3.3); the larger of '
                             'this and noise_band·σ is used', 'hysteresis', unit='y units',
                             min=0.0, max=_BIG)
@@ -157,6 +165,9 @@ class AutotuneConfig:
         if self.test == 'step' and self.model not in ('auto', 'fopdt'):
             return (f'autotune.model: {self.model} cannot come from a step test (it gives an '
                     'FOPDT); use auto or fopdt')
+        if self.additional_relay > 0.0 and self.relay_bias != 0.0:
+            return ('autotune.additional_relay: not with a biased relay (autotune.relay_bias '
+                    f'{self.relay_bias:g}): each needs the cycle the other changes')
         if abs(self.relay_bias) >= self.relay_amplitude:
             return (f'autotune.relay_bias: |{self.relay_bias:g}| must be below '
                     f'autotune.relay_amplitude {self.relay_amplitude:g}: the relay output would '
@@ -208,11 +219,14 @@ class AutotuneResults:
     model_time_constant2: float = _at(0.0, 'second (smaller) time constant T2 of an SOPDT model',
                                       'model_time_constant2', unit='s', min=0.0, max=_BIG,
                                       read_only=True)
-    omega_90: float = _at(0.0, 'frequency of the −90° point found by the relay with an integrator '
-                          '(autotune.model sopdt; 0 = none)', 'omega_90', unit='rad/s', min=0.0,
-                          max=_BIG, read_only=True)
-    gain_90: float = _at(0.0, 'process gain |G| at omega_90', 'gain_90',
-                         unit='y units per u unit', min=0.0, max=_BIG, read_only=True)
+    point2_omega: float = _at(0.0, 'frequency of the second point of an SOPDT fit (autotune.model '
+                              'sopdt): the ≈ −90° point of the relay with an integrator, or 0.5·ωc '
+                              'of the additional relay; 0 = none', 'point2_omega', unit='rad/s',
+                              min=0.0, max=_BIG, read_only=True)
+    point2_gain: float = _at(0.0, 'process gain |G| at point2_omega', 'point2_gain',
+                             unit='y units per u unit', min=0.0, max=_BIG, read_only=True)
+    point2_phase: float = _at(0.0, 'process phase at point2_omega', 'point2_phase', unit='deg',
+                              min=-_BIG, max=_BIG, read_only=True)
     proposed_kp: float = _at(0.0, 'gains of the design from the identified model (autotune.rule)',
                              'proposed_kp', min=0.0, max=_BIG, read_only=True)
     proposed_ti: float = _at(0.0, 'proposed integral time (0 = none)', 'proposed_ti', unit='s',
@@ -476,8 +490,10 @@ class RelayAutotuner:
             'autotune.model_time_constant': float(model.time_constant) if model else 0.0,
             'autotune.model_dead_time': float(model.dead_time) if model else 0.0,
             'autotune.model_time_constant2': float(model.time_constant2) if model else 0.0,
-            'autotune.omega_90': float(res.point_90[0]) if res and res.point_90 else 0.0,
-            'autotune.gain_90': float(abs(res.point_90[1])) if res and res.point_90 else 0.0,
+            'autotune.point2_omega': float(res.point_2[0]) if res and res.point_2 else 0.0,
+            'autotune.point2_gain': float(abs(res.point_2[1])) if res and res.point_2 else 0.0,
+            'autotune.point2_phase': float(np.degrees(np.angle(res.point_2[1])))
+            if res and res.point_2 else 0.0,
             'kp': abs(cfg.kp), 'ti': cfg.ti if math.isfinite(cfg.ti) else 0.0, 'td': cfg.td,
             'b': cfg.b, 'c': cfg.c,
             **self._proposal_values(), **self._check_values(),
@@ -611,6 +627,8 @@ class RelayAutotuner:
         self._u_int = 0.0                      # integrator output [u units]
         self._rec_s: list[float] = []          # relay sign before the integrator
         self._y_rest = math.nan                # mean output over the settling window
+        self._u2: float | None = None          # additional relay's output [u units]
+        self._last_sign = 0.0                  # the relay's state at the previous sample
 
     def _pid_step(self, y: float, r: float) -> float:
         if self._pending is not None:
@@ -633,7 +651,9 @@ class RelayAutotuner:
         limits (a clipped, asymmetric relay would defeat the bias correction and falsify the
         biased relay's equations)."""
         cfg, centre = self.pid.config, self._centre()
-        return min(self._cfg.relay_amplitude, cfg.u_max - centre, centre - cfg.u_min)
+        room = 1.0 + self._cfg.additional_relay         # d·(1 + ρ) with the additional relay
+        return min(self._cfg.relay_amplitude, (cfg.u_max - centre) / room,
+                   (centre - cfg.u_min) / room)
 
     def _limit(self, u: float) -> float:
         """The PID's output limits and rate limit (du_max per second) applied to the relay output."""
@@ -725,7 +745,8 @@ class RelayAutotuner:
         sign = 1.0 if self._relay_high else -1.0
         if self._integrating:
             return self._integrator_relay(t, y, sign)
-        u = self._limit(self._centre() + self._direction() * sign * self._amplitude())
+        u = self._limit(self._centre() + self._direction() * (sign * self._amplitude()
+                                                              + self._additional(sign)))
         switched = bool(self._rec_u) and (u != self._rec_u[-1])
         self._rec_t.append(t)
         self._rec_u.append(u)
@@ -754,7 +775,8 @@ class RelayAutotuner:
         if last.end != len(tt) - 1:
             return False      # this switch closed a half cycle only
         asym = [(c.high_time - c.low_time) / c.period for c in cycles[-2:]]
-        if (cfg.bias_correction and cfg.relay_bias == 0.0 and len(asym) == 2
+        if (cfg.bias_correction and cfg.relay_bias == 0.0 and cfg.additional_relay == 0.0
+                and len(asym) == 2
                 and min(abs(a) for a in asym) > cfg.asymmetry_tol
                 and asym[0] * asym[1] > 0.0):     # two cycles in a row, same side: not noise
             seg = slice(last.start, last.end)
@@ -764,7 +786,9 @@ class RelayAutotuner:
             return False
         self._cycles = len(cycles)
         slack = 2.0 * self.sample_time
-        tail = ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack)
+        extra = cfg.additional_relay > 0.0
+        tail = (_stationary_pairs(cycles, cfg.min_cycles, cfg.stationarity_tol, slack) if extra
+                else ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack))
         if tail is None:
             return False
         sopdt = cfg.model == 'sopdt'
@@ -772,7 +796,17 @@ class RelayAutotuner:
             res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
                                        gain=cfg.process_gain or None,
                                        kind='auto' if sopdt else cfg.model)
-            if sopdt:
+            if extra:
+                # 004 eqs. 3.3.19–3.3.21: over whole periods 2·Tc of u1 + u2 the harmonics of
+                # π/Tc are the points 0.5·ωc, 1.5·ωc (those of 2π/Tc are ωc, 3ωc as before)
+                w_half, g = ident.harmonic_response(tt, uu, yy, tail[0].start, tail[-1].end,
+                                                    len(tail) // 2, (1, 3))
+                res = replace(res, point_2=(w_half, g[1]))
+                if sopdt:
+                    model = ident.sopdt_from_two_points(2.0 * math.pi / res.tu,
+                                                        complex(-1.0 / res.ku), w_half, g[1])
+                    res = replace(res, model=model, model_method='two_points')
+            elif sopdt:
                 self._begin_integrator(res)
                 return False
             proposal = self._design(res, cfg)
@@ -826,6 +860,19 @@ class RelayAutotuner:
             self._end('failed', f'identification/tuning failed: {exc}')
             return
         self._finish(res, proposal)
+
+    def _additional(self, sign: float) -> float:
+        """The additional relay's output u2 (004 eq. 3.3.18): ρ·d at the start, negated at
+        every upward switch of the relay (``sign`` −1 → +1); 0 when off."""
+        rho = self._cfg.additional_relay
+        if rho == 0.0:
+            return 0.0
+        if self._u2 is None:
+            self._u2 = rho * self._amplitude()
+        elif sign > 0.0 > self._last_sign:
+            self._u2 = -self._u2
+        self._last_sign = sign
+        return self._u2
 
     def _begin_integrator(self, first: ident.RelayIdentification) -> None:
         """Second phase of ``autotune.model`` sopdt (004 §3.3 intro): the relay drives an
@@ -884,7 +931,7 @@ class RelayAutotuner:
                                              len(tail), (1,))
             model = ident.sopdt_from_two_points(2.0 * math.pi / first.tu, complex(-1.0 / first.ku),
                                                 w90, g[1])
-            res = replace(first, model=model, model_method='two_points', point_90=(w90, g[1]))
+            res = replace(first, model=model, model_method='two_points', point_2=(w90, g[1]))
             proposal = self._design(res, cfg)
         except (ValueError, ArithmeticError) as exc:
             self._end('failed', f'identification/tuning failed: {exc}')
@@ -1050,6 +1097,22 @@ class RelayAutotuner:
                              f'{model.kind}')
         return dict(tune(cfg.rule, cfg.kind, gain=model.gain, time_constant=model.time_constant,
                          dead_time=model.dead_time))
+
+
+def _stationary_pairs(cycles: list[ident.RelayCycle], count: int, tolerance: float,
+                      slack: float) -> list[ident.RelayCycle] | None:
+    """With the additional relay the relay's cycles alternate (u2 changes sign once per
+    cycle): the last ``count`` cycles rounded up to whole pairs, if the pairs — one period of
+    u1 + u2 each — are stationary (:func:`ident.stationary_cycles` on the pairs)."""
+    pairs_needed = max(2, -(-count // 2))
+    if len(cycles) < 2 * pairs_needed:
+        return None
+    tail = cycles[-2 * pairs_needed:]
+    pairs = [ident.RelayCycle(a.start, b.end, a.period + b.period, a.high_time + b.high_time,
+                              a.low_time + b.low_time, max(a.y_max, b.y_max),
+                              min(a.y_min, b.y_min), 0.5 * (a.y1 + b.y1))
+             for a, b in zip(tail[::2], tail[1::2])]
+    return tail if ident.stationary_cycles(pairs, pairs_needed, tolerance, 2.0 * slack) else None
 
 
 def design_arguments(model: ProcessModel, cfg: AutotuneConfig, pid: PidConfig) -> dict[str, Any]:

@@ -773,8 +773,8 @@ class RelayIdentification:
     ``'time_domain'`` (:func:`fit_time_domain`); ``model_harmonic``: from ``g1``, ``g3``/kP
     only (its start); ``static_gain``: kP supplied or from 004 eq. 3.3.13 (biased relay), else
     ``None``; ``relay_bias``: μ0, the mean of the two relay outputs minus ``u0`` (0 for a
-    symmetric relay); ``point_90``: ``(ω, G(jω))`` of the relay with an integrator when the
-    model went through it (``model_method`` ``'two_points'``).
+    symmetric relay); ``point_2``: a second measured point ``(ω, G(jω))`` — the relay with an
+    integrator's or the additional relay's 0.5·ωc (set by the auto-tuner).
     """
 
     ku: float
@@ -798,7 +798,7 @@ class RelayIdentification:
     model_method: str
     static_gain: float | None
     relay_bias: float = 0.0
-    point_90: tuple[float, complex] | None = None
+    point_2: tuple[float, complex] | None = None
 
 
 def _integrating(model: Model, period: float) -> Model:
