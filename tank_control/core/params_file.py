@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -177,3 +177,17 @@ def write(sections: Mapping[str, Mapping[str, Any]], path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(dumps(sections))
     return path
+
+
+def ros_params_files(argv: Sequence[str]) -> list[str]:
+    """The ``--params-file`` paths among the ROS arguments of a command line (between
+    ``--ros-args`` and ``--``), in order."""
+    files, in_ros_args = [], False
+    for i, arg in enumerate(argv):
+        if arg == '--ros-args':
+            in_ros_args = True
+        elif arg == '--':
+            in_ros_args = False
+        elif in_ros_args and arg == '--params-file' and i + 1 < len(argv):
+            files.append(argv[i + 1])
+    return files

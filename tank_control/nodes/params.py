@@ -38,19 +38,13 @@ def _wildcard_names(node_name: str, argv: list[str] | None = None) -> set[str]:
     command line (and not by its own section)."""
     argv = sys.argv if argv is None else argv
     names: set[str] = set()
-    ros = False
-    for i, arg in enumerate(argv):
-        if arg == '--ros-args':
-            ros = True
-        elif arg == '--':
-            ros = False
-        elif ros and arg == '--params-file' and i + 1 < len(argv):
-            try:
-                sections = params_file.read(argv[i + 1])
-            except ConfigError:
-                continue          # rcl reports an unreadable file itself
-            own = params_file.values_for(sections, node_name, use_wildcards=False) or {}
-            names |= params_file.wildcard_names(sections, node_name) - set(own)
+    for path in params_file.ros_params_files(argv):
+        try:
+            sections = params_file.read(path)
+        except ConfigError:
+            continue          # rcl reports an unreadable file itself
+        own = params_file.values_for(sections, node_name, use_wildcards=False) or {}
+        names |= params_file.wildcard_names(sections, node_name) - set(own)
     return names
 
 

@@ -43,22 +43,16 @@ def params_files_reason(args: Sequence[str]) -> str | None:
     """'' or why a ``--params-file`` among the ROS arguments cannot be used: unreadable, or
     not valid YAML (``FILE:LINE:COLUMN: …``); rcl would say only "Couldn't parse params file"
     in a traceback. What the file holds is checked by the node, parameter by parameter."""
-    in_ros_args = False
-    for i, arg in enumerate(args):
-        if arg == '--ros-args':
-            in_ros_args = True
-        elif arg == '--':
-            in_ros_args = False
-        elif in_ros_args and arg == '--params-file' and i + 1 < len(args):
-            path = Path(args[i + 1])
-            try:
-                text = path.read_text()
-            except OSError as exc:
-                return f'--params-file {path}: cannot read ({exc.strerror})'
-            try:
-                ros_yaml.load(text)
-            except yaml.YAMLError as exc:
-                return params_file.yaml_error(str(path), exc)
+    for name in params_file.ros_params_files(args):
+        path = Path(name)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            return f'--params-file {path}: cannot read ({exc.strerror})'
+        try:
+            ros_yaml.load(text)
+        except yaml.YAMLError as exc:
+            return params_file.yaml_error(str(path), exc)
     return None
 
 
