@@ -24,6 +24,9 @@ GUARDED = ('kp', 'ti', 'b', 'sample_time', 'robustness.ms_max')
 def process_model(model: SmithModel) -> ProcessModel:
     """The internal model as a process model (the gain's magnitude; its sign is the loop's,
     :func:`analyse`)."""
+    if model.model == 'sopdt':
+        t1, t2 = model.time_constant, model.time_constant2
+        return ProcessModel('sopdt', abs(model.gain), model.dead_time, max(t1, t2), min(t1, t2))
     return ProcessModel(model.model, abs(model.gain), model.dead_time,
                         model.time_constant if model.model == 'fopdt' else 0.0)
 
@@ -64,9 +67,17 @@ def reason(settings: Settings) -> str | None:
     if rule not in ('none', 'smith_pi'):
         return (f"tuning.rule: {rule!r} does not apply to the Smith predictor; allowed none, "
                 'smith_pi')
-    if order != 1:
-        return (f'tuning.order: {order} designs for a second-order model, but the internal model '
-                f'smith.model {settings.config.model!r} is first order; allowed 1')
+    model = settings.config
+    if rule == 'smith_pi' and order == 1 and model.model != 'fopdt':
+        return (f'tuning.order: 1 designs for K/(T s+1) (004 eq. 3.6.7), but the internal model '
+                f'smith.model is {model.model!r}; allowed 2 with sopdt (T2 = T), or smith.model '
+                'fopdt')
+    if rule == 'smith_pi' and order == 2 and (model.model != 'sopdt'
+                                              or model.time_constant2 != model.time_constant):
+        return (f'tuning.order: 2 designs for K/(T s+1)^2 (004 eq. 3.6.9), but the internal model '
+                f'is smith.model {model.model!r} with smith.time_constant {model.time_constant:g} '
+                f's, smith.time_constant2 {model.time_constant2:g} s; allowed sopdt with '
+                'smith.time_constant2 = smith.time_constant, or tuning.order 1')
     if rule == 'smith_pi' and settings.config.gain < 0:
         return ('smith.gain: tuning.rule smith_pi needs a positive model gain (the primary has '
                 'kp > 0); allowed (0, 1e9]')
