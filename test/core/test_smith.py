@@ -276,5 +276,5 @@ def test_kind_second_order_model_and_its_rule():
         resolve(kind, {**base_values, 'smith.time_constant2': 2.0})
     with pytest.raises(ConfigError, match='tuning.order: 1 designs'):
         resolve(kind, {**base_values, 'tuning.order': 1, 'tuning.te': 2.0})
-    with pytest.raises(ConfigError, match='smith.time_constant2'):
+    with pytest.raises(ValueError, match='smith.time_constant2'):
         SmithPredictor(SmithModel('sopdt', 1.0, 5.0, 1.0, time_constant2=math.nan), PidConfig())
