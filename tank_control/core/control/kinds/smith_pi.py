@@ -23,13 +23,15 @@ PRIMARY = ('kp', 'ti', 'b', 'sample_time', 'u_min', 'u_max', 'du_max', 'anti_win
            'tracking_time')
 """The PI primary's parameters (the PID's, td = c = 0)."""
 TUNING = ('tuning.rule', 'tuning.te', 'tuning.xi', 'tuning.order')
-AUTOTUNE = ('relay_amplitude', 'hysteresis', 'noise_band', 'bias_correction', 'asymmetry_tol',
-            'min_cycles', 'stationarity_tol', 'timeout', 'settle_time', 'settle_band',
-            'settle_timeout', 'max_amplitude', 'method', 'start_time')
+AUTOTUNE = tuple('autotune.' + name for name in (
+    'relay_amplitude', 'hysteresis', 'noise_band', 'bias_correction', 'asymmetry_tol',
+    'min_cycles', 'stationarity_tol', 'timeout', 'settle_time', 'settle_band', 'settle_timeout',
+    'max_amplitude', 'method', 'start_time'))
 """The relay test's settings the chain uses (its rule is 004 Table 3.1's ZN PI)."""
-RESULTS = ('state', 'reason', 'state_time', 'cycles', 'ku', 'tu', 'ku_df', 'tu_df', 'model_kind',
-           'model_method', 'model_gain', 'model_time_constant', 'model_dead_time',
-           'model_time_constant2')
+RESULTS = tuple('autotune.' + name for name in (
+    'state', 'reason', 'state_time', 'cycles', 'ku', 'tu', 'ku_df', 'tu_df', 'model_kind',
+    'model_method', 'model_gain', 'model_time_constant', 'model_dead_time',
+    'model_time_constant2'))
 COMMANDS = ('start_autotune', 'abort_autotune')
 GUARDED = ('kp', 'ti', 'b', 'sample_time', 'robustness.ms_max')
 """Parameters whose change the robustness guard checks (smith.* is the model: not refused)."""
