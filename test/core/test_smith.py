@@ -206,3 +206,75 @@ def test_registered_as_smith_pi_kind_with_derived_gains_and_bumpless_rebuild():
                                            frozenset({'mode', 'manual_output'}), 5.0, y, r,
                                            np.array([]))
     assert manual.step(6.0, y, r, np.array([]))[0] == 7.0
+
+
+@pytest.mark.parametrize('t1, t2, dead_time', [(5.0, 5.0, 2.0), (5.0, 5.0, 3.7), (4.0, 1.5, 0.3)])
+def test_sopdt_internal_model_is_the_exact_zoh_plant(t1, t2, dead_time):
+    """The second-order internal model (004 eq. 3.6.5, n = 2: T2 = T; distinct T2 too) against
+    the project's exact SOPDT plant under a random held input: ŷ_L is the plant's output for
+    any dead time (fractional ones included) and ŷ* the delay-free plant's."""
+    from tank_control.core.tuning.model import DiscretePlant, ProcessModel
+    h, k = 0.5, 1.3
+    sp = SmithPredictor(SmithModel('sopdt', k, t1, dead_time, time_constant2=t2),
+                        PidConfig(kp=1.0, ti=5.0, sample_time=h))
+    sp.reset(np.array([0.0]), np.array([0.0]))
+    sp.step(0.0, np.array([0.0]), np.array([0.0]), np.array([]))   # completes the reset (u = 0)
+    sp._hist.appendleft(0.0)
+    sp._hist.pop()
+    plant = DiscretePlant(ProcessModel('sopdt', k, dead_time, max(t1, t2), min(t1, t2)), h)
+    free = DiscretePlant(ProcessModel('sopdt', k, 0.0, max(t1, t2), min(t1, t2)), h)
+    rng = np.random.default_rng(5)
+    for u in rng.normal(size=80):
+        assert sp._y_del == pytest.approx(plant.output(), abs=1e-9)
+        assert sp._y_free == pytest.approx(free.output(), abs=1e-9)
+        sp._advance(float(u))
+        plant.step(float(u))
+        free.step(float(u))
+
+
+def test_sopdt_perfect_model_follows_eq_3_6_8_delayed():
+    """n = 2, T2 = T, primary by 004 eq. 3.6.9 (kR = 1/(4ξ²kP), Ti = T): with a perfect model
+    the loop is the delay-free loop delayed by L (whole samples), and at a small sample time
+    that loop is eq. 3.6.8's second order with ω0 = 1/(2ξT)."""
+    from tank_control.core.tuning.model import DiscretePlant, ProcessModel
+    k, t_c, dead, xi, h = 1.0, 5.0, 2.0, 0.7, 0.01
+    g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, xi=xi, n=2)
+    sp = SmithPredictor(SmithModel('sopdt', k, t_c, dead, time_constant2=t_c),
+                        PidConfig(kp=g['kp'], ti=g['ti'], sample_time=h))
+    sp.reset(np.array([0.0]), np.array([0.0]))
+    plant = DiscretePlant(ProcessModel('sopdt', k, dead, t_c, t_c), h)
+    n = int(round(40.0 / h))
+    y = np.empty(n)
+    for i in range(n):
+        y[i] = plant.output()
+        r = np.array([1.0 if i >= 1 else 0.0])     # the first sample completes the reset
+        plant.step(float(sp.step(i * h, np.array([y[i]]), r, np.array([]))[0]))
+    shift = int(round(dead / h)) + 1
+    assert np.all(y[:shift + 1] == 0.0)
+    w0 = 1.0 / (2.0 * xi * t_c)
+    wd = w0 * math.sqrt(1 - xi * xi)
+    tt = np.arange(n - shift) * h
+    ideal = 1 - np.exp(-xi * w0 * tt) * (np.cos(wd * tt) + xi / math.sqrt(1 - xi * xi)
+                                         * np.sin(wd * tt))
+    assert np.abs(y[shift:] - ideal).max() < 0.01
+    assert step_metrics(tt, y[shift:], 1.0).overshoot == pytest.approx(
+        100 * math.exp(-math.pi * xi / math.sqrt(1 - xi * xi)), abs=0.3)
+
+
+def test_kind_second_order_model_and_its_rule():
+    """smith.model sopdt with smith.time_constant2 = smith.time_constant is 004's n = 2 model:
+    tuning.rule smith_pi with tuning.order 2 designs eq. 3.6.9; the order must match the model."""
+    kind = smith_kind.KIND
+    base_values = {'smith.model': 'sopdt', 'smith.gain': 2.0, 'smith.time_constant': 5.0,
+                   'smith.time_constant2': 5.0, 'smith.dead_time': 4.0, 'sample_time': 0.1,
+                   'tuning.rule': 'smith_pi', 'tuning.order': 2, 'tuning.xi': 0.5}
+    settings = resolve(kind, base_values)
+    assert (settings.values['kp'], settings.values['ti']) == pytest.approx((1 / (4 * 0.25 * 2.0), 5.0))
+    ctrl = kind.build(settings)
+    assert kind.results(ctrl)['robustness.stable'] is True
+    with pytest.raises(ConfigError, match='tuning.order: 2 designs for K/\\(T s\\+1\\)\\^2'):
+        resolve(kind, {**base_values, 'smith.time_constant2': 2.0})
+    with pytest.raises(ConfigError, match='tuning.order: 1 designs'):
+        resolve(kind, {**base_values, 'tuning.order': 1, 'tuning.te': 2.0})
+    with pytest.raises(ValueError, match='smith.time_constant2'):
+        SmithPredictor(SmithModel('sopdt', 1.0, 5.0, 1.0, time_constant2=math.nan), PidConfig())

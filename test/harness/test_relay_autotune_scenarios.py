@@ -282,3 +282,32 @@ def test_sopdt_from_the_additional_relay_in_one_phase():
     assert res['autotune.point2_omega'] == pytest.approx(math.pi / res['autotune.tu_df'], rel=1e-3)
     duration = log[4][0] - log[2][0]
     assert duration < 0.5 * (log_two_phases[4][0] - log_two_phases[2][0])
+
+
+def test_shipped_smith_autotune_scenario_recovers_the_model_and_follows_eq_3_6_6():
+    """config/scenarios/fopdt_smith_autotune.yaml (004 §3.6): relay → ZN PI → kP from the
+    setpoint step at 300 s → eq. 3.6.2 → Smith PI (eq. 3.6.7, Te = 5 s); the step at 600 s
+    follows eq. 3.6.6's first order delayed by Tm (noise σ 0.03 on the measurement)."""
+    params = params_file.read(SCENARIOS / 'fopdt_smith_autotune.yaml')
+    duration = float(params['harness']['duration'])
+    trace, tuner, log = run_logged(params, duration)
+    assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'waiting',
+                                   'process_gain', 'tuned', 'running'], tuner.status['reason']
+    ku, tu = exact_fopdt_ultimate(0.05, 10.0, 3.0)
+    st = tuner.status
+    assert st['ku'] == pytest.approx(ku, rel=0.01) and st['tu'] == pytest.approx(tu, rel=0.01)
+    assert log[5][0] == pytest.approx(300.0)                      # the setpoint step
+    m = tuner.model
+    assert m.gain == pytest.approx(0.05, rel=0.02)
+    assert m.time_constant == pytest.approx(10.0, rel=0.03)
+    assert m.dead_time == pytest.approx(3.0, abs=0.05)
+    te = params['controller']['tuning.te']
+    assert (tuner.primary.config.kp, tuner.primary.config.ti) == pytest.approx(
+        (m.time_constant / (m.gain * te), m.time_constant))
+    res = tuner.results()
+    assert res['autotune.model_method'] == 'eq_3_6_2' and res['smith.time_constant'] == m.time_constant
+    t, y = trace['t'], trace['y.y']
+    sel = t >= 600.0
+    tt = t[sel] - 600.0 - 3.0
+    pred = 110.0 - 5.0 * np.where(tt > 0, 1 - np.exp(-np.maximum(tt, 0) / te), 0.0)
+    assert np.abs(y[sel] - pred).max() < 0.03 * 5.0

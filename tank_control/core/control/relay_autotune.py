@@ -30,7 +30,9 @@ from tank_control.core.tuning import identification as ident
 from tank_control.core.tuning.model import DiscretePlant, ProcessModel, from_identified
 
 STATES = ('idle', 'settling', 'relay', 'step', 'measuring', 'tuned', 'running', 'proposed',
-          'reverted', 'failed', 'aborted')
+          'reverted', 'failed', 'aborted', 'waiting', 'process_gain')
+"""The tuner's states; ``waiting`` and ``process_gain`` are the auto-tuned Smith predictor's
+(core/control/smith_autotune.py), which reports through the same ``autotune.state``."""
 TESTING = ('settling', 'relay', 'step', 'measuring')
 RULES_ULTIMATE = ('zn', 'zn_001', 'zn_004_q0', 'zn_004_q1')
 RULES_IPDT = ('mdp', 'experimental')

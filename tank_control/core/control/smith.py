@@ -2,7 +2,8 @@
 
 The primary PI (a :class:`Pid2Dof` with ``td = 0``) acts on ``y_pred(k) = y(k) + ŷ*(k) −
 ŷ_L(k)``: the internal model without and with its dead time L, exact for a zero-order-hold
-input (``fopdt`` K/(T·s+1)·e^(−L·s) or ``ipdt`` k1/s·e^(−L·s)). Times in s. Structure, the
+input (``fopdt`` K/(T·s+1)·e^(−L·s), ``sopdt`` K/((T·s+1)(T2·s+1))·e^(−L·s) — 004 eq. 3.6.5
+with n = 2 is T2 = T — or ``ipdt`` k1/s·e^(−L·s)). Times in s. Structure, the
 IPDT load-offset limitation and tuning: docs/controllers.md ("smith_pi").
 """
 from __future__ import annotations
@@ -14,19 +15,21 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from scipy.linalg import expm
 
 from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.params import param
 
-MODELS = ('fopdt', 'ipdt')
+MODELS = ('fopdt', 'ipdt', 'sopdt')
 
 
 @dataclass(frozen=True)
 class SmithModel:
-    """The internal model (004 eqs. 3.6.3–3.6.4): ``fopdt`` K/(T·s+1)·e^(−L·s) or ``ipdt``
-    k1/s·e^(−L·s)."""
+    """The internal model (004 eqs. 3.6.3–3.6.5): ``fopdt`` K/(T·s+1)·e^(−L·s), ``ipdt``
+    k1/s·e^(−L·s) or ``sopdt`` K/((T·s+1)(T2·s+1))·e^(−L·s) (004's n = 2: T2 = T)."""
 
-    model: str = param('fopdt', 'internal model: fopdt K/(T s+1) e^(-L s) or ipdt k1/s e^(-L s)',
+    model: str = param('fopdt', 'internal model: fopdt K/(T s+1) e^(-L s), ipdt k1/s e^(-L s) or '
+                       "sopdt K/((T s+1)(T2 s+1)) e^(-L s) (004 eq. 3.6.5's n = 2: T2 = T)",
                        choices=MODELS, read_only=True, name='smith.model')
     gain: float = param(1.0, 'model gain K (ipdt: k1)', unit='y units per u unit (ipdt: per s)',
                         min=-1e9, max=1e9, name='smith.gain')
@@ -34,6 +37,9 @@ class SmithModel:
                                  max=1e9, name='smith.time_constant')
     dead_time: float = param(0.0, 'model dead time L', unit='s', min=0.0, max=1e6,
                              name='smith.dead_time')
+    time_constant2: float = param(1.0, 'second model time constant T2 (sopdt; 004 eq. 3.6.5 with '
+                                  'n = 2: T2 = T)', unit='s', min=1e-6, max=1e9,
+                                  name='smith.time_constant2')
 
     def reason(self) -> str | None:
         """One-line reason naming the invalid parameter, or None."""
@@ -43,10 +49,14 @@ class SmithModel:
             return f'smith.gain: {self.gain!r} must be a finite non-zero number'
         if not _finite(self.dead_time) or self.dead_time < 0.0:
             return f'smith.dead_time: {self.dead_time!r} is out of range; allowed [0, inf) s'
-        if self.model == 'fopdt' and (not _finite(self.time_constant)
-                                      or self.time_constant <= 0):
+        if self.model != 'ipdt' and (not _finite(self.time_constant)
+                                     or self.time_constant <= 0):
             return (f'smith.time_constant: {self.time_constant!r} is out of range; allowed '
-                    '(0, inf) s for fopdt')
+                    f'(0, inf) s for {self.model}')
+        if self.model == 'sopdt' and (not _finite(self.time_constant2)
+                                      or self.time_constant2 <= 0):
+            return (f'smith.time_constant2: {self.time_constant2!r} is out of range; allowed '
+                    '(0, inf) s for sopdt')
         return None
 
 
@@ -87,6 +97,11 @@ class SmithPredictor:
             self._a = math.exp(-h / t)
             self._c_old = math.exp(-(1 - self._f) * h / t) * (1 - math.exp(-self._f * h / t))
             self._c_new = 1 - math.exp(-(1 - self._f) * h / t)
+        elif model.model == 'sopdt':
+            self._ss = _sopdt_zoh(model.gain, model.time_constant, model.time_constant2, h,
+                                  self._f)
+            self._x_free = np.zeros(2)
+            self._x_del = np.zeros(2)
         self._y_free = 0.0     # ŷ*
         self._y_del = 0.0      # ŷ_L
         self._pending: float | None = None
@@ -128,6 +143,13 @@ class SmithPredictor:
             u_new = u if self._d == 0 else self._u_ago(self._d)     # u(k − d)
             u_old = self._u_ago(self._d + 1)                         # u(k − d − 1)
             self._y_del = self._a * self._y_del + k * (self._c_old * u_old + self._c_new * u_new)
+        elif self.model.model == 'sopdt':
+            ad, g_full, g_old, g_new = self._ss
+            u_new = u if self._d == 0 else self._u_ago(self._d)
+            u_old = self._u_ago(self._d + 1)
+            self._x_free = ad @ self._x_free + g_full * u
+            self._x_del = ad @ self._x_del + g_old * u_old + g_new * u_new
+            self._y_free, self._y_del = float(self._x_free[0]), float(self._x_del[0])
         self._hist.appendleft(u)
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
@@ -139,6 +161,10 @@ class SmithPredictor:
         for _ in range(self._hist.maxlen):
             self._hist.appendleft(u0)
         if self.model.model == 'fopdt':
+            self._y_free = self._y_del = self.model.gain * u0
+        elif self.model.model == 'sopdt':
+            self._x_free = np.array([self.model.gain * u0, 0.0])
+            self._x_del = self._x_free.copy()
             self._y_free = self._y_del = self.model.gain * u0
         self._pending = u0
 
@@ -185,6 +211,25 @@ class SmithPredictor:
         st['prediction'] = self._last_pred
         st['model'] = self.model.model
         return st
+
+
+def _sopdt_zoh(gain: float, t1: float, t2: float, h: float, f: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Exact ZOH of K/((T1·s+1)(T2·s+1)) in the state x = (y, dy/dt) (repeated poles included):
+    ``(Ad, Γ(h), e^(A(1−f)h)·Γ(f·h), Γ((1−f)·h))`` with ``Γ(τ) = ∫₀^τ e^(As) ds·B``; the last
+    two weigh u(k−d−1) and u(k−d) of a dead time (d + f)·h, as for the FOPDT."""
+    a = np.array([[0.0, 1.0], [-1.0 / (t1 * t2), -(t1 + t2) / (t1 * t2)]])
+    b = np.array([0.0, gain / (t1 * t2)])
+
+    def gamma(tau: float) -> tuple[np.ndarray, np.ndarray]:
+        m = np.zeros((3, 3))
+        m[:2, :2], m[:2, 2] = a * tau, b * tau
+        e = expm(m)
+        return e[:2, :2], e[:2, 2]
+    ad, g_full = gamma(h)
+    rest, g_new = gamma((1.0 - f) * h)
+    _, g_f = gamma(f * h)
+    return ad, g_full, rest @ g_f, g_new
 
 
 def _scalar(value: Any, name: str) -> float:

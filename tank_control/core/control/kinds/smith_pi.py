@@ -1,5 +1,7 @@
-"""Controller kind ``smith_pi``: Smith predictor with a PI primary (004 §3.6.1), and the
-robustness of the running loop on its internal model (``robustness.*``, the ``ms_max`` guard)."""
+"""Controller kind ``smith_pi``: Smith predictor with a PI primary (004 §3.6.1), its auto-tuning
+chain (004 §3.6: relay → ZN PI → kP from a setpoint change → eq. 3.6.2 → eq. 3.6.7/3.6.9;
+``autotune.*``, ``~/start_autotune``, ``~/abort_autotune``) and the robustness of the running
+loop on its internal model (``robustness.*``, the ``ms_max`` guard)."""
 from __future__ import annotations
 
 import math
@@ -10,13 +12,27 @@ from tank_control.core.analysis.robustness import LoopReport, smith_report
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings, Tuning
 from tank_control.core.control.pid import PidConfig
-from tank_control.core.control.smith import SmithModel, SmithPredictor
+from tank_control.core.control.relay_autotune import (AutotuneCommand, AutotuneConfig,
+                                                      AutotuneResults)
+from tank_control.core.control.smith import SmithModel
+from tank_control.core.control.smith_autotune import (TESTING, SmithAutotuner, SmithDesign,
+                                                      model_of)
 from tank_control.core.tuning.model import ProcessModel
 
 PRIMARY = ('kp', 'ti', 'b', 'sample_time', 'u_min', 'u_max', 'du_max', 'anti_windup',
            'tracking_time')
 """The PI primary's parameters (the PID's, td = c = 0)."""
 TUNING = ('tuning.rule', 'tuning.te', 'tuning.xi', 'tuning.order')
+AUTOTUNE = tuple('autotune.' + name for name in (
+    'relay_amplitude', 'hysteresis', 'noise_band', 'bias_correction', 'asymmetry_tol',
+    'min_cycles', 'stationarity_tol', 'timeout', 'settle_time', 'settle_band', 'settle_timeout',
+    'max_amplitude', 'method', 'start_time'))
+"""The relay test's settings the chain uses (its rule is 004 Table 3.1's ZN PI)."""
+RESULTS = tuple('autotune.' + name for name in (
+    'state', 'reason', 'state_time', 'cycles', 'ku', 'tu', 'ku_df', 'tu_df', 'model_kind',
+    'model_method', 'model_gain', 'model_time_constant', 'model_dead_time',
+    'model_time_constant2'))
+COMMANDS = ('start_autotune', 'abort_autotune')
 GUARDED = ('kp', 'ti', 'b', 'sample_time', 'robustness.ms_max')
 """Parameters whose change the robustness guard checks (smith.* is the model: not refused)."""
 
@@ -24,8 +40,7 @@ GUARDED = ('kp', 'ti', 'b', 'sample_time', 'robustness.ms_max')
 def process_model(model: SmithModel) -> ProcessModel:
     """The internal model as a process model (the gain's magnitude; its sign is the loop's,
     :func:`analyse`)."""
-    return ProcessModel(model.model, abs(model.gain), model.dead_time,
-                        model.time_constant if model.model == 'fopdt' else 0.0)
+    return model_of(model)
 
 
 def analyse(model: ProcessModel, loop: tuple[PidConfig, float]) -> LoopReport:
@@ -64,9 +79,17 @@ def reason(settings: Settings) -> str | None:
     if rule not in ('none', 'smith_pi'):
         return (f"tuning.rule: {rule!r} does not apply to the Smith predictor; allowed none, "
                 'smith_pi')
-    if order != 1:
-        return (f'tuning.order: {order} designs for a second-order model, but the internal model '
-                f'smith.model {settings.config.model!r} is first order; allowed 1')
+    model = settings.config
+    if rule == 'smith_pi' and order == 1 and model.model != 'fopdt':
+        return (f'tuning.order: 1 designs for K/(T s+1) (004 eq. 3.6.7), but the internal model '
+                f'smith.model is {model.model!r}; allowed 2 with sopdt (T2 = T), or smith.model '
+                'fopdt')
+    if rule == 'smith_pi' and order == 2 and (model.model != 'sopdt'
+                                              or model.time_constant2 != model.time_constant):
+        return (f'tuning.order: 2 designs for K/(T s+1)^2 (004 eq. 3.6.9), but the internal model '
+                f'is smith.model {model.model!r} with smith.time_constant {model.time_constant:g} '
+                f's, smith.time_constant2 {model.time_constant2:g} s; allowed sopdt with '
+                'smith.time_constant2 = smith.time_constant, or tuning.order 1')
     if rule == 'smith_pi' and settings.config.gain < 0:
         return ('smith.gain: tuning.rule smith_pi needs a positive model gain (the primary has '
                 'kp > 0); allowed (0, 1e9]')
@@ -75,34 +98,56 @@ def reason(settings: Settings) -> str | None:
         analyse, GUARDED, _gains)
 
 
-def build(settings: Settings) -> SmithPredictor:
-    controller = SmithPredictor(settings.config, settings.primary,
+def _design(settings: Settings) -> SmithDesign:
+    t = settings.tuning
+    return SmithDesign(order=t.order, te=t.te, xi=t.xi)
+
+
+def build(settings: Settings) -> SmithAutotuner:
+    controller = SmithAutotuner(settings.config, settings.primary, settings.autotune,
+                                _design(settings),
                                 output_name=settings.channels.output_names[0],
                                 input_name=settings.channels.input_names[0])
+    controller.ms_max = settings.robustness.ms_max
     if settings.mode.mode == 'manual':
         controller.set_manual(float(settings.mode.manual_output))
     controller.loop_watch = LoopWatch(process_model(settings.config),  # type: ignore[attr-defined]
                                       settings.robustness.ms_max, analyse, _key)
+    if settings.command.start:
+        controller.start()
     return controller
 
 
-def update(controller: SmithPredictor, settings: Settings, changed: frozenset[str]) -> bool:
+def update(controller: SmithAutotuner, settings: Settings, changed: frozenset[str]) -> bool:
     """PI primary settings and the mode in place (bumpless, the model's history kept); a change
     of the internal model (smith.*) rebuilds, which restarts the model from the steady state
-    of u."""
+    of u. A user's change while the auto-tuning chain runs aborts it first (the Smith
+    predictor from before the test resumes); ``autotune.start`` = true starts it."""
+    user = changed - {'autotune.start'}
+    if user and controller.state in TESTING:
+        controller.abort('parameters changed during the test')
     if any(name.startswith('smith.') for name in changed):
         return False
     primary = controller.primary
     base.set_changed_gains(primary, settings.primary, PRIMARY)
     base.apply_mode(controller, primary.mode, settings, changed)
     controller.loop_watch.ms_max = settings.robustness.ms_max   # type: ignore[attr-defined]
+    controller.ms_max = settings.robustness.ms_max
+    controller.design = _design(settings)
+    if settings.autotune != controller.config:
+        controller.configure(settings.autotune)
+    if 'autotune.start' in changed and settings.command.start:
+        controller.start()
     return True
 
 
-def results(controller: SmithPredictor) -> dict[str, Any]:
-    """``robustness.*`` of the running loop on the internal model."""
-    return controller.loop_watch.values(  # type: ignore[attr-defined]
-        _loop(controller.model, controller.primary.config))
+def results(controller: SmithAutotuner) -> dict[str, Any]:
+    """The chain's ``autotune.*`` results with the running ``smith.*`` model and primary
+    ``kp``, ``ti``, and ``robustness.*`` of the running loop on the internal model."""
+    watch = controller.loop_watch                                  # type: ignore[attr-defined]
+    watch.model = process_model(controller.model)
+    return {**controller.results(),
+            **watch.values(_loop(controller.model, controller.primary.config))}
 
 
 KIND = ControllerKind(
@@ -111,8 +156,13 @@ KIND = ControllerKind(
     config=SmithModel,
     groups=(base.group('primary', PidConfig, only=PRIMARY), base.channels(('y',), ('u',)),
             base.MODE, base.fail_safe(), base.warm_start(),
-            base.group('tuning', Tuning, only=TUNING), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
+            base.group('tuning', Tuning, only=TUNING), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS,
+            base.group('autotune', AutotuneConfig, only=AUTOTUNE),
+            base.group('command', AutotuneCommand),
+            base.group('results', AutotuneResults, only=RESULTS)),
     build=build, update=update, derive=derive, reason=reason, results=results,
+    state='autotune.state',
+    commands={name: (lambda c, name=name: c.command(name)) for name in COMMANDS},
     gains=('kp', 'ti', 'b'),
     input_limits=lambda s: {s.channels.input_names[0]: (s.primary.u_min, s.primary.u_max)},
 )
