@@ -37,7 +37,7 @@ SCENARIOS = (
     ('IPDT PID', 'ipdt_pid.yaml'),
     ('IPDT MDP PI', 'scenarios/ipdt_mdp_pi.yaml'),
     ('FOPDT ZN ramp', 'fopdt_zn_ramp.yaml'),
-    ('FOPDT relay autotune', 'fopdt_autotune.yaml'),
+    ('FOPDT relay autotune', 'scenarios/fopdt_autotune_scheduled.yaml'),
     ('tank two-loop PI', 'scenarios/tank_pi.yaml'),
     ('tank two-loop PI decoupled', 'scenarios/tank_pi_decoupled.yaml'),
     ('tank MPCS analytic', 'scenarios/tank_mpcs_analytic.yaml'),

@@ -1,7 +1,7 @@
 """The dashboard during a relay auto-tuning test, as a picture for the docs.
 
-Runs ``tank-control run config/fopdt_autotune.yaml --dashboard PORT`` over ROS 2 (lockstep at
-``--rtf`` times real time; the file starts the relay test at t = 60 s), opens the page in
+Runs ``tank-control run config/scenarios/fopdt_autotune_scheduled.yaml --dashboard PORT`` over
+ROS 2 (lockstep at ``--rtf`` times real time; the file starts the relay test at t = 60 s), opens the page in
 headless Chromium (Debian's, as the tests do) and saves a screenshot once the auto-tuner has
 reached ``--state`` and the trends show ``--after`` seconds past it.
 
@@ -45,7 +45,7 @@ def main() -> int:
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     with tempfile.TemporaryDirectory() as tmp:
         run = subprocess.Popen([sys.executable, '-m', 'tank_control.harness.cli', 'run',
-                                str(REPO / 'config/fopdt_autotune.yaml'), '--out', tmp + '/run',
+                                str(REPO / 'config/scenarios/fopdt_autotune_scheduled.yaml'), '--out', tmp + '/run',
                                 '--rtf', str(args.rtf), '--quiet', '--dashboard', str(port)],
                                env=env, cwd=tmp)
         try:

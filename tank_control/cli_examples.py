@@ -28,7 +28,7 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         'tank-control run config/ipdt_pid.yaml --out runs/x --mode sim --rtf 10 --duration 60',
         'tank-control run config/ipdt_pid.yaml --out runs/x --set plant.dead_time=6.0 '
         '--set controller.tuning.setpoint_weights=false',
-        'tank-control run config/fopdt_autotune.yaml --out runs/at --dashboard',
+        'tank-control run config/fopdt_autotune.yaml --out runs/at --rtf 1 --dashboard',
     ),
     'tank-control compare': (
         'tank-control compare config/scenarios/tank_pi.yaml config/scenarios/tank_pi_decoupled.yaml '

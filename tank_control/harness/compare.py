@@ -66,7 +66,7 @@ def write_comparison(results: Sequence[RunResult], out_dir: str | Path) -> dict[
     runs = '\n'.join(f'- `{r.name}`: {r.out_dir}' for r in results)
     md = out / 'comparison.md'
     md.write_text(f'# Comparison\n\n{table}\nRuns:\n\n{runs}\n')
-    from tank_control.harness.plotting import plot_runs   # matplotlib: only when plotting
-    plot = plot_runs([(r.name, r.trace) for r in results], out / 'overlay.png',
+    from tank_control.harness.plotting import plot_runs, run_plot   # matplotlib: when plotting
+    plot = plot_runs([run_plot(r.name, r.trace, r.metrics) for r in results], out / 'overlay.png',
                      title='comparison: ' + ', '.join(r.name for r in results))
     return {'table': md, 'plot': plot}

@@ -226,7 +226,8 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
             analysis_note = f'analysis.png not written: {exc}'
     metrics = {
         **body,
-        'controller': {'final_gains': gains, **({'autotune': autotune} if autotune else {}),
+        'controller': {'final_gains': gains, 'input_limits': {k: list(v) for k, v in limits.items()},
+                       **({'autotune': autotune} if autotune else {}),
                        **({'summary': summary} if summary else {}),
                        **({'robustness': robustness} if robustness else {}),
                        'warnings': warnings,
@@ -247,6 +248,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'scenario': scenario.name,
         'title': scenario.harness.title,
         'claim': scenario.harness.claim,
+        'overrides': list(scenario.overrides),
         'mode': run_info.get('mode'),
         'complete': reason is None,
         'reason': reason,
@@ -256,7 +258,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'loop_analysis': measured['loop_analysis'],
     }
     from tank_control.harness.analysis import plot_analysis
-    from tank_control.harness.plotting import plot_runs
+    from tank_control.harness.plotting import plot_runs, run_plot
     files = {**files, 'metrics': out / 'metrics.json'}
     if cases:
         files['analysis'] = plot_analysis(cases, out / 'analysis.png',
@@ -264,7 +266,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
                                                 'final gains')
     files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
     if len(trace):
-        files['plot'] = plot_runs([(scenario.name, trace)], out / 'plot.png',
+        files['plot'] = plot_runs([run_plot(scenario.name, trace, metrics)], out / 'plot.png',
                                   title=scenario.harness.title or scenario.name)
     return RunResult(scenario.name, out, trace, metrics, files)
 
@@ -348,6 +350,12 @@ def simulate(scenario: Scenario) -> tuple[Trace, core_scenario.Built]:
         raise ScenarioError(f'{scenario.path}: {exc}') from None
 
 
+def _state_name(controller: Any) -> str | None:
+    """The controller's named state (the relay auto-tuner's ``idle``, ``relay``, ...), if any."""
+    state = getattr(controller, 'state', None)
+    return state if isinstance(state, str) else None
+
+
 def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
                     stop: StopSignals) -> RunResult:
     config = scenario.harness
@@ -363,11 +371,17 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
     outputs = RunOutputs(out)
     start = last_report = time.monotonic()
     failure: BaseException | None = None
+    states: list[tuple[float, str]] = []       # the controller's state changes (relay auto-tuner)
+    state = _state_name(built.controller)
     try:
         messages = TraceMessages(outputs.recording, names)
         for k, row in enumerate(rows):
             outputs.trace.add(names, row)
             messages.add(row)
+            now_state = _state_name(built.controller)
+            if now_state != state:
+                state = now_state
+                states.append((float(row[0]), str(state)))
             if k % 64 == 0:
                 stop.check()
                 outputs.flush_now_and_then()
@@ -390,6 +404,7 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
         'missed_samples': 0, 'late_samples': 0, 'max_jitter': 0.0,
         'late_by_signal': {prefix: 0 for prefix in ('r', 'u', 'd') if trace.channels(prefix)},
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
+        **({'controller_states': states} if states else {}),
     }
     files = {'trace': outputs.trace.path, 'recording': outputs.recording.path}
     if failure is not None:

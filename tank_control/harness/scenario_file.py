@@ -67,6 +67,8 @@ class Scenario:
 
     path: Path
     sections: dict[str, dict[str, Any]] = field(default_factory=dict)
+    overrides: tuple[str, ...] = ()
+    """The ``NODE.PARAM=VALUE`` items applied (``--set``), as given."""
 
     @property
     def name(self) -> str:
@@ -84,7 +86,7 @@ class Scenario:
         """A copy with one parameter changed."""
         sections = copy.deepcopy(self.sections)
         sections.setdefault(section, {})[name] = params_file.check_value(f'{section}.{name}', value)
-        return Scenario(self.path, sections)
+        return Scenario(self.path, sections, self.overrides)
 
 
 def parse_value(text: str) -> Any:
@@ -109,6 +111,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = (), check_nodes: 
         for item in overrides:
             section, name, value = parse_override(item)
             scenario = scenario.with_set(section, name, value)
+        scenario = Scenario(path, scenario.sections, tuple(overrides))
     except ConfigError as exc:
         raise ScenarioError(str(exc)) from None
     return validate(scenario, check_nodes)
@@ -151,7 +154,7 @@ def validate(scenario: Scenario, check_nodes: bool = True) -> Scenario:
             return scenario
         if {'plant', 'controller', 'reference'} <= set(config.nodes):
             check_wiring(scenario.sections)
-        return Scenario(scenario.path, core_scenario.typed(scenario.sections))
+        return Scenario(scenario.path, core_scenario.typed(scenario.sections), scenario.overrides)
     except ConfigError as exc:
         raise ScenarioError(where + str(exc)) from None
 

@@ -1,14 +1,16 @@
 """controller: relay_autotune in the in-process loop (core/loop.py) from the flat parameters the
-nodes receive — the shipped config/fopdt_autotune.yaml with its scheduled start, the biased
+nodes receive — the shipped config/fopdt_autotune.yaml (the README's walkthrough: waits for the
+user's start) and config/scenarios/fopdt_autotune_scheduled.yaml (its scheduled start), the biased
 relay of config/scenarios/fopdt_biased_relay.yaml, an IPDT, and one loop of the mixing tank (T_out ← F_Cin) by channel names. Exact ultimate points are solved
 here independently of the tuner."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
-from support import CONFIG, SCENARIOS, relay
+from support import CONFIG, REPO, SCENARIOS, relay
 from support.relay import exact_fopdt_ultimate, exact_ipdt_ultimate
 
 from tank_control.core import params_file
@@ -23,8 +25,40 @@ def run_logged(params, duration: float, reset: tuple[float, float] | None = None
     return trace, built.controller, log
 
 
-def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
-    params = params_file.read(CONFIG / 'fopdt_autotune.yaml')
+def readme_walkthrough_file():
+    """The one parameter file the README's "Relay auto-tuning on a running loop" starts by hand."""
+    text = (REPO / 'README.md').read_text()
+    section = text.split('\n## Relay auto-tuning on a running loop\n')[1].split('\n## ')[0]
+    files = set(re.findall(r'--params-file (config/\S+\.yaml)', section))
+    assert len(files) == 1, files
+    return REPO / files.pop()
+
+
+def test_readme_walkthrough_file_waits_for_the_users_start_then_tunes_as_the_readme_says():
+    """The README starts three nodes with its file, then calls start_autotune: nothing may start
+    a test before that call, and the plant keeps real time (an abort can be typed)."""
+    path = readme_walkthrough_file()
+    assert path == CONFIG / 'fopdt_autotune.yaml'
+    params = params_file.read(path)
+    ctrl = params['controller']
+    assert ctrl['autotune.start_time'] == 0.0 and not ctrl.get('autotune.start', False)
+    assert params['plant']['real_time_factor'] == 1.0
+    trace, tuner, log = run_logged(params, float(params['harness']['duration']))
+    assert log == [(0.0, 'idle')]                                # no test by itself
+    # from rest, the PI has y at 100 within ~1.5 min (the README says so) and holds it there
+    assert np.abs(trace['y.y'][trace['t'] > 100.0] - 100.0).max() < 0.5
+    # a start at 30 s (as the user's service call then) waits in settling until y is steady
+    trace, tuner, log = run_logged({**params, 'controller': {**ctrl, 'autotune.start_time': 30.0}},
+                                   250.0)
+    assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+    assert log[1][0] == 30.0 and log[2][0] > 90.0
+    res = tuner.results()
+    assert res['autotune.ku'] == pytest.approx(117.8, rel=0.03)
+    assert res['autotune.tu'] == pytest.approx(10.82, rel=0.02)
+
+
+def test_shipped_scheduled_fopdt_autotune_tunes_at_its_scheduled_start():
+    params = params_file.read(SCENARIOS / 'fopdt_autotune_scheduled.yaml')
     duration = float(params['harness']['duration'])
     trace, tuner, log = run_logged(params, duration)
     states = [s for _, s in log]
@@ -44,7 +78,7 @@ def test_shipped_fopdt_autotune_config_tunes_at_its_scheduled_start():
     res = tuner.results()
     assert res['autotune.state'] == 'running' and res['kp'] == pytest.approx(0.6 * st['ku'])
     # run_in_process(file) runs the same objects: the same trace
-    again = run_in_process(CONFIG / 'fopdt_autotune.yaml')
+    again = run_in_process(SCENARIOS / 'fopdt_autotune_scheduled.yaml')
     assert max(again.max_abs_difference(trace).values()) == 0.0
 
 
@@ -54,7 +88,7 @@ def test_harness_prints_and_records_the_identified_model_and_gains(tmp_path, cap
 
     from tank_control.harness import cli
     out = tmp_path / 'run'
-    assert cli.main(['run', str(CONFIG / 'fopdt_autotune.yaml'), '--out', str(out),
+    assert cli.main(['run', str(SCENARIOS / 'fopdt_autotune_scheduled.yaml'), '--out', str(out),
                      '--in-process', '--quiet']) == 0
     params = json.loads((out / 'metrics.json').read_text())['controller']['parameters']
     line = [x for x in capsys.readouterr().out.splitlines() if x.startswith('controller found:')]

@@ -104,10 +104,10 @@ def test_fsa_on_the_unstable_plant_over_ros_equals_in_process(tmp_path, ros_env)
 
 
 def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, ros_env):
-    """fopdt_autotune: the relay test at 60 s tunes the PID. Both runs report the values the
+    """fopdt_autotune_scheduled: the relay test at 60 s tunes the PID. Both runs report the values the
     controller ended with (the node's parameters; in-process the controller object's), not
     the file's: the same tuned gains, Ku, Tu and state in both metrics.json."""
-    scenario = CONFIG / 'fopdt_autotune.yaml'
+    scenario = CONFIG / 'scenarios' / 'fopdt_autotune_scheduled.yaml'
     ros = run(scenario, tmp_path / 'ros', rtf=0.0, env=ros_env)
     ref = run(scenario, tmp_path / 'ref', in_process=True)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])

@@ -34,7 +34,7 @@ NODES = ('plant', 'controller', 'reference')
 
 
 def fopdt_params(paused: bool, **controller) -> dict:
-    """config/fopdt_autotune.yaml, lockstep as fast as possible, no scheduled start."""
+    """config/fopdt_autotune.yaml (no scheduled start), lockstep as fast as possible."""
     params = params_file.read(CONFIG / 'fopdt_autotune.yaml')
     params['plant'].update({'real_time_factor': 0.0, 'lockstep.paused': paused})
     params['controller'].update({'autotune.start_time': 0.0, **controller})
