@@ -1,6 +1,7 @@
 """Start-up and clean shutdown shared by every node's ``main()``."""
 from __future__ import annotations
 
+import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -56,6 +57,42 @@ def params_files_reason(args: Sequence[str]) -> str | None:
     return None
 
 
+NAME_CHECK_PERIOD = 2.0
+"""[s] of wall time between two looks for another node of the same name."""
+
+
+class NameWatch:
+    """Reports another node with this node's name on the graph: two ``plant``s on one
+    ROS_DOMAIN_ID mix their topics, parameter services and diagnostics. Looked for every
+    :data:`NAME_CHECK_PERIOD` wall seconds (a steady-clock timer: also while a lockstep
+    or sim clock stands still); logged as ERROR once each time it starts, and once when it
+    ends. ``problem`` is the current text ('' if none) for a node's diagnostics."""
+
+    def __init__(self, node: Node) -> None:
+        from tank_control.nodes.clock import steady_clock
+        self.node = node
+        self.problem = ''
+        namespace = node.get_namespace()
+        self._key = (node.get_name(), namespace if namespace.endswith('/') else namespace + '/')
+        self.timer = node.create_timer(NAME_CHECK_PERIOD, self.check, clock=steady_clock())
+
+    def check(self) -> None:
+        count = sum(1 for name, ns in self.node.get_node_names_and_namespaces()
+                    if (name, ns if ns.endswith('/') else ns + '/') == self._key)
+        problem = ''
+        if count > 1:
+            problem = (f'{count} nodes named {self.node.get_fully_qualified_name()} on this graph '
+                       '(ROS_DOMAIN_ID ' + os.environ.get('ROS_DOMAIN_ID', '0') + '): their '
+                       'topics, parameters and services mix; stop the other one, or start this '
+                       'one with -r __node:=<another name> or another ROS_DOMAIN_ID')
+        if problem and not self.problem:
+            self.node.get_logger().error(problem)
+        elif self.problem and not problem:
+            self.node.get_logger().info(f'{self.node.get_fully_qualified_name()} is the only '
+                                        'node of its name again')
+        self.problem = problem
+
+
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shut down; return 0.
 
@@ -89,6 +126,7 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     try:
         try:
             node = factory()
+            NameWatch(node)
             executor = EventsExecutor()
             executor.add_node(node)
             while rclpy.ok():

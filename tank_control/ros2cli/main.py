@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import sys
 from collections.abc import Sequence
 
@@ -64,6 +65,11 @@ def _guarded(call) -> int:
         print(str(exc), file=sys.stderr)
         return 1
     except (KeyboardInterrupt, Interrupted):
+        return 0
+    except BrokenPipeError:
+        # the reader went away (`ros2 topic echo /measurement | head`): stop quietly, as cat
+        # does; stdout goes to /dev/null so that the exit's flush raises nothing more
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except Exception as exc:  # one line, never a traceback, for anything unforeseen
         if type(exc).__name__ == 'ExternalShutdownException':
