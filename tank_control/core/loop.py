@@ -181,6 +181,20 @@ def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
     return _rows(plant, controller, reference, sample_time, duration, noise, guards)
 
 
+def _bounds(ranges: Ranges, names: Sequence[str]) -> list[tuple[float, float]] | None:
+    """``(min, max)`` per channel such that ``min <= value <= max`` is
+    ``ranges.accepts(name, value)``: finite bounds (a NaN fails every comparison, an infinity
+    lies outside). None if a channel has no range or an infinite bound (then ``accepts``
+    decides)."""
+    out = []
+    for name in names:
+        bounds = ranges.bounds.get(name)
+        if bounds is None or not (math.isfinite(bounds[0]) and math.isfinite(bounds[1])):
+            return None
+        out.append((bounds[0], bounds[1]))
+    return out
+
+
 class _Guard:
     """The refusals of :class:`Guards` as the nodes apply them (state: the last good values,
     the fault)."""
@@ -201,6 +215,8 @@ class _Guard:
         self.d_ctrl_good: dict[str, float] = {}
         self.u_last: list[float] | None = None      # the controller's last output
         self.fault = False
+        self._y_bounds = _bounds(self.c, self.y_names)
+        self._u_bounds = _bounds(self.p, self.u_names)
 
     def _controller_takes(self, names: Sequence[str], values: list[float],
                           good: dict[str, float]) -> list[float]:
@@ -226,12 +242,38 @@ class _Guard:
                 good[i] = value
         return list(good)
 
+    def plant_takes_inputs(self, u: list[float]) -> bool:
+        """plant_node takes the inputs ``u`` (plant order): the last good ones updated
+        (``u_good``, as :meth:`plant_inputs`); True if every one was accepted."""
+        bounds, good, accepted = self._u_bounds, self.u_good, True
+        if bounds is None:
+            for i, (name, value) in enumerate(zip(self.u_names, u)):
+                if self.p.accepts(name, value):
+                    good[i] = value
+                else:
+                    accepted = False
+            return accepted
+        for i, value in enumerate(u):
+            lo, hi = bounds[i]
+            if lo <= value <= hi:
+                good[i] = value
+            else:
+                accepted = False
+        return accepted
+
     def controller_disturbances(self, d: list[float]) -> list[float]:
         """Measured disturbances as controller_node takes them."""
         return self._controller_takes(self.d_ctrl_names, d, self.d_ctrl_good)
 
     def measurement_ok(self, y: list[float]) -> bool:
-        return all(self.c.accepts(name, value) for name, value in zip(self.y_names, y))
+        """controller_node accepts every measurement of ``y`` (its channel order)."""
+        bounds = self._y_bounds
+        if bounds is None:
+            return all(self.c.accepts(name, value) for name, value in zip(self.y_names, y))
+        for (lo, hi), value in zip(bounds, y):
+            if not lo <= value <= hi:
+                return False
+        return True
 
     def held(self) -> list[float]:
         """controller_node's output on a fault: the last output (``hold``) or the fail-safe."""
@@ -309,13 +351,18 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
             y = y + noise()
         y_row = y.tolist()
         if t_ns % cts_ns == 0 and guard is not None:
-            u_ctrl = _guarded_sample(guard, controller, t, y if y_whole else y[y_index],
-                                     r_all if r_whole else r_all[r_index], d_ctrl, started)
+            u_ctrl, u_out = _guarded_sample(
+                guard, controller, t, y if y_whole else y[y_index],
+                y_row if y_whole else [y_row[i] for i in y_index],
+                r_all if r_whole else r_all[r_index], d_ctrl, started)
             started = True
             for i, j in enumerate(u_pos):
                 u_plant[j] = u_ctrl[i]
-            u_arr = np.array(guard.plant_inputs(u_plant, guard.u_good, guard.u_names),
-                             dtype=float)
+            if (guard.plant_takes_inputs(u_plant) and u_out is not None and u_whole
+                    and len(u_ctrl) == len(u_plant)):
+                u_arr = u_out                    # the values of u_plant, as the array it is
+            else:
+                u_arr = np.array(guard.u_good, dtype=float)
         elif t_ns % cts_ns == 0:
             y_c = y if y_whole else y[y_index]
             if not started and all(isfinite(y_row[i]) for i in y_index):
@@ -336,19 +383,27 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
 
 
 def _guarded_sample(guard: _Guard, controller: Controller, t: float, y: np.ndarray,
-                    r: np.ndarray, d: np.ndarray, started: bool) -> list[float]:
+                    y_list: list[float], r: np.ndarray, d: np.ndarray, started: bool
+                    ) -> tuple[list[float], np.ndarray | None]:
     """controller_node's sample (``_sample``): a refused measurement or a non-finite output
     gives the held or fail-safe output; the first good sample after a fault resets the
-    controller to the output held (bumpless), the first good sample of all warm-starts it."""
-    if not guard.measurement_ok(y.tolist()):
-        return guard.held()
+    controller to the output held (bumpless), the first good sample of all warm-starts it.
+    ``y_list``: the values of ``y``. Returns the output and, when it is the controller's,
+    that as a float64 array (else None)."""
+    if not guard.measurement_ok(y_list):
+        return guard.held(), None
     if guard.fault and guard.u_last is not None:
         controller.reset(y, np.array(guard.u_last, dtype=float))
     elif not started:
         warm_start(controller, y)
-    u = np.asarray(controller.step(t, y, r, d), dtype=float).tolist()
-    if not all(math.isfinite(v) for v in u):
-        return guard.held()
+    u_out = controller.step(t, y, r, d)
+    if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
+        u_out = np.asarray(u_out, dtype=float)
+    u = u_out.tolist()
+    isfinite = math.isfinite
+    for v in u:
+        if not isfinite(v):
+            return guard.held(), None
     guard.fault = False
     guard.u_last = u
-    return list(u)
+    return list(u), u_out

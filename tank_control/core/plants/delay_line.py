@@ -182,11 +182,17 @@ class HermiteDelayLine:
         """
         if not t > self._t[-1]:
             raise ValueError(f't: {t!r} is not after the newest grid point {self._t[-1]!r}')
-        self._t.append(float(t))
+        self.extend(t, y, slope_start, slope_end)
+
+    def extend(self, t: float, y: float, slope_start: float, slope_end: float) -> None:
+        """:meth:`append` if ``t`` is after the newest grid point, else nothing."""
+        grid = self._t
+        if not t > grid[-1]:
+            return
+        grid.append(float(t))
         self._y.append(float(y))
         self._slope_start.append(float(slope_start))
         self._slope_end.append(float(slope_end))
-        grid = self._t
         if len(grid) > _PRUNE_BATCH and grid[_PRUNE_BATCH] <= t - self.max_delay:
             self._prune(t)          # (else there is nothing to drop yet)
 
