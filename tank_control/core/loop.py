@@ -253,13 +253,17 @@ class _Guard:
                 else:
                     accepted = False
             return accepted
+        for (lo, hi), value in zip(bounds, u):
+            if not lo <= value <= hi:
+                break
+        else:
+            good[:] = u                 # every one taken
+            return True
         for i, value in enumerate(u):
             lo, hi = bounds[i]
             if lo <= value <= hi:
                 good[i] = value
-            else:
-                accepted = False
-        return accepted
+        return False
 
     def controller_disturbances(self, d: list[float]) -> list[float]:
         """Measured disturbances as controller_node takes them."""
@@ -356,10 +360,13 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 y_row if y_whole else [y_row[i] for i in y_index],
                 r_all if r_whole else r_all[r_index], d_ctrl, started)
             started = True
-            for i, j in enumerate(u_pos):
-                u_plant[j] = u_ctrl[i]
-            if (guard.plant_takes_inputs(u_plant) and u_out is not None and u_whole
-                    and len(u_ctrl) == len(u_plant)):
+            whole = u_whole and len(u_ctrl) == len(u_plant)     # u_ctrl is u of the plant
+            if whole:
+                u_plant[:] = u_ctrl
+            else:
+                for i, j in enumerate(u_pos):
+                    u_plant[j] = u_ctrl[i]
+            if guard.plant_takes_inputs(u_plant) and u_out is not None and whole:
                 u_arr = u_out                    # the values of u_plant, as the array it is
             else:
                 u_arr = np.array(guard.u_good, dtype=float)

@@ -329,7 +329,11 @@ class TwoLoopPi:
         self._initialised = True
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y_l, r_l = _floats(y), _floats(r)
+        if (type(y) is np.ndarray and type(r) is np.ndarray and y.dtype is r.dtype is _FLOAT64
+                and y.ndim == r.ndim == 1):
+            y_l, r_l = y.tolist(), r.tolist()       # what _floats gives, without the calls
+        else:
+            y_l, r_l = _floats(y), _floats(r)
         if len(y_l) != 2 or len(r_l) != 2:
             raise ValueError(f'y, r: expected 2 values (h, T_out), got {len(y_l)} and {len(r_l)}')
         isfinite = math.isfinite
