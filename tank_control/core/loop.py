@@ -40,8 +40,9 @@ from tank_control.core.trace import Trace
 
 _FLOAT64 = np.dtype(np.float64)
 
-Noise = Callable[[], np.ndarray]
-"""One measurement-noise draw per call, ordered as the plant's outputs."""
+Noise = Callable[[], 'np.ndarray | list[float]']
+"""One measurement-noise draw per call, ordered as the plant's outputs (an array, or a list of
+floats as ``MeasurementNoise.sample_floats`` gives: added as floats, the same sums)."""
 
 
 @dataclass(frozen=True)
@@ -351,9 +352,17 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                     d_arr = np.array(guard.plant_inputs(d_plant, guard.d_good, guard.d_names),
                                      dtype=float)
         y = outputs()
-        if noise is not None:
-            y = y + noise()
-        y_row = y.tolist()
+        if noise is None:
+            y_row = y.tolist()
+        else:
+            n_row = noise()
+            if (type(n_row) is list and type(y) is np.ndarray and y.dtype is _FLOAT64
+                    and len(n_row) == len(y)):
+                y_row = [a + b for a, b in zip(y.tolist(), n_row)]    # y + noise, as floats
+                y = np.array(y_row, dtype=float)
+            else:
+                y = y + np.asarray(n_row, dtype=float)
+                y_row = y.tolist()
         if t_ns % cts_ns == 0 and guard is not None:
             u_ctrl, u_out = _guarded_sample(
                 guard, controller, t, y if y_whole else y[y_index],

@@ -178,10 +178,66 @@ def test_noise_is_std_times_the_seeded_standard_normal_draws(std):
     noise = MeasurementNoise(3, std, seed=7)
     reference = np.random.default_rng(7)
     scale = np.broadcast_to(np.asarray(std, dtype=float), (3,))
-    for _ in range(50):
+    for k in range(1000):           # draws are fetched ahead in batches: cross a few
         z = reference.standard_normal(3)
         expected = [s * v if s > 0 else 0.0 for s, v in zip(scale, z)]
-        assert noise.sample().tolist() == expected
+        assert (noise.sample().tolist() if k % 2 else noise.sample_floats()) == expected
+    noise.reset()                   # mid-batch: the stream restarts from the seed
+    reference = np.random.default_rng(7)
+    z = reference.standard_normal(3)
+    assert noise.sample().tolist() == [s * v if s > 0 else 0.0 for s, v in zip(scale, z)]
+
+
+@pytest.mark.parametrize('std', [0.0, 0.5, (0.2, 0.0, 3.0), (1.0, 2.0, 3.0)])
+def test_noise_as_floats_is_the_same_stream_and_the_loop_adds_it_as_numpy_does(std):
+    # sample_floats (what run_loop gets from core.scenario) draws what sample draws; the loop's
+    # float sums equal plant_node's outputs() + sample() bit for bit (-0.0 + 0.0 included)
+    from tank_control.core.loop import run_loop
+    from tank_control.core.reference import Reference
+    a, b = MeasurementNoise(3, std, seed=11), MeasurementNoise(3, std, seed=11)
+    for _ in range(50):
+        assert a.sample_floats() == b.sample().tolist()
+
+    class Outputs:
+        """A 3-output plant whose outputs include -0.0 and a large value."""
+
+        output_names, input_names, disturbance_names = ('y', 'a', 'b'), ('u',), ()
+
+        def __init__(self):
+            self.k = 0
+
+        def outputs(self):
+            return np.array([-0.0, 1e300 * (-1) ** self.k, 1.0 / (self.k + 1)])
+
+        def step(self, u, d, dt):
+            self.k += 1
+
+    class Zero:
+        output_names, input_names, disturbance_names = ('y',), ('u',), ()
+        sample_time = 0.1
+
+        def reset(self, y, u):
+            pass
+
+        def step(self, t, y, r, d):
+            return np.array([0.0])
+
+    reference = Reference({'y': ChannelSchedule.constant(0.0)})
+    traces = [run_loop(Outputs(), Zero(), reference, sample_time=0.1, duration=2.0,
+                       noise=draw)
+              for draw in (MeasurementNoise(3, std, seed=5).sample_floats,
+                           MeasurementNoise(3, std, seed=5).sample)]
+    plant, noise = Outputs(), MeasurementNoise(3, std, seed=5)
+    expected = []
+    for _ in range(len(traces[0])):
+        expected.append(plant.outputs() + noise.sample())      # plant_node's sum
+        plant.step(None, None, 0.1)
+    for trace in traces:
+        for column, name in enumerate(('y.y', 'y.a', 'y.b')):
+            got = trace[name]
+            want = np.array([row[column] for row in expected])
+            assert np.array_equal(got, want)
+            assert np.array_equal(np.signbit(got), np.signbit(want))
 
 
 def test_noise_std_is_copied_and_a_live_change_keeps_the_stream():

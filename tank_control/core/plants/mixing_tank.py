@@ -414,7 +414,7 @@ class MixingTank:
     def _advance(self, inflow: _Inflow, h: float, t_b: float) -> None:
         """One RK4 step of length ``h`` ending at grid instant ``t_b``; records T there."""
         V0, T0 = self._V, self._T
-        total, heat = inflow.total, inflow.heat
+        total, heat, t_low, t_high = inflow
         if V0 <= 0.0:       # _stiffness(V0, inflow), written out
             rate = math.inf
         else:               # _outflow(V0): max(V0, 0.0) is V0 here (also a NaN)
@@ -448,7 +448,6 @@ class MixingTank:
                 V = self._guard_volume(V)
         # T within [min(T0, t_low), max(T0, t_high)]: min/max written out (same results:
         # max(a, b) is ``b if b > a else a``, min(a, b) is ``b if b < a else a``)
-        t_low, t_high = inflow.t_low, inflow.t_high
         low = t_low if t_low < T0 else T0
         high = t_high if t_high > T0 else T0
         if low > T:
@@ -456,9 +455,9 @@ class MixingTank:
         if high < T:
             T = high
         self._V, self._T = V, T
-        self._end_rhs = None
         if exact_t:     # slopes meaningless across a stiff transient: interpolate linearly
             slope_a = slope_b = (T - T0) / h
+            self._end_rhs = None
         else:
             slope_a = (start or self._rhs(V0, T0, total, heat))[1]
             end = self._rhs(V, T, total, heat)
