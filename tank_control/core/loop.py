@@ -243,42 +243,83 @@ class _Guard:
                 good[i] = value
         return list(good)
 
-    def plant_takes_inputs(self, u: list[float]) -> bool:
-        """plant_node takes the inputs ``u`` (plant order): the last good ones updated
-        (``u_good``, as :meth:`plant_inputs`); True if every one was accepted."""
-        bounds, good, accepted = self._u_bounds, self.u_good, True
-        if bounds is None:
-            for i, (name, value) in enumerate(zip(self.u_names, u)):
-                if self.p.accepts(name, value):
-                    good[i] = value
-                else:
-                    accepted = False
-            return accepted
-        for (lo, hi), value in zip(bounds, u):
-            if not lo <= value <= hi:
-                break
-        else:
-            good[:] = u                 # every one taken
-            return True
-        for i, value in enumerate(u):
-            lo, hi = bounds[i]
-            if lo <= value <= hi:
-                good[i] = value
-        return False
-
     def controller_disturbances(self, d: list[float]) -> list[float]:
         """Measured disturbances as controller_node takes them."""
         return self._controller_takes(self.d_ctrl_names, d, self.d_ctrl_good)
 
-    def measurement_ok(self, y: list[float]) -> bool:
-        """controller_node accepts every measurement of ``y`` (its channel order)."""
+    def sample(self, controller: Controller, t: float, y: np.ndarray, y_list: list[float],
+               r: np.ndarray, d: np.ndarray, started: bool, u_plant: list[float],
+               u_pos: list[int], u_whole: bool) -> tuple[list[float], np.ndarray]:
+        """controller_node's sample (``_sample``), then plant_node taking its output.
+
+        A refused measurement (``y_list``: the values of ``y``) or a non-finite output gives
+        the held or fail-safe output; the first good sample after a fault resets the controller
+        to the output held (bumpless), the first good sample of all warm-starts it. The output
+        is written into ``u_plant`` (positions ``u_pos``; ``u_whole``: it is all of it, in
+        order); the plant takes each input or keeps its last good one. Returns the output and
+        the plant's inputs as an array (the controller's own array when it is that)."""
+        u_out = None
         bounds = self._y_bounds
         if bounds is None:
-            return all(self.c.accepts(name, value) for name, value in zip(self.y_names, y))
-        for (lo, hi), value in zip(bounds, y):
-            if not lo <= value <= hi:
-                return False
-        return True
+            measured = all(self.c.accepts(name, value)
+                           for name, value in zip(self.y_names, y_list))
+        else:
+            for (lo, hi), value in zip(bounds, y_list):
+                if not lo <= value <= hi:
+                    measured = False
+                    break
+            else:
+                measured = True
+        if not measured:
+            u = self.held()
+        else:
+            if self.fault and self.u_last is not None:
+                controller.reset(y, np.array(self.u_last, dtype=float))
+            elif not started:
+                warm_start(controller, y)
+            u_out = controller.step(t, y, r, d)
+            if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
+                u_out = np.asarray(u_out, dtype=float)
+            u = u_out.tolist()
+            for value in u:
+                if not math.isfinite(value):
+                    u, u_out = self.held(), None
+                    break
+            else:
+                self.fault = False
+                self.u_last = u
+                u = list(u)
+        # plant_node takes the inputs: a refused one keeps its last good value (u_good)
+        whole = u_whole and len(u) == len(u_plant)
+        if whole:
+            u_plant[:] = u
+        else:
+            for i, j in enumerate(u_pos):
+                u_plant[j] = u[i]
+        bounds, good = self._u_bounds, self.u_good
+        if bounds is None:
+            taken = True
+            for i, (name, value) in enumerate(zip(self.u_names, u_plant)):
+                if self.p.accepts(name, value):
+                    good[i] = value
+                else:
+                    taken = False
+        else:
+            taken = True
+            for (lo, hi), value in zip(bounds, u_plant):
+                if not lo <= value <= hi:
+                    taken = False
+                    break
+            if taken:
+                good[:] = u_plant                  # every one taken
+            else:
+                for i, value in enumerate(u_plant):
+                    lo, hi = bounds[i]
+                    if lo <= value <= hi:
+                        good[i] = value
+        if taken and u_out is not None and whole:
+            return u, u_out                        # the values of u_plant, as the array it is
+        return u, np.array(good, dtype=float)
 
     def held(self) -> list[float]:
         """controller_node's output on a fault: the last output (``hold``) or the fail-safe."""
@@ -364,21 +405,11 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 y = y + np.asarray(n_row, dtype=float)
                 y_row = y.tolist()
         if t_ns % cts_ns == 0 and guard is not None:
-            u_ctrl, u_out = _guarded_sample(
-                guard, controller, t, y if y_whole else y[y_index],
+            u_ctrl, u_arr = guard.sample(
+                controller, t, y if y_whole else y[y_index],
                 y_row if y_whole else [y_row[i] for i in y_index],
-                r_all if r_whole else r_all[r_index], d_ctrl, started)
+                r_all if r_whole else r_all[r_index], d_ctrl, started, u_plant, u_pos, u_whole)
             started = True
-            whole = u_whole and len(u_ctrl) == len(u_plant)     # u_ctrl is u of the plant
-            if whole:
-                u_plant[:] = u_ctrl
-            else:
-                for i, j in enumerate(u_pos):
-                    u_plant[j] = u_ctrl[i]
-            if guard.plant_takes_inputs(u_plant) and u_out is not None and whole:
-                u_arr = u_out                    # the values of u_plant, as the array it is
-            else:
-                u_arr = np.array(guard.u_good, dtype=float)
         elif t_ns % cts_ns == 0:
             y_c = y if y_whole else y[y_index]
             if not started and all(isfinite(y_row[i]) for i in y_index):
@@ -396,30 +427,3 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 u_arr = np.array(u_plant, dtype=float)
         yield [t, *y_row, *r_row, *u_ctrl, *d_ref]
         plant_step(u_arr, d_arr, sample_time)
-
-
-def _guarded_sample(guard: _Guard, controller: Controller, t: float, y: np.ndarray,
-                    y_list: list[float], r: np.ndarray, d: np.ndarray, started: bool
-                    ) -> tuple[list[float], np.ndarray | None]:
-    """controller_node's sample (``_sample``): a refused measurement or a non-finite output
-    gives the held or fail-safe output; the first good sample after a fault resets the
-    controller to the output held (bumpless), the first good sample of all warm-starts it.
-    ``y_list``: the values of ``y``. Returns the output and, when it is the controller's,
-    that as a float64 array (else None)."""
-    if not guard.measurement_ok(y_list):
-        return guard.held(), None
-    if guard.fault and guard.u_last is not None:
-        controller.reset(y, np.array(guard.u_last, dtype=float))
-    elif not started:
-        warm_start(controller, y)
-    u_out = controller.step(t, y, r, d)
-    if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
-        u_out = np.asarray(u_out, dtype=float)
-    u = u_out.tolist()
-    isfinite = math.isfinite
-    for v in u:
-        if not isfinite(v):
-            return guard.held(), None
-    guard.fault = False
-    guard.u_last = u
-    return list(u), u_out

@@ -336,19 +336,20 @@ class TwoLoopPi:
             y_l, r_l = _floats(y), _floats(r)
         if len(y_l) != 2 or len(r_l) != 2:
             raise ValueError(f'y, r: expected 2 values (h, T_out), got {len(y_l)} and {len(r_l)}')
+        y_h, y_t = y_l
+        r_0, r_1 = r_l
         isfinite = math.isfinite
-        if not (isfinite(y_l[0]) and isfinite(y_l[1]) and isfinite(r_l[0])
-                and isfinite(r_l[1])):
+        if not (isfinite(y_h) and isfinite(y_t) and isfinite(r_0) and isfinite(r_1)):
             self._fault = True
             return self._held()
         last = self._guarded           # the guard is a function of r: reuse its last result
-        if last is not None and last[0] == r_l[0] and last[1] == r_l[1]:
+        if last is not None and last[0] == r_0 and last[1] == r_1:
             r_h, r_t = last[2], last[3]
         else:
-            r_h, r_t = self._guard.limit_pair(r_l[0], r_l[1])
-            self._guarded = (r_l[0], r_l[1], r_h, r_t)
-        limited = r_h != r_l[0] or r_t != r_l[1]
-        e = [r_h - y_l[0], r_t - y_l[1]]
+            r_h, r_t = self._guard.limit_pair(r_0, r_1)
+            self._guarded = (r_0, r_1, r_h, r_t)
+        limited = r_h != r_0 or r_t != r_1
+        e = [r_h - y_h, r_t - y_t]
         if self._pending is not None:
             self._init_from(e, self._pending)
             self._pending = None

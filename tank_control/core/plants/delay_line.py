@@ -77,8 +77,8 @@ class DelayLine:
                 self._drop_repeat()
                 return
             if value == values[-1]:
-                if len(times) > _PRUNE_BATCH:
-                    self._prune(t_ns)
+                if len(times) > _PRUNE_BATCH and times[_PRUNE_BATCH] <= t_ns - self._keep_ns:
+                    self._prune(t_ns)   # (else there is nothing to drop yet)
                 return
         elif value == self._initial:
             return
@@ -187,17 +187,18 @@ class HermiteDelayLine:
         """
         if not t > self._t[-1]:
             raise ValueError(f't: {t!r} is not after the newest grid point {self._t[-1]!r}')
-        self.extend(t, y, slope_start, slope_end)
+        self.extend(float(t), float(y), float(slope_start), float(slope_end))
 
     def extend(self, t: float, y: float, slope_start: float, slope_end: float) -> None:
-        """:meth:`append` if ``t`` is after the newest grid point, else nothing."""
+        """:meth:`append` of Python floats if ``t`` is after the newest grid point, else
+        nothing."""
         grid = self._t
         if not t > grid[-1]:
             return
-        grid.append(float(t))
-        self._y.append(float(y))
-        self._slope_start.append(float(slope_start))
-        self._slope_end.append(float(slope_end))
+        grid.append(t)
+        self._y.append(y)
+        self._slope_start.append(slope_start)
+        self._slope_end.append(slope_end)
         if len(grid) > _PRUNE_BATCH and grid[_PRUNE_BATCH] <= t - self.max_delay:
             self._prune(t)          # (else there is nothing to drop yet)
 

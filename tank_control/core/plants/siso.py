@@ -85,6 +85,8 @@ def as_floats(name: str, values: Any, size: int, allow_empty: bool = False) -> l
     else:
         return as_vector(name, values, size, allow_empty).tolist()
     if len(items) == size:
+        if isfinite(sum(items)):    # then no item is infinite or NaN (an overflow: see below)
+            return items
         for item in items:
             if not isfinite(item):
                 break
