@@ -399,8 +399,11 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
             n_row = noise()
             if (type(n_row) is list and type(y) is np.ndarray and y.dtype is _FLOAT64
                     and len(n_row) == len(y)):
-                y_row = [a + b for a, b in zip(y.tolist(), n_row)]    # y + noise, as floats
-                y = np.array(y_row, dtype=float)
+                y_row = y.tolist()
+                if any(n_row) or 0.0 in y_row:
+                    y_row = [a + b for a, b in zip(y_row, n_row)]    # y + noise, as floats
+                    y = np.array(y_row, dtype=float)
+                # else the noise is all zeros and y has no zero: y + noise is y, bit for bit
             else:
                 y = y + np.asarray(n_row, dtype=float)
                 y_row = y.tolist()

@@ -199,7 +199,8 @@ def test_noise_as_floats_is_the_same_stream_and_the_loop_adds_it_as_numpy_does(s
         assert a.sample_floats() == b.sample().tolist()
 
     class Outputs:
-        """A 3-output plant whose outputs include -0.0 and a large value."""
+        """A 3-output plant whose outputs include -0.0 (every other tick), a large value and
+        NaN (every third tick)."""
 
         output_names, input_names, disturbance_names = ('y', 'a', 'b'), ('u',), ()
 
@@ -207,7 +208,8 @@ def test_noise_as_floats_is_the_same_stream_and_the_loop_adds_it_as_numpy_does(s
             self.k = 0
 
         def outputs(self):
-            return np.array([-0.0, 1e300 * (-1) ** self.k, 1.0 / (self.k + 1)])
+            return np.array([-0.0 if self.k % 2 else 2.5, 1e300 * (-1) ** self.k,
+                             math.nan if self.k % 3 == 0 else 1.0 / (self.k + 1)])
 
         def step(self, u, d, dt):
             self.k += 1
@@ -236,7 +238,7 @@ def test_noise_as_floats_is_the_same_stream_and_the_loop_adds_it_as_numpy_does(s
         for column, name in enumerate(('y.y', 'y.a', 'y.b')):
             got = trace[name]
             want = np.array([row[column] for row in expected])
-            assert np.array_equal(got, want)
+            assert np.array_equal(got, want, equal_nan=True)
             assert np.array_equal(np.signbit(got), np.signbit(want))
 
 

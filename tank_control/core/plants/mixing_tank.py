@@ -270,8 +270,10 @@ class MixingTank:
 
     def outputs(self) -> np.ndarray:
         """``[h, T_out]`` now, with T_out(t) = T(t − τ) (noise-free)."""
-        t_out = self._temperature.delayed(seconds(self._t_ns), self._config.tau_out)
-        return np.array([self.level(), t_out])
+        cfg = self._config
+        t_out = self._temperature.delayed(self._t_ns / NS_PER_S, cfg.tau_out)   # seconds(t_ns)
+        V = self._V
+        return np.array([sqrt((0.0 if V < 0.0 else V) / cfg.C), t_out])        # level()
 
     def nominal_inputs(self) -> np.ndarray:
         """``[F_H, F_Cin]`` of the operating point [cm³/s]."""
