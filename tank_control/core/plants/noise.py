@@ -8,7 +8,8 @@ Draw order (the contract shared by ``core/loop.py`` and ``plant_node``):
   tick order, and none otherwise — a re-sent measurement of tick k must reuse
   the value drawn for tick k, not draw again;
 * every call draws ``standard_normal(n)`` for all ``n`` output channels in the
-  order of ``output_names``, whatever the standard deviations are, so a zero
+  order of ``output_names`` (fetched from the generator ``_BATCH`` instants at a time: the
+  same numbers), whatever the standard deviations are, so a zero
   ``std`` on one channel (exactly no noise there) or a live change of ``std``
   never shifts the random numbers of the other channels or later ticks.
 """
