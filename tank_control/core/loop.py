@@ -40,8 +40,9 @@ from tank_control.core.trace import Trace
 
 _FLOAT64 = np.dtype(np.float64)
 
-Noise = Callable[[], np.ndarray]
-"""One measurement-noise draw per call, ordered as the plant's outputs."""
+Noise = Callable[[], 'np.ndarray | list[float]']
+"""One measurement-noise draw per call, ordered as the plant's outputs (an array, or a list of
+floats as ``MeasurementNoise.sample_floats`` gives: added as floats, the same sums)."""
 
 
 @dataclass(frozen=True)
@@ -181,6 +182,20 @@ def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
     return _rows(plant, controller, reference, sample_time, duration, noise, guards)
 
 
+def _bounds(ranges: Ranges, names: Sequence[str]) -> list[tuple[float, float]] | None:
+    """``(min, max)`` per channel such that ``min <= value <= max`` is
+    ``ranges.accepts(name, value)``: finite bounds (a NaN fails every comparison, an infinity
+    lies outside). None if a channel has no range or an infinite bound (then ``accepts``
+    decides)."""
+    out = []
+    for name in names:
+        bounds = ranges.bounds.get(name)
+        if bounds is None or not (math.isfinite(bounds[0]) and math.isfinite(bounds[1])):
+            return None
+        out.append((bounds[0], bounds[1]))
+    return out
+
+
 class _Guard:
     """The refusals of :class:`Guards` as the nodes apply them (state: the last good values,
     the fault)."""
@@ -201,6 +216,8 @@ class _Guard:
         self.d_ctrl_good: dict[str, float] = {}
         self.u_last: list[float] | None = None      # the controller's last output
         self.fault = False
+        self._y_bounds = _bounds(self.c, self.y_names)
+        self._u_bounds = _bounds(self.p, self.u_names)
 
     def _controller_takes(self, names: Sequence[str], values: list[float],
                           good: dict[str, float]) -> list[float]:
@@ -230,8 +247,79 @@ class _Guard:
         """Measured disturbances as controller_node takes them."""
         return self._controller_takes(self.d_ctrl_names, d, self.d_ctrl_good)
 
-    def measurement_ok(self, y: list[float]) -> bool:
-        return all(self.c.accepts(name, value) for name, value in zip(self.y_names, y))
+    def sample(self, controller: Controller, t: float, y: np.ndarray, y_list: list[float],
+               r: np.ndarray, d: np.ndarray, started: bool, u_plant: list[float],
+               u_pos: list[int], u_whole: bool) -> tuple[list[float], np.ndarray]:
+        """controller_node's sample (``_sample``), then plant_node taking its output.
+
+        A refused measurement (``y_list``: the values of ``y``) or a non-finite output gives
+        the held or fail-safe output; the first good sample after a fault resets the controller
+        to the output held (bumpless), the first good sample of all warm-starts it. The output
+        is written into ``u_plant`` (positions ``u_pos``; ``u_whole``: it is all of it, in
+        order); the plant takes each input or keeps its last good one. Returns the output and
+        the plant's inputs as an array (the controller's own array when it is that)."""
+        u_out = None
+        bounds = self._y_bounds
+        if bounds is None:
+            measured = all(self.c.accepts(name, value)
+                           for name, value in zip(self.y_names, y_list))
+        else:
+            for (lo, hi), value in zip(bounds, y_list):
+                if not lo <= value <= hi:
+                    measured = False
+                    break
+            else:
+                measured = True
+        if not measured:
+            u = self.held()
+        else:
+            if self.fault and self.u_last is not None:
+                controller.reset(y, np.array(self.u_last, dtype=float))
+            elif not started:
+                warm_start(controller, y)
+            u_out = controller.step(t, y, r, d)
+            if type(u_out) is not np.ndarray or u_out.dtype is not _FLOAT64:
+                u_out = np.asarray(u_out, dtype=float)
+            u = u_out.tolist()
+            for value in u:
+                if not math.isfinite(value):
+                    u, u_out = self.held(), None
+                    break
+            else:
+                self.fault = False
+                self.u_last = u
+                u = list(u)
+        # plant_node takes the inputs: a refused one keeps its last good value (u_good)
+        whole = u_whole and len(u) == len(u_plant)
+        if whole:
+            u_plant[:] = u
+        else:
+            for i, j in enumerate(u_pos):
+                u_plant[j] = u[i]
+        bounds, good = self._u_bounds, self.u_good
+        if bounds is None:
+            taken = True
+            for i, (name, value) in enumerate(zip(self.u_names, u_plant)):
+                if self.p.accepts(name, value):
+                    good[i] = value
+                else:
+                    taken = False
+        else:
+            taken = True
+            for (lo, hi), value in zip(bounds, u_plant):
+                if not lo <= value <= hi:
+                    taken = False
+                    break
+            if taken:
+                good[:] = u_plant                  # every one taken
+            else:
+                for i, value in enumerate(u_plant):
+                    lo, hi = bounds[i]
+                    if lo <= value <= hi:
+                        good[i] = value
+        if taken and u_out is not None and whole:
+            return u, u_out                        # the values of u_plant, as the array it is
+        return u, np.array(good, dtype=float)
 
     def held(self) -> list[float]:
         """controller_node's output on a fault: the last output (``hold``) or the fail-safe."""
@@ -305,17 +393,26 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                     d_arr = np.array(guard.plant_inputs(d_plant, guard.d_good, guard.d_names),
                                      dtype=float)
         y = outputs()
-        if noise is not None:
-            y = y + noise()
-        y_row = y.tolist()
+        if noise is None:
+            y_row = y.tolist()
+        else:
+            n_row = noise()
+            if (type(n_row) is list and type(y) is np.ndarray and y.dtype is _FLOAT64
+                    and len(n_row) == len(y)):
+                y_row = y.tolist()
+                if any(n_row) or 0.0 in y_row:
+                    y_row = [a + b for a, b in zip(y_row, n_row)]    # y + noise, as floats
+                    y = np.array(y_row, dtype=float)
+                # else the noise is all zeros and y has no zero: y + noise is y, bit for bit
+            else:
+                y = y + np.asarray(n_row, dtype=float)
+                y_row = y.tolist()
         if t_ns % cts_ns == 0 and guard is not None:
-            u_ctrl = _guarded_sample(guard, controller, t, y if y_whole else y[y_index],
-                                     r_all if r_whole else r_all[r_index], d_ctrl, started)
+            u_ctrl, u_arr = guard.sample(
+                controller, t, y if y_whole else y[y_index],
+                y_row if y_whole else [y_row[i] for i in y_index],
+                r_all if r_whole else r_all[r_index], d_ctrl, started, u_plant, u_pos, u_whole)
             started = True
-            for i, j in enumerate(u_pos):
-                u_plant[j] = u_ctrl[i]
-            u_arr = np.array(guard.plant_inputs(u_plant, guard.u_good, guard.u_names),
-                             dtype=float)
         elif t_ns % cts_ns == 0:
             y_c = y if y_whole else y[y_index]
             if not started and all(isfinite(y_row[i]) for i in y_index):
@@ -333,22 +430,3 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 u_arr = np.array(u_plant, dtype=float)
         yield [t, *y_row, *r_row, *u_ctrl, *d_ref]
         plant_step(u_arr, d_arr, sample_time)
-
-
-def _guarded_sample(guard: _Guard, controller: Controller, t: float, y: np.ndarray,
-                    r: np.ndarray, d: np.ndarray, started: bool) -> list[float]:
-    """controller_node's sample (``_sample``): a refused measurement or a non-finite output
-    gives the held or fail-safe output; the first good sample after a fault resets the
-    controller to the output held (bumpless), the first good sample of all warm-starts it."""
-    if not guard.measurement_ok(y.tolist()):
-        return guard.held()
-    if guard.fault and guard.u_last is not None:
-        controller.reset(y, np.array(guard.u_last, dtype=float))
-    elif not started:
-        warm_start(controller, y)
-    u = np.asarray(controller.step(t, y, r, d), dtype=float).tolist()
-    if not all(math.isfinite(v) for v in u):
-        return guard.held()
-    guard.fault = False
-    guard.u_last = u
-    return list(u)

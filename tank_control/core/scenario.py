@@ -273,7 +273,7 @@ def duration_of(sections: Mapping[str, Mapping[str, Any]], duration: float | Non
 def run(built: Built, duration: float) -> Trace:
     """Run built objects through ``core/loop.py`` for ``duration`` simulated seconds."""
     return run_loop(built.plant, built.controller, built.reference,
-                    sample_time=built.sample_time, duration=duration, noise=built.noise.sample,
+                    sample_time=built.sample_time, duration=duration, noise=built.noise.sample_floats,
                     guards=built.guards())
 
 

@@ -363,7 +363,7 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
     try:
         rows = core_loop.iter_loop(built.plant, built.controller, built.reference,
                                    sample_time=built.sample_time, duration=config.duration,
-                                   noise=built.noise.sample, guards=built.guards())
+                                   noise=built.noise.sample_floats, guards=built.guards())
     except (ConfigError, ValueError) as exc:    # a parameter the core objects reject: one line
         raise ScenarioError(f'{scenario.path}: {exc}') from None
     names = core_loop.loop_columns(built.plant, built.controller, built.reference)

@@ -178,10 +178,68 @@ def test_noise_is_std_times_the_seeded_standard_normal_draws(std):
     noise = MeasurementNoise(3, std, seed=7)
     reference = np.random.default_rng(7)
     scale = np.broadcast_to(np.asarray(std, dtype=float), (3,))
-    for _ in range(50):
+    for k in range(1000):           # draws are fetched ahead in batches: cross a few
         z = reference.standard_normal(3)
         expected = [s * v if s > 0 else 0.0 for s, v in zip(scale, z)]
-        assert noise.sample().tolist() == expected
+        assert (noise.sample().tolist() if k % 2 else noise.sample_floats()) == expected
+    noise.reset()                   # mid-batch: the stream restarts from the seed
+    reference = np.random.default_rng(7)
+    z = reference.standard_normal(3)
+    assert noise.sample().tolist() == [s * v if s > 0 else 0.0 for s, v in zip(scale, z)]
+
+
+@pytest.mark.parametrize('std', [0.0, 0.5, (0.2, 0.0, 3.0), (1.0, 2.0, 3.0)])
+def test_noise_as_floats_is_the_same_stream_and_the_loop_adds_it_as_numpy_does(std):
+    # sample_floats (what run_loop gets from core.scenario) draws what sample draws; the loop's
+    # float sums equal plant_node's outputs() + sample() bit for bit (-0.0 + 0.0 included)
+    from tank_control.core.loop import run_loop
+    from tank_control.core.reference import Reference
+    a, b = MeasurementNoise(3, std, seed=11), MeasurementNoise(3, std, seed=11)
+    for _ in range(50):
+        assert a.sample_floats() == b.sample().tolist()
+
+    class Outputs:
+        """A 3-output plant whose outputs include -0.0 (every other tick), a large value and
+        NaN (every third tick)."""
+
+        output_names, input_names, disturbance_names = ('y', 'a', 'b'), ('u',), ()
+
+        def __init__(self):
+            self.k = 0
+
+        def outputs(self):
+            return np.array([-0.0 if self.k % 2 else 2.5, 1e300 * (-1) ** self.k,
+                             math.nan if self.k % 3 == 0 else 1.0 / (self.k + 1)])
+
+        def step(self, u, d, dt):
+            self.k += 1
+
+    class Zero:
+        output_names, input_names, disturbance_names = ('y',), ('u',), ()
+        sample_time = 0.1
+
+        def reset(self, y, u):
+            pass
+
+        def step(self, t, y, r, d):
+            return np.array([0.0])
+
+    reference = Reference({'y': ChannelSchedule.constant(0.0)})
+    traces = [run_loop(Outputs(), Zero(), reference, sample_time=0.1, duration=2.0,
+                       noise=draw)
+              for draw in (MeasurementNoise(3, std, seed=5).sample_floats,
+                           MeasurementNoise(3, std, seed=5).sample)]
+    plant, noise = Outputs(), MeasurementNoise(3, std, seed=5)
+    expected = []
+    for _ in range(len(traces[0])):
+        expected.append(plant.outputs() + noise.sample())      # plant_node's sum
+        plant.step(None, None, 0.1)
+    for trace in traces:
+        for column, name in enumerate(('y.y', 'y.a', 'y.b')):
+            got = trace[name]
+            want = np.array([row[column] for row in expected])
+            assert np.array_equal(got, want, equal_nan=True)
+            assert np.array_equal(np.signbit(got), np.signbit(want))
 
 
 def test_noise_std_is_copied_and_a_live_change_keeps_the_stream():
@@ -214,3 +272,92 @@ def test_a_schedule_holds_its_value_until_held_until(schedule):
     changes = [t for a, t in zip(grid, grid[1:]) if schedule.at(t) != schedule.at(a)]
     for t in changes:
         assert any(schedule.held_until(s) <= t for s in grid if s < t)
+
+
+# ------------------------------------------------------------- tank RK4 written out
+def rk4_reference(tank: MixingTank, V: float, T: float, total: float, heat: float, h: float
+                  ) -> tuple[float, float, float]:
+    """Classical RK4 over ``MixingTank._rhs`` (stages as calls): (V, T, spilled volume)."""
+    k1 = tank._rhs(V, T, total, heat)
+    k2 = tank._rhs(V + 0.5 * h * k1[0], T + 0.5 * h * k1[1], total, heat)
+    k3 = tank._rhs(V + 0.5 * h * k2[0], T + 0.5 * h * k2[1], total, heat)
+    k4 = tank._rhs(V + h * k3[0], T + h * k3[1], total, heat)
+    return (V + h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+            T + h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+            max(h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]), 0.0))
+
+
+@pytest.mark.parametrize('h_level', [81.0, 1e-3, 0.0, 199.99, 200.0, 250.0])
+@pytest.mark.parametrize('total', [63.0, 0.0, 500.0, 1e6])
+@pytest.mark.parametrize('h', [0.5, 1e-3, 7.0])
+def test_mixing_tank_rk4_is_rk4_over_its_right_hand_side_bit_for_bit(h_level, total, h):
+    # the stages of MixingTank._rk4 are _rhs written out: the same numbers, spill included,
+    # at rest, near empty, at and above the brim, with and without inflow
+    tank = MixingTank()
+    V = tank.config.C * h_level ** 2
+    heat = total * 40.0
+    for T in (33.5, 0.0, 99.0):
+        for given_k1 in (False, True):
+            tank._spilled, tank._overflow = 0.0, False
+            k1 = tank._rhs(V, T, total, heat) if given_k1 else None
+            V_new, T_new = tank._rk4(V, T, total, heat, h, k1)
+            V_ref, T_ref, spilled = rk4_reference(tank, V, T, total, heat, h)
+            assert (V_new, T_new) == (V_ref, T_ref)
+            assert tank._spilled == spilled and tank._overflow == (spilled > 0.0)
+
+
+# ----------------------------------------------------- loop guards on plant inputs
+class RecordingIpdt(Ipdt):
+    """An IPDT that records the inputs it is stepped with."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.inputs: list[float] = []
+
+    def step(self, u, d, dt):
+        self.inputs.append(np.asarray(u, dtype=float).item())
+        super().step(u, d, dt)
+
+
+class Sequence1:
+    """A SISO controller sending ``values`` one per sample (then the last again)."""
+
+    output_names, input_names, disturbance_names = ('y',), ('u',), ()
+    sample_time = 0.1
+    status: dict = {}
+
+    def __init__(self, values: list[float]) -> None:
+        self.values, self.k = values, 0
+
+    def reset(self, y, u):
+        pass
+
+    def step(self, t, y, r, d):
+        value = self.values[min(self.k, len(self.values) - 1)]
+        self.k += 1
+        return np.array([value])
+
+
+@pytest.mark.parametrize('bounds', [(-1.0, 1.0), (-INF, 1.0), (-1.0, INF), None])
+def test_loop_guards_take_plant_inputs_as_ranges_accepts_them(bounds):
+    # run_loop checks finite ranges by comparison and other ones with Ranges.accepts: either
+    # way the plant gets the last input plant_node would have taken
+    from tank_control.core.loop import Guards, run_loop
+    from tank_control.core.plants.ipdt import IpdtConfig
+    from tank_control.core.ranges import Ranges
+    from tank_control.core.reference import Reference
+    sent = [0.5, 1.0, 1.0000001, -1.0, -0.0, 2.0, -1e300, 0.25, 1e300, -1.5, 0.75]
+    plant_ranges = Ranges({} if bounds is None else {'u': bounds})
+    plant = RecordingIpdt(IpdtConfig())
+    reference = Reference({'y': ChannelSchedule.constant(0.0)})
+    run_loop(plant, Sequence1(sent), reference, sample_time=0.1, duration=1.0,
+             guards=Guards(plant=plant_ranges, fail_safe_output=(0.0,)))
+    expected, good = [], 0.0                              # nominal u = 0 before any output
+    for value in sent:
+        if plant_ranges.accepts('u', value):
+            good = value
+        expected.append(good)
+    assert len(plant.inputs) == len(sent)
+    assert [math.copysign(1.0, v) for v in plant.inputs] == [math.copysign(1.0, v)
+                                                             for v in expected]
+    assert plant.inputs == expected

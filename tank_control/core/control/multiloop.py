@@ -233,6 +233,20 @@ def _floats(values: Any) -> list[float]:
     return np.asarray(values, dtype=float).reshape(-1).tolist()
 
 
+def _integrate(method: str, integral: float, di: float, aw_gain: float, w: float,
+               v_eff: float) -> tuple[float, bool]:
+    """One PI loop's integral after a sample and whether anti-windup acted: ``di`` = ki·h·e,
+    ``w`` the wanted and ``v_eff`` the effective output; back-calculation adds
+    ``aw_gain·(v_eff − w)``, conditional integration skips a step that pushes further into
+    the limit."""
+    if method == 'back_calculation':
+        return integral + (di + aw_gain * (v_eff - w)), v_eff != w
+    push = w - v_eff
+    if method == 'conditional_integration' and push != 0 and di * push > 0:
+        return integral, True
+    return integral + di, False
+
+
 class TwoLoopPi:
     """Two-loop PI of 003 behind the Controller protocol.
 
@@ -315,22 +329,27 @@ class TwoLoopPi:
         self._initialised = True
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
-        y_l, r_l = _floats(y), _floats(r)
+        if (type(y) is np.ndarray and type(r) is np.ndarray and y.dtype is r.dtype is _FLOAT64
+                and y.ndim == r.ndim == 1):
+            y_l, r_l = y.tolist(), r.tolist()       # what _floats gives, without the calls
+        else:
+            y_l, r_l = _floats(y), _floats(r)
         if len(y_l) != 2 or len(r_l) != 2:
             raise ValueError(f'y, r: expected 2 values (h, T_out), got {len(y_l)} and {len(r_l)}')
+        y_h, y_t = y_l
+        r_0, r_1 = r_l
         isfinite = math.isfinite
-        if not (isfinite(y_l[0]) and isfinite(y_l[1]) and isfinite(r_l[0])
-                and isfinite(r_l[1])):
+        if not (isfinite(y_h) and isfinite(y_t) and isfinite(r_0) and isfinite(r_1)):
             self._fault = True
             return self._held()
         last = self._guarded           # the guard is a function of r: reuse its last result
-        if last is not None and last[0] == r_l[0] and last[1] == r_l[1]:
+        if last is not None and last[0] == r_0 and last[1] == r_1:
             r_h, r_t = last[2], last[3]
         else:
-            r_h, r_t = self._guard.limit_pair(r_l[0], r_l[1])
-            self._guarded = (r_l[0], r_l[1], r_h, r_t)
-        limited = r_h != r_l[0] or r_t != r_l[1]
-        e = [r_h - y_l[0], r_t - y_l[1]]
+            r_h, r_t = self._guard.limit_pair(r_0, r_1)
+            self._guarded = (r_0, r_1, r_h, r_t)
+        limited = r_h != r_0 or r_t != r_1
+        e = [r_h - y_h, r_t - y_t]
         if self._pending is not None:
             self._init_from(e, self._pending)
             self._pending = None
@@ -350,44 +369,35 @@ class TwoLoopPi:
 
     def _compute(self, e: list[float], setpoints: tuple[bool, float, float]) -> np.ndarray:
         """One sample at the errors ``e``; ``setpoints``: whether the guard limited them, and
-        the setpoints used (for :attr:`status`)."""
-        cfg = self.config
+        the setpoints used (for :attr:`status`). Loop h first, then loop T, on floats."""
+        cfg = self._config
         lo, hi = self._v_lo, self._v_hi
         u_min, u_max = cfg.u_min, cfg.u_max
+        e_h, e_t = e
         integral = self._integral
-        pi = self._pi
-        w = [pi[0][0] * e[0] + integral[0], pi[1][0] * e[1] + integral[1]]
-        v = [min(max(w[0], lo), hi), min(max(w[1], lo), hi)]
+        (kp_h, kih_h, aw_gain_h), (kp_t, kih_t, aw_gain_t) = self._pi
+        w_h, w_t = kp_h * e_h + integral[0], kp_t * e_t + integral[1]
+        v_h, v_t = min(max(w_h, lo), hi), min(max(w_t, lo), hi)
         if cfg.decoupling == 'none':
-            cross = [0.0, 0.0]
+            cross_h = cross_t = 0.0
         else:
-            c21 = self._d21.step(v[0]) if cfg.decoupling == 'dynamic' else cfg.d21 * v[0]
+            c21 = self._d21.step(v_h) if cfg.decoupling == 'dynamic' else cfg.d21 * v_h
             # 003 §3.1: decoupler outputs clipped
-            cross = [min(max(cfg.d12 * v[1], lo), hi), min(max(c21, lo), hi)]
-        u = [min(max(v[0] + cross[0], u_min), u_max), min(max(v[1] + cross[1], u_min), u_max)]
+            cross_h, cross_t = min(max(cfg.d12 * v_t, lo), hi), min(max(c21, lo), hi)
+        u_h = min(max(v_h + cross_h, u_min), u_max)
+        u_t = min(max(v_t + cross_t, u_min), u_max)
         # anti-windup sees the applied flows: loop i's effective output is u_i − (decoupler
         # term into u_i), within the PI output range
-        v_eff = [min(max(u[0] - cross[0], lo), hi), min(max(u[1] - cross[1], lo), hi)]
-        aw = [False, False]
+        v_eff_h, v_eff_t = min(max(u_h - cross_h, lo), hi), min(max(u_t - cross_t, lo), hi)
         method = cfg.anti_windup
-        if method == 'back_calculation':
-            for i in (0, 1):
-                integral[i] += pi[i][1] * e[i] + pi[i][2] * (v_eff[i] - w[i])   # ki·h·e + ...
-                aw[i] = v_eff[i] != w[i]
-        else:
-            for i in (0, 1):
-                di = pi[i][1] * e[i]                       # ki·h·e
-                push = w[i] - v_eff[i]
-                if method == 'conditional_integration' and push != 0 and di * push > 0:
-                    aw[i] = True
-                else:
-                    integral[i] += di
-        self._u = u
-        sat_h = u[0] != v[0] + cross[0] or v[0] != w[0]
-        sat_t = u[1] != v[1] + cross[1] or v[1] != w[1]
-        self._last_sample = (cfg.decoupling, sat_h, sat_t, aw[0] or aw[1], v[0], v[1],
+        integral[0], aw_h = _integrate(method, integral[0], kih_h * e_h, aw_gain_h, w_h, v_eff_h)
+        integral[1], aw_t = _integrate(method, integral[1], kih_t * e_t, aw_gain_t, w_t, v_eff_t)
+        self._u = [u_h, u_t]
+        sat_h = u_h != v_h + cross_h or v_h != w_h
+        sat_t = u_t != v_t + cross_t or v_t != w_t
+        self._last_sample = (cfg.decoupling, sat_h, sat_t, aw_h or aw_t, v_h, v_t,
                              integral[0], integral[1], *setpoints)
-        return np.array(u)
+        return np.array([u_h, u_t])
 
     @property
     def status(self) -> Mapping[str, Any]:

@@ -53,6 +53,8 @@ class DelayLine:
         self._times: list[int] = []
         self._values: list[float] = []
         self._now_ns: int | None = None   # newest push instant
+        self._delay = math.nan            # the last delay read [s] and to_ns of it
+        self._delay_ns = 0
 
     def __len__(self) -> int:
         """Number of stored breakpoints."""
@@ -61,26 +63,27 @@ class DelayLine:
     def push(self, t_ns: int, value: float) -> None:
         """The input holds ``value`` from ``t_ns`` on (times must not decrease)."""
         value = float(value)
-        if self._now_ns is not None and t_ns < self._now_ns:
-            raise ValueError(f't_ns: {t_ns} is before the newest push {self._now_ns}')
+        now_ns = self._now_ns
+        if now_ns is not None and t_ns < now_ns:
+            raise ValueError(f't_ns: {t_ns} is before the newest push {now_ns}')
         self._now_ns = int(t_ns)
-        if self._times:
-            last = self._times[-1]
+        times, values = self._times, self._values
+        if times:
+            last = times[-1]
             if t_ns < last:
                 raise ValueError(f't_ns: {t_ns} is before the last breakpoint {last}')
             if t_ns == last:
-                self._values[-1] = value
+                values[-1] = value
                 self._drop_repeat()
                 return
-            if value == self._values[-1]:
-                if len(self._times) > _PRUNE_BATCH:
-                    self._prune(t_ns)
+            if value == values[-1]:
+                if len(times) > _PRUNE_BATCH and times[_PRUNE_BATCH] <= t_ns - self._keep_ns:
+                    self._prune(t_ns)   # (else there is nothing to drop yet)
                 return
         elif value == self._initial:
             return
-        times = self._times
         times.append(int(t_ns))
-        self._values.append(value)
+        values.append(value)
         if len(times) > _PRUNE_BATCH and times[_PRUNE_BATCH] <= t_ns - self._keep_ns:
             self._prune(t_ns)       # (else there is nothing to drop yet)
 
@@ -114,12 +117,14 @@ class DelayLine:
         """
         if not 0.0 <= delay <= self.max_delay:     # also NaN
             _check_delay(delay, self.max_delay)
-        if dt < 0.0 or not math.isfinite(dt):
+        if not 0.0 <= dt < math.inf:                # dt < 0, NaN or infinite
             raise ValueError(f'dt: {dt!r} must be finite and >= 0')
         # Start from the last breakpoint that is certainly in force at t0 − delay
         # (a 2 ns margin absorbs the rounding of delay to nanoseconds) and walk
         # forward; delayed positions are exact relative times in seconds.
-        read_ns = t0_ns - to_ns(delay)
+        if delay != self._delay:                    # to_ns(delay), kept for the next call
+            self._delay, self._delay_ns = delay, to_ns(delay)
+        read_ns = t0_ns - self._delay_ns
         if self._now_ns is not None and read_ns < self._now_ns - self._keep_ns:
             raise ValueError(f't0_ns: {t0_ns} minus the delay reads history older than max_delay')
         times, values = self._times, self._values
@@ -182,11 +187,18 @@ class HermiteDelayLine:
         """
         if not t > self._t[-1]:
             raise ValueError(f't: {t!r} is not after the newest grid point {self._t[-1]!r}')
-        self._t.append(float(t))
-        self._y.append(float(y))
-        self._slope_start.append(float(slope_start))
-        self._slope_end.append(float(slope_end))
+        self.extend(float(t), float(y), float(slope_start), float(slope_end))
+
+    def extend(self, t: float, y: float, slope_start: float, slope_end: float) -> None:
+        """:meth:`append` of Python floats if ``t`` is after the newest grid point, else
+        nothing."""
         grid = self._t
+        if not t > grid[-1]:
+            return
+        grid.append(t)
+        self._y.append(y)
+        self._slope_start.append(slope_start)
+        self._slope_end.append(slope_end)
         if len(grid) > _PRUNE_BATCH and grid[_PRUNE_BATCH] <= t - self.max_delay:
             self._prune(t)          # (else there is nothing to drop yet)
 

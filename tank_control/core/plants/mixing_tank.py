@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from math import sqrt
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -145,12 +146,21 @@ def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]
     """Total flow, heat flow and the range of the temperatures of the flows present (> 0)."""
     (f_1, f_2, f_3), (t_1, t_2, t_3) = flows, temps
     t_low, t_high = math.inf, -math.inf
-    for f, t in ((f_1, t_1), (f_2, t_2), (f_3, t_3)):
-        if f > 0.0:
-            if t < t_low:
-                t_low = t
-            if t > t_high:
-                t_high = t
+    if f_1 > 0.0:           # the flows in order, each: min and max of the temperatures
+        if t_1 < t_low:
+            t_low = t_1
+        if t_1 > t_high:
+            t_high = t_1
+    if f_2 > 0.0:
+        if t_2 < t_low:
+            t_low = t_2
+        if t_2 > t_high:
+            t_high = t_2
+    if f_3 > 0.0:
+        if t_3 < t_low:
+            t_low = t_3
+        if t_3 > t_high:
+            t_high = t_3
     return _Inflow(sum(flows), sum((f_1 * t_1, f_2 * t_2, f_3 * t_3)), t_low, t_high)
 
 
@@ -260,8 +270,10 @@ class MixingTank:
 
     def outputs(self) -> np.ndarray:
         """``[h, T_out]`` now, with T_out(t) = T(t − τ) (noise-free)."""
-        t_out = self._temperature.delayed(seconds(self._t_ns), self._config.tau_out)
-        return np.array([self.level(), t_out])
+        cfg = self._config
+        t_out = self._temperature.delayed(self._t_ns / NS_PER_S, cfg.tau_out)   # seconds(t_ns)
+        V = self._V
+        return np.array([sqrt((0.0 if V < 0.0 else V) / cfg.C), t_out])        # level()
 
     def nominal_inputs(self) -> np.ndarray:
         """``[F_H, F_Cin]`` of the operating point [cm³/s]."""
@@ -307,16 +319,19 @@ class MixingTank:
         pieces = self._cold.segments(t_ns, span, cfg.tau_cold)
         last_piece = len(pieces) - 1
         advance = self._advance
+        integration_step = cfg.integration_step
         for index, (duration, f_cold) in enumerate(pieces):
             if duration <= 0.0:
                 continue
             inflow = _inflow((f_hot, f_cold, f_dist), (t_hot, t_cold, t_dist))
-            n = max(1, math.ceil(duration / cfg.integration_step - 1e-9))
+            n = math.ceil(duration / integration_step - 1e-9)
+            if n < 1:           # max(1, n)
+                n = 1
             h = duration / n
-            for j in range(n):
-                last = index == last_piece and j == n - 1
-                t_b = t_end if last else t_start + offset + (j + 1) * h
-                advance(inflow, h, t_b)
+            for j in range(1, n):                       # grid instants inside the piece
+                advance(inflow, h, t_start + offset + j * h)
+            # the piece's last step ends at t_end if it is the step's last piece
+            advance(inflow, h, t_end if index == last_piece else t_start + offset + n * h)
             offset += duration
             self._F_C = f_cold
         self._empty = self._V <= 0.0
@@ -380,12 +395,14 @@ class MixingTank:
         """F(h) = α·√h with h = √(V/C): α·(V/C)^(1/4) [cm³/s]; 0 for an empty tank."""
         return self._alpha * math.sqrt(math.sqrt(max(V, 0.0) / self._c))
 
-    def _rhs(self, V: float, T: float, inflow: _Inflow) -> tuple[float, float, float]:
-        """(dV/dt, dT/dt, spill rate): 003 §1, with the level pinned at the brim h_max
-        while the net inflow is positive (the excess spills)."""
-        total = inflow.total
-        dV = total - self._alpha * math.sqrt(math.sqrt(max(V, 0.0) / self._c))   # _outflow(V)
-        dT = (inflow.heat - total * T) / V if V > 0.0 else 0.0
+    def _rhs(self, V: float, T: float, total: float, heat: float
+             ) -> tuple[float, float, float]:
+        """(dV/dt, dT/dt, spill rate) with the inflow ``total`` [cm³/s] and heat flow ``heat``
+        (:class:`_Inflow`): 003 §1, with the level pinned at the brim h_max while the net
+        inflow is positive (the excess spills)."""
+        # _outflow(V); ``0.0 if V < 0.0 else V`` is max(V, 0.0) without the call
+        dV = total - self._alpha * sqrt(sqrt((0.0 if V < 0.0 else V) / self._c))
+        dT = (heat - total * T) / V if V > 0.0 else 0.0
         if dV > 0.0 and V >= self._v_brim:
             return 0.0, dT, dV
         return dV, dT, 0.0
@@ -399,15 +416,19 @@ class MixingTank:
     def _advance(self, inflow: _Inflow, h: float, t_b: float) -> None:
         """One RK4 step of length ``h`` ending at grid instant ``t_b``; records T there."""
         V0, T0 = self._V, self._T
-        rate = self._stiffness(V0, inflow)
+        total, heat, t_low, t_high = inflow
+        if V0 <= 0.0:       # _stiffness(V0, inflow), written out
+            rate = math.inf
+        else:               # _outflow(V0): max(V0, 0.0) is V0 here (also a NaN)
+            rate = (total + 0.25 * (self._alpha * sqrt(sqrt(V0 / self._c)))) / V0
         exact_t = False
         if rate * h <= 1.0:     # one RK4 step (rate·h ≤ 1 is within RK4's stability limit)
             last = self._end_rhs    # the right-hand side where the previous step ended
             if last is not None and last[2] is inflow and last[0] == V0 and last[1] == T0:
                 start = last[3]
             else:
-                start = self._rhs(V0, T0, inflow)
-            V, T = self._rk4(V0, T0, inflow, h, start)
+                start = self._rhs(V0, T0, total, heat)
+            V, T = self._rk4(V0, T0, total, heat, h, start)
             if not 0.0 <= V <= self._v_brim:     # (else the guard changes nothing)
                 V = self._guard_volume(V)
         else:
@@ -419,44 +440,70 @@ class MixingTank:
             for i in range(substeps):
                 # the first sub-step starts at V0: its stiffness is ``rate``
                 if (rate if i == 0 else self._stiffness(V, inflow)) * delta <= _RK4_STABLE:
-                    k1 = self._rhs(V, T, inflow)
+                    k1 = self._rhs(V, T, total, heat)
                     if i == 0:
                         start = k1
-                    V, T = self._rk4(V, T, inflow, delta, k1)
+                    V, T = self._rk4(V, T, total, heat, delta, k1)
                 else:
                     V, T = self._frozen_volume_step(V, T, inflow, delta)
                     exact_t = True
                 V = self._guard_volume(V)
-        low, high = min(T0, inflow.t_low), max(T0, inflow.t_high)
-        T = min(max(T, low), high)
+        # T within [min(T0, t_low), max(T0, t_high)]: min/max written out (same results:
+        # max(a, b) is ``b if b > a else a``, min(a, b) is ``b if b < a else a``)
+        low = t_low if t_low < T0 else T0
+        high = t_high if t_high > T0 else T0
+        if low > T:
+            T = low
+        if high < T:
+            T = high
         self._V, self._T = V, T
-        self._end_rhs = None
         if exact_t:     # slopes meaningless across a stiff transient: interpolate linearly
             slope_a = slope_b = (T - T0) / h
+            self._end_rhs = None
         else:
-            slope_a = (start or self._rhs(V0, T0, inflow))[1]
-            end = self._rhs(V, T, inflow)
+            slope_a = (start or self._rhs(V0, T0, total, heat))[1]
+            end = self._rhs(V, T, total, heat)
             slope_b = end[1]
             self._end_rhs = (V, T, inflow, end)
-        temperature = self._temperature
-        if t_b > temperature.last_time:
-            temperature.append(t_b, T, slope_a, slope_b)
+        self._temperature.extend(t_b, T, slope_a, slope_b)
 
-    def _rk4(self, V: float, T: float, inflow: _Inflow, h: float,
+    def _rk4(self, V: float, T: float, total: float, heat: float, h: float,
              k1: tuple[float, float, float] | None = None) -> tuple[float, float]:
-        """One classical RK4 step of length ``h`` (``k1``: the right-hand side at (V, T) if
-        already known)."""
-        rhs = self._rhs
-        k1 = k1 or rhs(V, T, inflow)
-        k2 = rhs(V + 0.5 * h * k1[0], T + 0.5 * h * k1[1], inflow)
-        k3 = rhs(V + 0.5 * h * k2[0], T + 0.5 * h * k2[1], inflow)
-        k4 = rhs(V + h * k3[0], T + h * k3[1], inflow)
-        spill = h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+        """One classical RK4 step of length ``h`` with the inflow ``total`` and heat flow
+        ``heat`` (``k1``: the right-hand side at (V, T) if already known).
+
+        The stages k2, k3, k4 are :meth:`_rhs` written out, the same operations in the same
+        order (three calls were a fifth of a tank tick); :func:`rk4_reference` in
+        test_plants_mixing_tank.py checks this against RK4 over ``_rhs`` bit for bit.
+        """
+        dV1, dT1, s1 = k1 or self._rhs(V, T, total, heat)
+        alpha, c, v_brim = self._alpha, self._c, self._v_brim
+        half = 0.5 * h          # 0.5·h·k is (0.5·h)·k
+        V2, T2 = V + half * dV1, T + half * dT1
+        dV2 = total - alpha * sqrt(sqrt((0.0 if V2 < 0.0 else V2) / c))    # _rhs(V2, T2)
+        dT2 = (heat - total * T2) / V2 if V2 > 0.0 else 0.0
+        s2 = 0.0
+        if dV2 > 0.0 and V2 >= v_brim:
+            dV2, s2 = 0.0, dV2
+        V3, T3 = V + half * dV2, T + half * dT2
+        dV3 = total - alpha * sqrt(sqrt((0.0 if V3 < 0.0 else V3) / c))    # _rhs(V3, T3)
+        dT3 = (heat - total * T3) / V3 if V3 > 0.0 else 0.0
+        s3 = 0.0
+        if dV3 > 0.0 and V3 >= v_brim:
+            dV3, s3 = 0.0, dV3
+        V4, T4 = V + h * dV3, T + h * dT3
+        dV4 = total - alpha * sqrt(sqrt((0.0 if V4 < 0.0 else V4) / c))    # _rhs(V4, T4)
+        dT4 = (heat - total * T4) / V4 if V4 > 0.0 else 0.0
+        s4 = 0.0
+        if dV4 > 0.0 and V4 >= v_brim:
+            dV4, s4 = 0.0, dV4
+        sixth = h / 6.0         # h/6·(…) is (h/6)·(…)
+        spill = sixth * (s1 + 2.0 * s2 + 2.0 * s3 + s4)
         if spill > 0.0:
             self._spilled += spill
             self._overflow = True
-        return (V + h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-                T + h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]))
+        return (V + sixth * (dV1 + 2.0 * dV2 + 2.0 * dV3 + dV4),
+                T + sixth * (dT1 + 2.0 * dT2 + 2.0 * dT3 + dT4))
 
     def _frozen_volume_step(self, V: float, T: float, inflow: _Inflow,
                             h: float) -> tuple[float, float]:

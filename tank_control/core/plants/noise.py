@@ -8,7 +8,8 @@ Draw order (the contract shared by ``core/loop.py`` and ``plant_node``):
   tick order, and none otherwise — a re-sent measurement of tick k must reuse
   the value drawn for tick k, not draw again;
 * every call draws ``standard_normal(n)`` for all ``n`` output channels in the
-  order of ``output_names``, whatever the standard deviations are, so a zero
+  order of ``output_names`` (fetched from the generator ``_BATCH`` instants at a time: the
+  same numbers), whatever the standard deviations are, so a zero
   ``std`` on one channel (exactly no noise there) or a live change of ``std``
   never shifts the random numbers of the other channels or later ticks.
 """
@@ -46,6 +47,10 @@ def _std_vector(std: float | Sequence[float], n: int) -> np.ndarray:
     return values
 
 
+_BATCH = 256
+"""Sample instants of standard normal draws fetched from the generator at once."""
+
+
 class MeasurementNoise:
     """Additive white Gaussian noise ``y_measured = y + std · z``, ``z ~ N(0, I)``."""
 
@@ -64,6 +69,7 @@ class MeasurementNoise:
 
     def _set_std(self, values: np.ndarray) -> None:
         self._std = values.copy()
+        self._std_floats: list[float] = values.tolist()
         self._all_noisy = bool(np.all(values > 0.0))     # std·z on every channel
         self._silent = not np.any(values > 0.0)          # exactly 0 on every channel
 
@@ -74,15 +80,33 @@ class MeasurementNoise:
     def reset(self) -> None:
         """Restart the random stream from ``seed``."""
         self._rng = np.random.default_rng(self.seed)
+        self._z: list[float] = []      # draws fetched ahead (_BATCH instants), from _next on
+        self._next = 0
+
+    def _draws(self) -> list[float]:
+        """The next ``standard_normal(n_outputs)`` of the stream. Fetched ``_BATCH`` instants
+        at a time: ``standard_normal(n·k)`` is the same numbers as k calls of
+        ``standard_normal(n)`` (one generator, drawn in order), for a fraction of the calls."""
+        n = self.n_outputs
+        i = self._next
+        if i + n > len(self._z):
+            self._z = self._rng.standard_normal(n * _BATCH).tolist()
+            i = 0
+        self._next = i + n
+        return self._z[i:i + n]
 
     def sample(self) -> np.ndarray:
         """The noise of the next sample instant (always ``n_outputs`` draws)."""
-        z = self._rng.standard_normal(self.n_outputs)
+        return np.array(self.sample_floats(), dtype=np.float64)
+
+    def sample_floats(self) -> list[float]:
+        """:meth:`sample` as Python floats: ``std·z`` per channel, exactly 0 where std is 0."""
+        z = self._draws()
         if self._all_noisy:
-            return self._std * z
+            return [s * v for s, v in zip(self._std_floats, z)]
         if self._silent:
-            return np.zeros(self.n_outputs)
-        return np.where(self._std > 0.0, self._std * z, 0.0)
+            return [0.0] * self.n_outputs
+        return [s * v if s > 0.0 else 0.0 for s, v in zip(self._std_floats, z)]
 
     def apply(self, y: np.ndarray) -> np.ndarray:
         """``y`` plus the noise of the next sample instant (a new array)."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from math import isfinite
 from typing import Any
 
 import numpy as np
@@ -77,20 +78,22 @@ def as_floats(name: str, values: Any, size: int, allow_empty: bool = False) -> l
     A 1-D float64 array (what the nodes and the in-process loop pass) or a tuple or list of
     Python floats is checked element by element without building another array.
     """
-    items = None
     if type(values) is np.ndarray and values.dtype is _FLOAT64 and values.ndim == 1:
         items = values.tolist()
     elif type(values) in (tuple, list) and all(type(item) is float for item in values):
         items = list(values)
-    if items is not None:
-        if len(items) == size:
-            for item in items:
-                if not math.isfinite(item):
-                    break
-            else:
-                return items
-        elif allow_empty and not items:
+    else:
+        return as_vector(name, values, size, allow_empty).tolist()
+    if len(items) == size:
+        if isfinite(sum(items)):    # then no item is infinite or NaN (an overflow: see below)
             return items
+        for item in items:
+            if not isfinite(item):
+                break
+        else:
+            return items
+    elif allow_empty and not items:
+        return items
     return as_vector(name, values, size, allow_empty).tolist()
 
 
@@ -194,7 +197,9 @@ class DeadTimePlant:
         for duration, w_delayed in line.segments(t_ns, dt_ns / NS_PER_S, self._config.dead_time):
             if duration > 0.0:
                 x = advance(x, w_delayed, duration)
-        self._x = self._bounded(x)
+        if type(x) is not float or not -STATE_LIMIT <= x <= STATE_LIMIT:
+            x = self._bounded(x)                         # (else it returns x)
+        self._x = x
         self._t_ns = t_ns + dt_ns
         self._steps += 1
 
