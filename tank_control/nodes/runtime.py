@@ -27,6 +27,10 @@ def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = No
     ``--params-file`` cannot be read or is not valid YAML (file, line and column), or rcl
     refuses the command line."""
     args = list(sys.argv if args is None else args)
+    own = args[1:args.index('--ros-args')] if '--ros-args' in args else args[1:]
+    if '-h' in own or '--help' in own:
+        print(node_help(name))
+        return 0
     try:
         reason = params_files_reason(args)
         if reason:
@@ -38,6 +42,29 @@ def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = No
     except RCLError as exc:             # rcl refused the arguments (e.g. a bad remapping)
         sys.stderr.write(f'{name}: {str(exc).splitlines()[0]}\n')
         return 2
+
+
+NODE_HELP = {
+    'plant_node': ('plant', 'The plant simulation (IPDT, FOPDT, SOPDT, FOUPDT, a transfer '
+                   'function, the mixing tank) and the clock master of the loop.'),
+    'controller_node': ('controller', 'The controller selected by the parameter `controller` '
+                        '(pid, two_loop_pi, smith_pi, relay_autotune, mpcs, lead_lag, fsa).'),
+    'reference_node': ('reference', 'Setpoint and disturbance schedules.'),
+    'dashboard_node': ('dashboard', 'A web page on localhost (parameter port, default 8080) '
+                       'with the graph\'s trends, parameters and margins.'),
+}
+
+
+def node_help(name: str) -> str:
+    """``<node> --help``: what the node is, how it takes its parameters, an example."""
+    node, what = NODE_HELP[name]
+    return (f'usage: {name} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] '
+            f'[-r __node:=NAME] ...]\n\n{what}\n\n'
+            f'Parameters come from ROS 2 params files and -p (a -p does not override the '
+            f'node\'s own section of a params file); on a running node: ros2 param list '
+            f'/{node}, ros2 param describe /{node} NAME. All of them: docs/nodes.md.\n\n'
+            f'example:\n  ros2 run tank_control {name} --ros-args --params-file '
+            f'config/fopdt_autotune.yaml')
 
 
 def params_files_reason(args: Sequence[str]) -> str | None:

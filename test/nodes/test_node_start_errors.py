@@ -36,3 +36,14 @@ def test_missing_params_file_and_a_bad_ros_argument(node_cmd, ros_env, tmp_path)
                    '(No such file or directory)'
     line = one_line_failure(node_cmd('reference_node', '-r', 'foo'), ros_env)
     assert line.startswith("reference_node: failed to initialize rcl: Couldn't parse remap rule")
+
+
+@pytest.mark.parametrize('node', NODES)
+def test_help_says_how_the_node_takes_parameters_and_exits(node, node_cmd, ros_env):
+    """`ros2 run tank_control <node> --help` prints a usage and an example instead of starting
+    the node (which would ignore the flag and run)."""
+    out = subprocess.run(node_cmd(node) + ['--help'], capture_output=True, text=True,
+                         timeout=60, env=ros_env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f'usage: {node} [-h] [--ros-args [--params-file FILE]')
+    assert f'ros2 run tank_control {node} --ros-args --params-file config/' in out.stdout
