@@ -346,7 +346,11 @@ class ControllerNode(Node):
 
     def _on_applied(self, msg: bytes) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet), kept per
-        plant session (``header.frame_id``, also on its measurements)."""
+        plant session (``header.frame_id``, also on its measurements). Only read before the
+        first sample (``_takeover``): once started the plant's values (one per tick in
+        lockstep) are not decoded."""
+        if self._started:
+            return
         parsed = self._parse(TOPIC_APPLIED_INPUT, msg)
         if parsed is None:
             return
