@@ -5,7 +5,6 @@ messages are kept in ``messages``, for short recordings in tests), and reads the
 controller's final parameters through its parameter services."""
 from __future__ import annotations
 
-import struct
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -18,6 +17,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 
 from tank_control.harness.recording import RawMessage
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
+from tank_control.nodes.cdr import cdr_stamp_ns, joint_state_from_cdr  # noqa: F401 (re-exported)
 from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, quiet_publisher_events,
                                          quiet_subscription_events, reliable_qos)
 
@@ -49,47 +49,6 @@ def _message_class(type_name: str) -> type:
     package, _, name = type_name.split('/')
     module = __import__(f'{package}.msg', fromlist=[name])
     return getattr(module, name)
-
-
-def cdr_stamp_ns(data: bytes) -> int:
-    """The first ``builtin_interfaces/Time`` of a CDR message (header.stamp of a JointState,
-    the clock of a Clock, a Time itself) without deserialising it."""
-    little = data[1] & 1
-    sec, nanosec = struct.unpack_from('<iI' if little else '>iI', data, 4)
-    return sec * 1_000_000_000 + nanosec
-
-
-def joint_state_from_cdr(data: bytes) -> tuple[int, tuple[str, ...], tuple[float, ...]]:
-    """``header.stamp`` [ns], ``name`` and ``position`` of a CDR ``sensor_msgs/JointState``,
-    read directly (a few times faster than ``deserialize_message``, which matters in the
-    recorder's callbacks). Plain CDR (XCDR1, 8-byte alignment of float64) or XCDR2
-    (4-byte), either byte order, as the encapsulation header says."""
-    endian = '<' if data[1] & 1 else '>'
-    wide = 8 if data[1] in (0, 1) else 4
-    body = 4
-
-    def align(offset: int, size: int) -> int:
-        return body + -(-(offset - body) // size) * size
-
-    sec, nanosec = struct.unpack_from(endian + 'iI', data, body)
-    offset = body + 8
-    (length,) = struct.unpack_from(endian + 'I', data, offset)       # header.frame_id
-    offset = align(offset + 4 + length, 4)
-    (count,) = struct.unpack_from(endian + 'I', data, offset)
-    offset += 4
-    names = []
-    for _ in range(count):
-        offset = align(offset, 4)
-        (length,) = struct.unpack_from(endian + 'I', data, offset)
-        names.append(bytes(data[offset + 4:offset + 3 + length]).decode())
-        offset += 4 + length
-    offset = align(offset, 4)
-    (count,) = struct.unpack_from(endian + 'I', data, offset)
-    offset += 4
-    if count:
-        offset = align(offset, wide)
-    values = struct.unpack_from(f'{endian}{count}d', data, offset)
-    return sec * 1_000_000_000 + nanosec, tuple(names), values
 
 
 def signal_message(raw: RawMessage) -> SignalMessage:

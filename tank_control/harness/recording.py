@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import re
-import struct
 import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -22,6 +21,7 @@ from mcap.writer import CompressionType, Writer
 
 from tank_control.core.trace import Trace
 from tank_control.harness.trace import TOPIC_PREFIX
+from tank_control.nodes.cdr import JointStateCdr, clock_cdr  # noqa: F401 (re-exported)
 
 _PRIMITIVES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
                'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'}
@@ -160,53 +160,6 @@ def write_trace(path: str | Path, trace: Trace, t0_ns: int = 0) -> Path:
         for row in zip(*trace.columns.values()):
             rows.add(row)
     return Path(path)
-
-
-_CDR_LE = b'\x00\x01\x00\x00'      # encapsulation: plain CDR, little endian
-
-
-def _cdr_string(text: str, offset: int) -> tuple[bytes, int]:
-    """A CDR string (4-aligned length with the NUL, bytes, NUL) at body ``offset``."""
-    data = text.encode() + b'\x00'
-    pad = -offset % 4
-    out = b'\x00' * pad + struct.pack('<I', len(data)) + data
-    return out, offset + len(out)
-
-
-class JointStateCdr:
-    """``sensor_msgs/msg/JointState`` with fixed ``name`` (empty frame id, no velocity or
-    effort) serialized directly as plain little-endian CDR, the message ``serialize_message``
-    encodes (zeros as padding), several times faster. Alignment counts from the end of the
-    4-byte encapsulation header, float64 on 8 bytes."""
-
-    def __init__(self, names: Sequence[str]) -> None:
-        offset = 8                                   # header.stamp: int32 sec, uint32 nanosec
-        frame, offset = _cdr_string('', offset)
-        pad = -offset % 4
-        parts = [frame, b'\x00' * pad + struct.pack('<I', len(names))]
-        offset += pad + 4
-        for name in names:
-            text, offset = _cdr_string(name, offset)
-            parts.append(text)
-        pad = -offset % 4
-        parts.append(b'\x00' * pad + struct.pack('<I', len(names)))
-        offset += pad + 4
-        if names:
-            parts.append(b'\x00' * (-offset % 8))
-            offset += -offset % 8
-        self._middle = b''.join(parts)
-        self._positions = struct.Struct(f'<{len(names)}d')
-        offset += 8 * len(names)
-        self._tail = b'\x00' * (-offset % 4) + struct.pack('<II', 0, 0)   # velocity, effort
-
-    def encode(self, sec: int, nanosec: int, positions: Sequence[float]) -> bytes:
-        return b''.join((_CDR_LE, struct.pack('<iI', sec, nanosec), self._middle,
-                         self._positions.pack(*positions), self._tail))
-
-
-def clock_cdr(sec: int, nanosec: int) -> bytes:
-    """``rosgraph_msgs/msg/Clock`` as plain little-endian CDR."""
-    return _CDR_LE + struct.pack('<iI', sec, nanosec)
 
 
 class TraceMessages:

@@ -36,9 +36,10 @@ from tank_control.nodes.messages import (APPLIED_QOS, LATE_QOS, ORIGIN_QOS, SIGN
                                          TOPIC_APPLIED_INPUT, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
-                                         TOPIC_TIME_ORIGIN, from_joint_state,
+                                         TOPIC_TIME_ORIGIN, parse_signal,
                                          quiet_publisher_events, quiet_subscription_events,
                                          reliable_qos, stamp_to_ns, to_joint_state)
+from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -118,20 +119,24 @@ class ControllerNode(Node):
 
         self._pub = self.create_publisher(JointState, TOPIC_MANIPULATED, SIGNAL_QOS,
                                           event_callbacks=quiet_publisher_events())
+        self._manipulated_cdr = JointStateCdr(self._inputs)   # pre-encoded (nodes/cdr.py)
         self._late_pub = self.create_publisher(JointState, TOPIC_LATE_INPUTS, LATE_QOS)
         # wall: the loop's time base; sim/lockstep: a check that the plant is not on the wall
         # clock (its origin is then not 0), which would leave this node waiting for good
         self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
-        self.create_subscription(JointState, TOPIC_APPLIED_INPUT, self._on_applied, APPLIED_QOS)
+        # signal inputs are taken as CDR bytes and decoded directly (nodes/cdr.py)
+        self.create_subscription(JointState, TOPIC_APPLIED_INPUT, self._on_applied, APPLIED_QOS,
+                                 raw=True)
         self._clock_conflict = ''
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events())
+                                 event_callbacks=quiet_subscription_events(), raw=True)
         self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events())
+                                 event_callbacks=quiet_subscription_events(), raw=True)
         if self._disturbances:
             self.create_subscription(JointState, TOPIC_DISTURBANCE, self._on_disturbance,
-                                     SIGNAL_QOS, event_callbacks=quiet_subscription_events())
+                                     SIGNAL_QOS, event_callbacks=quiet_subscription_events(),
+                                     raw=True)
         required: dict[str, tuple[str, ...]] = {'measurement': self._outputs,
                                                 'setpoint': self._outputs}
         if self._disturbances:
@@ -238,13 +243,15 @@ class ControllerNode(Node):
         return np.asarray(self._controller.step(t, y, r, d), dtype=float)
 
     # ---------------------------------------------------------------- inputs
-    def _parse(self, topic: str, msg: JointState) -> tuple[int, dict[str, float]] | None:
+    def _parse(self, topic: str, msg: bytes) -> tuple[int, dict[str, float], str] | None:
+        """``(stamp_ns, {channel: value}, header.frame_id)`` of an input (CDR bytes of a
+        JointState), None when malformed (counted and logged once)."""
         try:
-            t_ns, names, values = from_joint_state(msg)
+            t_ns, frame_id, names, values = parse_signal(msg)
         except ValueError as exc:
             self._reject_input(f'{topic}: malformed message ignored ({exc})')
             return None
-        return t_ns, dict(zip(names, values))
+        return t_ns, dict(zip(names, values)), frame_id
 
     def _reject_input(self, reason: str) -> None:
         self.counters['rejected_inputs'] += 1
@@ -284,13 +291,12 @@ class ControllerNode(Node):
                 return 'non-finite'
         return 
 
-    def _on_measurement(self, msg: JointState) -> None:
+    def _on_measurement(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_MEASUREMENT, msg)
         if parsed is None:
             return
-        t_ns, values = parsed
+        t_ns, values, self._session = parsed
         mine = {name: values[name] for name in self._outputs if name in values}
-        self._session = msg.header.frame_id
         self._check_new_session(t_ns)
         if self._mode == 'lockstep':
             self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
@@ -300,7 +306,7 @@ class ControllerNode(Node):
         if len(mine) == len(self._outputs):
             self._fresh = True
 
-    def _on_setpoint(self, msg: JointState) -> None:
+    def _on_setpoint(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_SETPOINT, msg)
         if parsed is None:
             return
@@ -338,14 +344,17 @@ class ControllerNode(Node):
         self.get_logger().info('new plant session (its clock restarted at 0): ticks answered '
                                'from 0 again, control continues from the current state')
 
-    def _on_applied(self, msg: JointState) -> None:
+    def _on_applied(self, msg: bytes) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet), kept per
-        plant session (``header.frame_id``, also on its measurements)."""
+        plant session (``header.frame_id``, also on its measurements). Only read before the
+        first sample (``_takeover``): once started the plant's values (one per tick in
+        lockstep) are not decoded."""
+        if self._started:
+            return
         parsed = self._parse(TOPIC_APPLIED_INPUT, msg)
         if parsed is None:
             return
-        self._applied[msg.header.frame_id] = {n: v for n, v in parsed[1].items()
-                                              if math.isfinite(v)}
+        self._applied[parsed[2]] = {n: v for n, v in parsed[1].items() if math.isfinite(v)}
         if self._deferred_tick is not None:    # lockstep: the tick that waited for it
             t_ns, self._deferred_tick = self._deferred_tick, None
             self._maybe_answer(t_ns)
@@ -408,7 +417,7 @@ class ControllerNode(Node):
             self._origin_ns = origin
             self._last_sample = None
 
-    def _on_disturbance(self, msg: JointState) -> None:
+    def _on_disturbance(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_DISTURBANCE, msg)
         if parsed is not None:
             values = self._finite_or_last(TOPIC_DISTURBANCE, parsed[1], self._disturbances,
@@ -446,7 +455,7 @@ class ControllerNode(Node):
             u = self._sample(t_ns, y, r, d, stale=False, takeover=takeover)
         else:
             u = self._u
-        msg = to_joint_state(t_ns, self._inputs, u)
+        msg = self._manipulated_cdr.encode_ns(t_ns, u)
         self._answers.remember(t_ns, msg)
         self._inbox.drop_before(t_ns)
         self._pub.publish(msg)
@@ -480,7 +489,7 @@ class ControllerNode(Node):
         self._last_sample = (t_ns - self._origin_ns, dict(self._r))
         u = self._sample(t_ns - self._origin_ns, self._y, self._r, self._d, stale=stale,
                          takeover=takeover)
-        self._pub.publish(to_joint_state(t_ns, self._inputs, u))
+        self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
 
     def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
                 d: Mapping[str, float], stale: bool,

@@ -17,6 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.core.interfaces import NS_PER_S
+from tank_control.nodes.cdr import signal_from_cdr
 from tank_control.core.ranges import Ranges
 
 def reliable_qos(depth: int, latched: bool = False) -> QoSProfile:
@@ -95,19 +96,34 @@ def to_joint_state(t_ns: int, names: Sequence[str], values: Iterable[float]) -> 
     return msg
 
 
-def from_joint_state(msg: JointState) -> tuple[int, tuple[str, ...], tuple[float, ...]]:
-    """``(stamp_ns, names, values)`` of a signal message.
+def parse_signal(msg: JointState | bytes) -> tuple[int, str, tuple[str, ...], tuple[float, ...]]:
+    """``(stamp_ns, frame_id, names, values)`` of a signal message: a ``JointState`` or its CDR
+    bytes (what a ``raw=True`` subscription takes; decoded directly, ``nodes/cdr.py``).
 
     Raises ``ValueError`` (one line) when ``name`` and ``position`` differ in
     length or a channel name repeats — a malformed message.
     """
-    names = tuple(msg.name)
-    values = tuple(float(v) for v in msg.position)
+    if isinstance(msg, bytes):
+        stamp, frame_id, names, values = signal_from_cdr(msg)
+    else:
+        names = tuple(msg.name)
+        values = tuple(float(v) for v in msg.position)
+        stamp, frame_id = stamp_to_ns(msg.header.stamp), msg.header.frame_id
     if len(names) != len(values):
         raise ValueError(f'{len(names)} names but {len(values)} positions')
     if len(set(names)) != len(names):
         raise ValueError(f'repeated channel name in {list(names)}')
-    return stamp_to_ns(msg.header.stamp), names, values
+    return stamp, frame_id, names, values
+
+
+def from_joint_state(msg: JointState | bytes) -> tuple[int, tuple[str, ...], tuple[float, ...]]:
+    """``(stamp_ns, names, values)`` of a signal message (``parse_signal`` without the frame id).
+
+    Raises ``ValueError`` (one line) when ``name`` and ``position`` differ in
+    length or a channel name repeats — a malformed message.
+    """
+    stamp, _, names, values = parse_signal(msg)
+    return stamp, names, values
 
 
 def clock_msg(t_ns: int) -> Clock:
@@ -133,15 +149,17 @@ class ChannelFilter:
     ranges: Ranges = field(default_factory=Ranges)
     out_of_range: int = 0
 
-    def accept(self, topic: str, msg: JointState) -> tuple[int | None, dict[str, float], list[str]]:
-        """``(stamp_ns or None, accepted {name: value}, new reasons to log once)``."""
+    def accept(self, topic: str, msg: JointState | bytes
+               ) -> tuple[int | None, tuple[str, ...], dict[str, float], list[str]]:
+        """``(stamp_ns or None, the message's channel names, accepted {name: value}, new
+        reasons to log once)``; ``msg`` a JointState or its CDR bytes."""
         new: list[str] = []
         try:
             t_ns, names, values = from_joint_state(msg)
         except ValueError as err:
             self.ignored += 1
             self._note(f'{topic}: malformed message ignored ({err})', new)
-            return None, {}, new
+            return None, (), {}, new
         accepted: dict[str, float] = {}
         for name, value in zip(names, values):
             if name not in self.known:
@@ -158,7 +176,7 @@ class ChannelFilter:
                            new)
             else:
                 accepted[name] = value
-        return t_ns, accepted, new
+        return t_ns, names, accepted, new
 
     def _note(self, reason: str, new: list[str]) -> None:
         if reason not in self.reasons:

@@ -33,9 +33,10 @@ from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGI
                                          SIGNAL_QOS, TOPIC_APPLIED_INPUT, TOPIC_CLOCK,
                                          TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_LATE_INPUTS, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
-                                         TOPIC_TIME_ORIGIN, ChannelFilter, clock_msg,
-                                         ns_to_stamp, quiet_publisher_events,
-                                         quiet_subscription_events, to_joint_state)
+                                         TOPIC_TIME_ORIGIN, ChannelFilter, ns_to_stamp,
+                                         quiet_publisher_events, quiet_subscription_events,
+                                         to_joint_state)
+from tank_control.nodes.cdr import JointStateCdr, clock_cdr_ns
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -102,7 +103,10 @@ class PlantNode(Node):
         self._session = uuid.uuid4().hex[:16]
         self._applied_names: list[str] = []
         self._applied_sent: tuple[float, ...] | None = None
-        self.applied_pub.publish(self._stamped(to_joint_state(0, [], [])))
+        # hot-path messages as pre-encoded CDR (nodes/cdr.py): measurement, applied_input
+        self._measurement_cdr = JointStateCdr(self.plant.output_names, self._session)
+        self._applied_cdr = JointStateCdr((), self._session)
+        self.applied_pub.publish(self._applied_cdr.encode_ns(0, ()))
         # stall watch: wall time tick k was first published (lockstep); per input topic the
         # last arrival and the interval before it (wall/sim) [s, time.monotonic]
         self._tick_published_at = time.monotonic()
@@ -118,18 +122,19 @@ class PlantNode(Node):
                                                          ranges=setup.ranges),
                         TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names,
                                                          ranges=setup.ranges)}
+        # taken as CDR bytes and decoded directly (nodes/cdr.py)
         self.create_subscription(JointState, TOPIC_MANIPULATED,
                                  lambda m: self._on_input(TOPIC_MANIPULATED, m), SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events())
+                                 event_callbacks=quiet_subscription_events(), raw=True)
         self.create_subscription(JointState, TOPIC_DISTURBANCE,
                                  lambda m: self._on_input(TOPIC_DISTURBANCE, m), SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events())
+                                 event_callbacks=quiet_subscription_events(), raw=True)
 
         required: dict[str, tuple[str, ...]] = {TOPIC_MANIPULATED: self.plant.input_names}
         if values['lockstep.wait_for_reference']:
             required[TOPIC_DISTURBANCE] = ()
         self.inbox = StampedInbox(required)
-        self._tick_msgs: tuple[JointState, Clock | None] | None = None
+        self._tick_msgs: tuple[bytes, bytes | None] | None = None   # CDR: measurement, /clock
         self._awaiting = False
         self._sent_at = 0.0
         self._wall_start = time.monotonic()
@@ -262,8 +267,8 @@ class PlantNode(Node):
         t_ns = self.k * self.ts_ns
         y = self.plant.outputs() + self.noise.sample()
         stamp = self._stamp_offset_ns + t_ns
-        msg = self._stamped(to_joint_state(stamp, self.plant.output_names, y))
-        clock = clock_msg(t_ns) if self.clock_pub is not None else None
+        msg = self._measurement_cdr.encode_ns(stamp, y)
+        clock = clock_cdr_ns(t_ns) if self.clock_pub is not None else None
         self._tick_msgs = (msg, clock)
         self._send()
         self._tick_published_at = self._sent_at
@@ -308,18 +313,15 @@ class PlantNode(Node):
         values = tuple(self.u[n] for n in self._applied_names)
         if values != self._applied_sent:
             self._applied_sent = values
-            self.applied_pub.publish(self._stamped(to_joint_state(
-                self._stamp_offset_ns + self.k * self.ts_ns, self._applied_names, values)))
-
-    def _stamped(self, msg: JointState) -> JointState:
-        msg.header.frame_id = self._session
-        return msg
+            self.applied_pub.publish(self._applied_cdr.encode_ns(
+                self._stamp_offset_ns + self.k * self.ts_ns, values))
 
     def _note_applied(self, names: Any) -> None:
         """Channels of ``manipulated`` received from a controller (in the plant's order)."""
         if any(n not in self._applied_names for n in names):
             known = set(self._applied_names) | set(names)
             self._applied_names = [n for n in self.plant.input_names if n in known]
+            self._applied_cdr = JointStateCdr(self._applied_names, self._session)
 
     def _on_tick_timer(self) -> None:
         """wall/sim: close the previous interval with the latest inputs, publish tick k.
@@ -353,13 +355,12 @@ class PlantNode(Node):
                 break                   # the rest at the next call: let the others run first
 
     # --------------------------------------------------------------- inputs
-    def _on_input(self, topic: str, msg: JointState) -> None:
+    def _on_input(self, topic: str, msg: bytes) -> None:
+        """An input message (CDR bytes of a JointState)."""
         flt = self.filters[topic]
-        t_ns, accepted, new_reasons = flt.accept(topic, msg)
+        t_ns, names, accepted, new_reasons = flt.accept(topic, msg)
         for reason in new_reasons:
             self.get_logger().warning(reason + ' (logged once)')
-        self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
-        self.counters['out_of_range_inputs'] = sum(f.out_of_range for f in self.filters.values())
         now = time.monotonic()
         last = self._arrivals.get(topic)
         self._arrivals[topic] = (now, now - last[0] if last else 0.0)
@@ -372,7 +373,7 @@ class PlantNode(Node):
         held = self.u if topic == TOPIC_MANIPULATED else self.d
         # A known channel with an ignored (non-finite) value still answers the
         # tick: its last valid value is kept.
-        answered = {n: accepted.get(n, held[n]) for n in msg.name if n in flt.known}
+        answered = {n: accepted.get(n, held[n]) for n in names if n in flt.known}
         # Answers for a later tick (the reference may answer ahead) wait in the inbox.
         self.inbox.put(topic, t_ns, answered)
         if t_ns == current and self._awaiting and self.inbox.complete(t_ns):
@@ -521,6 +522,9 @@ class PlantNode(Node):
         self._stall_logged = kind
 
     def _publish_diagnostics(self) -> None:
+        # the filters count per message; the totals are taken here, off the hot path
+        self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
+        self.counters['out_of_range_inputs'] = sum(f.out_of_range for f in self.filters.values())
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
         model = dict(self.plant.status)
         problems = []

@@ -32,7 +32,8 @@ from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPI
                                          TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN,
                                          quiet_publisher_events, quiet_subscription_events,
-                                         stamp_to_ns, to_joint_state)
+                                         stamp_to_ns)
+from tank_control.nodes.cdr import JointStateCdr, cdr_stamp_ns
 from tank_control.nodes.params import GroupedParameterService, ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -64,7 +65,9 @@ class ReferenceNode(Node):
                                                   event_callbacks=quiet_publisher_events())
         self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
-        self._answered: dict[int, tuple[JointState, JointState]] = {}
+        # answers as pre-encoded CDR (nodes/cdr.py), by channel names
+        self._answered: dict[int, tuple[bytes, bytes]] = {}
+        self._encoders: dict[tuple[str, ...], JointStateCdr] = {}
         self._last_clock: int | None = None
         # Only in an explicit lockstep: in sim the others use the latest message, which
         # must be the current tick's (use_sim_time alone does not tell sim from lockstep).
@@ -74,8 +77,9 @@ class ReferenceNode(Node):
         self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
                              or self.params.values['clock_mode'] != 'wall')
         if self.use_sim_time:
+            # taken as CDR bytes: only the stamp is read (nodes/cdr.py)
             self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
-                                     event_callbacks=quiet_subscription_events())
+                                     event_callbacks=quiet_subscription_events(), raw=True)
             # a plant on the wall clock latches a non-zero origin and sends no /clock
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._check_origin, ORIGIN_QOS)
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
@@ -171,17 +175,24 @@ class ReferenceNode(Node):
         self._last_t = max(self._last_t, t)
         self._apply_pending(t)
         ref = self.reference
-        sp = to_joint_state(stamp_ns, ref.setpoint_names, ref.setpoints(t))
-        dist = to_joint_state(stamp_ns, ref.disturbance_names, ref.disturbances(t))
+        sp = self._encoder(ref.setpoint_names).encode_ns(stamp_ns, ref.setpoints(t))
+        dist = self._encoder(ref.disturbance_names).encode_ns(stamp_ns, ref.disturbances(t))
         self._answered[stamp_ns] = (sp, dist)
         self.setpoint_pub.publish(sp)
         self.disturbance_pub.publish(dist)
         self.published += 1
 
-    def _on_clock(self, msg: Clock) -> None:
+    def _encoder(self, names: tuple[str, ...]) -> JointStateCdr:
+        encoder = self._encoders.get(names)
+        if encoder is None:
+            encoder = self._encoders[names] = JointStateCdr(names)
+        return encoder
+
+    def _on_clock(self, msg: bytes) -> None:
         """Answer tick t_k once (idempotent: a re-sent /clock gets the same messages);
-        with ``lockstep.anticipate`` also answer the next tick ahead."""
-        t_ns = stamp_to_ns(msg.clock)
+        with ``lockstep.anticipate`` also answer the next tick ahead. ``msg``: the CDR bytes
+        of a ``rosgraph_msgs/Clock``."""
+        t_ns = cdr_stamp_ns(msg)
         if self._last_clock is not None and t_ns < self._last_clock:
             # /clock went back: the plant (re)started, a new run (the plant re-sends only its
             # current tick, so an earlier one is no duplicate; its tick 0 may have been missed)
