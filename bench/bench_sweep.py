@@ -78,7 +78,7 @@ def main() -> None:
             close()
     base = statistics.median(v[0] for v in results['one worker'])
     base_runs = statistics.median(v[1] for v in results['one worker'])
-    print(f'| executor | workers | sweep wall s | runs phase s | runs/s | speedup (sweep) | '
+    print('| executor | workers | sweep wall s | runs phase s | runs/s | speedup (sweep) | '
           'speedup (runs phase) | mean run s | overhead per run ms |')
     print('|---|---|---|---|---|---|---|---|---|')
     for name, values in results.items():

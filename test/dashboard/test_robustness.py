@@ -10,7 +10,6 @@ import threading
 import numpy as np
 import pytest
 
-from tank_control.core.analysis import frequency as fr
 from tank_control.core.analysis.robustness import loop_report
 from tank_control.core.control.pid import PidConfig
 from tank_control.core.tuning.model import ProcessModel
