@@ -157,7 +157,7 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
             executor = EventsExecutor()
             executor.add_node(node)
             # NOT executor.spin(): in this rclpy build EventsExecutor.spin() livelocks at
-            # ~90 % CPU and ignores SIGTERM (16 of 17 tries, issue 18); spin_once works.
+            # ~90 % CPU and ignores SIGTERM (16 of 17 tries, bench/RESULTS.md); spin_once works.
             while rclpy.ok():
                 executor.spin_once(timeout_sec=SPIN_PERIOD)
         finally:

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.control.pid import (ANTI_WINDUP_CHOICES, BIG, anti_windup_param,
+from tank_control.core.control.pid import (BIG, anti_windup_param, limits_reason,
                                            sample_time_param)
 from tank_control.core.params import ConfigError, check_config, param
 
@@ -128,12 +128,7 @@ class FsaConfig:
                     f'time constants of the unstable model (the prediction would amplify '
                     f'errors by e^(L/T) = {math.exp(self.dead_time / self.time_constant):.3g}); '
                     f'allowed [0, {MAX_UNSTABLE_RATIO * self.time_constant:g}] s')
-        if not self.u_min < self.u_max:
-            return f'u_min: {self.u_min:g} must be below u_max {self.u_max:g}'
-        if self.anti_windup not in ANTI_WINDUP_CHOICES:
-            return f'anti_windup: {self.anti_windup!r} is not one of ' + ', '.join(
-                ANTI_WINDUP_CHOICES)
-        return None
+        return limits_reason(self.u_min, self.u_max, self.anti_windup)
 
 
 def _name(field_name: str) -> str:

@@ -56,7 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tank_control.core.analysis import frequency as fr
-from tank_control.core.control.pid import (ANTI_WINDUP_CHOICES, BIG, anti_windup_param,
+from tank_control.core.control.pid import (BIG, anti_windup_param, limits_reason,
                                            sample_time_param)
 from tank_control.core.control.siso_law import SisoController, SisoLaw
 from tank_control.core.params import ConfigError, check_config, param
@@ -101,12 +101,7 @@ class LeadLagConfig:
             return f'lead_lag.kp: {self.kp!r} must be > 0 (direct_action reverses the sign)'
         if not self.ti > 0.0:
             return f'lead_lag.ti: {self.ti!r} is out of range; allowed (0, inf] s (0 = none)'
-        if not self.u_min < self.u_max:
-            return f'u_min: {self.u_min:g} must be below u_max {self.u_max:g}'
-        if self.anti_windup not in ANTI_WINDUP_CHOICES:
-            return f'anti_windup: {self.anti_windup!r} is not one of ' + ', '.join(
-                ANTI_WINDUP_CHOICES)
-        return None
+        return limits_reason(self.u_min, self.u_max, self.anti_windup)
 
 
 def lead_constants(td: float, alpha: float, h: float) -> tuple[float, float]:

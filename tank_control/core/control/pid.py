@@ -18,6 +18,15 @@ from tank_control.core.control.siso_law import SisoController, SisoLaw
 from tank_control.core.params import param
 
 ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
+
+
+def limits_reason(u_min: float, u_max: float, anti_windup: str) -> str | None:
+    """Why output limits and anti-windup method do not fit (None if they do)."""
+    if not u_min < u_max:
+        return f'u_min: {u_min:g} must be below u_max {u_max:g}'
+    if anti_windup not in ANTI_WINDUP_CHOICES:
+        return f'anti_windup: {anti_windup!r} is not one of ' + ', '.join(ANTI_WINDUP_CHOICES)
+    return None
 N_MIN, N_MAX = 2.0, 50.0
 BIG = 1e12
 """Largest magnitude of a gain, time or output limit parameter."""
