@@ -106,7 +106,9 @@ def test_fsa_on_the_unstable_plant_over_ros_equals_in_process(tmp_path, ros_env)
 def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, ros_env):
     """fopdt_autotune_scheduled: the relay test at 60 s tunes the PID. Both runs report the values the
     controller ended with (the node's parameters; in-process the controller object's), not
-    the file's: the same tuned gains, Ku, Tu and state in both metrics.json."""
+    the file's: the same tuned gains, Ku, Tu and state in both metrics.json, and the same state
+    changes at the same loop times (the ROS run's from the recorded /parameter_events), which
+    plot.png marks."""
     scenario = CONFIG / 'scenarios' / 'fopdt_autotune_scheduled.yaml'
     ros = run(scenario, tmp_path / 'ros', rtf=0.0, env=ros_env)
     ref = run(scenario, tmp_path / 'ref', in_process=True)
@@ -118,6 +120,9 @@ def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, r
         assert a['final_gains'][key] == pytest.approx(b['final_gains'][key], rel=1e-9), key
     for key in ('autotune.ku', 'autotune.tu', 'autotune.model_gain', 'autotune.cycles'):
         assert a['autotune'][key] == pytest.approx(b['autotune'][key], rel=1e-9), key
+    states = ros.metrics['run']['controller_states']
+    assert [s for _, s in states] == ['settling', 'relay', 'measuring', 'tuned', 'running']
+    assert [list(s) for s in states] == [list(s) for s in ref.metrics['run']['controller_states']]
 
 
 def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
