@@ -39,7 +39,8 @@ def test_the_decoupler_of_003_cancels_the_interaction_only_at_steady_state():
     assert abs(q0[0, 1]) < 1e-9 * abs(g0[0, 0])
     assert abs(q0[1, 0]) < 1e-3 * abs(g0[1, 0])           # 2.69 vs (T_H − T)/(T − T_C) = 2.6892
     w = math.pi / OP.tau_c
-    q, g = analysis.decoupled_plant(np.array([1j * w]))[0], analysis.plant.at(np.array([1j * w]))[0]
+    point = np.array([1j * w])
+    q, g = analysis.decoupled_plant(point)[0], analysis.plant.at(point)[0]
     assert abs(q[0, 1]) == pytest.approx(2 * abs(g[0, 0]))
     z = np.exp(1j * np.linspace(1e-3, math.pi, 50))                   # eq. 2 on the unit circle
     d21 = (0.00619 * z + 2.122e-5) / (0.002301 * z + 7.897e-6)
