@@ -135,11 +135,10 @@ class TwoLoopAnalysis:
         return fr.margins(self.loop(i, other_closed))
 
     def stable(self) -> bool:
-        """Both loops closed: stable iff loop 2 alone is and the equivalent loop 1 encircles
-        −1 as often as loop 2 alone has unstable closed-loop poles (det(I + K·Q) =
-        (1 + C_2·Q_22)·(1 + L_1))."""
-        return fr.closed_loop_poles_unstable(self.loop(0, other_closed=True)) == 0 and \
-            fr.closed_loop_stable(self.loop(1, other_closed=False))
+        """Both loops closed. det(I + K·Q) = (1 + C_2·Q_22)·(1 + L_1) with L_1 the equivalent
+        loop 1 (Q itself stable): its zeros in Re s ≥ 0 are those the Nyquist count of L_1
+        gives, L_1's unstable poles being the zeros of 1 + C_2·Q_22 (:meth:`loop`)."""
+        return fr.closed_loop_poles_unstable(self.loop(0, other_closed=True)) == 0
 
     def report(self) -> dict[str, dict[str, float]]:
         """Margins of each loop, alone (other open) and with the other closed, keyed
