@@ -384,17 +384,21 @@ class TwoLoopPi:
             c21 = self._d21.step(v_h) if cfg.decoupling == 'dynamic' else cfg.d21 * v_h
             # 003 §3.1: decoupler outputs clipped
             cross_h, cross_t = min(max(cfg.d12 * v_t, lo), hi), min(max(c21, lo), hi)
-        u_h = min(max(v_h + cross_h, u_min), u_max)
-        u_t = min(max(v_t + cross_t, u_min), u_max)
+        s_h, s_t = v_h + cross_h, v_t + cross_t
+        u_h = min(max(s_h, u_min), u_max)
+        u_t = min(max(s_t, u_min), u_max)
         # anti-windup sees the applied flows: loop i's effective output is u_i − (decoupler
-        # term into u_i), within the PI output range
-        v_eff_h, v_eff_t = min(max(u_h - cross_h, lo), hi), min(max(u_t - cross_t, lo), hi)
+        # term into u_i), within the PI output range; an unclipped flow gives back v_i itself
+        # ((v + c) − c differs from v by rounding, which conditional integration would take
+        # for a push into a limit and freeze the integrator)
+        v_eff_h = v_h if u_h == s_h else min(max(u_h - cross_h, lo), hi)
+        v_eff_t = v_t if u_t == s_t else min(max(u_t - cross_t, lo), hi)
         method = cfg.anti_windup
         integral[0], aw_h = _integrate(method, integral[0], kih_h * e_h, aw_gain_h, w_h, v_eff_h)
         integral[1], aw_t = _integrate(method, integral[1], kih_t * e_t, aw_gain_t, w_t, v_eff_t)
         self._u = [u_h, u_t]
-        sat_h = u_h != v_h + cross_h or v_h != w_h
-        sat_t = u_t != v_t + cross_t or v_t != w_t
+        sat_h = u_h != s_h or v_h != w_h
+        sat_t = u_t != s_t or v_t != w_t
         self._last_sample = (cfg.decoupling, sat_h, sat_t, aw_h or aw_t, v_h, v_t,
                              integral[0], integral[1], *setpoints)
         return np.array([u_h, u_t])
