@@ -207,13 +207,15 @@ def diagonal_channels(h: float, T: float, F_D: float = OPERATING_POINT.F_D,
 
 
 def design_schedule(points: Iterable[tuple[float, float]], *, rule: str = 'simc',
+                    temperature_rule: str | None = None,
                     level_tau_c: float | None = None, temperature_tau_c: float | None = None,
                     level_options: Mapping[str, Any] | None = None,
                     temperature_options: Mapping[str, Any] | None = None,
                     sequential: bool = True, **tank: Any) -> GainSchedule:
     """A gain table over the level: at each ``(h [cm], T [°C])`` of ``points`` (increasing
     h) the :func:`diagonal_channels` models tuned as PI by ``rule`` (``rules.tune``; e.g.
-    ``simc``, ``lambda``, ``amigo``, ``ms``); ``*_tau_c`` [s] the closed-loop time constants
+    ``simc``, ``lambda``, ``amigo``, ``ms``; the temperature loop by ``temperature_rule`` if
+    given); ``*_tau_c`` [s] the closed-loop time constants
     for simc/lambda, ``*_options`` further process arguments of the rule; ``sequential``: the
     temperature loop is designed on ``temperature_closed`` (the level loop closed; False: the
     open channel, which ignores the interaction and, tuned so, is unstable in the coupled
@@ -223,15 +225,15 @@ def design_schedule(points: Iterable[tuple[float, float]], *, rule: str = 'simc'
     for h, T in points:
         models = diagonal_channels(h, T, **tank)
         row: list[float] = [h]
-        for (gain, time_constant, dead_time), tau_c, options in (
-                (models.level, level_tau_c, level_options),
+        for (gain, time_constant, dead_time), name, tau_c, options in (
+                (models.level, rule, level_tau_c, level_options),
                 (models.temperature_closed if sequential else models.temperature,
-                 temperature_tau_c, temperature_options)):
+                 temperature_rule or rule, temperature_tau_c, temperature_options)):
             args: dict[str, Any] = dict(gain=gain, time_constant=time_constant,
                                         dead_time=dead_time, model='fopdt', **(options or {}))
             if tau_c is not None:
                 args['tau_c'] = tau_c
-            result = tune(rule, 'pi', **args)
+            result = tune(name, 'pi', **args)
             row += [result['kp'], result['kp'] / result['ti']]
         rows.append(tuple(row))
     columns = list(zip(*rows))
