@@ -24,12 +24,17 @@ changes:
 
   which keeps the tank's heat balance Σ F_i·(T_i − T) = V·dT/dt unchanged at every instant
   (ΔF_H = ΔF_H* once ΔF_C,arr = ΔF_C*). Of the two balances the temperature's is kept
-  because T_out is measured τ late (tau_out, 120 s) and its PI loop is slow; the mass
-  imbalance ΔF_H + ΔF_C,arr + ΔF_D over the τ_C window moves the level, which is measured
-  without delay and corrected by the level loop. tau_out enters no term: it delays the
-  effect of the disturbance and of its compensation on T_out alike and cancels from
-  −G_d/G_u; it is why the feedforward pays off (feedback learns of a disturbance τ late).
-  The delay line has round(tau_cold/sample_time) samples.
+  because T_out is measured τ late (tau_out, 120 s) and its PI loop is slow. The mass
+  imbalance m = ΔF_H + ΔF_C,arr + ΔF_D over the τ_C window moves the level; were the level
+  loop to correct that with F_H it would undo the heat balance (measured: then dynamic is
+  no better than static), so the level it causes is predicted with the linearised level of
+  003 eq. 4 at the level setpoint r_h (V = C·r_h², F = α·√r_h, time constant 4V/F, gain
+  1/(2·C·r_h) from volume to level; exact discretisation) and added to the level loop's
+  error (``level_offset`` [cm]): the level loop leaves that excursion to the tank's
+  self-regulation and corrects only what the model does not explain. tau_out enters no
+  term: it delays the effect of the disturbance and of its compensation on T_out alike and
+  cancels from −G_d/G_u; it is why the feedforward pays off (feedback learns of a
+  disturbance τ late). The delay line has round(tau_cold/sample_time) samples.
 
 A disturbance channel not (yet) measured (NaN) is taken at its nominal value.
 """
@@ -70,6 +75,11 @@ class FeedforwardConfig:
     T_D0: float = param(_OP.T_D, 'nominal disturbance temperature: no feedforward there; also '
                         'used while T_D is not measured', unit='°C', min=T_MIN, max=T_MAX,
                         name='two_loop.ff.T_D0')
+    C: float = param(_OP.C, 'feedforward model (dynamic): volume constant C in V = C·h²',
+                     unit='cm', min=1e-6, max=1e6, name='two_loop.ff.C', source='003 §1')
+    alpha: float = param(_OP.alpha, 'feedforward model (dynamic): outflow constant α in '
+                         'F = α·√h', unit='cm^2.5/s', min=1e-6, max=1e6,
+                         name='two_loop.ff.alpha', source='003 §1')
 
     @property
     def active(self) -> bool:
@@ -93,6 +103,9 @@ class DisturbanceFeedforward:
 
     def __init__(self, config: FeedforwardConfig, sample_time: float) -> None:
         self.config = config
+        self._ts = sample_time
+        self.level_offset = 0.0         # predicted level excursion now [cm] (dynamic)
+        self._next_offset = 0.0         # … at the next sample
         self._span = config.T_H - config.T_C
         self._n = max(int(round(config.tau_cold / sample_time)), 0) \
             if config.mode == 'dynamic' else 0
@@ -117,14 +130,17 @@ class DisturbanceFeedforward:
     def settle(self, d: np.ndarray) -> None:
         """The delay line in steady state for the disturbance ``d`` (a take-over)."""
         self._sent.clear()
+        self.level_offset = self._next_offset = 0.0
         cold = self.static(*self._measured(d))[1]
         self._sent.extend([cold] * (self._n + 1))
 
-    def step(self, d: np.ndarray, r_t: float) -> tuple[float, float]:
-        """This sample's ``(ΔF_H, ΔF_Cin)`` for ``d`` and the T_out setpoint ``r_t`` [°C]."""
+    def step(self, d: np.ndarray, r_t: float, r_h: float = _OP.h) -> tuple[float, float]:
+        """This sample's ``(ΔF_H, ΔF_Cin)`` for ``d`` and the setpoints ``r_t`` [°C], ``r_h``
+        [cm]; :attr:`level_offset` is the level excursion predicted for now (dynamic)."""
         f_d, t_d = self._measured(d)
         d_hot, d_cold = self.static(f_d, t_d)
         if self.config.mode == 'dynamic':
+            self.level_offset = self._next_offset
             if not self._sent:
                 self._sent.extend([d_cold] * (self._n + 1))
             self._sent.append(d_cold)
@@ -135,5 +151,18 @@ class DisturbanceFeedforward:
                 if math.isfinite(r_t) else cfg.T_C
             d_hot = -((f_d * (t_d - temp) - cfg.F_D0 * (cfg.T_D0 - temp))
                       + arrived * (cfg.T_C - temp)) / (cfg.T_H - temp)
+            self._predict_level(d_hot + arrived + f_d - cfg.F_D0, r_h)
         self.last = (d_hot, d_cold)
         return self.last
+
+    def _predict_level(self, imbalance: float, r_h: float) -> None:
+        """Advance the predicted level excursion over one sample of the mass ``imbalance``
+        [cm³/s] (module docstring); the offset used now is the one before this sample's."""
+        cfg = self.config
+        if not (math.isfinite(r_h) and r_h > 0.0):
+            return
+        volume = cfg.C * r_h * r_h
+        tau = 4.0 * volume / (cfg.alpha * math.sqrt(r_h))      # [s]
+        decay = math.exp(-self._ts / tau)
+        self._next_offset = (decay * self.level_offset
+                             + (1.0 - decay) * tau / (2.0 * cfg.C * r_h) * imbalance)

@@ -376,12 +376,13 @@ class TwoLoopPi:
             self._guarded = (r_0, r_1, r_h, r_t)
         limited = r_h != r_0 or r_t != r_1
         e = [r_h - y_h, r_t - y_t]
-        if self.scheduler is not None:
-            self._schedule((y_h, y_t), e)
         if self.feedforward is not None:
             if self._pending is not None or self._fault or not self._initialised:
                 self.feedforward.settle(d)
-            self._ff = self.feedforward.step(d, r_t)
+            self._ff = self.feedforward.step(d, r_t, r_h)
+            e[0] += self.feedforward.level_offset    # the level excursion it plans (dynamic)
+        if self.scheduler is not None:
+            self._schedule((y_h, y_t), e)
         if self._pending is not None:
             self._init_from(e, self._pending)
             self._pending = None
@@ -459,5 +460,6 @@ class TwoLoopPi:
             status.update({'schedule.value': self.scheduler.value, 'kp_h': kp_h, 'ki_h': ki_h,
                            'kp_T': kp_t, 'ki_T': ki_t})
         if self.feedforward is not None:
-            status.update({'ff.F_H': self._ff[0], 'ff.F_Cin': self._ff[1]})
+            status.update({'ff.F_H': self._ff[0], 'ff.F_Cin': self._ff[1],
+                           'ff.h_offset': self.feedforward.level_offset})
         return status
