@@ -54,6 +54,9 @@ def test_the_table_is_declared_once_and_refused_with_reasons():
     assert _reason({**table, 'two_loop.schedule.ki_T': [-0.002, 0.0027, -0.0037]}) == (
         'two_loop.schedule.ki_T: 0.0027 at breakpoint 1 must have the sign of '
         'two_loop.schedule.kp_T (-0.2)')
+    assert _reason({**table, 'two_loop.schedule.kp_h': [0.5, -0.9, 1.7],
+                    'two_loop.schedule.ki_h': [0.005, -0.005, 0.005]}).endswith(
+        'gains of both signs; the action of the loop must not reverse across the table')
     assert _reason({**table, 'two_loop.schedule.variable': 'pressure'}
                    ).startswith('two_loop.schedule.variable')
 

@@ -75,7 +75,7 @@ class GainSchedule:
 def schedule_reason(table: GainSchedule) -> str | None:
     """Why ``table`` is not a usable gain table (the parameter named), or None: equal lengths,
     finite values, strictly increasing breakpoints, and each row a valid PI pair (kp and ki of
-    one sign, not both 0)."""
+    one sign, not both 0), of one sign over the table."""
     prefix = 'two_loop.schedule.'
     if table.variable not in SCHEDULE_VARIABLES:
         return (f'{prefix}variable: {table.variable!r} is not one of '
@@ -105,6 +105,10 @@ def schedule_reason(table: GainSchedule) -> str | None:
             if (kp > 0 > ki) or (kp < 0 < ki):
                 return (f'{prefix}ki_{loop}: {ki:g} at breakpoint {k} must have the sign of '
                         f'{prefix}kp_{loop} ({kp:g})')
+        values = columns[f'kp_{loop}'] + columns[f'ki_{loop}']
+        if min(values) < 0.0 < max(values):     # interpolation would pass through kp = ki = 0
+            return (f'{prefix}kp_{loop}, {prefix}ki_{loop}: gains of both signs; the action of '
+                    'the loop must not reverse across the table')
     return None
 
 
