@@ -17,13 +17,15 @@ T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] 
 
 @pytest.fixture(scope='module')
 def results(tmp_path_factory):
-    cache: dict[str, RunResult] = {}
+    cache: dict[tuple, RunResult] = {}
     root = tmp_path_factory.mktemp('tank_beyond')
 
-    def get(name: str) -> RunResult:
-        if name not in cache:
-            cache[name] = run(SCENARIOS / f'{name}.yaml', root / name, in_process=True)
-        return cache[name]
+    def get(name: str, *overrides: str) -> RunResult:
+        key = (name, overrides)
+        if key not in cache:
+            cache[key] = run(SCENARIOS / f'{name}.yaml', root / f'{name}_{len(cache)}',
+                             overrides=overrides, in_process=True)
+        return cache[key]
     return get
 
 
@@ -121,3 +123,17 @@ def test_disturbance_feedforward_rejects_the_f_d_steps(results):
         for output in ('h', 'T_out'):
             for step in dist(result, output):
                 assert abs(step['final_error']) < 0.05 * step['peak_error']   # compensated
+
+
+def test_dynamic_feedforward_with_the_decoupled_loop_improves_both_outputs(results):
+    """tank_pi_decoupled_disturbance (003 §3.4) with --set controller.two_loop.feedforward:
+    the dynamic feedforward cuts the T_out IAE 553 → 14 °C·s and the level IAE 10944 → 4270
+    cm·s (level peaks 3.6 / 7.5 cm instead of 4.5 / 9.1): the decoupled level loop is slow, so
+    here the planned excursion is smaller than the one the loop lets happen without it."""
+    plain = results('tank_pi_decoupled_disturbance')
+    dynamic = results('tank_pi_decoupled_disturbance', 'controller.two_loop.feedforward=dynamic')
+    _physical(dynamic)
+    iae = {name: [r.metrics['outputs'][name]['iae'] for r in (plain, dynamic)]
+           for name in ('h', 'T_out')}
+    assert iae['T_out'][1] < 0.05 * iae['T_out'][0]
+    assert iae['h'][1] < 0.5 * iae['h'][0]
