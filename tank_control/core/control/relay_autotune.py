@@ -49,6 +49,10 @@ VERIFY_STATES = ('none', 'waiting', 'measuring', 'ok', 'worse', 'cancelled')
 _BIG = 1e12
 TRANSIENT_MAX_RATIO = 5.0
 """Highest transient point, in units of ωc (the lag window's correction grows as e^((ω·Tu/20)²/2))."""
+TRANSIENT_MAX_DRIFT = 0.002
+"""Largest output drift at the relay's start, per Tu and relay output amplitude a, that the
+transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on 001's FOPDT
+(docs/tuning.md); above it (and above 3 standard errors of the slope) they are skipped."""
 TRANSIENT_MAX_ALPHA_H = 8.0
 """Largest α·horizon: the unweighting e^(α·t) amplifies the noise of the pulse response; on
 001's FOPDT with 1 % noise the points are within 7 % at α·H = 4 and useless at 15 (docs/tuning.md)."""
@@ -386,6 +390,9 @@ class TransientPoints:
     alpha: float
     horizon: float
     record: float
+    phase: np.ndarray
+    """arg G(jω) [rad] on the branch of the identified model's phase (below −π where it lags
+    more), not wrapped into (−π, π]."""
 
 
 def transient_plan(model: ident.Model | ident.SopdtModel, tu: float, cfg: AutotuneConfig) -> TransientPlan:
@@ -637,7 +644,7 @@ class RelayAutotuner:
                     'autotune.transient_horizon_used': 0.0, 'autotune.transient_record': 0.0}
         return {'autotune.transient_omega': [float(w) for w in tp.omega],
                 'autotune.transient_gain': [float(abs(g)) for g in tp.response],
-                'autotune.transient_phase': [float(np.degrees(np.angle(g))) for g in tp.response],
+                'autotune.transient_phase': [float(np.degrees(p)) for p in tp.phase],
                 'autotune.transient_alpha_used': tp.alpha,
                 'autotune.transient_horizon_used': tp.horizon,
                 'autotune.transient_record': tp.record}
@@ -773,6 +780,7 @@ class RelayAutotuner:
         self._last_sign = 0.0                  # the relay's state at the previous sample
         self._from_rest = False                # settling ended steady (not by its timeout)
         self._transient_note = ''              # why a test has no transient points
+        self._drift = (0.0, 0.0)               # output slope over the settling window, its SE
         self._held: tuple[ident.RelayIdentification, TransientPlan] | None = None
         """Identified, the relay running on for the transient record."""
 
@@ -861,6 +869,7 @@ class RelayAutotuner:
             self._t_start = t
             self._y_rest = float(np.mean(wy))
             self._from_rest = steady
+            self._drift = _trend(np.array(self._win_t), wy)
             if cfg.test == 'step':
                 self._state = 'step'
                 return self._step_test(t, y, r)
@@ -978,6 +987,15 @@ class RelayAutotuner:
                                   '(the output was not steady within autotune.settle_band at '
                                   'autotune.settle_timeout)')
             return False
+        slope, se = self._drift
+        drift = abs(slope) * res.tu / res.amplitude
+        if drift > TRANSIENT_MAX_DRIFT and abs(slope) > 3.0 * se:
+            self._transient_note = (
+                f'transient points skipped: the output still moved by {drift:.2g}·a per Tu when '
+                f'the relay started (slope {slope:.3g}/s over autotune.settle_time; the points '
+                f'need the loop at rest: at most {TRANSIENT_MAX_DRIFT:g}·a per Tu); start the '
+                'test later or lengthen autotune.settle_time')
+            return False
         plan = transient_plan(res.model, res.tu, self._cfg)
         if plan.record > self._cfg.timeout:
             raise ValueError(f'the transient points need a relay record of {plan.record:.4g} s '
@@ -1003,8 +1021,10 @@ class RelayAutotuner:
         except (ValueError, ArithmeticError) as exc:
             self._end('failed', f'identification/tuning failed: {exc}')
             return
+        lag = np.array([_model_lag(res.model, w) for w in omega])
+        phase = np.angle(g) - 2.0 * np.pi * np.round((np.angle(g) + lag) / (2.0 * np.pi))
         self._finish(res, proposal, TransientPoints(omega, g, plan.alpha, plan.horizon,
-                                                    float(tt[-1] - tt[0])))
+                                                    float(tt[-1] - tt[0]), phase))
 
     def _step_test(self, t: float, y: float, r: float) -> float | None:
         """One sample of the open-loop step test (001 §1.2.1): the input held at u0 + Δu; when
@@ -1307,6 +1327,29 @@ def _stationary_pairs(cycles: list[ident.RelayCycle], count: int, tolerance: flo
                               min(a.y_min, b.y_min), 0.5 * (a.y1 + b.y1))
              for a, b in zip(tail[::2], tail[1::2])]
     return tail if ident.stationary_cycles(pairs, pairs_needed, tolerance, 2.0 * slack) else None
+
+
+def _model_lag(model: ident.Model | ident.SopdtModel, omega: float) -> float:
+    """Phase lag −arg G(jω) [rad] of an identified model, continuous in ω."""
+    if isinstance(model, ident.SopdtModel):
+        return omega * model.dead_time + math.atan2(model.b * omega, model.c - model.a * omega ** 2)
+    if isinstance(model, ident.IpdtModel):
+        return 0.5 * math.pi + omega * model.dead_time
+    return model.order * math.atan(omega * model.time_constant) + omega * model.dead_time
+
+
+def _trend(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope of ``y(t)`` [y units/s] and its standard error (0, 0 for fewer
+    than 4 samples)."""
+    if len(t) < 4:
+        return 0.0, 0.0
+    tc = t - t.mean()
+    sxx = float(tc @ tc)
+    if sxx <= 0.0:
+        return 0.0, 0.0
+    slope = float(tc @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * tc
+    return slope, math.sqrt(float(resid @ resid) / (len(t) - 2) / sxx)
 
 
 def design_arguments(model: ProcessModel, cfg: AutotuneConfig, pid: PidConfig) -> dict[str, Any]:
