@@ -52,7 +52,8 @@ TRANSIENT_MAX_RATIO = 5.0
 TRANSIENT_MAX_DRIFT = 0.002
 """Largest output drift at the relay's start, per Tu and relay output amplitude a, that the
 transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on 001's FOPDT
-(docs/tuning.md); above it (and above 3 standard errors of the slope) they are skipped."""
+(docs/tuning.md); above it (and above 6 standard errors of the slope: the loop's response to
+the noise makes the samples correlated, and 3 errors were exceeded at rest) they are skipped."""
 TRANSIENT_MAX_ALPHA_H = 8.0
 """Largest α·horizon: the unweighting e^(α·t) amplifies the noise of the pulse response; on
 001's FOPDT with 1 % noise the points are within 7 % at α·H = 4 and useless at 15 (docs/tuning.md)."""
@@ -989,7 +990,7 @@ class RelayAutotuner:
             return False
         slope, se = self._drift
         drift = abs(slope) * res.tu / res.amplitude
-        if drift > TRANSIENT_MAX_DRIFT and abs(slope) > 3.0 * se:
+        if drift > TRANSIENT_MAX_DRIFT and abs(slope) > 6.0 * se:
             self._transient_note = (
                 f'transient points skipped: the output still moved by {drift:.2g}·a per Tu when '
                 f'the relay started (slope {slope:.3g}/s over autotune.settle_time; the points '
