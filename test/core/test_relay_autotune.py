@@ -569,9 +569,14 @@ def test_transient_settings_that_cannot_work_are_refused_with_a_reason(settings,
     check_config(AutotuneConfig(transient_points=(1.0,), model='sopdt', additional_relay=0.2))
 
 
-def test_transient_record_longer_than_the_timeout_fails_the_test_with_the_numbers():
+def test_transient_record_longer_than_the_timeout_skips_the_points_with_the_numbers():
+    """The record the points need (≈ 146 s here) is only known from the identified model; past
+    autotune.timeout they are skipped with the numbers, and the test tunes as usual."""
     tuner = _tuner(transient_points=(0.5,), timeout=100.0)
     log = _run(tuner, 1500, noise=0.0)
-    assert log['state'][-1] == 'failed'
-    assert re.search(r'need a relay record of 14\d\.?\d* s .*autotune.timeout is 100 s',
-                     tuner.status['reason']), tuner.status['reason']
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    res = tuner.results()
+    assert res['autotune.transient_omega'] == [0.0]
+    assert re.search(r'need a relay record of 14\d\.?\d* s \(horizon 7\d\.?\d* s from the '
+                     r'identified fopdt \+ 4/α\) and autotune.timeout is 100 s',
+                     res['autotune.warning']), res['autotune.warning']

@@ -982,7 +982,8 @@ class RelayAutotuner:
 
     def _hold_for_transient(self, res: ident.RelayIdentification) -> bool:
         """After the identification: keep the relay running until the record is long enough
-        for the transient points (True), or say why there are none (False, ``warning``)."""
+        for the transient points (True), or say why there are none (False, ``warning``: not
+        from rest, or a record longer than ``autotune.timeout``; the test tunes as usual)."""
         if not self._from_rest:
             self._transient_note = ('transient points skipped: the relay did not start from rest '
                                   '(the output was not steady within autotune.settle_band at '
@@ -999,9 +1000,12 @@ class RelayAutotuner:
             return False
         plan = transient_plan(res.model, res.tu, self._cfg)
         if plan.record > self._cfg.timeout:
-            raise ValueError(f'the transient points need a relay record of {plan.record:.4g} s '
-                             f'(horizon {plan.horizon:.4g} s + 4/α); autotune.timeout is '
-                             f'{self._cfg.timeout:g} s')
+            self._transient_note = (
+                f'transient points skipped: they need a relay record of {plan.record:.4g} s '
+                f'(horizon {plan.horizon:.4g} s from the identified {res.model.kind} + 4/α) and '
+                f'autotune.timeout is {self._cfg.timeout:g} s; set autotune.transient_horizon '
+                'or a longer timeout')
+            return False
         self._held = (res, plan)
         return True
 
