@@ -2,8 +2,8 @@
 
 Part A — ``transient_response`` on a relay record from rest (ideal relay ±1, hysteresis 4σ,
 exact ZOH plant sampled at 0.1 s) of 001's FOPDT 0.05/(10s + 1)·e^(−3s) (ωc = 2π/10.82 s) and
-of the IPDT 0.05/s·e^(−5s) (ωc = 2π/20 s): record length, α, cut (horizon) and the Gaussian lag
-window (Tu/20) varied; the error is the worst over 0.25, 0.5, 1, 1.5, 2·ωc of |Ĝ/G − 1| [%]
+of the IPDT 0.05/s·e^(−5s) (ωc = 2π/20 s): record length, α, cut (horizon) and the Gaussian
+lag window (Tu/20) varied; the error is the worst over 0.25, 0.5, 1, 1.5, 2·ωc of |Ĝ/G − 1| [%]
 (and of |arg Ĝ − arg G| [°]); with noise σ = 1 % of the relay output amplitude, the median
 and the worst of that over ``--seeds`` seeds.
 
@@ -172,7 +172,8 @@ def part_b(seeds: int) -> None:
     print('\nPart B: RelayAutotuner with autotune.transient_points [0.25, 0.5, 1, 1.5, 2], from '
           f"rest, settle_time {SETTLE['time']:g} s; worst magnitude error [%] / phase error [°] "
           'per point over the seeds')
-    print('| plant | settings | noise | record [s] | 0.25·ωc | 0.5·ωc | ωc | 1.5·ωc | 2·ωc |')
+    print('| plant | settings | noise | record [s] | 0.25·ωc | 0.5·ωc | ωc | 1.5·ωc '
+          '| 2·ωc |')
     print('|---|---|---|---|---|---|---|---|---|')
     cases = [(name, {}) for name in PLANTS] + [
         ('SOPDT 1, 10 s, 4 s, 2 s', {'transient_horizon': 80.0})]
@@ -185,7 +186,8 @@ def part_b(seeds: int) -> None:
             rec = np.mean([o[2] for o in out])
             cells = ' | '.join(f'{gi:.2f} % / {pi:.2f}°' for gi, pi in zip(g, p))
             given = ', '.join(f'{k} {v}' for k, v in settings.items()) or 'auto'
-            skipped = f' ({len(every) - len(out)} of {len(every)} skipped)' if len(out) < len(every) else ''
+            skipped = (f' ({len(every) - len(out)} of {len(every)} skipped)'
+                       if len(out) < len(every) else '')
             print(f'| {name} | {given} | {100 * noise:g} %{skipped} | {rec:.0f} | {cells} |',
                   flush=True)
 
