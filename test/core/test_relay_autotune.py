@@ -580,3 +580,15 @@ def test_transient_record_longer_than_the_timeout_skips_the_points_with_the_numb
     assert re.search(r'need a relay record of 14\d\.?\d* s \(horizon 7\d\.?\d* s from the '
                      r'identified fopdt \+ 4/α\) and autotune.timeout is 100 s',
                      res['autotune.warning']), res['autotune.warning']
+
+
+def test_a_given_alpha_too_large_for_the_models_cut_skips_the_points_with_the_reason():
+    """transient_alpha 0.2/s alone passes the settings (the cut is not known yet); against the
+    identified FOPDT's cut L + 7T ≈ 73 s it is α·horizon ≈ 14.6: skipped, the reason given."""
+    tuner = _tuner(transient_points=(0.5,), transient_alpha=0.2)
+    log = _run(tuner, 1500, noise=0.0)
+    assert log['state'][-1] == 'running', tuner.status['reason']
+    res = tuner.results()
+    assert res['autotune.transient_omega'] == [0.0]
+    assert re.match(r'transient points skipped: autotune.transient_alpha: α·horizon = 14\.\d > 8',
+                    res['autotune.warning']), res['autotune.warning']

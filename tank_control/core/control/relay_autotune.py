@@ -48,7 +48,8 @@ VERIFY_STATES = ('none', 'waiting', 'measuring', 'ok', 'worse', 'cancelled')
 
 _BIG = 1e12
 TRANSIENT_MAX_RATIO = 5.0
-"""Highest transient point, in units of ωc (the lag window's correction grows as e^((ω·Tu/20)²/2))."""
+"""Highest transient point, in units of ωc (the lag window's correction grows as
+e^((ω·Tu/20)²/2))."""
 TRANSIENT_MAX_DRIFT = 0.002
 """Largest output drift at the relay's start, per Tu and relay output amplitude a, that the
 transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on 001's FOPDT
@@ -56,7 +57,8 @@ transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on
 the noise makes the samples correlated, and 3 errors were exceeded at rest) they are skipped."""
 TRANSIENT_MAX_ALPHA_H = 8.0
 """Largest α·horizon: the unweighting e^(α·t) amplifies the noise of the pulse response; on
-001's FOPDT with 1 % noise the points are within 7 % at α·H = 4 and useless at 15 (docs/tuning.md)."""
+001's FOPDT with 1 % noise the points were within 10 % at α·H = 2…8 and useless at 15
+(docs/tuning.md)."""
 
 
 def _at(default: Any, description: str, field_name: str, **meta: Any) -> Any:
@@ -396,7 +398,8 @@ class TransientPoints:
     more), not wrapped into (−π, π]."""
 
 
-def transient_plan(model: ident.Model | ident.SopdtModel, tu: float, cfg: AutotuneConfig) -> TransientPlan:
+def transient_plan(model: ident.Model | ident.SopdtModel, tu: float,
+                   cfg: AutotuneConfig) -> TransientPlan:
     """α, cut, lag window and record length of the transient points (004 eqs. 3.3.1–3.3.10;
     the choices are ours, measured in docs/tuning.md): the cut where the pulse response has died
     out, ``L + 7·T`` for a lag (``T1 + T2`` for an SOPDT; e^(−7) ≈ 0.1 % left) and ``L + Tu/4``
@@ -998,7 +1001,11 @@ class RelayAutotuner:
                 f'need the loop at rest: at most {TRANSIENT_MAX_DRIFT:g}·a per Tu); start the '
                 'test later or lengthen autotune.settle_time')
             return False
-        plan = transient_plan(res.model, res.tu, self._cfg)
+        try:
+            plan = transient_plan(res.model, res.tu, self._cfg)
+        except ValueError as exc:                 # a given α against the model's cut
+            self._transient_note = f'transient points skipped: {exc}'
+            return False
         if plan.record > self._cfg.timeout:
             self._transient_note = (
                 f'transient points skipped: they need a relay record of {plan.record:.4g} s '
