@@ -491,7 +491,8 @@ def test_transient_points_match_the_exact_frequency_response_of_001s_fopdt(noise
     on until the record is horizon + 4/α long (horizon L + 7T of the identified FOPDT, α =
     4/horizon: ≈ 146 s), then G(jω) at 0.25…2·ωc matches K·e^(−jωL)/(1 + jωT) — to 0.2 % and
     0.1° noise-free, to 6 % and 3.5° with noise 1 % of the amplitude — phases unwrapped (the
-    points past ωc lag by more than 180°). The ultimate point and the tuning are unchanged."""
+    points past ωc lag by more than 180°); the same estimate at the oscillation frequency agrees
+    with the first harmonic (autotune.transient_check). The ultimate point is unchanged."""
     tuner = _tuner(transient_points=POINTS)
     log = _run(tuner, 3000, noise=noise * AMP)
     assert log['state'][-1] == 'running', tuner.status['reason']
@@ -503,6 +504,9 @@ def test_transient_points_match_the_exact_frequency_response_of_001s_fopdt(noise
     assert np.abs(gain / np.abs(exact) - 1).max() < tol_gain
     assert np.degrees(np.abs(phase - exact_phase)).max() < tol_deg
     assert phase[-1] < -math.pi
+    # the cross-check against the first harmonic at the oscillation frequency
+    assert res['autotune.transient_check'] < (0.5 if noise == 0 else 5.0)
+    assert res['autotune.warning'] == ''
     # the record: from the relay's first sample, horizon + 4/α long, the relay running on in
     # 'measuring' until then (4 stationary cycles alone take ≈ 46 s)
     m = res['autotune.model_time_constant'], res['autotune.model_dead_time']
@@ -539,6 +543,7 @@ def test_transient_points_of_an_integrating_process(noise, tol_gain, tol_deg):
     assert np.degrees(np.abs(phase - (-math.pi / 2 - w * to))).max() < tol_deg
     assert res['autotune.transient_horizon_used'] == pytest.approx(
         res['autotune.model_dead_time'] + res['autotune.tu'] / 4)
+    assert res['autotune.transient_check'] < (0.5 if noise == 0 else 5.0)
 
 
 def test_transient_points_are_skipped_with_a_reason_when_the_loop_was_not_at_rest():

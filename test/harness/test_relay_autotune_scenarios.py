@@ -370,3 +370,34 @@ def test_shipped_transient_scenario_gives_five_points_of_the_exact_response_and_
     m = step_metrics(trace['t'], trace['y.y'], 110.0, 100.0,
                      t_step=params['reference']['setpoint.y.times'][1])
     assert m.overshoot < 10.0 and abs(m.steady_state_error) < 0.1
+
+
+def test_transient_check_flags_a_cut_before_the_pulse_response_died_out():
+    """Outside the model family: on the SOPDT (1, 10 s, 4 s, 2 s; noise-free) autotune.model auto
+    identifies an IPDT, whose cut L + Tu/4 comes before the SOPDT's pulse response has died
+    out; the same estimate at the oscillation frequency then disagrees with the first harmonic
+    (autotune.transient_check > 5 %) and autotune.warning says so. With the cut given
+    (autotune.transient_horizon 80 s ≈ L + 7·T1) the points are the plant's."""
+    params = params_file.read(SCENARIOS / 'sopdt_relay_two_points.yaml')
+    params['plant']['noise_std'] = [0.0]
+    params['controller'].update({'autotune.model': 'auto', 'autotune.rule': 'zn_001',
+                                 'autotune.transient_points': [0.25, 0.5, 1.0, 2.0],
+                                 'autotune.start_time': 400.0,     # the PI is at rest by then
+                                 'autotune.settle_time': 20.0})
+    results = []
+    for horizon in (0.0, 80.0):
+        params['controller']['autotune.transient_horizon'] = horizon
+        _, tuner, _ = run_logged(params, 800.0)
+        results.append(tuner.results())
+    auto, given = results
+    for res in results:
+        assert res['autotune.state'] == 'running', res['autotune.reason']
+    w = np.array(given['autotune.transient_omega'])
+    exact = np.exp(-2j * w) / ((10j * w + 1) * (4j * w + 1))
+    assert auto['autotune.model_kind'] == 'ipdt'
+    assert auto['autotune.transient_check'] > 5.0
+    assert 'differ from the first harmonic by' in auto['autotune.warning']
+    assert 'set autotune.transient_horizon' in auto['autotune.warning']
+    assert np.abs(np.array(auto['autotune.transient_gain']) / np.abs(exact) - 1).max() > 0.05
+    assert given['autotune.transient_check'] < 1.0 and given['autotune.warning'] == ''
+    assert np.abs(np.array(given['autotune.transient_gain']) / np.abs(exact) - 1).max() < 0.005
