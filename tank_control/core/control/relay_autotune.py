@@ -7,7 +7,9 @@ point and model come from :func:`~tank_control.core.tuning.identification.identi
 gains from :func:`~tank_control.core.tuning.rules.tune`; the identified model is kept, so a rule
 or target change re-derives the proposal without a new test. Each proposal carries its margins
 and predicted response (``core/analysis/robustness.py``); it is applied at once or previewed,
-reverted on request and verified against its prediction after the apply. Times in s, signals in
+reverted on request and verified against its prediction after the apply. With
+``autotune.transient_points`` the relay runs on until its record from rest gives ``G(jω)`` at
+several frequencies (004 eqs. 3.3.1–3.3.10, :func:`transient_plan`). Times in s, signals in
 the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.md
 ("relay_autotune").
 """
