@@ -345,3 +345,59 @@ def test_shipped_smith_autotune_scenario_recovers_the_model_and_follows_eq_3_6_6
     tt = t[sel] - 600.0 - 3.0
     pred = 110.0 - 5.0 * np.where(tt > 0, 1 - np.exp(-np.maximum(tt, 0) / te), 0.0)
     assert np.abs(y[sel] - pred).max() < 0.03 * 5.0
+
+
+def test_shipped_transient_scenario_gives_five_points_of_the_exact_response_and_tunes_simc_pi():
+    """config/scenarios/fopdt_relay_transient.yaml (004 §3.3 A, eqs. 3.3.1–3.3.10): one relay
+    test from rest at 300 s (noise σ 0.03 ≈ 1 % of the amplitude) gives G(jω) at 0.25, 0.5, 1,
+    1.5 and 2·ωc within its claim of the plant's exact K·e^(−jωL)/(1 + jωT); the relay runs on
+    in 'measuring' until the record is ≈ 146 s; SIMC PI then follows the setpoint step."""
+    params = params_file.read(SCENARIOS / 'fopdt_relay_transient.yaml')
+    trace, tuner, log = run_logged(params, float(params['harness']['duration']))
+    assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
+    res = tuner.results()
+    w = np.array(res['autotune.transient_omega'])
+    assert w == pytest.approx(2 * math.pi / res['autotune.tu'] *
+                              np.array(params['controller']['autotune.transient_points']))
+    exact = 0.05 * np.exp(-3j * w) / (1 + 10j * w)
+    gain_error = np.array(res['autotune.transient_gain']) / np.abs(exact) - 1
+    phase_error = np.array(res['autotune.transient_phase']) - np.degrees(-3 * w - np.arctan(10 * w))
+    assert np.abs(gain_error).max() < 0.05 and np.abs(phase_error).max() < 3.0   # the claim
+    assert log[4][0] - log[2][0] == pytest.approx(res['autotune.transient_record'], abs=0.2)
+    assert res['autotune.transient_record'] > 2.5 * 46.0          # the record it needs
+    line = relay_kind.summary({**res, 'autotune.rule': 'simc'})
+    assert '; G(jω) from the transient (α 0.05' in line and line.count(' rad/s ') == 5
+    m = step_metrics(trace['t'], trace['y.y'], 110.0, 100.0,
+                     t_step=params['reference']['setpoint.y.times'][1])
+    assert m.overshoot < 10.0 and abs(m.steady_state_error) < 0.1
+
+
+def test_transient_check_flags_a_cut_before_the_pulse_response_died_out():
+    """Outside the model family: on the SOPDT (1, 10 s, 4 s, 2 s; noise-free) autotune.model auto
+    identifies an IPDT, whose cut L + Tu/4 comes before the SOPDT's pulse response has died
+    out; the same estimate at the oscillation frequency then disagrees with the first harmonic
+    (autotune.transient_check > 5 %) and autotune.warning says so. With the cut given
+    (autotune.transient_horizon 80 s ≈ L + 7·T1) the points are the plant's."""
+    params = params_file.read(SCENARIOS / 'sopdt_relay_two_points.yaml')
+    params['plant']['noise_std'] = [0.0]
+    params['controller'].update({'autotune.model': 'auto', 'autotune.rule': 'zn_001',
+                                 'autotune.transient_points': [0.25, 0.5, 1.0, 2.0],
+                                 'autotune.start_time': 400.0,     # the PI is at rest by then
+                                 'autotune.settle_time': 20.0})
+    results = []
+    for horizon in (0.0, 80.0):
+        params['controller']['autotune.transient_horizon'] = horizon
+        _, tuner, _ = run_logged(params, 800.0)
+        results.append(tuner.results())
+    auto, given = results
+    for res in results:
+        assert res['autotune.state'] == 'running', res['autotune.reason']
+    w = np.array(given['autotune.transient_omega'])
+    exact = np.exp(-2j * w) / ((10j * w + 1) * (4j * w + 1))
+    assert auto['autotune.model_kind'] == 'ipdt'
+    assert auto['autotune.transient_check'] > 5.0
+    assert 'differ from the first harmonic by' in auto['autotune.warning']
+    assert 'set autotune.transient_horizon' in auto['autotune.warning']
+    assert np.abs(np.array(auto['autotune.transient_gain']) / np.abs(exact) - 1).max() > 0.05
+    assert given['autotune.transient_check'] < 1.0 and given['autotune.warning'] == ''
+    assert np.abs(np.array(given['autotune.transient_gain']) / np.abs(exact) - 1).max() < 0.005

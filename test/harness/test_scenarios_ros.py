@@ -125,6 +125,25 @@ def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, r
     assert [list(s) for s in states] == [list(s) for s in ref.metrics['run']['controller_states']]
 
 
+def test_transient_points_over_ros_equal_the_in_process_ones(tmp_path, ros_env):
+    """fopdt_relay_transient (004 eqs. 3.3.1–3.3.10), cut after the tuner took over (≈ 466 s):
+    controller_node reports the same transient points (autotune.transient_omega/gain/phase,
+    read-only parameters) and summary line as the in-process loop, on an equal trace."""
+    scenario = CONFIG / 'scenarios' / 'fopdt_relay_transient.yaml'
+    ros = run(scenario, tmp_path / 'ros', rtf=0.0, duration=480.0, env=ros_env)
+    ref = run(scenario, tmp_path / 'ref', duration=480.0, in_process=True)
+    assert_equal_traces(ros.files['trace'], ref.files['trace'])
+    a, b = (r.metrics['controller'] for r in (ros, ref))
+    assert a['autotune']['autotune.state'] == b['autotune']['autotune.state'] == 'running'
+    assert len(a['autotune']['autotune.transient_omega']) == 5
+    for key in ('autotune.transient_omega', 'autotune.transient_gain',
+                'autotune.transient_phase'):
+        assert a['autotune'][key] == pytest.approx(b['autotune'][key], rel=1e-9), key
+    for key in ('autotune.transient_record', 'autotune.transient_alpha_used', 'autotune.ku'):
+        assert a['autotune'][key] == pytest.approx(b['autotune'][key], rel=1e-9), key
+    assert a['summary'] == b['summary'] and 'G(jω) from the transient' in a['summary']
+
+
 def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
     """sim: the plant publishes /clock at 5x real time; the others answer each /clock tick.
     The plant starts paused and the harness releases it once the graph is up, so the

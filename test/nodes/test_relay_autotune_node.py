@@ -319,3 +319,32 @@ def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env
     assert got['direct_action'] is True
     # the level loop stayed in manual: F_H = 14 on every recorded tick
     assert {v.get('F_H') for v in graph.signals['manipulated'].values()} <= {14.0, None}
+
+
+def test_transient_settings_over_ros_refused_with_the_reason_and_results_declared(
+        procs, ros_env, node_cmd, probe, gate, tmp_path):
+    """controller_node declares autotune.transient_points (a double array) and the read-only
+    results autotune.transient_omega/gain/phase ([0.0] before a test); a setting that cannot
+    work is refused with the reason naming the parameter, one that can is taken."""
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, fopdt_params(paused=True))
+    graph.wait_state('idle', 30)
+    got = graph.get('autotune.transient_points', 'autotune.transient_omega',
+                    'autotune.transient_gain', 'autotune.transient_phase')
+    assert {k: list(v) for k, v in got.items()} == {
+        'autotune.transient_points': [0.0], 'autotune.transient_omega': [0.0],
+        'autotune.transient_gain': [0.0], 'autotune.transient_phase': [0.0]}
+    refused = graph.result(graph.controller.set_parameters(
+        [Parameter('autotune.transient_points', value=[0.5, 0.0])])).results[0]
+    assert not refused.successful and 'autotune.transient_points: [0.5, 0.0]' in refused.reason
+    for name, value in (('autotune.transient_points', [0.5, 1.0, 2.0]),
+                        ('autotune.transient_horizon', 30.0)):
+        taken = graph.result(graph.controller.set_parameters([Parameter(name, value=value)]))
+        assert taken.results[0].successful, taken.results[0].reason
+    refused = graph.result(graph.controller.set_parameters(
+        [Parameter('autotune.transient_alpha', value=0.5)])).results[0]
+    assert not refused.successful and 'α·horizon = 15 > 8' in refused.reason
+    assert list(graph.get('autotune.transient_points')['autotune.transient_points']) == \
+        [0.5, 1.0, 2.0]
+    refused = graph.result(graph.controller.set_parameters(
+        [Parameter('autotune.transient_gain', value=[1.0])])).results[0]
+    assert not refused.successful

@@ -7,7 +7,9 @@ point and model come from :func:`~tank_control.core.tuning.identification.identi
 gains from :func:`~tank_control.core.tuning.rules.tune`; the identified model is kept, so a rule
 or target change re-derives the proposal without a new test. Each proposal carries its margins
 and predicted response (``core/analysis/robustness.py``); it is applied at once or previewed,
-reverted on request and verified against its prediction after the apply. Times in s, signals in
+reverted on request and verified against its prediction after the apply. With
+``autotune.transient_points`` the relay runs on until its record from rest gives ``G(jω)`` at
+several frequencies (004 eqs. 3.3.1–3.3.10, :func:`transient_plan`). Times in s, signals in
 the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.md
 ("relay_autotune").
 """
@@ -47,6 +49,21 @@ VERIFY_STATES = ('none', 'waiting', 'measuring', 'ok', 'worse', 'cancelled')
 
 
 _BIG = 1e12
+TRANSIENT_MAX_RATIO = 5.0
+"""Highest transient point, in units of ωc (the lag window's correction grows as
+e^((ω·Tu/20)²/2))."""
+TRANSIENT_MAX_DRIFT = 0.002
+"""Largest output drift at the relay's start, per Tu and relay output amplitude a, that the
+transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on 001's FOPDT
+(docs/tuning.md); above it (and above 6 standard errors of the slope: the loop's response to
+the noise makes the samples correlated, and 3 errors were exceeded at rest) they are skipped."""
+TRANSIENT_CHECK_WARN = 0.05
+"""Above this relative difference between the transient estimate and the first harmonic at the
+oscillation frequency, ``autotune.warning`` says so."""
+TRANSIENT_MAX_ALPHA_H = 8.0
+"""Largest α·horizon: the unweighting e^(α·t) amplifies the noise of the pulse response; on
+001's FOPDT with 1 % noise the points were within 10 % at α·H = 2…8 and useless at 15
+(docs/tuning.md)."""
 
 
 def _at(default: Any, description: str, field_name: str, **meta: Any) -> Any:
@@ -84,6 +101,22 @@ class AutotuneConfig:
                                   'without the integrator phase; 004 recommends 0.1–0.3; 0 = '
                                   'off', 'additional_relay', unit='-', min=0.0, max=0.5,
                                   source='004 eqs. 3.3.18–3.3.21')
+    transient_points: tuple[float, ...] = _at(
+        (0.0,), 'frequencies ω/ωc (ωc = 2π/Tu of this test) at which G(jω) is computed from the '
+        'recorded relay transient with the decaying exponential (004 eqs. 3.3.1–3.3.10): the '
+        'relay runs on after the stationary cycles until the record from its start is '
+        'transient_horizon + 4/transient_alpha long; results autotune.transient_*; [0] = off',
+        'transient_points', unit='ωc', min=0.0, max=TRANSIENT_MAX_RATIO,
+        source='004 eqs. 3.3.1–3.3.10')
+    transient_horizon: float = _at(0.0, 'transient points: cut of the pulse response (after it '
+                                   'has died out); 0 = from the identified model: L + 7·T '
+                                   '(FOPDT; T1 + T2 for an SOPDT), L + Tu/4 (IPDT)',
+                                   'transient_horizon', unit='s', min=0.0, max=_BIG)
+    transient_alpha: float = _at(0.0, 'transient points: decay rate α of the weighting '
+                                 'e^(−α·t); 0 = 4/transient_horizon; α·horizon above '
+                                 f'{TRANSIENT_MAX_ALPHA_H:g} amplifies the noise too much',
+                                 'transient_alpha', unit='1/s', min=0.0, max=_BIG,
+                                 source='004 eqs. 3.3.1–3.3.2')
     hysteresis: float = _at(0.0, 'relay hysteresis ε (noise band, 004 Fig. 3.3); the larger of '
                             'this and noise_band·σ is used', 'hysteresis', unit='y units',
                             min=0.0, max=_BIG)
@@ -170,10 +203,41 @@ class AutotuneConfig:
         if self.additional_relay > 0.0 and self.relay_bias != 0.0:
             return ('autotune.additional_relay: not with a biased relay (autotune.relay_bias '
                     f'{self.relay_bias:g}): each needs the cycle the other changes')
+        reason = self._transient_reason()
+        if reason:
+            return reason
         if abs(self.relay_bias) >= self.relay_amplitude:
             return (f'autotune.relay_bias: |{self.relay_bias:g}| must be below '
                     f'autotune.relay_amplitude {self.relay_amplitude:g}: the relay output would '
                     'not change sides around u0 and no cycle forms (004 eq. 3.3.12)')
+        return None
+
+    @property
+    def transient(self) -> bool:
+        """Transient points requested (``autotune.transient_points`` not [0])."""
+        return any(p > 0.0 for p in self.transient_points)
+
+    def _transient_reason(self) -> str | None:
+        points = self.transient_points
+        if not self.transient:
+            return None
+        if 0.0 in points or len(points) > 20:
+            return (f'autotune.transient_points: {list(points)}: [0] (off) or 1 to 20 '
+                    f'frequencies ω/ωc in (0, {TRANSIENT_MAX_RATIO:g}]')
+        if self.test == 'step':
+            return ('autotune.transient_points: come from the relay record; the step test '
+                    '(autotune.test step) has none')
+        if self.model == 'sopdt' and self.additional_relay == 0.0:
+            return ('autotune.transient_points: not with autotune.model sopdt through the '
+                    'integrator phase (the record must be one relay test from rest); use '
+                    'autotune.additional_relay for the second point')
+        if (self.transient_alpha > 0.0 and self.transient_horizon > 0.0
+                and self.transient_alpha * self.transient_horizon > TRANSIENT_MAX_ALPHA_H):
+            return (f'autotune.transient_alpha: α·horizon = '
+                    f'{self.transient_alpha * self.transient_horizon:g} > '
+                    f'{TRANSIENT_MAX_ALPHA_H:g}: the unweighting e^(α·t) would amplify the '
+                    'noise of the pulse response beyond use; lower transient_alpha (and '
+                    'record longer) or the horizon')
         return None
 
 
@@ -229,6 +293,31 @@ class AutotuneResults:
                              unit='y units per u unit', min=0.0, max=_BIG, read_only=True)
     point2_phase: float = _at(0.0, 'process phase at point2_omega', 'point2_phase', unit='deg',
                               min=-_BIG, max=_BIG, read_only=True)
+    transient_omega: tuple[float, ...] = _at((0.0,), 'frequencies of the transient points '
+                                             '(autotune.transient_points·ωc); [0] = none',
+                                             'transient_omega', unit='rad/s', min=0.0,
+                                             max=_BIG, read_only=True)
+    transient_gain: tuple[float, ...] = _at((0.0,), '|G(jω)| at transient_omega (004 eqs. '
+                                            '3.3.1–3.3.10), in the frame of a positive-gain '
+                                            'plant like model_gain', 'transient_gain',
+                                            unit='y units per u unit', min=0.0, max=_BIG,
+                                            read_only=True)
+    transient_phase: tuple[float, ...] = _at((0.0,), 'arg G(jω) at transient_omega',
+                                             'transient_phase', unit='deg', min=-_BIG,
+                                             max=_BIG, read_only=True)
+    transient_alpha_used: float = _at(0.0, 'α the transient points used', 'transient_alpha_used',
+                                      unit='1/s', min=0.0, max=_BIG, read_only=True)
+    transient_horizon_used: float = _at(0.0, 'cut of the pulse response the transient points '
+                                        'used', 'transient_horizon_used', unit='s', min=0.0,
+                                        max=_BIG, read_only=True)
+    transient_record: float = _at(0.0, 'length of the relay record the transient points came '
+                                  'from (from the relay start)', 'transient_record', unit='s',
+                                  min=0.0, max=_BIG, read_only=True)
+    transient_check: float = _at(0.0, 'the same estimate at the oscillation frequency against '
+                                 'the first harmonic over the stationary cycles, |Ĝ/G1 − 1| '
+                                 f'(above {100 * TRANSIENT_CHECK_WARN:g} % autotune.warning '
+                                 'says so)', 'transient_check', unit='%', min=0.0, max=_BIG,
+                                 read_only=True)
     proposed_kp: float = _at(0.0, 'gains of the design from the identified model (autotune.rule)',
                              'proposed_kp', min=0.0, max=_BIG, read_only=True)
     proposed_ti: float = _at(0.0, 'proposed integral time (0 = none)', 'proposed_ti', unit='s',
@@ -292,6 +381,61 @@ class Proposal:
     prediction: Prediction
 
 
+@dataclass(frozen=True)
+class TransientPlan:
+    """How the transient points are computed (:func:`transient_plan`): ``alpha`` [1/s],
+    ``horizon`` (cut of the pulse response) [s], ``smoothing`` (Gaussian lag window) [s] and the
+    ``record`` length from the relay's start that it needs [s]."""
+
+    alpha: float
+    horizon: float
+    smoothing: float
+    record: float
+
+
+@dataclass(frozen=True)
+class TransientPoints:
+    """``G(jω)`` at ``omega`` [rad/s] from the relay transient, with the ``alpha`` [1/s],
+    ``horizon`` [s] and ``record`` length [s] it came from."""
+
+    omega: np.ndarray
+    response: np.ndarray
+    alpha: float
+    horizon: float
+    record: float
+    phase: np.ndarray
+    """arg G(jω) [rad] on the branch of the identified model's phase (below −π where it lags
+    more), not wrapped into (−π, π]."""
+    check: float
+    """|Ĝ(jω1)/G1 − 1| of the same estimate at the oscillation frequency ω1 against the first
+    harmonic G1 over the stationary cycles [-]."""
+
+
+def transient_plan(model: ident.Model | ident.SopdtModel, tu: float,
+                   cfg: AutotuneConfig) -> TransientPlan:
+    """α, cut, lag window and record length of the transient points (004 eqs. 3.3.1–3.3.10;
+    the choices are ours, measured in docs/tuning.md): the cut where the pulse response has died
+    out, ``L + 7·T`` for a lag (``T1 + T2`` for an SOPDT; e^(−7) ≈ 0.1 % left) and ``L + Tu/4``
+    for an integrator (its differenced output's pulse ends at L); α = 4/cut (the unweighting
+    then amplifies by e^4 at most); the record from the relay's start ``cut + 4/α`` (the
+    weighted record has decayed to e^(−4) past the cut); the lag window ``Tu/20``.
+    ``transient_horizon``/``transient_alpha`` > 0 replace the cut/α."""
+    smoothing = tu / 20.0
+    if model.kind == 'ipdt':
+        auto = model.dead_time + 5.0 * smoothing
+    elif isinstance(model, ident.SopdtModel):     # T1 + T2, or 1/(ζ·ωn) when underdamped
+        auto = model.dead_time + 7.0 * max(model.b / model.c, 2.0 * model.a / model.b)
+    else:
+        auto = model.dead_time + 7.0 * model.time_constant
+    horizon = cfg.transient_horizon or auto
+    alpha = cfg.transient_alpha or 4.0 / horizon
+    if alpha * horizon > TRANSIENT_MAX_ALPHA_H:
+        raise ValueError(f'autotune.transient_alpha: α·horizon = {alpha * horizon:.3g} > '
+                         f'{TRANSIENT_MAX_ALPHA_H:g} (horizon {horizon:.4g} s): the unweighting '
+                         'would amplify the noise beyond use; lower transient_alpha')
+    return TransientPlan(alpha, horizon, smoothing, horizon + 4.0 / alpha)
+
+
 @dataclass
 class _Check:
     """Verification of applied gains (see the module docstring)."""
@@ -346,6 +490,7 @@ class RelayAutotuner:
         self._scheduled_done = False            # autotune.start_time has fired
         self._apply_done = False                # autotune.apply_time has fired
         self._model: ProcessModel | None = None   # the identified model, kept
+        self._transient: TransientPoints | None = None
         self._proposal: Proposal | None = None
         self._warning = ''
         self._check = _Check()
@@ -496,11 +641,32 @@ class RelayAutotuner:
             'autotune.point2_gain': float(abs(res.point_2[1])) if res and res.point_2 else 0.0,
             'autotune.point2_phase': float(np.degrees(np.angle(res.point_2[1])))
             if res and res.point_2 else 0.0,
+            **self._transient_values(),
             'kp': abs(cfg.kp), 'ti': cfg.ti if math.isfinite(cfg.ti) else 0.0, 'td': cfg.td,
             'b': cfg.b, 'c': cfg.c,
             **self._proposal_values(), **self._check_values(),
             'autotune.warning': self._warning,
         }
+
+    @property
+    def transient(self) -> TransientPoints | None:
+        """The transient points of the last successful test (None without)."""
+        return self._transient if self._result is not None else None
+
+    def _transient_values(self) -> dict[str, Any]:
+        tp = self.transient
+        if tp is None:
+            return {'autotune.transient_omega': [0.0], 'autotune.transient_gain': [0.0],
+                    'autotune.transient_phase': [0.0], 'autotune.transient_alpha_used': 0.0,
+                    'autotune.transient_horizon_used': 0.0, 'autotune.transient_record': 0.0,
+                    'autotune.transient_check': 0.0}
+        return {'autotune.transient_omega': [float(w) for w in tp.omega],
+                'autotune.transient_gain': [float(abs(g)) for g in tp.response],
+                'autotune.transient_phase': [float(np.degrees(p)) for p in tp.phase],
+                'autotune.transient_alpha_used': tp.alpha,
+                'autotune.transient_horizon_used': tp.horizon,
+                'autotune.transient_record': tp.record,
+                'autotune.transient_check': 100.0 * tp.check}
 
     def _proposal_values(self) -> dict[str, Any]:
         p = self._proposal
@@ -631,6 +797,11 @@ class RelayAutotuner:
         self._y_rest = math.nan                # mean output over the settling window
         self._u2: float | None = None          # additional relay's output [u units]
         self._last_sign = 0.0                  # the relay's state at the previous sample
+        self._from_rest = False                # settling ended steady (not by its timeout)
+        self._transient_note = ''              # why a test has no transient points
+        self._drift = (0.0, 0.0)               # output slope over the settling window, its SE
+        self._held: tuple[ident.RelayIdentification, TransientPlan] | None = None
+        """Identified, the relay running on for the transient record."""
 
     def _pid_step(self, y: float, r: float) -> float:
         if self._pending is not None:
@@ -716,6 +887,8 @@ class RelayAutotuner:
             self._eps = max(cfg.hysteresis, cfg.noise_band * self._sigma)
             self._t_start = t
             self._y_rest = float(np.mean(wy))
+            self._from_rest = steady
+            self._drift = _trend(np.array(self._win_t), wy)
             if cfg.test == 'step':
                 self._state = 'step'
                 return self._step_test(t, y, r)
@@ -753,7 +926,12 @@ class RelayAutotuner:
         self._rec_t.append(t)
         self._rec_u.append(u)
         self._rec_y.append(y)
-        if switched:
+        if self._held is not None:
+            if t - self._rec_t[0] >= self._held[1].record - 1e-9:
+                self._finish_transient()
+                if self._state not in TESTING:
+                    return None
+        elif switched:
             self._analyse(r)
             if self._state not in TESTING:
                 return None       # tuned (PID takes over from u0) or failed
@@ -811,12 +989,78 @@ class RelayAutotuner:
             elif sopdt:
                 self._begin_integrator(res)
                 return False
+            if cfg.transient and self._hold_for_transient(res):
+                return False
             proposal = self._design(res, cfg)
         except (ValueError, ArithmeticError) as exc:
             self._end('failed', f'identification/tuning failed: {exc}')
             return True
         self._finish(res, proposal)
         return True
+
+    def _hold_for_transient(self, res: ident.RelayIdentification) -> bool:
+        """After the identification: keep the relay running until the record is long enough
+        for the transient points (True), or say why there are none (False, ``warning``: not
+        from rest, or a record longer than ``autotune.timeout``; the test tunes as usual)."""
+        if not self._from_rest:
+            self._transient_note = ('transient points skipped: the relay did not start from rest '
+                                  '(the output was not steady within autotune.settle_band at '
+                                  'autotune.settle_timeout)')
+            return False
+        slope, se = self._drift
+        drift = abs(slope) * res.tu / res.amplitude
+        if drift > TRANSIENT_MAX_DRIFT and abs(slope) > 6.0 * se:
+            self._transient_note = (
+                f'transient points skipped: the output still moved by {drift:.2g}·a per Tu when '
+                f'the relay started (slope {slope:.3g}/s over autotune.settle_time; the points '
+                f'need the loop at rest: at most {TRANSIENT_MAX_DRIFT:g}·a per Tu); start the '
+                'test later or lengthen autotune.settle_time')
+            return False
+        try:
+            plan = transient_plan(res.model, res.tu, self._cfg)
+        except ValueError as exc:                 # a given α against the model's cut
+            self._transient_note = f'transient points skipped: {exc}'
+            return False
+        if plan.record > self._cfg.timeout:
+            self._transient_note = (
+                f'transient points skipped: they need a relay record of {plan.record:.4g} s '
+                f'(horizon {plan.horizon:.4g} s from the identified {res.model.kind} + 4/α) and '
+                f'autotune.timeout is {self._cfg.timeout:g} s; set autotune.transient_horizon '
+                'or a longer timeout')
+            return False
+        self._held = (res, plan)
+        return True
+
+    def _finish_transient(self) -> None:
+        """The record is long enough: G(jω) at the transient points (004 eqs. 3.3.1–3.3.10),
+        then the design of the identification held since the stationary cycles."""
+        assert self._held is not None
+        res, plan = self._held
+        self._held = None
+        tt, yy = np.array(self._rec_t), np.array(self._rec_y)
+        uu, _ = self._identification_input()
+        omega = (2.0 * math.pi / res.tu) * np.array(self._cfg.transient_points)
+        try:
+            g = ident.transient_response(tt, uu, yy, self._u0_start, self._y_rest,
+                                         np.append(omega, res.omega), plan.alpha, plan.horizon,
+                                         plan.smoothing, integrating=res.model.kind == 'ipdt')
+            proposal = self._design(res, self._cfg)
+        except (ValueError, ArithmeticError) as exc:
+            self._end('failed', f'identification/tuning failed: {exc}')
+            return
+        # the cross-check: the same estimate at the oscillation frequency against the first
+        # harmonic over the stationary cycles (accurate to < 1 % with 1 % noise)
+        g, check = g[:-1], float(abs(g[-1] / res.g1 - 1.0))
+        if check > TRANSIENT_CHECK_WARN:
+            self._transient_note = (
+                f'transient points: at the oscillation frequency {res.omega:.4g} rad/s they '
+                f'differ from the first harmonic by {100 * check:.3g} % (noise, a start not '
+                'at rest, or a cut before the pulse response died out: set '
+                'autotune.transient_horizon)')
+        lag = np.array([_model_lag(res.model, w) for w in omega])
+        phase = np.angle(g) - 2.0 * np.pi * np.round((np.angle(g) + lag) / (2.0 * np.pi))
+        self._finish(res, proposal, TransientPoints(omega, g, plan.alpha, plan.horizon,
+                                                    float(tt[-1] - tt[0]), phase, check))
 
     def _step_test(self, t: float, y: float, r: float) -> float | None:
         """One sample of the open-loop step test (001 §1.2.1): the input held at u0 + Δu; when
@@ -940,15 +1184,19 @@ class RelayAutotuner:
             return
         self._finish(res, proposal)
 
-    def _finish(self, res: ident.RelayIdentification, proposal: Proposal) -> None:
-        """The test succeeded: keep the identification and offer its design."""
-        self._result, self._gains = res, proposal.tuned
+    def _finish(self, res: ident.RelayIdentification, proposal: Proposal,
+                transient: TransientPoints | None = None) -> None:
+        """The test succeeded: keep the identification (and its transient points) and offer
+        its design."""
+        self._result, self._gains, self._transient = res, proposal.tuned, transient
         self._model, self._proposal = from_identified(res.model), proposal
         # The PID takes over from the bias u0, the equilibrium input, not from the last relay
         # value u0 ± d, which would disturb the loop by d.
         self._pending = self._u0
         self._state, self._reason = 'proposed', ''
         self._offer(proposal, after_test=True)
+        if self._transient_note:
+            self._warning = '; '.join(w for w in (self._warning, self._transient_note) if w)
 
     def _design(self, res: ident.RelayIdentification, cfg: AutotuneConfig) -> Proposal:
         """The proposal of ``cfg.rule`` from the identification ``res``: gains (the sign of the
@@ -1115,6 +1363,29 @@ def _stationary_pairs(cycles: list[ident.RelayCycle], count: int, tolerance: flo
                               min(a.y_min, b.y_min), 0.5 * (a.y1 + b.y1))
              for a, b in zip(tail[::2], tail[1::2])]
     return tail if ident.stationary_cycles(pairs, pairs_needed, tolerance, 2.0 * slack) else None
+
+
+def _model_lag(model: ident.Model | ident.SopdtModel, omega: float) -> float:
+    """Phase lag −arg G(jω) [rad] of an identified model, continuous in ω."""
+    if isinstance(model, ident.SopdtModel):
+        return omega * model.dead_time + math.atan2(model.b * omega, model.c - model.a * omega ** 2)
+    if isinstance(model, ident.IpdtModel):
+        return 0.5 * math.pi + omega * model.dead_time
+    return model.order * math.atan(omega * model.time_constant) + omega * model.dead_time
+
+
+def _trend(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope of ``y(t)`` [y units/s] and its standard error (0, 0 for fewer
+    than 4 samples)."""
+    if len(t) < 4:
+        return 0.0, 0.0
+    tc = t - t.mean()
+    sxx = float(tc @ tc)
+    if sxx <= 0.0:
+        return 0.0, 0.0
+    slope = float(tc @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * tc
+    return slope, math.sqrt(float(resid @ resid) / (len(t) - 2) / sxx)
 
 
 def design_arguments(model: ProcessModel, cfg: AutotuneConfig, pid: PidConfig) -> dict[str, Any]:

@@ -433,7 +433,8 @@ def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: floa
 
 
 def transient_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: float,
-                       omegas: Sequence[float], alpha: float, horizon: float) -> np.ndarray:
+                       omegas: Sequence[float], alpha: float, horizon: float,
+                       smoothing: float = 0.0, integrating: bool = False) -> np.ndarray:
     """``G(jω)`` at ``omegas`` [rad/s] from one record of a test that starts at rest (``u0``,
     ``y0``), e.g. a relay test from its first switch to its stationary cycles (004 eqs.
     3.3.1–3.3.10, Wang 1997).
@@ -445,25 +446,48 @@ def transient_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y
     cut after ``horizon`` [s] — the unweighting amplifies late errors, so keep it to where the
     true pulse response has died out — and transformed at ``omegas`` (3.3.10). The sampled
     record relates the held input to the sampled output; the hold's ``e^(−jωTe/2)·sinc(ωTe/2)``
-    is divided out. ``t`` uniform [s]."""
+    is divided out. ``t`` uniform [s].
+
+    Ours (the document gives neither): ``smoothing`` [s] > 0 multiplies ``G(α + jω)`` by the
+    Gaussian ``e^(−(ω·s)²/2)`` before 3.3.8 — a Gaussian lag window of standard deviation ``s``
+    on the weighted pulse response, which removes the high-frequency noise that the division by
+    the relay's ``1/ω`` spectrum amplifies — and divides the result by that window's exact
+    transform at ``α − jω`` (so it costs no bias before the cut). ``integrating``: the output is
+    differenced first (its pulse response then dies out after the dead time although the
+    process integrates) and the result divided by ``1 − e^(−jωTe)``."""
     t = np.asarray(t, float)
     te = float(t[1] - t[0])
-    if not (alpha > 0.0 and horizon > te and len(t) > 8):
-        raise ValueError('transient_response: alpha > 0, horizon > one sample and a record '
-                         'of more than 8 samples are needed')
+    if not (alpha > 0.0 and horizon > te and len(t) > 8 and smoothing >= 0.0):
+        raise ValueError('transient_response: alpha > 0, horizon > one sample, smoothing >= 0 '
+                         'and a record of more than 8 samples are needed')
     weight = np.exp(-alpha * (t - t[0]))
+    yd = np.asarray(y, float) - y0
+    if integrating:
+        yd = np.diff(yd, prepend=0.0)
     du = (np.asarray(u, float) - u0) * weight
-    dy = (np.asarray(y, float) - y0) * weight
+    dy = yd * weight
     n = 2 * len(t)
     uf, yf = np.fft.fft(du, n), np.fft.fft(dy, n)
     if np.min(np.abs(uf)) <= 1e-12 * np.max(np.abs(uf)):
         raise ValueError('transient_response: the weighted input has no energy at some '
                          'frequency (choose another alpha)')
-    h_weighted = np.real(np.fft.ifft(yf / uf))                          # 3.3.8
-    k = np.arange(min(int(horizon / te) + 1, n))
-    h = h_weighted[k] * np.exp(alpha * k * te)                          # 3.3.9
+    gf = yf / uf                                                        # 3.3.7
+    m = 0
+    if smoothing > 0.0:
+        window = np.exp(-0.5 * (2.0 * np.pi * np.fft.fftfreq(n, te) * smoothing) ** 2)
+        gf = gf * window
+        kernel = np.real(np.fft.ifft(window))
+        m = min(int(math.ceil(6.0 * smoothing / te)), n // 4)           # kernel's support
+    h_weighted = np.real(np.fft.ifft(gf))                               # 3.3.8
+    k = np.arange(-m, min(int(horizon / te) + 1, n // 2))               # negative lags: window
+    h = h_weighted[k % n] * np.exp(alpha * k * te)                      # 3.3.9
     w = np.asarray(omegas, float)
     g = np.exp(-1j * np.outer(w, k) * te) @ h                           # 3.3.10
+    if smoothing > 0.0:
+        j = np.arange(-m, m + 1)
+        g = g / (np.exp(np.outer(alpha - 1j * w, j) * te) @ kernel[j % n])
+    if integrating:
+        g = g / (1.0 - np.exp(-1j * w * te))
     hold = np.exp(-0.5j * w * te) * np.sinc(w * te / (2.0 * np.pi))
     return g / hold
 
