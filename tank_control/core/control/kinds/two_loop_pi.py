@@ -1,10 +1,19 @@
 """Controller kind ``two_loop_pi``: the two-loop PI of the mixing tank, with or without
-decoupling (003 §2–3). Changes rebuild it, re-initialised from the last (y, u)."""
+decoupling (003 §2–3), and its multivariable auto-tuning (004 §3.7, ``autotune.mode``:
+core/control/mimo_autotune.py; commands ``~/start_autotune``, ``~/abort_autotune``,
+``~/apply_autotune``, ``~/revert_gains``). Changes rebuild it, re-initialised from the last
+(y, u)."""
 from __future__ import annotations
+
+from typing import Any
 
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, Settings
+from tank_control.core.control.mimo_autotune import (RELAY_SETTINGS, MimoAutotuneConfig,
+                                                     MimoAutotuneResults, MimoAutotuner)
 from tank_control.core.control.multiloop import TwoLoopPi, TwoLoopPiConfig
+from tank_control.core.control.relay_autotune import (AutotuneCommand, AutotuneConfig,
+                                                      AutotuneResults)
 from tank_control.core.plants.mixing_tank import OPERATING_POINT
 
 FLOWS = (OPERATING_POINT.F_H, OPERATING_POINT.F_C)
@@ -12,11 +21,35 @@ FLOWS = (OPERATING_POINT.F_H, OPERATING_POINT.F_C)
 default fail-safe output."""
 
 
-def build(settings: Settings) -> TwoLoopPi:
-    controller = TwoLoopPi(settings.config)
+COMMANDS = ('start_autotune', 'abort_autotune', 'apply_autotune', 'revert_gains')
+RESULTS = tuple('autotune.' + n for n in ('state', 'reason', 'state_time', 'cycles'))
+
+
+def build(settings: Settings) -> TwoLoopPi | MimoAutotuner:
+    """The two-loop PI; with ``autotune.mode`` other than none, inside its auto-tuner."""
+    if settings.mimo.mode == 'none':
+        controller: Any = TwoLoopPi(settings.config)
+    else:
+        controller = MimoAutotuner(settings.config, settings.mimo, settings.autotune)
+        controller.pi.output_names = settings.channels.output_names
+        controller.pi.input_names = settings.channels.input_names
     controller.output_names = settings.channels.output_names
     controller.input_names = settings.channels.input_names
+    if settings.command.start and isinstance(controller, MimoAutotuner):
+        controller.start()
     return controller
+
+
+def _command(name: str) -> Any:
+    def run(controller: Any) -> tuple[bool, str]:
+        if not isinstance(controller, MimoAutotuner):
+            return False, 'autotune: autotune.mode is none; set relay, model_zn or model_ls'
+        return controller.command(name)
+    return run
+
+
+def results(controller: Any) -> dict[str, Any]:
+    return controller.results() if isinstance(controller, MimoAutotuner) else {}
 
 
 def reason(settings: Settings) -> str | None:
@@ -33,8 +66,14 @@ KIND = ControllerKind(
     description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)',
     config=TwoLoopPiConfig,
     groups=(base.channels(('h', 'T_out'), ('F_H', 'F_Cin')), base.fail_safe(FLOWS),
-            base.warm_start(FLOWS)),
-    build=build, reason=reason,
+            base.warm_start(FLOWS), base.group('mimo', MimoAutotuneConfig),
+            base.group('autotune', AutotuneConfig,
+                       only=tuple('autotune.' + n for n in RELAY_SETTINGS)),
+            base.group('command', AutotuneCommand),
+            base.group('results', AutotuneResults, only=RESULTS),
+            base.group('mimo_results', MimoAutotuneResults)),
+    build=build, reason=reason, results=results, state='autotune.state',
+    commands={name: _command(name) for name in COMMANDS},
     gains=('two_loop.kp_h', 'two_loop.ki_h', 'two_loop.kp_T', 'two_loop.ki_T', 'two_loop.d12',
            'two_loop.d21'),
     input_limits=lambda s: {name: (s.config.u_min, s.config.u_max)
