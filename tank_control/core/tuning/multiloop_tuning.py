@@ -164,7 +164,11 @@ def multiloop_design(process: Response, r_b: float, phi_b: float, omega_lo: floa
             cr = other.response(w)
             return equivalent_processes(h, cr, cr)[i]
 
-        wu, g = ultimate_point(equivalent, omega_lo, omega_hi)
+        try:
+            wu, g = ultimate_point(equivalent, omega_lo, omega_hi)
+        except ValueError as exc:
+            raise ValueError(f'loop {i + 1}: its equivalent process has no ultimate point '
+                             f'({exc})') from None
         r_a = -abs(g) if g.real > 0 else abs(g)    # the point on the positive axis: gain < 0
         c[i] = place_point(r_a, 0.0, r_b, phi_b, wu)
         omega[i], ku[i] = wu, 1.0 / abs(g)
