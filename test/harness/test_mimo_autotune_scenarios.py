@@ -28,9 +28,13 @@ def assert_equal_traces(ros_csv, in_process_csv) -> None:
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
     out = tmp_path_factory.mktemp('mimo')
-    return {name: run(SCENARIOS / f'{name}.yaml', out / name, in_process=True)
-            for name in ('tank_pi_autotuned', 'tank_pi', 'tank_fill_pi_autotuned',
-                         'tank_fill_pi_decoupled')}
+    results = {name: run(SCENARIOS / f'{name}.yaml', out / name, in_process=True)
+               for name in ('tank_pi_autotuned', 'tank_pi', 'tank_fill_pi_autotuned',
+                            'tank_fill_pi_decoupled')}
+    results['model_ls'] = run(SCENARIOS / 'tank_pi_autotuned.yaml', out / 'model_ls',
+                              overrides=('controller.autotune.mode=model_ls',),
+                              in_process=True)
+    return results
 
 
 def steps(result, channel):
@@ -63,6 +67,18 @@ def test_sequential_relay_tunes_then_level_steps_meet_the_goal(runs):
         k = int(np.searchsorted(tuned.trace.t, t_end)) - 1
         assert abs(y[f'y.{channel}'][k] - target) < 0.05 * abs(target - (81.0 if channel == 'h'
                                                                        else T0))
+
+
+def test_least_squares_design_on_the_model_meets_the_level_goal_too(runs):
+    """model_ls (004 eqs. 3.7.8–3.7.10, default target) designed at 1 s on the linearised tank:
+    level overshoot ≤ 10 % and less T_out deviation on level steps than tank_pi."""
+    ls, plain = runs['model_ls'], runs['tank_pi']
+    at = ls.metrics['controller']['autotune']
+    assert at['autotune.state'] == 'running' and 0.0 < at['autotune.ls_residual'] < 0.5
+    for mine, theirs in zip(steps(ls, 'h'), steps(plain, 'h')):
+        assert mine['overshoot_pct'] <= 10.0
+        assert (mine['interaction']['T_out']['peak_error']
+                < theirs['interaction']['T_out']['peak_error'])
 
 
 def test_filling_with_the_tuned_gains(runs):

@@ -76,13 +76,13 @@ class MimoAutotuneConfig:
                              min=0.0, max=100.0)
     hysteresis_T: float = _m(0.02, 'relay hysteresis on loop T_out', 'hysteresis_T',
                              unit='°C', min=0.0, max=100.0)
-    ls_omega0_h: float = _m(0.01, 'model_ls: natural frequency ω0 of the level target',
+    ls_omega0_h: float = _m(0.004, 'model_ls: natural frequency ω0 of the level target',
                             'ls_omega0_h', unit='rad/s', min=1e-6, max=10.0,
                             source='004 eq. 3.7.9')
-    ls_omega0_T: float = _m(0.004, 'model_ls: natural frequency ω0 of the T_out target',
+    ls_omega0_T: float = _m(0.003, 'model_ls: natural frequency ω0 of the T_out target',
                             'ls_omega0_T', unit='rad/s', min=1e-6, max=10.0,
                             source='004 eq. 3.7.9')
-    ls_xi: float = _m(0.8, 'model_ls: damping ξ of both targets', 'ls_xi', unit='-', min=0.1,
+    ls_xi: float = _m(1.5, 'model_ls: damping ξ of both targets', 'ls_xi', unit='-', min=0.1,
                       max=5.0, source='004 eq. 3.7.9')
     ls_dead_time_T: float = _m(120.0, 'model_ls: dead time Tm of the T_out target (the level '
                                'target has none: F_H acts at once)', 'ls_dead_time_T', unit='s',
