@@ -82,3 +82,61 @@ def test_model_ls_preview_apply_revert_over_services(procs, ros_env, node_cmd, p
     # result parameters are read-only for users
     refused = result(client.set_parameters([Parameter('autotune.ku_h', value=1.0)]))
     assert not refused.results[0].successful
+
+
+def test_relay_test_abort_and_failure_restore_the_gains_over_the_graph(procs, ros_env, node_cmd,
+                                                                       probe, tmp_path):
+    """tank_pi_autotuned's sequential relay test on the running graph (plant, controller,
+    reference; lockstep as fast as possible), started by the service: the relay runs on loop h
+    (stage 1); ``~/abort_autotune`` ends it with 003's gains back; started again by the
+    ``autotune.start`` parameter with a 50 s relay timeout it fails, gains back again."""
+    params = params_file.read(SCENARIOS / 'tank_pi_autotuned.yaml')
+    params['controller']['autotune.start_time'] = 0.0
+    path = params_file.write({n: params[n] for n in ('plant', 'controller', 'reference')},
+                             tmp_path / 'relay.yaml')
+    node = probe.node
+    states: list[str] = []
+    sub = node.create_subscription(String, '/controller/autotune_state',
+                                   lambda m: states.append(m.data), STATE_QOS)
+    for name in ('plant', 'controller', 'reference'):
+        procs.start(name, node_cmd(f'{name}_node', '--params-file', str(path)), env=ros_env)
+    client = AsyncParameterClient(node, 'controller')
+    start = node.create_client(Trigger, '/controller/start_autotune')
+    abort = node.create_client(Trigger, '/controller/abort_autotune')
+    logs = lambda: '\n'.join(p.tail() for p in procs.processes.values())   # noqa: E731
+    assert probe.wait_for(lambda: sub.get_publisher_count() and client.services_are_ready()
+                          and start.service_is_ready() and abort.service_is_ready(), 30), logs()
+
+    def result(future):
+        assert probe.wait_for(future.done, 10)
+        return future.result()
+
+    def get(*names):
+        values = result(client.get_parameters(list(names))).values
+        return {n: Parameter.from_parameter_msg(_msg(n, v)).value for n, v in zip(names, values)}
+
+    def wait_state(state, since=0, timeout=120.0):
+        assert probe.wait_for(lambda: state in states[since:], timeout), (states, logs())
+
+    wait_state('idle', timeout=30)
+    file_gains = get(*GAINS)
+    assert result(start.call_async(Trigger.Request())).success
+    wait_state('relay')
+    got = get('autotune.relay_loop', 'autotune.relay_stage')
+    assert got == {'autotune.relay_loop': 'h', 'autotune.relay_stage': 1}
+    reply = result(abort.call_async(Trigger.Request()))
+    assert reply.success and 'restored' in reply.message
+    wait_state('aborted')
+    got = get('autotune.state', 'autotune.reason', *GAINS)
+    assert got == {'autotune.state': 'aborted', 'autotune.reason': 'abort requested',
+                   **file_gains}
+
+    since = len(states)
+    params_set = [Parameter('autotune.timeout', value=50.0),
+                  Parameter('autotune.start', value=True)]
+    assert all(r.successful for r in result(client.set_parameters(params_set)).results)
+    wait_state('failed', since=since)
+    got = get('autotune.state', 'autotune.reason', 'autotune.start', *GAINS)
+    assert 'no oscillation within autotune.timeout = 50 s' in got['autotune.reason']
+    assert got['autotune.start'] is False
+    assert {k: got[k] for k in GAINS} == file_gains
