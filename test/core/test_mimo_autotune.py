@@ -69,6 +69,9 @@ def test_sequential_relay_tunes_both_loops_and_hands_over(tuned):
                                                                      rel=1e-12)
     assert found['two_loop.kp_h'] == cfg.kp_h and found['autotune.proposed_ki_T'] == cfg.ki_T
     assert found['autotune.ku_h'] != found['autotune.ku_h_open']      # loop T closed changed it
+    line = registry.get_kind('two_loop_pi').summary({**found, 'autotune.mode': 'relay'})
+    assert line.startswith(f"relay: Ku h {found['autotune.ku_h']:.4g} (Tu ")
+    assert line.endswith(f"kp_T {cfg.kp_T:.4g}, ki_T {cfg.ki_T:.4g}")
     # the tuned loop holds the operating point, and the flows never jumped at the hand-over
     assert abs(res['h'][-1] - R0[0]) < 0.5 and abs(res['T'][-1] - R0[1]) < 0.1
     assert np.max(np.abs(np.diff(res['u'], axis=0))) < 20.0

@@ -52,6 +52,22 @@ def results(controller: Any) -> dict[str, Any]:
     return controller.results() if isinstance(controller, MimoAutotuner) else {}
 
 
+def summary(values: base.Values) -> str:
+    """One line of the last design, or '' before one: ``relay: Ku h 0.3897 (Tu 638 s), T 4.492
+    (Tu 289.8 s); gains kp_h 0.1158, ki_h 0.0001602, kp_T -1.335, ki_T -0.004066``."""
+    if not values.get('autotune.proposed_kp_h') and not values.get('autotune.proposed_ki_h'):
+        return ''
+    text = f"{values.get('autotune.mode', '?')}: "
+    if values.get('autotune.ku_h'):
+        text += (f"Ku h {values['autotune.ku_h']:.4g} (Tu {values['autotune.tu_h']:.4g} s), "
+                 f"T {values['autotune.ku_T']:.4g} (Tu {values['autotune.tu_T']:.4g} s); ")
+    elif values.get('autotune.ls_residual'):
+        text += f"least-squares residual {values['autotune.ls_residual']:.3g}; "
+    return text + 'gains ' + ', '.join(
+        f"{name} {values['autotune.proposed_' + name]:.4g}"
+        for name in ('kp_h', 'ki_h', 'kp_T', 'ki_T'))
+
+
 def reason(settings: Settings) -> str | None:
     for name in ('output_names', 'input_names'):
         names = getattr(settings.channels, name)
@@ -72,7 +88,7 @@ KIND = ControllerKind(
             base.group('command', AutotuneCommand),
             base.group('results', AutotuneResults, only=RESULTS),
             base.group('mimo_results', MimoAutotuneResults)),
-    build=build, reason=reason, results=results, state='autotune.state',
+    build=build, reason=reason, results=results, state='autotune.state', summary=summary,
     commands={name: _command(name) for name in COMMANDS},
     gains=('two_loop.kp_h', 'two_loop.ki_h', 'two_loop.kp_T', 'two_loop.ki_T', 'two_loop.d12',
            'two_loop.d21'),
