@@ -120,7 +120,8 @@ def side_table(metrics: Mapping[str, Any]) -> list[tuple[str, str]]:
 def run_plot(label: str, trace: Trace, metrics: Mapping[str, Any]) -> RunPlot:
     """A run as the harness wrote it (``metrics.json``): the controller's input limits and
     final gains, the ``--set`` overrides, the side table and the controller's state changes
-    (``run.controller_states``: recorded by in-process runs)."""
+    (``run.controller_states``: recorded by in-process runs, and from the recorded
+    ``/parameter_events`` by ROS runs)."""
     controller = metrics.get('controller') or {}
     limits = {name: tuple(-math.inf if v is None and i == 0 else math.inf if v is None else float(v)
                           for i, v in enumerate(pair))

@@ -32,10 +32,14 @@ TOPICS: tuple[tuple[str, str], ...] = (
     ('disturbance', 'sensor_msgs/msg/JointState'),
     ('/clock', 'rosgraph_msgs/msg/Clock'),
     ('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
+    ('/parameter_events', 'rcl_interfaces/msg/ParameterEvent'),
     ('time_origin', 'builtin_interfaces/msg/Time'),
     ('plant/late_inputs', 'sensor_msgs/msg/JointState'),
     ('controller/late_inputs', 'sensor_msgs/msg/JointState'),
 )
+
+#: Types recorded at their arrival time: no header stamp in the loop's time.
+UNSTAMPED = ('diagnostic_msgs/msg/DiagnosticArray', 'rcl_interfaces/msg/ParameterEvent')
 
 # Reliable like the publishers; a deep reader queue so a busy harness does not drop.
 RECORD_QOS = reliable_qos(1000)
@@ -104,7 +108,7 @@ class Recorder:
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
         full = topic if topic.startswith('/') else '/' + topic
         key = topic.lstrip('/')
-        stamped = type_name != 'diagnostic_msgs/msg/DiagnosticArray'
+        stamped = type_name not in UNSTAMPED
 
         def record(data: bytes) -> None:
             now = time.time_ns()

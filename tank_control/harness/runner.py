@@ -765,6 +765,9 @@ class _RosRun:
             'recorder_gate': self.gated,
             'exit_codes': dict(codes),
         }
+        states = stream.states.result()
+        if states:
+            run_info['controller_states'] = states
         files = stream.files
         if failure is None:
             return finish(self.scenario, self.out, trace, run_info, controller_params, files)

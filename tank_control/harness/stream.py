@@ -13,6 +13,7 @@ from struct import error as struct_error
 from tank_control.core.trace import Trace, TraceWriter
 from tank_control.harness.metrics import SamplingStats
 from tank_control.harness.recording import McapRecording, RawMessage
+from tank_control.harness.states import StateChanges
 from tank_control.harness.trace import LATE_TOPICS, TOPIC_PREFIX, SignalMessage, TraceJoiner
 
 #: Wall seconds a row waits, after the measurement of a later tick arrived, for late answers.
@@ -74,6 +75,7 @@ class RecordingStream:
         self.unreadable = 0
         self.last_measurement: int | None = None         # largest measurement stamp [ns]
         self.trace: Trace | None = None
+        self.states = StateChanges()                     # the controller's state machine
 
     @property
     def files(self) -> dict[str, Path]:
@@ -83,6 +85,9 @@ class RecordingStream:
         """One recorded message, as received."""
         self.outputs.recording.add(raw)
         topic = raw.topic.lstrip('/')
+        if topic == 'parameter_events':
+            self.states.add(raw)
+            return
         if topic not in TOPIC_PREFIX and topic not in LATE_TOPICS:
             return
         try:

@@ -178,3 +178,21 @@ def test_setpoint_guard_prevents_the_unreachable_temperature_failure_of_003():
     unguarded = TwoLoopPi(document_config('none', setpoint_guard=False))
     out = tank_run(unguarded, r_fn, 3000)
     assert out[-1, 0] - 81.0 > 3.0 and out[-1, 2] == 0.0             # F_H shut, level drifting up
+
+
+@pytest.mark.parametrize('method', ['conditional_integration', 'back_calculation'])
+def test_decoupled_anti_windup_stays_off_while_no_flow_is_clipped(method):
+    """With a decoupler, loop i's effective output is its applied flow less the decoupler's
+    term; when the flow is not clipped that must be v_i itself, not (v_i + c) − c, which
+    differs by rounding: conditional integration took the difference for a push into a limit
+    and froze the temperature integrator (T_out stuck at its old setpoint)."""
+    ctl = TwoLoopPi(document_config('dynamic', anti_windup=method))
+    out = tank_run(ctl, lambda k: np.array([81.0, T0 if k < 10 else 36.0]), 3000)
+    assert np.all((out[:, 2:4] > 0) & (out[:, 2:4] < 300))    # no flow ever clipped …
+    assert not ctl.status['anti_windup_active']               # … so anti-windup never acts
+    assert out[:, 1].max() > 36.0                             # and T_out reaches its setpoint
+    active = []
+    for k in range(50):
+        ctl.step(3000.0 + k, np.array([81.0, 36.0]), np.array([81.0, 36.0]), np.array([]))
+        active.append(ctl.status['anti_windup_active'])
+    assert not any(active)

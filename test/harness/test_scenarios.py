@@ -231,8 +231,9 @@ def test_003_two_loop_pi_follows_the_setpoint_sequence(results, scenario):
     """003 §2.2/§3.2: both variants bring h and T_out towards each new setpoint within the
     2000 s until the next change of either setpoint (each step's window). Without decoupling
     every change is reached to within 5 % of its size by then (measured: ≤ 3.0 %, the T_out
-    step at 2100 s) and the level steps settle into 2 %; the decoupled loop, whose level
-    loop with the document's gains 0.04/0.0004 is lightly damped, still swings there, but
+    step at 2100 s) and the level steps settle into 2 %; the decoupled loop, lightly damped
+    with the document's gains and the tank's delays (test_tank_decoupling_explained.py),
+    still swings there, but
     passes 90 % of each change and ends within 50 % of it (measured ≤ 40 %)."""
     result = results(scenario)
     assert_physical(result)

@@ -106,7 +106,9 @@ def test_fsa_on_the_unstable_plant_over_ros_equals_in_process(tmp_path, ros_env)
 def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, ros_env):
     """fopdt_autotune_scheduled: the relay test at 60 s tunes the PID. Both runs report the values the
     controller ended with (the node's parameters; in-process the controller object's), not
-    the file's: the same tuned gains, Ku, Tu and state in both metrics.json."""
+    the file's: the same tuned gains, Ku, Tu and state in both metrics.json, and the same state
+    changes at the same loop times (the ROS run's from the recorded /parameter_events), which
+    plot.png marks."""
     scenario = CONFIG / 'scenarios' / 'fopdt_autotune_scheduled.yaml'
     ros = run(scenario, tmp_path / 'ros', rtf=0.0, env=ros_env)
     ref = run(scenario, tmp_path / 'ref', in_process=True)
@@ -118,6 +120,9 @@ def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, r
         assert a['final_gains'][key] == pytest.approx(b['final_gains'][key], rel=1e-9), key
     for key in ('autotune.ku', 'autotune.tu', 'autotune.model_gain', 'autotune.cycles'):
         assert a['autotune'][key] == pytest.approx(b['autotune'][key], rel=1e-9), key
+    states = ros.metrics['run']['controller_states']
+    assert [s for _, s in states] == ['settling', 'relay', 'measuring', 'tuned', 'running']
+    assert [list(s) for s in states] == [list(s) for s in ref.metrics['run']['controller_states']]
 
 
 def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
@@ -207,3 +212,22 @@ def test_progress_is_a_rewritten_line_on_a_terminal_and_plain_lines_in_ci():
     lines = plain.getvalue().splitlines()
     assert len(lines) == 3                                 # 0 %, 10 % decile, 100 %
     assert lines[-1].startswith('x: sim 100.0/100 s, 50.0x real time, 500 ticks/s')
+
+
+@pytest.mark.parametrize('name', ['tank_pi_feedforward_dynamic', 'tank_pi_scheduled'])
+def test_scheduled_and_feedforward_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env,
+                                                                            name):
+    """The two-loop PI with dynamic feedforward (controller_node reads F_D, T_D from the
+    disturbance topic; the F_D step at 100 s and the 180 s bridge) and with gains scheduled
+    on the level (h 81 → 40 cm from 100 s): the lockstep trace equals the in-process one to
+    1e-9 over 700 ticks."""
+    scenario = CONFIG / 'scenarios' / f'{name}.yaml'
+    ros = run(scenario, tmp_path / 'ros', duration=700.0, env=ros_env)
+    ref = run(scenario, tmp_path / 'ref', duration=700.0, in_process=True)
+    assert_equal_traces(ros.files['trace'], ref.files['trace'])
+    assert ros.metrics['run']['missed_samples'] == 0
+    columns = ref.trace.columns
+    if name == 'tank_pi_scheduled':
+        assert columns['y.h'][-1] < 60.0                    # the gains did move with h
+    else:
+        assert np.max(np.abs(columns['y.T_out'] - columns['r.T_out'])) < 0.02

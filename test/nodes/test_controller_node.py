@@ -368,3 +368,35 @@ def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, node_cmd, ros
     assert loop.diag_level == DiagnosticStatus.ERROR
     assert 'the plant runs on the wall clock' in loop.diag_message
     assert 'use_sim_time false' in loop.diag_message
+
+
+def test_two_loop_pi_gain_table_is_set_or_refused_with_a_reason(procs, node_cmd, ros_env, probe):
+    """two_loop.schedule.* over ROS: a bad table is refused naming the parameter and why, the
+    feedforward (it decides the topics read) is read-only, a new table takes effect bumplessly
+    (the sample of the change still the old law's output, then the new ki_h)."""
+    t0 = 2115.0 / 63.0
+    _start(procs, node_cmd, ros_env, 'controller:=two_loop_pi', 'clock_mode:=lockstep',
+           'two_loop.schedule.variable:=h', 'two_loop.schedule.breakpoints:=[40.0,150.0]',
+           'two_loop.schedule.kp_h:=[0.5,2.0]', 'two_loop.schedule.ki_h:=[0.004,0.004]',
+           'two_loop.schedule.kp_T:=[-0.05,-0.7]', 'two_loop.schedule.ki_T:=[-0.002,-0.002]')
+    loop = Loop(probe)
+    y, r = {'h': 80.0, 'T_out': t0}, {'h': 82.0, 'T_out': t0}
+    assert loop.tick(0, y, r) == pytest.approx({'F_H': 14.0, 'F_Cin': 37.0}, abs=1e-12)
+    u1 = loop.tick(to_ns(1.0), y, r)
+    assert u1['F_H'] == pytest.approx(14.0 + 0.004 * 2.0, abs=1e-12)
+    refused = loop.set('two_loop.schedule.breakpoints', [150.0, 40.0])
+    assert not refused.successful
+    assert 'two_loop.schedule.breakpoints' in refused.reason
+    assert 'strictly increasing' in refused.reason
+    refused = loop.set('two_loop.schedule.kp_h', [1.0])
+    assert not refused.successful and 'lengths must be equal' in refused.reason
+    refused = loop.set('two_loop.feedforward', 'static')
+    assert not refused.successful and 'read-only' in refused.reason
+    accepted = loop.set('two_loop.schedule.ki_h', [0.03, 0.03])
+    assert accepted.successful, accepted.reason
+    assert list(loop.get('two_loop.schedule.ki_h')) == [0.03, 0.03]
+    assert list(loop.get('two_loop.schedule.breakpoints')) == [40.0, 150.0]
+    u2 = loop.tick(to_ns(2.0), y, r)
+    assert u2['F_H'] == pytest.approx(u1['F_H'] + 0.004 * 2.0, abs=1e-12)
+    u3 = loop.tick(to_ns(3.0), y, r)
+    assert u3['F_H'] == pytest.approx(u2['F_H'] + 0.03 * 2.0, abs=1e-12)

@@ -18,7 +18,9 @@ auto-tuning test; idle it is that controller exactly. ``autotune.mode``:
 
 States (``autotune.state``): ``idle → settling → relay ⇄ measuring → tuned → running``, or
 ``proposed`` with ``autotune.apply`` preview; ``failed`` / ``aborted`` put the gains from before
-the test back, bumplessly; ``reverted`` after ``revert_gains``. Units: cm, °C, cm³/s, s.
+the test back, bumplessly; ``reverted`` after ``revert_gains``. During the relay test the
+measured-disturbance feedforward (if any) is off and resumes with the PI; a test is refused
+while a gain schedule is active. Units: cm, °C, cm³/s, s.
 """
 from __future__ import annotations
 
@@ -202,9 +204,10 @@ class MimoAutotuner:
     disturbance_names: tuple[str, ...] = ()
 
     def __init__(self, config: TwoLoopPiConfig, mimo: MimoAutotuneConfig | None = None,
-                 relay: AutotuneConfig | None = None) -> None:
-        self.pi = TwoLoopPi(config)
+                 relay: AutotuneConfig | None = None, pi: TwoLoopPi | None = None) -> None:
+        self.pi = pi if pi is not None else TwoLoopPi(config)
         self.output_names, self.input_names = self.pi.output_names, self.pi.input_names
+        self.disturbance_names = self.pi.disturbance_names
         self.mimo = mimo or MimoAutotuneConfig(mode='relay')
         self.relay_cfg = relay or AutotuneConfig()
         check_config(self.mimo)
@@ -241,6 +244,9 @@ class MimoAutotuner:
             return False, 'autotune: autotune.mode is none; set relay, model_zn or model_ls'
         if self._state in TESTING:
             return False, f'autotune: a test is already running (state {self._state})'
+        if self.pi.scheduler is not None:
+            return False, ('autotune: two_loop.schedule is active (the gains come from its '
+                           'table); tune without it')
         self._saved = self.pi.config
         self._clear()
         self._found = {}
@@ -542,7 +548,10 @@ class MimoAutotuner:
 
 
 def _renamed(new: TwoLoopPi, old: TwoLoopPi) -> TwoLoopPi:
+    """``new`` with the channels and the optional parts (scheduler, feedforward) of ``old``."""
     new.output_names, new.input_names = old.output_names, old.input_names
+    new.disturbance_names = old.disturbance_names
+    new.scheduler, new.feedforward = old.scheduler, old.feedforward
     return new
 
 

@@ -254,6 +254,11 @@ class TwoLoopPi:
     ``('F_H', 'F_Cin')``, no measured disturbances. ``reset(y, u)`` is
     completed at the next ``step`` (which knows the setpoints): that step
     returns ``u`` (within the limits).
+
+    Optional parts (attributes, None: off): ``scheduler`` picks the gains each sample
+    (``core/control/scheduling.py``, taken with :meth:`set_gains`); ``feedforward`` adds
+    measured-disturbance flows after the decoupler (``core/control/feedforward.py``; the
+    controller then reads its ``disturbance_names``).
     """
 
     output_names = ('h', 'T_out')
@@ -273,6 +278,9 @@ class TwoLoopPi:
         self._initialised = False
         self._fault = False
         self._last_sample: tuple[Any, ...] | None = None   # what status reports
+        self.scheduler: Any = None
+        self.feedforward: Any = None
+        self._ff = (0.0, 0.0)          # this sample's feedforward flows [F_H, F_Cin]
 
     @property
     def config(self) -> TwoLoopPiConfig:
@@ -286,11 +294,28 @@ class TwoLoopPi:
         self._guarded: tuple[float, float, float, float] | None = None   # last (r, r_used)
         self._loop_pair = (cfg.h_loop, cfg.t_loop)
         self._v_lo, self._v_hi = self._v_range()
-        h = cfg.sample_time
+        self._set_pi()
+
+    def _set_pi(self) -> None:
+        h = self._config.sample_time
         # per loop: kp, the integral gain per sample ki·h, and the back-calculation gain
         # min(h/Tt, 1) with Tt = tracking_time, else kp/ki, else h
         self._pi = tuple((loop.kp, loop.ki * h, _tracking_gain(loop, h))
                          for loop in self._loop_pair)
+
+    def set_gains(self, kp_h: float, ki_h: float, kp_T: float, ki_T: float,
+                  e: list[float]) -> None:
+        """Take new PI gains bumplessly at the errors ``e`` = [e_h, e_T] of this sample: each
+        integral absorbs the change of kp·e, so kp·e + I is unchanged (a new ki acts on
+        future errors)."""
+        old = self._loop_pair
+        new = (PiLoop(kp_h, ki_h, old[0].tracking_time), PiLoop(kp_T, ki_T, old[1].tracking_time))
+        if (old[0].kp, old[0].ki, old[1].kp, old[1].ki) == (kp_h, ki_h, kp_T, ki_T):
+            return
+        for i in (0, 1):
+            self._integral[i] += (old[i].kp - new[i].kp) * e[i]
+        self._loop_pair = new
+        self._set_pi()
 
     @property
     def sample_time(self) -> float:
@@ -316,6 +341,7 @@ class TwoLoopPi:
         """States such that the PI outputs reproduce the flows u at error e."""
         cfg = self.config
         lo, hi = self._v_range()
+        given, u = u, u - np.array(self._ff)    # the PI outputs (and decoupler) give the rest
         if cfg.decoupling == 'none':
             v = u.copy()
         else:
@@ -325,7 +351,7 @@ class TwoLoopPi:
             self._d21.settle(float(v[0]))
         for i, loop in enumerate(self._loops()):
             self._integral[i] = float(v[i] - loop.kp * e[i])
-        self._u = u.tolist()
+        self._u = given.tolist()
         self._initialised = True
 
     def step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -350,6 +376,13 @@ class TwoLoopPi:
             self._guarded = (r_0, r_1, r_h, r_t)
         limited = r_h != r_0 or r_t != r_1
         e = [r_h - y_h, r_t - y_t]
+        if self.feedforward is not None:
+            if self._pending is not None or self._fault or not self._initialised:
+                self.feedforward.settle(d)
+            self._ff = self.feedforward.step(d, r_t, r_h)
+            e[0] += self.feedforward.level_offset    # the level excursion it plans (dynamic)
+        if self.scheduler is not None:
+            self._schedule((y_h, y_t), e)
         if self._pending is not None:
             self._init_from(e, self._pending)
             self._pending = None
@@ -361,6 +394,14 @@ class TwoLoopPi:
             self._initialised = True
         self._fault = False
         return self._compute(e, (limited, r_h, r_t))
+
+    def _schedule(self, y: tuple[float, float], e: list[float]) -> None:
+        """The scheduler's gains for this sample (before a pending take-over, the flows it
+        takes over with)."""
+        u = self._pending.tolist() if self._pending is not None else self._u
+        gains = self.scheduler.gains(self.scheduler.variable(y, u))
+        if gains is not None:
+            self.set_gains(*gains, e)
 
     def _held(self) -> np.ndarray:
         if all(map(math.isfinite, self._u)):
@@ -384,17 +425,24 @@ class TwoLoopPi:
             c21 = self._d21.step(v_h) if cfg.decoupling == 'dynamic' else cfg.d21 * v_h
             # 003 §3.1: decoupler outputs clipped
             cross_h, cross_t = min(max(cfg.d12 * v_t, lo), hi), min(max(c21, lo), hi)
-        u_h = min(max(v_h + cross_h, u_min), u_max)
-        u_t = min(max(v_t + cross_t, u_min), u_max)
+        ff_h, ff_t = self._ff
+        cross_h += ff_h          # the feedforward flows enter like the decoupler terms
+        cross_t += ff_t
+        s_h, s_t = v_h + cross_h, v_t + cross_t
+        u_h = min(max(s_h, u_min), u_max)
+        u_t = min(max(s_t, u_min), u_max)
         # anti-windup sees the applied flows: loop i's effective output is u_i − (decoupler
-        # term into u_i), within the PI output range
-        v_eff_h, v_eff_t = min(max(u_h - cross_h, lo), hi), min(max(u_t - cross_t, lo), hi)
+        # and feedforward terms into u_i), within the PI output range; an unclipped flow gives
+        # back v_i itself ((v + c) − c differs from v by rounding, which conditional
+        # integration would take for a push into a limit and freeze the integrator)
+        v_eff_h = v_h if u_h == s_h else min(max(u_h - cross_h, lo), hi)
+        v_eff_t = v_t if u_t == s_t else min(max(u_t - cross_t, lo), hi)
         method = cfg.anti_windup
         integral[0], aw_h = _integrate(method, integral[0], kih_h * e_h, aw_gain_h, w_h, v_eff_h)
         integral[1], aw_t = _integrate(method, integral[1], kih_t * e_t, aw_gain_t, w_t, v_eff_t)
         self._u = [u_h, u_t]
-        sat_h = u_h != v_h + cross_h or v_h != w_h
-        sat_t = u_t != v_t + cross_t or v_t != w_t
+        sat_h = u_h != s_h or v_h != w_h
+        sat_t = u_t != s_t or v_t != w_t
         self._last_sample = (cfg.decoupling, sat_h, sat_t, aw_h or aw_t, v_h, v_t,
                              integral[0], integral[1], *setpoints)
         return np.array([u_h, u_t])
@@ -407,7 +455,15 @@ class TwoLoopPi:
             return {'input_fault': True} if self._fault else {}
         (decoupling, sat_h, sat_t, aw, v_h, v_t, i_h, i_t, limited, r_h, r_t
          ) = self._last_sample
-        return {'decoupling': decoupling, 'saturated': sat_h or sat_t, 'saturated.F_H': sat_h,
-                'saturated.F_Cin': sat_t, 'anti_windup_active': aw, 'input_fault': self._fault,
-                'v.h': v_h, 'v.T_out': v_t, 'i.h': i_h, 'i.T_out': i_t,
-                'setpoint_limited': limited, 'r.h': r_h, 'r.T_out': r_t}
+        status = {'decoupling': decoupling, 'saturated': sat_h or sat_t,
+                  'saturated.F_H': sat_h, 'saturated.F_Cin': sat_t, 'anti_windup_active': aw,
+                  'input_fault': self._fault, 'v.h': v_h, 'v.T_out': v_t, 'i.h': i_h,
+                  'i.T_out': i_t, 'setpoint_limited': limited, 'r.h': r_h, 'r.T_out': r_t}
+        if self.scheduler is not None:
+            (kp_h, ki_h), (kp_t, ki_t) = ((lp.kp, lp.ki) for lp in self._loop_pair)
+            status.update({'schedule.value': self.scheduler.value, 'kp_h': kp_h, 'ki_h': ki_h,
+                           'kp_T': kp_t, 'ki_T': ki_t})
+        if self.feedforward is not None:
+            status.update({'ff.F_H': self._ff[0], 'ff.F_Cin': self._ff[1],
+                           'ff.h_offset': self.feedforward.level_offset})
+        return status

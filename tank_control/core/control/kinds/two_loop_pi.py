@@ -1,19 +1,24 @@
 """Controller kind ``two_loop_pi``: the two-loop PI of the mixing tank, with or without
-decoupling (003 §2–3), and its multivariable auto-tuning (004 §3.7, ``autotune.mode``:
-core/control/mimo_autotune.py; commands ``~/start_autotune``, ``~/abort_autotune``,
-``~/apply_autotune``, ``~/revert_gains``). Changes rebuild it, re-initialised from the last
-(y, u)."""
+decoupling (003 §2–3), optional gain scheduling (``two_loop.schedule.*``) and measured-disturbance
+feedforward (``two_loop.feedforward``), and its multivariable auto-tuning (004 §3.7,
+``autotune.mode``: core/control/mimo_autotune.py; commands ``~/start_autotune``,
+``~/abort_autotune``, ``~/apply_autotune``, ``~/revert_gains``). Changes rebuild it,
+re-initialised from the last (y, u) (bumpless: the integrals absorb a change of the gains or of
+the gain table)."""
 from __future__ import annotations
 
 from typing import Any
 
 from tank_control.core.control.kinds import base
+from tank_control.core.control.feedforward import (DISTURBANCES, DisturbanceFeedforward,
+                                                   FeedforwardConfig)
 from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.control.mimo_autotune import (RELAY_SETTINGS, MimoAutotuneConfig,
                                                      MimoAutotuneResults, MimoAutotuner)
 from tank_control.core.control.multiloop import TwoLoopPi, TwoLoopPiConfig
 from tank_control.core.control.relay_autotune import (AutotuneCommand, AutotuneConfig,
                                                       AutotuneResults)
+from tank_control.core.control.scheduling import GainSchedule, Scheduler
 from tank_control.core.plants.mixing_tank import OPERATING_POINT
 
 FLOWS = (OPERATING_POINT.F_H, OPERATING_POINT.F_C)
@@ -25,19 +30,28 @@ COMMANDS = ('start_autotune', 'abort_autotune', 'apply_autotune', 'revert_gains'
 RESULTS = tuple('autotune.' + n for n in ('state', 'reason', 'state_time', 'cycles'))
 
 
-def build(settings: Settings) -> TwoLoopPi | MimoAutotuner:
-    """The two-loop PI; with ``autotune.mode`` other than none, inside its auto-tuner."""
-    if settings.mimo.mode == 'none':
-        controller: Any = TwoLoopPi(settings.config)
-    else:
-        controller = MimoAutotuner(settings.config, settings.mimo, settings.autotune)
-        controller.pi.output_names = settings.channels.output_names
-        controller.pi.input_names = settings.channels.input_names
+def _two_loop(settings: Settings) -> TwoLoopPi:
+    controller = TwoLoopPi(settings.config)
     controller.output_names = settings.channels.output_names
     controller.input_names = settings.channels.input_names
-    if settings.command.start and isinstance(controller, MimoAutotuner):
-        controller.start()
+    if settings.schedule.active:
+        controller.scheduler = Scheduler(settings.schedule)
+    if settings.feedforward.active:
+        controller.feedforward = DisturbanceFeedforward(settings.feedforward,
+                                                        settings.config.sample_time)
+        controller.disturbance_names = DISTURBANCES
     return controller
+
+
+def build(settings: Settings) -> TwoLoopPi | MimoAutotuner:
+    """The two-loop PI; with ``autotune.mode`` other than none, inside its auto-tuner."""
+    controller = _two_loop(settings)
+    if settings.mimo.mode == 'none':
+        return controller
+    tuner = MimoAutotuner(settings.config, settings.mimo, settings.autotune, pi=controller)
+    if settings.command.start:
+        tuner.start()
+    return tuner
 
 
 def _command(name: str) -> Any:
@@ -82,7 +96,8 @@ KIND = ControllerKind(
     description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)',
     config=TwoLoopPiConfig,
     groups=(base.channels(('h', 'T_out'), ('F_H', 'F_Cin')), base.fail_safe(FLOWS),
-            base.warm_start(FLOWS), base.group('mimo', MimoAutotuneConfig),
+            base.warm_start(FLOWS), base.group('schedule', GainSchedule),
+            base.group('feedforward', FeedforwardConfig), base.group('mimo', MimoAutotuneConfig),
             base.group('autotune', AutotuneConfig,
                        only=tuple('autotune.' + n for n in RELAY_SETTINGS)),
             base.group('command', AutotuneCommand),
@@ -92,6 +107,7 @@ KIND = ControllerKind(
     commands={name: _command(name) for name in COMMANDS},
     gains=('two_loop.kp_h', 'two_loop.ki_h', 'two_loop.kp_T', 'two_loop.ki_T', 'two_loop.d12',
            'two_loop.d21'),
+    disturbances=DISTURBANCES,
     input_limits=lambda s: {name: (s.config.u_min, s.config.u_max)
                             for name in s.channels.input_names},
 )
