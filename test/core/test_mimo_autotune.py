@@ -176,3 +176,22 @@ def test_idle_it_is_the_two_loop_pi_and_mode_none_refuses():
     assert undecoupled.state == 'failed' and undecoupled.config == document_config('none')
     assert 'loop 1' in undecoupled.results()['autotune.reason']
     assert MimoAutotuner(cfg, MimoAutotuneConfig()).start()[0] is False    # mode none
+
+
+def test_with_feedforward_and_schedule():
+    """The measured-disturbance feedforward stays with the PI across a design (its disturbance
+    channels too); with a gain schedule active the gains come from the table: start refused."""
+    from tank_control.core import params_file
+    from support import SCENARIOS
+    ff = params_file.read(SCENARIOS / 'tank_pi_feedforward_static.yaml')['controller']
+    values = {k: v for k, v in ff.items() if k != 'controller'}
+    tuner = registry.make_controller('two_loop_pi', {**values, 'autotune.mode': 'model_zn',
+                                                     'two_loop.decoupling': 'dynamic',
+                                                     'autotune.start': True})
+    assert tuner.state == 'tuned' and tuner.pi.feedforward is not None
+    assert tuner.disturbance_names == tuner.pi.disturbance_names != ()
+    sched = params_file.read(SCENARIOS / 'tank_pi_scheduled.yaml')['controller']
+    values = {k: v for k, v in sched.items() if k != 'controller'}
+    tuner = registry.make_controller('two_loop_pi', {**values, 'autotune.mode': 'model_zn'})
+    ok, message = tuner.start()
+    assert not ok and 'two_loop.schedule is active' in message and tuner.state == 'idle'
