@@ -146,8 +146,8 @@ RELAY_SETTINGS = ('settle_time', 'settle_band', 'settle_timeout', 'timeout', 'mi
 def model_response(cfg: TwoLoopPiConfig) -> tuple[mlt.Response, mlt.Response]:
     """``(H_P·D, D)``: the tank linearised at 003's operating point (delays included) seen
     through the decoupler of ``cfg``, and the decoupler."""
-    from tank_control.core.plants.mixing_tank import MixingTankConfig
-    tank = MixingTankConfig()
+    from tank_control.core.plants.mixing_tank import OPERATING_POINT, MixingTankConfig
+    tank = MixingTankConfig(T_op=OPERATING_POINT.T)        # the exact steady state 2115/63
 
     def decoupler(w: float) -> np.ndarray:
         return mlt.decoupler_response(cfg.decoupling, cfg.d12, cfg.d21, cfg.sample_time, w)

@@ -263,16 +263,10 @@ def mimo_pi_least_squares(process: Response, omegas: Sequence[float], omega0: Se
 def tank_frequency_response(cfg: Any, omega: float) -> np.ndarray:
     """``H_P(jω)`` of the mixing tank linearised at the operating point of ``cfg`` (a
     ``MixingTankConfig``/``LinearTankConfig``: ``C, alpha, F_*, T_*, h_op, T_op, tau_cold,
-    tau_out``), with its delays: ``[h, T_out] ← [F_H, F_Cin]``, h = V/(2·C·h_op) (003 eqs. 4–6,
-    ``mixing_tank.jacobian``). Units: cm and °C per cm³/s."""
-    from tank_control.core.plants.mixing_tank import jacobian
-    a, b = jacobian(cfg)
-    s = 1j * omega
-    g = np.linalg.solve(s * np.eye(2) - a, b[:, :2])
-    g[0, :] /= 2.0 * cfg.C * cfg.h_op
-    g[:, 1] *= cmath.exp(-s * cfg.tau_cold)
-    g[1, :] *= cmath.exp(-s * cfg.tau_out)
-    return g
+    tau_out``), with its delays: ``[h, T_out] ← [F_H, F_Cin]``, h = V/(2·C·h_op) (003 eqs. 4–6;
+    ``analysis.two_loop.LinearisedTank``). Units: cm and °C per cm³/s."""
+    from tank_control.core.analysis.two_loop import LinearisedTank
+    return LinearisedTank.from_config(cfg).at(np.array([1j * omega]))[0]
 
 
 def d21_filter_response(omega: float, sample_time: float) -> complex:
