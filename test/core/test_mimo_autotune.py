@@ -137,7 +137,8 @@ def test_failures_restore_the_gains():
 
 def test_model_designs_preview_apply_revert():
     before = document_config('dynamic')
-    tuner = MimoAutotuner(before, MimoAutotuneConfig(mode='model_zn'), AutotuneConfig())
+    tuner = MimoAutotuner(before, MimoAutotuneConfig(mode='model_zn', rule='zn'),
+                          AutotuneConfig())
     assert tuner.start()[0] and tuner.state == 'tuned'
     process, _ = model_response(before)
     d = mlt.multiloop_design(process, *mlt.zn_point(), 1e-5, math.pi)

@@ -60,13 +60,14 @@ class MimoAutotuneConfig:
                    'linearised at 003\'s operating point with its delays); model_ls (two-loop PI '
                    'by least squares on a decoupled target, 004 eqs. 3.7.8–3.7.10)', 'mode',
                    choices=MODES, read_only=True, source='004 §3.7')
-    rule: str = _m('zn', 'loop point each loop is placed at (004 eqs. 3.7.6–3.7.7): zn = the '
-                   'Ziegler–Nichols PI (0.45·Ku, Ti = Tu/1.2; r_b 0.458, φ_b −10.8°), point = '
-                   'autotune.loop_gain, autotune.loop_phase', 'rule', choices=RULES)
-    loop_gain: float = _m(0.5, 'rule point: |H_0(jω_u)| = r_b of the loop at the ultimate '
+    rule: str = _m('point', 'loop point each loop is placed at (004 eqs. 3.7.6–3.7.7): zn = '
+                   'the Ziegler–Nichols PI (0.45·Ku, Ti = Tu/1.2; r_b 0.458, φ_b −10.8°), point '
+                   '= autotune.loop_gain, autotune.loop_phase (default 0.3, −8°: kR = 0.297·Ku, '
+                   'Ti = 1.13·Tu, what the decoupled tank takes)', 'rule', choices=RULES)
+    loop_gain: float = _m(0.3, 'rule point: |H_0(jω_u)| = r_b of the loop at the ultimate '
                           'frequency of its equivalent process', 'loop_gain', unit='-',
                           min=1e-3, max=0.99, source='004 eq. 3.7.7')
-    loop_phase: float = _m(-15.0, 'rule point: φ_b, the loop point at −180° + φ_b (a PI needs '
+    loop_phase: float = _m(-8.0, 'rule point: φ_b, the loop point at −180° + φ_b (a PI needs '
                            'φ_b < 0)', 'loop_phase', unit='deg', min=-89.0, max=-0.01,
                            source='004 eq. 3.7.7')
     relay_amplitude_h: float = _m(2.0, 'relay amplitude on loop h (on the PI output v_h before '
@@ -74,7 +75,9 @@ class MimoAutotuneConfig:
                                   min=1e-6, max=1e4)
     relay_amplitude_T: float = _m(5.0, 'relay amplitude on loop T_out (on v_T)',
                                   'relay_amplitude_T', unit='cm³/s', min=1e-6, max=1e4)
-    hysteresis_h: float = _m(0.05, 'relay hysteresis on loop h', 'hysteresis_h', unit='cm',
+    hysteresis_h: float = _m(3.0, 'relay hysteresis on loop h; behind the decoupler a few cm '
+                             'slow the relay to the delayed cold-flow path (a small one cycles '
+                             'at the sampling limit on F_H alone)', 'hysteresis_h', unit='cm',
                              min=0.0, max=100.0)
     hysteresis_T: float = _m(0.02, 'relay hysteresis on loop T_out', 'hysteresis_T',
                              unit='°C', min=0.0, max=100.0)
