@@ -82,12 +82,15 @@ def test_least_squares_design_on_the_model_meets_the_level_goal_too(runs):
 
 
 def test_filling_with_the_tuned_gains(runs):
-    """tank_fill_pi_autotuned holds the gains the relay test found (to 1e-9) and
+    """tank_fill_pi_autotuned (and tank_mpcs_two_loop_autotuned, the auto-tuned row of the tank
+    comparison) hold the gains the relay test found (to 1e-9); tank_fill_pi_autotuned
     fills the tank without level overshoot beyond 10 %, with a smaller T_out peak than 003's
     decoupled gains (tank_fill_pi_decoupled)."""
-    file_gains = params_file.read(SCENARIOS / 'tank_fill_pi_autotuned.yaml')['controller']
     tuned = runs['tank_pi_autotuned'].metrics['controller']['final_gains']
-    assert [file_gains[k] for k in GAINS] == pytest.approx([tuned[k] for k in GAINS], rel=1e-9)
+    for name in ('tank_fill_pi_autotuned', 'tank_mpcs_two_loop_autotuned'):  # and the compare row
+        file_gains = params_file.read(SCENARIOS / f'{name}.yaml')['controller']
+        assert [file_gains[k] for k in GAINS] == pytest.approx([tuned[k] for k in GAINS],
+                                                               rel=1e-9), name
     fill, doc = runs['tank_fill_pi_autotuned'], runs['tank_fill_pi_decoupled']
     (h_step,) = steps(fill, 'h')
     assert h_step['overshoot_pct'] <= 10.0
