@@ -196,3 +196,19 @@ def test_with_feedforward_and_schedule():
     tuner = registry.make_controller('two_loop_pi', {**values, 'autotune.mode': 'model_zn'})
     ok, message = tuner.start()
     assert not ok and 'two_loop.schedule is active' in message and tuner.state == 'idle'
+
+
+def test_a_live_change_during_the_test_reports_it_aborted():
+    """A setting changed while a test runs rebuilds the controller with the new gains; the test
+    it ended is reported (aborted, with the reason), as the SISO tuners do."""
+    kind = registry.get_kind('two_loop_pi')
+    values = {'autotune.mode': 'relay', 'two_loop.decoupling': 'dynamic'}
+    tuner = registry.make_controller('two_loop_pi', {**values, 'autotune.start': True})
+    assert tuner.state == 'settling'
+    live = {**values, **kind.results(tuner), 'two_loop.kp_h': 0.05}
+    change = registry.prepare_change(kind, tuner, registry.settings(kind, live),
+                                     frozenset({'two_loop.kp_h'}))
+    res = kind.results(change.candidate)
+    assert res['autotune.state'] == 'aborted'
+    assert res['autotune.reason'] == 'parameters changed during the test'
+    assert change.candidate.config.kp_h == 0.05

@@ -270,6 +270,11 @@ class MimoAutotuner:
         self._end('aborted', reason)
         return True, 'autotune: test aborted, previous gains restored'
 
+    def interrupted(self, reason: str) -> None:
+        """Report a test that ended outside this tuner (state ``aborted`` with ``reason``): a
+        live change of a setting rebuilt the controller, which runs the new settings' gains."""
+        self._state, self._reason = 'aborted', reason
+
     def apply(self) -> tuple[bool, str]:
         if self._state in TESTING:
             return False, f'autotune: a test is running (state {self._state})'

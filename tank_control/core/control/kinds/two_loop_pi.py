@@ -13,8 +13,9 @@ from tank_control.core.control.kinds import base
 from tank_control.core.control.feedforward import (DISTURBANCES, DisturbanceFeedforward,
                                                    FeedforwardConfig)
 from tank_control.core.control.kinds.base import ControllerKind, Settings
-from tank_control.core.control.mimo_autotune import (RELAY_SETTINGS, MimoAutotuneConfig,
-                                                     MimoAutotuneResults, MimoAutotuner)
+from tank_control.core.control.mimo_autotune import (RELAY_SETTINGS, TESTING,
+                                                     MimoAutotuneConfig, MimoAutotuneResults,
+                                                     MimoAutotuner)
 from tank_control.core.control.multiloop import TwoLoopPi, TwoLoopPiConfig
 from tank_control.core.control.relay_autotune import (AutotuneCommand, AutotuneConfig,
                                                       AutotuneResults)
@@ -51,6 +52,9 @@ def build(settings: Settings) -> TwoLoopPi | MimoAutotuner:
     tuner = MimoAutotuner(settings.config, settings.mimo, settings.autotune, pi=controller)
     if settings.command.start:
         tuner.start()
+    elif settings.values.get('autotune.state') in TESTING:
+        # a live change rebuilds the controller; the parameters still show the test it ends
+        tuner.interrupted('parameters changed during the test')
     return tuner
 
 
