@@ -13,27 +13,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 from support import CONFIG, SCENARIOS
+from support.scenario_runs import cached_runs
 
-from tank_control.harness.runner import RunResult, run
+from tank_control.harness.runner import RunResult
 
 T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1, SPEC §1.3)
 
 
 @pytest.fixture(scope='module')
 def results(tmp_path_factory):
-    """Run each scenario (with overrides) once per module, in-process."""
-    cache: dict[tuple, RunResult] = {}
-    root = tmp_path_factory.mktemp('scenarios')
-
-    def get(name: str, *overrides: str) -> RunResult:
-        key = (name, overrides)
-        if key not in cache:
-            out = root / f'{name}_{len(cache)}'
-            path = SCENARIOS / f'{name}.yaml'
-            path = path if path.exists() else CONFIG / f'{name}.yaml'   # nodes' ipdt_pid, fopdt_zn*
-            cache[key] = run(path, out, overrides=overrides, in_process=True)
-        return cache[key]
-    return get
+    """Each scenario (with overrides) run once per module, in-process."""
+    return cached_runs(tmp_path_factory.mktemp('scenarios'))
 
 
 def first_step(result: RunResult, output: str = 'y') -> dict:

@@ -7,26 +7,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from support import SCENARIOS
+from support.scenario_runs import cached_runs
 
 from tank_control.core.control.scheduling import GAIN_NAMES, design_schedule
 from tank_control.core.params_file import read as read_params_file
-from tank_control.harness.runner import RunResult, run
+from tank_control.harness.runner import RunResult
 
 T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1)
 
 
 @pytest.fixture(scope='module')
 def results(tmp_path_factory):
-    cache: dict[tuple, RunResult] = {}
-    root = tmp_path_factory.mktemp('tank_beyond')
-
-    def get(name: str, *overrides: str) -> RunResult:
-        key = (name, overrides)
-        if key not in cache:
-            cache[key] = run(SCENARIOS / f'{name}.yaml', root / f'{name}_{len(cache)}',
-                             overrides=overrides, in_process=True)
-        return cache[key]
-    return get
+    """Each scenario (with overrides) run once per module, in-process."""
+    return cached_runs(tmp_path_factory.mktemp('tank_beyond'))
 
 
 def _physical(result: RunResult) -> None:

@@ -6,26 +6,19 @@ from __future__ import annotations
 
 import pytest
 from support import SCENARIOS
+from support.scenario_runs import cached_runs
 
 from tank_control.core.control.multiloop import D21Filter
 from tank_control.core.params_file import read as read_params_file
-from tank_control.harness.runner import RunResult, run
+from tank_control.harness.runner import RunResult
 
 NO_DELAYS = ('plant.tau_cold=0.0', 'plant.tau_out=0.0')
 
 
 @pytest.fixture(scope='module')
 def results(tmp_path_factory):
-    cache: dict[tuple, RunResult] = {}
-    root = tmp_path_factory.mktemp('decoupling')
-
-    def get(name: str, *overrides: str) -> RunResult:
-        key = (name, overrides)
-        if key not in cache:
-            cache[key] = run(SCENARIOS / f'{name}.yaml', root / f'{name}_{len(cache)}',
-                             overrides=overrides, in_process=True)
-        return cache[key]
-    return get
+    """Each scenario (with overrides) run once per module, in-process."""
+    return cached_runs(tmp_path_factory.mktemp('decoupling'))
 
 
 def overshoot(result: RunResult, output: str) -> list[float]:

@@ -34,8 +34,8 @@ import numpy as np
 
 from tank_control.core.control.multiloop import D21Filter, TwoLoopPi, TwoLoopPiConfig, _d21_gain
 from tank_control.core.control.pid import PidConfig
-from tank_control.core.control.relay_autotune import AutotuneConfig, RelayAutotuner
-from tank_control.core.params import check_config, param
+from tank_control.core.control.relay_autotune import AutotuneConfig, RelayAutotuner, autotune_param
+from tank_control.core.params import check_config
 from tank_control.core.tuning import multiloop_tuning as mlt
 
 MODES = ('none', 'relay', 'model_zn', 'model_ls')
@@ -47,8 +47,7 @@ STAGES = ((0, 'loop h, loop T held'), (1, 'loop T, loop h closed'), (0, 'loop h,
 _BIG = 1e12
 
 
-def _m(default: Any, description: str, name: str, **meta: Any) -> Any:
-    return param(default, description, name='autotune.' + name, **meta)
+_m = autotune_param
 
 
 @dataclass(frozen=True)

@@ -66,8 +66,12 @@ TRANSIENT_MAX_ALPHA_H = 8.0
 (docs/tuning.md)."""
 
 
-def _at(default: Any, description: str, field_name: str, **meta: Any) -> Any:
+def autotune_param(default: Any, description: str, field_name: str, **meta: Any) -> Any:
+    """A field declared as the parameter ``autotune.<field_name>`` (every auto-tuner's)."""
     return param(default, description, name='autotune.' + field_name, **meta)
+
+
+_at = autotune_param
 
 
 @dataclass(frozen=True)
