@@ -5,7 +5,8 @@ disturbances) and the plant's latched ``applied_input`` (a controller that start
 loop takes over from it, bumplessly); publishes ``manipulated``, ``/diagnostics``,
 ``~/late_inputs``, the kind's state topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
 parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
-Samples on a timer (``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start,
+Samples on each measurement's arrival (``wall``, ``trigger: measurement``), on a timer (``wall``
+with ``trigger: timer``, ``sim``) or answers each plant tick (``lockstep``); warm start,
 measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
 """
 from __future__ import annotations
