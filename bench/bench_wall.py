@@ -73,7 +73,7 @@ def child_timer(period: float, duration: float) -> dict:
                       clock=Clock(clock_type=ClockType.STEADY_TIME))
     _spin(node, duration)
     node.destroy_node()
-    rclpy.shutdown()
+    rclpy.try_shutdown()
     t = np.array(calls, dtype=np.int64)
     t = t[t >= t[0] + int(SKIP_S * 1e9)]
     dev = np.abs(np.diff(t) - period * 1e9) / 1e6
@@ -96,7 +96,7 @@ def child_pong(duration: float) -> dict:
     node.create_subscription(JointState, 'bench_ping', echo, SIGNAL_QOS)
     _spin(node, duration + 15.0)
     node.destroy_node()
-    rclpy.shutdown()
+    rclpy.try_shutdown()
     return {}
 
 
@@ -133,7 +133,7 @@ def child_ping(period: float, duration: float) -> dict:
     _spin(node, 15.0, done=lambda: state['first'] is not None)
     _spin(node, duration)
     node.destroy_node()
-    rclpy.shutdown()
+    rclpy.try_shutdown()
     lat = np.array(legs)
     return {'lat_p50': float(np.percentile(lat, 50)), 'lat_p99': float(np.percentile(lat, 99)),
             'messages': int(len(lat) // 2)}
