@@ -201,7 +201,10 @@ def wall_run(exe: str, period: float, duration: float, trigger: str | None, out:
            '--set', f'controller.sample_time={period}']
     if trigger is not None:
         cmd += ['--set', f'controller.trigger={trigger}']
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    # from the checkout's own root: node processes started with ``python -m`` import the
+    # package from the working directory first
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600,
+                          cwd=Path(exe).resolve().parents[2])
     if done.returncode != 0:
         raise RuntimeError(f'{" ".join(cmd)}: {done.stderr[-2000:]}')
     return wall_metrics(out, period, trigger or 'timer')
