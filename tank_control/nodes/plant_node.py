@@ -249,11 +249,17 @@ class PlantNode(Node):
         self._start_timer()
 
     def _start_timer(self) -> None:
+        if self._tick_msgs is None and self.mode == 'wall':
+            # tick 0 is now: the origin of plant time. The timer's grid (steady clock, as
+            # time.monotonic_ns) starts from it at once, before the publishing: armed after,
+            # every call would come that much after its instant, and each stamp be that old.
+            self._wall_t0_ns = time.monotonic_ns()
+            self._stamp_offset_ns = self.get_clock().now().nanoseconds
+            self._timer.reset()
+            self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
+            self._publish_tick()
+            return
         if self._tick_msgs is None:
-            if self.mode == 'wall':        # tick 0 is now: the origin of plant time
-                self._wall_t0_ns = time.monotonic_ns()
-                self._stamp_offset_ns = self.get_clock().now().nanoseconds
-                self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
             self._publish_tick()
         self._timer.reset()
 
