@@ -76,6 +76,12 @@ class ControllerNode:
                             'wall: wall timer every sample_time; sim: timer on /clock; lockstep: '
                             'answer each plant tick stamped t_k once measurement and setpoint of '
                             't_k are in', choices=('auto', *CLOCK_MODES), read_only=True)
+    trigger: str = param('measurement', 'wall: measurement = compute and publish on the arrival '
+                         'of each measurement that reaches a new sample instant, stamped with its '
+                         'stamp (sample, compute, actuate in one cycle; the timer only watches for '
+                         'stale measurements); timer = sample the latest data on a wall timer '
+                         'every sample_time, stamped with the wall time. sim/lockstep: not used',
+                         choices=('measurement', 'timer'), read_only=True)
     stale_samples: int = param(3, 'wall/sim: samples without a measurement after which it is '
                                'stale (hold or fail-safe output)', min=1, max=1000)
     diagnostics_period: float = diagnostics_period_param()

@@ -5,7 +5,8 @@ disturbances) and the plant's latched ``applied_input`` (a controller that start
 loop takes over from it, bumplessly); publishes ``manipulated``, ``/diagnostics``,
 ``~/late_inputs``, the kind's state topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
 parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
-Samples on a timer (``wall``, ``sim``) or answers each plant tick (``lockstep``); warm start,
+Samples on each measurement's arrival (``wall``, ``trigger: measurement``), on a timer (``wall``
+with ``trigger: timer``, ``sim``) or answers each plant tick (``lockstep``); warm start,
 measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
 """
 from __future__ import annotations
@@ -83,6 +84,10 @@ class ControllerNode(Node):
         if self._mode == 'auto':       # the harness passes use_sim_time in sim and lockstep
             sim = bool(self.get_parameter('use_sim_time').value)
             self._mode = 'lockstep' if sim else 'wall'
+        # wall: sample on each measurement's arrival (the timer watches for stale ones) or on
+        # the timer; sim and lockstep have their own rule
+        self._on_arrival = self._mode == 'wall' and values['trigger'] == 'measurement'
+        self._last_instant: int | None = None      # wall, on arrival: index of the last sample
 
         # latest inputs (wall/sim) and fault bookkeeping
         self._y: dict[str, float] = {}
@@ -305,6 +310,8 @@ class ControllerNode(Node):
         self._y.update(mine)
         if len(mine) == len(self._outputs):
             self._fresh = True
+            if self._on_arrival:
+                self._sample_on_arrival(t_ns)
 
     def _on_setpoint(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_SETPOINT, msg)
@@ -416,6 +423,7 @@ class ControllerNode(Node):
             self.get_logger().info(f'plant time origin {origin} ns: loop time = stamp - origin')
             self._origin_ns = origin
             self._last_sample = None
+            self._last_instant = None
 
     def _on_disturbance(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_DISTURBANCE, msg)
@@ -461,7 +469,8 @@ class ControllerNode(Node):
         self._pub.publish(msg)
 
     def _on_timer(self) -> None:
-        """wall/sim: one sample with the latest data.
+        """wall/sim: one sample with the latest data (wall with ``trigger: measurement``: only
+        the stale one, on this controller's grid, when no measurement came for ``stale_samples``).
 
         sim: rclpy's EventsExecutor may run the timer twice at one instant (two clock updates
         queued before the timer's dispatch): an instant is sampled once. A /clock that goes
@@ -474,13 +483,21 @@ class ControllerNode(Node):
             self._sim_instant = instant
         self._since_measurement = 0 if self._fresh else self._since_measurement + 1
         self._fresh = False
+        stale = self._since_measurement >= int(self._params.values['stale_samples'])
+        if self._on_arrival and not stale:
+            return          # sampled on the measurements' arrival; the timer only watches
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
             return          # nothing measured or no setpoint yet: nothing to control
         if self._origin_ns is None:
             return          # wall: the plant's time origin is not known yet
         now = self.get_clock().now().nanoseconds
         t_ns = sim_sample_instant(now, self._ts_ns) if self._mode == 'sim' else now
-        stale = self._since_measurement >= int(self._params.values['stale_samples'])
+        if self._on_arrival:     # stale: the fail-safe sample on this controller's grid
+            instant = (now - self._origin_ns) // self._ts_ns
+            if self._last_instant is not None and instant <= self._last_instant:
+                return
+            self._last_instant = instant
+            t_ns = self._origin_ns + instant * self._ts_ns
         takeover = None
         if not self._started:
             ready, takeover = self._takeover(t_ns - self._origin_ns)
@@ -489,6 +506,35 @@ class ControllerNode(Node):
         self._last_sample = (t_ns - self._origin_ns, dict(self._r))
         u = self._sample(t_ns - self._origin_ns, self._y, self._r, self._d, stale=stale,
                          takeover=takeover)
+        self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
+
+    def _sample_on_arrival(self, t_ns: int) -> None:
+        """wall, ``trigger: measurement``: the measurement stamped ``t_ns`` (a plant sample
+        instant) just arrived: sample with it and the latest setpoint, publish ``manipulated``
+        stamped ``t_ns`` at once — sample, compute and actuate in one cycle, so the plant's
+        next tick holds the output computed from its last measurement (the discrete loop of
+        core/loop.py, with a computation and transport delay instead of none). Only a
+        measurement that reaches a new instant of this controller's grid,
+        ``j = floor((t_ns - origin) / sample_time)``, is a sample (a controller slower than the
+        plant, a duplicate, or one out of order is not)."""
+        if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
+            return          # nothing measured or no setpoint yet: nothing to control
+        if self._origin_ns is None or t_ns < self._origin_ns:
+            return          # the plant's time origin is not known yet (or an older session's)
+        instant = (t_ns - self._origin_ns) // self._ts_ns
+        if self._last_instant is not None and instant <= self._last_instant:
+            return
+        plant_ns = t_ns - self._origin_ns
+        takeover = None
+        if not self._started:
+            ready, takeover = self._takeover(plant_ns)
+            if not ready:
+                return      # the plant's applied_input is on its way
+        self._last_instant = instant
+        self._since_measurement = 0
+        self._fresh = False
+        self._last_sample = (plant_ns, dict(self._r))
+        u = self._sample(plant_ns, self._y, self._r, self._d, stale=False, takeover=takeover)
         self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
 
     def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
@@ -697,6 +743,7 @@ class ControllerNode(Node):
         fields = {
             'controller': self._params.values['controller'],
             'clock_mode': self._mode,
+            'trigger': 'measurement' if self._on_arrival else 'timer',
             'mode': status.get('mode', 'auto'),
             'saturated': status.get('saturated', False),
             'saturated_samples': self._saturated_samples,

@@ -83,7 +83,7 @@ class PlantNode(Node):
         self.u = nominal_inputs(self.plant)
         self.d = nominal_disturbances(self.plant)
         self._wall_t0_ns = 0               # wall: steady time of tick 0 [ns]
-        self.counters = {'ticks': 0, 'late_ticks': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
+        self.counters = {'ticks': 0, 'missed_samples': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
                          'late_inputs': 0, 'rejected_changes': 0, 'out_of_range_inputs': 0}
 
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
@@ -160,7 +160,6 @@ class PlantNode(Node):
         self._step_s = 0.0                 # computation time of plant.step since the report
         self._steps = 0
         self._step_ms = 0.0                # its mean over the last report's period [ms]
-        self._late_until = 0               # wall: ticks below this were counted as late
         self._resend_period = float(values['lockstep.resend_period'])
         self.add_post_set_parameters_callback(self._on_params_set)
         if self.mode != 'wall':
@@ -250,11 +249,17 @@ class PlantNode(Node):
         self._start_timer()
 
     def _start_timer(self) -> None:
+        if self._tick_msgs is None and self.mode == 'wall':
+            # tick 0 is now: the origin of plant time. The timer's grid (steady clock, as
+            # time.monotonic_ns) starts from it at once, before the publishing: armed after,
+            # every call would come that much after its instant, and each stamp be that old.
+            self._wall_t0_ns = time.monotonic_ns()
+            self._stamp_offset_ns = self.get_clock().now().nanoseconds
+            self._timer.reset()
+            self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
+            self._publish_tick()
+            return
         if self._tick_msgs is None:
-            if self.mode == 'wall':        # tick 0 is now: the origin of plant time
-                self._wall_t0_ns = time.monotonic_ns()
-                self._stamp_offset_ns = self.get_clock().now().nanoseconds
-                self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
             self._publish_tick()
         self._timer.reset()
 
@@ -326,33 +331,38 @@ class PlantNode(Node):
     def _on_tick_timer(self) -> None:
         """wall/sim: close the previous interval with the latest inputs, publish tick k.
 
-        wall: every tick whose instant has come, none ahead of it. The executor may call
-        late (a busy process: the periods missed are made up at once and counted as
-        ``late_ticks``) or early (rclpy's EventsExecutor runs a timer that fell more than
-        a period behind twice at once, the second call up to a period ahead of its instant).
-        Making up stops after one period of work, so parameter services and diagnostics
-        still run when a tick costs more than its period."""
+        wall: the measurement is that of the latest grid instant that has come,
+        ``k = floor((now - t0) / ts)``, stamped ``origin + k·ts`` (its sample instant), never
+        one ahead of it. A call that finds more than one period elapsed (a busy process, a
+        late executor) integrates the periods in between with the inputs held, one step each,
+        and does not publish them: they are counted as ``missed_samples`` (each tick is either
+        published or counted, once). The executor may also call early (rclpy's EventsExecutor
+        runs a timer that fell more than a period behind twice at once, the second call up
+        to a period ahead of its instant). Integration stops after one period of work (a
+        plant slower than real time), so parameter services and diagnostics still run; the
+        tick reached is then published, stamped with its own (past) instant."""
         if self._paused() or self._tick_msgs is None:
             return                      # a call that was due when the pause came
         if self.mode != 'wall':
             self._step()
             self._publish_tick()
             return
-        ahead_ns = self._wall_t0_ns + (self.k + 1) * self.ts_ns - time.monotonic_ns()
+        now_ns = time.monotonic_ns()
+        ahead_ns = self._wall_t0_ns + (self.k + 1) * self.ts_ns - now_ns
         if ahead_ns > 0:
             if ahead_ns > self.ts_ns // 2:
                 return                  # a made-up call: the next one is on time
             time.sleep(ahead_ns / 1e9)  # a little early: wait for the instant
-        now_ns = time.monotonic_ns()
-        due = (now_ns - self._wall_t0_ns) // self.ts_ns
-        # ticks k .. due-2 are late (tick due-1 is the current one); each counted once
-        self.counters['late_ticks'] += max(0, due - 1 - max(self.k, self._late_until))
-        self._late_until = max(self._late_until, due - 1)
+            now_ns = time.monotonic_ns()
+        due = max((now_ns - self._wall_t0_ns) // self.ts_ns, self.k + 1)
+        steps = 0
         while self.k < due:
             self._step()
-            self._publish_tick()
+            steps += 1
             if time.monotonic_ns() - now_ns > self.ts_ns:
-                break                   # the rest at the next call: let the others run first
+                break                   # behind real time: the rest at the next call
+        self.counters['missed_samples'] += steps - 1   # integrated, never published
+        self._publish_tick()
 
     # --------------------------------------------------------------- inputs
     def _on_input(self, topic: str, msg: bytes) -> None:

@@ -179,9 +179,12 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     assert loop.tick(20 * tick, 1.1, 1.0) == pytest.approx(1.0, abs=1e-12)
 
 
-def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, probe):
+@pytest.mark.parametrize('trigger', ['measurement', 'timer'])
+def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, probe, trigger):
+    """Both wall triggers: samples while measurements flow (on their arrival, or on the
+    timer), fail-safe output once they stop for stale_samples, bumpless recovery."""
     ts = 0.05
-    _start(procs, node_cmd, ros_env, f'sample_time:={ts}', 'tuning.rule:=mdp',
+    _start(procs, node_cmd, ros_env, f'sample_time:={ts}', f'trigger:={trigger}', 'tuning.rule:=mdp',
            'tuning.kind:=pid', f'tuning.gain:={K1}', 'tuning.dead_time:=5.0',
            'diagnostics_period:=0.1', 'u_min:=-100.0', 'u_max:=100.0')
     loop = Loop(probe)
@@ -212,6 +215,7 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
         ns_to_stamp(probe.node.get_clock().now().nanoseconds))
     assert probe.wait_for(lambda: len(loop.answers) >= 5, 10.0)
     assert probe.wait_for(lambda: loop.diag.get('fault') == 'none', 20.0)
+    assert loop.diag['trigger'] == trigger
 
     u_running = loop.answers[-1][2][0]
     # stale: no measurement for 3 samples → fail_safe_output sent (configured), reported
@@ -234,6 +238,48 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
     assert [a[2][0] for a in loop.answers[m:]] == pytest.approx([5.0] * len(loop.answers[m:]),
                                                                 abs=1e-9)
     assert int(loop.diag['stale_samples']) >= 3
+
+
+def test_wall_mode_measurement_trigger_answers_each_measurement_with_its_stamp(
+        procs, node_cmd, ros_env, probe):
+    """trigger: measurement (the wall default): each measurement that reaches a new instant
+    of the controller's grid (origin + j·sample_time) is answered at once, stamped with the
+    measurement's stamp and computed from it; one of the same instant, a duplicate or an
+    older one is not. The probe plays a plant ticking twice per controller sample (P-only
+    PID: u = kp·(r − y) after the warm start at y = r)."""
+    ts = 0.2
+    tick = to_ns(ts / 2)
+    _start(procs, node_cmd, ros_env, f'sample_time:={ts}', 'kp:=2.0', 'ti:=0.0', 'td:=0.0',
+           'b:=1.0', 'u_min:=-100.0', 'u_max:=100.0', 'stale_samples:=1000',
+           'diagnostics_period:=0.1')
+    loop = Loop(probe)
+    origin = probe.node.get_clock().now().nanoseconds - to_ns(60.0)
+    probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS).publish(ns_to_stamp(origin))
+    assert probe.wait_for(lambda: loop.diag.get('trigger') == 'measurement', 20.0), loop.diag
+
+    def measure(k: int, y: float) -> None:
+        loop.meas.publish(to_joint_state(origin + k * tick, ['y'], [y]))
+
+    def answered(k: int):
+        return lambda: any(a[0] == origin + k * tick for a in loop.answers)
+    # tick 0, y = r: the warm start gives initial_output (0); re-sent until the endpoints match
+    while not answered(0)():
+        loop.setp.publish(to_joint_state(origin, ['y'], [1.0]))
+        measure(0, 1.0)
+        probe.wait_for(answered(0), 0.5)
+    measure(1, 0.0)            # same controller instant (j = 0): not a sample
+    measure(2, 0.5)            # j = 1
+    assert probe.wait_for(answered(2), 20.0)
+    measure(5, 0.25)           # j = 2 (the plant skipped ticks 3, 4)
+    assert probe.wait_for(answered(5), 20.0)
+    measure(5, 0.0)            # a duplicate ...
+    measure(4, 0.0)            # ... and an older one: not samples
+    measure(6, 0.75)           # j = 3
+    assert probe.wait_for(answered(6), 20.0)
+    stamps = [a[0] - origin for a in loop.answers]
+    assert stamps == [0, 2 * tick, 5 * tick, 6 * tick], stamps
+    assert [a[2][0] for a in loop.answers] == pytest.approx([0.0, 1.0, 1.5, 0.5], abs=1e-12)
+    assert int(loop.diag['stale_samples']) == 0
 
 
 def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, probe):

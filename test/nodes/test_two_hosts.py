@@ -269,8 +269,11 @@ def scenario_file(tmp_path: Path, mode: str) -> Path:
                              'real_time_factor': 4.0}
     else:
         params['reference']['sample_time'] = 0.1
+        # trigger timer: the sample arithmetic below (the samples between the last measurement
+        # and the fail-safe one, stamped with the wall time) is the timer's; with trigger
+        # measurement no sample comes between them (docs/nodes.md)
         params['controller'].update({'fail_safe': 'output', 'fail_safe_output': FAIL_SAFE,
-                                     'stale_samples': STALE_SAMPLES})
+                                     'stale_samples': STALE_SAMPLES, 'trigger': 'timer'})
         # the run's simulated time goes on while the link is down: 4 s, the outage, 3 s
         params['harness'] = {**harness, 'duration': 7.0 + OUTAGE, 'clock_mode': 'wall'}
     return params_file.write(params, tmp_path / f'{mode}.yaml')
