@@ -98,6 +98,7 @@ class Recorder:
         self.acked_ns = -1                  # stamp of the last acknowledged tick [ns]
         self.acknowledged = 0
         self._subscribed = False
+        self._subscriptions: dict[str, Any] = {}
         if subscribe:
             self.subscribe()
 
@@ -110,9 +111,15 @@ class Recorder:
         self._subscribed = True
         for topic, type_name in TOPICS:
             qos = ORIGIN_RECORD_QOS if topic == 'time_origin' else RECORD_QOS
-            self.node.create_subscription(_message_class(type_name), topic,
-                                          self._callback(topic, type_name), qos, raw=True,
-                                          event_callbacks=quiet_subscription_events())
+            self._subscriptions[topic.lstrip('/')] = self.node.create_subscription(
+                _message_class(type_name), topic, self._callback(topic, type_name), qos,
+                raw=True, event_callbacks=quiet_subscription_events())
+
+    def matched_publishers(self, topic: str) -> int:
+        """Publishers of ``topic`` the recorder's own reader has matched (0 before
+        ``subscribe``): a graph entry alone does not mean its messages reach the recorder."""
+        sub = self._subscriptions.get(topic.lstrip('/'))
+        return sub.get_publisher_count() if sub is not None else 0
 
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
         full = topic if topic.startswith('/') else '/' + topic

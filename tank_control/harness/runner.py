@@ -619,14 +619,16 @@ class _RosRun:
         topics = [topic for node in nodes for topic in PUBLISHES[node]
                   if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
         windowed = self.record_window and 'plant' in nodes
-        # sim/wall: the plant does not wait for answers, so the nodes' inputs must be there too
+        # sim/wall: the plant does not wait for answers, so the nodes' inputs must be there too;
+        # lockstep: so that tick 0 is answered at once instead of re-sent after resend_period
         subscribes = SUBSCRIBES_WALL if self.mode == 'wall' else SUBSCRIBES
-        readers = [(node, topic) for node in nodes for topic in subscribes.get(node, ())
-                   if self.mode in ('sim', 'wall')]
+        readers = [(node, topic) for node in nodes for topic in subscribes.get(node, ())]
         self._await(lambda: (set(nodes) <= rec.node_names()
                              and all(rec.publisher_count(t) > 0 for t in topics)
                              and all(node in rec.subscriber_nodes(t) for node, t in readers)
-                             and (not windowed or rec.subscriber_count(TOPIC_RECORDED) > 0)),
+                             and (not windowed or rec.subscriber_count(TOPIC_RECORDED) > 0)
+                             # matched by the recorder's readers: tick 0 reaches it at once
+                             and all(rec.matched_publishers(t) > 0 for t in topics)),
                     'the graph did not come up (nodes ' + ', '.join(nodes)
                     + '; publishers of ' + ', '.join(topics)
                     + ''.join(f'; {node} subscribed to {t}' for node, t in readers) + ')')
