@@ -22,7 +22,7 @@ from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMe
 from tank_control.nodes.cdr import cdr_stamp_ns, joint_state_from_cdr  # noqa: F401 (re-exported)
 from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
                                          ns_to_stamp, quiet_publisher_events,
-                                         quiet_subscription_events, reliable_qos)
+                                         quiet_subscription_events)
 
 #: The recorder's node name (another graph's recorder on the domain is another run).
 RECORDER_NAME = 'tank_control_recorder'

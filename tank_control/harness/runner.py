@@ -461,8 +461,8 @@ class _RosRun:
         self.phase = 'while starting'
         self.cpu: dict[str, float] = {}            # CPU seconds during the run, by process
         plant = scenario.params('plant')
-        self.record_window = (RECORD_WINDOW if self.mode == 'lockstep' and 'plant' in self.config.nodes
-                              else 0)
+        self.record_window = (RECORD_WINDOW if self.mode == 'lockstep'
+                              and 'plant' in self.config.nodes else 0)
         sample_time = plant.get('sample_time')
         self.sample_time = (float(sample_time) if isinstance(sample_time, (int, float))
                             and not isinstance(sample_time, bool) and sample_time > 0 else None)

@@ -5,8 +5,8 @@ input ``u``, no disturbance channel; it follows the lockstep protocol of
 docs/nodes.md (tick k: /clock and measurement stamped t_k; advance once ``manipulated``
 and ``disturbance`` stamped t_k are in; re-send every 0.5 s; ``lockstep.paused``
 holds tick 0 until set to false, as plant_node does; ``lockstep.record_window``: tick k
-only while k <= the tick the harness's recorder acknowledged on ``recorded`` + the window). Parameter
-``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time;
+only while k <= the tick the harness's recorder acknowledged on ``recorded`` + the window).
+Parameter ``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time;
 ``first_tick`` starts its clock at that tick instead of 0 (a plant already far
 ahead, as another run's would be).
 ``reference``: setpoint ``y`` = ``step_value`` from ``step_time`` on (0 before),
