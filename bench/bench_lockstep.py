@@ -9,7 +9,7 @@ Two kinds of measurement, interleaved run by run so that both see the same machi
   ``EventsExecutor`` (``events``). Reported: round trips/s and CPU ms per round trip per
   process (``/proc`` utime + stime over the measured trips).
 * **The project's lockstep** — ``tank-control run FILE --mode lockstep --rtf 0`` as users run
-  it (three node processes plus the harness with its recorder and gate). Reported:
+  it (three node processes plus the harness with its recorder). Reported:
   ``metrics.json`` ``run.ticks_per_s`` (ticks over the wall time from un-pausing the plant to
   the last tick) and ``run.cpu_ms_per_tick`` of each process, and the ratio of ticks/s to
   the three-process ring with the events executor measured in the same run.

@@ -57,6 +57,11 @@ class PlantNode:
     wait_for_reference: bool = param(True, 'lockstep: also wait for the reference disturbance '
                                      'message of each tick', name='lockstep.wait_for_reference',
                                      read_only=True)
+    record_window: int = param(0, 'lockstep: ticks the plant may run ahead of a recorder that '
+                               'acknowledges on `recorded` the last tick it holds whole (0: none '
+                               'waited for; at most 8, so that the signal publishers\' keep-last '
+                               '10 still hold every tick the recorder has not taken)',
+                               min=0, max=8, name='lockstep.record_window', read_only=True)
     diagnostics_period: float = diagnostics_period_param()
 
     def reason(self) -> str | None:

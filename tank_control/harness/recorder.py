@@ -14,12 +14,15 @@ from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from tank_control.harness.recording import RawMessage
+from tank_control.nodes.clock import steady_clock
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
 from tank_control.nodes.cdr import cdr_stamp_ns, joint_state_from_cdr  # noqa: F401 (re-exported)
-from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, quiet_publisher_events,
-                                         quiet_subscription_events, reliable_qos)
+from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
+                                         ns_to_stamp, quiet_publisher_events,
+                                         quiet_subscription_events)
 
 #: The recorder's node name (another graph's recorder on the domain is another run).
 RECORDER_NAME = 'tank_control_recorder'
@@ -41,8 +44,13 @@ TOPICS: tuple[tuple[str, str], ...] = (
 #: Types recorded at their arrival time: no header stamp in the loop's time.
 UNSTAMPED = ('diagnostic_msgs/msg/DiagnosticArray', 'rcl_interfaces/msg/ParameterEvent')
 
-# Reliable like the publishers; a deep reader queue so a busy harness does not drop.
-RECORD_QOS = reliable_qos(1000)
+# Reliable like the publishers, keep-all: the reader's queue never drops a message the
+# harness has not taken yet (with ``acknowledge``, the plant's window bounds it).
+RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+#: Longest wait before a tick the recorder holds is acknowledged even if fewer than
+#: ``every`` ticks came since the last acknowledgment (a plant waiting to re-send) [s].
+ACK_PERIOD = 0.05
 #: ``time_origin`` is latched by the plant (transient local): a late joiner still gets it.
 ORIGIN_RECORD_QOS = ORIGIN_QOS
 GATE_QOS = SIGNAL_QOS
@@ -88,7 +96,13 @@ class Recorder:
         self._gate_stamps: dict[str, set[int]] = {}
         self._gate_disturbance: dict[int, bytes] = {}
         self.relayed = 0
+        self._ack_pub: Any = None
+        self._ack_needs: tuple[str, ...] = ()
+        self._ack_every_ns = 0
+        self.acked_ns = -1                  # stamp of the last acknowledged tick [ns]
+        self.acknowledged = 0
         self._subscribed = False
+        self._subscriptions: dict[str, Any] = {}
         if subscribe:
             self.subscribe()
 
@@ -101,9 +115,15 @@ class Recorder:
         self._subscribed = True
         for topic, type_name in TOPICS:
             qos = ORIGIN_RECORD_QOS if topic == 'time_origin' else RECORD_QOS
-            self.node.create_subscription(_message_class(type_name), topic,
-                                          self._callback(topic, type_name), qos, raw=True,
-                                          event_callbacks=quiet_subscription_events())
+            self._subscriptions[topic.lstrip('/')] = self.node.create_subscription(
+                _message_class(type_name), topic, self._callback(topic, type_name), qos,
+                raw=True, event_callbacks=quiet_subscription_events())
+
+    def matched_publishers(self, topic: str) -> int:
+        """Publishers of ``topic`` the recorder's own reader has matched (0 before
+        ``subscribe``): a graph entry alone does not mean its messages reach the recorder."""
+        sub = self._subscriptions.get(topic.lstrip('/'))
+        return sub.get_publisher_count() if sub is not None else 0
 
     def _callback(self, topic: str, type_name: str) -> Callable[[bytes], None]:
         full = topic if topic.startswith('/') else '/' + topic
@@ -121,7 +141,32 @@ class Recorder:
                     self.latest[key] = stamp
                 if self._gate_pub is not None and key in _GATE_NEEDS:
                     self._gate(key, stamp, data)
+                if self._ack_pub is not None and key in self._ack_needs:
+                    self._acknowledge(self._ack_every_ns)
         return record
+
+    def acknowledge(self, needs: Iterable[str], every_ns: int) -> None:
+        """Lockstep flow control off the tick's serial path (the plant's
+        ``lockstep.record_window``): publish on ``recorded`` the stamp of the last tick whose
+        ``needs`` topics (the signals the graph's nodes publish) the recorder holds, each
+        time that advanced by ``every_ns`` and at least every :data:`ACK_PERIOD` while it
+        advanced. Held = the smallest latest stamp over ``needs``: each topic's messages come
+        in order, and none is lost (``PlantNode._on_recorded`` says why)."""
+        from builtin_interfaces.msg import Time
+        self._ack_needs = tuple(needs)
+        self._ack_every_ns = every_ns
+        self._ack_pub = self.node.create_publisher(Time, TOPIC_RECORDED, RECORDED_QOS)
+        self.node.create_timer(ACK_PERIOD, lambda: self._acknowledge(0),
+                               clock=steady_clock())
+
+    def _acknowledge(self, every_ns: int) -> None:
+        latest = self.latest
+        held = min(latest.get(t, -1) for t in self._ack_needs)
+        if held >= 0 and held > self.acked_ns and (self.acked_ns < 0
+                                                   or held - self.acked_ns >= every_ns):
+            self.acked_ns = held
+            self._ack_pub.publish(ns_to_stamp(held))
+            self.acknowledged += 1
 
     def enable_gate(self) -> None:
         """Lockstep back-pressure: the plant's ``disturbance`` input is remapped to

@@ -41,6 +41,7 @@ from tank_control.harness.scenario_file import (Scenario, ScenarioError, effecti
 from tank_control.harness.signals import RunInterrupted, StopSignals
 from tank_control.harness.stream import RecordingStream, RunOutputs
 from tank_control.harness.trace import GATED_DISTURBANCE
+from tank_control.nodes.messages import TOPIC_RECORDED
 
 __all__ = ['RunFailed', 'RunInterrupted', 'RunResult', 'Progress', 'run', 'run_scenario',
            'run_metrics', 'simulate']
@@ -57,6 +58,11 @@ SUBSCRIBES = {'plant': ('manipulated', 'disturbance'), 'reference': ('/clock',),
 #: wall: the reference and the controller schedule on the plant's time origin instead of /clock
 SUBSCRIBES_WALL = {**SUBSCRIBES, 'reference': ('time_origin',),
                    'controller': ('measurement', 'setpoint', 'time_origin')}
+#: lockstep: ticks the plant may run ahead of the recorder (``lockstep.record_window``), and
+#: every how many ticks the recorder acknowledges (half of it: a recorder that keeps up never
+#: holds the plant back)
+RECORD_WINDOW = 8
+ACK_EVERY = 4
 #: Topics whose publishers mean another graph on the domain (besides the node names).
 GRAPH_TOPICS = ('measurement', 'setpoint', 'manipulated', 'disturbance', '/clock',
                 GATED_DISTURBANCE)
@@ -455,8 +461,8 @@ class _RosRun:
         self.phase = 'while starting'
         self.cpu: dict[str, float] = {}            # CPU seconds during the run, by process
         plant = scenario.params('plant')
-        self.gated = (self.mode == 'lockstep' and {'plant', 'reference'} <= set(self.config.nodes)
-                      and plant.get('lockstep.wait_for_reference', True) is True)
+        self.record_window = (RECORD_WINDOW if self.mode == 'lockstep'
+                              and 'plant' in self.config.nodes else 0)
         sample_time = plant.get('sample_time')
         self.sample_time = (float(sample_time) if isinstance(sample_time, (int, float))
                             and not isinstance(sample_time, bool) and sample_time > 0 else None)
@@ -472,8 +478,8 @@ class _RosRun:
             argv += ['-p', 'use_sim_time:=true']
         if node == 'plant':
             argv += ['-p', 'lockstep.paused:=true']      # un-paused once the graph is up
-            if self.gated:
-                argv += ['-r', f'disturbance:={GATED_DISTURBANCE}']   # through the recorder
+            if self.record_window:       # never more ticks ahead of the recording than this
+                argv += ['-p', f'lockstep.record_window:={self.record_window}']
         return argv
 
     def _check_alive(self) -> None:
@@ -543,8 +549,10 @@ class _RosRun:
                                 f'({found}); this run would mix with it, so it did not start; '
                                 'stop it or set a different ROS_DOMAIN_ID')
             self._start_recording(recorder)
-            if self.gated:
-                recorder.enable_gate()
+            if self.record_window:
+                signals = [t for node in self.config.nodes for t in PUBLISHES[node]
+                           if not t.startswith('/')]
+                recorder.acknowledge(signals, ACK_EVERY * (self.tick_ns or 0))
             nodes = self.config.nodes
             for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
@@ -610,15 +618,17 @@ class _RosRun:
         rec = self.recorder
         topics = [topic for node in nodes for topic in PUBLISHES[node]
                   if not (topic == '/clock' and self.mode == 'wall')]   # no sim clock in wall
-        gate = self.gated and 'plant' in nodes
-        # sim/wall: the plant does not wait for answers, so the nodes' inputs must be there too
+        windowed = self.record_window and 'plant' in nodes
+        # sim/wall: the plant does not wait for answers, so the nodes' inputs must be there too;
+        # lockstep: so that tick 0 is answered at once instead of re-sent after resend_period
         subscribes = SUBSCRIBES_WALL if self.mode == 'wall' else SUBSCRIBES
-        readers = [(node, topic) for node in nodes for topic in subscribes.get(node, ())
-                   if self.mode in ('sim', 'wall')]
+        readers = [(node, topic) for node in nodes for topic in subscribes.get(node, ())]
         self._await(lambda: (set(nodes) <= rec.node_names()
                              and all(rec.publisher_count(t) > 0 for t in topics)
                              and all(node in rec.subscriber_nodes(t) for node, t in readers)
-                             and (not gate or rec.subscriber_count(GATED_DISTURBANCE) > 0)),
+                             and (not windowed or rec.subscriber_count(TOPIC_RECORDED) > 0)
+                             # matched by the recorder's readers: tick 0 reaches it at once
+                             and all(rec.matched_publishers(t) > 0 for t in topics)),
                     'the graph did not come up (nodes ' + ', '.join(nodes)
                     + '; publishers of ' + ', '.join(topics)
                     + ''.join(f'; {node} subscribed to {t}' for node, t in readers) + ')')
@@ -752,7 +762,7 @@ class _RosRun:
             'ticks': ticks,
             'ticks_per_s': ticks / run_wall if run_wall > 0 else 0.0,
             # CPU per tick during the run (from un-pausing the plant to the last tick) of each
-            # node process and of the harness (recorder, gate, progress) [ms]
+            # node process and of the harness (recorder, acknowledgments, progress) [ms]
             'cpu_ms_per_tick': {name: 1e3 * seconds / ticks for name, seconds in self.cpu.items()}
             if ticks else {},
             'missed_samples': sampling['missed_samples'],
@@ -762,7 +772,7 @@ class _RosRun:
             'messages': dict(rec.counts),
             'messages_after_row_written': stream.joiner.after_written,
             'unreadable_messages': stream.unreadable,
-            'recorder_gate': self.gated,
+            'record_window': self.record_window,
             'exit_codes': dict(codes),
         }
         states = stream.states.result()

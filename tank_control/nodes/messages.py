@@ -44,6 +44,10 @@ ORIGIN_QOS = reliable_qos(1, latched=True)
 #: local, keep-last 1) so that a controller that (re)starts on a running loop reads them.
 APPLIED_QOS = reliable_qos(1, latched=True)
 
+#: ``recorded``: reliable, transient local, keep-last 1 (the latest acknowledgment is all that
+#: counts, and a plant that matches late still gets it).
+RECORDED_QOS = reliable_qos(1, latched=True)
+
 
 def quiet_publisher_events() -> PublisherEventCallbacks:
     """No default QoS-event handlers for a hot-path publisher.
@@ -72,6 +76,10 @@ TOPIC_DIAGNOSTICS = '/diagnostics'
 TOPIC_TIME_ORIGIN = 'time_origin'
 #: The plant's applied manipulated values (only the channels a controller has sent).
 TOPIC_APPLIED_INPUT = 'applied_input'
+#: The harness recorder's acknowledgment (``builtin_interfaces/Time``): the stamp of the last
+#: tick it holds whole; a lockstep plant with ``lockstep.record_window`` runs at most that many
+#: ticks ahead of it.
+TOPIC_RECORDED = 'recorded'
 #: Per node (``~/late_inputs``): answers that came after the node had used their tick.
 TOPIC_LATE_INPUTS = '~/late_inputs'
 

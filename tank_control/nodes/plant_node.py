@@ -30,10 +30,12 @@ from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
 from tank_control.nodes.clock import StampedInbox, steady_clock
 from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGIN_QOS,
-                                         SIGNAL_QOS, TOPIC_APPLIED_INPUT, TOPIC_CLOCK,
+                                         RECORDED_QOS, SIGNAL_QOS, TOPIC_APPLIED_INPUT,
+                                         TOPIC_CLOCK, TOPIC_RECORDED,
                                          TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_LATE_INPUTS, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
                                          TOPIC_TIME_ORIGIN, ChannelFilter, ns_to_stamp,
+                                         stamp_to_ns,
                                          quiet_publisher_events, quiet_subscription_events,
                                          to_joint_state)
 from tank_control.nodes.cdr import JointStateCdr, clock_cdr_ns
@@ -134,6 +136,14 @@ class PlantNode(Node):
         if values['lockstep.wait_for_reference']:
             required[TOPIC_DISTURBANCE] = ()
         self.inbox = StampedInbox(required)
+        # lockstep flow control with the harness's recorder, off the tick's serial path: tick k
+        # is published only while k <= (last tick the recorder holds whole) + record_window
+        self._window = int(values['lockstep.record_window']) if self.mode == 'lockstep' else 0
+        self._recorded_tick = -1           # the recorder's last acknowledged tick
+        self._held_for_recorder = False    # tick k waits for an acknowledgment
+        if self._window:
+            self.create_subscription(Time, TOPIC_RECORDED, self._on_recorded, RECORDED_QOS,
+                                     event_callbacks=quiet_subscription_events())
         self._tick_msgs: tuple[bytes, bytes | None] | None = None   # CDR: measurement, /clock
         self._awaiting = False
         self._sent_at = 0.0
@@ -234,11 +244,13 @@ class PlantNode(Node):
         if self.mode in ('sim', 'wall') and self._is_paused != was_paused:
             self._pause_timer(self._is_paused)
             return
+        if self.mode == 'lockstep' and self._is_paused and not was_paused:
+            self._publish_applied(self.k - 1)     # what a controller started now takes over
         unpaused = any(p.name == 'lockstep.paused' and not p.value for p in parameters)
         if self.mode == 'lockstep' and unpaused and not self._awaiting:
             if self._pace_timer is not None:
                 self._wall_start = time.monotonic() - self._t() / self._rtf
-            self._publish_tick()
+            self._next_tick()
 
     def _pause_timer(self, paused: bool) -> None:
         """sim: stop the tick timer; sim/wall: publish tick 0 (first start) and restart the
@@ -302,7 +314,7 @@ class PlantNode(Node):
         if self.mode != 'lockstep':        # remembered for ~/late_inputs
             self._integrated[self.k * self.ts_ns] = {**self.u, **self.d}
             self._integrated.pop((self.k - _LOOKAHEAD) * self.ts_ns, None)
-        self._publish_applied()
+            self._publish_applied(self.k)   # lockstep: only when the loop stops (_on_resend)
         start = time.perf_counter()
         self.plant.step(np.array([self.u[n] for n in self.plant.input_names]),
                         np.array([self.d[n] for n in self.plant.disturbance_names]), self.ts)
@@ -310,16 +322,19 @@ class PlantNode(Node):
         self._steps += 1
         self.k += 1
 
-    def _publish_applied(self) -> None:
-        """``applied_input``: the manipulated values of the step about to be integrated
-        (channels a controller has sent), stamped with its tick, when they changed."""
-        if not self._applied_names:
+    def _publish_applied(self, tick: int) -> None:
+        """``applied_input``: the manipulated values of step ``tick`` (channels a controller
+        has sent), stamped with it, when they changed. wall/sim: at every step. lockstep: only
+        when the loop stops — tick k re-sent (its answers did not come: a controller may be
+        restarting) or paused — with the values of the last step integrated, k−1: a running
+        controller never reads them, and a starting one reads the latched message."""
+        if not self._applied_names or tick < 0:
             return
         values = tuple(self.u[n] for n in self._applied_names)
         if values != self._applied_sent:
             self._applied_sent = values
             self.applied_pub.publish(self._applied_cdr.encode_ns(
-                self._stamp_offset_ns + self.k * self.ts_ns, values))
+                self._stamp_offset_ns + tick * self.ts_ns, values))
 
     def _note_applied(self, names: Any) -> None:
         """Channels of ``manipulated`` received from a controller (in the plant's order)."""
@@ -416,12 +431,49 @@ class PlantNode(Node):
         self._step()
         self.inbox.drop_before(self.k * self.ts_ns)
         if self._paused():
+            self._publish_applied(self.k - 1)
             return                      # un-pausing publishes the next tick
+        self._next_tick()
+
+    def _recorder_allows(self, tick: int) -> bool:
+        """``lockstep.record_window``: tick may be published. Tick 1 waits until the recorder
+        holds tick 0 whole — its receipt shows that every signal writer has matched the
+        recorder's readers (a volatile writer sends nothing to a reader it has not matched
+        yet) — later ticks run up to ``record_window`` ahead."""
+        recorded = self._recorded_tick
+        return not self._window or tick <= recorded + (self._window if recorded >= 0 else 1)
+
+    def _next_tick(self) -> None:
+        """Lockstep: publish tick k now, at its wall time (pacing), or once the recorder has
+        acknowledged enough (``_recorder_allows``)."""
+        if not self._recorder_allows(self.k):
+            self._held_for_recorder = True      # _on_recorded publishes it
+            return
+        self._held_for_recorder = False
         if self._pace_timer is None or self._wait_ns() <= 0:
             self._publish_tick()
         else:                           # a one-shot at the tick's wall time
             self._pace_timer.timer_period_ns = self._wait_ns()
             self._pace_timer.reset()
+
+    def _on_recorded(self, msg: Time) -> None:
+        """The recorder holds every tick up to this stamp (``lockstep.record_window``).
+
+        Why nothing is lost: the plant publishes a new tick only within ``record_window``
+        (<= 8) ticks of the last one the recorder holds, and re-sends its last tick only
+        when the recorder holds every earlier one; each answer is published once per
+        (re-)sent tick. Once the recorder held tick 0 whole every writer had matched its
+        readers, so from then on, between the first message of a tick the recorder has not
+        taken and now, each signal publisher wrote fewer messages than its keep-last 10 (or
+        only copies of that same tick): the reliable writer still holds it for the
+        recorder's keep-all reader, whatever the scheduler does to the harness process."""
+        tick = (stamp_to_ns(msg) - self._stamp_offset_ns) // self.ts_ns
+        if tick <= self._recorded_tick:
+            return
+        self._recorded_tick = tick
+        if (self._held_for_recorder and not self._awaiting and not self._paused()
+                and self._tick_msgs is not None):
+            self._next_tick()
 
     # ------------------------------------------------------------- lockstep
     def _set_pacing(self, rtf: float) -> None:
@@ -452,7 +504,17 @@ class PlantNode(Node):
             self._pace_timer.reset()
 
     def _on_resend(self) -> None:
-        if self._awaiting and time.monotonic() - self._sent_at >= self._resend_period:
+        """Re-send the last tick published if unanswered, or not yet held whole by the recorder
+        (``record_window``: tick k−1 while k waits for it, e.g. tick 0 whose answers came before
+        the recorder had matched their writers), for ``lockstep.resend_period`` — with
+        ``record_window``, only once the recorder holds every tick before it (see
+        ``_on_recorded``)."""
+        last = self.k if self._awaiting else self.k - 1
+        if self._window and self._recorded_tick < last - 1:
+            return
+        if ((self._awaiting or self._held_for_recorder) and self._tick_msgs is not None
+                and time.monotonic() - self._sent_at >= self._resend_period):
+            self._publish_applied(self.k - 1)
             self.counters['resent_ticks'] += 1
             self._send()
 

@@ -4,9 +4,11 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 import rclpy
 import yaml
@@ -14,11 +16,12 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from tank_control.core import params_file, ros_yaml
 
-#: Longest a spin_once waits [s]; the executor also wakes at once on shutdown.
-SPIN_PERIOD = 1.0
+#: Longest a spin_once waits [s]: an idle node notices SIGINT/SIGTERM within it (run_node).
+SPIN_PERIOD = 0.1
 
 
 def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
@@ -123,61 +126,73 @@ class NameWatch:
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Init rclpy, build the node, spin until SIGINT/SIGTERM, shut down; return 0.
 
-    rclpy's signal handlers cover SIGINT and SIGTERM: rcl shuts the context
-    down (asynchronously) and spinning ends with ``ExternalShutdownException``
-    (or the ``KeyboardInterrupt`` of SIGINT), both a clean stop; a signal that
-    arrives while the node is still being built is one too. rclpy hands SIGINT
-    on to Python's handler *after* its own, at a moment Python chooses — possibly
-    during the clean-up or after this function has returned — so the
-    Python-level handler raises ``KeyboardInterrupt`` only while the node is
-    being built or spun, never during the clean-up.
+    SIGINT and SIGTERM are handled here, not by rclpy: rclpy's handlers shut the
+    context down from another thread at once, so a callback that was running (a busy
+    lockstep controller publishing its answer) failed with "publisher's context is
+    invalid" and a [FATAL] traceback. Here a signal only sets a flag (Python runs the
+    handler between two bytecodes of the main thread, never inside rcl); the loop
+    below stops after the callback in progress, then the node leaves the executor, is
+    destroyed, and the context is shut down last — a clean stop with exit status 0,
+    also for a signal that arrives while the node is being built.
 
     The node is spun by rclpy's ``EventsExecutor`` (C++; a third of the CPU per
     message of the ``SingleThreadedExecutor``, which rebuilds its wait set on
     every wake-up: 0.25 against 0.74 ms per hop in a bare three-process ring,
-    bench/RESULTS.md, "Lockstep"). Its ``spin()`` busy-loops on
-    a whole core and ignores SIGTERM in this rclpy build (3 of 3 tries with a
-    100 Hz timer node), so it is driven by ``spin_once`` in a loop; the
-    context's shutdown wakes it, so SIGINT and SIGTERM stop it within one callback.
+    bench/RESULTS.md, "Lockstep"). NOT ``EventsExecutor.spin()``: in this rclpy build
+    it livelocks at ~90 % CPU and ignores SIGTERM (16 of 17 tries, bench/RESULTS.md),
+    so it is driven by ``spin_once`` in a loop. A spin_once blocked in C++ does not run
+    Python's signal handlers, so it waits at most :data:`SPIN_PERIOD`: an idle node
+    stops within that, a busy one after its current callback.
     """
-    running = [True]
+    stop = _StopFlag()
     executor: EventsExecutor | None = None
-
-    def interrupt(signum: int, frame: FrameType | None) -> None:
-        if running[0]:
-            raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, interrupt)
-    rclpy.init(args=args)
-    node: Node | None = None
-    try:
+    with stop:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        node: Node | None = None
         try:
-            node = factory()
-            NameWatch(node)
-            executor = EventsExecutor()
-            executor.add_node(node)
-            # NOT executor.spin(): in this rclpy build EventsExecutor.spin() livelocks at
-            # ~90 % CPU and ignores SIGTERM (16 of 17 tries, bench/RESULTS.md); spin_once works.
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=SPIN_PERIOD)
+            if not stop.requested:
+                node = factory()
+                NameWatch(node)
+                executor = EventsExecutor()
+                executor.add_node(node)
+                while not stop.requested and rclpy.ok():
+                    executor.spin_once(timeout_sec=SPIN_PERIOD)
+        except ExternalShutdownException:
+            pass
         finally:
-            running[0] = False
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # A signal during start-up shuts the context down under the constructor:
-        # that is a requested stop, not a crash. Anything else is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        # Out of the executor before it goes: destroying a node wakes its executor, and
-        # waking an EventsExecutor that was shut down once busy-looped for good (a bench
-        # process, bench/bench_lockstep.py, 1 in about 25 runs).
-        if executor is not None and node is not None:
-            executor.remove_node(node)
-        if node is not None:
-            node.destroy_node()
-        if executor is not None:
-            executor.shutdown()
-        rclpy.try_shutdown()
+            # Out of the executor before it goes: destroying a node wakes its executor, and
+            # waking an EventsExecutor that was shut down once busy-looped for good (a bench
+            # process, bench/bench_lockstep.py, 1 in about 25 runs).
+            if executor is not None and node is not None:
+                executor.remove_node(node)
+            if node is not None:
+                node.destroy_node()
+            if executor is not None:
+                executor.shutdown()
+            rclpy.try_shutdown()
     return 0
+
+
+class _StopFlag:
+    """SIGINT and SIGTERM set ``requested`` while active (the previous handlers are put
+    back on exit). Installed from the main thread only, as Python requires."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.requested = True
+
+    def __enter__(self) -> _StopFlag:
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()

@@ -74,6 +74,31 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
     assert list(topics['/measurement'][0].name) == ['y']
 
 
+def test_lockstep_beside_busy_loops_records_every_tick_equal_to_in_process(tmp_path, ros_env,
+                                                                          procs):
+    """The recorder is off the tick's serial path (the plant runs up to 8 ticks ahead of its
+    acknowledgments): with two busy loops competing for the 2 cores, as fast as possible,
+    every tick of every signal is in run.mcap and trace.csv, equal to the in-process loop."""
+    for i in range(2):
+        procs.start(f'busy{i}', [sys.executable, '-c', 'while 1: pass'])
+    scenario = str(CONFIG / 'ipdt_pid.yaml')
+    ros = cli('run', scenario, '--out', str(tmp_path / 'ros'), '--duration', '150', '--rtf', '0',
+              env=ros_env)
+    assert ros.returncode == 0, ros.stderr[-3000:]
+    ref = cli('run', scenario, '--out', str(tmp_path / 'ref'), '--duration', '150',
+              '--in-process', env=ros_env)
+    assert ref.returncode == 0, ref.stderr[-3000:]
+    assert_equal_traces(tmp_path / 'ros' / 'trace.csv', tmp_path / 'ref' / 'trace.csv')
+    run_info = json.loads((tmp_path / 'ros' / 'metrics.json').read_text())['run']
+    assert run_info['ticks'] == 1501 and run_info['missed_samples'] == 0
+    assert run_info['record_window'] == 8
+    topics = read_mcap(tmp_path / 'ros' / 'run.mcap')
+    ticks = {k * 100_000_000 for k in range(1501)}
+    for topic in ('/measurement', '/setpoint', '/manipulated', '/disturbance'):
+        stamps = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in topics[topic]}
+        assert ticks <= stamps, (topic, sorted(ticks - stamps)[:10])
+
+
 def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     """tank_pi_decoupled (003 two-loop PI with decoupling, delays of 180 s and 120 s):
     every signal of both outputs and inputs equal to 1e-9 over 1000 ticks."""

@@ -10,6 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.serialization import deserialize_message
 from rclpy.utilities import get_default_context
 from support import CONFIG
 
@@ -17,6 +19,7 @@ from tank_control.core import params_file
 from tank_control.core.scenario import run_in_process
 from tank_control.harness.recorder import Recorder
 from tank_control.harness.trace import GATED_DISTURBANCE
+from tank_control.nodes.messages import stamp_to_ns
 
 TOPICS = {'measurement': 'y', 'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
 
@@ -88,3 +91,70 @@ def test_lockstep_ros_run_equals_the_in_process_loop(procs, ros_env, node_cmd, r
     # The run is not trivial: setpoint ramp, controller action, noise, disturbance all present.
     assert expected['r.y'][-1] == 1.0 and expected['d.v'][-1] == -0.1
     assert np.ptp(expected['u.u']) > 0.1 and np.std(np.diff(expected['y.y'][:10])) > 1e-3
+
+
+def test_a_slow_recorder_beside_busy_loops_holds_every_tick_without_being_a_hop(
+        procs, ros_env, node_cmd, rclpy_session, tmp_path):
+    """The recorder off the tick's serial path (``lockstep.record_window``): the plant runs
+    ahead of it by at most 8 ticks and waits for its acknowledgments on ``recorded`` only
+    when it is that far behind. With the recorder slowed down on purpose (each message costs
+    it 1 ms more) and two busy loops on the machine, every message of every tick still
+    reaches it — its keep-all reader alone would fill up and the plant's keep-last 10
+    writers would drop — and the trace equals the in-process loop. Without the window the
+    plant runs ahead, and the recorder's queue grows without bound: the plant's diagnostics
+    wait there for seconds."""
+    import time
+    params, path = scenario(tmp_path)
+    ts_ns, last_tick = 100_000_000, 1000
+    for i in range(2):
+        procs.start(f'busy{i}', ['python3', '-c', 'while 1: pass'])
+    kept, delays = [], []
+
+    def slow_sink(raw) -> None:
+        kept.append(raw)
+        if raw.topic == '/diagnostics':   # how long the plant's report waited in the queue
+            msg = deserialize_message(raw.data, DiagnosticArray)
+            if msg.status and msg.status[0].name == 'plant':
+                delays.append((raw.log_time_ns - stamp_to_ns(msg.header.stamp)) / 1e9)
+        end = time.perf_counter() + 0.001
+        while time.perf_counter() < end:
+            pass
+    recorder = Recorder(get_default_context(), name='test_window_recorder', sink=slow_sink)
+    try:
+        recorder.acknowledge(tuple(TOPICS), 4 * ts_ns)
+        for name in ('plant', 'controller', 'reference'):
+            argv = node_cmd(f'{name}_node', '--params-file', str(path))
+            if name == 'plant':
+                argv += ['-p', 'lockstep.record_window:=8']
+            procs.start(name, argv, env=ros_env)
+
+        def logs() -> str:
+            return '\n'.join(p.tail() for p in procs.processes.values())
+        assert recorder.spin_until(lambda: all(recorder.publisher_count(t) for t in TOPICS)
+                                   and recorder.subscriber_count('recorded'), 60), logs()
+        assert recorder.set_parameters('plant', {'lockstep.paused': False}, 30) is None, logs()
+        assert recorder.spin_until(
+            lambda: all(recorder.latest.get(t, -1) >= last_tick * ts_ns for t in TOPICS), 300), \
+            (recorder.counts, logs())
+        assert recorder.acknowledged >= last_tick // 4 - 2     # acknowledged every 4 ticks
+        # the window held the plant back: what it sent waited little in the recorder's
+        # queue (without the window: seconds, growing, ~3 s at the end)
+        assert delays and max(delays) < 1.0, delays
+    finally:
+        recorder.destroy()
+
+    recorder.messages = kept
+    seen: dict[str, dict[int, tuple]] = {topic: {} for topic in TOPICS}
+    for m in recorder.signal_messages():
+        seen[m.topic].setdefault(m.stamp_ns, (m.names, m.values))
+    clock = {raw.publish_time_ns for raw in kept if raw.topic == '/clock'}
+    expected = run_in_process(params, duration=last_tick * ts_ns / 1e9)
+    ticks = range(last_tick + 1)
+    assert not [k for k in ticks if k * ts_ns not in clock]
+    for topic, prefix in TOPICS.items():
+        missing = [k for k in ticks if k * ts_ns not in seen[topic]]
+        assert not missing, (topic, len(missing), missing[:10])
+        for i, name in enumerate(seen[topic][0][0]):
+            ros = np.array([seen[topic][k * ts_ns][1][i] for k in ticks])
+            np.testing.assert_allclose(ros, expected[f'{prefix}.{name}'][:last_tick + 1],
+                                       rtol=0, atol=1e-9, err_msg=f'{prefix}.{name}')

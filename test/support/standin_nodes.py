@@ -4,8 +4,9 @@
 input ``u``, no disturbance channel; it follows the lockstep protocol of
 docs/nodes.md (tick k: /clock and measurement stamped t_k; advance once ``manipulated``
 and ``disturbance`` stamped t_k are in; re-send every 0.5 s; ``lockstep.paused``
-holds tick 0 until set to false, as plant_node does). Parameter
-``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time;
+holds tick 0 until set to false, as plant_node does; ``lockstep.record_window``: tick k
+only while k <= the tick the harness's recorder acknowledged on ``recorded`` + the window).
+Parameter ``crash_at`` (s, 0 = never) makes it exit with code 3 at that simulated time;
 ``first_tick`` starts its clock at that tick instead of 0 (a plant already far
 ahead, as another run's would be).
 ``reference``: setpoint ``y`` = ``step_value`` from ``step_time`` on (0 before),
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import sys
 
+from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -24,7 +26,9 @@ from sensor_msgs.msg import JointState
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (
     CLOCK_QOS,
+    RECORDED_QOS,
     SIGNAL_QOS,
+    TOPIC_RECORDED,
     clock_msg,
     stamp_to_ns,
     to_joint_state,
@@ -48,6 +52,11 @@ class StandinPlant(Node):
         self.create_subscription(JointState, 'manipulated', self.on_u, SIGNAL_QOS)
         self.create_subscription(JointState, 'disturbance', self.on_d, SIGNAL_QOS)
         self.paused = self.declare_parameter('lockstep.paused', False).value
+        self.window = self.declare_parameter('lockstep.record_window', 0).value
+        self.recorded = -1              # the recorder's last acknowledged tick
+        self.held = False               # tick k waits for the recorder
+        if self.window:
+            self.create_subscription(Time, TOPIC_RECORDED, self.on_recorded, RECORDED_QOS)
         self.add_post_set_parameters_callback(self.on_set)
         self.create_timer(0.5, self.resend, clock=steady_clock())
         if not self.paused:
@@ -61,7 +70,23 @@ class StandinPlant(Node):
                     self.publish_tick()
 
     def resend(self) -> None:
-        if not self.paused:
+        last = self.k - 1 if self.held else self.k
+        if self.paused or (self.window and self.recorded < last - 1):
+            return
+        if self.held:          # tick k-1 again: the recorder may have missed its answers
+            self.clock_pub.publish(clock_msg(last * self.ts_ns))
+            self.meas_pub.publish(to_joint_state(last * self.ts_ns, ['y'], [self.last_y]))
+        else:
+            self.publish_tick()
+
+    def allows(self, k: int) -> bool:
+        """Tick 1 waits for the recorder to hold tick 0, later ones run ``window`` ahead."""
+        return not self.window or k <= self.recorded + (self.window if self.recorded >= 0 else 1)
+
+    def on_recorded(self, msg: Time) -> None:
+        self.recorded = max(self.recorded, stamp_to_ns(msg) // self.ts_ns)
+        if self.held and self.allows(self.k):
+            self.held = False
             self.publish_tick()
 
     def publish_tick(self) -> None:
@@ -72,6 +97,7 @@ class StandinPlant(Node):
             raise SystemExit(3)
         self.clock_pub.publish(clock_msg(t))
         self.meas_pub.publish(to_joint_state(t, ['y'], [self.y]))
+        self.last_y = self.y
 
     def on_u(self, msg: JointState) -> None:
         self.u[stamp_to_ns(msg.header.stamp)] = msg.position[list(msg.name).index('u')]
@@ -87,7 +113,10 @@ class StandinPlant(Node):
             self.y = self.y + self.ts_ns * 1e-9 * self.u.pop(t)
             self.d.discard(t)
             self.k += 1
-            self.publish_tick()
+            if not self.allows(self.k):
+                self.held = True
+            else:
+                self.publish_tick()
 
 
 class StandinReference(Node):
