@@ -32,7 +32,7 @@ demo: $(STAMP)
 	$(BIN)/python -m tank_control.demo
 
 test: $(STAMP) browser
-	$(BIN)/python -m pytest -q test
+	$(BIN)/python -m pytest -q --durations=40 test
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.
 colcon: $(STAMP)

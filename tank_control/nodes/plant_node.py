@@ -509,6 +509,8 @@ class PlantNode(Node):
         the recorder had matched their writers), for ``lockstep.resend_period`` — with
         ``record_window``, only once the recorder holds every tick before it (see
         ``_on_recorded``)."""
+        if self._is_paused:             # paused: nothing is published, re-sends neither
+            return
         last = self.k if self._awaiting else self.k - 1
         if self._window and self._recorded_tick < last - 1:
             return

@@ -175,8 +175,9 @@ def running(loop: Loop, watch: Watch, seconds: float) -> None:
     """Start the three nodes and wait until the loop has run ``seconds`` of plant time."""
     for node in ('plant', 'reference', 'controller'):
         loop.start(node)
-    watch.wait(lambda: watch.origins and watch.signals['measurement'] and any(
-        plant_time(watch, m[1]) >= seconds * S for m in watch.signals['manipulated'][-1:]),
+    watch.wait(lambda: watch.origins and watch.signals['measurement'] and watch.signals['setpoint']
+               and any(plant_time(watch, m[1]) >= seconds * S
+                       for m in watch.signals['manipulated'][-1:]),
         90, f'the loop did not reach {seconds} s', loop.logs)
 
 
