@@ -28,10 +28,17 @@ $(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
 	@touch $(STAMP)
 
+# Byte-compile the package first: this environment sets PYTHONDONTWRITEBYTECODE, so without
+# cached .pyc files every node process would compile ~100 modules again at start-up (0.5 s of
+# CPU each). Up-to-date files are skipped; a stale .pyc is ignored by Python (mtime check).
+COMPILE := $(BIN)/python -m compileall -q tank_control >/dev/null
+
 demo: $(STAMP)
+	@$(COMPILE)
 	$(BIN)/python -m tank_control.demo
 
 test: $(STAMP) browser
+	@$(COMPILE)
 	$(BIN)/python -m pytest -q --durations=40 test
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.
