@@ -37,9 +37,14 @@ demo: $(STAMP)
 	@$(COMPILE)
 	$(BIN)/python -m tank_control.demo
 
+# Two workers (pytest-xdist), a test file to one worker: the DDS tests spend much of their time
+# waiting on the graph, so two at a time halve the wall time on the 2-core CI machine (every
+# session, so every worker, claims a ROS_DOMAIN_ID of its own). TEST_WORKERS=0 runs in one process.
+TEST_WORKERS ?= 2
+
 test: $(STAMP) browser
 	@$(COMPILE)
-	$(BIN)/python -m pytest -q --durations=40 test
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=40 test
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.
 colcon: $(STAMP)
