@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar
+from tank_control.core.scipy_lazy import brentq, minimize_scalar
 
 Rational = Callable[[np.ndarray], np.ndarray]
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
+from tank_control.core.scipy_lazy import solve_discrete_are
 
 from tank_control.core.control.mpcs_model import DelayedModel
 

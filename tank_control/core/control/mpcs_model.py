@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import expm
+from tank_control.core.scipy_lazy import expm
 
 from tank_control.core.plants.mixing_tank import TankOperatingPoint
 

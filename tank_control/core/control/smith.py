@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
+from tank_control.core.scipy_lazy import expm
 
 from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.params import param

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
+from tank_control.core.scipy_lazy import expm
 
 from tank_control.core.interfaces import NS_PER_S, StatusValue, seconds
 from tank_control.core.params import check_config, config_from

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
+from tank_control.core.scipy_lazy import expm
 
 from tank_control.core.interfaces import StatusValue
 from tank_control.core.params import param

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq
+from tank_control.core.scipy_lazy import brentq
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.params import ConfigError

@@ -14,8 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq, least_squares, minimize_scalar
-from scipy.signal import lfilter
+from tank_control.core.scipy_lazy import brentq, least_squares, lfilter, minimize_scalar
 
 # --------------------------------------------------------------------------- models
 

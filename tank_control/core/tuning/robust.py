@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar
+from tank_control.core.scipy_lazy import brentq, minimize_scalar
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.tuning.model import ProcessModel
