@@ -15,14 +15,15 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 
 from tank_control.harness.recording import RawMessage
 from tank_control.nodes.clock import steady_clock
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
-from tank_control.nodes.cdr import cdr_stamp_ns, joint_state_from_cdr  # noqa: F401 (re-exported)
+from tank_control.nodes.cdr import (cdr_stamp_ns, joint_state_from_cdr,  # noqa: F401 (re-exported)
+                                    time_cdr_ns)
 from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
-                                         ns_to_stamp, quiet_publisher_events,
-                                         quiet_subscription_events)
+                                         quiet_publisher_events, quiet_subscription_events)
 
 #: The recorder's node name (another graph's recorder on the domain is another run).
 RECORDER_NAME = 'tank_control_recorder'
@@ -87,6 +88,7 @@ class Recorder:
         # (tank_control/nodes/runtime.py says why).
         self.executor = EventsExecutor(context=context)
         self.executor.add_node(self.node)
+        self._never = Future()              # spin_for: never done, only the timeout ends it
         self.messages: list[RawMessage] = []
         self.sink: Sink = sink if sink is not None else self.messages.append
         self.latest: dict[str, int] = {}        # topic → largest stamp seen [ns]
@@ -97,7 +99,7 @@ class Recorder:
         self._gate_disturbance: dict[int, bytes] = {}
         self.relayed = 0
         self._ack_pub: Any = None
-        self._ack_needs: tuple[str, ...] = ()
+        self._ack_needs: frozenset[str] = frozenset()   # empty: no acknowledgments
         self._ack_every_ns = 0
         self.acked_ns = -1                  # stamp of the last acknowledged tick [ns]
         self.acknowledged = 0
@@ -129,19 +131,25 @@ class Recorder:
         full = topic if topic.startswith('/') else '/' + topic
         key = topic.lstrip('/')
         stamped = type_name not in UNSTAMPED
+        counts, first, latest = self.counts, self.first, self.latest
+        gate_topic = key in _GATE_NEEDS
+        time_ns = time.time_ns
 
+        # Per message (5 a lockstep tick): one copy of the bytes into the sink, the counters;
+        # names and flags bound once here, not looked up per message.
         def record(data: bytes) -> None:
-            now = time.time_ns()
+            now = time_ns()
             stamp = cdr_stamp_ns(data) if stamped else now
             self.sink(RawMessage(full, type_name, bytes(data), now, stamp))
-            self.counts[key] = self.counts.get(key, 0) + 1
+            counts[key] = counts.get(key, 0) + 1
             if stamped:
-                self.first.setdefault(key, stamp)
-                if stamp > self.latest.get(key, -1):
-                    self.latest[key] = stamp
-                if self._gate_pub is not None and key in _GATE_NEEDS:
+                if key not in first:
+                    first[key] = stamp
+                if stamp > latest.get(key, -1):
+                    latest[key] = stamp
+                if gate_topic and self._gate_pub is not None:
                     self._gate(key, stamp, data)
-                if self._ack_pub is not None and key in self._ack_needs:
+                if key in self._ack_needs:
                     self._acknowledge(self._ack_every_ns)
         return record
 
@@ -153,7 +161,7 @@ class Recorder:
         advanced. Held = the smallest latest stamp over ``needs``: each topic's messages come
         in order, and none is lost (``PlantNode._on_recorded`` says why)."""
         from builtin_interfaces.msg import Time
-        self._ack_needs = tuple(needs)
+        self._ack_needs = frozenset(needs)
         self._ack_every_ns = every_ns
         self._ack_pub = self.node.create_publisher(Time, TOPIC_RECORDED, RECORDED_QOS)
         self.node.create_timer(ACK_PERIOD, lambda: self._acknowledge(0),
@@ -165,7 +173,7 @@ class Recorder:
         if held >= 0 and held > self.acked_ns and (self.acked_ns < 0
                                                    or held - self.acked_ns >= every_ns):
             self.acked_ns = held
-            self._ack_pub.publish(ns_to_stamp(held))
+            self._ack_pub.publish(time_cdr_ns(held))     # pre-encoded: no rclpy message
             self.acknowledged += 1
 
     def enable_gate(self) -> None:
@@ -202,7 +210,19 @@ class Recorder:
         return {info.node_name for info in self.node.get_subscriptions_info_by_topic(full)}
 
     def spin_once(self, timeout: float) -> None:
+        """Handle at most one message (or timer), waiting up to ``timeout`` wall seconds."""
         self.executor.spin_once(timeout_sec=timeout)
+
+    def spin_for(self, duration: float) -> None:
+        """Handle every message that comes within ``duration`` wall seconds, in one call into
+        the executor. The EventsExecutor's ``spin_once`` returns after each message, so a
+        loop around it pays a Python round trip (the loop's checks, the call) per message,
+        five a lockstep tick; here the executor runs the callbacks back to back until the
+        time is up (``spin_until_future_complete`` on a future that is never done: it
+        returns at the timeout; no callback accumulates on the future, 2000 calls checked).
+        A signal's Python handler runs inside the next callback, or at the latest when
+        this returns."""
+        self.executor.spin_until_future_complete(self._never, timeout_sec=duration)
 
     def drain(self, timeout: float, quiet: float = 0.1) -> None:
         """Take in what was already sent (after the publishers stopped): spin until no message

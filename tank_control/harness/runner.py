@@ -655,17 +655,13 @@ class _RosRun:
         rec = self.recorder
         last_progress = last_graph_check = -math.inf
         last_sim, last_move = -1, time.monotonic()
-        last_check = -math.inf
         while True:
-            # The EventsExecutor handles one message per spin_once (six per lockstep tick): the
-            # liveness check (a waitid per node) and the trace's row writing run at most every
-            # CHECK_PERIOD, not per message.
-            now = time.monotonic()
-            if now - last_check >= CHECK_PERIOD:
-                last_check = now
-                self._check_alive()
-                self.stream.advance()
-            rec.spin_once(0.05)
+            # The recorder takes every message of CHECK_PERIOD in one call (``spin_for``: five
+            # a lockstep tick); the liveness check (a waitid per node), the trace's row writing
+            # and the checks below run once per CHECK_PERIOD, not per message.
+            self._check_alive()
+            self.stream.advance()
+            rec.spin_for(CHECK_PERIOD)
             now = time.monotonic()
             if now - last_graph_check >= 0.5:      # a graph that joins later mixes in too
                 last_graph_check = now

@@ -137,6 +137,10 @@ class TraceJoiner:
         self.written_until = -_NEVER               # rows end before this: every row is written
         self.after_written = 0
         self.last_row_ns: int | None = None
+        self._channel_lists = [self.signals[_TOPIC_OF[prefix]].channels for prefix in PREFIX_ORDER]
+        self._columns_key: tuple[int, ...] | None = None
+        self._columns_cache: tuple[tuple[str, ...], list[tuple[_Signal, tuple[str, ...]]]] = (
+            ('t',), [])
 
     # -- input -------------------------------------------------------------------------------
     def add(self, msg: SignalMessage) -> None:
@@ -211,20 +215,34 @@ class TraceJoiner:
         for signal in self.signals.values():
             signal.apply_before(end)
         self.written_until = max(self.written_until, end)
-        names = ['t']
         values = [t_rel / NS_PER_S]
-        for prefix in PREFIX_ORDER:
-            topic = _TOPIC_OF[prefix]
-            signal = self.signals[topic]
-            for name in signal.channels:
-                names.append(f'{prefix}.{name}')
-                values.append(signal.held.get(name, math.nan))
+        columns = self._columns()
+        for signal, channels in columns[1]:
+            held = signal.held
+            values.extend([held.get(name, math.nan) for name in channels])
+        names = columns[0]
         for prefix, due in self.due.items():
             if t_rel % due.period == 0:
                 due.waiting.append(t_rel)
         self.written += 1
         self.last_row_ns = stamp                   # before the sink, which may read it
         self.sink(names, values)
+
+    def _columns(self) -> tuple[tuple[str, ...], list[tuple[_Signal, tuple[str, ...]]]]:
+        """The row's column names (``t``, then each prefix's channels in order of arrival) and
+        (signal, channels) in the same order; rebuilt only when a signal gained a channel
+        (channels are only ever appended), not per row."""
+        key = tuple(map(len, self._channel_lists))
+        if key != self._columns_key:
+            names = ['t']
+            parts = []
+            for prefix in PREFIX_ORDER:
+                signal = self.signals[_TOPIC_OF[prefix]]
+                channels = tuple(signal.channels)
+                names += [f'{prefix}.{name}' for name in channels]
+                parts.append((signal, channels))
+            self._columns_key, self._columns_cache = key, (tuple(names), parts)
+        return self._columns_cache
 
     def flush(self) -> None:
         """Write every remaining row and count every remaining due instant (end of the run)."""

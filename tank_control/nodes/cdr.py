@@ -80,6 +80,12 @@ def clock_cdr_ns(t_ns: int) -> bytes:
     return CDR_LE + _STAMP_LE.pack(*divmod(int(t_ns), NS_PER_S))
 
 
+def time_cdr_ns(t_ns: int) -> bytes:
+    """``builtin_interfaces/msg/Time`` for the instant ``t_ns`` [ns] (exact): the same bytes as
+    a ``Clock``, whose only field is one ``Time``."""
+    return CDR_LE + _STAMP_LE.pack(*divmod(int(t_ns), NS_PER_S))
+
+
 def cdr_stamp_ns(data: bytes) -> int:
     """The first ``builtin_interfaces/Time`` of a CDR message (header.stamp of a JointState,
     the clock of a Clock, a Time itself) [ns], without deserialising it."""

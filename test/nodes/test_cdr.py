@@ -60,3 +60,16 @@ def test_clock_encoding():
     clock = deserialize_message(data, Clock)
     assert (clock.clock.sec, clock.clock.nanosec) == (5, 7)
     assert cdr_stamp_ns(data) == cdr_stamp_ns(serialize_message(clock)) == 5 * 10**9 + 7
+
+
+def test_an_encoded_time_is_the_message_rclpy_reads():
+    """The recorder's acknowledgments (``recorded``, builtin_interfaces/Time) go out as bytes."""
+    from builtin_interfaces.msg import Time
+
+    from tank_control.nodes.cdr import time_cdr_ns
+    for t_ns in (0, 1, 999_999_999, 12_345_678_901, 2**31 * 10**9 - 1):
+        data = time_cdr_ns(t_ns)
+        msg = deserialize_message(data, Time)
+        assert msg.sec * 10**9 + msg.nanosec == t_ns
+        assert data == serialize_message(Time(sec=msg.sec, nanosec=msg.nanosec))
+        assert cdr_stamp_ns(data) == t_ns

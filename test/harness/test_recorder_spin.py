@@ -1,0 +1,46 @@
+"""The recorder's ``spin_for``: every message that comes within the time, taken in one call into
+the executor (the harness's run loop; ``spin_once`` returns after each message), and back when
+the time is up (an idle recorder does not block the run loop's checks)."""
+from __future__ import annotations
+
+import os
+import time
+
+import rclpy
+from rclpy.context import Context
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+
+from tank_control.harness.recorder import Recorder
+from tank_control.harness.trace import SignalMessage
+from tank_control.nodes.cdr import JointStateCdr
+from tank_control.nodes.messages import SIGNAL_QOS
+
+
+def test_spin_for_takes_every_message_that_came_in_one_call_and_returns_on_time():
+    context = Context()
+    rclpy.init(context=context, domain_id=int(os.environ.get('ROS_DOMAIN_ID', '0')))
+    recorder = Recorder(context, name='test_spin_for_recorder')
+    source = Node('test_spin_for_source', context=context)
+    try:
+        pub = source.create_publisher(JointState, 'measurement', SIGNAL_QOS)
+        assert recorder.spin_until(lambda: recorder.matched_publishers('measurement') > 0
+                                   and pub.get_subscription_count() > 0, 20)
+        encoder = JointStateCdr(('y',))
+        for k in range(8):                       # fewer than the writer's keep-last 10
+            pub.publish(encoder.encode_ns(k * 100_000_000, (float(k),)))
+        start = time.monotonic()
+        recorder.spin_for(0.5)                   # one call: all eight, however they come
+        took = time.monotonic() - start
+        signals = recorder.signal_messages(('measurement',))
+        assert signals == [SignalMessage('measurement', k * 100_000_000, ('y',), (float(k),))
+                           for k in range(8)]
+        assert recorder.counts['measurement'] == 8
+        assert 0.45 <= took < 5.0               # the time given, not the first message only
+        start = time.monotonic()
+        recorder.spin_for(0.05)                  # idle: back after the time given
+        assert 0.04 <= time.monotonic() - start < 2.0
+    finally:
+        source.destroy_node()
+        recorder.destroy()
+        rclpy.try_shutdown(context=context)
