@@ -9,6 +9,13 @@ Interleaved run by run so that every measurement sees the same machine:
   period stamped with the system time, ``pong`` echoes it with its receive time (the signal
   QoS of the nodes). Reported: one-way latency (both legs pooled, receive − send on the one
   system clock of this machine) p50/p99 [ms].
+* **Bare observed relay** — the wall loop's topology with nothing but the hops: ``source``
+  publishes a ``JointState`` every period (steady-clock timer) stamped with its sample instant
+  on the system clock (instant 0 at the first call, like the plant's ``time_origin``),
+  ``relay`` republishes each one at once with the same stamp (a measurement-triggered
+  controller with no work), and ``observer`` takes both with its arrival time, as the
+  harness's recorder does. Reported with the very formulas of the wall rows below (period
+  deviation, age, latency): the floor those rows are compared with, like for like.
 * **The project's wall mode** — ``tank-control run config/ipdt_pid.yaml --mode wall`` at the
   same period (plant and controller ``sample_time``), as users run it, once with
   ``controller.trigger=timer`` and once with ``measurement``; read from ``run.mcap`` (the
@@ -48,19 +55,26 @@ SKIP_S = 1.0          # the first second of each bare measurement / run is not c
 
 
 # ------------------------------------------------------------------ children (one process each)
+_EXECUTORS: dict[int, object] = {}
+
+
 def _spin(node, seconds: float, done=lambda: False) -> None:
+    """Spin ``node`` like the project's nodes (EventsExecutor, ``spin_once``) for ``seconds``
+    or until ``done()``. One executor per node for the whole process: a node moved to a new
+    EventsExecutor keeps a backlog of the messages that came in between (each later event
+    takes the oldest message), measured here as a constant 90 ms of extra age."""
     from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor
-    executor = EventsExecutor()
-    executor.add_node(node)
+    executor = _EXECUTORS.get(id(node))
+    if executor is None:
+        executor = _EXECUTORS[id(node)] = EventsExecutor()
+        executor.add_node(node)
     end = time.monotonic() + seconds
     try:
         while time.monotonic() < end and not done():
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass                              # the pong, stopped by SIGTERM
-    executor.remove_node(node)
-    executor.shutdown()
 
 
 def child_timer(period: float, duration: float) -> dict:
@@ -139,6 +153,78 @@ def child_ping(period: float, duration: float) -> dict:
             'messages': int(len(lat) // 2)}
 
 
+def child_source(period: float, duration: float) -> dict:
+    """Publishes ``bench_sample`` every period stamped with its sample instant."""
+    import rclpy
+    from rclpy.clock import Clock, ClockType
+    from sensor_msgs.msg import JointState
+
+    from tank_control.nodes.messages import SIGNAL_QOS, ns_to_stamp
+    rclpy.init()
+    node = rclpy.create_node('bare_source')
+    pub = node.create_publisher(JointState, 'bench_sample', SIGNAL_QOS)
+    period_ns = int(round(period * 1e9))
+    origin: dict[str, int] = {}
+
+    def send() -> None:
+        steady = time.monotonic_ns()
+        if not origin:
+            origin.update(steady=steady, system=time.time_ns())
+        k = round((steady - origin['steady']) / period_ns)     # the instant this call is for
+        msg = JointState()
+        msg.header.stamp = ns_to_stamp(origin['system'] + k * period_ns)
+        msg.position = [float(k)]
+        pub.publish(msg)
+    # the relay and the observer are matched before the measured time starts
+    while pub.get_subscription_count() < 2:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    node.create_timer(period, send, clock=Clock(clock_type=ClockType.STEADY_TIME))
+    _spin(node, duration)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return {}
+
+
+def child_relay(duration: float) -> dict:
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from tank_control.nodes.messages import SIGNAL_QOS
+    rclpy.init()
+    node = rclpy.create_node('bare_relay')
+    pub = node.create_publisher(JointState, 'bench_answer', SIGNAL_QOS)
+    node.create_subscription(JointState, 'bench_sample', pub.publish, SIGNAL_QOS)
+    _spin(node, duration + 30.0)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return {}
+
+
+def child_observer(period: float, duration: float) -> dict:
+    """Arrival times of ``bench_sample`` and ``bench_answer``, measured like the wall rows."""
+    import rclpy
+    from sensor_msgs.msg import JointState
+
+    from tank_control.nodes.messages import SIGNAL_QOS, stamp_to_ns
+    rclpy.init()
+    node = rclpy.create_node('bare_observer')
+    rows: dict[str, list[tuple[int, int]]] = {'/measurement': [], '/manipulated': []}
+
+    def keep(topic: str):
+        def on(msg: JointState) -> None:
+            rows[topic].append((stamp_to_ns(msg.header.stamp), time.time_ns()))
+        return on
+    node.create_subscription(JointState, 'bench_sample', keep('/measurement'), SIGNAL_QOS)
+    node.create_subscription(JointState, 'bench_answer', keep('/manipulated'), SIGNAL_QOS)
+    _spin(node, 30.0, done=lambda: bool(rows['/measurement']))     # until the source runs
+    _spin(node, duration)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    rec = {k: np.array(sorted(v, key=lambda r: r[1]), dtype=np.int64).reshape(-1, 2)
+           for k, v in rows.items()}
+    return observed_metrics(rec, 'measurement')
+
+
 # ------------------------------------------------------------------------------- measurements
 def _child(*args: str, env: dict) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, __file__, '--child', *args], env=env,
@@ -157,6 +243,13 @@ def bare(period: float, duration: float, env: dict) -> dict:
     result = {**timer, **_result(ping)}
     pong.terminate()
     pong.wait(timeout=30)
+    observer = _child('observer', str(period), str(duration), env=env)
+    relay = _child('relay', str(period), str(duration), env=env)
+    source = _child('source', str(period), str(duration), env=env)
+    _result(source)
+    result['observed'] = _result(observer)
+    relay.terminate()
+    relay.wait(timeout=30)
     return result
 
 
@@ -174,8 +267,9 @@ def read_recording(path: Path) -> dict[str, np.ndarray]:
             for k, v in rows.items()}
 
 
-def wall_metrics(out: Path, period: float, trigger: str) -> dict:
-    rec = read_recording(out / 'run.mcap')
+def observed_metrics(rec: dict[str, np.ndarray], trigger: str) -> dict:
+    """Period deviation, age and latency [ms] from (stamp, arrival) rows of the measurement
+    and the answer (``/manipulated``), each in order of arrival; the first ``SKIP_S`` left out."""
     y, u = rec['/measurement'], rec['/manipulated']
     y = y[y[:, 0] >= y[:, 0].min() + int(SKIP_S * 1e9)]
     dev = np.abs(np.diff(y[:, 1]) - np.diff(y[:, 0])) / 1e6
@@ -187,11 +281,15 @@ def wall_metrics(out: Path, period: float, trigger: str) -> dict:
         i = np.searchsorted(u[:, 1], y[:, 1])
         ok = i < len(u)
         lat = (u[i[ok], 1] - y[ok, 1]) / 1e6
-    run = json.loads((out / 'metrics.json').read_text())['run']
     return {'dev_p99': float(np.percentile(dev, 99)), 'age_p50': float(np.percentile(age, 50)),
             'age_p99': float(np.percentile(age, 99)), 'lat_p50': float(np.percentile(lat, 50)),
-            'lat_p99': float(np.percentile(lat, 99)), 'missed': run['missed_samples'],
-            'ticks': run['ticks']}
+            'lat_p99': float(np.percentile(lat, 99))}
+
+
+def wall_metrics(out: Path, period: float, trigger: str) -> dict:
+    run = json.loads((out / 'metrics.json').read_text())['run']
+    return {**observed_metrics(read_recording(out / 'run.mcap'), trigger),
+            'missed': run['missed_samples'], 'ticks': run['ticks']}
 
 
 def wall_run(exe: str, period: float, duration: float, trigger: str | None, out: Path,
@@ -229,6 +327,12 @@ def main() -> int:
             print(json.dumps(child_timer(float(rest[0]), float(rest[1]))))
         elif kind == 'ping':
             print(json.dumps(child_ping(float(rest[0]), float(rest[1]))))
+        elif kind == 'source':
+            print(json.dumps(child_source(float(rest[0]), float(rest[1]))))
+        elif kind == 'observer':
+            print(json.dumps(child_observer(float(rest[0]), float(rest[1]))))
+        elif kind == 'relay':
+            print(json.dumps(child_relay(float(rest[1]))))
         else:
             print(json.dumps(child_pong(float(rest[1]))))
         return 0
@@ -246,8 +350,10 @@ def main() -> int:
         for run in range(args.runs):
             b = bare(args.period, args.duration, env)
             results['bare'].append(b)
+            o = b['observed']
             print(f'run {run}: bare timer dev p99 {b["dev_p99"]:.3f} ms, ping-pong one-way '
-                  f'p50 {b["lat_p50"]:.3f} p99 {b["lat_p99"]:.3f} ms', flush=True)
+                  f'p50 {b["lat_p50"]:.3f} p99 {b["lat_p99"]:.3f} ms; observed relay: '
+                  + ', '.join(f'{k} {v:.3f}' for k, v in o.items()), flush=True)
             for label, program, trigger in cases:
                 w = wall_run(program, args.period, args.duration, trigger,
                              Path(tmp) / f'{run}_{label.split()[-1]}', env)
@@ -267,6 +373,11 @@ def main() -> int:
     print(f'| bare timer / ping-pong one-way | {_fmt([b["dev_p99"] for b in bare_runs])} | | '
           f'| {_fmt([b["lat_p50"] for b in bare_runs])} | {_fmt([b["lat_p99"] for b in bare_runs])}'
           ' | |')
+    observed = [b['observed'] for b in bare_runs]
+    print(f'| bare observed relay | {_fmt([o["dev_p99"] for o in observed])} | '
+          f'{_fmt([o["age_p50"] for o in observed])} | {_fmt([o["age_p99"] for o in observed])} | '
+          f'{_fmt([o["lat_p50"] for o in observed])} | {_fmt([o["lat_p99"] for o in observed])} '
+          '| |')
     for label, runs in results.items():
         print(f'| wall, {label} | {_fmt([r["dev_p99"] for r in runs])} | '
               f'{_fmt([r["age_p50"] for r in runs])} | {_fmt([r["age_p99"] for r in runs])} | '
