@@ -383,6 +383,14 @@ def main() -> int:
               f'{_fmt([r["age_p50"] for r in runs])} | {_fmt([r["age_p99"] for r in runs])} | '
               f'{_fmt([r["lat_p50"] for r in runs])} | {_fmt([r["lat_p99"] for r in runs])} | '
               f'{", ".join(str(r["missed"]) for r in runs)} |')
+    print('\nRatio to the bare observed relay of the same run (the like-for-like floor), median '
+          '(min–max) of the runs:\n')
+    keys = ('dev_p99', 'age_p50', 'age_p99', 'lat_p50', 'lat_p99')
+    print('| measured | ' + ' | '.join(keys) + ' |')
+    print('|---|' + '---|' * len(keys))
+    for label, runs in results.items():
+        print(f'| wall, {label} | ' + ' | '.join(
+            _fmt([r[k] / o[k] for r, o in zip(runs, observed)]) for k in keys) + ' |')
     return 0
 
 
