@@ -28,7 +28,8 @@ import numpy as np
 from tank_control.core import loop as core_loop
 from tank_control.core import scenario as core_scenario
 from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
-from tank_control.core.params import ConfigError
+from tank_control.core import node_specs
+from tank_control.core.params import ConfigError, specs_of
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
 from tank_control.harness.domains import domain_of, lock_run
@@ -439,6 +440,27 @@ def _warm_up() -> None:
     import tank_control.harness.plotting  # noqa: F401
 
 
+def due_periods(scenario: Scenario, mode: str, tick_ns: int | None) -> dict[str, int]:
+    """Prefix → the period [ns] at which an answer is due (``harness/trace.py``, README "Late
+    samples"): ``u`` every controller ``sample_time``; ``r`` and ``d`` every reference
+    ``sample_time`` in wall, every tick otherwise. A ``sample_time`` the scenario does not
+    state is the node's declared default (the controller kind's, the reference's): the node
+    samples on that, not on the plant's tick. A period that is no whole number of ticks is
+    taken as the tick."""
+    def period(node: str) -> int | None:
+        stated = scenario.params(node)
+        value = stated.get('sample_time')
+        if value is None:
+            specs = (node_specs.controller_specs(node_specs.kind_of(node, stated), stated)
+                     if node == 'controller' else specs_of(node_specs.ReferenceNode))
+            value = next((s.default for s in specs if s.name == 'sample_time'), None)
+        ns = int(round(value * NS)) if isinstance(value, (int, float)) and value > 0 else None
+        return ns if ns and tick_ns and ns % tick_ns == 0 else tick_ns
+    reference = period('reference') if mode == 'wall' else tick_ns
+    due = {'u': period('controller'), 'r': reference, 'd': reference}
+    return {k: v for k, v in due.items() if v}
+
+
 class _RosRun:
     def __init__(self, scenario: Scenario, out: Path, env: Mapping[str, str] | None,
                  progress: ProgressFn | None, node_command: NodeCommand,
@@ -501,8 +523,7 @@ class _RosRun:
     def _start_recording(self, recorder: Any) -> None:
         prepare_output(self.scenario, self.out)
         self.group = ProcessGroup(self.out / 'logs')
-        due = self._due_periods(self.tick_ns, self.scenario.params('controller'),
-                                self.scenario.params('reference'))
+        due = due_periods(self.scenario, self.mode, self.tick_ns)
         self.stream = RecordingStream(self.out, self._origin, self.duration_ns, self.tick_ns, due,
                                       self.sample_time)
         recorder.subscribe(self.stream.on_message)
@@ -716,18 +737,6 @@ class _RosRun:
         self.progress(Progress(sim, self.config.duration, rate, ticks, max(eta, 0.0)))
 
     # -- results ------------------------------------------------------------------------------
-    def _due_periods(self, tick_ns: int | None, controller_params: Mapping[str, Any],
-                     reference_params: Mapping[str, Any]) -> dict[str, int]:
-        """Prefix → the period [ns] at which an answer is due (see ``harness/trace.py``)."""
-        def period(params: Mapping[str, Any], node: str) -> int | None:
-            value = params.get('sample_time', self.scenario.params(node).get('sample_time'))
-            ns = int(round(value * NS)) if isinstance(value, (int, float)) and value > 0 else None
-            return ns if ns and tick_ns and ns % tick_ns == 0 else tick_ns
-        due = {'u': period(controller_params, 'controller')}
-        reference = period(reference_params, 'reference') if self.mode == 'wall' else tick_ns
-        due.update(r=reference, d=reference)
-        return {k: v for k, v in due.items() if v}
-
     def _results(self, failure: BaseException | None, controller_params: dict[str, Any],
                  reference_params: dict[str, Any], codes: Mapping[str, int], run_wall: float,
                  total_wall: float) -> RunResult:
