@@ -28,8 +28,7 @@ import numpy as np
 from tank_control.core import loop as core_loop
 from tank_control.core import scenario as core_scenario
 from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
-from tank_control.core import node_specs
-from tank_control.core.params import ConfigError, specs_of
+from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
 from tank_control.harness.domains import domain_of, lock_run
@@ -37,7 +36,7 @@ from tank_control.harness.graph_check import foreign_graph
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import TraceMessages
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
-                                                load_scenario, node_parameters,
+                                                load_scenario, node_parameters, run_value,
                                                 write_params_file)
 from tank_control.harness.signals import RunInterrupted, StopSignals
 from tank_control.harness.stream import RecordingStream, RunOutputs
@@ -448,12 +447,10 @@ def due_periods(scenario: Scenario, mode: str, tick_ns: int | None) -> dict[str,
     samples on that, not on the plant's tick. A period that is no whole number of ticks is
     taken as the tick."""
     def period(node: str) -> int | None:
-        stated = scenario.params(node)
-        value = stated.get('sample_time')
-        if value is None:
-            specs = (node_specs.controller_specs(node_specs.kind_of(node, stated), stated)
-                     if node == 'controller' else specs_of(node_specs.ReferenceNode))
-            value = next((s.default for s in specs if s.name == 'sample_time'), None)
+        try:
+            value = run_value(scenario, node, 'sample_time')
+        except ConfigError:          # a kind without a sample time of its own
+            return tick_ns
         ns = int(round(value * NS)) if isinstance(value, (int, float)) and value > 0 else None
         return ns if ns and tick_ns and ns % tick_ns == 0 else tick_ns
     reference = period('reference') if mode == 'wall' else tick_ns

@@ -19,7 +19,7 @@ import yaml
 from tank_control.core import loop, params_file, ros_yaml
 from tank_control.core import scenario as core_scenario
 from tank_control.core.node_specs import CLOCK_MODES, NODES
-from tank_control.core.params import ConfigError, config_from, param, unknown_reason
+from tank_control.core.params import ConfigError, config_from, param, specs_of, unknown_reason
 from tank_control.core.scenario import HARNESS
 
 ALL_NODES = params_file.WILDCARD
@@ -168,6 +168,30 @@ def check_wiring(sections: dict[str, dict[str, Any]]) -> None:
         loop.check_wiring(built.plant, built.controller, built.reference)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+
+
+def run_value(scenario: Scenario, section: str, name: str) -> Any:
+    """The value ``section`` runs ``name`` with: the file's (overrides applied), else the
+    declared default (the plant or controller kind's, the reference's, the harness's).
+    ``ConfigError`` with the nearest known name for a name the section does not declare."""
+    from tank_control.core import node_specs
+    values = (scenario.sections.get(HARNESS, {}) if section == HARNESS
+              else scenario.params(section))
+    if name in values:
+        return values[name]
+    if section == HARNESS:
+        specs = specs_of(HarnessConfig)
+    elif section == 'plant':
+        specs = node_specs.plant_specs(node_specs.kind_of('plant', scenario.params('plant')))
+    elif section == 'controller':
+        stated = scenario.params('controller')
+        specs = node_specs.controller_specs(node_specs.kind_of('controller', stated), stated)
+    else:
+        specs = specs_of(node_specs.ReferenceNode)
+    for spec in specs:
+        if spec.name == name:
+            return spec.default
+    raise ConfigError(f'{section}.' + unknown_reason(name, [s.name for s in specs]))
 
 
 def effective_harness(scenario: Scenario, mode: str | None = None, rtf: float | None = None,

@@ -47,10 +47,11 @@ import yaml
 
 from tank_control.core import node_specs
 from tank_control.core.analysis.metrics_row import flat_metrics
-from tank_control.core.params import ConfigError, specs_of, unknown_reason
+from tank_control.core.params import ConfigError, unknown_reason
 from tank_control.core.scenario import HARNESS
 from tank_control.harness.scenario_file import (Scenario, ScenarioError, effective_harness,
-                                                load_scenario, parse_value, validate)
+                                                load_scenario, parse_value, run_value,
+                                                validate)
 
 _TARGET = re.compile(r'^(?P<section>[A-Za-z_]+)\.(?P<name>[A-Za-z_][A-Za-z0-9_.]*?)'
                      r'(?:\[(?P<index>\d+)\])?$')
@@ -95,12 +96,10 @@ class Target:
 
     def current(self, scenario: Scenario) -> Any:
         """The value the scenario runs with (its file's, else the node's declared default)."""
-        values = (scenario.sections.get(HARNESS, {}) if self.section == HARNESS
-                  else scenario.params(self.section))
-        if self.name in values:
-            value = values[self.name]
-        else:
-            value = _declared_default(scenario, self.section, self.name)
+        try:
+            value = run_value(scenario, self.section, self.name)
+        except ConfigError as exc:
+            raise SweepError(str(exc)) from None
         if self.index is None:
             return value
         if not isinstance(value, (list, tuple)) or self.index >= len(value):
@@ -115,23 +114,6 @@ class Target:
             whole[self.index] = value
             value = whole
         return scenario.with_set(self.section, self.name, value)
-
-
-def _declared_default(scenario: Scenario, section: str, name: str) -> Any:
-    from tank_control.harness.scenario_file import HarnessConfig
-    if section == HARNESS:
-        specs = specs_of(HarnessConfig)
-    elif section == 'plant':
-        specs = node_specs.plant_specs(node_specs.kind_of('plant', scenario.params('plant')))
-    elif section == 'controller':
-        values = scenario.params('controller')
-        specs = node_specs.controller_specs(node_specs.kind_of('controller', values), values)
-    else:
-        specs = specs_of(node_specs.ReferenceNode)
-    for spec in specs:
-        if spec.name == name:
-            return spec.default
-    raise SweepError(f'{section}.' + unknown_reason(name, [s.name for s in specs]))
 
 
 def _tidy(value: float) -> float:
