@@ -99,6 +99,13 @@ class ReferenceNode:
     sample_time: float = param(1.0, 'publishing period in wall mode; in sim/lockstep the '
                                'reference answers every /clock tick instead', unit='s',
                                min=1e-6, max=3600.0)
+    lead: float = param(0.007, 'with clock_mode wall: publish each instant\'s values this long '
+                        'before it, stamped with the instant (at most half of sample_time); '
+                        'the nodes of this package hold them until the instant, so the setpoint '
+                        'of t_k is there before the measurement of t_k; 0: at the instant. '
+                        '7 ms: no multiple of the usual plant periods (10, 20, 50, 100 ms), so '
+                        'the publication falls between two plant ticks, not on one',
+                        unit='s, wall clock', min=0.0, max=1.0, name='wall.lead')
     clock_mode: str = param('wall', 'wall: publish every sample_time on a wall timer; '
                             'sim/lockstep (also implied by use_sim_time): answer every /clock '
                             'tick, stamped t_k', choices=CLOCK_MODES, read_only=True)

@@ -8,6 +8,7 @@ integer nanoseconds.
 """
 from __future__ import annotations
 
+import heapq
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -107,6 +108,31 @@ class StampedInbox:
 
     def stamps(self) -> Iterable[int]:
         return sorted(self._slots)
+
+
+class Scheduled:
+    """wall: input values that came ahead of their instant (the reference publishes each
+    instant ``wall.lead`` early, stamped with it), held until a sample or step at or after
+    their stamp takes them, in stamp order. Stamps in integer ns."""
+
+    def __init__(self) -> None:
+        self._pending: list[tuple[int, int, dict[str, float]]] = []   # heap: stamp, arrival
+        self._arrivals = 0
+
+    def put(self, t_ns: int, values: Mapping[str, float]) -> None:
+        self._arrivals += 1
+        heapq.heappush(self._pending, (t_ns, self._arrivals, dict(values)))
+
+    def release(self, t_ns: int, into: dict[str, float]) -> None:
+        """Move every value stamped at or before ``t_ns`` into ``into`` (later stamps win)."""
+        while self._pending and self._pending[0][0] <= t_ns:
+            into.update(heapq.heappop(self._pending)[2])
+
+    def clear(self) -> None:
+        self._pending.clear()
+
+    def __len__(self) -> int:
+        return len(self._pending)
 
 
 class Answers:

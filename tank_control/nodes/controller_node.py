@@ -31,7 +31,7 @@ from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup
 from tank_control.core.loop import warm_start
-from tank_control.nodes.clock import (Answers, StampedInbox, is_sample_instant,
+from tank_control.nodes.clock import (Answers, Scheduled, StampedInbox, is_sample_instant,
                                       sim_sample_instant, steady_clock)
 from tank_control.nodes.messages import (APPLIED_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
                                          TOPIC_APPLIED_INPUT, TOPIC_DIAGNOSTICS,
@@ -109,6 +109,11 @@ class ControllerNode(Node):
         # plant time base: origin of the stamps (wall: from the plant, None until then)
         self._origin_ns: int | None = None if self._mode == 'wall' else 0
         self._r_stamp: int | None = None           # stamp of the setpoint held (wall/sim)
+        # wall: setpoint / disturbance values that came ahead of their instant (the reference's
+        # wall.lead), taken at the first sample at or after their stamp; their last valid values
+        self._r_ahead, self._d_ahead = Scheduled(), Scheduled()
+        self._r_valid: dict[str, float] = {}
+        self._d_valid: dict[str, float] = {}
         self._last_sample: tuple[int, dict[str, float]] | None = None   # (plant time, r used)
         self._compute_s = math.nan
         self._saturated_samples = 0                # consecutive samples at an input limit
@@ -323,6 +328,10 @@ class ControllerNode(Node):
             if self._r_stamp is not None and t_ns < self._r_stamp:
                 return          # older than the setpoint held (out of order): not taken
             self._r_stamp = t_ns
+        if self._mode == 'wall':
+            self._r_ahead.put(t_ns, self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs,
+                                                         self._r_valid))
+            return
         values = self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs, self._r)
         if self._mode == 'lockstep':
             self._inbox.put('setpoint', t_ns, values)
@@ -427,7 +436,10 @@ class ControllerNode(Node):
 
     def _on_disturbance(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_DISTURBANCE, msg)
-        if parsed is not None:
+        if parsed is not None and self._mode == 'wall':
+            self._d_ahead.put(parsed[0], self._finite_or_last(
+                TOPIC_DISTURBANCE, parsed[1], self._disturbances, self._d_valid))
+        elif parsed is not None:
             values = self._finite_or_last(TOPIC_DISTURBANCE, parsed[1], self._disturbances,
                                           self._d)
             if self._mode == 'lockstep':
@@ -486,6 +498,8 @@ class ControllerNode(Node):
         stale = self._since_measurement >= int(self._params.values['stale_samples'])
         if self._on_arrival and not stale:
             return          # sampled on the measurements' arrival; the timer only watches
+        if self._mode == 'wall':
+            self._release_ahead(self.get_clock().now().nanoseconds)
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
             return          # nothing measured or no setpoint yet: nothing to control
         if self._origin_ns is None:
@@ -516,7 +530,9 @@ class ControllerNode(Node):
         core/loop.py, with a computation and transport delay instead of none). Only a
         measurement that reaches a new instant of this controller's grid,
         ``j = floor((t_ns - origin) / sample_time)``, is a sample (a controller slower than the
-        plant, a duplicate, or one out of order is not)."""
+        plant, a duplicate, or one out of order is not). The setpoint and disturbance are
+        those stamped at or before ``t_ns``."""
+        self._release_ahead(t_ns)
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
             return          # nothing measured or no setpoint yet: nothing to control
         if self._origin_ns is None or t_ns < self._origin_ns:
@@ -536,6 +552,12 @@ class ControllerNode(Node):
         self._last_sample = (plant_ns, dict(self._r))
         u = self._sample(plant_ns, self._y, self._r, self._d, stale=False, takeover=takeover)
         self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
+
+    def _release_ahead(self, t_ns: int) -> None:
+        """wall: the setpoint and disturbance values stamped at or before ``t_ns`` (absolute)
+        take effect (values published ahead of their instant wait until then)."""
+        self._r_ahead.release(t_ns, self._r)
+        self._d_ahead.release(t_ns, self._d)
 
     def _sample(self, t_ns: int, y: Mapping[str, float], r: Mapping[str, float],
                 d: Mapping[str, float], stale: bool,

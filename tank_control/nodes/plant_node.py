@@ -28,7 +28,7 @@ from tank_control.core.node_specs import PlantNode as PlantNodeConfig
 from tank_control.core.params import ConfigError, names_of
 from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
-from tank_control.nodes.clock import StampedInbox, steady_clock
+from tank_control.nodes.clock import Scheduled, StampedInbox, steady_clock
 from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGIN_QOS,
                                          RECORDED_QOS, SIGNAL_QOS, TOPIC_APPLIED_INPUT,
                                          TOPIC_CLOCK, TOPIC_RECORDED,
@@ -118,6 +118,7 @@ class PlantNode(Node):
         # sim/wall: stamp of the input message held per topic, and the inputs each recent
         # tick was integrated with (for ~/late_inputs)
         self._held_stamp: dict[str, int] = {}
+        self._d_ahead = Scheduled()          # wall: disturbance values ahead of their instant
         self._integrated: dict[int, dict[str, float]] = {}
         # a value outside its range.* is ignored like a non-finite one (last valid kept)
         self.filters = {TOPIC_MANIPULATED: ChannelFilter(self.plant.input_names,
@@ -309,8 +310,11 @@ class PlantNode(Node):
         self._sent_at = time.monotonic()
 
     def _step(self) -> None:
-        """Integrate [t_k, t_k+1) with the held inputs, k += 1."""
+        """Integrate [t_k, t_k+1) with the held inputs (wall: the disturbance values stamped
+        at or before t_k), k += 1."""
         self._apply_pending()
+        if self.mode == 'wall':
+            self._d_ahead.release(self.k * self.ts_ns, self.d)
         if self.mode != 'lockstep':        # remembered for ~/late_inputs
             self._integrated[self.k * self.ts_ns] = {**self.u, **self.d}
             self._integrated.pop((self.k - _LOOKAHEAD) * self.ts_ns, None)
@@ -418,6 +422,11 @@ class PlantNode(Node):
         if t_ns < self._held_stamp.get(topic, t_ns):
             return                      # older than the values held: out of order
         self._held_stamp[topic] = t_ns
+        if topic == TOPIC_DISTURBANCE and self.mode == 'wall':
+            # the reference publishes each instant ``wall.lead`` ahead: held until the step
+            # that starts at its stamp (_step)
+            self._d_ahead.put(t_ns - self._stamp_offset_ns, accepted)
+            return
         (self.u if topic == TOPIC_MANIPULATED else self.d).update(accepted)
         if topic == TOPIC_MANIPULATED:
             self._note_applied(accepted)

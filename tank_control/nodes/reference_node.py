@@ -262,11 +262,15 @@ class ReferenceNode(Node):
                 self._on_timer(to_ns(float(param.value)))
 
     def _on_timer(self, period_ns: int | None = None) -> None:
-        """wall: publish the latest instant reached (if not yet), re-arm for the next."""
+        """wall: publish the latest instant reached (if not yet), re-arm for the next; an
+        instant counts as reached ``wall.lead`` before it (the consumers hold values stamped
+        ahead until their instant: ``nodes/clock.Scheduled``)."""
         self._timer.cancel()
         if period_ns is None:
             period_ns = to_ns(float(self.params.values['sample_time']))
-        elapsed = self.get_clock().now().nanoseconds - self._origin_ns
+        # ``wall.lead``: instant j is published at t_j - lead (stamped t_j), half a period at most
+        lead_ns = min(to_ns(float(self.params.values['wall.lead'])), period_ns // 2)
+        elapsed = self.get_clock().now().nanoseconds - self._origin_ns + lead_ns
         if elapsed < 0:                  # before the plant's tick 0: wait for instant 0
             self._timer.timer_period_ns = -elapsed
             self._timer.reset()

@@ -199,7 +199,8 @@ def test_wall_mode_setpoint_step_appears_at_its_time_on_the_plant_time_base(tmp_
                                       'dead_time': 0.5}},
         'controller': {'ros__parameters': {'controller': 'pid', 'sample_time': 0.1, 'kp': 2.0,
                                            'output_names': ['y'], 'input_names': ['u']}},
-        'reference': {'ros__parameters': {'sample_time': 0.1, 'setpoint.channels': ['y'],
+        'reference': {'ros__parameters': {'sample_time': 0.1, 'wall.lead': 0.05,
+                                          'setpoint.channels': ['y'],
                                           'setpoint.y.times': [0.0, WALL_STEP],
                                           'setpoint.y.values': [0.0, 1.0]}},
         'harness': {'ros__parameters': {'duration': 3.0, 'clock_mode': 'wall',
@@ -216,6 +217,12 @@ def test_wall_mode_setpoint_step_appears_at_its_time_on_the_plant_time_base(tmp_
     first = trace.t[np.flatnonzero(r == 1.0)[0]]
     assert WALL_STEP - 1e-9 <= first <= WALL_STEP + 0.1 + 1e-9, first
     assert not np.any(r[trace.t < WALL_STEP - 1e-9] == 1.0)
+    # ... and the controller acted on it at its instant: the setpoint, published wall.lead
+    # ahead, was there before the measurement of that instant (before the lead, the step
+    # acted one sample late and every setpoint was reported late)
+    u = trace.columns['u.u']            # kp·(r − y): 0 while r = y = 0 (NaN before the first)
+    assert trace.t[np.flatnonzero(u > 0.0)[0]] == pytest.approx(first, abs=1e-9)
+    assert run_info['late_by_signal']['r'] == 0
     assert run_info['late_samples'] == sum(run_info['late_by_signal'].values())
 
 

@@ -267,6 +267,8 @@ def test_wall_mode_measurement_trigger_answers_each_measurement_with_its_stamp(
         loop.setp.publish(to_joint_state(origin, ['y'], [1.0]))
         measure(0, 1.0)
         probe.wait_for(answered(0), 0.5)
+    # a setpoint published ahead of its instant (the reference's wall.lead) waits for it
+    loop.setp.publish(to_joint_state(origin + 6 * tick, ['y'], [2.0]))
     measure(1, 0.0)            # same controller instant (j = 0): not a sample
     measure(2, 0.5)            # j = 1
     assert probe.wait_for(answered(2), 20.0)
@@ -274,11 +276,11 @@ def test_wall_mode_measurement_trigger_answers_each_measurement_with_its_stamp(
     assert probe.wait_for(answered(5), 20.0)
     measure(5, 0.0)            # a duplicate ...
     measure(4, 0.0)            # ... and an older one: not samples
-    measure(6, 0.75)           # j = 3
+    measure(6, 0.75)           # j = 3: the setpoint stamped 6 ticks is now in force
     assert probe.wait_for(answered(6), 20.0)
     stamps = [a[0] - origin for a in loop.answers]
     assert stamps == [0, 2 * tick, 5 * tick, 6 * tick], stamps
-    assert [a[2][0] for a in loop.answers] == pytest.approx([0.0, 1.0, 1.5, 0.5], abs=1e-12)
+    assert [a[2][0] for a in loop.answers] == pytest.approx([0.0, 1.0, 1.5, 2.5], abs=1e-12)
     assert int(loop.diag['stale_samples']) == 0
 
 

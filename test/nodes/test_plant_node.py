@@ -96,6 +96,29 @@ def test_wall_mode_measures_on_the_sample_time_grid_with_exact_stamps(procs, ros
     assert not result.successful and 'wall' in result.reason
 
 
+def test_wall_mode_a_disturbance_sent_ahead_of_its_instant_acts_from_it(procs, ros_env, node_cmd,
+                                                                        probe, tmp_path):
+    """wall: the reference publishes each instant ``wall.lead`` ahead of it; the plant holds a
+    disturbance stamped t_e until the step that starts at t_e. IPDT without dead time, k1 = 1:
+    y stays 0 through t_e and is k1·v·(t − t_e) after it (whatever periods a loaded timer
+    skipped)."""
+    ts = 50_000_000
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       gain=1.0, dead_time=0.0)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.measurements and rec.disturbance.get_subscription_count(),
+                          30), proc.tail()
+    t_e = rec.measurements[-1][0] + 20 * ts          # 1 s ahead of the latest measurement
+    rec.disturbance.publish(to_joint_state(t_e, ['v'], [1.0]))
+    assert probe.wait_for(lambda: rec.measurements[-1][0] >= t_e + 2 * ts, 30), proc.tail()
+    y = {stamp: values[0] for stamp, _, values in rec.measurements}
+    assert all(value == 0.0 for stamp, value in y.items() if stamp <= t_e)
+    after = sorted(stamp for stamp in y if stamp > t_e)
+    assert after, y
+    for stamp in after:
+        assert y[stamp] == pytest.approx((stamp - t_e) / 1e9, abs=1e-12), (stamp - t_e, y[stamp])
+
+
 def test_wall_mode_stamps_each_measurement_with_its_instant_and_counts_skipped_periods(
         procs, ros_env, node_cmd, probe, tmp_path):
     """A plant process frozen (SIGSTOP) for at least 0.3 s at 20 ms ticks: on waking it

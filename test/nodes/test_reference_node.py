@@ -91,10 +91,11 @@ def test_wall_mode_publishes_the_schedule_on_the_plant_time_base_and_applies_cha
     assert not result.successful
     assert result.reason == 'setpoint.y.values: 7.5 is out of range; allowed [8, 10]'
     assert set_param(probe, 'setpoint.y.min', 5.0).successful
-    # Published when their instant has come: increasing, never ahead of their arrival here.
+    # Published wall.lead (7 ms, default) before their instant, never earlier: increasing,
+    # each arriving here at most 7 ms before its stamp.
     stamps = [s for s, _, _ in setpoints]
     assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    assert all(s <= t for s, t in zip(stamps, arrivals))
+    assert all(s - 7_000_000 <= t for s, t in zip(stamps, arrivals))
 
 
 def test_wall_mode_a_shorter_sample_time_acts_at_once(procs, ros_env, node_cmd, probe,
