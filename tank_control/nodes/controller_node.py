@@ -88,6 +88,9 @@ class ControllerNode(Node):
         # the timer; sim and lockstep have their own rule
         self._on_arrival = self._mode == 'wall' and values['trigger'] == 'measurement'
         self._last_instant: int | None = None      # wall, on arrival: index of the last sample
+        # wall: stamp of the last output published [ns]; a new plant session (new origin) may
+        # put its first instants before it, and the outputs' stamps must not go back
+        self._last_out_ns: int | None = None
 
         # latest inputs (wall/sim) and fault bookkeeping
         self._y: dict[str, float] = {}
@@ -510,8 +513,10 @@ class ControllerNode(Node):
             instant = (now - self._origin_ns) // self._ts_ns
             if self._last_instant is not None and instant <= self._last_instant:
                 return
-            self._last_instant = instant
             t_ns = self._origin_ns + instant * self._ts_ns
+            if self._last_out_ns is not None and t_ns <= self._last_out_ns:
+                return      # the new session's grid lags the last output: its next instant
+            self._last_instant = instant
         takeover = None
         if not self._started:
             ready, takeover = self._takeover(t_ns - self._origin_ns)
@@ -520,6 +525,7 @@ class ControllerNode(Node):
         self._last_sample = (t_ns - self._origin_ns, dict(self._r))
         u = self._sample(t_ns - self._origin_ns, self._y, self._r, self._d, stale=stale,
                          takeover=takeover)
+        self._last_out_ns = t_ns
         self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
 
     def _sample_on_arrival(self, t_ns: int) -> None:
@@ -530,8 +536,10 @@ class ControllerNode(Node):
         core/loop.py, with a computation and transport delay instead of none). Only a
         measurement that reaches a new instant of this controller's grid,
         ``j = floor((t_ns - origin) / sample_time)``, is a sample (a controller slower than the
-        plant, a duplicate, or one out of order is not). The setpoint and disturbance are
-        those stamped at or before ``t_ns``."""
+        plant, a duplicate, or one out of order is not), nor one stamped at or before the
+        last output (a restarted plant's first instants may come before the last fail-safe
+        sample of the stale period; the outputs' stamps never go back). The setpoint and
+        disturbance are those stamped at or before ``t_ns``."""
         self._release_ahead(t_ns)
         if len(self._y) < len(self._outputs) or len(self._r) < len(self._outputs):
             return          # nothing measured or no setpoint yet: nothing to control
@@ -539,6 +547,8 @@ class ControllerNode(Node):
             return          # the plant's time origin is not known yet (or an older session's)
         instant = (t_ns - self._origin_ns) // self._ts_ns
         if self._last_instant is not None and instant <= self._last_instant:
+            return
+        if self._last_out_ns is not None and t_ns <= self._last_out_ns:
             return
         plant_ns = t_ns - self._origin_ns
         takeover = None
@@ -551,6 +561,7 @@ class ControllerNode(Node):
         self._fresh = False
         self._last_sample = (plant_ns, dict(self._r))
         u = self._sample(plant_ns, self._y, self._r, self._d, stale=False, takeover=takeover)
+        self._last_out_ns = t_ns
         self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
 
     def _release_ahead(self, t_ns: int) -> None:

@@ -284,6 +284,41 @@ def test_wall_mode_measurement_trigger_answers_each_measurement_with_its_stamp(
     assert int(loop.diag['stale_samples']) == 0
 
 
+def test_wall_mode_outputs_never_go_back_when_a_restarted_plant_s_grid_lags(
+        procs, node_cmd, ros_env, probe):
+    """wall: a new plant session (a new time origin) whose first ticks are stamped before the
+    controller's last output — as when a plant restarts while the controller sends fail-safe
+    samples on its own grid, and the restarted plant's tick 0 came before the last of them
+    (seen in CI: an output stamped in the past after the restart). Those ticks are not
+    sampled; the outputs' stamps only increase. The old session's last output is made by a
+    measurement here (stale_samples high: no fail-safe samples, no dependence on timing)."""
+    ts = to_ns(0.1)
+    proc = _start(procs, node_cmd, ros_env, 'sample_time:=0.1', 'kp:=2.0', 'ti:=0.0', 'td:=0.0',
+                  'b:=1.0', 'u_min:=-100.0', 'u_max:=100.0', 'stale_samples:=1000')
+    loop = Loop(probe)
+    origins = probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS)
+    old = probe.node.get_clock().now().nanoseconds - to_ns(60.0)
+    origins.publish(ns_to_stamp(old))
+    while not loop.answers:       # re-sent until the endpoints match
+        loop.setp.publish(to_joint_state(old, ['y'], [1.0]))
+        loop.meas.publish(to_joint_state(old, ['y'], [0.5]))
+        probe.wait_for(lambda: bool(loop.answers), 0.5)
+    last = old + 100 * ts
+    loop.meas.publish(to_joint_state(last, ['y'], [0.5]))
+    assert probe.wait_for(lambda: loop.answers[-1][0] == last, 20), proc.tail()
+    new = last - 5 * ts - ts // 2          # the new session's tick 0, before that output
+    origins.publish(ns_to_stamp(new))
+    assert probe.wait_for(lambda: str(new) in proc.tail(), 20), proc.tail()
+    for k in (1, 5):                       # before the last output: not samples
+        loop.meas.publish(to_joint_state(new + k * ts, ['y'], [0.25]))
+    loop.meas.publish(to_joint_state(new + 6 * ts, ['y'], [0.75]))     # after it
+    assert probe.wait_for(lambda: loop.answers[-1][0] == new + 6 * ts, 20), \
+        [(a[0] - new) / ts for a in loop.answers]
+    stamps = [a[0] for a in loop.answers]
+    assert all(b > a for a, b in zip(stamps, stamps[1:])), [(s - new) / ts for s in stamps]
+    assert stamps[-2:] == [last, new + 6 * ts]
+
+
 def test_sim_mode_samples_on_the_simulated_clock_grid(procs, node_cmd, ros_env, probe):
     from rosgraph_msgs.msg import Clock
 
