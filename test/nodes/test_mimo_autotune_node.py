@@ -87,11 +87,16 @@ def test_model_ls_preview_apply_revert_over_services(procs, ros_env, node_cmd, p
 def test_relay_test_abort_and_failure_restore_the_gains_over_the_graph(procs, ros_env, node_cmd,
                                                                        probe, tmp_path):
     """tank_pi_autotuned's sequential relay test on the running graph (plant, controller,
-    reference; lockstep as fast as possible), started by the service: the relay runs on loop h
+    reference; lockstep at 200x real time), started by the service: the relay runs on loop h
     (stage 1); ``~/abort_autotune`` ends it with 003's gains back; started again by the
     ``autotune.start`` parameter with a 50 s relay timeout it fails, gains back again."""
     params = params_file.read(SCENARIOS / 'tank_pi_autotuned.yaml')
     params['controller']['autotune.start_time'] = 0.0
+    for name in ('plant', 'controller', 'reference'):   # the file's harness section says it
+        params[name]['clock_mode'] = 'lockstep'
+    # paced at 200x real time, not as fast as possible: the relay on loop h lasts thousands of
+    # seconds, so it is still running when the abort comes even if this process is starved a while
+    params['plant']['real_time_factor'] = 200.0
     path = params_file.write({n: params[n] for n in ('plant', 'controller', 'reference')},
                              tmp_path / 'relay.yaml')
     node = probe.node
