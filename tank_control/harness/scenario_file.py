@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from tank_control.core import loop, params_file, ros_yaml
+from tank_control.core import loop, node_specs, params_file, ros_yaml
 from tank_control.core import scenario as core_scenario
 from tank_control.core.node_specs import CLOCK_MODES, NODES
 from tank_control.core.params import ConfigError, config_from, param, specs_of, unknown_reason
@@ -174,7 +174,6 @@ def run_value(scenario: Scenario, section: str, name: str) -> Any:
     """The value ``section`` runs ``name`` with: the file's (overrides applied), else the
     declared default (the plant or controller kind's, the reference's, the harness's).
     ``ConfigError`` with the nearest known name for a name the section does not declare."""
-    from tank_control.core import node_specs
     values = (scenario.sections.get(HARNESS, {}) if section == HARNESS
               else scenario.params(section))
     if name in values:

@@ -3,8 +3,8 @@
 ``StampedInbox`` collects the messages of one stamp from several topics and says when a
 lockstep tick is complete (the plant: ``manipulated`` + ``disturbance``; a controller:
 ``measurement`` + ``setpoint`` + ``disturbance``); ``Answers`` keeps the messages a node
-published for a stamp, so a re-sent tick is answered with the same messages. Times in
-integer nanoseconds.
+published for a stamp, so a re-sent tick is answered with the same messages; ``Scheduled``
+holds wall-mode values that came ahead of their instant. Times in integer nanoseconds.
 """
 from __future__ import annotations
 
