@@ -95,23 +95,33 @@ def child_timer(period: float, duration: float) -> dict:
             'calls': int(len(t))}
 
 
-def child_pong(duration: float) -> dict:
+def _republish(name: str, source: str, target: str, seconds: float, change=None) -> dict:
+    """A node republishing every JointState of ``source`` on ``target`` at once (after
+    ``change(msg)``, if given) for ``seconds``; stopped earlier by SIGTERM."""
     import rclpy
     from sensor_msgs.msg import JointState
 
     from tank_control.nodes.messages import SIGNAL_QOS
     rclpy.init()
-    node = rclpy.create_node('bare_pong')
-    pub = node.create_publisher(JointState, 'bench_pong', SIGNAL_QOS)
+    node = rclpy.create_node(name)
+    pub = node.create_publisher(JointState, target, SIGNAL_QOS)
 
-    def echo(msg: JointState) -> None:
-        msg.position = [msg.position[0], float(time.time_ns())]
+    def again(msg: JointState) -> None:
+        if change is not None:
+            change(msg)
         pub.publish(msg)
-    node.create_subscription(JointState, 'bench_ping', echo, SIGNAL_QOS)
-    _spin(node, duration + 15.0)
+    node.create_subscription(JointState, source, again, SIGNAL_QOS)
+    _spin(node, seconds)
     node.destroy_node()
     rclpy.try_shutdown()
     return {}
+
+
+def child_pong(duration: float) -> dict:
+    """Echoes each ping with its receive time added (system clock, ns)."""
+    def stamp(msg) -> None:
+        msg.position = [msg.position[0], float(time.time_ns())]
+    return _republish('bare_pong', 'bench_ping', 'bench_pong', duration + 15.0, stamp)
 
 
 def child_ping(period: float, duration: float) -> dict:
@@ -186,18 +196,7 @@ def child_source(period: float, duration: float) -> dict:
 
 
 def child_relay(duration: float) -> dict:
-    import rclpy
-    from sensor_msgs.msg import JointState
-
-    from tank_control.nodes.messages import SIGNAL_QOS
-    rclpy.init()
-    node = rclpy.create_node('bare_relay')
-    pub = node.create_publisher(JointState, 'bench_answer', SIGNAL_QOS)
-    node.create_subscription(JointState, 'bench_sample', pub.publish, SIGNAL_QOS)
-    _spin(node, duration + 30.0)
-    node.destroy_node()
-    rclpy.try_shutdown()
-    return {}
+    return _republish('bare_relay', 'bench_sample', 'bench_answer', duration + 30.0)
 
 
 def child_observer(period: float, duration: float) -> dict:
