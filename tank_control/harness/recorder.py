@@ -24,6 +24,7 @@ from tank_control.nodes.cdr import (cdr_stamp_ns, joint_state_from_cdr,  # noqa:
                                     time_cdr_ns)
 from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
                                          quiet_publisher_events, quiet_subscription_events)
+from tank_control.nodes.services import RESEND_AFTER, answer
 
 #: The recorder's node name (another graph's recorder on the domain is another run).
 RECORDER_NAME = 'tank_control_recorder'
@@ -273,11 +274,12 @@ class Recorder:
             if not self.spin_until(lambda: lister.service_is_ready() and getter.service_is_ready(),
                                    timeout, check):
                 return {}
-            listed = self._call(lister, ListParameters.Request(), timeout, check)
+            listed = self._call(lister, ListParameters.Request(), timeout, check, RESEND_AFTER)
             if listed is None:
                 return {}
             names = list(listed.result.names)
-            got = self._call(getter, GetParameters.Request(names=names), timeout, check)
+            got = self._call(getter, GetParameters.Request(names=names), timeout, check,
+                             RESEND_AFTER)
             if got is None:
                 return {}
             return {name: parameter_value_to_python(value) for name, value in zip(names, got.values)}
@@ -305,11 +307,13 @@ class Recorder:
     def publisher_count(self, topic: str) -> int:
         return self.node.count_publishers(topic)
 
-    def _call(self, client: Any, request: Any, timeout: float, check: Callable[[], None]) -> Any:
-        future = client.call_async(request)
-        if not self.spin_until(future.done, timeout, check):
-            return None
-        return future.result()
+    def _call(self, client: Any, request: Any, timeout: float, check: Callable[[], None],
+              resend_after: float | None = None) -> Any:
+        """The response, None without one in ``timeout`` s; ``resend_after`` [s] for a read
+        (``nodes/services.py``: a response can be lost)."""
+        future = answer(client, request, lambda done, wait: self.spin_until(done, wait, check),
+                        timeout, resend_after)
+        return None if future is None else future.result()
 
     def destroy(self) -> None:
         self.executor.remove_node(self.node)

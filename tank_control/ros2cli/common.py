@@ -157,15 +157,19 @@ def wait_for_node(node: 'Node', full_name: str, timeout: float) -> None:
 
 
 def call_service(node: 'Node', srv_type: type, name: str, request: object,
-                 timeout: float) -> object:
-    """Call a service with one deadline for discovery and the answer together."""
+                 timeout: float, resend_after: float | None = None) -> object:
+    """Call a service with one deadline for discovery and the answer together;
+    ``resend_after`` [s] for a read: ``nodes/services.answer`` (a response can be lost)."""
+    from tank_control.nodes.services import answer
+
     deadline = time.monotonic() + timeout
     client = node.create_client(srv_type, name)
     try:
         if not spin_until(node, client.service_is_ready, timeout):
             raise CliError(f"Service '{name}' not available (waited {timeout:g} s)")
-        future = client.call_async(request)
-        if not spin_until(node, future.done, max(0.0, deadline - time.monotonic())):
+        future = answer(client, request, lambda done, wait: spin_until(node, done, wait),
+                        max(0.0, deadline - time.monotonic()), resend_after)
+        if future is None:
             raise CliError(f"No response from service '{name}' within {timeout:g} s")
         if future.exception() is not None:
             raise CliError(f"Service '{name}' failed: {future.exception()}")

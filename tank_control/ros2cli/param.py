@@ -18,6 +18,7 @@ import yaml
 
 from tank_control.core import params_file, ros_yaml
 from tank_control.core.params import ConfigError
+from tank_control.nodes.services import RESEND_AFTER, answers
 from tank_control.ros2cli.common import (
     CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
     client_node, is_hidden, settle_graph, spin_until, wait_for_node)
@@ -97,7 +98,8 @@ def _list_names(node: 'Node', target: str, timeout: float) -> list[str]:
     from rcl_interfaces.srv import ListParameters
     request = ListParameters.Request()
     request.depth = ListParameters.Request.DEPTH_RECURSIVE
-    response = call_service(node, ListParameters, f'{target}/list_parameters', request, timeout)
+    response = call_service(node, ListParameters, f'{target}/list_parameters', request, timeout,
+                            resend_after=RESEND_AFTER)
     return sorted(response.result.names)
 
 
@@ -116,7 +118,8 @@ def _get_values(node: 'Node', target: str, names: list[str], timeout: float) -> 
 
     def call(batch: list[str]) -> list[Any]:
         return list(call_service(node, GetParameters, f'{target}/get_parameters',
-                                 GetParameters.Request(names=batch), timeout).values)
+                                 GetParameters.Request(names=batch), timeout,
+                                 resend_after=RESEND_AFTER).values)
     return _per_name(call, names)
 
 
@@ -126,7 +129,8 @@ def _describe(node: 'Node', target: str, names: list[str], timeout: float) -> li
 
     def call(batch: list[str]) -> list[Any]:
         return list(call_service(node, DescribeParameters, f'{target}/describe_parameters',
-                                 DescribeParameters.Request(names=batch), timeout).descriptors)
+                                 DescribeParameters.Request(names=batch), timeout,
+                                 resend_after=RESEND_AFTER).descriptors)
     return _per_name(call, names)
 
 
@@ -210,10 +214,10 @@ def _list_all(node: 'Node', targets: list[str], timeout: float) -> dict[str, lis
     clients = {t: node.create_client(ListParameters, f'{t}/list_parameters') for t in targets}
     try:
         spin_until(node, lambda: all(c.service_is_ready() for c in clients.values()), timeout)
-        futures = {t: c.call_async(request) for t, c in clients.items() if c.service_is_ready()}
-        spin_until(node, lambda: all(f.done() for f in futures.values()), timeout)
-        return {t: sorted(futures[t].result().result.names)
-                if t in futures and futures[t].done() and futures[t].result() is not None
+        found = answers({t: (c, request) for t, c in clients.items() if c.service_is_ready()},
+                        lambda done, wait: spin_until(node, done, wait), timeout, RESEND_AFTER)
+        return {t: sorted(found[t].result().result.names)
+                if found.get(t) is not None and found[t].result() is not None
                 else None for t in targets}
     finally:
         for client in clients.values():
