@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from builtin_interfaces.msg import Time
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
@@ -82,6 +83,20 @@ TOPIC_APPLIED_INPUT = 'applied_input'
 TOPIC_RECORDED = 'recorded'
 #: Per node (``~/late_inputs``): answers that came after the node had used their tick.
 TOPIC_LATE_INPUTS = '~/late_inputs'
+
+
+def unmatched(node: Any, publishers: Iterable[Any] = (),
+              subscriptions: Iterable[Any] = ()) -> list[str]:
+    """Topics of ``node`` with a reader (of a publisher) or a writer (of a subscription) the
+    graph shows but the middleware has not matched yet. The graph comes from the
+    participants' announcements (``ros_discovery_info``), the matching from the endpoint
+    discovery, which a loaded machine can delay by seconds (a lost announcement waits for the
+    next period): a message published in between never reaches that reader, a latched one
+    only later."""
+    return ([pub.topic_name for pub in publishers
+             if pub.get_subscription_count() < node.count_subscribers(pub.topic_name)] +
+            [sub.topic_name for sub in subscriptions
+             if sub.get_publisher_count() < node.count_publishers(sub.topic_name)])
 
 
 def ns_to_stamp(t_ns: int) -> Time:

@@ -37,7 +37,7 @@ from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGI
                                          TOPIC_TIME_ORIGIN, ChannelFilter, ns_to_stamp,
                                          stamp_to_ns,
                                          quiet_publisher_events, quiet_subscription_events,
-                                         to_joint_state)
+                                         to_joint_state, unmatched)
 from tank_control.nodes.cdr import JointStateCdr, clock_cdr_ns
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
@@ -54,6 +54,12 @@ STALL_MIN_S = 1.0
 #: wall/sim: an input topic that has sent nothing this long after the first tick is reported
 #: as awaited (WARN; the inputs keep their initial values) [s of wall time]
 NEVER_RECEIVED_S = 3.0
+#: sim/wall: longest wait before tick 0 for the middleware to match the endpoints the graph
+#: shows on the plant's topics (``_match_wait``) [s of wall time]
+MATCH_WAIT_S = 5.0
+#: wall: the time origin (tick 0) is announced this long ahead, rounded up to whole periods:
+#: the reference's instant 0 and its ``wall.lead`` fit in it with room for a loaded machine [s]
+ORIGIN_NOTICE_S = 0.2
 #: who answers each input topic (named in the stall report)
 _ANSWERED_BY = {TOPIC_MANIPULATED: 'controller', TOPIC_DISTURBANCE: 'reference'}
 
@@ -126,12 +132,13 @@ class PlantNode(Node):
                         TOPIC_DISTURBANCE: ChannelFilter(self.plant.disturbance_names,
                                                          ranges=setup.ranges)}
         # taken as CDR bytes and decoded directly (nodes/cdr.py)
-        self.create_subscription(JointState, TOPIC_MANIPULATED,
-                                 lambda m: self._on_input(TOPIC_MANIPULATED, m), SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events(), raw=True)
-        self.create_subscription(JointState, TOPIC_DISTURBANCE,
-                                 lambda m: self._on_input(TOPIC_DISTURBANCE, m), SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events(), raw=True)
+        self._input_subs = [
+            self.create_subscription(JointState, topic, lambda m, t=topic: self._on_input(t, m),
+                                     SIGNAL_QOS, event_callbacks=quiet_subscription_events(),
+                                     raw=True)
+            for topic in (TOPIC_MANIPULATED, TOPIC_DISTURBANCE)]
+        self._match_since: float | None = None     # sim/wall: the wait before tick 0 (_match_wait)
+        self._match_timer = None
 
         required: dict[str, tuple[str, ...]] = {TOPIC_MANIPULATED: self.plant.input_names}
         if values['lockstep.wait_for_reference']:
@@ -176,7 +183,7 @@ class PlantNode(Node):
         if self.mode != 'wall':
             self.origin_pub.publish(ns_to_stamp(0))   # the simulated clock starts at 0
         if not self._paused() and self.mode == 'wall':
-            self._start_timer()           # tick 0 now: the time origin
+            self._start_timer()           # the time origin: tick 0 ORIGIN_NOTICE_S from now
         elif not self._paused():
             self._publish_tick()          # tick 0 right away (lockstep: re-sent until answered)
         self.get_logger().info(
@@ -262,19 +269,55 @@ class PlantNode(Node):
         self._start_timer()
 
     def _start_timer(self) -> None:
+        if self._tick_msgs is None and self._match_wait():
+            return                        # tick 0 once every reader and writer is matched
         if self._tick_msgs is None and self.mode == 'wall':
-            # tick 0 is now: the origin of plant time. The timer's grid (steady clock, as
-            # time.monotonic_ns) starts from it at once, before the publishing: armed after,
-            # every call would come that much after its instant, and each stamp be that old.
-            self._wall_t0_ns = time.monotonic_ns()
-            self._stamp_offset_ns = self.get_clock().now().nanoseconds
+            # tick 0, the origin of plant time, is announced ORIGIN_NOTICE_S (whole periods)
+            # ahead: the reference publishes instant 0 and the controller has it before
+            # measurement 0 (announced at tick 0, the origin raced the measurement: instant 0
+            # came after it or, a reference that heard the origin more than wall.lead late,
+            # never). The timer's grid (steady clock, as time.monotonic_ns) starts now, the
+            # origin on it: armed later, every call would come that much after its instant.
+            notice_ns = -(-to_ns(ORIGIN_NOTICE_S) // self.ts_ns) * self.ts_ns
+            self._wall_t0_ns = time.monotonic_ns() + notice_ns
+            self._stamp_offset_ns = self.get_clock().now().nanoseconds + notice_ns
             self._timer.reset()
             self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
-            self._publish_tick()
             return
         if self._tick_msgs is None:
             self._publish_tick()
         self._timer.reset()
+
+    def _match_wait(self) -> bool:
+        """sim/wall, before tick 0: are readers of the measurement, the time origin or /clock,
+        or writers of the inputs, in the graph but not yet matched (``messages.unmatched``)?
+        Then tick 0 waits (polled every 10 ms) — a tick or origin published before would
+        reach them late or never, and the plant does not wait for answers — for at most
+        MATCH_WAIT_S, then starts with a warning naming the topics."""
+        waiting = unmatched(self, [p for p in (self.measurement_pub, self.origin_pub,
+                                               self.clock_pub) if p is not None],
+                            self._input_subs)
+        now = time.monotonic()
+        if self._match_since is None:
+            self._match_since = now
+        if waiting and now - self._match_since < MATCH_WAIT_S:
+            if self._match_timer is None:
+                self._match_timer = self.create_timer(0.01, self._retry_start,
+                                                      clock=steady_clock())
+            return True
+        if waiting:
+            self.get_logger().warning(
+                f'starting the clock after {MATCH_WAIT_S:g} s with {", ".join(waiting)} not '
+                'matched to every endpoint the graph shows (incompatible QoS?): their messages '
+                'may come late or not at all')
+        if self._match_timer is not None:
+            self.destroy_timer(self._match_timer)
+            self._match_timer = None
+        return False
+
+    def _retry_start(self) -> None:
+        if self._tick_msgs is None and not self._paused():
+            self._start_timer()
 
     # ----------------------------------------------------------------- ticks
     def _t(self) -> float:
@@ -348,7 +391,8 @@ class PlantNode(Node):
             self._applied_cdr = JointStateCdr(self._applied_names, self._session)
 
     def _on_tick_timer(self) -> None:
-        """wall/sim: close the previous interval with the latest inputs, publish tick k.
+        """wall/sim: close the previous interval with the latest inputs, publish tick k
+        (wall: tick 0 at the announced origin, ``_start_timer``).
 
         wall: the measurement is that of the latest grid instant that has come,
         ``k = floor((now - t0) / ts)``, stamped ``origin + k·ts`` (its sample instant), never
@@ -360,19 +404,19 @@ class PlantNode(Node):
         to a period ahead of its instant). Integration stops after one period of work (a
         plant slower than real time), so parameter services and diagnostics still run; the
         tick reached is then published, stamped with its own (past) instant."""
-        if self._paused() or self._tick_msgs is None:
+        if self._paused():
             return                      # a call that was due when the pause came
+        if self._tick_msgs is None:     # wall: tick 0 announced (_start_timer), not yet come
+            if self.mode == 'wall' and self._wait_for(self._wall_t0_ns):
+                self._publish_tick()
+            return
         if self.mode != 'wall':
             self._step()
             self._publish_tick()
             return
+        if not self._wait_for(self._wall_t0_ns + (self.k + 1) * self.ts_ns):
+            return
         now_ns = time.monotonic_ns()
-        ahead_ns = self._wall_t0_ns + (self.k + 1) * self.ts_ns - now_ns
-        if ahead_ns > 0:
-            if ahead_ns > self.ts_ns // 2:
-                return                  # a made-up call: the next one is on time
-            time.sleep(ahead_ns / 1e9)  # a little early: wait for the instant
-            now_ns = time.monotonic_ns()
         due = max((now_ns - self._wall_t0_ns) // self.ts_ns, self.k + 1)
         steps = 0
         while self.k < due:
@@ -382,6 +426,17 @@ class PlantNode(Node):
                 break                   # behind real time: the rest at the next call
         self.counters['missed_samples'] += steps - 1   # integrated, never published
         self._publish_tick()
+
+    def _wait_for(self, instant_ns: int) -> bool:
+        """wall: is the timer's call for the steady-clock ``instant_ns``? A call more than
+        half a period early is not (a made-up call, or one of the countdown to tick 0); one a
+        little early waits for the instant."""
+        ahead_ns = instant_ns - time.monotonic_ns()
+        if ahead_ns > self.ts_ns // 2:
+            return False
+        if ahead_ns > 0:
+            time.sleep(ahead_ns / 1e9)
+        return True
 
     # --------------------------------------------------------------- inputs
     def _on_input(self, topic: str, msg: bytes) -> None:

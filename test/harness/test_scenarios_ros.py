@@ -223,6 +223,11 @@ def test_wall_mode_setpoint_step_appears_at_its_time_on_the_plant_time_base(tmp_
     u = trace.columns['u.u']            # kp·(r − y): 0 while r = y = 0 (NaN before the first)
     assert trace.t[np.flatnonzero(u > 0.0)[0]] == pytest.approx(first, abs=1e-9)
     assert run_info['late_by_signal']['r'] == 0
+    # ... from tick 0 on: the plant announced its origin ahead (plant_node.ORIGIN_NOTICE_S), so
+    # the reference's instant 0 was there before measurement 0 (announced at tick 0, the origin
+    # raced measurement 0: the controller skipped tick 0 in about half the runs, and a
+    # reference that heard the origin more than wall.lead late never published instant 0)
+    assert u[0] == 0.0
     assert run_info['late_samples'] == sum(run_info['late_by_signal'].values())
 
 
