@@ -138,6 +138,7 @@ class PlantNode(Node):
                                      raw=True)
             for topic in (TOPIC_MANIPULATED, TOPIC_DISTURBANCE)]
         self._match_since: float | None = None     # sim/wall: the wait before tick 0 (_match_wait)
+        self._announced = False            # wall: the time origin is published (_start_timer)
         self._match_timer = None
 
         required: dict[str, tuple[str, ...]] = {TOPIC_MANIPULATED: self.plant.input_names}
@@ -197,9 +198,9 @@ class PlantNode(Node):
         and its relations such as dead_time <= max_dead_time) and noise_std: 1 value or one
         per output."""
         if (values['clock_mode'] == 'wall' and values['lockstep.paused']
-                and getattr(self, '_tick_msgs', None) is not None):
+                and getattr(self, '_announced', False)):
             return ('lockstep.paused: true refused, a running wall clock cannot be paused '
-                    '(only held before its first tick); allowed false')
+                    '(only held before its time origin is announced); allowed false')
         try:
             setup = plant_setup(values)
             if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next
@@ -272,6 +273,8 @@ class PlantNode(Node):
         if self._tick_msgs is None and self._match_wait():
             return                        # tick 0 once every reader and writer is matched
         if self._tick_msgs is None and self.mode == 'wall':
+            if self._announced:
+                return                    # tick 0 is on its way
             # tick 0, the origin of plant time, is announced ORIGIN_NOTICE_S (whole periods)
             # ahead: the reference publishes instant 0 and the controller has it before
             # measurement 0 (announced at tick 0, the origin raced the measurement: instant 0
@@ -283,19 +286,22 @@ class PlantNode(Node):
             self._stamp_offset_ns = self.get_clock().now().nanoseconds + notice_ns
             self._timer.reset()
             self.origin_pub.publish(ns_to_stamp(self._stamp_offset_ns))
+            self._announced = True
             return
         if self._tick_msgs is None:
             self._publish_tick()
         self._timer.reset()
 
     def _match_wait(self) -> bool:
-        """sim/wall, before tick 0: are readers of the measurement, the time origin or /clock,
-        or writers of the inputs, in the graph but not yet matched (``messages.unmatched``)?
+        """sim/wall, before tick 0: are readers of the measurement, the time origin, the
+        applied input (a controller's take-over waits for it) or /clock, or writers of the
+        inputs, in the graph but not yet matched (``messages.unmatched``)?
         Then tick 0 waits (polled every 10 ms) — a tick or origin published before would
         reach them late or never, and the plant does not wait for answers — for at most
         MATCH_WAIT_S, then starts with a warning naming the topics."""
         waiting = unmatched(self, [p for p in (self.measurement_pub, self.origin_pub,
-                                               self.clock_pub) if p is not None],
+                                               self.applied_pub, self.clock_pub)
+                                   if p is not None],
                             self._input_subs)
         now = time.monotonic()
         if self._match_since is None:
