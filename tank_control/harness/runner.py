@@ -41,7 +41,7 @@ from tank_control.harness.scenario_file import (Scenario, ScenarioError, effecti
 from tank_control.harness.signals import RunInterrupted, StopSignals
 from tank_control.harness.stream import RecordingStream, RunOutputs
 from tank_control.harness.trace import GATED_DISTURBANCE
-from tank_control.nodes.messages import TOPIC_RECORDED
+from tank_control.nodes.messages import MATCH_WAIT_S, TOPIC_RECORDED
 
 __all__ = ['RunFailed', 'RunInterrupted', 'RunResult', 'Progress', 'run', 'run_scenario',
            'run_metrics', 'simulate']
@@ -650,7 +650,46 @@ class _RosRun:
                     'the graph did not come up (nodes ' + ', '.join(nodes)
                     + '; publishers of ' + ', '.join(topics)
                     + ''.join(f'; {node} subscribed to {t}' for node, t in readers) + ')')
+        if self.mode != 'lockstep' and 'plant' in nodes:
+            self._await_plant_matched()
         self._check_no_other_graph()
+
+    def _await_plant_matched(self) -> None:
+        """sim/wall, where nobody waits for a tick: the plant's writers (measurement, time
+        origin, applied input, /clock) have matched every reader this graph shows, and its
+        inputs every writer (``matched_*`` in its /diagnostics, sent at once on a change
+        before tick 0). The graph comes from the participants' announcements; the plant's own
+        view can miss a node for seconds on a loaded machine (one lost announcement waits for
+        the next, 3 s later): its origin then reached that reference 2.8 s late, and the run
+        lost its first 28 setpoints. Waits at most MATCH_WAIT_S (an endpoint of incompatible
+        QoS never matches), then the clock starts anyway."""
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        rec = self.recorder
+        reported: dict[str, int] = {}
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name == 'plant':
+                    reported.clear()
+                    reported.update({kv.key: int(kv.value) for kv in status.values
+                                     if kv.key.startswith(('matched_readers.',
+                                                           'matched_writers.'))})
+
+        def matched() -> bool:
+            for key, count in reported.items():
+                kind, _, topic = key.partition('.')
+                shown = (rec.node.count_subscribers(topic) if kind == 'matched_readers'
+                         else rec.node.count_publishers(topic))
+                if count < shown:
+                    return False
+            return bool(reported)
+
+        sub = rec.node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        try:
+            rec.spin_until(matched, MATCH_WAIT_S, self._check_alive)
+        finally:
+            rec.node.destroy_subscription(sub)
 
     def _check_no_other_graph(self) -> None:
         counts = self.recorder.node_counts()

@@ -85,6 +85,12 @@ TOPIC_RECORDED = 'recorded'
 TOPIC_LATE_INPUTS = '~/late_inputs'
 
 
+#: sim/wall: longest wait before tick 0 for the middleware to match the endpoints the graph
+#: shows on the plant's topics (plant_node ``_match_wait`` on its own view, the harness on
+#: its view) [s of wall time]
+MATCH_WAIT_S = 5.0
+
+
 def unmatched(node: Any, publishers: Iterable[Any] = (),
               subscriptions: Iterable[Any] = ()) -> list[str]:
     """Topics of ``node`` with a reader (of a publisher) or a writer (of a subscription) the

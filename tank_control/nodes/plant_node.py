@@ -37,7 +37,7 @@ from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGI
                                          TOPIC_TIME_ORIGIN, ChannelFilter, ns_to_stamp,
                                          stamp_to_ns,
                                          quiet_publisher_events, quiet_subscription_events,
-                                         to_joint_state, unmatched)
+                                         to_joint_state, unmatched, MATCH_WAIT_S)
 from tank_control.nodes.cdr import JointStateCdr, clock_cdr_ns
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
@@ -54,9 +54,6 @@ STALL_MIN_S = 1.0
 #: wall/sim: an input topic that has sent nothing this long after the first tick is reported
 #: as awaited (WARN; the inputs keep their initial values) [s of wall time]
 NEVER_RECEIVED_S = 3.0
-#: sim/wall: longest wait before tick 0 for the middleware to match the endpoints the graph
-#: shows on the plant's topics (``_match_wait``) [s of wall time]
-MATCH_WAIT_S = 5.0
 #: wall: the time origin (tick 0) is announced this long ahead, rounded up to whole periods:
 #: the reference's instant 0 and its ``wall.lead`` fit in it with room for a loaded machine [s]
 ORIGIN_NOTICE_S = 0.2
@@ -175,6 +172,9 @@ class PlantNode(Node):
             self._set_pacing(rtf)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady)
+        self._matched_sent: dict[str, int] | None = None   # in the last /diagnostics
+        self._prestart_timer = self.create_timer(0.02, self._on_prestart, clock=steady)
+        self._prestart_calls = 0
         self._pace_mark: tuple[float, int] | None = None   # (wall s, tick) at the last report
         self._step_s = 0.0                 # computation time of plant.step since the report
         self._steps = 0
@@ -299,10 +299,7 @@ class PlantNode(Node):
         Then tick 0 waits (polled every 10 ms) — a tick or origin published before would
         reach them late or never, and the plant does not wait for answers — for at most
         MATCH_WAIT_S, then starts with a warning naming the topics."""
-        waiting = unmatched(self, [p for p in (self.measurement_pub, self.origin_pub,
-                                               self.applied_pub, self.clock_pub)
-                                   if p is not None],
-                            self._input_subs)
+        waiting = unmatched(self, self._start_publishers(), self._input_subs)
         now = time.monotonic()
         if self._match_since is None:
             self._match_since = now
@@ -317,9 +314,35 @@ class PlantNode(Node):
                 'matched to every endpoint the graph shows (incompatible QoS?): their messages '
                 'may come late or not at all')
         if self._match_timer is not None:
-            self.destroy_timer(self._match_timer)
-            self._match_timer = None
+            self._match_timer.cancel()         # (maybe in its own callback: not destroyed)
         return False
+
+    def _start_publishers(self) -> list[Any]:
+        """Publishers whose readers must be matched before tick 0 (``_match_wait``)."""
+        return [p for p in (self.measurement_pub, self.origin_pub, self.applied_pub,
+                            self.clock_pub) if p is not None]
+
+    def _matched(self) -> dict[str, int]:
+        """``matched_readers.<topic>``: readers the middleware has matched to the writer of
+        each ``_start_publishers`` topic; ``matched_writers.<topic>``: writers matched to each
+        input. In /diagnostics: the harness starts the clock once these reach the endpoints
+        its own graph shows (the plant's graph can miss a node for seconds)."""
+        items = {f'matched_readers.{p.topic_name}': p.get_subscription_count()
+                 for p in self._start_publishers()}
+        items.update({f'matched_writers.{s.topic_name}': s.get_publisher_count()
+                      for s in self._input_subs})
+        return items
+
+    def _on_prestart(self) -> None:
+        """Before tick 0 (every 20 ms): /diagnostics at once when a matched count changed,
+        else every 0.1 s (a reader that joined after the change need not wait for the
+        ``diagnostics_period``)."""
+        if self._tick_msgs is not None or self._announced:
+            self._prestart_timer.cancel()      # (cancelled, not destroyed, in its own callback)
+            return
+        self._prestart_calls += 1
+        if self._matched() != self._matched_sent or self._prestart_calls % 5 == 0:
+            self._publish_diagnostics()
 
     def _retry_start(self) -> None:
         if self._tick_msgs is None and not self._paused():
@@ -690,6 +713,8 @@ class PlantNode(Node):
         items = {'clock_mode': self.mode, 'sim_time': f'{self._t():.9g}',
                  'time_origin_ns': self._stamp_offset_ns, **self.counters}
         items['paused'] = self._is_paused
+        self._matched_sent = self._matched()
+        items.update(self._matched_sent)
         items['step_time_ms'] = f'{self._step_ms:.4g}'
         if self.mode == 'lockstep' and self._awaiting:
             items['waiting_for'] = ', '.join(self.inbox.missing(self.k * self.ts_ns))

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from support import CONFIG
-from support.mcap import read_mcap
+from support.mcap import read_mcap, stamps_and_arrivals
 
 from tank_control.core.trace import Trace
 from tank_control.harness.runner import run
@@ -222,13 +222,47 @@ def test_wall_mode_setpoint_step_appears_at_its_time_on_the_plant_time_base(tmp_
     # acted one sample late and every setpoint was reported late)
     u = trace.columns['u.u']            # kp·(r − y): 0 while r = y = 0 (NaN before the first)
     assert trace.t[np.flatnonzero(u > 0.0)[0]] == pytest.approx(first, abs=1e-9)
-    assert run_info['late_by_signal']['r'] == 0
+    # ... every setpoint the reference published in time was in time at the controller: late
+    # are at most those that reached the recorder only after their instant (a reference whose
+    # timer fired more than wall.lead late on a loaded machine: 1 in 30 runs beside two busy
+    # lockstep graphs)
+    published_late = sum(arrived >= stamp for stamp, arrived in
+                         stamps_and_arrivals(tmp_path / 'out' / 'run.mcap', 'setpoint'))
+    assert run_info['late_by_signal']['r'] <= published_late
     # ... from tick 0 on: the plant announced its origin ahead (plant_node.ORIGIN_NOTICE_S), so
     # the reference's instant 0 was there before measurement 0 (announced at tick 0, the origin
     # raced measurement 0: the controller skipped tick 0 in about half the runs, and a
     # reference that heard the origin more than wall.lead late never published instant 0)
     assert u[0] == 0.0
     assert run_info['late_samples'] == sum(run_info['late_by_signal'].values())
+
+
+def test_a_reader_that_never_matches_delays_a_wall_start_by_a_bounded_wait(tmp_path, ros_env,
+                                                                          probe):
+    """Before tick 0 the harness waits for the plant to match every endpoint the graph shows,
+    and the plant for those of its own view (``MATCH_WAIT_S`` each). A reader that never
+    matches — here a transient-local reader of the volatile measurement, as a misconfigured
+    tool would be — ends both waits, not the run: it completes from tick 0 and the plant's
+    log names the topic."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    probe.node.create_subscription(
+        JointState, 'measurement', lambda m: None,
+        QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    scenario = tmp_path / 'wall.yaml'
+    scenario.write_text(json.dumps({
+        'plant': {'ros__parameters': {'plant': 'ipdt', 'sample_time': 0.1, 'gain': 0.05}},
+        'controller': {'ros__parameters': {'controller': 'pid', 'sample_time': 0.1, 'kp': 2.0,
+                                           'output_names': ['y'], 'input_names': ['u']}},
+        'reference': {'ros__parameters': {'sample_time': 0.1, 'setpoint.channels': ['y'],
+                                          'setpoint.y.times': [0.0], 'setpoint.y.values': [1.0]}},
+        'harness': {'ros__parameters': {'duration': 1.0, 'clock_mode': 'wall',
+                                        'startup_timeout': 60.0}}}))
+    result = run(scenario, tmp_path / 'out', env=ros_env)
+    assert result.trace.t[0] == 0.0 and result.trace.t[-1] >= 0.9
+    log = (tmp_path / 'out' / 'logs' / 'plant.log').read_text()
+    assert 'measurement not matched' in log, log
 
 
 def test_compare_writes_a_table_and_an_overlay(tmp_path):

@@ -132,7 +132,7 @@ def test_tick_0_waits_for_the_middleware_to_match_what_the_graph_shows(
     delays tick 0 by MATCH_WAIT_S, then the plant starts with a warning naming the topic."""
     from rclpy.qos import DurabilityPolicy
 
-    from tank_control.nodes.plant_node import MATCH_WAIT_S
+    from tank_control.nodes.messages import MATCH_WAIT_S
     proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
                        gain=1.0, clock_mode='wall', **{'lockstep.paused': True})
     rec = Recorder(probe)
@@ -145,6 +145,29 @@ def test_tick_0_waits_for_the_middleware_to_match_what_the_graph_shows(
     assert probe.wait_for(lambda: rec.measurements, 30), proc.tail()
     assert rec.arrived['measurement'][0] - unpaused_at >= MATCH_WAIT_S * 1e9
     assert probe.wait_for(lambda: 'measurement not matched' in proc.tail(50), 10), proc.tail()
+
+
+def test_before_tick_0_diagnostics_report_the_matched_endpoints(procs, ros_env, node_cmd, probe,
+                                                                tmp_path):
+    """Paused before tick 0, the plant reports on /diagnostics how many readers the middleware
+    has matched to each of its writers and writers to each input (``matched_readers.<topic>``,
+    ``matched_writers.<topic>``), soon after a change: the harness starts the clock once they
+    reach what its own graph shows."""
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       gain=1.0, clock_mode='wall', **{'lockstep.paused': True})
+    rec = Recorder(probe)        # one reader of measurement, writers of manipulated, disturbance
+    probe.node.create_subscription(Time, 'time_origin', lambda m: None, ORIGIN_QOS)
+
+    def reported(key: str) -> int | None:
+        values = [d.get(key) for d in rec.diagnostics[-1:]]
+        return int(values[0]) if values and values[0] is not None else None
+    assert probe.wait_for(lambda: reported('matched_readers./measurement') == 1
+                          and reported('matched_readers./time_origin') == 1
+                          and reported('matched_writers./manipulated') == 1
+                          and reported('matched_writers./disturbance') == 1, 30), \
+        (rec.diagnostics[-1:], proc.tail())
+    assert reported('matched_readers./applied_input') == 0    # nobody reads it here
+    assert not rec.measurements                               # still before tick 0
 
 
 def test_wall_mode_a_disturbance_sent_ahead_of_its_instant_acts_from_it(procs, ros_env, node_cmd,

@@ -14,3 +14,15 @@ def read_mcap(path: str | Path) -> dict[str, list]:
         for _, channel, _, msg in reader.iter_decoded_messages():
             seen.setdefault(channel.topic, []).append(msg)
     return seen
+
+
+def stamps_and_arrivals(path: str | Path, topic: str) -> list[tuple[int, int]]:
+    """(header stamp, time the recorder received it) [ns, system clock] of every message of a
+    stamped ``topic``, in file order."""
+    from mcap.reader import make_reader
+
+    from tank_control.nodes.cdr import cdr_stamp_ns
+    with open(path, 'rb') as handle:
+        return [(cdr_stamp_ns(msg.data), msg.log_time)
+                for _, channel, msg in make_reader(handle).iter_messages()
+                if channel.topic.lstrip('/') == topic.lstrip('/')]
