@@ -1,6 +1,7 @@
 """Start-up and clean shutdown shared by every node's ``main()``."""
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -144,6 +145,9 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     Python's signal handlers, so it waits at most :data:`SPIN_PERIOD`: an idle node
     stops within that, a busy one after its current callback.
     """
+    # A crash, or a SIGABRT sent to a node that does not stop, writes every thread's Python
+    # stack to the log (stderr) — also while the main thread is blocked in C++.
+    faulthandler.enable()
     stop = _StopFlag()
     executor: EventsExecutor | None = None
     with stop:

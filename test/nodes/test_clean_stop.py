@@ -4,6 +4,7 @@ callback: "publisher's context is invalid", [FATAL])."""
 from __future__ import annotations
 
 import signal
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -23,6 +24,21 @@ def busy_scenario(tmp_path: Path) -> Path:
     params = params_file.read(CONFIG / 'ipdt_pid.yaml')
     params['plant'].update({'lockstep.paused': False, 'real_time_factor': 0.0})
     return params_file.write(params, tmp_path / 'busy.yaml')
+
+
+def _wait_or_stack(proc, timeout: float = 20.0) -> int:
+    """The exit status; a node still running after ``timeout`` s is sent SIGABRT, and the
+    failure shows its threads' stacks (faulthandler, nodes/runtime.py) from its log."""
+    try:
+        return proc.popen.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.popen.send_signal(signal.SIGABRT)
+        try:
+            proc.popen.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pass
+        pytest.fail(f'{proc.name} did not stop within {timeout:g} s of the signal; its '
+                    f'stacks on SIGABRT:\n{proc.tail(80)}')
 
 
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT], ids=['SIGTERM', 'SIGINT'])
@@ -45,7 +61,7 @@ def test_busy_lockstep_nodes_stop_cleanly(sig, ros_env, node_cmd, probe, tmp_pat
                 order = NODES[round_ % 3:] + NODES[:round_ % 3]
                 for name in order:
                     group.processes[name].popen.send_signal(sig)
-                codes = {name: group.processes[name].popen.wait(timeout=20) for name in order}
+                codes = {name: _wait_or_stack(group.processes[name]) for name in order}
                 assert codes == {name: 0 for name in NODES}, logs()
                 for name, proc in group.processes.items():
                     text = proc.log_path.read_text(errors='replace')
