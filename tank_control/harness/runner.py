@@ -651,39 +651,41 @@ class _RosRun:
                     + '; publishers of ' + ', '.join(topics)
                     + ''.join(f'; {node} subscribed to {t}' for node, t in readers) + ')')
         if self.mode != 'lockstep' and 'plant' in nodes:
-            self._await_plant_matched()
+            self._await_matched([node for node in ('plant', 'controller') if node in nodes])
         self._check_no_other_graph()
 
-    def _await_plant_matched(self) -> None:
+    def _await_matched(self, nodes: Sequence[str]) -> None:
         """sim/wall, where nobody waits for a tick: the plant's writers (measurement, time
-        origin, applied input, /clock) have matched every reader this graph shows, and its
-        inputs every writer (``matched_*`` in its /diagnostics, sent at once on a change
-        before tick 0). The graph comes from the participants' announcements; the plant's own
-        view can miss a node for seconds on a loaded machine (one lost announcement waits for
-        the next, 3 s later): its origin then reached that reference 2.8 s late, and the run
-        lost its first 28 setpoints. Waits at most MATCH_WAIT_S (an endpoint of incompatible
-        QoS never matches), then the clock starts anyway."""
+        origin, applied input, /clock) have matched every reader this graph shows and its
+        inputs every writer, and the controller's readers of the reference's signals every
+        writer (``matched_*`` in their /diagnostics, sent at once on a change before they
+        start). The graph comes from the participants' announcements; a node's own view can
+        miss another node for seconds on a loaded machine (one lost announcement waits for the
+        next, 3 s later): the plant's origin then reached that reference 2.8 s late, and the
+        run lost its first 28 setpoints. Waits at most MATCH_WAIT_S (an endpoint of
+        incompatible QoS never matches), then the clock starts anyway."""
         from diagnostic_msgs.msg import DiagnosticArray
 
         rec = self.recorder
-        reported: dict[str, int] = {}
+        reported: dict[str, dict[str, int]] = {}
 
         def on_diagnostics(msg: DiagnosticArray) -> None:
             for status in msg.status:
-                if status.name == 'plant':
-                    reported.clear()
-                    reported.update({kv.key: int(kv.value) for kv in status.values
-                                     if kv.key.startswith(('matched_readers.',
-                                                           'matched_writers.'))})
+                node = status.name.split(':')[0]        # 'plant', 'controller: pid'
+                if node in nodes:
+                    reported[node] = {kv.key: int(kv.value) for kv in status.values
+                                      if kv.key.startswith(('matched_readers.',
+                                                            'matched_writers.'))}
 
         def matched() -> bool:
-            for key, count in reported.items():
-                kind, _, topic = key.partition('.')
-                shown = (rec.node.count_subscribers(topic) if kind == 'matched_readers'
-                         else rec.node.count_publishers(topic))
-                if count < shown:
-                    return False
-            return bool(reported)
+            for counts in reported.values():
+                for key, count in counts.items():
+                    kind, _, topic = key.partition('.')
+                    shown = (rec.node.count_subscribers(topic) if kind == 'matched_readers'
+                             else rec.node.count_publishers(topic))
+                    if count < shown:
+                        return False
+            return set(reported) == set(nodes)
 
         sub = rec.node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
         try:

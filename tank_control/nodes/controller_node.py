@@ -144,12 +144,14 @@ class ControllerNode(Node):
         self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
                                  event_callbacks=quiet_subscription_events(), raw=True)
-        self.create_subscription(JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS,
-                                 event_callbacks=quiet_subscription_events(), raw=True)
+        # the reference's signals: their matched writers are reported (_matched)
+        self._reference_subs = [self.create_subscription(
+            JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS,
+            event_callbacks=quiet_subscription_events(), raw=True)]
         if self._disturbances:
-            self.create_subscription(JointState, TOPIC_DISTURBANCE, self._on_disturbance,
-                                     SIGNAL_QOS, event_callbacks=quiet_subscription_events(),
-                                     raw=True)
+            self._reference_subs.append(self.create_subscription(
+                JointState, TOPIC_DISTURBANCE, self._on_disturbance, SIGNAL_QOS,
+                event_callbacks=quiet_subscription_events(), raw=True))
         required: dict[str, tuple[str, ...]] = {'measurement': self._outputs,
                                                 'setpoint': self._outputs}
         if self._disturbances:
@@ -168,6 +170,9 @@ class ControllerNode(Node):
             self._timer = self.create_timer(self._controller.sample_time, self._on_timer)
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
+        self._matched_sent: dict[str, int] | None = None   # in the last /diagnostics
+        self._prestart_calls = 0
+        self._prestart_timer = self.create_timer(0.02, self._on_prestart, clock=steady_clock())
         self.get_logger().info(
             f'{kind_name} controller ({self._kind.description}), {self._mode} clock, sample_time '
             f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '
@@ -744,6 +749,23 @@ class ControllerNode(Node):
             self.get_logger().warning(warning)
         self._publish_diagnostics()
 
+    def _matched(self) -> dict[str, int]:
+        """``matched_writers.<topic>``: writers the middleware has matched to this node's
+        readers of the reference's signals. In /diagnostics: the harness starts the clock once
+        they reach the writers its own graph shows (the plant reports its own topics)."""
+        return {f'matched_writers.{sub.topic_name}': sub.get_publisher_count()
+                for sub in self._reference_subs}
+
+    def _on_prestart(self) -> None:
+        """Before the first sample (every 20 ms): /diagnostics at once when a matched count
+        changed, else every 0.1 s."""
+        if self._started:
+            self._prestart_timer.cancel()      # (cancelled, not destroyed, in its own callback)
+            return
+        self._prestart_calls += 1
+        if self._matched() != self._matched_sent or self._prestart_calls % 5 == 0:
+            self._publish_diagnostics()
+
     def _publish_diagnostics(self) -> None:
         status = dict(self._controller.status)
         level = (DiagnosticStatus.WARN if self._fault or self._warning
@@ -792,6 +814,8 @@ class ControllerNode(Node):
             **{k: v for k, v in results.items()
                if k.startswith(('robustness.', 'autotune.')) and k != 'autotune.start'},
         }
+        self._matched_sent = self._matched()
+        fields.update(self._matched_sent)
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [DiagnosticStatus(

@@ -101,6 +101,21 @@ def _start(procs, node_cmd, ros_env, *params: str):
     return procs.start('controller', argv, env=ros_env)
 
 
+def test_before_its_first_sample_diagnostics_report_the_matched_reference_writers(
+        procs, node_cmd, ros_env, probe):
+    """Before its first sample the controller reports on /diagnostics how many writers the
+    middleware has matched to its readers of the reference's signals
+    (``matched_writers./setpoint``), soon after a change — not only every
+    ``diagnostics_period`` (60 s here): the harness starts the clock once they reach what its
+    own graph shows."""
+    _start(procs, node_cmd, ros_env, 'clock_mode:=wall', 'diagnostics_period:=60.0',
+           'kp:=1.0')
+    loop = Loop(probe)        # one writer of setpoint
+    assert probe.wait_for(lambda: loop.diag.get('matched_writers./setpoint') == '1', 30), \
+        loop.diag
+    assert not loop.answers                                  # no sample yet
+
+
 def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_cmd, ros_env, probe):
     ts = 0.2
     # clock_mode auto + use_sim_time (what the harness passes in lockstep) → lockstep answering
