@@ -171,8 +171,9 @@ class ControllerNode(Node):
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
         self._matched_sent: dict[str, int] | None = None   # in the last /diagnostics
-        self._prestart_calls = 0
-        self._prestart_timer = self.create_timer(0.02, self._on_prestart, clock=steady_clock())
+        self._prestart_calls = 0           # sim/wall (the harness waits for them): _on_prestart
+        self._prestart_timer = (self.create_timer(0.02, self._on_prestart, clock=steady_clock())
+                                if self._mode != 'lockstep' else None)
         self.get_logger().info(
             f'{kind_name} controller ({self._kind.description}), {self._mode} clock, sample_time '
             f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '

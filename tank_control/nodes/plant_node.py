@@ -173,8 +173,9 @@ class PlantNode(Node):
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady)
         self._matched_sent: dict[str, int] | None = None   # in the last /diagnostics
-        self._prestart_timer = self.create_timer(0.02, self._on_prestart, clock=steady)
-        self._prestart_calls = 0
+        self._prestart_calls = 0           # sim/wall (the harness waits for them): _on_prestart
+        self._prestart_timer = (self.create_timer(0.02, self._on_prestart, clock=steady)
+                                if self.mode != 'lockstep' else None)
         self._pace_mark: tuple[float, int] | None = None   # (wall s, tick) at the last report
         self._step_s = 0.0                 # computation time of plant.step since the report
         self._steps = 0
