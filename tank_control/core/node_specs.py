@@ -109,11 +109,15 @@ class ReferenceNode:
     clock_mode: str = param('wall', 'wall: publish every sample_time on a wall timer; '
                             'sim/lockstep (also implied by use_sim_time): answer every /clock '
                             'tick, stamped t_k', choices=CLOCK_MODES, read_only=True)
-    anticipate: bool = param(True, 'with clock_mode lockstep: on /clock t_k also answer the '
-                             'next tick t_k + (t_k - t_k-1) ahead (same values and stamps; the '
-                             'controller then waits only for the measurement). Never in sim '
-                             '(there the latest message is used, so it must be the current '
-                             'one)', name='lockstep.anticipate', read_only=True)
+    lookahead: int = param(6, 'with clock_mode lockstep: on /clock t_k the schedules are '
+                           'published up to this many ticks ahead, one message per change, and '
+                           'a message at t_k+lookahead whenever the last one is older than '
+                           't_k+1 (zero-order hold: a message holds until the next one); the '
+                           'nodes of this package know the values of a tick once a message '
+                           'stamped at or after it came. 0: every tick answered when its /clock '
+                           'comes. Live changes act from the first tick not yet published. Never '
+                           'in sim (there every tick is answered, stamped t_k)', unit='ticks',
+                           min=0, max=8, name='lockstep.lookahead', read_only=True)
 
 
 def plant_channels(kind: str) -> tuple[str, ...]:

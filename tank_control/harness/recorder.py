@@ -5,6 +5,7 @@ messages are kept in ``messages``, for short recordings in tests), and reads the
 controller's final parameters through its parameter services."""
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -20,8 +21,9 @@ from rclpy.task import Future
 from tank_control.harness.recording import RawMessage
 from tank_control.nodes.clock import steady_clock
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
-from tank_control.nodes.cdr import (cdr_stamp_ns, joint_state_from_cdr,  # noqa: F401 (re-exported)
-                                    time_cdr_ns)
+from tank_control.nodes.cdr import (JointStateCdr, cdr_stamp_ns,  # noqa: F401 (re-exported)
+                                    joint_state_from_cdr, time_cdr_ns)
+from tank_control.nodes.clock import Held
 from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
                                          quiet_publisher_events, quiet_subscription_events)
 from tank_control.nodes.services import RESEND_AFTER, answer
@@ -96,8 +98,10 @@ class Recorder:
         self.first: dict[str, int] = {}         # topic → first stamp seen [ns]
         self.counts: dict[str, int] = {}
         self._gate_pub: Any = None
-        self._gate_stamps: dict[str, set[int]] = {}
-        self._gate_disturbance: dict[int, bytes] = {}
+        self._gate_stamps: dict[str, set[int]] = {}    # measurement, manipulated
+        self._gate_held: dict[str, Held] = {}          # setpoint, disturbance (zero-order hold)
+        self._gate_names: tuple[str, ...] = ()         # the disturbance channels
+        self._gate_last: tuple[int, bytes] | None = None   # the last tick relayed
         self.relayed = 0
         self._ack_pub: Any = None
         self._ack_needs: frozenset[str] = frozenset()   # empty: no acknowledgments
@@ -178,29 +182,48 @@ class Recorder:
             self.acknowledged += 1
 
     def enable_gate(self) -> None:
-        """Lockstep back-pressure: the plant's ``disturbance`` input is remapped to
-        ``disturbance_gated``, and the recorder relays each tick's disturbance message there
-        (the same bytes) only once it has recorded that tick's measurement, setpoint,
-        manipulated and disturbance. The plant cannot start tick k+1 before the recording
-        holds all of tick k, so a busy machine slows the run instead of losing samples
-        (signal publishers keep only the last 10 messages for a slow reader)."""
+        """Lockstep back-pressure (node tests): the plant's ``disturbance`` input is remapped
+        to ``disturbance_gated``, and the recorder publishes there, for each tick in order, the
+        disturbance values in force at it, stamped with it, only once it has recorded that
+        tick's measurement and manipulated and the reference's setpoint and disturbance
+        streams through it (zero-order hold: ``nodes/clock.Held``). The plant cannot start
+        tick k+1 before the recording holds all of tick k, so a busy machine slows the run
+        instead of losing samples (signal publishers keep only their last messages for a
+        slow reader)."""
         from sensor_msgs.msg import JointState
-        self._gate_stamps = {topic: set() for topic in _GATE_NEEDS}
+        self._gate_stamps = {'measurement': set(), 'manipulated': set()}
+        self._gate_held = {'setpoint': Held(), 'disturbance': Held()}
         self._gate_pub = self.node.create_publisher(JointState, GATED_DISTURBANCE, GATE_QOS,
                                                     event_callbacks=quiet_publisher_events())
 
     def _gate(self, topic: str, stamp: int, data: bytes) -> None:
-        self._gate_stamps[topic].add(stamp)
-        if topic == 'disturbance':
-            self._gate_disturbance[stamp] = bytes(data)
-        data = self._gate_disturbance.get(stamp)   # None: a late duplicate of a past tick
-        if data is not None and all(stamp in seen for seen in self._gate_stamps.values()):
-            self._gate_pub.publish(data)
+        held = self._gate_held.get(topic)
+        if held is not None:
+            _, names, values = joint_state_from_cdr(data)
+            held.put(stamp, dict(zip(names, values)))
+            if topic == 'disturbance' and names:
+                self._gate_names = tuple(names)
+        elif self._gate_last is not None and topic == 'measurement' and stamp == self._gate_last[0]:
+            self._gate_pub.publish(self._gate_last[1])   # the plant re-sent the tick relayed
+            return
+        else:
+            self._gate_stamps[topic].add(stamp)
+        measured, manipulated = self._gate_stamps['measurement'], self._gate_stamps['manipulated']
+        setpoint, disturbance = self._gate_held['setpoint'], self._gate_held['disturbance']
+        for tick in sorted(measured):
+            if (tick not in manipulated or setpoint.through < tick
+                    or disturbance.through < tick):
+                break
+            values = disturbance.values(tick)
+            names = self._gate_names
+            msg = JointStateCdr(names).encode_ns(tick, [values.get(n, math.nan) for n in names])
+            self._gate_pub.publish(msg)
+            self._gate_last = (tick, msg)
             self.relayed += 1
-            for old in [s for s in self._gate_disturbance if s < stamp]:
-                del self._gate_disturbance[old]
-            for seen in self._gate_stamps.values():      # ticks before this one are done
-                seen.difference_update([s for s in seen if s < stamp])
+            for seen in (measured, manipulated):      # ticks up to this one are done
+                seen.difference_update([s for s in seen if s <= tick])
+            setpoint.fold_until(tick)
+            disturbance.fold_until(tick)
 
     def subscriber_count(self, topic: str) -> int:
         return self.node.count_subscribers(topic)

@@ -40,7 +40,7 @@ from tank_control.harness.scenario_file import (Scenario, ScenarioError, effecti
                                                 write_params_file)
 from tank_control.harness.signals import RunInterrupted, StopSignals
 from tank_control.harness.stream import RecordingStream, RunOutputs
-from tank_control.harness.trace import GATED_DISTURBANCE
+from tank_control.harness.trace import GATED_DISTURBANCE, HELD_IN_LOCKSTEP
 from tank_control.nodes.messages import MATCH_WAIT_S, TOPIC_RECORDED
 
 __all__ = ['RunFailed', 'RunInterrupted', 'RunResult', 'Progress', 'run', 'run_scenario',
@@ -522,7 +522,8 @@ class _RosRun:
         self.group = ProcessGroup(self.out / 'logs')
         due = due_periods(self.scenario, self.mode, self.tick_ns)
         self.stream = RecordingStream(self.out, self._origin, self.duration_ns, self.tick_ns, due,
-                                      self.sample_time)
+                                      self.sample_time,
+                                      held=HELD_IN_LOCKSTEP if self.mode == 'lockstep' else ())
         recorder.subscribe(self.stream.on_message)
 
     # -- run ----------------------------------------------------------------------------------

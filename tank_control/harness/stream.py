@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from struct import error as struct_error
 
@@ -56,15 +56,16 @@ class RecordingStream:
     """Recorded messages → ``run.mcap`` and ``trace.csv`` (module docstring).
 
     ``origin()`` gives the plant's time origin [ns] when the first row is written;
-    ``t_end_ns``, ``tick_ns``, ``due_ns`` as for ``trace.TraceJoiner``; ``sample_time``
+    ``t_end_ns``, ``tick_ns``, ``due_ns``, ``held`` as for ``trace.TraceJoiner``; ``sample_time``
     [s] for the sampling statistics; ``clock`` the wall clock of the holdback.
     """
 
     def __init__(self, out: Path, origin: Callable[[], int], t_end_ns: int | None,
                  tick_ns: int | None, due_ns: Mapping[str, int], sample_time: float | None,
-                 holdback: float = HOLDBACK, clock: Callable[[], float] = time.monotonic) -> None:
+                 holdback: float = HOLDBACK, clock: Callable[[], float] = time.monotonic,
+                 held: Iterable[str] = ()) -> None:
         self.outputs = RunOutputs(out, clock)
-        self.joiner = TraceJoiner(self._on_row, origin, t_end_ns, tick_ns, due_ns)
+        self.joiner = TraceJoiner(self._on_row, origin, t_end_ns, tick_ns, due_ns, held)
         self.holdback = holdback
         self.clock = clock
         self.measurements: deque[tuple[float, int]] = deque()   # (arrival, stamp) not yet safe

@@ -26,6 +26,9 @@ LATE_TOPICS = ('plant/late_inputs', 'controller/late_inputs')
 GATED_DISTURBANCE = 'disturbance_gated'
 
 _ANSWERS = {'setpoint': 'r', 'manipulated': 'u', 'disturbance': 'd'}
+#: Answer signals published under zero-order hold in lockstep (the reference, one message per
+#: change and ``lockstep.lookahead`` ticks ahead: docs/nodes.md "The reference").
+HELD_IN_LOCKSTEP = ('r', 'd')
 _NEVER = math.inf
 #: Applied messages remembered per topic to recognise a late repetition of one.
 _RECENT = 256
@@ -86,8 +89,9 @@ class _Due:
     """Late counting of one answer signal (module docstring): due instants waiting for their
     answer window to close, and the answer and report stamps not yet looked at."""
 
-    def __init__(self, period: int) -> None:
+    def __init__(self, period: int, held: bool = False) -> None:
         self.period = period
+        self.held = held                          # answered by any message stamped at or after
         self.waiting: deque[int] = deque()        # due instants, plant time [ns]
         self.answers: list[int] = []              # heaps of absolute stamps
         self.reported: list[int] = []
@@ -98,7 +102,7 @@ class _Due:
         while self.waiting and t0 + self.waiting[0] + self.period <= horizon:
             start = t0 + self.waiting.popleft()
             end = start + self.period
-            answered = _pop_before(self.answers, start, end)
+            answered = _pop_before(self.answers, start, _NEVER if self.held else end)
             reported = _pop_before(self.reported, start, end)
             self.late += (not answered) or reported
 
@@ -114,13 +118,13 @@ class TraceJoiner:
     """The join of the module docstring, row by row as messages arrive.
 
     ``origin`` gives ``t0`` [ns] (the plant's time origin), asked once, when the first row
-    is finished; ``t_end_ns`` [ns after t0] drops later rows; ``tick_ns``, ``due_ns`` as for
-    ``from_messages``. Each finished row goes to ``sink``.
+    is finished; ``t_end_ns`` [ns after t0] drops later rows; ``tick_ns``, ``due_ns``, ``held``
+    as for ``from_messages``. Each finished row goes to ``sink``.
     """
 
     def __init__(self, sink: RowSink, origin: Callable[[], int] = lambda: 0,
                  t_end_ns: int | None = None, tick_ns: int | None = None,
-                 due_ns: Mapping[str, int] | None = None) -> None:
+                 due_ns: Mapping[str, int] | None = None, held: Iterable[str] = ()) -> None:
         self.sink = sink
         self.origin = origin
         self.t_end_ns = t_end_ns
@@ -130,7 +134,7 @@ class TraceJoiner:
         self.signals = {topic: _Signal() for topic in TOPIC_PREFIX}
         self.rows: list[int] = []                  # heap of measurement stamps not yet written
         self.row_stamps: set[int] = set()
-        self.due = {prefix: _Due(self.due_ns.get(prefix) or tick_ns or 1)
+        self.due = {prefix: _Due(self.due_ns.get(prefix) or tick_ns or 1, prefix in held)
                     for prefix in _ANSWERS.values()}
         self.inputs: set[str] = set()              # channels of ``manipulated`` seen
         self.written = 0
@@ -265,7 +269,8 @@ _TOPIC_OF = {prefix: topic for topic, prefix in TOPIC_PREFIX.items()}
 def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
                   t_end_ns: int | None = None, tick_ns: int | None = None,
                   due_ns: Mapping[str, int] | None = None,
-                  late_stamps: Mapping[str, Iterable[int]] | None = None) -> Trace:
+                  late_stamps: Mapping[str, Iterable[int]] | None = None,
+                  held: Iterable[str] = ()) -> Trace:
     """Join recorded signal messages into a table (join rule: docs/harness.md, "trace.csv").
 
     ``t0_ns`` is subtracted from the stamps (the plant's time origin: 0 in
@@ -274,11 +279,13 @@ def from_messages(messages: Iterable[SignalMessage], t0_ns: int = 0,
     (without it a row takes messages stamped at or before its own stamp and
     answers are due at every row, stamped exactly); ``due_ns`` the period of
     each signal prefix (default: the tick) and ``late_stamps`` the stamps its
-    consumer reported late, per prefix.
+    consumer reported late, per prefix. A prefix in ``held`` is published under
+    zero-order hold (``HELD_IN_LOCKSTEP``): a due instant is answered by any message
+    stamped at or after it.
     """
     rows: list[tuple[Sequence[str], Sequence[float]]] = []
     joiner = TraceJoiner(lambda names, values: rows.append((names, values)), lambda: t0_ns,
-                         t_end_ns, tick_ns, due_ns)
+                         t_end_ns, tick_ns, due_ns, held)
     joiner.t0 = t0_ns
     for msg in messages:
         joiner.add(msg)

@@ -156,7 +156,9 @@ class ControllerNode(Node):
                                                 'setpoint': self._outputs}
         if self._disturbances:
             required['disturbance'] = ()   # arrival is enough; missing channels keep last values
-        self._inbox = StampedInbox(required)
+        # lockstep: the reference's topics are zero-order-hold streams (nodes/clock.Held)
+        self._inbox = StampedInbox(required, held=('setpoint', 'disturbance'))
+        self._measured_ns: int | None = None   # lockstep: the latest measurement's stamp
         self._answers = Answers()
         self._state_pub = None
         if self._kind.state is not None:
@@ -319,6 +321,7 @@ class ControllerNode(Node):
         self._check_new_session(t_ns)
         if self._mode == 'lockstep':
             self._inbox.put('measurement', t_ns, mine)   # non-finite kept: the sample handles it
+            self._measured_ns = t_ns
             self._maybe_answer(t_ns, resent=True)
             return
         self._y.update(mine)
@@ -344,7 +347,7 @@ class ControllerNode(Node):
         values = self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs, self._r)
         if self._mode == 'lockstep':
             self._inbox.put('setpoint', t_ns, values)
-            self._maybe_answer(t_ns)
+            self._answer_measured()
 
     def _check_new_session(self, t_ns: int) -> None:
         """A plant that (re)started: its tick 0 after later ticks (lockstep), or a measurement
@@ -453,9 +456,15 @@ class ControllerNode(Node):
                                           self._d)
             if self._mode == 'lockstep':
                 self._inbox.put('disturbance', parsed[0], values)
-                self._maybe_answer(parsed[0])
+                self._answer_measured()
 
     # -------------------------------------------------------------- sampling
+    def _answer_measured(self) -> None:
+        """Lockstep: a setpoint or disturbance came (it may complete the latest tick measured;
+        one stamped ahead holds for the ticks up to its stamp)."""
+        if self._measured_ns is not None:
+            self._maybe_answer(self._measured_ns)
+
     def _maybe_answer(self, t_ns: int, resent: bool = False) -> None:
         """Lockstep: answer tick ``t_ns`` once its inputs are complete (idempotent).
 

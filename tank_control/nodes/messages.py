@@ -32,6 +32,12 @@ def reliable_qos(depth: int, latched: bool = False) -> QoSProfile:
 
 #: Signal topics: reliable, keep-last 10, volatile.
 SIGNAL_QOS = reliable_qos(10)
+#: The reference's ``setpoint`` and ``disturbance`` writers: the signal QoS with a deeper
+#: history. In lockstep they run ``lockstep.lookahead`` (<= 8) ticks ahead of the plant, which
+#: runs up to ``lockstep.record_window`` (<= 8) ticks ahead of what the recorder holds: at most
+#: 8 + 1 + 8 of their messages may not yet be taken by the recorder, and a reliable keep-last
+#: writer drops the oldest beyond its depth (the depth is no part of QoS matching).
+REFERENCE_QOS = reliable_qos(32)
 #: ``/clock`` published by the plant (reliable keep-last 10; a best-effort
 #: subscriber such as rclpy's own TimeSource still matches it).
 CLOCK_QOS = reliable_qos(10)

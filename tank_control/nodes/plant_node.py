@@ -44,7 +44,7 @@ from tank_control.nodes.runtime import main as run_node_main
 
 _NODE_ONLY = frozenset(names_of(PlantNodeConfig)) | frozenset(names_of(NoiseConfig))
 _NODE_ONLY_PREFIX = ranges.PREFIX      # range.*: the filters', not the model's
-_LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept
+_LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept (lockstep.lookahead <= 8)
 #: lockstep: a tick unanswered for this many ``lockstep.resend_period`` is a stall (WARN)
 STALL_RESENDS = 2
 #: wall/sim: ``manipulated`` silent for this many of its recent intervals (and at least
@@ -141,7 +141,8 @@ class PlantNode(Node):
         required: dict[str, tuple[str, ...]] = {TOPIC_MANIPULATED: self.plant.input_names}
         if values['lockstep.wait_for_reference']:
             required[TOPIC_DISTURBANCE] = ()
-        self.inbox = StampedInbox(required)
+        # the reference's disturbance is a zero-order-hold stream in lockstep (nodes/clock.Held)
+        self.inbox = StampedInbox(required, held=(TOPIC_DISTURBANCE,))
         # lockstep flow control with the harness's recorder, off the tick's serial path: tick k
         # is published only while k <= (last tick the recorder holds whole) + record_window
         self._window = int(values['lockstep.record_window']) if self.mode == 'lockstep' else 0
@@ -482,16 +483,18 @@ class PlantNode(Node):
             self._take_latest(topic, t_ns, accepted)
             return
         current = self.k * self.ts_ns
-        if t_ns is None or not current <= t_ns <= current + _LOOKAHEAD * self.ts_ns:
+        # a disturbance stamped before the tick is a re-sent one still in force (Held)
+        low = current if topic == TOPIC_MANIPULATED else -1
+        if t_ns is None or not low <= t_ns <= current + _LOOKAHEAD * self.ts_ns:
             return                      # malformed, a stale duplicate, or far ahead
         held = self.u if topic == TOPIC_MANIPULATED else self.d
         # A known channel with an ignored (non-finite) value still answers the
         # tick: its last valid value is kept.
         answered = {n: accepted.get(n, held[n]) for n in names if n in flt.known}
-        # Answers for a later tick (the reference may answer ahead) wait in the inbox.
+        # Answers for a later tick (the reference publishes ahead) wait in the inbox.
         self.inbox.put(topic, t_ns, answered)
-        if t_ns == current and self._awaiting and self.inbox.complete(t_ns):
-            self._advance(t_ns)
+        if self._awaiting and self.inbox.complete(current):
+            self._advance(current)
 
     def _take_latest(self, topic: str, t_ns: int | None, accepted: dict[str, float]) -> None:
         """sim/wall: hold the newest values; report an answer that came after its tick
@@ -558,8 +561,10 @@ class PlantNode(Node):
         when the recorder holds every earlier one; each answer is published once per
         (re-)sent tick. Once the recorder held tick 0 whole every writer had matched its
         readers, so from then on, between the first message of a tick the recorder has not
-        taken and now, each signal publisher wrote fewer messages than its keep-last 10 (or
-        only copies of that same tick): the reliable writer still holds it for the
+        taken and now, each signal publisher wrote fewer messages than it keeps (or only
+        copies of that same tick): plant and controller at most 8 + 1 of their keep-last 10,
+        the reference, ``lockstep.lookahead`` (<= 8) ticks further ahead, at most 17 of its
+        32 (``messages.REFERENCE_QOS``). The reliable writer still holds the message for the
         recorder's keep-all reader, whatever the scheduler does to the harness process."""
         tick = (stamp_to_ns(msg) - self._stamp_offset_ns) // self.ts_ns
         if tick <= self._recorded_tick:
@@ -648,7 +653,16 @@ class PlantNode(Node):
             waited = now - self._tick_published_at
             if not self._awaiting or waited < STALL_RESENDS * self._resend_period:
                 return ''
-            missing = self.inbox.missing(self.k * self.ts_ns)
+            current = self.k * self.ts_ns
+            missing = self.inbox.missing(current)
+            # The reference publishes ahead (Held): once it has answered /clock t_k its
+            # streams reach t_k+1. One that has not is behind, and the controller may wait
+            # for its setpoint though the plant holds the disturbance of this tick.
+            behind = self.inbox.held[TOPIC_DISTURBANCE].through < current + (self.ts_ns
+                                                                               if self.k else 0)
+            if TOPIC_DISTURBANCE in self.inbox.required and behind and \
+                    TOPIC_DISTURBANCE not in missing:
+                missing.append(TOPIC_DISTURBANCE)
             named = ', '.join(f'{m} ({_ANSWERED_BY.get(m.split(".")[0], "?")})' for m in missing)
             return f'stalled {waited:.3g} s at t = {self._t():g} s: waiting for {named}'
         never = self._never_received(now)

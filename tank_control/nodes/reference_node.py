@@ -1,8 +1,9 @@
 """reference_node: publishes the setpoint and disturbance schedules of ``core/reference.py``.
 
 Publishes ``setpoint`` and ``disturbance`` (``sensor_msgs/JointState`` by channel name): in
-``wall`` mode every ``sample_time`` of plant time from the plant's ``time_origin`` on, otherwise
-one idempotent answer per ``/clock`` tick (in ``lockstep`` also one tick ahead). The channel
+``wall`` mode every ``sample_time`` of plant time from the plant's ``time_origin`` on, in ``sim``
+one idempotent answer per ``/clock`` tick, in ``lockstep`` the schedules ``lockstep.lookahead``
+ticks ahead under zero-order hold (a message per change, ``_HeldStream``). The channel
 parameters always equal the schedules it runs: a change (an override ``value``, new limits) is
 written back to ``times``/``values``, and several parameters set in one call (``ros2 param
 load``) are one atomic change. Parameter layout, runtime overrides and timing: docs/nodes.md
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -28,7 +30,7 @@ from tank_control.core.reference import (FIELDS, Reference, channel_lists, chann
                                          split_param_name)
 from tank_control.core.scenario import reference_setup
 from tank_control.nodes.clock import steady_clock
-from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, SIGNAL_QOS, TOPIC_CLOCK,
+from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, REFERENCE_QOS, TOPIC_CLOCK,
                                          TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN,
                                          quiet_publisher_events, quiet_subscription_events,
@@ -46,6 +48,48 @@ def _channel_values(node: Node) -> dict[str, Any]:
             for name, p in overrides.items() if name.split('.')[0] in ('setpoint', 'disturbance')}
 
 
+class _HeldStream:
+    """lockstep: one topic's messages under zero-order hold (``lockstep.lookahead``): a message
+    per change of its values, and one at the horizon whenever the consumers would otherwise
+    not know the next tick (``nodes/clock.Held`` is the consumers' side)."""
+
+    def __init__(self, publisher: Any) -> None:
+        self.pub = publisher
+        self.last: tuple | None = None      # (names, values) of the latest message
+        self.sent: list[tuple[int, bytes]] = []   # from the one in force at the tick on
+
+    def offer(self, stamp_ns: int, names: tuple[str, ...], values: tuple[float, ...],
+              encoder: JointStateCdr) -> None:
+        """The values at ``stamp_ns``: published when they differ from the last message's."""
+        if (names, values) != self.last:
+            self._send(stamp_ns, names, values, encoder)
+
+    def hold(self, stamp_ns: int, need_ns: int,
+             encoder: Callable[[tuple[str, ...]], JointStateCdr]) -> None:
+        """Publish the values held at ``stamp_ns`` if no message is stamped at or after
+        ``need_ns`` (the next tick the consumers must know)."""
+        if self.last is not None and self.sent[-1][0] < need_ns:
+            self._send(stamp_ns, *self.last, encoder(self.last[0]))
+
+    def _send(self, stamp_ns: int, names: tuple[str, ...], values: tuple[float, ...],
+              encoder: JointStateCdr) -> None:
+        msg = encoder.encode_ns(stamp_ns, values)
+        self.last = (names, values)
+        self.sent.append((stamp_ns, msg))
+        self.pub.publish(msg)
+
+    def prune(self, t_ns: int) -> None:
+        """Keep the message in force at ``t_ns`` and the later ones (what a re-send sends)."""
+        keep = 0
+        while keep + 1 < len(self.sent) and self.sent[keep + 1][0] <= t_ns:
+            keep += 1
+        del self.sent[:keep]
+
+    def resend(self) -> None:
+        for _, msg in self.sent:
+            self.pub.publish(msg)
+
+
 class ReferenceNode(Node):
     """Setpoint/disturbance publisher around a core ``Reference``."""
 
@@ -61,25 +105,30 @@ class ReferenceNode(Node):
         self._last_t = 0.0                 # the latest instant published [s]
         self.params = ParameterBinding(self, specs_of(ReferenceNodeConfig) + channel_specs(reference),
                                        cross_check=self._cross_check, derive=self._derive)
-        self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, SIGNAL_QOS,
+        self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, REFERENCE_QOS,
                                                   event_callbacks=quiet_publisher_events())
-        self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, SIGNAL_QOS,
+        self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, REFERENCE_QOS,
                                                      event_callbacks=quiet_publisher_events())
         # answers as pre-encoded CDR (nodes/cdr.py), by channel names
         self._answered: dict[int, tuple[bytes, bytes]] = {}
         self._encoders: dict[tuple[str, ...], JointStateCdr] = {}
         self._last_clock: int | None = None
-        # Only in an explicit lockstep: in sim the others use the latest message, which
-        # must be the current tick's (use_sim_time alone does not tell sim from lockstep).
-        self._anticipate = (bool(self.params.values['lockstep.anticipate'])
-                            and self.params.values['clock_mode'] == 'lockstep')
-        self.published = 0
+        # Zero-order hold only in an explicit lockstep: in sim the others use the latest
+        # message, which must be the current tick's (use_sim_time alone does not tell sim
+        # from lockstep).
+        self._held = self.params.values['clock_mode'] == 'lockstep'
+        self._lookahead = int(self.params.values['lockstep.lookahead'])
+        self._streams = self._held_streams()
+        self._period_ns: int | None = None  # lockstep: the plant's tick, from two /clock ticks
+        self._horizon_ns = -1               # lockstep: the latest instant evaluated [ns]
         self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
                              or self.params.values['clock_mode'] != 'wall')
         if self.use_sim_time:
             # taken as CDR bytes: only the stamp is read (nodes/cdr.py)
-            self.create_subscription(Clock, TOPIC_CLOCK, self._on_clock, CLOCK_QOS,
-                                     event_callbacks=quiet_subscription_events(), raw=True)
+            self.create_subscription(Clock, TOPIC_CLOCK,
+                                     self._on_clock_held if self._held else self._on_clock,
+                                     CLOCK_QOS, event_callbacks=quiet_subscription_events(),
+                                     raw=True)
             # a plant on the wall clock latches a non-zero origin and sends no /clock
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._check_origin, ORIGIN_QOS)
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
@@ -95,7 +144,8 @@ class ReferenceNode(Node):
         sp, dist = channel_lists(self.params.values)
         self.get_logger().info(
             f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, '
-            + ('answering /clock ticks' if self.use_sim_time else
+            + (f'lockstep, publishing {self._lookahead} ticks ahead, one message per change'
+               if self._held else 'answering /clock ticks' if self.use_sim_time else
                f'every {period:g} s of plant time (waiting for the plant\'s {TOPIC_TIME_ORIGIN})'))
 
     # ------------------------------------------------------------- parameters
@@ -180,7 +230,6 @@ class ReferenceNode(Node):
         self._answered[stamp_ns] = (sp, dist)
         self.setpoint_pub.publish(sp)
         self.disturbance_pub.publish(dist)
-        self.published += 1
 
     def _encoder(self, names: tuple[str, ...]) -> JointStateCdr:
         encoder = self._encoders.get(names)
@@ -188,10 +237,54 @@ class ReferenceNode(Node):
             encoder = self._encoders[names] = JointStateCdr(names)
         return encoder
 
+    def _held_streams(self) -> tuple[_HeldStream, _HeldStream]:
+        return _HeldStream(self.setpoint_pub), _HeldStream(self.disturbance_pub)
+
+    def _on_clock_held(self, msg: bytes) -> None:
+        """lockstep: on /clock t_k make the schedules known through t_k + ``lookahead`` ticks
+        (zero-order hold: a message per change, ``_HeldStream``), so that the controller and
+        the plant of the next ticks wait for nobody but each other; a re-sent /clock t_k gets
+        again every message from the one in force at t_k on. ``msg``: the CDR bytes of a
+        ``rosgraph_msgs/Clock``."""
+        t_ns = cdr_stamp_ns(msg)
+        if self._last_clock is not None and t_ns < self._last_clock:
+            # /clock went back: the plant (re)started, a new run
+            self.get_logger().info('/clock restarted: answering a new run')
+            self._last_clock, self._period_ns, self._horizon_ns = None, None, -1
+            self._last_t = 0.0
+            self._streams = self._held_streams()
+        if t_ns == self._last_clock:             # the plant re-sent tick k
+            for stream in self._streams:
+                stream.resend()
+            return
+        if self._last_clock is not None:     # the plant's ticks are evenly spaced
+            step = t_ns - self._last_clock
+            self._period_ns = step if self._period_ns is None else min(self._period_ns, step)
+        self._last_clock = t_ns
+        period = self._period_ns
+        ahead = self._lookahead if period else 0
+        target = t_ns + ahead * (period or 0)
+        j = t_ns if self._horizon_ns < t_ns or not period else self._horizon_ns + period
+        ref = self.reference
+        setpoints, disturbances = self._streams
+        while j <= target:
+            t = seconds(j)
+            self._last_t = max(self._last_t, t)
+            self._apply_pending(t)
+            names = ref.setpoint_names
+            setpoints.offer(j, names, tuple(ref.setpoints(t).tolist()), self._encoder(names))
+            names = ref.disturbance_names
+            disturbances.offer(j, names, tuple(ref.disturbances(t).tolist()), self._encoder(names))
+            j += period or target + 1
+        self._horizon_ns = max(self._horizon_ns, target)
+        need = t_ns + period if ahead else t_ns  # the consumers' next tick (this one: without)
+        for stream in self._streams:
+            stream.hold(self._horizon_ns, need, self._encoder)
+            stream.prune(t_ns)
+
     def _on_clock(self, msg: bytes) -> None:
-        """Answer tick t_k once (idempotent: a re-sent /clock gets the same messages);
-        with ``lockstep.anticipate`` also answer the next tick ahead. ``msg``: the CDR bytes
-        of a ``rosgraph_msgs/Clock``."""
+        """sim: answer tick t_k once (idempotent: a re-sent /clock gets the same messages).
+        ``msg``: the CDR bytes of a ``rosgraph_msgs/Clock``."""
         t_ns = cdr_stamp_ns(msg)
         if self._last_clock is not None and t_ns < self._last_clock:
             # /clock went back: the plant (re)started, a new run (the plant re-sends only its
@@ -207,15 +300,11 @@ class ReferenceNode(Node):
             for pub, answer in zip((self.setpoint_pub, self.disturbance_pub), cached):
                 pub.publish(answer)
             return
-        previous, self._last_clock = self._last_clock, t_ns
+        self._last_clock = t_ns
         for stamp in [s for s in self._answered if s < t_ns]:
             del self._answered[stamp]
         if cached is None:
             self._publish(t_ns, seconds(t_ns))
-        if self._anticipate and previous is not None and t_ns > previous:
-            ahead = 2 * t_ns - previous   # the plant's ticks are evenly spaced
-            if ahead not in self._answered:
-                self._publish(ahead, seconds(ahead))
 
     def _check_origin(self, msg: Time) -> None:
         """/clock mode: a non-zero time origin is a wall-clock plant, whose ticks this node

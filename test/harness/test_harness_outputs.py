@@ -86,6 +86,25 @@ def test_late_samples_count_due_instants_without_an_answer_and_reported_ones():
     assert table.late == {'r': 1, 'u': 2, 'd': 1}
 
 
+def test_lockstep_reference_streams_join_by_zero_order_hold_and_are_late_only_when_never_covered():
+    """lockstep: the reference publishes once per change and ahead (``held``): row k takes the
+    message in force at t_k, and a due instant is answered by any message stamped at or after
+    it; the disturbance here stops at 0.5 s (a dead reference), so 0.6 and 0.7 are late."""
+    messages = [SignalMessage('measurement', k * 100 * MS, ('y',), (0.0,)) for k in range(8)]
+    messages += [SignalMessage('setpoint', 0, ('y',), (1.0,)),
+                 SignalMessage('setpoint', 300 * MS, ('y',), (2.0,)),
+                 SignalMessage('setpoint', 900 * MS, ('y',), (2.0,)),      # the hold ahead
+                 SignalMessage('disturbance', 0, ('v',), (0.0,)),
+                 SignalMessage('disturbance', 500 * MS, ('v',), (0.5,))]
+    messages += [SignalMessage('manipulated', k * 100 * MS, ('u',), (1.0,)) for k in range(8)]
+    table = from_messages(messages, tick_ns=100 * MS, held=('r', 'd'))
+    np.testing.assert_array_equal(table.columns['r.y'], [1, 1, 1, 2, 2, 2, 2, 2])
+    np.testing.assert_array_equal(table.columns['d.v'], [0] * 5 + [0.5] * 3)
+    assert table.late == {'r': 0, 'u': 0, 'd': 2}
+    # the same messages judged per tick (sim, wall): every instant without its own message
+    assert from_messages(messages, tick_ns=100 * MS).late == {'r': 6, 'u': 0, 'd': 6}
+
+
 def test_setpoint_changes_find_steps_ramps_and_an_initial_offset():
     t = np.arange(0, 100.0, 1.0)
     r = np.where(t < 10, 0.0, 1.0)

@@ -74,6 +74,12 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
     assert list(topics['/measurement'][0].name) == ['y']
 
 
+def stamp_ns(msg) -> int:
+    """A recorded message's stamp: ``header.stamp``, or a ``/clock`` message's time [ns]."""
+    stamp = msg.clock if hasattr(msg, 'clock') else msg.header.stamp
+    return stamp.sec * 10**9 + stamp.nanosec
+
+
 def test_lockstep_beside_busy_loops_records_every_tick_equal_to_in_process(tmp_path, ros_env,
                                                                           procs):
     """The recorder is off the tick's serial path (the plant runs up to 8 ticks ahead of its
@@ -94,9 +100,19 @@ def test_lockstep_beside_busy_loops_records_every_tick_equal_to_in_process(tmp_p
     assert run_info['record_window'] == 8
     topics = read_mcap(tmp_path / 'ros' / 'run.mcap')
     ticks = {k * 100_000_000 for k in range(1501)}
-    for topic in ('/measurement', '/setpoint', '/manipulated', '/disturbance'):
-        stamps = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in topics[topic]}
+    for topic in ('/measurement', '/manipulated', '/clock'):
+        stamps = {stamp_ns(m) for m in topics[topic]}
         assert ticks <= stamps, (topic, sorted(ticks - stamps)[:10])
+    # The reference's topics: one message per change and a hold at least every
+    # lockstep.lookahead (6) ticks (docs/nodes.md, "The reference"; the first hold, published
+    # on /clock 1, is 7 ticks after tick 0's message): a lost one would leave a wider gap (or
+    # a wrong value in the trace).
+    for topic in ('/setpoint', '/disturbance'):
+        stamps = sorted({stamp_ns(m) for m in topics[topic]})
+        assert stamps[0] == 0 and stamps[-1] >= max(ticks), topic
+        gaps = np.diff(stamps) // 100_000_000
+        assert gaps[0] <= 7 and gaps[1:].max() <= 6 and len(stamps) < len(ticks) / 4, \
+            (topic, gaps.max(), len(stamps))
 
 
 def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):

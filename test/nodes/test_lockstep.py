@@ -14,6 +14,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.serialization import deserialize_message
 from rclpy.utilities import get_default_context
 from support import CONFIG
+from support.held import HELD_TOPICS, per_tick
 
 from tank_control.core import params_file
 from tank_control.core.scenario import run_in_process
@@ -73,9 +74,12 @@ def test_lockstep_ros_run_equals_the_in_process_loop(procs, ros_env, node_cmd, r
             duplicates_differ.append((m.topic, m.stamp_ns))
     assert not duplicates_differ   # re-sent ticks were answered identically
 
-    # Every tick of every signal was recorded and equals the in-process loop.
+    # Every tick of every signal was recorded and equals the in-process loop (the
+    # reference's topics: by zero-order hold, one message per change).
     expected = run_in_process(params, duration=last_tick * ts_ns / 1e9)
     ticks = range(last_tick + 1)
+    for topic in HELD_TOPICS:
+        seen[topic] = per_tick(seen[topic], [k * ts_ns for k in ticks])
     worst: dict[str, float] = {}
     for topic, prefix in TOPICS.items():
         missing = [k for k in ticks if k * ts_ns not in seen[topic]]
@@ -164,6 +168,8 @@ def test_a_slow_recorder_beside_busy_loops_holds_every_tick_without_being_a_hop(
     expected = run_in_process(params, duration=last_tick * ts_ns / 1e9)
     ticks = range(last_tick + 1)
     assert not [k for k in ticks if k * ts_ns not in clock]
+    for topic in HELD_TOPICS:        # one message per change: by zero-order hold
+        seen[topic] = per_tick(seen[topic], [k * ts_ns for k in ticks])
     for topic, prefix in TOPICS.items():
         missing = [k for k in ticks if k * ts_ns not in seen[topic]]
         assert not missing, (topic, len(missing), missing[:10])

@@ -27,6 +27,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import JointState
 from support import SCENARIOS
 from support.gated_recorder import GATE_REMAP, gated_recorder
+from support.held import HELD_TOPICS, per_tick
 
 from tank_control.core import params_file
 from tank_control.core.control.kinds import registry
@@ -173,6 +174,8 @@ def _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, reco
     seen: dict[str, dict[int, tuple]] = {topic: {} for topic in TOPICS}
     for m in recorder.signal_messages():
         assert seen[m.topic].setdefault(m.stamp_ns, (m.names, m.values)) == (m.names, m.values)
+    for topic in HELD_TOPICS:          # the reference's: once per change, zero-order hold
+        seen[topic] = per_tick(seen[topic], [k * TS_NS for k in range(last_tick + 1)])
     worst: dict[str, float] = {}
     for topic, prefix in TOPICS.items():
         assert all(k * TS_NS in seen[topic] for k in range(last_tick + 1)), topic   # the gate

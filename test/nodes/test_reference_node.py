@@ -137,32 +137,70 @@ def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, ros_env, node
     assert 'use_sim_time false' in reports[0].message
 
 
-def test_lockstep_answers_each_clock_tick_once_per_stamp_and_again_on_resend(
+T = 100_000_000        # the plant tick of these tests [ns]
+
+
+def run_clock(probe, clock, streams, last_tick):
+    """Publish /clock 1 .. last_tick (tick 0 is out) and wait, after each, until every stream
+    is known through the next tick (a message stamped at or after it)."""
+    for k in range(1, last_tick + 1):
+        clock.publish(clock_msg(k * T))
+        assert probe.wait_for(lambda: all(s and s[-1][0] >= (k + 1) * T for s in streams), 20)
+
+
+def test_lockstep_publishes_the_schedules_ahead_once_per_change_and_again_on_resend(
         procs, ros_env, node_cmd, probe, tmp_path):
+    """lockstep (``lockstep.lookahead`` 6): on /clock t_k the schedules are published through
+    t_k+6 under zero-order hold — a message at each change (the setpoint step once, the
+    disturbance ramp at every tick it moves) and one at the horizon t_k+6 only when the last
+    one is older than t_k+1. Read back by zero-order hold they equal the schedules at every
+    tick; a re-sent tick gets again every message from the one in force at it on."""
+    from support.held import per_tick
     procs.start('reference', node_cmd('reference_node', '--params-file',
                                       params_file(tmp_path, clock_mode='lockstep')), env=ros_env)
     setpoints, disturbances = collect(probe, 'setpoint'), collect(probe, 'disturbance')
     clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
-    # Until discovery matches, re-send tick 0 (as the plant does).
-    assert probe.wait_for(lambda: setpoints or clock.publish(clock_msg(0)), 20)
-    for k in range(1, 11):
-        clock.publish(clock_msg(k * 100_000_000))
-        assert probe.wait_for(lambda: setpoints[-1][0] == k * 100_000_000, 20)
-    assert probe.wait_for(lambda: disturbances and disturbances[-1][0] == 1_000_000_000, 20)
-    by_stamp = {s: v[0] for s, _, v in setpoints}
-    assert [by_stamp[k * 100_000_000] for k in range(11)] == [1.0] * 3 + [2.0] * 8
-    d = {s: v[0] for s, _, v in disturbances}
+    # Until discovery matches, re-send tick 0 (as the plant does): the tick period is not
+    # known yet, so tick 0 alone is answered.
+    assert probe.wait_for(lambda: (setpoints and disturbances)
+                          or clock.publish(clock_msg(0)), 20)
+    run_clock(probe, clock, (setpoints, disturbances), 20)
+    ticks = [k * T for k in range(22)]
+    r = {k: v[0] for k, (_, v) in per_tick({s: (n, v) for s, n, v in setpoints}, ticks).items()}
+    d = {k: v[0] for k, (_, v) in per_tick({s: (n, v) for s, n, v in disturbances},
+                                            ticks).items()}
+    assert [r[t] for t in ticks] == [1.0] * 3 + [2.0] * 19
     # Ramp from 0 at t = 0.5 s toward -0.5 at 1 /s: -0.1 at 0.6 s, -0.5 from 1.0 s.
-    assert abs(d[600_000_000] + 0.1) < 1e-12 and d[1_000_000_000] == -0.5
-    # Each tick was answered once; the next one ahead (anticipated: ticks are evenly spaced).
-    assert probe.wait_for(lambda: setpoints[-1][0] == 1_100_000_000, 20)
-    assert sorted({s for s, _, _ in setpoints}) == [k * 100_000_000 for k in range(12)]
-    assert len({m for m in setpoints}) == 12   # repeated stamps carry identical answers
-    # A re-sent tick gets the identical answer again.
-    n = len(setpoints)
-    clock.publish(clock_msg(1_000_000_000))
-    assert probe.wait_for(lambda: len(setpoints) > n, 20)
-    assert setpoints[-1] == (1_000_000_000, ('y',), (2.0,))
+    assert max(abs(d[k * T] - max(-0.5, min(0.0, -(k - 5) / 10))) for k in range(22)) < 1e-12
+    # One message per change, holds every 6 ticks: the step at tick 3 (published on /clock
+    # 1), holds at 9 (on /clock 3) and 15 (on /clock 9), 21 (on /clock 15); the ramp at
+    # ticks 6-10, holds at 16 and 22.
+    assert sorted({s // T for s, _, _ in setpoints}) == [0, 3, 9, 15, 21]
+    assert sorted({s // T for s, _, _ in disturbances}) == [0, 6, 7, 8, 9, 10, 16, 22]
+    # none twice (tick 0 was re-sent until the probe matched)
+    assert sum(s > 0 for s, _, _ in setpoints) == 4 and sum(s > 0 for s, _, _ in disturbances) == 7
+    # A re-sent tick gets again the messages from the one in force at it on.
+    before = list(setpoints)
+    clock.publish(clock_msg(20 * T))
+    assert probe.wait_for(lambda: len(setpoints) >= len(before) + 2, 20)
+    assert setpoints[len(before):] == [m for m in before if m[0] >= 15 * T]
+
+
+def test_lockstep_lookahead_0_answers_every_tick_when_it_comes(procs, ros_env, node_cmd, probe,
+                                                               tmp_path):
+    """``lockstep.lookahead: 0``: each tick answered on its own /clock, stamped with it."""
+    procs.start('reference', node_cmd('reference_node', '--params-file',
+                                      params_file(tmp_path, clock_mode='lockstep'),
+                                      '-p', 'lockstep.lookahead:=0'), env=ros_env)
+    setpoints = collect(probe, 'setpoint')
+    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
+    assert probe.wait_for(lambda: setpoints or clock.publish(clock_msg(0)), 20)
+    for k in range(1, 6):
+        clock.publish(clock_msg(k * T))
+        assert probe.wait_for(lambda: setpoints[-1][0] == k * T, 20)
+    probe.wait_for(lambda: False, 0.3)             # nothing ahead arrives
+    assert [(s // T, v[0]) for s, _, v in setpoints] == [(0, 1.0), (1, 1.0), (2, 1.0),
+                                                         (3, 2.0), (4, 2.0), (5, 2.0)]
 
 
 def test_sim_mode_answers_only_the_current_tick(procs, ros_env, node_cmd, probe, tmp_path):

@@ -17,7 +17,8 @@ from sensor_msgs.msg import JointState
 from support.ros2cli import ros2
 
 from tank_control.core.reference import ChannelSchedule
-from tank_control.nodes.messages import CLOCK_QOS, SIGNAL_QOS, clock_msg, from_joint_state
+from tank_control.harness.recorder import RECORD_QOS
+from tank_control.nodes.messages import CLOCK_QOS, clock_msg, from_joint_state
 
 TS = 100_000_000        # tick [ns]
 FIELDS = ('times', 'values', 'ramp_rate', 'min', 'max')
@@ -32,19 +33,28 @@ class Reference:
         probe.node.create_subscription(
             JointState, 'setpoint',
             lambda m: self.setpoints.append((from_joint_state(m)[0], from_joint_state(m)[2][0])),
-            SIGNAL_QOS)
+            RECORD_QOS)
         self.clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
         self.client = AsyncParameterClient(probe.node, 'reference')
         assert self.client.wait_for_services(timeout_sec=30.0), 'reference parameters not up'
         self.k = -1
 
     def tick(self, ticks: int = 1) -> None:
-        """The next ``ticks`` plant ticks, each re-sent until answered."""
+        """The next ``ticks`` plant ticks, each until answered: until the setpoint is known
+        through the tick after it (lockstep: published ahead under zero-order hold; tick 0
+        alone, before the reference knows the tick period). Tick 0 is re-sent until then
+        (discovery); a re-sent later tick would only repeat messages."""
         for _ in range(ticks):
             self.k += 1
             t = self.k * TS
-            assert self.probe.wait_for(lambda: any(s == t for s, _ in self.setpoints)
-                                       or self.clock.publish(clock_msg(t)), 20), t
+            known = t + TS if self.k else t
+            self.clock.publish(clock_msg(t))
+            assert self.probe.wait_for(lambda: any(s >= known for s, _ in self.setpoints)
+                                       or (t == 0 and self.clock.publish(clock_msg(t))), 20), t
+
+    def value_at(self, t: int) -> float:
+        """The setpoint in force at ``t`` (zero-order hold: the latest stamped at or before)."""
+        return max(m for m in self.setpoints if m[0] <= t)[1]
 
     def call(self, future):
         assert self.probe.wait_for(future.done, 20)
@@ -64,7 +74,8 @@ class Reference:
 
     def runs_its_parameters(self, ticks: int = 8) -> dict:
         """The parameters describe a valid schedule, and every setpoint published after they
-        were read (the next ``ticks`` ticks) is that schedule's value at its stamp."""
+        were read (in the next ``ticks`` ticks: at least a hold every 6) is that schedule's
+        value at its stamp."""
         params = self.parameters()
         schedule = ChannelSchedule(**{f: tuple(params[f]) if f in ('times', 'values')
                                       else params[f] for f in FIELDS})
@@ -98,13 +109,14 @@ def test_parameters_equal_the_running_schedule_and_lists_change_together(
     [refused] = ref.set(times=[0.0, 2.0])
     assert not refused.successful and 'set both together' in refused.reason
     # Both lists in one call (what `ros2 param load` sends): one change, accepted ...
-    answered = max(s for s, _ in ref.setpoints)   # t = 4.0 s, or 4.1 s answered ahead
+    answered = max(s for s, _ in ref.setpoints)   # at most 6 ticks past t = 4.0 s
     results = ref.set(times=[0.0, 4.0], values=[0.5, 1.5])
     assert [r.successful for r in results] == [True, True], results
     params = ref.runs_its_parameters(20)                    # to t = 5.7 s: across 4.0
     assert (params['times'], params['values']) == ([0.0, 4.0], [0.5, 1.5])
-    # acting from the first tick not yet answered (docs/nodes.md: lockstep answers one ahead)
-    assert answered <= 4_100_000_000
+    # acting from the first tick not yet published (docs/nodes.md: lockstep publishes
+    # lockstep.lookahead, 6, ticks ahead)
+    assert answered <= 4_600_000_000
     assert {v for s, v in ref.setpoints if s > answered} == {1.5}
     # ... and refused as one when the pair is inconsistent (every result says why).
     results = ref.set(times=[0.0, 1.0, 2.0], values=[0.5, 1.5])
@@ -114,13 +126,15 @@ def test_parameters_equal_the_running_schedule_and_lists_change_together(
     assert ref.set(values=[0.25, 1.75])[0].successful
     assert ref.runs_its_parameters()['values'] == [0.25, 1.75]
     # An operator override and a ramp: the parameters describe what runs from then on.
+    published = max(s for s, _ in ref.setpoints)
     assert ref.set(value=1.25)[0].successful
     assert ref.runs_its_parameters()['value'] == 1.25
-    assert {v for s, v in ref.setpoints[-5:]} == {1.25}
+    assert {v for s, v in ref.setpoints if s > published} == {1.25}
     assert ref.set(ramp_rate=0.5)[0].successful
     assert ref.set(value=0.75)[0].successful
-    ref.runs_its_parameters(12)                             # ramping down 0.05 per tick
-    assert ref.setpoints[-1][1] == 0.75
+    # ramping down 0.05 per tick from the first tick not yet published (at most 6 ahead)
+    ref.runs_its_parameters(18)
+    assert ref.value_at(ref.k * TS) == 0.75
     # `ros2 param load` of both lists through the project's CLI.
     load = tmp_path / 'load.yaml'
     load.write_text(json.dumps({'/reference': {'ros__parameters': {
@@ -130,7 +144,7 @@ def test_parameters_equal_the_running_schedule_and_lists_change_together(
     assert result.returncode == 0, (result.stdout, result.stderr, proc.tail())
     params = ref.runs_its_parameters(30)                    # to t ≈ 9.4 s
     assert (params['times'], params['values']) == ([0.0, 8.0, 9.0], [0.5, 1.0, 2.0])
-    assert ref.setpoints[-1][1] == 2.0
+    assert ref.value_at(ref.k * TS) == 2.0
     # A dump of the node loads back, unchanged.
     dump = ros2(ros_env, 'param', 'dump', '/reference', '--timeout', '30')
     assert dump.returncode == 0, dump.stderr
