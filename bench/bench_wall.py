@@ -27,10 +27,12 @@ Interleaved run by run so that every measurement sees the same machine:
   arrival of ``manipulated`` answering a measurement − arrival of that measurement (trigger
   measurement: the one stamped like it; timer: the next one) p50/p99; ``missed`` —
   ``run.missed_samples``.
-  With ``--baseline EXE`` also another checkout's ``tank-control`` (its own default trigger).
+  With ``--baseline EXE`` also another checkout's ``tank-control`` (its own default trigger,
+  or ``--baseline-trigger``).
 
     .venv/bin/python bench/bench_wall.py [--runs 3] [--duration 20] [--period 0.01]
                                          [--baseline /work/main/.venv/bin/tank-control]
+                                         [--baseline-trigger timer|measurement]
 
 Prints one line per measurement and a markdown table of medians (min–max) over the runs, with
 the load average before and after.
@@ -318,6 +320,8 @@ def main() -> int:
     parser.add_argument('--duration', type=float, default=20.0, help='[s] per measurement')
     parser.add_argument('--period', type=float, default=0.01, help='[s] timer / sample period')
     parser.add_argument('--baseline', help="another checkout's tank-control executable")
+    parser.add_argument('--baseline-trigger', choices=('timer', 'measurement'),
+                        help="the baseline's controller.trigger (default: its own default)")
     parser.add_argument('--child', nargs='+', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -342,7 +346,8 @@ def main() -> int:
     exe = str(Path(sys.executable).with_name('tank-control'))
     cases = [('trigger timer', exe, 'timer'), ('trigger measurement', exe, 'measurement')]
     if args.baseline:
-        cases.insert(0, ('baseline (its default)', args.baseline, None))
+        cases.insert(0, (f'baseline ({args.baseline_trigger or "its default"})', args.baseline,
+                         args.baseline_trigger))
     load_before = os.getloadavg()
     results: dict[str, list[dict]] = {'bare': []}
     with tempfile.TemporaryDirectory() as tmp:

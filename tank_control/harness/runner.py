@@ -13,6 +13,7 @@ Times in the results are plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -543,6 +544,7 @@ class _RosRun:
         from rclpy.context import Context
 
         from tank_control.harness.recorder import RECORDER_NAME, Recorder
+        from tank_control.nodes.runtime import quiet_collector
 
         context = Context()
         rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'],
@@ -579,6 +581,7 @@ class _RosRun:
                 self.group.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
                                                '-p', f'port:={self.dashboard}'], env=self.env)
             self._await_graph(nodes)
+            quiet_collector()      # the recorder's arrival times: no long collection in the run
             cpu_start = self._cpu_seconds()
             run_start = time.monotonic()
             if 'plant' in nodes:
@@ -598,6 +601,7 @@ class _RosRun:
             if run_start is not None:
                 run_wall = time.monotonic() - run_start
         finally:
+            gc.unfreeze()          # a harness may run again in this process (sweeps, tests)
             if self.group is not None:
                 codes = self.group.stop_all()
             if recorder is not None:

@@ -4,6 +4,7 @@ run.mcap opens with the mcap reader and holds the topics, and a representative c
 over ROS too. Durations are cut with --duration to keep CI short."""
 from __future__ import annotations
 
+import gc
 import json
 import signal
 import subprocess
@@ -124,6 +125,9 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     assert ros.metrics['controller']['final_gains']['two_loop.ki_T'] == -0.01
+    # the harness froze its start-up objects for the run (runtime.quiet_collector) and gave
+    # them back to the collector after it: a process running many runs keeps nothing
+    assert gc.get_freeze_count() == 0
     topics = read_mcap(ros.files['recording'])
     assert SIGNAL_TOPICS <= set(topics)
     assert set(topics['/measurement'][0].name) == {'h', 'T_out'}
