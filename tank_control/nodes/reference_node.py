@@ -102,7 +102,7 @@ class ReferenceNode(Node):
         except ConfigError as exc:
             raise ParameterError(str(exc)) from None
         self.reference: Reference = reference
-        self._last_t = 0.0                 # the latest instant published [s]
+        self._last_t = 0.0                 # the latest instant published (lockstep: evaluated) [s]
         self.params = ParameterBinding(self, specs_of(ReferenceNodeConfig) + channel_specs(reference),
                                        cross_check=self._cross_check, derive=self._derive)
         self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, REFERENCE_QOS,

@@ -196,5 +196,9 @@ def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env
         ros_env, *[('param', 'dump', full_name(label, 'second'), '--timeout', '30')
                    for label in nodes], timeout=120)))
     for label in nodes:
-        assert second[label].returncode == 0, (label, second[label].stderr)
+        # on failure: is the node still running, and what did it log (CI once: "Node not
+        # found" for a node whose `param load` had just succeeded; not reproduced alone)
+        proc = procs.processes[f'second_{label}']
+        assert second[label].returncode == 0, (label, second[label].stderr, proc.returncode,
+                                               proc.tail(), sorted(running()))
         assert second[label].stdout == files[label].read_text(), label
