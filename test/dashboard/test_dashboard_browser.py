@@ -11,6 +11,7 @@ import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.parameter import Parameter, parameter_value_to_python
+from selenium.common.exceptions import StaleElementReferenceException
 from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
@@ -94,15 +95,18 @@ def points(driver, chart):
 
 
 def test_trends_grow_with_live_data_and_show_the_input_limits(page):
-    wait = WebDriverWait(page, WAIT)
+    # the page re-renders a chart (its legend too) as data and limits come: an element found
+    # a moment ago may be gone when it is read, so each poll finds it again (CI once: stale)
+    wait = WebDriverWait(page, WAIT, ignored_exceptions=(StaleElementReferenceException,))
     wait.until(lambda d: d.find_element(By.ID, 'connection').text == 'live')
     set_window(page, '3600')          # longer than the test: every sample stays in view
     wait.until(lambda d: points(d, 'y-y') > 0 and points(d, 'u-u') > 0)
     before = points(page, 'y-y'), points(page, 'u-u')
     wait.until(lambda d: points(d, 'y-y') > before[0] and points(d, 'u-u') > before[1])
     # measurement and setpoint in one chart, the input with the controller's u_min/u_max
-    legend_y = page.find_element(By.CSS_SELECTOR, '.chart[data-chart="y-y"] .u-legend').text
-    assert 'y measured' in legend_y and 'y setpoint' in legend_y
+    wait.until(lambda d: all(label in d.find_element(
+        By.CSS_SELECTOR, '.chart[data-chart="y-y"] .u-legend').text
+        for label in ('y measured', 'y setpoint')))
     wait.until(lambda d: 'max' in d.find_element(
         By.CSS_SELECTOR, '.chart[data-chart="u-u"] .u-legend').text)
     stats = page.execute_script('return window.tankDashboard.stats')
