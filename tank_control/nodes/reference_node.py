@@ -59,10 +59,10 @@ class _HeldStream:
         self.sent: list[tuple[int, bytes]] = []   # from the one in force at the tick on
 
     def offer(self, stamp_ns: int, names: tuple[str, ...], values: tuple[float, ...],
-              encoder: JointStateCdr) -> None:
+              encoder: Callable[[tuple[str, ...]], JointStateCdr]) -> None:
         """The values at ``stamp_ns``: published when they differ from the last message's."""
         if (names, values) != self.last:
-            self._send(stamp_ns, names, values, encoder)
+            self._send(stamp_ns, names, values, encoder(names))
 
     def hold(self, stamp_ns: int, need_ns: int,
              encoder: Callable[[tuple[str, ...]], JointStateCdr]) -> None:
@@ -271,11 +271,13 @@ class ReferenceNode(Node):
             t = seconds(j)
             self._last_t = max(self._last_t, t)
             self._apply_pending(t)
-            names = ref.setpoint_names
-            setpoints.offer(j, names, tuple(ref.setpoints(t).tolist()), self._encoder(names))
-            names = ref.disturbance_names
-            disturbances.offer(j, names, tuple(ref.disturbances(t).tolist()), self._encoder(names))
-            j += period or target + 1
+            setpoints.offer(j, ref.setpoint_names, tuple(ref.setpoints(t).tolist()),
+                            self._encoder)
+            disturbances.offer(j, ref.disturbance_names, tuple(ref.disturbances(t).tolist()),
+                               self._encoder)
+            if not period:
+                break                            # tick 0: the tick period is not known yet
+            j += period
         self._horizon_ns = max(self._horizon_ns, target)
         need = t_ns + period if ahead else t_ns  # the consumers' next tick (this one: without)
         for stream in self._streams:
