@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test setup colcon clean browser
+.PHONY: demo test test-fast setup colcon clean browser
 
 setup: $(STAMP) browser
 
@@ -45,6 +45,12 @@ TEST_WORKERS ?= 2
 test: $(STAMP) browser
 	@$(COMPILE)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=40 test
+
+# The edit loop: the tests that need no ROS graph (test/conftest.py, --no-graph); `make test`
+# still runs everything.
+test-fast: $(STAMP)
+	@$(COMPILE)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --no-graph --durations=10 test
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.
 colcon: $(STAMP)

@@ -5,6 +5,11 @@
 * Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 * Processes started through the ``procs`` fixture run in their own process
   groups and are stopped (SIGINT → SIGTERM → SIGKILL) at the end of the test.
+* ``--no-graph`` (``make test-fast``) runs only the tests that need no ROS graph: a test
+  is marked ``ros`` when it uses a graph fixture (``GRAPH_FIXTURES``) or says so with
+  ``pytest.mark.ros``; the others run with DDS switched off (an out-of-range
+  ``ROS_DOMAIN_ID`` for child processes, ``rclpy.init`` failing in this one), so an
+  unmarked test that does need the graph fails with a message saying to mark it.
 """
 from __future__ import annotations
 
@@ -20,11 +25,47 @@ from tank_control.harness import domains
 from tank_control.harness.processes import ProcessGroup
 
 REPO = Path(__file__).resolve().parents[1]
-_DOMAIN_ID, _DOMAIN_LOCK = domains.claim()   # held for the session's lifetime
-os.environ['ROS_DOMAIN_ID'] = str(_DOMAIN_ID)
+#: Fixtures that put a test on the ROS graph (it is then marked ``ros``).
+GRAPH_FIXTURES = frozenset({'procs', 'probe', 'rclpy_session', 'ros_env', 'node_cmd'})
+#: A domain id no participant can use (Fast DDS refuses ids above 232).
+NO_GRAPH_DOMAIN = '250'
+_DOMAIN_LOCK: object = None   # held for the session's lifetime
+
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption('--no-graph', action='store_true',
+                     help='run only the tests that need no ROS graph (make test-fast)')
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global _DOMAIN_LOCK
+    config.addinivalue_line('markers', 'ros: the test needs a ROS graph (DDS); '
+                            'deselected by --no-graph')
+    if config.getoption('--no-graph'):
+        os.environ['ROS_DOMAIN_ID'] = NO_GRAPH_DOMAIN
+        import rclpy
+
+        def refuse(*args: object, **kwargs: object) -> None:
+            pytest.fail('this test starts ROS (rclpy.init) under --no-graph: mark it '
+                        '@pytest.mark.ros or give it a graph fixture', pytrace=False)
+        rclpy.init = refuse
+    elif _DOMAIN_LOCK is None:
+        domain_id, _DOMAIN_LOCK = domains.claim()
+        os.environ['ROS_DOMAIN_ID'] = str(domain_id)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if GRAPH_FIXTURES.intersection(getattr(item, 'fixturenames', ())):
+            item.add_marker(pytest.mark.ros)
+    if config.getoption('--no-graph'):
+        keep = [i for i in items if i.get_closest_marker('ros') is None]
+        config.hook.pytest_deselected(items=[i for i in items if i not in keep])
+        items[:] = keep
 
 
 @pytest.fixture(scope='session')

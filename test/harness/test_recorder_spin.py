@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import time
 
+import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
@@ -17,6 +18,7 @@ from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.messages import SIGNAL_QOS
 
 
+@pytest.mark.ros
 def test_spin_for_takes_every_message_that_came_in_one_call_and_returns_on_time():
     context = Context()
     rclpy.init(context=context, domain_id=int(os.environ.get('ROS_DOMAIN_ID', '0')))
