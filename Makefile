@@ -46,11 +46,11 @@ test: $(STAMP) browser
 	@$(COMPILE)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=40 test
 
-# The edit loop: the tests that need no ROS graph (test/conftest.py, --no-graph); `make test`
-# still runs everything.
+# The edit loop: the tests that need no ROS graph (test/conftest.py, --no-graph) and are not
+# marked slow; `make test` still runs everything.
 test-fast: $(STAMP)
 	@$(COMPILE)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --no-graph --durations=10 test
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --no-graph -m 'not slow' --durations=10 test
 
 # A colcon workspace build of this package (ament_python), into build/colcon/.
 colcon: $(STAMP)

@@ -45,6 +45,8 @@ def pytest_configure(config: pytest.Config) -> None:
     global _DOMAIN_LOCK
     config.addinivalue_line('markers', 'ros: the test needs a ROS graph (DDS); '
                             'deselected by --no-graph')
+    config.addinivalue_line('markers', 'slow: more than ~10 s without a graph; '
+                            'left out of make test-fast')
     if config.getoption('--no-graph'):
         os.environ['ROS_DOMAIN_ID'] = NO_GRAPH_DOMAIN
         import rclpy
@@ -53,6 +55,7 @@ def pytest_configure(config: pytest.Config) -> None:
             pytest.fail('this test starts ROS (rclpy.init) under --no-graph: mark it '
                         '@pytest.mark.ros or give it a graph fixture', pytrace=False)
         rclpy.init = refuse
+        domains.claim = refuse   # sweep --ros claims a domain per run
     elif _DOMAIN_LOCK is None:
         domain_id, _DOMAIN_LOCK = domains.claim()
         os.environ['ROS_DOMAIN_ID'] = str(domain_id)

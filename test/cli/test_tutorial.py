@@ -84,6 +84,7 @@ def run_cli(argv: list[str], capsys) -> str:
     return capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_its_offline_tank_control_commands_run_and_print_the_quoted_numbers(tmp_path, capsys,
                                                                            monkeypatch):
     monkeypatch.chdir(ROOT)

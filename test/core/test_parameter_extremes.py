@@ -10,6 +10,8 @@ Run as a script it prints the counts: ``python test/core/test_parameter_extremes
 """
 from __future__ import annotations
 
+import pytest
+
 import math
 import sys
 from collections import Counter
@@ -183,6 +185,7 @@ def sweep() -> tuple[Counts, Counter]:
     return counts, per_kind
 
 
+@pytest.mark.slow
 def test_no_accepted_parameter_makes_an_output_non_finite():
     counts, _ = sweep()
     assert counts.tried > 1000 and counts.refused > 0 and counts.accepted > 0

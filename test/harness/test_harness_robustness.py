@@ -328,6 +328,7 @@ def _stream(out: Path, ticks: int, clock: list[float]) -> tuple[Any, list]:
     return stream, signals
 
 
+@pytest.mark.slow
 def test_the_recording_streams_with_bounded_memory(tmp_path):
     """Messages go to run.mcap and rows to trace.csv as they come: what stays in memory is the
     table (8 bytes per value: 5 columns here) and a couple of seconds of messages."""

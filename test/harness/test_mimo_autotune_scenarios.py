@@ -41,6 +41,7 @@ def steps(result, channel):
     return result.metrics['outputs'][channel]['steps']
 
 
+@pytest.mark.slow
 def test_sequential_relay_tunes_then_level_steps_meet_the_goal(runs):
     """The test ends (state running) before the first step at 12100 s; level overshoot ≤ 10 %
     on both level steps; T_out's peak deviation on each level step below that of 003's PI
@@ -69,6 +70,7 @@ def test_sequential_relay_tunes_then_level_steps_meet_the_goal(runs):
                                                                        else T0))
 
 
+@pytest.mark.slow
 def test_least_squares_design_on_the_model_meets_the_level_goal_too(runs):
     """model_ls (004 eqs. 3.7.8–3.7.10, default target) designed at 1 s on the linearised tank:
     level overshoot ≤ 10 % and less T_out deviation on level steps than tank_pi."""
@@ -81,6 +83,7 @@ def test_least_squares_design_on_the_model_meets_the_level_goal_too(runs):
                 < theirs['interaction']['T_out']['peak_error'])
 
 
+@pytest.mark.slow
 def test_filling_with_the_tuned_gains(runs):
     """tank_fill_pi_autotuned (and tank_mpcs_two_loop_autotuned, the auto-tuned row of the tank
     comparison) hold the gains the relay test found (to 1e-9); tank_fill_pi_autotuned

@@ -155,6 +155,7 @@ def test_harness_knows_the_controllers_limits_for_its_constraint_column():
     assert gains['two_loop.kp_h'] == pi.params('controller').get('two_loop.kp_h', 0.9)
 
 
+@pytest.mark.slow
 def test_default_horizons_are_the_demo_files_and_the_documents_warn_in_metrics(tmp_path):
     """tank_mpcs_qp.yaml writes out the defaults (no warning); the document reproductions
     (003's short horizons) run, and their warning is in metrics.json."""
@@ -192,6 +193,7 @@ def _step_overshoots(trace, changes: list[float], duration: float) -> list[float
     return out
 
 
+@pytest.mark.slow
 def test_on_the_linearised_tank_mpcs_is_almost_ideal_as_003_reports():
     """003 §4, Figs. 18/20/22: "almost ideal" control of the linear state-space plant, whose
     model is the controller's. Measured on tank_mpcs_linear (300, 100, 0.1): every settled
@@ -227,6 +229,7 @@ def _level_overshoot_and_iae(params: dict) -> tuple[float, float]:
             _iae(trace, 'h'))
 
 
+@pytest.mark.slow
 def test_analytic_and_qp_at_the_document_horizons_differ_by_the_rate_limit_alone():
     """003 §6–7 (Figs. 23–25): the two solvers at identical (N, Nu, λ). The QP plans with
     |ΔF| <= 0.2 per sample and does not overshoot the level; the analytic solver clips an
@@ -289,6 +292,7 @@ def _settling(t, e, t0: float, t1: float, band: float) -> float:
     return float(t[w][outside[-1]] - t0 + 1.0) if len(outside) else 0.0
 
 
+@pytest.mark.slow
 def test_output_weights_trade_temperature_dips_for_level_excursions():
     """docs/mpcs.md "Output weights": tank_mpcs_qp (W_y = [1, 1]) against the same file with
     the T_out error weighted 10× and 100× (tank_mpcs_qp_tout10/100.yaml). T_out's dip on the

@@ -285,6 +285,7 @@ def test_a_reader_that_never_matches_delays_a_wall_start_by_a_bounded_wait(tmp_p
     assert 'measurement not matched' in log, log
 
 
+@pytest.mark.slow
 def test_compare_writes_a_table_and_an_overlay(tmp_path):
     out = tmp_path / 'cmp'
     done = cli('compare', str(CONFIG / 'scenarios' / 'ipdt_mdp_pi.yaml'),

@@ -107,6 +107,7 @@ def test_cases_cover_the_product_with_common_random_draws():
 
 
 # --------------------------------------------------------------------------- one run
+@pytest.mark.slow
 def test_a_sweep_row_is_the_in_process_run_with_those_overrides(tmp_path):
     spec = sweep.SweepSpec(scenarios=(MDP_PID,), grid=(
         sweep.GridAxis.parse('plant.dead_time=4.0,6.5'),), duration=200.0)
@@ -143,6 +144,7 @@ def test_failures_are_rows_with_their_reason_and_never_stop_the_sweep(tmp_path):
 
 
 # --------------------------------------------------------------------------- executors
+@pytest.mark.slow
 def test_results_do_not_depend_on_the_executor_or_the_number_of_workers(tmp_path):
     from distributed import LocalCluster
     spec = small_spec()
@@ -168,6 +170,7 @@ def test_results_do_not_depend_on_the_executor_or_the_number_of_workers(tmp_path
     assert inline_csv == dask_csv
 
 
+@pytest.mark.slow
 def test_the_command_runs_a_study_on_a_dask_cluster(tmp_path, capsys):
     from distributed import LocalCluster
     study = tmp_path / 'study.yaml'
@@ -220,6 +223,7 @@ def test_cli_refuses_a_bad_sweep_with_one_line(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------- resume
+@pytest.mark.slow
 def test_a_rerun_skips_finished_runs_and_resumes_lost_ones(tmp_path):
     spec = sweep.SweepSpec(scenarios=(EXP_PI,), grid=(
         sweep.GridAxis.parse('plant.dead_time=±20%:4'),), duration=60.0)
@@ -256,6 +260,7 @@ def test_a_diverging_run_is_kept_with_its_numbers(tmp_path):
 
 
 # --------------------------------------------------------------------------- lockstep over ROS
+@pytest.mark.ros
 def test_lockstep_runs_in_their_own_domains_equal_the_in_process_runs(tmp_path):
     spec = sweep.SweepSpec(scenarios=(MDP_PID,), grid=(
         sweep.GridAxis.parse('plant.dead_time=4.0,6.0'),), duration=60.0)

@@ -5,6 +5,8 @@ interaction of each setpoint step on the other output in every run's metrics.jso
 facts the page draws from it."""
 from __future__ import annotations
 
+import pytest
+
 import json
 
 from support import SCENARIOS
@@ -15,6 +17,7 @@ ROWS = ('tank_mpcs_two_loop', 'tank_mpcs_two_loop_decoupled', 'tank_mpcs_two_loo
         'tank_mpcs_two_loop_scheduled', 'tank_mpcs_analytic', 'tank_mpcs_qp')
 
 
+@pytest.mark.slow
 def test_one_schedule_every_controller(tmp_path, capsys):
     out = tmp_path / 'cmp'
     assert cli.main(['compare', *(str(SCENARIOS / f'{name}.yaml') for name in ROWS),
