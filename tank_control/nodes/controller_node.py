@@ -671,7 +671,7 @@ class ControllerNode(Node):
         changed = {k: v for k, v in self._kind.results(self._controller).items()
                    if current.get(k) != v}
         if changed:
-            result = self._params.write(changed)
+            result = self._params.write(changed, source=f'controller {self._kind.name}')
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
             state = self._kind.state

@@ -11,6 +11,7 @@ s of plant time (stamp − the plant's ``time_origin``).
 from __future__ import annotations
 
 import math
+import os
 import queue
 import sys
 import threading
@@ -34,6 +35,7 @@ from std_srvs.srv import Trigger
 
 from tank_control.core.node_specs import is_ros_own
 from tank_control.core.params import specs_of
+from tank_control.dashboard.access import Access, derive_read_only, origins_reason, start_token
 from tank_control.dashboard.config import DashboardConfig
 from tank_control.dashboard.robustness import RobustnessWorker
 from tank_control.dashboard.server import DashboardServer, Reply
@@ -122,8 +124,16 @@ class DashboardNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('dashboard', **kwargs)
-        self._params = ParameterBinding(self, specs_of(DashboardConfig))
+        self._params = ParameterBinding(
+            self, specs_of(DashboardConfig), derive=derive_read_only,
+            cross_check=lambda values, _: origins_reason(values['allowed_origins']))
         values = self._params.values
+        try:
+            token = start_token(os.environ)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        self.access = Access(values['allowed_origins'], bool(values['read_only']),
+                             self.get_logger().warning, token)
         self._wanted = tuple(values['nodes'])
         self._lock = threading.Lock()            # the views, the limits and the origin
         self._views: dict[str, _NodeView] = {}
@@ -152,7 +162,7 @@ class DashboardNode(Node):
         self.robustness = RobustnessWorker(lambda message: self.server.broadcast(message))
         self.server = DashboardServer(self.store, self, str(values['host']), int(values['port']),
                                       float(values['update_period']),
-                                      str(values['runs_dir']))
+                                      str(values['runs_dir']), self.access)
         try:
             self.url = self.server.start()
         except OSError as exc:
@@ -161,7 +171,11 @@ class DashboardNode(Node):
         self.create_timer(PUMP_PERIOD, self._pump, clock=steady_clock())
         self.create_timer(float(values['discovery_period']), self._discover,
                           clock=steady_clock())
-        self.get_logger().info(f'dashboard at {self.url} (nodes: {", ".join(self._wanted)})')
+        # the URL with this start's token, as a notebook server logs it: whoever opens it may
+        # write (unless read_only); the page without it shows the loop read-only
+        shown = self.url if self.access.read_only else f'{self.url}?token={self.access.token}'
+        self.get_logger().info(f'dashboard at {shown} (nodes: {", ".join(self._wanted)}'
+                               f'{"; read-only" if self.access.read_only else ""})')
         self._discover()
 
     def destroy_node(self) -> None:
