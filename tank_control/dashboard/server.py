@@ -226,6 +226,7 @@ class DashboardServer:
                     continue
                 reason = self.access.write_reason(message)
                 if reason is None:
+                    message['peer'] = request.remote or '?'
                     self._backend.request(message, self._reply_to(client))
                 else:
                     self._refuse(client, message, reason)

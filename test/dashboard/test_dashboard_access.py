@@ -99,6 +99,41 @@ def page_sets(url: str, requests: list[dict]) -> list[dict]:
     return asyncio.run(talk())
 
 
+def page_audit(url: str, done) -> list[dict]:
+    """The audit records a page gets (the hello's, then as they come) once ``done(records)``."""
+    async def talk() -> list[dict]:
+        async with aiohttp.ClientSession() as session, session.ws_connect(
+                url + 'ws', origin=url.rstrip('/')) as ws:
+            records: list[dict] = []
+            deadline = time.monotonic() + WAIT
+            while not done(records):
+                msg = json.loads((await ws.receive(deadline - time.monotonic())).data)
+                if msg['type'] == 'hello':
+                    records += msg['audit']
+                elif msg['type'] == 'audit':
+                    records.append(msg['record'])
+            return records
+    return asyncio.run(talk())
+
+
+def access_diagnostics(probe, done) -> dict[str, str]:
+    """The dashboard's ``dashboard: access`` status on /diagnostics once ``done(values)``."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    seen: dict[str, str] = {}
+
+    def on(msg) -> None:
+        for status in msg.status:
+            if status.name == 'dashboard: access':
+                seen.clear()
+                seen.update({kv.key: kv.value for kv in status.values}, message=status.message)
+    sub = probe.node.create_subscription(DiagnosticArray, '/diagnostics', on, 10)
+    try:
+        assert probe.wait_for(lambda: done(seen), WAIT), seen
+        return dict(seen)
+    finally:
+        probe.node.destroy_subscription(sub)
+
+
 def test_a_foreign_origin_and_a_rebinding_host_are_refused(procs, ros_env, node_cmd):
     url, _ = split(start(procs, ros_env, node_cmd))
     port = urlsplit(url).port
@@ -134,6 +169,15 @@ def test_a_set_needs_the_token_of_the_logged_url(procs, ros_env, node_cmd, probe
     applied = page_sets(url, [{'name': 'u_max', 'text': '0.5', 'token': token}])
     assert applied[0]['successful'], applied
     assert controller_u_max(probe) == 0.5
+    # the refusals are counted on /diagnostics
+    diag = access_diagnostics(probe, lambda v: v.get('refused_token') == '3')
+    assert 'wrong token' in diag['message']
+    # the change is on the page's audit trail: the node's record and the dashboard's (who asked)
+    records = page_audit(url, lambda rs: len([r for r in rs if r['name'] == 'u_max']) >= 2)
+    sources = sorted(r['source'] for r in records if r['name'] == 'u_max')
+    assert sources == ['dashboard /dashboard (page at 127.0.0.1)', 'set_parameters service']
+    assert all((r['node'], r['old'], r['new']) == ('/controller', before, 0.5)
+               for r in records if r['name'] == 'u_max')
 
 
 @pytest.mark.parametrize('args', [('-p', 'read_only:=true'), ('-p', 'host:=0.0.0.0')],

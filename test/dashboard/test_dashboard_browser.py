@@ -137,6 +137,9 @@ def test_an_edit_reaches_the_node_and_a_refusal_shows_its_reason(page, probe, ro
     wait.until(lambda d: 'pending' not in param_input(d, 'kp').get_attribute('class'))
     assert reason_text(page, 'kp') == ''
     assert controller_param(probe, 'kp') == 25.0
+    rows = '#audit-rows tr[data-node="/controller"][data-param="kp"] .audit-source'
+    wait.until(lambda d: {'set_parameters service', 'dashboard /dashboard (page at 127.0.0.1)'}
+               <= {e.text for e in d.find_elements(By.CSS_SELECTOR, rows)})
     got = ros2(ros_env, 'param', 'get', '/controller', 'kp')
     assert got.stdout.strip() == 'Double value is: 25.0', got.stderr
 
@@ -183,6 +186,11 @@ def test_a_command_button_starts_the_autotuner_and_its_state_is_shown(page, prob
     wait.until(lambda d: [m['label'] for m in d.execute_script(marks)][-1:] == ['aborted'])
     state_time = controller_param(probe, 'autotune.state_time')
     wait.until(lambda d: d.execute_script(marks)[-1]['t'] == state_time)
+    # the audit trail names the auto-tuner as the source of its state changes
+    rows = '#audit-rows tr[data-node="/controller"][data-param="autotune.state"]'
+    wait.until(lambda d: any(r.find_element(By.CSS_SELECTOR, '.audit-change').text.endswith(
+        '→ aborted') and r.find_element(By.CSS_SELECTOR, '.audit-source').text
+        == 'controller relay_autotune' for r in d.find_elements(By.CSS_SELECTOR, rows)))
     shown = page.execute_script(marks)
     # the test's states before the abort (entered by the command: marked at once, moved to
     # their state_time at the next sample if there was one)

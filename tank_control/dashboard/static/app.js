@@ -83,6 +83,9 @@
         if (msg.robustness) window.tankRobustness.update(msg.robustness);
         if (msg.missed) onMissed(msg.missed);
         state.marks = (msg.marks || []).slice();
+        state.audit = [];
+        $('#audit-rows').replaceChildren();
+        for (const record of msg.audit || []) onAudit(record);
         state.serverReadOnly = !!msg.read_only;
         showAccess(state.serverReadOnly);
         break;
@@ -98,6 +101,7 @@
       case 'limits': state.limits = msg.limits; refreshLimits(); break;
       case 'set_result': onSetResult(msg); break;
       case 'command_result': onCommandResult(msg); break;
+      case 'audit': onAudit(msg.record); break;
       default: break;
     }
   }
@@ -511,7 +515,8 @@
       reason.textContent = '';
       reason.className = 'reason ok';
     } else {
-      reason.textContent = `${typed !== undefined ? `"${typed}" ` : ''}refused: ${msg.reason}`;
+      const why = msg.reason.startsWith('refused:') ? msg.reason : `refused: ${msg.reason}`;
+      reason.textContent = `${typed !== undefined ? `"${typed}" ` : ''}${why}`;
       reason.className = 'reason refused';
       if (input) { input.blur(); showValue(msg.node, msg.name); }
     }
@@ -545,6 +550,25 @@
     if (view) view.diagnostics = {level: msg.level, message: msg.message};
     const target = document.querySelector(`.diag[data-node="${CSS.escape(msg.node)}"]`);
     if (target) showDiagnostics(target, msg);
+  }
+
+  // ---------------------------------------------------------------- audit trail
+  // Every parameter change a node applied (/parameter_audit, nodes/params.py), newest first.
+  const AUDIT_SHOWN = 200;
+  state.audit = [];
+  function onAudit(record) {
+    state.audit.push(record);
+    if (state.audit.length > AUDIT_SHOWN) state.audit.shift();
+    $('#no-audit')?.remove();
+    const when = new Date(record.time * 1000);
+    const row = el('tr', {'data-node': String(record.node), 'data-param': String(record.name)},
+      el('td', {title: when.toISOString()}, when.toLocaleTimeString()),
+      el('td', {}, String(record.node)), el('td', {}, String(record.name)),
+      el('td', {class: 'audit-change'}, `${formatValue(record.old)} → ${formatValue(record.new)}`),
+      el('td', {class: 'audit-source'}, String(record.source)));
+    const rows = $('#audit-rows');
+    rows.prepend(row);
+    while (rows.children.length > AUDIT_SHOWN) rows.lastChild.remove();
   }
 
   connect();
