@@ -28,7 +28,7 @@ def param_set(host: Host, env: dict[str, str], value: str) -> subprocess.Complet
     """``ros2 param set /controller u_max VALUE`` run on ``host`` (the package's ros2)."""
     return subprocess.run(host.exec([sys.executable, '-m', 'tank_control.ros2cli.main', 'param',
                                      'set', '/controller', 'u_max', value, '--timeout', '20']),
-                          env=env, capture_output=True, text=True, timeout=120)
+                          env=env, capture_output=True, text=True, timeout=120, check=False)
 
 
 def start_controller(procs, host: Host, env: dict[str, str]):
@@ -81,7 +81,7 @@ def test_the_wheels_fast_dds_has_no_security_plugins(tmp_path, ros_env):
            'ROS_SECURITY_ENCLAVE_OVERRIDE': '/tank_control'}
     run = subprocess.run([sys.executable, '-m', 'tank_control.nodes.controller_node',
                           '--ros-args', '--params-file', PARAMS], env=env,
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 2
     assert run.stderr.strip().splitlines()[-1] == (
         "controller_node: error creating node: This Fast DDS version doesn't have the "
