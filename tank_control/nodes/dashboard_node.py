@@ -64,8 +64,10 @@ CALL_TIMEOUT = 5.0
 #: Period of the timer that takes the page's requests and finished service calls [s].
 PUMP_PERIOD = 0.02
 NS_PER_S = 1_000_000_000
-#: Audit records (/parameter_audit) kept for pages that connect later.
+#: Audit records (/parameter_audit) kept for pages that connect later, and the longest taken
+#: (characters; a longer one, from any publisher on the domain, is ignored and counted).
 MAX_AUDIT = 200
+MAX_AUDIT_CHARS = 1 << 20
 #: Period of the look at the access counters (a change is published on /diagnostics) [s].
 ACCESS_PERIOD = 1.0
 
@@ -301,7 +303,7 @@ class DashboardNode(Node):
         def then(response: SetParameters.Response) -> None:
             results = list(response.results)
             ok = bool(results) and all(r.successful for r in results)
-            if ok:          # who asked: the node's own record says only "set_parameters"
+            if ok and value != _from_json(shown):   # who asked: the node's record cannot say
                 self._audit_pub.publish(String(data=audit_record(
                     node, name, _from_json(shown), value,
                     f'dashboard {self.get_fully_qualified_name()} (page at {peer})')))
@@ -500,7 +502,7 @@ class DashboardNode(Node):
     def _on_audit(self, msg: String) -> None:
         """A parameter change some node applied (nodes/params.py): kept and shown."""
         try:
-            record = json.loads(msg.data)
+            record = json.loads(msg.data) if len(msg.data) <= MAX_AUDIT_CHARS else None
         except ValueError:
             record = None
         if not isinstance(record, dict) or not isinstance(record.get('time'), (int, float)):
