@@ -195,6 +195,22 @@ def test_a_read_only_dashboard_refuses_every_set(args, procs, ros_env, node_cmd,
     assert http_get(url, {})[0] == 200            # the trends are still served
 
 
+def test_a_bad_origin_or_token_setting_stops_the_node_with_one_line(ros_env, node_cmd):
+    import subprocess
+    bad = subprocess.run(node_cmd('dashboard_node', '-p', 'port:=0', '-p',
+                                  'allowed_origins:=[self, "*"]'), env=ros_env,
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and 'Traceback' not in bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].startswith(
+        "dashboard_node: allowed_origins: '*' is not an origin; allowed 'self' or "), bad.stderr
+    short = subprocess.run(node_cmd('dashboard_node', '-p', 'port:=0'),
+                           env={**ros_env, access_mod.TOKEN_ENV: 'abc'},
+                           capture_output=True, text=True, timeout=120, check=False)
+    assert short.returncode == 2 and 'Traceback' not in short.stderr
+    assert short.stderr.strip().splitlines()[-1].startswith(
+        f'dashboard_node: {access_mod.TOKEN_ENV}: allowed 16 or more characters'), short.stderr
+
+
 # ---------------------------------------------------------------- dashboard/access.py
 
 def test_access_checks_host_origin_and_token():
