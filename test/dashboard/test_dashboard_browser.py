@@ -186,11 +186,12 @@ def test_a_command_button_starts_the_autotuner_and_its_state_is_shown(page, prob
     wait.until(lambda d: [m['label'] for m in d.execute_script(marks)][-1:] == ['aborted'])
     state_time = controller_param(probe, 'autotune.state_time')
     wait.until(lambda d: d.execute_script(marks)[-1]['t'] == state_time)
-    # the audit trail names the auto-tuner as the source of its state changes
+    # the audit trail names the auto-tuner and the command as the source of its state changes
     rows = '#audit-rows tr[data-node="/controller"][data-param="autotune.state"]'
     wait.until(lambda d: any(r.find_element(By.CSS_SELECTOR, '.audit-change').text.endswith(
         '→ aborted') and r.find_element(By.CSS_SELECTOR, '.audit-source').text
-        == 'controller relay_autotune' for r in d.find_elements(By.CSS_SELECTOR, rows)))
+        == 'controller relay_autotune, command /controller/abort_autotune'
+        for r in d.find_elements(By.CSS_SELECTOR, rows)))
     shown = page.execute_script(marks)
     # the test's states before the abort (entered by the command: marked at once, moved to
     # their state_time at the next sample if there was one)
