@@ -31,3 +31,13 @@ class DashboardConfig:
     runs_dir: str = param('', 'folder of past runs listed at /runs (tank-control run --out '
                           'folders, also nested up to 3 deep); empty: none, the page says how '
                           'to set it', read_only=True)
+    allowed_origins: tuple[str, ...] = param(
+        ('self',), "web origins (scheme://host[:port]) whose pages may use the dashboard; "
+        "'self': the page the dashboard serves, under whatever address it is reached. A request "
+        'from a page of another origin (its Origin header), or naming a host that is not an IP '
+        "address, localhost, this machine's name or the host of an entry here (its Host "
+        'header: DNS rebinding) is refused with 403', read_only=True)
+    read_only: bool = param(
+        False, 'serve trends and values without writes: parameter sets and commands are '
+               'refused (default: false when host is a loopback address, 127.0.0.1 or '
+               'localhost; true on any other host, unless set)', read_only=True)

@@ -9,7 +9,9 @@ WebSocket messages (JSON objects, ``type`` says which): to the page ``hello`` (t
 ``samples`` (every ``update_period``: the rows since the last batch, store.py), and the
 backend's events (``node``, ``node_gone``, ``param``, ``state``, ``limits``, ``origin``,
 ``set_result``, ``command_result``); from the page ``set`` (``node``, ``name``, ``text``,
-``id``) and ``command`` (``node``, ``command``, ``id``). The backend's ``robustness`` event
+``id``, ``token``) and ``command`` (``node``, ``command``, ``id``, ``token``): a write without
+this start's token, or any write when read-only, is answered as refused by the server itself
+(dashboard/access.py), as is every request (HTTP 403) of a foreign Host or Origin. The backend's ``robustness`` event
 (dashboard/robustness.py) is also part of the snapshot.
 
 The runs page (``/runs``, dashboard/runs.py): ``/api/runs`` lists the run folders under
@@ -28,6 +30,7 @@ from typing import Any, Protocol
 
 from aiohttp import WSMsgType, web
 
+from tank_control.dashboard.access import Access
 from tank_control.dashboard.runs import list_runs, run_file
 from tank_control.dashboard.store import SampleStore
 
@@ -77,7 +80,9 @@ class DashboardServer:
     ``broadcast`` hands an event to every page; ``stop()`` closes the pages and the thread."""
 
     def __init__(self, store: SampleStore, backend: Backend, host: str, port: int,
-                 update_period: float, runs_dir: str = '') -> None:
+                 update_period: float, runs_dir: str = '',
+                 access: Access | None = None) -> None:
+        self.access = access if access is not None else Access(('self',), False, lambda _: None)
         self._store = store
         self._runs_dir = runs_dir
         self._backend = backend
@@ -146,7 +151,7 @@ class DashboardServer:
 
     async def _serve(self) -> None:
         self._stop = asyncio.Event()
-        app = web.Application()
+        app = web.Application(middlewares=[self._guard])
         app.router.add_get('/ws', self._websocket)
         app.router.add_get('/api/runs', self._runs)
         app.router.add_get('/runs/file/{path:.*}', self._run_file)
@@ -168,6 +173,17 @@ class DashboardServer:
             await runner.cleanup()
 
     # ---------------------------------------------------------------- handlers
+    @web.middleware
+    async def _guard(self, request: web.Request, handler: Any) -> web.StreamResponse:
+        """Every request (the WebSocket's handshake too): a foreign Host or Origin gets 403
+        with the one-line reason (dashboard/access.py)."""
+        reason = self.access.http_reason(request.headers.get('Host'),
+                                         request.headers.get('Origin'), request.scheme)
+        if reason is not None:
+            return web.Response(status=403, text=reason + '\n',
+                                headers={'Cache-Control': 'no-store'})
+        return await handler(request)
+
     async def _asset(self, request: web.Request) -> web.StreamResponse:
         found = self._assets.get(request.path)
         if found is None:
@@ -206,8 +222,14 @@ class DashboardServer:
                     message = json.loads(msg.data)
                 except ValueError:
                     continue
-                if isinstance(message, dict):
+                if not isinstance(message, dict):
+                    continue
+                reason = self.access.write_reason(message)
+                if reason is None:
+                    message['peer'] = request.remote or '?'
                     self._backend.request(message, self._reply_to(client))
+                else:
+                    self._refuse(client, message, reason)
         finally:
             self._clients.discard(client)
             writer.cancel()
@@ -216,6 +238,20 @@ class DashboardServer:
             except (asyncio.CancelledError, ConnectionError):
                 pass
         return ws
+
+    def _refuse(self, client: _Client, message: dict[str, Any], reason: str) -> None:
+        """A write refused by ``access``: the page's usual answer, unsuccessful, the reason."""
+        if message.get('type') == 'set':
+            answer = {'type': 'set_result', 'node': message.get('node'),
+                      'name': message.get('name'), 'successful': False, 'reason': reason}
+        else:
+            answer = {'type': 'command_result', 'node': message.get('node'),
+                      'command': message.get('command'), 'success': False, 'message': reason}
+        answer['id'] = message.get('id')
+        try:
+            client.events.put_nowait(json.dumps(answer, allow_nan=False, default=str))
+        except ValueError:
+            pass
 
     def _reply_to(self, client: _Client) -> Reply:
         loop = self._loop
@@ -231,8 +267,8 @@ class DashboardServer:
     async def _write(self, client: _Client, cursor: int) -> None:
         """The page's one writer: its events as they come, the samples every period."""
         ws, loop = client.ws, asyncio.get_running_loop()
-        await ws.send_str(json.dumps({'type': 'hello', **self._backend.snapshot()},
-                                     allow_nan=False))
+        await ws.send_str(json.dumps({'type': 'hello', **self._backend.snapshot(),
+                                      'read_only': self.access.read_only}, allow_nan=False))
         due = loop.time()
         while not ws.closed:
             wait = due - loop.time()

@@ -181,7 +181,10 @@ def _run_one(path: Path, out: Path, args: argparse.Namespace):
     progress = None if args.quiet else ProgressPrinter(sys.stderr, path.stem)
     dashboard = getattr(args, 'dashboard', None)
     if dashboard is not None and not args.in_process:
-        print(f'dashboard: http://127.0.0.1:{dashboard}/ (until the run ends)', file=sys.stderr)
+        from tank_control.dashboard.access import TOKEN_ENV, new_token
+        token = os.environ.setdefault(TOKEN_ENV, new_token())    # dashboard_node takes it
+        print(f'dashboard: http://127.0.0.1:{dashboard}/?token={token} (until the run ends)',
+              file=sys.stderr)
     return runner.run(path, out, mode=args.mode, rtf=args.rtf, duration=args.duration,
                       overrides=args.overrides, in_process=args.in_process, progress=progress,
                       dashboard=dashboard)

@@ -40,13 +40,15 @@ TOPICS: tuple[tuple[str, str], ...] = (
     ('/clock', 'rosgraph_msgs/msg/Clock'),
     ('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray'),
     ('/parameter_events', 'rcl_interfaces/msg/ParameterEvent'),
+    ('/parameter_audit', 'std_msgs/msg/String'),       # nodes/params.py AUDIT_TOPIC
     ('time_origin', 'builtin_interfaces/msg/Time'),
     ('plant/late_inputs', 'sensor_msgs/msg/JointState'),
     ('controller/late_inputs', 'sensor_msgs/msg/JointState'),
 )
 
 #: Types recorded at their arrival time: no header stamp in the loop's time.
-UNSTAMPED = ('diagnostic_msgs/msg/DiagnosticArray', 'rcl_interfaces/msg/ParameterEvent')
+UNSTAMPED = ('diagnostic_msgs/msg/DiagnosticArray', 'rcl_interfaces/msg/ParameterEvent',
+             'std_msgs/msg/String')
 
 # Reliable like the publishers, keep-all: the reader's queue never drops a message the
 # harness has not taken yet (with ``acknowledge``, the plant's window bounds it).

@@ -663,15 +663,16 @@ class ControllerNode(Node):
         which = ', '.join(names) if names else ', '.join(self._inputs)
         return f'input(s) {which} at their limits for {self._saturated_samples} samples'
 
-    def _write_results(self) -> None:
-        """Values the controller produced (kind.results) → parameters, when they changed."""
+    def _write_results(self, cause: str = '') -> None:
+        """Values the controller produced (kind.results) → parameters, when they changed
+        (``cause``: the command that produced them, named on /parameter_audit)."""
         if self._kind.results is None:
             return
         current = self._params.values
         changed = {k: v for k, v in self._kind.results(self._controller).items()
                    if current.get(k) != v}
         if changed:
-            result = self._params.write(changed)
+            result = self._params.write(changed, source=f'controller {self._kind.name}{cause}')
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
             state = self._kind.state
@@ -713,7 +714,7 @@ class ControllerNode(Node):
         except ValueError as exc:
             response.success, response.message = False, f'{command}: {exc}'
         self.get_logger().info(f'{command}: {response.message}')
-        self._write_results()
+        self._write_results(f', command {self.get_fully_qualified_name()}/{command}')
         return response
 
     _FAULT_COUNTERS = {'stale': 'stale_samples', 'non-finite': 'nonfinite_measurements',

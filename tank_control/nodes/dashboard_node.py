@@ -10,7 +10,9 @@ s of plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
 
+import json
 import math
+import os
 import queue
 import sys
 import threading
@@ -20,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterEvent, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
@@ -34,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from tank_control.core.node_specs import is_ros_own
 from tank_control.core.params import specs_of
+from tank_control.dashboard.access import Access, derive_read_only, origins_reason, start_token
 from tank_control.dashboard.config import DashboardConfig
 from tank_control.dashboard.robustness import RobustnessWorker
 from tank_control.dashboard.server import DashboardServer, Reply
@@ -44,7 +47,8 @@ from tank_control.nodes.messages import (ORIGIN_QOS, TOPIC_DIAGNOSTICS, TOPIC_DI
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN, from_joint_state,
                                          reliable_qos, stamp_to_ns)
-from tank_control.nodes.params import ParameterBinding, ParameterError
+from tank_control.nodes.params import (AUDIT_QOS, AUDIT_TOPIC, ParameterBinding, ParameterError,
+                                       audit_record)
 from tank_control.nodes.runtime import main as run_node_main
 
 #: The signal topics shown as trends.
@@ -60,6 +64,12 @@ CALL_TIMEOUT = 5.0
 #: Period of the timer that takes the page's requests and finished service calls [s].
 PUMP_PERIOD = 0.02
 NS_PER_S = 1_000_000_000
+#: Audit records (/parameter_audit) kept for pages that connect later, and the longest taken
+#: (characters; a longer one, from any publisher on the domain, is ignored and counted).
+MAX_AUDIT = 200
+MAX_AUDIT_CHARS = 1 << 20
+#: Period of the look at the access counters (a change is published on /diagnostics) [s].
+ACCESS_PERIOD = 1.0
 
 
 @dataclass
@@ -122,8 +132,16 @@ class DashboardNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('dashboard', **kwargs)
-        self._params = ParameterBinding(self, specs_of(DashboardConfig))
+        self._params = ParameterBinding(
+            self, specs_of(DashboardConfig), derive=derive_read_only,
+            cross_check=lambda values, _: origins_reason(values['allowed_origins']))
         values = self._params.values
+        try:
+            token = start_token(os.environ)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
+        self.access = Access(values['allowed_origins'], bool(values['read_only']),
+                             self.get_logger().warning, token)
         self._wanted = tuple(values['nodes'])
         self._lock = threading.Lock()            # the views, the limits and the origin
         self._views: dict[str, _NodeView] = {}
@@ -136,6 +154,7 @@ class DashboardNode(Node):
         self.store = SampleStore(int(values['buffer_messages']))
         self.missed = {topic: 0 for topic in SIGNAL_TOPICS}
         self.marks: list[dict[str, Any]] = []     # state changes of the controllers' machines
+        self.audit: list[dict[str, Any]] = []     # /parameter_audit records, oldest first
         self._latest_t = -math.inf                # plant time [s] of the newest signal sample
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
@@ -149,10 +168,13 @@ class DashboardNode(Node):
         self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
                                  qos_profile_parameter_events)
         self.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self._on_diagnostics, 10)
+        self.create_subscription(String, AUDIT_TOPIC, self._on_audit, AUDIT_QOS)
+        self._audit_pub = self.create_publisher(String, AUDIT_TOPIC, AUDIT_QOS)
+        self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self.robustness = RobustnessWorker(lambda message: self.server.broadcast(message))
         self.server = DashboardServer(self.store, self, str(values['host']), int(values['port']),
                                       float(values['update_period']),
-                                      str(values['runs_dir']))
+                                      str(values['runs_dir']), self.access)
         try:
             self.url = self.server.start()
         except OSError as exc:
@@ -161,7 +183,12 @@ class DashboardNode(Node):
         self.create_timer(PUMP_PERIOD, self._pump, clock=steady_clock())
         self.create_timer(float(values['discovery_period']), self._discover,
                           clock=steady_clock())
-        self.get_logger().info(f'dashboard at {self.url} (nodes: {", ".join(self._wanted)})')
+        self.create_timer(ACCESS_PERIOD, self._publish_access, clock=steady_clock())
+        # the URL with this start's token, as a notebook server logs it: whoever opens it may
+        # write (unless read_only); the page without it shows the loop read-only
+        shown = self.url if self.access.read_only else f'{self.url}?token={self.access.token}'
+        self.get_logger().info(f'dashboard at {shown} (nodes: {", ".join(self._wanted)}'
+                               f'{"; read-only" if self.access.read_only else ""})')
         self._discover()
 
     def destroy_node(self) -> None:
@@ -205,7 +232,8 @@ class DashboardNode(Node):
             return {'nodes': {name: view.as_json() for name, view in self._views.items()},
                     'limits': dict(self._limits), 'origin': self._origin_ns / NS_PER_S,
                     'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest,
-                    'missed': dict(self.missed), 'marks': list(self.marks)}
+                    'missed': dict(self.missed), 'marks': list(self.marks),
+                    'audit': list(self.audit)}
 
     def request(self, message: dict[str, Any], reply: Reply) -> None:
         """A page's request (web thread): handled by the next pump in the executor thread."""
@@ -254,14 +282,14 @@ class DashboardNode(Node):
             view = self._views.get(node)
         if kind == 'set':
             self._set(view, node, str(message['name']), str(message['text']),
-                      message.get('id'), reply)
+                      message.get('id'), reply, str(message.get('peer', '?')))
         elif kind == 'command':
             self._command(view, node, str(message['command']), message.get('id'), reply)
         else:
             raise ValueError(f'unknown request type {kind!r}')
 
     def _set(self, view: _NodeView | None, node: str, name: str, text: str, request_id: Any,
-             reply: Reply) -> None:
+             reply: Reply, peer: str = '?') -> None:
         def answer(successful: bool, reason: str) -> None:
             reply({'type': 'set_result', 'id': request_id, 'node': node, 'name': name,
                    'successful': successful, 'reason': reason})
@@ -270,10 +298,15 @@ class DashboardNode(Node):
             return
         kind = int(view.params[name]['type'])
         value = parse_text(text, kind)
+        shown = view.params[name]['value']
 
         def then(response: SetParameters.Response) -> None:
             results = list(response.results)
             ok = bool(results) and all(r.successful for r in results)
+            if ok and value != _from_json(shown):   # who asked: the node's record cannot say
+                self._audit_pub.publish(String(data=audit_record(
+                    node, name, _from_json(shown), value,
+                    f'dashboard {self.get_fully_qualified_name()} (page at {peer})')))
             answer(ok, '' if ok else '; '.join(r.reason for r in results if not r.successful)
                    or 'refused without a reason')
         request = SetParameters.Request(parameters=[parameter_msg(name, value, kind)])
@@ -465,6 +498,40 @@ class DashboardNode(Node):
                 self.marks.append({k: v for k, v in mark.items() if k != 'update'})
                 del self.marks[:-MAX_MARKS]
         self.server.broadcast({'type': 'mark', **mark})
+
+    def _on_audit(self, msg: String) -> None:
+        """A parameter change some node applied (nodes/params.py): kept and shown."""
+        try:
+            record = json.loads(msg.data) if len(msg.data) <= MAX_AUDIT_CHARS else None
+        except ValueError:
+            record = None
+        if not isinstance(record, dict) or not isinstance(record.get('time'), (int, float)):
+            self.ignored += 1
+            return
+        record = {key: record.get(key) for key in ('time', 'node', 'name', 'old', 'new',
+                                                   'source')}
+        with self._lock:
+            self.audit.append(record)
+            del self.audit[:-MAX_AUDIT]
+        self.server.broadcast({'type': 'audit', 'record': record})
+
+    def _publish_access(self) -> None:
+        """The refused requests (dashboard/access.py) on /diagnostics every period once
+        there is one (as diagnostic_updater does, for a monitor that starts later): WARN, the
+        counts by kind and the last reason."""
+        counts = self.access.counts()
+        if not counts:
+            return
+        total = sum(counts.values())
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN, name=f'{self.get_name()}: access',
+            message=f'refused {total} requests ({self.access.last_reason})',
+            hardware_id=self.url,
+            values=[KeyValue(key=f'refused_{kind}', value=str(n))
+                    for kind, n in sorted(counts.items())])
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(msg)
 
     def _on_state(self, view: _NodeView, topic: str, msg: String) -> None:
         with self._lock:

@@ -2,13 +2,17 @@
 
 Declares every spec with its ``ParameterDescriptor``, validates start-up values and every
 change (spec, then the node's relations between parameters), refuses with a one-line reason
-naming the parameter, and hands accepted changes to the node for its next sample. What users
-see: docs/nodes.md ("Parameters"); the rclpy (Jazzy) details: :class:`ParameterBinding`.
+naming the parameter, and hands accepted changes to the node for its next sample. Every
+accepted change is published on ``/parameter_audit`` (:data:`AUDIT_TOPIC`). What users see:
+docs/nodes.md ("Parameters", "The parameter audit trail"); the rclpy (Jazzy) details:
+:class:`ParameterBinding`.
 """
 from __future__ import annotations
 
+import json
 import math
 import sys
+import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -18,6 +22,8 @@ from rclpy.exceptions import ParameterNotDeclaredException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_service import ParameterService
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
 
 from tank_control.core import params_file
 from tank_control.core.node_specs import declared_anywhere, is_ros_own
@@ -31,6 +37,36 @@ Derive = Callable[[Mapping[str, Any], frozenset[str]], Mapping[str, Any]]
 """Derived values: (candidate values, names the user set) → extra name → value to set."""
 
 _INT64_MIN, _INT64_MAX = -(2 ** 63), 2 ** 63 - 1
+
+#: Every accepted parameter change of every node: one ``std_msgs/String`` per change holding a
+#: JSON object ``{"time", "node", "name", "old", "new", "source"}`` (:func:`audit_record`).
+AUDIT_TOPIC = '/parameter_audit'
+#: Reliable, transient local, keep-last 100: a reader that joins later (the dashboard) gets the
+#: last 100 changes of each node.
+AUDIT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: ``source`` of a change through the node's ``set_parameters`` service: ``ros2 param set`` /
+#: ``load``, the dashboard, the harness — a client the service does not name.
+SOURCE_SERVICE = 'set_parameters service'
+
+
+def audit_value(value: Any) -> Any:
+    """A parameter value as JSON holds it: non-finite doubles as ``'inf'``, ``'-inf'``,
+    ``'nan'``; arrays as lists."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, (list, tuple)) or hasattr(value, 'tolist'):
+        return [audit_value(v) for v in value]
+    return value
+
+
+def audit_record(node: str, name: str, old: Any, new: Any, source: str,
+                 when: float | None = None) -> str:
+    """The JSON text of one audit message (``time``: wall clock, s since the epoch)."""
+    return json.dumps({'time': time.time() if when is None else when, 'node': node,
+                       'name': name, 'old': audit_value(old), 'new': audit_value(new),
+                       'source': source}, allow_nan=False)
 
 
 def _wildcard_names(node_name: str, argv: list[str] | None = None) -> set[str]:
@@ -126,7 +162,11 @@ class ParameterBinding:
         self.rejected = 0
         self.last_rejection = ''
         self._writing = False        # inside write(): the node's own values, not a user's
+        self._source = ''            # write()'s source while it runs
+        self._derived: dict[str, str] = {}   # name -> source, of the request being set
+        self.audited = 0
         self._declare()
+        self._audit_pub = node.create_publisher(String, AUDIT_TOPIC, AUDIT_QOS)
         node.add_pre_set_parameters_callback(self._pre_set)
         node.add_on_set_parameters_callback(self._on_set)
         node.add_post_set_parameters_callback(self._post_set)
@@ -183,6 +223,7 @@ class ParameterBinding:
 
     # ------------------------------------------------------------ callbacks
     def _pre_set(self, parameters: list[Parameter]) -> list[Parameter]:
+        self._derived = {}
         out: list[Parameter] = []
         changes: dict[str, Any] = {}
         for param in parameters:
@@ -205,9 +246,11 @@ class ParameterBinding:
                     extra = self._derive(candidate, frozenset(changes))
                 except ValueError:
                     extra = {}   # the cross-check names the problem
+                cause = 'derived from ' + ', '.join(sorted(changes))
                 for name, value in extra.items():
                     if name not in changes and value != self._values.get(name):
                         out.append(Parameter(name, value=coerce(self._specs[name], value)))
+                        self._derived[name] = cause
         return out
 
     def _count_descriptor_rejection(self, spec: ParamSpec, value: Any) -> None:
@@ -254,17 +297,32 @@ class ParameterBinding:
         return SetParametersResult(successful=False, reason=reason)
 
     def _post_set(self, parameters: list[Parameter]) -> None:
+        derived, self._derived = self._derived, {}
         for param in parameters:
             spec = self._specs.get(param.name)
             if spec is not None:
                 value = coerce(spec, param.value)
+                old = self._values.get(param.name)
                 self._values[param.name] = value
                 self._pending[param.name] = value
+                if old != value:
+                    self._audit(param.name, old, value, derived.get(param.name) or (
+                        self._source if self._writing else SOURCE_SERVICE))
+
+    def _audit(self, name: str, old: Any, new: Any, source: str) -> None:
+        """One accepted change on ``/parameter_audit`` (and in the log unless the node made
+        it itself)."""
+        self.audited += 1
+        self._audit_pub.publish(String(data=audit_record(
+            self._node.get_fully_qualified_name(), name, old, new, source)))
+        if not self._writing:
+            self._node.get_logger().info(f'parameter {name}: {old!r} -> {new!r} ({source})')
 
     # ------------------------------------------------------- node's writes
-    def write(self, values: Mapping[str, Any]) -> SetParametersResult:
+    def write(self, values: Mapping[str, Any], source: str = 'node') -> SetParametersResult:
         """Set parameters from the node itself (results it computed, e.g. tuned gains or
-        an identified ``ku``), so ``ros2 param get`` shows them.
+        an identified ``ku``), so ``ros2 param get`` shows them; ``source`` names the cause
+        on ``/parameter_audit``.
 
         The values are validated like any change (atomically), read-only ones
         included — read-only means "not settable by users". They reflect the
@@ -276,11 +334,11 @@ class ParameterBinding:
         pending_before = dict(self._pending)
         for name in locked:
             self._node.describe_parameter(name).read_only = False
-        self._writing = True
+        self._writing, self._source = True, source
         try:
             result = self._node.set_parameters_atomically(params)
         finally:
-            self._writing = False
+            self._writing, self._source = False, ''
             for name in locked:
                 self._node.describe_parameter(name).read_only = True
         self._pending = pending_before

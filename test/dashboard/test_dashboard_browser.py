@@ -137,6 +137,9 @@ def test_an_edit_reaches_the_node_and_a_refusal_shows_its_reason(page, probe, ro
     wait.until(lambda d: 'pending' not in param_input(d, 'kp').get_attribute('class'))
     assert reason_text(page, 'kp') == ''
     assert controller_param(probe, 'kp') == 25.0
+    rows = '#audit-rows tr[data-node="/controller"][data-param="kp"] .audit-source'
+    wait.until(lambda d: {'set_parameters service', 'dashboard /dashboard (page at 127.0.0.1)'}
+               <= {e.text for e in d.find_elements(By.CSS_SELECTOR, rows)})
     got = ros2(ros_env, 'param', 'get', '/controller', 'kp')
     assert got.stdout.strip() == 'Double value is: 25.0', got.stderr
 
@@ -183,6 +186,12 @@ def test_a_command_button_starts_the_autotuner_and_its_state_is_shown(page, prob
     wait.until(lambda d: [m['label'] for m in d.execute_script(marks)][-1:] == ['aborted'])
     state_time = controller_param(probe, 'autotune.state_time')
     wait.until(lambda d: d.execute_script(marks)[-1]['t'] == state_time)
+    # the audit trail names the auto-tuner and the command as the source of its state changes
+    rows = '#audit-rows tr[data-node="/controller"][data-param="autotune.state"]'
+    wait.until(lambda d: any(r.find_element(By.CSS_SELECTOR, '.audit-change').text.endswith(
+        '→ aborted') and r.find_element(By.CSS_SELECTOR, '.audit-source').text
+        == 'controller relay_autotune, command /controller/abort_autotune'
+        for r in d.find_elements(By.CSS_SELECTOR, rows)))
     shown = page.execute_script(marks)
     # the test's states before the abort (entered by the command: marked at once, moved to
     # their state_time at the next sample if there was one)
@@ -271,4 +280,43 @@ def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env
         assert panel.get_attribute('data-available') == 'false'
         assert not driver.find_element(By.ID, 'robustness-body').is_displayed()
         assert '\n' not in driver.find_element(By.ID, 'robustness-reason').text
+    assert not group_members(driver.service.process.pid)
+
+
+def test_the_page_writes_only_from_the_logged_url(procs, ros_env, node_cmd, probe):
+    """Opened without the token the page shows the loop read-only (fields and buttons disabled)
+    and a set forced from it is refused by the server; from the URL the node logged (with its
+    token) an edit reaches the node, also after a visit to the runs page."""
+    procs.start('controller', node_cmd('controller_node', '--params-file',
+                                       str(CONFIG / 'ipdt_pid.yaml')), env=ros_env)
+    dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
+    logged = dashboard_url(dash)
+    base, _, query = logged.partition('?')
+    assert query.startswith('token=')
+    before = controller_param(probe, 'u_max')
+    with headless_chromium() as driver:
+        wait = WebDriverWait(driver, WAIT, ignored_exceptions=(StaleElementReferenceException,))
+        driver.get(base)
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR,
+                                             'input[data-node="/controller"][data-param="u_max"]'))
+        wait.until(lambda d: 'read-only' in d.find_element(By.ID, 'access').text)
+        assert not param_input(driver, 'u_max').is_enabled()
+        # the page's own restriction lifted by hand: the server refuses the tokenless set
+        driver.execute_script('document.querySelector(\'input[data-param="u_max"]\')'
+                              '.disabled = false;')
+        type_into(driver, 'u_max', '0.5')
+        wait.until(lambda d: 'refused: no token' in reason_text(d, 'u_max'))
+        assert controller_param(probe, 'u_max') == before != 0.5
+
+        driver.get(logged)
+        wait.until(lambda d: d.find_elements(By.CSS_SELECTOR,
+                                             'input[data-node="/controller"][data-param="u_max"]'))
+        assert not driver.find_element(By.ID, 'access').is_displayed()
+        driver.get(base + 'runs')                 # the token stays with the tab
+        driver.get(base)
+        wait.until(lambda d: param_input(d, 'u_max').is_enabled())
+        type_into(driver, 'u_max', '0.5')
+        wait.until(lambda d: 'pending' not in param_input(d, 'u_max').get_attribute('class'))
+        assert reason_text(driver, 'u_max') == ''
+        assert controller_param(probe, 'u_max') == 0.5
     assert not group_members(driver.service.process.pid)

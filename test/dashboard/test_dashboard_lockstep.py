@@ -129,6 +129,10 @@ def test_tank_control_run_dashboard_serves_the_run_and_stops_with_it(tmp_path, p
                   'return m ? m.t.length : 0;')
         WebDriverWait(page, 60).until(lambda d: d.execute_script(script) >= 20)
     assert harness.popen.wait(timeout=300) == 0, harness.tail()
+    # the URL the harness printed carries the token the dashboard logged (writes need it)
+    printed = harness.log_path.read_text(errors='replace')
+    token = printed.split(f'dashboard: http://127.0.0.1:{port}/?token=', 1)[1].split()[0]
+    assert f'dashboard at http://127.0.0.1:{port}/?token={token} ' in log.read_text()
     assert processes_with(f'port:={port}') == []
     assert len(Trace.read_csv(out / 'trace.csv')) == 401
 

@@ -9,7 +9,7 @@ import subprocess
 import urllib.request
 
 import pytest
-from support.browser import dashboard_url
+from support.browser import base_url, dashboard_url
 
 from tank_control.dashboard.server import load_assets
 
@@ -30,7 +30,7 @@ def test_serves_the_page_and_its_assets_and_stops_cleanly(sig, procs, ros_env, n
               if link != b'/runs']                   # the runs page: test_dashboard_runs.py
     assert linked and all(link.startswith(b'/static/') for link in linked)
     for link in linked:
-        status, _, body = fetch(url.rstrip('/') + link.decode())
+        status, _, body = fetch(base_url(url) + link.decode().lstrip('/'))
         assert status == 200 and body == load_assets()[link.decode()][0]
     proc.popen.send_signal(sig)
     assert proc.popen.wait(timeout=30) == 0, proc.tail()

@@ -20,7 +20,7 @@ import pytest
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
-from support.browser import dashboard_url, headless_chromium
+from support.browser import base_url, dashboard_url, headless_chromium
 from support.procfs import group_members
 
 from tank_control.dashboard.runs import list_runs, run_file
@@ -102,7 +102,7 @@ def test_the_list_says_what_metrics_json_says(runs_dir):
 def dashboard(runs_dir, procs, ros_env, node_cmd):
     dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0', '-p',
                                              f'runs_dir:={runs_dir}'), env=ros_env)
-    return dashboard_url(dash)
+    return base_url(dashboard_url(dash))
 
 
 def test_files_are_served_read_only_and_only_from_runs_dir(dashboard, runs_dir):
@@ -178,6 +178,6 @@ def test_the_runs_page_lists_links_and_compares(dashboard, runs_dir):
 
 def test_without_runs_dir_the_page_says_how_to_set_it(procs, ros_env, node_cmd):
     dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
-    status, kind, body = fetch(dashboard_url(dash) + 'api/runs')
+    status, kind, body = fetch(base_url(dashboard_url(dash)) + 'api/runs')
     table = json.loads(body)
     assert status == 200 and table['runs'] == [] and 'runs_dir:=' in table['hint']

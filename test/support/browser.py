@@ -55,8 +55,14 @@ def headless_chromium(width: int = 1400, height: int = 1000) -> Iterator[object]
                 time.sleep(0.05)                     # SIGKILL delivered; the kernel ends them
 
 
+def base_url(url: str) -> str:
+    """``http://host:port/`` of a logged dashboard URL (without its ``?token=``)."""
+    return url.partition('?')[0]
+
+
 def dashboard_url(proc: ManagedProcess, timeout: float = 60.0) -> str:
-    """The URL dashboard_node logs once its web server listens (port 0: any free port)."""
+    """The URL dashboard_node logs once its web server listens (port 0: any free port), with
+    this start's ``?token=`` (the page may write) unless the dashboard is read-only."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         found = URL_LINE.search(proc.log_path.read_text(errors='replace'))

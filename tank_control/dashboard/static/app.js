@@ -38,6 +38,24 @@
   const finite = (v) => typeof v === 'number' && Number.isFinite(v);
   const num = (v) => (v === 'inf' ? Infinity : v === '-inf' ? -Infinity : v === 'nan' ? NaN : v);
 
+  // ---------------------------------------------------------------- access
+  // The token of this dashboard start comes in the URL the node logs (?token=...); it is kept
+  // for this tab (the runs page and back) and sent with every write. Without it, or when the
+  // dashboard is read-only, the page shows the loop and refuses nothing itself: the server does.
+  const TOKEN_KEY = 'tank_control.dashboard.token';
+  const fromUrl = new URLSearchParams(location.search).get('token');
+  if (fromUrl) sessionStorage.setItem(TOKEN_KEY, fromUrl);
+  state.token = fromUrl || sessionStorage.getItem(TOKEN_KEY) || '';
+  state.readOnly = !state.token;
+  function showAccess(serverReadOnly) {
+    state.readOnly = serverReadOnly || !state.token;
+    const box = $('#access');
+    box.textContent = serverReadOnly ? 'read-only dashboard'
+      : state.token ? '' : 'read-only: open the URL with ?token= that dashboard_node logged to change values';
+    box.hidden = !box.textContent;
+    for (const view of Object.values(state.nodes)) setNode(view);
+  }
+
   // ---------------------------------------------------------------- connection
   let ws = null;
   function connect() {
@@ -52,7 +70,7 @@
     ws.onmessage = (ev) => handle(JSON.parse(ev.data));
   }
   function send(msg) {
-    if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(msg));
+    if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify({...msg, token: state.token}));
   }
 
   function handle(msg) {
@@ -65,6 +83,11 @@
         if (msg.robustness) window.tankRobustness.update(msg.robustness);
         if (msg.missed) onMissed(msg.missed);
         state.marks = (msg.marks || []).slice();
+        state.audit = [];
+        $('#audit-rows').replaceChildren();
+        for (const record of msg.audit || []) onAudit(record);
+        state.serverReadOnly = !!msg.read_only;
+        showAccess(state.serverReadOnly);
         break;
       case 'robustness': window.tankRobustness.update(msg); break;
       case 'missed': onMissed(msg.missed); break;
@@ -78,6 +101,7 @@
       case 'limits': state.limits = msg.limits; refreshLimits(); break;
       case 'set_result': onSetResult(msg); break;
       case 'command_result': onCommandResult(msg); break;
+      case 'audit': onAudit(msg.record); break;
       default: break;
     }
   }
@@ -384,7 +408,8 @@
     if (view.commands.length) {
       const cmds = el('div', {class: 'commands'});
       for (const command of view.commands) {
-        const button = el('button', {type: 'button', 'data-node': view.name, 'data-command': command},
+        const button = el('button', {type: 'button', 'data-node': view.name, 'data-command': command,
+                                     disabled: state.readOnly},
                           command.replace(/_/g, ' '));
         button.addEventListener('click', () => {
           result.textContent = '…';
@@ -429,10 +454,10 @@
     const attrs = {'data-node': view.name, 'data-param': name};
     let input;
     if (p.type === 1) {
-      input = el('input', {type: 'checkbox', checked: p.value === true, disabled: p.read_only, ...attrs});
+      input = el('input', {type: 'checkbox', checked: p.value === true, disabled: p.read_only || state.readOnly, ...attrs});
       input.addEventListener('change', () => submit(input, input.checked ? 'true' : 'false'));
     } else {
-      input = el('input', {type: 'text', value: formatValue(p.value), disabled: p.read_only,
+      input = el('input', {type: 'text', value: formatValue(p.value), disabled: p.read_only || state.readOnly,
                            spellcheck: false, ...attrs});
       input.addEventListener('change', () => submit(input, input.value));
       input.addEventListener('keydown', (ev) => {
@@ -490,7 +515,8 @@
       reason.textContent = '';
       reason.className = 'reason ok';
     } else {
-      reason.textContent = `${typed !== undefined ? `"${typed}" ` : ''}refused: ${msg.reason}`;
+      const why = msg.reason.startsWith('refused:') ? msg.reason : `refused: ${msg.reason}`;
+      reason.textContent = `${typed !== undefined ? `"${typed}" ` : ''}${why}`;
       reason.className = 'reason refused';
       if (input) { input.blur(); showValue(msg.node, msg.name); }
     }
@@ -524,6 +550,25 @@
     if (view) view.diagnostics = {level: msg.level, message: msg.message};
     const target = document.querySelector(`.diag[data-node="${CSS.escape(msg.node)}"]`);
     if (target) showDiagnostics(target, msg);
+  }
+
+  // ---------------------------------------------------------------- audit trail
+  // Every parameter change a node applied (/parameter_audit, nodes/params.py), newest first.
+  const AUDIT_SHOWN = 200;
+  state.audit = [];
+  function onAudit(record) {
+    state.audit.push(record);
+    if (state.audit.length > AUDIT_SHOWN) state.audit.shift();
+    $('#no-audit')?.remove();
+    const when = new Date(record.time * 1000);
+    const row = el('tr', {'data-node': String(record.node), 'data-param': String(record.name)},
+      el('td', {title: when.toISOString()}, when.toLocaleTimeString()),
+      el('td', {}, String(record.node)), el('td', {}, String(record.name)),
+      el('td', {class: 'audit-change'}, `${formatValue(record.old)} → ${formatValue(record.new)}`),
+      el('td', {class: 'audit-source'}, String(record.source)));
+    const rows = $('#audit-rows');
+    rows.prepend(row);
+    while (rows.children.length > AUDIT_SHOWN) rows.lastChild.remove();
   }
 
   connect();
