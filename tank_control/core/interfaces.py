@@ -12,9 +12,12 @@ counted, so the in-process loop and the ROS graph see bit-identical instants;
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, cast, runtime_checkable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from tank_control.core.control.kinds.base import LoopWatch
 
 NS_PER_S = 1_000_000_000
 
@@ -35,9 +38,17 @@ def seconds(t_ns: int) -> float:
 class Plant(Protocol):
     """A simulated process advanced with zero-order-hold inputs."""
 
-    output_names: tuple[str, ...]
-    input_names: tuple[str, ...]
-    disturbance_names: tuple[str, ...]
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Its measured channels."""
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Its manipulated inputs."""
+
+    @property
+    def disturbance_names(self) -> tuple[str, ...]:
+        """Its disturbance inputs."""
 
     def reset(self) -> None:
         """Return to the initial state (clears delay-line history)."""
@@ -61,10 +72,22 @@ class Controller(Protocol):
     instant; it returns the manipulated inputs to hold until the next sample.
     """
 
-    output_names: tuple[str, ...]       # measured channels it reads (= setpoint names)
-    input_names: tuple[str, ...]        # manipulated channels it writes
-    disturbance_names: tuple[str, ...]  # measured disturbances it may use (feed-forward)
-    sample_time: float
+    # read-only members (a class attribute, an instance attribute or a property of any of them)
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Measured channels it reads (= setpoint names)."""
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Manipulated channels it writes."""
+
+    @property
+    def disturbance_names(self) -> tuple[str, ...]:
+        """Measured disturbances it may use (feed-forward)."""
+
+    @property
+    def sample_time(self) -> float:
+        """[s]"""
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
         """Initialise bumplessly: the next output continues from ``u``."""
@@ -75,3 +98,20 @@ class Controller(Protocol):
     @property
     def status(self) -> Mapping[str, Any]:
         """Read-only view for diagnostics (mode, saturation, anti-windup, ...)."""
+
+
+class Attached(Protocol):
+    """The members a controller carries besides :class:`Controller`'s, set from outside its
+    class when a kind builds it (``core/control/kinds``); a controller made otherwise may lack
+    them (read with ``getattr(controller, name, None)``). Reach them with :func:`attached`."""
+
+    initial_output: np.ndarray | None
+    """[input units] the warm start takes over with (``kinds.registry.build``; None: none)"""
+    loop_watch: LoopWatch
+    """robustness of the running loop (the kinds with ``robustness.*`` results)"""
+
+
+def attached(controller: object) -> Attached:
+    """``controller`` seen with its :class:`Attached` members (no check: the kind that built it
+    set the ones it reads)."""
+    return cast(Attached, controller)

@@ -560,7 +560,7 @@ def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> lis
         target = -math.pi + 2 * math.pi * max(level[i], level[i + 1])
 
         def f(x: float) -> float:
-            return _phase_scalar(g, x, w, ph) - target
+            return _phase_scalar(g, x, w, ph) - target  # noqa: B023 - used in this iteration only
         fa, fb = f(w[i]), f(w[i + 1])
         if fa == 0.0:
             out.append(float(w[i]))

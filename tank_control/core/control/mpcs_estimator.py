@@ -168,7 +168,8 @@ def take_over(old: KalmanEstimator, new: KalmanEstimator, u_eff: np.ndarray,
     mapped through their physical values (``y0 + x``); the disturbance is chosen
     so that both models predict the same next state for the inputs acting now
     (``u_eff``, ``d``, physical units; ``d = None``: no feed-forward, each model at
-    its own ``d0``) — a mid-transient re-linearisation keeps the transient. Returns False (nothing changed) when the structures differ.
+    its own ``d0``) — a mid-transient re-linearisation keeps the transient. Returns False
+    (nothing changed) when the structures differ.
     """
     mo, mn = old.sys.model, new.sys.model
     same = (old.sys.kind == new.sys.kind and old.sys.n == new.sys.n

@@ -419,6 +419,9 @@ class ControllerKind:
     * ``gains``: parameters reported as the run's final gains; ``input_limits(settings)``:
       ``{input channel: (min, max)}`` for constraint metrics; ``disturbances``: the measured
       disturbance channels the controller reads (feed-forward).
+
+    ``update``, ``results`` and ``commands`` take the kind's own controller (what its ``build``
+    returns, typed ``Any`` here).
     """
 
     name: str
@@ -426,12 +429,12 @@ class ControllerKind:
     config: type
     build: Callable[[Settings], Controller]
     groups: tuple[Group, ...] = ()
-    update: Callable[[Controller, Settings, frozenset[str]], bool | None] | None = None
+    update: Callable[[Any, Settings, frozenset[str]], bool | None] | None = None
     derive: Callable[[Values], Mapping[str, Any]] | None = None
     reason: Callable[[Settings], str | None] | None = None
-    results: Callable[[Controller], Mapping[str, Any]] | None = None
+    results: Callable[[Any], Mapping[str, Any]] | None = None
     state: str | None = None
-    commands: Mapping[str, Callable[[Controller], tuple[bool, str]]] = field(
+    commands: Mapping[str, Callable[[Any], tuple[bool, str]]] = field(
         default_factory=dict)
     gains: tuple[str, ...] = ()
     input_limits: Callable[[Settings], Mapping[str, tuple[float, float]]] | None = None
