@@ -544,7 +544,7 @@ class MimoAutotuner:
         try:
             loops = (self._loops[0], self._loops[1])
             self._relay = None
-            self._propose(loops)            # type: ignore[arg-type]
+            self._propose(loops)
         except ValueError as exc:
             self._end('failed', str(exc))
             return None
