@@ -3,6 +3,7 @@ errors and warnings, bugbear, line length) and mypy (setup.cfg ``[mypy]``). A fi
 suite with the tool's own report; the tools are the pinned ones of this interpreter's environment."""
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -27,3 +28,23 @@ def test_mypy_finds_nothing() -> None:
     done = _run('mypy', 'tank_control')
     if done.returncode != 0:
         pytest.fail(f'mypy tank_control:\n{done.stdout}{done.stderr}', pytrace=False)
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Every module ``path`` imports, at its top or inside a function."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            found.add(node.module)
+            found.update(f'{node.module}.{alias.name}' for alias in node.names)
+    return found
+
+
+def test_the_harness_does_not_import_the_demo() -> None:
+    """The demo is a user of the harness (``make demo``), never a part of it."""
+    users = sorted(str(path.relative_to(ROOT))
+                   for path in (ROOT / 'tank_control' / 'harness').rglob('*.py')
+                   if 'tank_control.demo' in _imported_modules(path))
+    assert not users, f'harness modules importing tank_control.demo: {users}'
