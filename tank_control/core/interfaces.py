@@ -12,12 +12,9 @@ counted, so the in-process loop and the ROS graph see bit-identical instants;
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Protocol, cast, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from tank_control.core.control.kinds.base import LoopWatch
 
 NS_PER_S = 1_000_000_000
 
@@ -98,20 +95,3 @@ class Controller(Protocol):
     @property
     def status(self) -> Mapping[str, Any]:
         """Read-only view for diagnostics (mode, saturation, anti-windup, ...)."""
-
-
-class Attached(Protocol):
-    """The members a controller carries besides :class:`Controller`'s, set from outside its
-    class when a kind builds it (``core/control/kinds``); a controller made otherwise may lack
-    them (read with ``getattr(controller, name, None)``). Reach them with :func:`attached`."""
-
-    initial_output: np.ndarray | None
-    """[input units] the warm start takes over with (``kinds.registry.build``; None: none)"""
-    loop_watch: LoopWatch
-    """robustness of the running loop (the kinds with ``robustness.*`` results)"""
-
-
-def attached(controller: object) -> Attached:
-    """``controller`` seen with its :class:`Attached` members (no check: the kind that built it
-    set the ones it reads)."""
-    return cast(Attached, controller)

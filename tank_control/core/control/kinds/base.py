@@ -14,7 +14,9 @@ import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Protocol, cast
+
+import numpy as np
 
 from tank_control.core.control.kinds.groups import (BIG, MODE, TUNING, Channels, FailSafe, Group,
                                                     Mode, Tuning, WarmStart, channels, fail_safe,
@@ -35,7 +37,8 @@ __all__ = [  # the groups and the guard, re-exported: kinds use them as base.<na
     'ROBUSTNESS_RESULTS', 'SAMPLING_RESULTS', 'LoopWatch', 'Robustness', 'RobustnessResults',
     'SamplingResults', 'guard_reason', 'pid_gains', 'robustness_values',
     # defined here
-    'Settings', 'Values', 'ControllerKind', 'resolve', 'tuned_gains', 'tuning_model',
+    'Settings', 'Values', 'ControllerKind', 'resolve', 'Attached', 'attached', 'tuned_gains',
+    'tuning_model',
     'siso_reason', 'outputs_within_limits', 'scalar_limits', 'set_changed_gains', 'siso_build',
     'siso_update', 'apply_mode',
 ]
@@ -163,6 +166,24 @@ def _conflict(name: str, value: Any, derived: Any, values: Values) -> str:
             if name in ('b', 'c') else 'set tuning.rule to none to tune by hand')
     return (f'{name}: {value:g} conflicts with tuning.rule {rule!r}, which gives {derived:g}; '
             f'{hint}')
+
+
+class Attached(Protocol):
+    """The members a controller carries besides :class:`Controller`'s, set from outside its
+    class when a kind builds it (``core.loop.initial_output`` reads ``initial_output``); a
+    controller made otherwise may lack them (read with ``getattr(controller, name, None)``).
+    Reach them with :func:`attached`."""
+
+    initial_output: np.ndarray | None
+    """[input units] the warm start takes over with (``kinds.registry.build``; None: none)"""
+    loop_watch: LoopWatch
+    """robustness of the running loop (the kinds with ``robustness.*`` results)"""
+
+
+def attached(controller: object) -> Attached:
+    """``controller`` seen with its :class:`Attached` members (no check: the kind that built it
+    set the ones it reads)."""
+    return cast(Attached, controller)
 
 
 # ------------------------------------------------------------------- shared functions

@@ -10,7 +10,6 @@ from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
 from tank_control.core.control.lead_lag import (LeadLagConfig, LeadLagController, LeadLagTuning,
                                                 design, discrete_response)
-from tank_control.core.interfaces import attached
 from tank_control.core.params import config_from
 from tank_control.core.tuning.model import ProcessModel
 
@@ -52,15 +51,15 @@ _build = base.siso_build(LeadLagController)
 
 def build(settings: Settings) -> LeadLagController:
     controller = _build(settings)
-    attached(controller).loop_watch = LoopWatch(process_model(settings.values),
-                                                settings.robustness.ms_max, loop_report, _key)
+    base.attached(controller).loop_watch = LoopWatch(process_model(settings.values),
+                                                     settings.robustness.ms_max, loop_report, _key)
     return controller
 
 
 def update(controller: LeadLagController, settings: Settings, changed: frozenset[str]) -> bool:
     """:func:`base.siso_update`; the model of the analysis."""
     base.siso_update(controller, settings, changed)
-    watch = attached(controller).loop_watch
+    watch = base.attached(controller).loop_watch
     watch.model, watch.ms_max = process_model(settings.values), settings.robustness.ms_max
     return True
 
@@ -73,7 +72,7 @@ def reason(settings: Settings) -> str | None:
 
 def results(controller: LeadLagController) -> dict[str, Any]:
     """``robustness.*`` of the running loop."""
-    return attached(controller).loop_watch.values(controller.lead_lag.config)
+    return base.attached(controller).loop_watch.values(controller.lead_lag.config)
 
 
 def derive(values: base.Values) -> dict[str, float]:

@@ -15,8 +15,8 @@ import numpy as np
 
 from tank_control.core.control.kinds import (fsa, lead_lag, mpcs, pid, relay_autotune, smith_pi,
                                              two_loop_pi)
-from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
-from tank_control.core.interfaces import Controller, attached
+from tank_control.core.control.kinds.base import ControllerKind, Settings, attached, resolve
+from tank_control.core.interfaces import Controller
 from tank_control.core.params import by_name, finder
 
 KINDS: dict[str, ControllerKind] = by_name(

@@ -17,7 +17,6 @@ from tank_control.core.control.relay_autotune import (AutotuneCommand, AutotuneC
 from tank_control.core.control.smith import SmithModel
 from tank_control.core.control.smith_autotune import (TESTING, SmithAutotuner, SmithDesign,
                                                       model_of)
-from tank_control.core.interfaces import attached
 from tank_control.core.tuning.model import ProcessModel
 
 PRIMARY = ('kp', 'ti', 'b', 'sample_time', 'u_min', 'u_max', 'du_max', 'anti_windup',
@@ -112,8 +111,8 @@ def build(settings: Settings) -> SmithAutotuner:
     controller.ms_max = settings.robustness.ms_max
     if settings.mode.mode == 'manual':
         controller.set_manual(float(settings.mode.manual_output))
-    attached(controller).loop_watch = LoopWatch(process_model(settings.config),
-                                                settings.robustness.ms_max, analyse, _key)
+    base.attached(controller).loop_watch = LoopWatch(process_model(settings.config),
+                                                     settings.robustness.ms_max, analyse, _key)
     if settings.command.start:
         controller.start()
     return controller
@@ -132,7 +131,7 @@ def update(controller: SmithAutotuner, settings: Settings, changed: frozenset[st
     primary = controller.primary
     base.set_changed_gains(primary, settings.primary, PRIMARY)
     base.apply_mode(controller, primary.mode, settings, changed)
-    attached(controller).loop_watch.ms_max = settings.robustness.ms_max
+    base.attached(controller).loop_watch.ms_max = settings.robustness.ms_max
     controller.ms_max = settings.robustness.ms_max
     controller.design = _design(settings)
     if settings.autotune != controller.config:
@@ -145,7 +144,7 @@ def update(controller: SmithAutotuner, settings: Settings, changed: frozenset[st
 def results(controller: SmithAutotuner) -> dict[str, Any]:
     """The chain's ``autotune.*`` results with the running ``smith.*`` model and primary
     ``kp``, ``ti``, and ``robustness.*`` of the running loop on the internal model."""
-    watch = attached(controller).loop_watch
+    watch = base.attached(controller).loop_watch
     watch.model = process_model(controller.model)
     return {**controller.results(),
             **watch.values(_loop(controller.model, controller.primary.config))}
