@@ -508,6 +508,7 @@ class MimoAutotuner:
         i = STAGES[self._stage][0]
         j = 1 - i
         relay = self._relay
+        assert relay is not None                   # set by _begin_stage
         r_i = np.array([self._r_used[i]])
         self._v[i] = float(relay.step(t, np.array([yv[i]]), r_i, np.zeros(0))[0])
         if self._closed is not None:
