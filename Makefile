@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-fast setup colcon clean browser
+.PHONY: demo test test-fast lint setup colcon clean browser
 
 setup: $(STAMP) browser
 
@@ -52,10 +52,15 @@ test-fast: $(STAMP)
 	@$(COMPILE)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --no-graph -m 'not slow' --durations=10 test
 
+# The static checks alone, for the edit loop (make test runs them too: test/package/test_static.py).
+lint: $(STAMP)
+	$(BIN)/python -m ruff check tank_control
+	$(BIN)/python -m mypy tank_control
+
 # A colcon workspace build of this package (ament_python), into build/colcon/.
 colcon: $(STAMP)
 	$(BIN)/colcon --log-base build/colcon/log build --base-paths . \
 	  --build-base build/colcon/build --install-base build/colcon/install
 
 clean:
-	rm -rf $(VENV) build/ install/ log/ *.egg-info
+	rm -rf $(VENV) build/ install/ log/ *.egg-info .mypy_cache .ruff_cache

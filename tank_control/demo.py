@@ -23,11 +23,9 @@ DEFAULT_SCENARIO = 'scenarios/tank_mpcs_qp.yaml'
 
 
 def config_dir() -> Path:
-    """The shipped scenarios: ``config/`` of this checkout, else the installed share dir."""
-    here = Path(__file__).resolve().parents[1] / 'config'
-    if here.is_dir():
-        return here
-    return Path(sys.prefix) / 'share' / 'tank_control' / 'config'
+    """The shipped scenarios (:func:`~tank_control.harness.scenario_file.shipped_config_dir`)."""
+    from tank_control.harness.scenario_file import shipped_config_dir
+    return shipped_config_dir()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -35,9 +35,17 @@ def seconds(t_ns: int) -> float:
 class Plant(Protocol):
     """A simulated process advanced with zero-order-hold inputs."""
 
-    output_names: tuple[str, ...]
-    input_names: tuple[str, ...]
-    disturbance_names: tuple[str, ...]
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Its measured channels."""
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Its manipulated inputs."""
+
+    @property
+    def disturbance_names(self) -> tuple[str, ...]:
+        """Its disturbance inputs."""
 
     def reset(self) -> None:
         """Return to the initial state (clears delay-line history)."""
@@ -61,10 +69,22 @@ class Controller(Protocol):
     instant; it returns the manipulated inputs to hold until the next sample.
     """
 
-    output_names: tuple[str, ...]       # measured channels it reads (= setpoint names)
-    input_names: tuple[str, ...]        # manipulated channels it writes
-    disturbance_names: tuple[str, ...]  # measured disturbances it may use (feed-forward)
-    sample_time: float
+    # read-only members (a class attribute, an instance attribute or a property of any of them)
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        """Measured channels it reads (= setpoint names)."""
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Manipulated channels it writes."""
+
+    @property
+    def disturbance_names(self) -> tuple[str, ...]:
+        """Measured disturbances it may use (feed-forward)."""
+
+    @property
+    def sample_time(self) -> float:
+        """[s]"""
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
         """Initialise bumplessly: the next output continues from ``u``."""

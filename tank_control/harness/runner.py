@@ -208,8 +208,9 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
     analysis) and the loop cases it was analysed on; also what a sweep records per run
     (``plant_only``: the loop analysed on the plant's model only, not also on the
-    controller's own model, which a sweep does not report). ``complete=False`` (a failed or stopped run): what can be known, the controller's limits
-    and gains from the file when the node could not be asked, no error from the report."""
+    controller's own model, which a sweep does not report). ``complete=False`` (a failed or
+    stopped run): what can be known, the controller's limits and gains from the file when the
+    node could not be asked, no error from the report."""
     if complete:
         limits, gains = controller_report(scenario, controller_params)
         warnings = controller_warnings(controller_params)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import re
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -229,8 +230,10 @@ def write_params_file(scenario: Scenario, path: str | Path) -> Path:
 
 def shipped_config_dir() -> Path:
     """The shipped scenarios: ``config/`` of this checkout, else the installed share dir."""
-    from tank_control.demo import config_dir
-    return config_dir()
+    here = Path(__file__).resolve().parents[2] / 'config'
+    if here.is_dir():
+        return here
+    return Path(sys.prefix) / 'share' / 'tank_control' / 'config'
 
 
 def list_scenarios(directory: str | Path) -> list[tuple[Path, str]]:

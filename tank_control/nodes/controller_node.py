@@ -3,8 +3,8 @@
 Subscribes ``measurement``, ``setpoint`` (and ``disturbance`` when the kind uses measured
 disturbances) and the plant's latched ``applied_input`` (a controller that starts on a running
 loop takes over from it, bumplessly); publishes ``manipulated``, ``/diagnostics``,
-``~/late_inputs``, the kind's state topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to read-only
-parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
+``~/late_inputs``, the kind's state topic; writes the kind's results (e.g. ``robustness.*``, ``autotune.*``) to
+read-only parameters and ``/diagnostics``; offers the kind's commands as ``std_srvs/Trigger`` services.
 Samples on each measurement's arrival (``wall``, ``trigger: measurement``), on a timer (``wall``
 with ``trigger: timer``, ``sim``) or answers each plant tick (``lockstep``); warm start,
 measurement faults and fail-safe as in docs/nodes.md ("controller_node"). Units: those of the channels; times in s.
@@ -310,7 +310,7 @@ class ControllerNode(Node):
                                    'one (logged once)')
                     return 'out-of-range'
                 return 'non-finite'
-        return 
+        return ''
 
     def _on_measurement(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_MEASUREMENT, msg)

@@ -10,7 +10,7 @@ import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # rclpy is imported lazily: `ros2 run` and `--help` do not need it
     from rclpy.node import Node
@@ -120,7 +120,7 @@ def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIE
     """
     snapshot_of = snapshot_of or (lambda: graph_snapshot(node))
     start = time.monotonic()
-    state = {'snapshot': snapshot_of(), 'changed': start}
+    state: dict[str, Any] = {'snapshot': snapshot_of(), 'changed': start}
 
     def settled() -> bool:
         now = time.monotonic()
@@ -157,7 +157,7 @@ def wait_for_node(node: 'Node', full_name: str, timeout: float) -> None:
 
 
 def call_service(node: 'Node', srv_type: type, name: str, request: object,
-                 timeout: float, resend_after: float | None = None) -> object:
+                 timeout: float, resend_after: float | None = None) -> Any:
     """Call a service with one deadline for discovery and the answer together;
     ``resend_after`` [s] for a read: ``nodes/services.answer`` (a response can be lost)."""
     from tank_control.nodes.services import answer

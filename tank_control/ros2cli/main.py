@@ -36,8 +36,9 @@ def hand_over() -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog='ros2', formatter_class=argparse.RawDescriptionHelpFormatter, description='ros2 is an extensible command-line tool for ROS 2 '
-                                 '(tank_control edition: run, param, topic, node, service).')
+        prog='ros2', formatter_class=argparse.RawDescriptionHelpFormatter,
+        description='ros2 is an extensible command-line tool for ROS 2 '
+                    '(tank_control edition: run, param, topic, node, service).')
     commands = parser.add_subparsers(
         title='Commands', dest='command',
         metavar='Call `ros2 <command> -h` for more detailed usage.')

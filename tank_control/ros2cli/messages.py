@@ -26,7 +26,7 @@ _INT_RANGES.update({'short': _INT_RANGES['int16'], 'unsigned short': _INT_RANGES
                     'unsigned long long': _INT_RANGES['uint64'], 'octet': (0, 255)})
 
 
-def resolve_type(name: str, kind: str = 'msg') -> type:
+def resolve_type(name: str, kind: str = 'msg') -> Any:
     """``sensor_msgs/msg/JointState`` → the class; one-line ``CliError`` if unknown."""
     parts = name.split('/')
     if len(parts) == 2:

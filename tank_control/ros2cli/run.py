@@ -22,6 +22,7 @@ import sysconfig
 from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
+from typing import Literal
 
 from tank_control import cli_examples
 from tank_control.ros2cli.common import CliError
@@ -119,7 +120,7 @@ def _distribution(package: str) -> metadata.Distribution | None:
     return None
 
 
-def console_script_command(package: str, executable: str) -> list[str] | None | bool:
+def console_script_command(package: str, executable: str) -> list[str] | Literal[False] | None:
     """argv running a console script of distribution ``package``.
 
     None: no such distribution; False: the distribution has no such script.

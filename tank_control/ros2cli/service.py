@@ -79,7 +79,7 @@ def call_verb(args: argparse.Namespace) -> int:
             if args.rate is None:
                 return 0
             next_time += 1.0 / args.rate
-            spin_until(node, lambda: time.monotonic() >= next_time, None)
+            spin_until(node, lambda: time.monotonic() >= next_time, None)  # noqa: B023 - waited on here
 
 
 def type_verb(args: argparse.Namespace) -> int:

@@ -232,7 +232,7 @@ def pub_verb(args: argparse.Namespace) -> int:
         count = 0
         next_time = time.monotonic()
         while not times or count < times:
-            spin_until(node, lambda: time.monotonic() >= next_time, None)
+            spin_until(node, lambda: time.monotonic() >= next_time, None)  # noqa: B023 - waited on here
             publisher.publish(msg)
             count += 1
             if args.print_nth and count % args.print_nth == 0:
@@ -273,7 +273,7 @@ def hz_verb(args: argparse.Namespace) -> int:
                                  raw=True)
         next_report = time.monotonic() + 1.0
         while True:
-            spin_until(node, lambda: time.monotonic() >= next_report, None)
+            spin_until(node, lambda: time.monotonic() >= next_report, None)  # noqa: B023 - waited on here
             next_report += 1.0
             if not fresh[0]:
                 print('no new messages', flush=True)

@@ -13,11 +13,12 @@ ratios. Overview and the documents' tunings: README, "Frequency-domain analysis 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from tank_control.core.scipy_lazy import brentq, minimize_scalar
 
 Rational = Callable[[np.ndarray], np.ndarray]
@@ -125,7 +126,8 @@ class FrequencyResponse:
     def __mul__(self, other: FrequencyResponse | float) -> FrequencyResponse:
         if not isinstance(other, FrequencyResponse):
             k = _nonzero('gain', other)
-            return FrequencyResponse(lambda p, f=self.rational: k * f(p), self.dead_time,
+            f = self.rational
+            return FrequencyResponse(lambda p: k * f(p), self.dead_time,
                                      self.sample_time, self.integrators, self.unstable_poles,
                                      self.corners)
         if not math.isclose(self.sample_time, other.sample_time, rel_tol=1e-12, abs_tol=0.0):
@@ -141,7 +143,7 @@ class FrequencyResponse:
 
 
 # ------------------------------------------------------------- continuous models
-def _poly(name: str, coefficients: Sequence[float]) -> np.ndarray:
+def _poly(name: str, coefficients: ArrayLike) -> np.ndarray:
     arr = np.atleast_1d(np.asarray(coefficients, dtype=float))
     if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
         raise ValueError(f'{name}: need a non-empty 1-D array of finite coefficients '
@@ -166,7 +168,7 @@ def _delay_corner(dead_time: float) -> tuple[float, ...]:
     return (1.0 / dead_time,) if dead_time > 0 else ()
 
 
-def rational(num: Sequence[float], den: Sequence[float], dead_time: float = 0.0) -> FrequencyResponse:
+def rational(num: ArrayLike, den: ArrayLike, dead_time: float = 0.0) -> FrequencyResponse:
     """``num(s)/den(s) · e^(−dead_time·s)``; coefficients highest power first
     (numpy ``polyval`` order), ``dead_time`` [s] ≥ 0. Must be proper
     (deg num ≤ deg den). General form of 001 eq. 6.5 (H_N1(s)·e^(−sτ))."""
@@ -361,7 +363,7 @@ class ZohStateSpace:
     sample_time: float
 
 
-def zoh_state_space(num: Sequence[float], den: Sequence[float], dead_time: float,
+def zoh_state_space(num: ArrayLike, den: ArrayLike, dead_time: float,
                     sample_time: float) -> ZohStateSpace:
     """:class:`ZohStateSpace` of ``num(s)/den(s)·e^(−L·s)`` (``dead_time`` L [s],
     ``sample_time`` h [s]); the state space of num/den is scipy's controllable form."""
@@ -393,7 +395,7 @@ def zoh_state_space(num: Sequence[float], den: Sequence[float], dead_time: float
     return ZohStateSpace(phi, gamma0, phi_a @ int_theta, np.asarray(c, float), d, h)
 
 
-def rational_zoh(num: Sequence[float], den: Sequence[float], dead_time: float,
+def rational_zoh(num: ArrayLike, den: ArrayLike, dead_time: float,
                  sample_time: float) -> FrequencyResponse:
     """Exact ZOH (step-invariant) model of the strictly proper ``num(s)/den(s)·e^(−L·s)``,
     also with a fractional dead time (:class:`ZohStateSpace`; 001 eq. 6.7 generalised,
@@ -411,7 +413,7 @@ def rational_zoh(num: Sequence[float], den: Sequence[float], dead_time: float,
     return rational_discrete(zn, zd, ss.sample_time, ss.delay_samples)
 
 
-def rational_discrete(num: Sequence[float], den: Sequence[float], sample_time: float,
+def rational_discrete(num: ArrayLike, den: ArrayLike, sample_time: float,
                       delay_samples: int = 0) -> FrequencyResponse:
     """``num(z)/den(z) · z^(−d)``, coefficients in z highest power first,
     ``d = delay_samples`` ≥ 0 (001 eq. 6.7), ``sample_time`` [s]."""
@@ -526,7 +528,7 @@ def _refined(g: FrequencyResponse) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return w, val, _phase_on(g, w)
 
 
-def bode(g: FrequencyResponse, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bode(g: FrequencyResponse, w: ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(w [rad/s], |G(jω)| [ratio], phase [deg])``; the phase is continuous
     (exact dead time ``−ω·L``), starting from its ω → 0+ limit."""
     if w is None:
@@ -560,7 +562,7 @@ def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> lis
         target = -math.pi + 2 * math.pi * max(level[i], level[i + 1])
 
         def f(x: float) -> float:
-            return _phase_scalar(g, x, w, ph) - target
+            return _phase_scalar(g, x, w, ph) - target  # noqa: B023 - used in this iteration only
         fa, fb = f(w[i]), f(w[i + 1])
         if fa == 0.0:
             out.append(float(w[i]))
@@ -829,5 +831,7 @@ def controller_report(ctrl: FrequencyResponse, plant: FrequencyResponse,
 def report_from_gains(plant: FrequencyResponse | Any, gains: Mapping[str, float | None],
                       n: float = 10.0) -> dict[str, float | bool]:
     """:func:`tuning_report` for a ``tune()`` result dict (keys kp, ti, td, b, c)."""
-    return tuning_report(plant, gains['kp'], gains.get('ti'), gains.get('td'),
+    kp = gains['kp']
+    assert kp is not None                      # a tune() result always has a gain
+    return tuning_report(plant, kp, gains.get('ti'), gains.get('td'),
                          gains.get('b'), gains.get('c'), n)

@@ -508,6 +508,7 @@ class MimoAutotuner:
         i = STAGES[self._stage][0]
         j = 1 - i
         relay = self._relay
+        assert relay is not None                   # set by _begin_stage
         r_i = np.array([self._r_used[i]])
         self._v[i] = float(relay.step(t, np.array([yv[i]]), r_i, np.zeros(0))[0])
         if self._closed is not None:
@@ -544,7 +545,7 @@ class MimoAutotuner:
         try:
             loops = (self._loops[0], self._loops[1])
             self._relay = None
-            self._propose(loops)            # type: ignore[arg-type]
+            self._propose(loops)
         except ValueError as exc:
             self._end('failed', str(exc))
             return None

@@ -116,7 +116,7 @@ def filter_riccati(a: np.ndarray, c: np.ndarray, q: np.ndarray, r: np.ndarray,
         g_k = g_k + a_k @ v2 @ a_k.T
         h_new = h_k + v1.T @ h_k @ a_k
         a_k = a_k @ v1
-        done = np.linalg.norm(h_new - h_k, 1) <= tol * max(np.linalg.norm(h_new, 1), 1e-300)
+        done = np.linalg.norm(h_new - h_k, 1) <= tol * max(float(np.linalg.norm(h_new, 1)), 1e-300)
         h_k = h_new
         if done and np.all(np.isfinite(h_k)):
             return 0.5 * (h_k + h_k.T)
@@ -168,7 +168,8 @@ def take_over(old: KalmanEstimator, new: KalmanEstimator, u_eff: np.ndarray,
     mapped through their physical values (``y0 + x``); the disturbance is chosen
     so that both models predict the same next state for the inputs acting now
     (``u_eff``, ``d``, physical units; ``d = None``: no feed-forward, each model at
-    its own ``d0``) — a mid-transient re-linearisation keeps the transient. Returns False (nothing changed) when the structures differ.
+    its own ``d0``) — a mid-transient re-linearisation keeps the transient. Returns False
+    (nothing changed) when the structures differ.
     """
     mo, mn = old.sys.model, new.sys.model
     same = (old.sys.kind == new.sys.kind and old.sys.n == new.sys.n

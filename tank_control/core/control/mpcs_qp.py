@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,7 @@ class DenseQp:
         self.a = np.ascontiguousarray(a, dtype=float)
         self.n = self.h.shape[0]
         self.iter_limit = iter_limit
-        self._model = None
+        self._model: Any = None                 # the solver's workspace, set up at the first solve
 
     def __deepcopy__(self, memo: dict) -> DenseQp:
         """A copy with its own workspace, made at its first solve (DAQP's workspace cannot be
@@ -65,6 +66,8 @@ class DenseQp:
         f = np.ascontiguousarray(f, dtype=float)
         try:
             if self._model is None:
+                if daqp is None:
+                    raise ImportError('daqp is not installed')   # the fallback below
                 self._model = daqp.Model()
                 self._model.settings = {'iter_limit': self.iter_limit}
                 flag, _ = self._model.setup(self.h, f, self.a, upper, lower)

@@ -69,7 +69,9 @@ class GainSchedule:
     def gains(self, s: float) -> tuple[float, float, float, float]:
         """``(kp_h, ki_h, kp_T, ki_T)`` at ``s``: linear between breakpoints, the end values
         outside them."""
-        return interpolate(self.breakpoints, (self.kp_h, self.ki_h, self.kp_T, self.ki_T), s)
+        kp_h, ki_h, kp_t, ki_t = interpolate(self.breakpoints,
+                                             (self.kp_h, self.ki_h, self.kp_T, self.ki_T), s)
+        return kp_h, ki_h, kp_t, ki_t
 
 
 def schedule_reason(table: GainSchedule) -> str | None:
@@ -144,6 +146,7 @@ class Scheduler:
         flows ``u = [F_H, F_Cin]`` (NaN before the first output)."""
         if self._index is not None:
             return y[self._index]
+        assert self._flow is not None               # the variable is h, T_out, F_H or F_Cin
         return u[self._flow]
 
     def gains(self, s: float) -> tuple[float, ...] | None:

@@ -158,7 +158,7 @@ class SmithPredictor:
             raise ValueError(f'reset: u = {u0!r} is not finite')
         limits = self.primary.config
         u0 = min(max(u0, limits.u_min), limits.u_max)   # the output the primary gives
-        for _ in range(self._hist.maxlen):
+        for _ in range(self._hist.maxlen or 0):
             self._hist.appendleft(u0)
         if self.model.model == 'fopdt':
             self._y_free = self._y_del = self.model.gain * u0

@@ -339,6 +339,7 @@ class SmithAutotuner:
     def _relay_step(self, t: float, y_in: np.ndarray, r_in: np.ndarray, d: np.ndarray
                     ) -> float | None:
         relay = self._relay
+        assert relay is not None                   # set while the chain is in a relay state
         u = float(relay.step(t, y_in, r_in, d)[0])
         self._cycles = relay.status['cycles']
         if relay.state in ('relay', 'measuring', 'settling'):
@@ -376,6 +377,7 @@ class SmithAutotuner:
                 self._state = 'waiting'
             self._win.clear()
             self._t_start, self._r_test = t, r
+        assert self._relay is not None             # it holds the output during the step test
         u = float(self._relay.step(t, y_in, r_in, d)[0])
         self._window(t, y, u)
         if self._state == 'waiting':
@@ -391,6 +393,7 @@ class SmithAutotuner:
         prev = [w[2] for w in self._rec[-2 * n:-n]]
         u_last = float(np.mean([w[2] for w in self._win]))
         u_prev = float(np.mean(prev)) if prev else math.nan
+        assert self._before is not None            # set when the step began
         r0, y0, u0 = self._before
         if not abs(u_last - u_prev) <= STEADY_U * abs(u_last - u0):
             return u

@@ -250,7 +250,7 @@ def mimo_pi_least_squares(process: Response, omegas: Sequence[float], omega0: Se
     a_real = np.vstack([a.real, a.imag])
     b_real = np.concatenate([b.real, b.imag])
     x, *_ = np.linalg.lstsq(a_real, b_real, rcond=None)
-    residual = float(np.linalg.norm(a_real @ x - b_real) / max(np.linalg.norm(b_real), 1e-300))
+    residual = float(np.linalg.norm(a_real @ x - b_real) / max(float(np.linalg.norm(b_real)), 1e-300))
     if decoupler is None:
         mats = [x[t * m * m:(t + 1) * m * m].reshape(m, m, order='F') for t in range(terms)]
     else:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from functools import lru_cache
-from typing import Any
+from typing import Any, overload
 
 from tank_control.core.tuning.model import KINDS as MODEL_KINDS, ProcessModel
 
@@ -220,6 +220,12 @@ def _half_rule(model: ProcessModel) -> ProcessModel:
         return model
     return ProcessModel('fopdt', model.gain, model.dead_time + model.time_constant2 / 2.0,
                         model.time_constant + model.time_constant2 / 2.0)
+
+
+@overload
+def _optional(process: Mapping[str, Any], name: str, default: float) -> float: ...
+@overload
+def _optional(process: Mapping[str, Any], name: str, default: None) -> float | None: ...
 
 
 def _optional(process: Mapping[str, Any], name: str, default: float | None) -> float | None:
@@ -470,7 +476,7 @@ class TuneResult(dict):
         lines = [f'rule {self.rule} ({self.source}), {self.kind}: '
                  + ', '.join(f'{k} {num(self[k])}' for k in ('kp', 'ti', 'td', 'b', 'c'))]
         m = self.margins
-        if m is not None:
+        if m is not None and self.model is not None:      # margins need a model
             loop = (f'discrete loop, h = {self.sample_time:g} s' if self.sample_time
                     else 'continuous loop')
             lines.append(f'predicted on {self.model.describe()} ({loop}): '

@@ -51,15 +51,15 @@ _build = base.siso_build(LeadLagController)
 
 def build(settings: Settings) -> LeadLagController:
     controller = _build(settings)
-    controller.loop_watch = LoopWatch(process_model(settings.values),  # type: ignore[attr-defined]
-                                      settings.robustness.ms_max, loop_report, _key)
+    base.attached(controller).loop_watch = LoopWatch(process_model(settings.values),
+                                                     settings.robustness.ms_max, loop_report, _key)
     return controller
 
 
 def update(controller: LeadLagController, settings: Settings, changed: frozenset[str]) -> bool:
     """:func:`base.siso_update`; the model of the analysis."""
     base.siso_update(controller, settings, changed)
-    watch = controller.loop_watch          # type: ignore[attr-defined]
+    watch = base.attached(controller).loop_watch
     watch.model, watch.ms_max = process_model(settings.values), settings.robustness.ms_max
     return True
 
@@ -72,7 +72,7 @@ def reason(settings: Settings) -> str | None:
 
 def results(controller: LeadLagController) -> dict[str, Any]:
     """``robustness.*`` of the running loop."""
-    return controller.loop_watch.values(controller.lead_lag.config)   # type: ignore[attr-defined]
+    return base.attached(controller).loop_watch.values(controller.lead_lag.config)
 
 
 def derive(values: base.Values) -> dict[str, float]:

@@ -14,15 +14,15 @@ _build_pid = base.siso_build(PidController)
 
 def build(settings: Settings) -> PidController:
     controller = _build_pid(settings)
-    controller.loop_watch = LoopWatch(base.tuning_model(settings.values),  # type: ignore[attr-defined]
-                                      settings.robustness.ms_max)
+    base.attached(controller).loop_watch = LoopWatch(base.tuning_model(settings.values),
+                                                     settings.robustness.ms_max)
     return controller
 
 
 def update(controller: PidController, settings: Settings, changed: frozenset[str]) -> bool:
     """:func:`base.siso_update` (gains bumplessly, then the mode); the model of the analysis."""
     base.siso_update(controller, settings, changed)
-    watch = controller.loop_watch          # type: ignore[attr-defined]
+    watch = base.attached(controller).loop_watch
     watch.model, watch.ms_max = base.tuning_model(settings.values), settings.robustness.ms_max
     return True
 
@@ -35,7 +35,7 @@ def reason(settings: Settings) -> str | None:
 
 def results(controller: PidController) -> dict[str, Any]:
     """``robustness.*`` of the running loop and 001's sampling advice on the model."""
-    watch = controller.loop_watch          # type: ignore[attr-defined]
+    watch = base.attached(controller).loop_watch
     config = controller.pid.config
     return {**watch.values(config), **watch.sampling(config.sample_time)}
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from tank_control.core.control.kinds import (fsa, lead_lag, mpcs, pid, relay_autotune, smith_pi,
                                              two_loop_pi)
-from tank_control.core.control.kinds.base import ControllerKind, Settings, resolve
+from tank_control.core.control.kinds.base import ControllerKind, Settings, attached, resolve
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import by_name, finder
 
@@ -54,7 +54,7 @@ def initial_output(settings_: Settings) -> np.ndarray | None:
 def build(kind: ControllerKind, settings_: Settings) -> Controller:
     """The controller of ``settings_``, with its warm-start output (``core.loop.warm_start``)."""
     controller = kind.build(settings_)
-    controller.initial_output = initial_output(settings_)   # type: ignore[attr-defined]
+    attached(controller).initial_output = initial_output(settings_)
     return controller
 
 
@@ -92,6 +92,7 @@ class PreparedChange:
         output of this sample)``. An in-place candidate is a copy of ``running`` taken when it
         was prepared: ``running`` must not have been stepped or reset since."""
         if self.deferred:
+            assert self.kind.update is not None        # deferred: an in-place update
             if self.kind.update(running, self.settings, self.changed) is not False:
                 return running, np.asarray(running.step(t, y, r, d), dtype=float)
             return PreparedChange(self.kind, self.settings, self.changed,

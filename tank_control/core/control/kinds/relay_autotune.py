@@ -77,7 +77,7 @@ def build(settings: Settings) -> RelayAutotuner:
                            output_name=settings.channels.output_names[0],
                            input_name=settings.channels.input_names[0])
     tuner.ms_max = settings.robustness.ms_max
-    tuner.loop_watch = LoopWatch(None, settings.robustness.ms_max)   # type: ignore[attr-defined]
+    base.attached(tuner).loop_watch = LoopWatch(None, settings.robustness.ms_max)
     if settings.mode.mode == 'manual':
         tuner.pid.set_manual(float(settings.mode.manual_output))
     if settings.command.start:
@@ -102,7 +102,7 @@ def update(tuner: RelayAutotuner, settings: Settings, changed: frozenset[str]) -
         tuner.abort('parameters changed during the test')
     base.set_changed_gains(tuner.pid, settings.config, changed)
     tuner.ms_max = settings.robustness.ms_max
-    tuner.loop_watch.ms_max = settings.robustness.ms_max           # type: ignore[attr-defined]
+    base.attached(tuner).loop_watch.ms_max = settings.robustness.ms_max
     if new_cfg != tuner.config:
         tuner.configure(new_cfg)
     base.apply_mode(tuner.pid, tuner.pid.mode, settings, changed)
@@ -153,7 +153,7 @@ def reason(settings: Settings) -> str | None:
 def results(tuner: RelayAutotuner) -> dict[str, Any]:
     """The tuner's results, ``robustness.*`` of the running loop and 001's sampling advice on
     the identified model."""
-    watch = tuner.loop_watch                                       # type: ignore[attr-defined]
+    watch = base.attached(tuner).loop_watch
     watch.model = tuner.model
     return {**tuner.results(), **watch.values(tuner.pid.config),
             **watch.sampling(tuner.pid.config.sample_time)}

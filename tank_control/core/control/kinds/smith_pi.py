@@ -111,8 +111,8 @@ def build(settings: Settings) -> SmithAutotuner:
     controller.ms_max = settings.robustness.ms_max
     if settings.mode.mode == 'manual':
         controller.set_manual(float(settings.mode.manual_output))
-    controller.loop_watch = LoopWatch(process_model(settings.config),  # type: ignore[attr-defined]
-                                      settings.robustness.ms_max, analyse, _key)
+    base.attached(controller).loop_watch = LoopWatch(process_model(settings.config),
+                                                     settings.robustness.ms_max, analyse, _key)
     if settings.command.start:
         controller.start()
     return controller
@@ -131,7 +131,7 @@ def update(controller: SmithAutotuner, settings: Settings, changed: frozenset[st
     primary = controller.primary
     base.set_changed_gains(primary, settings.primary, PRIMARY)
     base.apply_mode(controller, primary.mode, settings, changed)
-    controller.loop_watch.ms_max = settings.robustness.ms_max   # type: ignore[attr-defined]
+    base.attached(controller).loop_watch.ms_max = settings.robustness.ms_max
     controller.ms_max = settings.robustness.ms_max
     controller.design = _design(settings)
     if settings.autotune != controller.config:
@@ -144,7 +144,7 @@ def update(controller: SmithAutotuner, settings: Settings, changed: frozenset[st
 def results(controller: SmithAutotuner) -> dict[str, Any]:
     """The chain's ``autotune.*`` results with the running ``smith.*`` model and primary
     ``kp``, ``ti``, and ``robustness.*`` of the running loop on the internal model."""
-    watch = controller.loop_watch                                  # type: ignore[attr-defined]
+    watch = base.attached(controller).loop_watch
     watch.model = process_model(controller.model)
     return {**controller.results(),
             **watch.values(_loop(controller.model, controller.primary.config))}
