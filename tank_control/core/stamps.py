@@ -71,17 +71,20 @@ class FutureStamps:
     _reports: list[str] = field(default_factory=list)
     _reported: set[str] = field(default_factory=set)
 
-    def admit(self, stream: str, stamp_ns: int, now_ns: int | None, wall_ns: int) -> bool:
+    def admit(self, stream: str, stamp_ns: int, now_ns: int | None, wall_ns: int,
+              tolerance_ns: int | None = None) -> bool:
         """True if the message of ``stream`` stamped ``stamp_ns`` may be taken by a consumer
         whose now is ``now_ns`` (None: not known yet, everything is taken); ``wall_ns``: a
-        monotonic wall clock (times the recovery)."""
+        monotonic wall clock (times the recovery); ``tolerance_ns``: this stream's own, if
+        not the guard's."""
         if now_ns is None:
             return True
+        tolerance = self.tolerance_ns if tolerance_ns is None else tolerance_ns
         state = self._streams.get(stream)
         if state is None:
             state = self._streams[stream] = _Stream()
         lead = stamp_ns - now_ns
-        if lead - state.offset_ns <= self.tolerance_ns:
+        if lead - state.offset_ns <= tolerance:
             state.refused_since, state.refused_run = None, 0
             return True
         if state.refused_since is None:
@@ -98,7 +101,7 @@ class FutureStamps:
             return True
         self.refused += 1
         self._report(f'{stream}: message stamped {lead / _NS_PER_S:.6g} s ahead of this node\'s '
-                     f'clock refused (max_future_stamp {self.tolerance_ns / _NS_PER_S:g} s); '
+                     f'clock refused (at most {tolerance / _NS_PER_S:g} s ahead taken); '
                      'the valid messages are taken', key=stream)
         return False
 

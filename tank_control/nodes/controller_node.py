@@ -166,6 +166,7 @@ class ControllerNode(Node):
         # lockstep: the reference's topics are zero-order-hold streams (nodes/clock.Held)
         self._inbox = StampedInbox(required, held=('setpoint', 'disturbance'))
         self._measured_ns: int | None = None   # lockstep: the latest measurement's stamp
+        self._behind_ns: int | None = None     # lockstep: a tick seen before the last answered
         self._answers = Answers()
         self._state_pub = None
         if self._kind.state is not None:
@@ -282,7 +283,12 @@ class ControllerNode(Node):
             self.counters['rejected_inputs'] += 1
             self._log_limited(f'{topic}/malformed', f'{topic}: malformed message ignored ({exc})')
             return None
-        admitted = self._future.admit(topic, t_ns, self._now_ns(), time.monotonic_ns())
+        # lockstep: the plant publishes tick k+1 only once tick k is answered, so a measurement
+        # is at most one plant tick (<= this controller's sample time) past the latest one
+        tolerance = (self._ts_ns if self._mode == 'lockstep' and topic == TOPIC_MEASUREMENT
+                     else None)
+        admitted = self._future.admit(topic, t_ns, self._now_ns(), time.monotonic_ns(),
+                                      tolerance)
         for text in self._future.take_report():
             self.get_logger().warning(text + ' (logged at most once per diagnostics period)')
         if not admitted:
@@ -536,7 +542,16 @@ class ControllerNode(Node):
                 self._pub.publish(cached[0])
             return
         if self._answers.stamp is not None and t_ns < self._answers.stamp:
-            return          # a late duplicate of a tick already passed
+            if not (resent and t_ns == self._behind_ns):
+                self._behind_ns = t_ns if resent else self._behind_ns
+                return      # a late duplicate of a tick already passed
+            # the plant re-sends a tick before the last one answered: it waits for it (the
+            # later stamp answered was not its own); answered anew, as a new session
+            self.get_logger().warning(
+                f'measurement {t_ns} ns re-sent after {self._answers.stamp} ns was answered: '
+                'the plant waits for it; ticks answered from it again')
+            self._answers = Answers()
+            self._inbox.drop_from(t_ns + 1)
         if not self._inbox.complete(t_ns):
             return
         y = self._inbox.values(t_ns, 'measurement')
