@@ -34,6 +34,7 @@ from std_srvs.srv import Trigger
 
 from tank_control.core.node_specs import is_ros_own
 from tank_control.core.params import specs_of
+from tank_control.core.stamps import FutureStamps
 from tank_control.dashboard.config import DashboardConfig
 from tank_control.dashboard.robustness import RobustnessWorker
 from tank_control.dashboard.server import DashboardServer, Reply
@@ -59,6 +60,11 @@ STATE_QOS = reliable_qos(10, latched=True)
 CALL_TIMEOUT = 5.0
 #: Period of the timer that takes the page's requests and finished service calls [s].
 PUMP_PERIOD = 0.02
+#: A signal sample stamped more than this many plant ticks (at least ``FUTURE_MIN_S``) ahead of
+#: the dashboard's now (wall: its clock; sim/lockstep: the latest measurement) is not shown
+#: (``rejected_future``): one would stretch the trends' time axis past every valid sample.
+FUTURE_TICKS = 64
+FUTURE_MIN_S = 1.0
 NS_PER_S = 1_000_000_000
 
 
@@ -137,6 +143,8 @@ class DashboardNode(Node):
         self.missed = {topic: 0 for topic in SIGNAL_TOPICS}
         self.marks: list[dict[str, Any]] = []     # state changes of the controllers' machines
         self._latest_t = -math.inf                # plant time [s] of the newest signal sample
+        self.future = FutureStamps(int(FUTURE_MIN_S * 1e9))   # tolerance: _update_robustness
+        self._measured_ns: int | None = None      # sim/lockstep: the latest measurement's stamp
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
                                      lambda msg, t=topic: self._on_signal(t, msg),
@@ -176,6 +184,13 @@ class DashboardNode(Node):
         except ValueError:
             self.ignored += 1
             return
+        now = time.time_ns() if self._origin_ns else self._measured_ns
+        if not self.future.admit(topic, t_ns, now, time.monotonic_ns()):
+            for line in self.future.take_report():
+                self.get_logger().warning(line + ' (not shown)')
+            return
+        if topic == TOPIC_MEASUREMENT:
+            self._measured_ns = t_ns
         self.received[topic] += 1
         t = (t_ns - self._origin_ns) / NS_PER_S
         self._latest_t = max(self._latest_t, t)
@@ -522,6 +537,9 @@ class DashboardNode(Node):
                                        if not is_ros_own(k)}
                         break
         self.robustness.submit(found.get('plant'), found.get('controller'))
+        ts = (found.get('plant') or {}).get('sample_time')
+        if isinstance(ts, (int, float)) and ts > 0:
+            self.future.tolerance_ns = max(int(FUTURE_TICKS * ts * 1e9), int(FUTURE_MIN_S * 1e9))
 
 
 def _from_json(value: Any) -> Any:

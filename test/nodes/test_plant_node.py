@@ -175,10 +175,10 @@ def test_wall_mode_a_disturbance_sent_ahead_of_its_instant_acts_from_it(procs, r
     """wall: the reference publishes each instant ``wall.lead`` ahead of it; the plant holds a
     disturbance stamped t_e until the step that starts at t_e. IPDT without dead time, k1 = 1:
     y stays 0 through t_e and is k1·v·(t − t_e) after it (whatever periods a loaded timer
-    skipped)."""
+    skipped). 1 s ahead is beyond the default ``max_future_stamp`` (5 ticks): raised to 2 s."""
     ts = 50_000_000
     proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
-                       gain=1.0, dead_time=0.0)
+                       gain=1.0, dead_time=0.0, max_future_stamp=2.0)
     rec = Recorder(probe)
     assert probe.wait_for(lambda: rec.measurements and rec.disturbance.get_subscription_count(),
                           30), proc.tail()
