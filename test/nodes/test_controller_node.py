@@ -585,3 +585,34 @@ def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
     assert measure_until(lambda: len(loop.answers) >= n + 5, 0.5, 30.0)   # and runs on
     assert int(loop.diag.get('rejected_future', 0)) >= 3
     assert 'clock step' in proc.tail(50)
+
+
+@pytest.mark.parametrize('sample_time', [0.1, 0.2])
+def test_lockstep_a_measurement_stamped_ahead_of_the_plant_s_tick_does_not_stall_it(
+        procs, node_cmd, ros_env, probe, sample_time):
+    """lockstep, plant ticks of 0.1 s, the reference's setpoint known 8 ticks ahead: a stray
+    measurement stamped two ticks past the latest. With sample_time 0.1 it is more than a
+    sample ahead and refused (``rejected_future``); with 0.2 it is within one sample, answered,
+    and the plant's re-send of the tick it waits at is answered anew. Either way the plant's
+    next tick is answered with its own measurement. (Before: the stray tick was answered and
+    the plant's next tick, older, was dropped as a late duplicate every time it was re-sent.)"""
+    tick = to_ns(0.1)
+    proc = _start(procs, node_cmd, ros_env, 'clock_mode:=lockstep', f'sample_time:={sample_time}',
+                  'kp:=2.0', 'ti:=0.0', 'td:=0.0', 'b:=1.0', 'u_min:=-100.0', 'u_max:=100.0',
+                  'diagnostics_period:=0.1')
+    loop = Loop(probe)
+    assert loop.tick(0, 1.0, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert loop.tick(tick, 1.0, 1.0) == pytest.approx(0.0, abs=1e-12)
+    loop.setp.publish(to_joint_state(8 * tick, ['y'], [1.0]))        # the reference, ahead
+    loop.meas.publish(to_joint_state(3 * tick, ['y'], [-100.0]))     # the stray one
+    assert loop.tick(2 * tick, 0.5, 1.0) == pytest.approx(1.0, abs=1e-12), proc.tail()
+    # (with 0.2 the stray tick 3 was answered already, the held output: the helper takes that)
+    u3 = loop.tick(3 * tick, 0.5, 1.0)
+    assert loop.tick(4 * tick, 0.5, 1.0) == pytest.approx(1.0, abs=1e-12), proc.tail()
+    assert all(a[2][0] != pytest.approx(202.0) for a in loop.answers)   # y = -100 never used
+    if sample_time == 0.1:
+        assert u3 == pytest.approx(1.0, abs=1e-12)
+        assert probe.wait_for(lambda: loop.diag.get('rejected_future') == '1', 20), \
+            (loop.diag.get('rejected_future'), proc.tail())
+    else:
+        assert 're-sent after' in proc.tail(50)
