@@ -38,7 +38,7 @@ def one_run(node, names: int, watch_s: float) -> float:
         with open(params, 'w') as out:
             out.write('plant:\n  ros__parameters:\n    plant: ipdt\n    gain: 1.0\n'
                       f'    dead_time: 0.0\n    sample_time: {TS}\n    clock_mode: wall\n')
-        log = open(os.path.join(tmp, 'plant.log'), 'w')
+        log = open(os.path.join(tmp, 'plant.log'), 'w')  # noqa: SIM115 (closed in finally)
         proc = subprocess.Popen([sys.executable, '-m', 'tank_control.nodes.plant_node',
                                  '--ros-args', '--params-file', params],
                                 stdout=log, stderr=subprocess.STDOUT)

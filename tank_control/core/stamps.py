@@ -39,9 +39,9 @@ def future_tolerance_ns(max_future_stamp: float | None, sample_time: float,
     """The tolerance [ns] of a node with ``sample_time`` [s]: ``max_future_stamp`` [s] (0 or
     None: ``FUTURE_STAMP_SAMPLES`` sample times); in lockstep at least
     ``LOCKSTEP_AHEAD_TICKS`` sample times (the reference publishes ahead)."""
-    ts_ns = int(round(sample_time * _NS_PER_S))
+    ts_ns = round(sample_time * _NS_PER_S)
     given = float(max_future_stamp or 0.0)
-    tol = int(round(given * _NS_PER_S)) if given > 0 else FUTURE_STAMP_SAMPLES * ts_ns
+    tol = round(given * _NS_PER_S) if given > 0 else FUTURE_STAMP_SAMPLES * ts_ns
     if lockstep:
         tol = max(tol, LOCKSTEP_AHEAD_TICKS * ts_ns)
     return tol

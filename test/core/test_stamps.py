@@ -5,9 +5,15 @@ import time
 
 import pytest
 
-from tank_control.core.stamps import (FUTURE_STAMP_SAMPLES, LOCKSTEP_AHEAD_TICKS, MAX_NAMES,
-                                      RECOVER_MESSAGES, RECOVER_S, FutureStamps,
-                                      future_tolerance_ns)
+from tank_control.core.stamps import (
+    FUTURE_STAMP_SAMPLES,
+    LOCKSTEP_AHEAD_TICKS,
+    MAX_NAMES,
+    RECOVER_MESSAGES,
+    RECOVER_S,
+    FutureStamps,
+    future_tolerance_ns,
+)
 from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.messages import ChannelFilter, parse_signal
 

@@ -542,15 +542,17 @@ def test_wall_mode_a_message_stamped_in_the_future_does_not_freeze_the_loop(
     keeps sampling each measurement and takes the next valid setpoint. (Before: the 10 s
     measurement was sampled, and no measurement after it was a new instant for 10 s; the
     setpoint froze the setpoint until real time passed its stamp.)"""
-    proc, loop, base, _, instant, measure_until = _wall_loop(procs, node_cmd, ros_env, probe,
-                                                             ts=0.1)
+    proc, loop, _, _, instant, measure_until = _wall_loop(procs, node_cmd, ros_env, probe,
+                                                          ts=0.1)
     latest = loop.answers[-1][0]
     loop.meas.publish(to_joint_state(latest + to_ns(10.0), ['y'], [0.0]))
     loop.meas.publish(to_joint_state(latest + to_ns(3600.0), ['y'], [0.0]))
     loop.setp.publish(to_joint_state(instant() + to_ns(3600.0), ['y'], [50.0]))
     injected = instant()
     # the valid measurements go on being sampled with the valid setpoint: u = 2·(1 − 0.5)
-    after = lambda: [a for a in loop.answers if injected < a[0] < injected + to_ns(5.0)]  # noqa: E731
+
+    def after():
+        return [a for a in loop.answers if injected < a[0] < injected + to_ns(5.0)]
     assert measure_until(lambda: len(after()) >= 5, 0.5, 30.0), (loop.answers[-3:], proc.tail())
     assert all(a[2][0] == pytest.approx(1.0, abs=1e-12) for a in after()), after()
     # the next valid setpoint is taken: u = 2·(2 − 0.5)
@@ -571,8 +573,8 @@ def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
     clock step — within ``RECOVER_S`` plus a period (``core/stamps.py``; a generous margin
     here for a loaded machine) — and the loop runs on."""
     from tank_control.core.stamps import RECOVER_S
-    proc, loop, base, origins, instant, measure_until = _wall_loop(procs, node_cmd, ros_env,
-                                                                   probe, ts=0.05)
+    proc, loop, base, origins, _, measure_until = _wall_loop(procs, node_cmd, ros_env,
+                                                             probe, ts=0.05)
     base['skew'] = to_ns(3600.0)              # the new session's grid, an hour ahead
     base['origin'] += base['skew']
     origins.publish(ns_to_stamp(base['origin']))
