@@ -60,9 +60,10 @@ STATE_QOS = reliable_qos(10, latched=True)
 CALL_TIMEOUT = 5.0
 #: Period of the timer that takes the page's requests and finished service calls [s].
 PUMP_PERIOD = 0.02
-#: A signal sample stamped more than this many plant ticks (at least ``FUTURE_MIN_S``) ahead of
-#: the dashboard's now (wall: its clock; sim/lockstep: the latest measurement) is not shown
-#: (``rejected_future``): one would stretch the trends' time axis past every valid sample.
+#: wall: a signal sample stamped more than this many plant ticks (at least ``FUTURE_MIN_S``)
+#: ahead of the dashboard's clock is not shown (``future.refused``): one would stretch the
+#: trends' time axis past every valid sample. (sim/lockstep: not checked — a dashboard loses
+#: messages when it lags, so no stamp it holds is its now.)
 FUTURE_TICKS = 64
 FUTURE_MIN_S = 1.0
 NS_PER_S = 1_000_000_000
@@ -144,7 +145,6 @@ class DashboardNode(Node):
         self.marks: list[dict[str, Any]] = []     # state changes of the controllers' machines
         self._latest_t = -math.inf                # plant time [s] of the newest signal sample
         self.future = FutureStamps(int(FUTURE_MIN_S * 1e9))   # tolerance: _update_robustness
-        self._measured_ns: int | None = None      # sim/lockstep: the latest measurement's stamp
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
                                      lambda msg, t=topic: self._on_signal(t, msg),
@@ -184,13 +184,11 @@ class DashboardNode(Node):
         except ValueError:
             self.ignored += 1
             return
-        now = time.time_ns() if self._origin_ns else self._measured_ns
-        if not self.future.admit(topic, t_ns, now, time.monotonic_ns()):
+        if self._origin_ns and not self.future.admit(topic, t_ns, time.time_ns(),
+                                                     time.monotonic_ns()):
             for line in self.future.take_report():
                 self.get_logger().warning(line + ' (not shown)')
             return
-        if topic == TOPIC_MEASUREMENT:
-            self._measured_ns = t_ns
         self.received[topic] += 1
         t = (t_ns - self._origin_ns) / NS_PER_S
         self._latest_t = max(self._latest_t, t)
