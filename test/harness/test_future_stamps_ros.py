@@ -10,8 +10,8 @@ import json
 import sys
 
 from sensor_msgs.msg import JointState
-
 from support import CONFIG
+
 from tank_control.core.interfaces import to_ns
 from tank_control.core.trace import Trace
 from tank_control.nodes.messages import SIGNAL_QOS, from_joint_state, to_joint_state

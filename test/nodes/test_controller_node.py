@@ -618,3 +618,30 @@ def test_lockstep_a_measurement_stamped_ahead_of_the_plant_s_tick_does_not_stall
             (loop.diag.get('rejected_future'), proc.tail())
     else:
         assert 're-sent after' in proc.tail(50)
+
+
+def test_unknown_empty_and_non_finite_inputs_are_counted_and_logged_with_a_count(
+        procs, node_cmd, ros_env, probe):
+    """What the plant counts, the controller counts too (before: dropped silently): unknown
+    channels (``unknown_channels``; 300 names: one log line with the count, not one per
+    name), a message with none of its channels (``empty_inputs``), non-finite values
+    (``nonfinite_values``); a message with more than 256 names is refused whole
+    (``rejected_inputs``). The loop goes on."""
+    proc, loop, _, _, instant, measure_until = _wall_loop(procs, node_cmd, ros_env, probe,
+                                                          ts=0.1)
+    names = [f'z{i}' for i in range(200)]
+    loop.meas.publish(to_joint_state(instant(), names, [1.0] * len(names)))   # none of its own
+    loop.setp.publish(to_joint_state(instant(), ['y', 'w'], [float('nan'), 1.0]))
+    big = [f'x{i}' for i in range(10_000)]
+    loop.meas.publish(to_joint_state(instant(), big, [1.0] * len(big)))
+
+    def counted():
+        d = loop.diag
+        return (d.get('unknown_channels') == '201' and d.get('empty_inputs') == '1'
+                and d.get('nonfinite_values') == '1' and int(d.get('rejected_inputs', 0)) >= 2)
+    assert measure_until(counted, 0.5, 30.0), loop.diag
+    n = len(loop.answers)
+    assert measure_until(lambda: len(loop.answers) >= n + 3, 0.5, 30.0)   # the loop goes on
+    log = proc.tail(100)
+    assert log.count("unknown channel(s) 'z0', 'z1', 'z2' and 197 more") == 1, log
+    assert 'at most 256' in log
