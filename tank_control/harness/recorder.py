@@ -94,9 +94,12 @@ class Recorder:
     def __init__(self, context: Context, name: str = RECORDER_NAME, sink: Sink | None = None,
                  subscribe: bool = True, tick_ns: int | None = None) -> None:
         self.node = Node(name, context=context)
-        # signal messages stamped too far ahead are refused (not recorded), counted
-        self.future = FutureStamps(max(FUTURE_TICKS * (tick_ns or 0), int(FUTURE_MIN_S * 1e9)))
+        # signal messages stamped too far ahead are refused (not recorded), counted; the tick
+        # is the plant's sample time if given, else learned from /clock (sim, lockstep)
+        self._future_min_ns = max(FUTURE_TICKS * (tick_ns or 0), int(FUTURE_MIN_S * 1e9))
+        self.future = FutureStamps(self._future_min_ns)
         self.clock_ns: int | None = None     # the latest /clock (sim, lockstep) [ns]
+        self._clock_tick: int | None = None  # the smallest step of /clock seen [ns]
         # rclpy's C++ events executor: a third of the CPU per message of the
         # SingleThreadedExecutor (bench/RESULTS.md, "Lockstep"); spun by spin_once only
         # (tank_control/nodes/runtime.py says why).
@@ -159,6 +162,12 @@ class Recorder:
             now = time_ns()
             stamp = cdr_stamp_ns(data) if stamped else now
             if is_clock:
+                last = self.clock_ns
+                if last is not None and stamp > last and (self._clock_tick is None
+                                                          or stamp - last < self._clock_tick):
+                    self._clock_tick = stamp - last
+                    future.tolerance_ns = max(self._future_min_ns,
+                                              FUTURE_TICKS * self._clock_tick)
                 self.clock_ns = stamp
             elif gate_topic and not future.admit(
                     key, stamp, now if self.clock_ns is None else self.clock_ns, monotonic_ns()):
