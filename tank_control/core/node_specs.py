@@ -17,6 +17,8 @@ from tank_control.core.control.kinds import registry as controllers
 from tank_control.core.params import ConfigError, ParamSpec, param, specs_of, unknown_reason
 from tank_control.core.plants.kinds import registry as plants
 from tank_control.core.plants.noise import NoiseConfig
+from tank_control.core.stamps import (FUTURE_STAMP_SAMPLES, LOCKSTEP_AHEAD_TICKS, RECOVER_MESSAGES,
+                                      RECOVER_S)
 
 CLOCK_MODES = ('wall', 'sim', 'lockstep')
 NODES = ('plant', 'controller', 'reference')
@@ -33,6 +35,16 @@ def is_ros_own(name: str) -> bool:
 def diagnostics_period_param() -> Any:
     return param(1.0, 'period of /diagnostics', unit='s, wall clock', min=0.05, max=60.0,
                  read_only=True)
+
+
+def max_future_stamp_param() -> Any:
+    return param(None, 'refuse an input message stamped more than this ahead of the node\'s own '
+                 'now (wall: its clock; sim: its /clock time; lockstep: the current tick, and at '
+                 f'least {LOCKSTEP_AHEAD_TICKS} sample times: the reference publishes ahead); '
+                 'counted as rejected_future in /diagnostics. A stream refused for '
+                 f'{RECOVER_S:g} s and {RECOVER_MESSAGES} messages without a break is a clock step '
+                 f'and is taken again (docs/nodes.md). 0 = {FUTURE_STAMP_SAMPLES} x sample_time',
+                 unit='s', min=0.0, max=3600.0, zero=None, read_only=True)
 
 
 @dataclass(frozen=True)
@@ -62,6 +74,7 @@ class PlantNode:
                                'waited for; at most 8, so that the signal publishers\' keep-last '
                                '10 still hold every tick the recorder has not taken)',
                                min=0, max=8, name='lockstep.record_window', read_only=True)
+    max_future_stamp: float | None = max_future_stamp_param()
     diagnostics_period: float = diagnostics_period_param()
 
     def reason(self) -> str | None:
@@ -89,6 +102,7 @@ class ControllerNode:
                          choices=('measurement', 'timer'), read_only=True)
     stale_samples: int = param(3, 'wall/sim: samples without a measurement after which it is '
                                'stale (hold or fail-safe output)', min=1, max=1000)
+    max_future_stamp: float | None = max_future_stamp_param()
     diagnostics_period: float = diagnostics_period_param()
 
 

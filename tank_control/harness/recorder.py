@@ -18,6 +18,7 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
+from tank_control.core.stamps import FutureStamps
 from tank_control.harness.recording import RawMessage
 from tank_control.nodes.clock import steady_clock
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
@@ -61,6 +62,13 @@ ACK_PERIOD = 0.05
 ORIGIN_RECORD_QOS = ORIGIN_QOS
 GATE_QOS = SIGNAL_QOS
 _GATE_NEEDS = ('measurement', 'setpoint', 'manipulated', 'disturbance')
+#: The recorder refuses a signal message stamped more than this many plant ticks (and at least
+#: ``FUTURE_MIN_S``) ahead of its now — the latest ``/clock``, or its wall clock without one:
+#: wider than the nodes' ``max_future_stamp`` (the reference's lookahead, a recorder that lags
+#: the plant's ``/clock``), enough that one stray message cannot end a run, advance the
+#: acknowledgments or enter the trace (docs/nodes.md, "Stamps from the future").
+FUTURE_TICKS = 64
+FUTURE_MIN_S = 1.0
 
 
 def _message_class(type_name: str) -> type:
@@ -86,8 +94,14 @@ class Recorder:
     ``sink`` as it arrives; without a sink it is kept in ``messages``."""
 
     def __init__(self, context: Context, name: str = RECORDER_NAME, sink: Sink | None = None,
-                 subscribe: bool = True) -> None:
+                 subscribe: bool = True, tick_ns: int | None = None) -> None:
         self.node = Node(name, context=context)
+        # signal messages stamped too far ahead are refused (not recorded), counted; the tick
+        # is the plant's sample time if given, else learned from /clock (sim, lockstep)
+        self._future_min_ns = max(FUTURE_TICKS * (tick_ns or 0), int(FUTURE_MIN_S * 1e9))
+        self.future = FutureStamps(self._future_min_ns)
+        self.clock_ns: int | None = None     # the latest /clock (sim, lockstep) [ns]
+        self._clock_tick: int | None = None  # the smallest step of /clock seen [ns]
         # rclpy's C++ events executor: a third of the CPU per message of the
         # SingleThreadedExecutor (bench/RESULTS.md, "Lockstep"); spun by spin_once only
         # (tank_control/nodes/runtime.py says why).
@@ -140,13 +154,28 @@ class Recorder:
         stamped = type_name not in UNSTAMPED
         counts, first, latest = self.counts, self.first, self.latest
         gate_topic = key in _GATE_NEEDS
-        time_ns = time.time_ns
+        is_clock = key == 'clock'
+        time_ns, monotonic_ns = time.time_ns, time.monotonic_ns
+        future = self.future
 
         # Per message (5 a lockstep tick): one copy of the bytes into the sink, the counters;
         # names and flags bound once here, not looked up per message.
         def record(data: bytes) -> None:
             now = time_ns()
             stamp = cdr_stamp_ns(data) if stamped else now
+            if is_clock:
+                last = self.clock_ns
+                if last is not None and stamp > last and (self._clock_tick is None
+                                                          or stamp - last < self._clock_tick):
+                    self._clock_tick = stamp - last
+                    future.tolerance_ns = max(self._future_min_ns,
+                                              FUTURE_TICKS * self._clock_tick)
+                self.clock_ns = stamp
+            elif gate_topic and not future.admit(
+                    key, stamp, now if self.clock_ns is None else self.clock_ns, monotonic_ns()):
+                for line in future.take_report():
+                    self.node.get_logger().warning(line + ' (not recorded)')
+                return
             self.sink(RawMessage(full, type_name, bytes(data), now, stamp))
             counts[key] = counts.get(key, 0) + 1
             if stamped:

@@ -559,7 +559,7 @@ class _RosRun:
         run_wall = 0.0
         run_start: float | None = None
         try:
-            recorder = Recorder(context, subscribe=False)
+            recorder = Recorder(context, subscribe=False, tick_ns=self.tick_ns)
             joined = time.monotonic()              # its participant is on the domain
             self.recorder = recorder
             _warm_up()                             # while DDS discovers the domain
@@ -821,6 +821,7 @@ class _RosRun:
             'messages': dict(rec.counts),
             'messages_after_row_written': stream.joiner.after_written,
             'unreadable_messages': stream.unreadable,
+            'rejected_future': rec.future.refused,     # signals stamped too far ahead
             'record_window': self.record_window,
             'exit_codes': dict(codes),
         }

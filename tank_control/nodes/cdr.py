@@ -92,9 +92,11 @@ def cdr_stamp_ns(data: bytes) -> int:
     return sec * NS_PER_S + nanosec
 
 
-def signal_from_cdr(data: bytes) -> tuple[int, str, tuple[str, ...], tuple[float, ...]]:
+def signal_from_cdr(data: bytes, max_names: int | None = None
+                    ) -> tuple[int, str, tuple[str, ...], tuple[float, ...]]:
     """``header.stamp`` [ns], ``header.frame_id``, ``name`` and ``position`` of a CDR
-    ``sensor_msgs/JointState``. Raises ``ValueError`` on data too short for what it announces."""
+    ``sensor_msgs/JointState``. Raises ``ValueError`` on data too short for what it announces,
+    or (``max_names``) announcing more names than that — before decoding any of them."""
     try:
         endian = '<' if data[1] & 1 else '>'
         wide = 8 if data[1] in (0, 1) else 4
@@ -106,6 +108,8 @@ def signal_from_cdr(data: bytes) -> tuple[int, str, tuple[str, ...], tuple[float
         offset += -(offset - 4) % 4
         (count,) = u32(data, offset)
         offset += 4
+        if max_names is not None and count > max_names:
+            raise ValueError(f'{count} channel names, at most {max_names} taken')
         names = []
         for _ in range(count):
             offset += -(offset - 4) % 4

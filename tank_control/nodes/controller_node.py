@@ -31,6 +31,7 @@ from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup
 from tank_control.core.loop import warm_start
+from tank_control.core.stamps import FutureStamps, future_tolerance_ns
 from tank_control.nodes.clock import (Answers, Scheduled, StampedInbox, is_sample_instant,
                                       sim_sample_instant, steady_clock)
 from tank_control.nodes.messages import (APPLIED_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
@@ -108,7 +109,13 @@ class ControllerNode(Node):
         self.counters = {'samples': 0, 'stale_samples': 0, 'nonfinite_measurements': 0,
                          'out_of_range_measurements': 0, 'rejected_inputs': 0,
                          'late_setpoints': 0, 'fault_episodes': 0, 'update_errors': 0,
-                         'controller_faults': 0}
+                         'controller_faults': 0, 'rejected_future': 0, 'unknown_channels': 0,
+                         'empty_inputs': 0, 'nonfinite_values': 0}
+        # inputs stamped more than max_future_stamp ahead of this node's now are refused
+        # (core/stamps.py): one would hold every later input as "older" (docs/nodes.md)
+        self._future = FutureStamps(future_tolerance_ns(
+            values['max_future_stamp'], self._controller.sample_time, self._mode == 'lockstep'))
+        self._limited: set[str] = set()   # kinds of input reasons logged this diagnostics period
         # plant time base: origin of the stamps (wall: from the plant, None until then)
         self._origin_ns: int | None = None if self._mode == 'wall' else 0
         self._r_stamp: int | None = None           # stamp of the setpoint held (wall/sim)
@@ -159,6 +166,7 @@ class ControllerNode(Node):
         # lockstep: the reference's topics are zero-order-hold streams (nodes/clock.Held)
         self._inbox = StampedInbox(required, held=('setpoint', 'disturbance'))
         self._measured_ns: int | None = None   # lockstep: the latest measurement's stamp
+        self._behind_ns: int | None = None     # lockstep: a tick seen before the last answered
         self._answers = Answers()
         self._state_pub = None
         if self._kind.state is not None:
@@ -266,13 +274,65 @@ class ControllerNode(Node):
     # ---------------------------------------------------------------- inputs
     def _parse(self, topic: str, msg: bytes) -> tuple[int, dict[str, float], str] | None:
         """``(stamp_ns, {channel: value}, header.frame_id)`` of an input (CDR bytes of a
-        JointState), None when malformed (counted and logged once)."""
+        JointState), None when malformed (also more than ``MAX_NAMES`` names) or stamped more
+        than ``max_future_stamp`` ahead of this node's now (each counted and logged, at most
+        once per diagnostics period)."""
         try:
             t_ns, frame_id, names, values = parse_signal(msg)
         except ValueError as exc:
-            self._reject_input(f'{topic}: malformed message ignored ({exc})')
+            self.counters['rejected_inputs'] += 1
+            self._log_limited(f'{topic}/malformed', f'{topic}: malformed message ignored ({exc})')
+            return None
+        # lockstep: the plant publishes tick k+1 only once tick k is answered, so a measurement
+        # is at most one plant tick (<= this controller's sample time) past the latest one
+        tolerance = (self._ts_ns if self._mode == 'lockstep' and topic == TOPIC_MEASUREMENT
+                     else None)
+        admitted = self._future.admit(topic, t_ns, self._now_ns(), time.monotonic_ns(),
+                                      tolerance)
+        for text in self._future.take_report():
+            self.get_logger().warning(text + ' (logged at most once per diagnostics period)')
+        if not admitted:
+            self.counters['rejected_future'] = self._future.refused
             return None
         return t_ns, dict(zip(names, values)), frame_id
+
+    def _now_ns(self) -> int | None:
+        """This node's now in the stamps' time base (None: not known yet): wall its clock,
+        sim its /clock time, lockstep the latest measured tick."""
+        if self._mode == 'lockstep':
+            return self._measured_ns
+        now = self.get_clock().now().nanoseconds
+        return None if self._mode == 'sim' and now == 0 else now
+
+    def _count_channels(self, topic: str, values: Mapping[str, float],
+                        known: tuple[str, ...]) -> None:
+        """Count (and log, rate-limited) what an input carries that this controller does not
+        use: unknown channels, a message with none of its channels, non-finite values."""
+        unknown = [n for n in values if n not in known]
+        if unknown:
+            self.counters['unknown_channels'] += len(unknown)
+            shown = ', '.join(repr(n[:40]) for n in unknown[:3])
+            more = f' and {len(unknown) - 3} more' if len(unknown) > 3 else ''
+            self._log_limited(f'{topic}/unknown', f'{topic}: unknown channel(s) {shown}{more} '
+                              f'ignored ({self.counters["unknown_channels"]} so far); known: '
+                              f'{", ".join(known) or "none"}')
+        if known and not any(n in values for n in known):
+            self.counters['empty_inputs'] += 1
+            self._log_limited(f'{topic}/empty', f'{topic}: message without any of the channels '
+                              f'{", ".join(known)} ignored ({self.counters["empty_inputs"]} so '
+                              'far)')
+        nonfinite = [n for n in known if n in values and not math.isfinite(values[n])]
+        if nonfinite:
+            self.counters['nonfinite_values'] += len(nonfinite)
+            self._log_limited(f'{topic}/nonfinite', f'{topic}: non-finite value for '
+                              f'{", ".join(map(repr, nonfinite))} '
+                              f'({self.counters["nonfinite_values"]} so far)')
+
+    def _log_limited(self, key: str, text: str) -> None:
+        """Log ``text`` unless a reason of kind ``key`` was logged this diagnostics period."""
+        if key not in self._limited:
+            self._limited.add(key)
+            self.get_logger().warning(text + ' (logged at most once per diagnostics period)')
 
     def _reject_input(self, reason: str) -> None:
         self.counters['rejected_inputs'] += 1
@@ -317,6 +377,7 @@ class ControllerNode(Node):
         if parsed is None:
             return
         t_ns, values, self._session = parsed
+        self._count_channels(TOPIC_MEASUREMENT, values, self._outputs)
         mine = {name: values[name] for name in self._outputs if name in values}
         self._check_new_session(t_ns)
         if self._mode == 'lockstep':
@@ -335,6 +396,7 @@ class ControllerNode(Node):
         if parsed is None:
             return
         t_ns = parsed[0]
+        self._count_channels(TOPIC_SETPOINT, parsed[1], self._outputs)
         if self._mode != 'lockstep':
             self._check_late_setpoint(t_ns, parsed[1])
             if self._r_stamp is not None and t_ns < self._r_stamp:
@@ -443,11 +505,14 @@ class ControllerNode(Node):
         if origin != self._origin_ns:
             self.get_logger().info(f'plant time origin {origin} ns: loop time = stamp - origin')
             self._origin_ns = origin
+            self._future.reset()            # a new time base: no clock offset carried over
             self._last_sample = None
             self._last_instant = None
 
     def _on_disturbance(self, msg: bytes) -> None:
         parsed = self._parse(TOPIC_DISTURBANCE, msg)
+        if parsed is not None:
+            self._count_channels(TOPIC_DISTURBANCE, parsed[1], self._disturbances)
         if parsed is not None and self._mode == 'wall':
             self._d_ahead.put(parsed[0], self._finite_or_last(
                 TOPIC_DISTURBANCE, parsed[1], self._disturbances, self._d_valid))
@@ -477,7 +542,16 @@ class ControllerNode(Node):
                 self._pub.publish(cached[0])
             return
         if self._answers.stamp is not None and t_ns < self._answers.stamp:
-            return          # a late duplicate of a tick already passed
+            if not (resent and t_ns == self._behind_ns):
+                self._behind_ns = t_ns if resent else self._behind_ns
+                return      # a late duplicate of a tick already passed
+            # the plant re-sends a tick before the last one answered: it waits for it (the
+            # later stamp answered was not its own); answered anew, as a new session
+            self.get_logger().warning(
+                f'measurement {t_ns} ns re-sent after {self._answers.stamp} ns was answered: '
+                'the plant waits for it; ticks answered from it again')
+            self._answers = Answers()
+            self._inbox.drop_from(t_ns + 1)
         if not self._inbox.complete(t_ns):
             return
         y = self._inbox.values(t_ns, 'measurement')
@@ -778,6 +852,8 @@ class ControllerNode(Node):
             self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
+        self._limited.clear()                 # input reasons are logged again (rate limit)
+        self._future.rearm_reports()
         status = dict(self._controller.status)
         level = (DiagnosticStatus.WARN if self._fault or self._warning
                  else DiagnosticStatus.OK)
@@ -798,6 +874,10 @@ class ControllerNode(Node):
             message += f'; warning: {self._warning}'
         if self._update_error:
             message += f'; {self._update_error}'
+        if self.counters['rejected_future']:
+            level = max(level, DiagnosticStatus.WARN)
+            message += (f"; {self.counters['rejected_future']} inputs stamped in the future "
+                        'refused')
         if self._fault == 'controller' or self._update_error:
             level = DiagnosticStatus.ERROR
         if self._clock_conflict:

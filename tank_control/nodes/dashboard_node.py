@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from tank_control.core.node_specs import is_ros_own
 from tank_control.core.params import specs_of
+from tank_control.core.stamps import FutureStamps
 from tank_control.dashboard.access import Access, derive_read_only, origins_reason, start_token
 from tank_control.dashboard.config import DashboardConfig
 from tank_control.dashboard.robustness import RobustnessWorker
@@ -63,6 +64,12 @@ STATE_QOS = reliable_qos(10, latched=True)
 CALL_TIMEOUT = 5.0
 #: Period of the timer that takes the page's requests and finished service calls [s].
 PUMP_PERIOD = 0.02
+#: wall: a signal sample stamped more than this many plant ticks (at least ``FUTURE_MIN_S``)
+#: ahead of the dashboard's clock is not shown (``future.refused``): one would stretch the
+#: trends' time axis past every valid sample. (sim/lockstep: not checked — a dashboard loses
+#: messages when it lags, so no stamp it holds is its now.)
+FUTURE_TICKS = 64
+FUTURE_MIN_S = 1.0
 NS_PER_S = 1_000_000_000
 #: Audit records (/parameter_audit) kept for pages that connect later, and the longest taken
 #: (characters; a longer one, from any publisher on the domain, is ignored and counted).
@@ -156,6 +163,7 @@ class DashboardNode(Node):
         self.marks: list[dict[str, Any]] = []     # state changes of the controllers' machines
         self.audit: list[dict[str, Any]] = []     # /parameter_audit records, oldest first
         self._latest_t = -math.inf                # plant time [s] of the newest signal sample
+        self.future = FutureStamps(int(FUTURE_MIN_S * 1e9))   # tolerance: _update_robustness
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
                                      lambda msg, t=topic: self._on_signal(t, msg),
@@ -202,6 +210,11 @@ class DashboardNode(Node):
             t_ns, names, values = from_joint_state(msg)
         except ValueError:
             self.ignored += 1
+            return
+        if self._origin_ns and not self.future.admit(topic, t_ns, time.time_ns(),
+                                                     time.monotonic_ns()):
+            for line in self.future.take_report():
+                self.get_logger().warning(line + ' (not shown)')
             return
         self.received[topic] += 1
         t = (t_ns - self._origin_ns) / NS_PER_S
@@ -589,6 +602,9 @@ class DashboardNode(Node):
                                        if not is_ros_own(k)}
                         break
         self.robustness.submit(found.get('plant'), found.get('controller'))
+        ts = (found.get('plant') or {}).get('sample_time')
+        if isinstance(ts, (int, float)) and ts > 0:
+            self.future.tolerance_ns = max(int(FUTURE_TICKS * ts * 1e9), int(FUTURE_MIN_S * 1e9))
 
 
 def _from_json(value: Any) -> Any:

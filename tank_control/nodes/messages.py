@@ -20,6 +20,7 @@ from sensor_msgs.msg import JointState
 from tank_control.core.interfaces import NS_PER_S
 from tank_control.nodes.cdr import signal_from_cdr
 from tank_control.core.ranges import Ranges
+from tank_control.core.stamps import MAX_NAMES
 
 def reliable_qos(depth: int, latched: bool = False) -> QoSProfile:
     """Reliable keep-last ``depth``; ``latched``: transient local (a late joiner gets the
@@ -131,16 +132,21 @@ def to_joint_state(t_ns: int, names: Sequence[str], values: Iterable[float]) -> 
     return msg
 
 
-def parse_signal(msg: JointState | bytes) -> tuple[int, str, tuple[str, ...], tuple[float, ...]]:
+def parse_signal(msg: JointState | bytes, max_names: int | None = MAX_NAMES
+                 ) -> tuple[int, str, tuple[str, ...], tuple[float, ...]]:
     """``(stamp_ns, frame_id, names, values)`` of a signal message: a ``JointState`` or its CDR
     bytes (what a ``raw=True`` subscription takes; decoded directly, ``nodes/cdr.py``).
 
     Raises ``ValueError`` (one line) when ``name`` and ``position`` differ in
-    length or a channel name repeats — a malformed message.
+    length, a channel name repeats, or there are more than ``max_names`` names
+    (``core/stamps.MAX_NAMES``; refused before they are decoded: bounded work per
+    message) — a malformed message.
     """
     if isinstance(msg, bytes):
-        stamp, frame_id, names, values = signal_from_cdr(msg)
+        stamp, frame_id, names, values = signal_from_cdr(msg, max_names)
     else:
+        if max_names is not None and len(msg.name) > max_names:
+            raise ValueError(f'{len(msg.name)} channel names, at most {max_names} taken')
         names = tuple(msg.name)
         values = tuple(float(v) for v in msg.position)
         stamp, frame_id = stamp_to_ns(msg.header.stamp), msg.header.frame_id
@@ -171,11 +177,15 @@ class ChannelFilter:
     """Accepts channel values by name; counts and explains what it ignores.
 
     A value is ignored (the last valid one is kept by the caller) when the
-    message is malformed, the channel is not one of ``known`` or the value is
-    not finite or outside the channel's plausible range (``ranges``,
-    ``core/ranges.py``; also counted in ``out_of_range``). Every distinct reason
-    is reported once through ``first_seen`` (for a log line), every ignored item
-    is counted in ``ignored``.
+    message is malformed (also one with more than ``MAX_NAMES`` names:
+    ``oversized``), the channel is not one of ``known`` (``unknown``) or the value
+    is not finite or outside the channel's plausible range (``ranges``,
+    ``core/ranges.py``; also counted in ``out_of_range``). Every ignored item is
+    counted in ``ignored``. Each kind of reason (per topic; per channel for a known
+    one) is reported once through ``accept``'s new reasons, until ``rearm``
+    (a node calls it once per diagnostics period: a rate-limited log whose lines
+    give the counts); the reasons held are bounded by the known channels, not by
+    what a message carries.
     """
 
     known: tuple[str, ...]
@@ -183,37 +193,55 @@ class ChannelFilter:
     reasons: set[str] = field(default_factory=set)
     ranges: Ranges = field(default_factory=Ranges)
     out_of_range: int = 0
+    unknown: int = 0
+    oversized: int = 0
 
     def accept(self, topic: str, msg: JointState | bytes
                ) -> tuple[int | None, tuple[str, ...], dict[str, float], list[str]]:
         """``(stamp_ns or None, the message's channel names, accepted {name: value}, new
-        reasons to log once)``; ``msg`` a JointState or its CDR bytes."""
+        reasons to log)``; ``msg`` a JointState or its CDR bytes."""
         new: list[str] = []
         try:
-            t_ns, names, values = from_joint_state(msg)
+            t_ns, _, names, values = parse_signal(msg)
         except ValueError as err:
             self.ignored += 1
-            self._note(f'{topic}: malformed message ignored ({err})', new)
+            if 'at most' in str(err):
+                self.oversized += 1
+            self._note(f'{topic}/malformed', f'{topic}: malformed message ignored ({err}); '
+                       f'{self.ignored} ignored so far', new)
             return None, (), {}, new
         accepted: dict[str, float] = {}
+        unknown: list[str] = []
         for name, value in zip(names, values):
             if name not in self.known:
-                self.ignored += 1
-                self._note(f'{topic}: unknown channel {name!r} ignored; known: '
-                           f'{", ".join(self.known) or "none"}', new)
+                unknown.append(name)
             elif not math.isfinite(value):
                 self.ignored += 1
-                self._note(f'{topic}: non-finite value for {name!r} ignored; last valid kept', new)
+                self._note(f'{topic}/{name}/nonfinite',
+                           f'{topic}: non-finite value for {name!r} ignored; last valid kept', new)
             elif not self.ranges.accepts(name, value):
                 self.ignored += 1
                 self.out_of_range += 1
-                self._note(f'{topic}: {self.ranges.reason(name, value)} ignored; last valid kept',
+                self._note(f'{topic}/{name}/range',
+                           f'{topic}: {self.ranges.reason(name, value)} ignored; last valid kept',
                            new)
             else:
                 accepted[name] = value
+        if unknown:
+            self.ignored += len(unknown)
+            self.unknown += len(unknown)
+            shown = ', '.join(repr(n[:40]) for n in unknown[:3])
+            more = f' and {len(unknown) - 3} more' if len(unknown) > 3 else ''
+            self._note(f'{topic}/unknown',
+                       f'{topic}: unknown channel(s) {shown}{more} ignored ({self.unknown} so '
+                       f'far); known: {", ".join(self.known) or "none"}', new)
         return t_ns, names, accepted, new
 
-    def _note(self, reason: str, new: list[str]) -> None:
-        if reason not in self.reasons:
-            self.reasons.add(reason)
+    def rearm(self) -> None:
+        """Report each kind of reason again (once per diagnostics period)."""
+        self.reasons.clear()
+
+    def _note(self, key: str, reason: str, new: list[str]) -> None:
+        if key not in self.reasons:
+            self.reasons.add(key)
             new.append(reason)

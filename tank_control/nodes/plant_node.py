@@ -28,6 +28,7 @@ from tank_control.core.node_specs import PlantNode as PlantNodeConfig
 from tank_control.core.params import ConfigError, names_of
 from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
+from tank_control.core.stamps import FutureStamps, future_tolerance_ns
 from tank_control.nodes.clock import Scheduled, StampedInbox, steady_clock
 from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGIN_QOS,
                                          RECORDED_QOS, SIGNAL_QOS, TOPIC_APPLIED_INPUT,
@@ -89,7 +90,12 @@ class PlantNode(Node):
         self.d = nominal_disturbances(self.plant)
         self._wall_t0_ns = 0               # wall: steady time of tick 0 [ns]
         self.counters = {'ticks': 0, 'missed_samples': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
-                         'late_inputs': 0, 'rejected_changes': 0, 'out_of_range_inputs': 0}
+                         'late_inputs': 0, 'rejected_changes': 0, 'out_of_range_inputs': 0,
+                         'rejected_future': 0, 'unknown_channels': 0, 'oversized_inputs': 0}
+        # inputs stamped more than max_future_stamp ahead of this plant's now are refused
+        # (core/stamps.py): one would hold every later input as "older" (docs/nodes.md)
+        self._future = FutureStamps(future_tolerance_ns(
+            values['max_future_stamp'], self.ts, self.mode == 'lockstep'))
 
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
@@ -470,12 +476,31 @@ class PlantNode(Node):
         return True
 
     # --------------------------------------------------------------- inputs
+    def _now_ns(self) -> int | None:
+        """This plant's now in the stamps' time base: sim/lockstep the current tick; wall the
+        time on its own grid (origin + steady time since tick 0), None before the origin is
+        announced."""
+        if self.mode != 'wall':
+            return self.k * self.ts_ns
+        if not self._announced:
+            return None
+        return self._stamp_offset_ns + time.monotonic_ns() - self._wall_t0_ns
+
     def _on_input(self, topic: str, msg: bytes) -> None:
-        """An input message (CDR bytes of a JointState)."""
+        """An input message (CDR bytes of a JointState); one stamped more than
+        ``max_future_stamp`` ahead of this plant's now is refused (``rejected_future``)."""
         flt = self.filters[topic]
         t_ns, names, accepted, new_reasons = flt.accept(topic, msg)
+        if t_ns is not None and not self._future.admit(topic, t_ns, self._now_ns(),
+                                                       time.monotonic_ns()):
+            new_reasons += self._future.take_report()
+            t_ns = None
+        else:
+            new_reasons += self._future.take_report()
         for reason in new_reasons:
-            self.get_logger().warning(reason + ' (logged once)')
+            self.get_logger().warning(reason + ' (logged at most once per diagnostics period)')
+        if t_ns is None:
+            return                      # malformed or refused: no arrival, nothing taken
         now = time.monotonic()
         last = self._arrivals.get(topic)
         self._arrivals[topic] = (now, now - last[0] if last else 0.0)
@@ -707,11 +732,20 @@ class PlantNode(Node):
         # the filters count per message; the totals are taken here, off the hot path
         self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
         self.counters['out_of_range_inputs'] = sum(f.out_of_range for f in self.filters.values())
+        self.counters['unknown_channels'] = sum(f.unknown for f in self.filters.values())
+        self.counters['oversized_inputs'] = sum(f.oversized for f in self.filters.values())
+        self.counters['rejected_future'] = self._future.refused
+        for flt in self.filters.values():
+            flt.rearm()                 # each kind of reason logged again at most once a period
+        self._future.rearm_reports()
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
         model = dict(self.plant.status)
         problems = []
         if self.counters['ignored_inputs']:
             problems.append(f"{self.counters['ignored_inputs']} ignored inputs")
+        if self.counters['rejected_future']:
+            problems.append(f"{self.counters['rejected_future']} inputs stamped in the future "
+                            'refused')
         if model.get('clipped_flows'):
             problems.append(f"{model['clipped_flows']} clipped flows")
         if model.get('overflow'):

@@ -498,3 +498,150 @@ def test_two_loop_pi_gain_table_is_set_or_refused_with_a_reason(procs, node_cmd,
     assert u2['F_H'] == pytest.approx(u1['F_H'] + 0.004 * 2.0, abs=1e-12)
     u3 = loop.tick(to_ns(3.0), y, r)
     assert u3['F_H'] == pytest.approx(u2['F_H'] + 0.03 * 2.0, abs=1e-12)
+
+
+def _wall_loop(procs, node_cmd, ros_env, probe, ts: float):
+    """A wall-clock controller (P only, kp 2, b 1: u = 2·(r − y) after the warm start at y = r)
+    and the probe as a plant stamping each measurement with the instant of the probe's clock
+    (origin + k·ts, as plant_node does), its setpoint r = 1 answered once."""
+    proc = _start(procs, node_cmd, ros_env, f'sample_time:={ts}', 'kp:=2.0', 'ti:=0.0',
+                  'td:=0.0', 'b:=1.0', 'u_min:=-100.0', 'u_max:=100.0', 'stale_samples:=1000',
+                  'diagnostics_period:=0.1')
+    loop = Loop(probe)
+    clock = probe.node.get_clock()
+    origins = probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS)
+    tick = to_ns(ts)
+    base = {'origin': clock.now().nanoseconds, 'skew': 0}    # the plant host's clock - ours
+    origins.publish(ns_to_stamp(base['origin']))
+
+    def instant() -> int:
+        now = clock.now().nanoseconds + base['skew']
+        return base['origin'] + (now - base['origin']) // tick * tick
+
+    def measure_until(condition, y: float, timeout: float) -> bool:
+        """Measure y at each new instant of the probe's clock until ``condition``."""
+        deadline, last = time.monotonic() + timeout, None
+        while not condition():
+            if time.monotonic() > deadline:
+                return False
+            if instant() != last:
+                last = instant()
+                loop.meas.publish(to_joint_state(last, ['y'], [y]))
+            probe.wait_for(condition, 0.01)
+        return True
+    while not loop.answers:       # re-sent until the endpoints match
+        loop.setp.publish(to_joint_state(instant(), ['y'], [1.0]))
+        measure_until(lambda: bool(loop.answers), 1.0, 0.5)
+    return proc, loop, base, origins, instant, measure_until
+
+
+def test_wall_mode_a_message_stamped_in_the_future_does_not_freeze_the_loop(
+        procs, node_cmd, ros_env, probe):
+    """One measurement stamped 10 s (and one 1 h) after the plant's latest, and a setpoint
+    stamped an hour ahead, are refused (``rejected_future``, /diagnostics WARN): the controller
+    keeps sampling each measurement and takes the next valid setpoint. (Before: the 10 s
+    measurement was sampled, and no measurement after it was a new instant for 10 s; the
+    setpoint froze the setpoint until real time passed its stamp.)"""
+    proc, loop, _, _, instant, measure_until = _wall_loop(procs, node_cmd, ros_env, probe,
+                                                          ts=0.1)
+    latest = loop.answers[-1][0]
+    loop.meas.publish(to_joint_state(latest + to_ns(10.0), ['y'], [0.0]))
+    loop.meas.publish(to_joint_state(latest + to_ns(3600.0), ['y'], [0.0]))
+    loop.setp.publish(to_joint_state(instant() + to_ns(3600.0), ['y'], [50.0]))
+    injected = instant()
+    # the valid measurements go on being sampled with the valid setpoint: u = 2·(1 − 0.5)
+
+    def after():
+        return [a for a in loop.answers if injected < a[0] < injected + to_ns(5.0)]
+    assert measure_until(lambda: len(after()) >= 5, 0.5, 30.0), (loop.answers[-3:], proc.tail())
+    assert all(a[2][0] == pytest.approx(1.0, abs=1e-12) for a in after()), after()
+    # the next valid setpoint is taken: u = 2·(2 − 0.5)
+    loop.setp.publish(to_joint_state(instant(), ['y'], [2.0]))
+    assert measure_until(lambda: loop.answers[-1][2][0] == pytest.approx(3.0, abs=1e-12), 0.5,
+                         30.0), (loop.answers[-3:], proc.tail())
+    assert measure_until(lambda: int(loop.diag.get('rejected_future', 0)) == 3, 0.5, 30.0), \
+        loop.diag
+    assert loop.diag_level == DiagnosticStatus.WARN and 'future' in loop.diag_message
+    assert all(a[0] < instant() + to_ns(1.0) for a in loop.answers)   # nothing sent ahead
+    assert proc.tail(50).count('ahead of this node') <= 2 * 20   # rate-limited (0.1 s period)
+
+
+def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
+        procs, node_cmd, ros_env, probe):
+    """The plant restarts on a host whose clock is an hour ahead (a new time origin, every
+    measurement an hour ahead of this controller's clock): refused at first, then taken as a
+    clock step — within ``RECOVER_S`` plus a period (``core/stamps.py``; a generous margin
+    here for a loaded machine) — and the loop runs on."""
+    from tank_control.core.stamps import RECOVER_S
+    proc, loop, base, origins, _, measure_until = _wall_loop(procs, node_cmd, ros_env,
+                                                             probe, ts=0.05)
+    base['skew'] = to_ns(3600.0)              # the new session's grid, an hour ahead
+    base['origin'] += base['skew']
+    origins.publish(ns_to_stamp(base['origin']))
+    assert probe.wait_for(lambda: str(base['origin']) in proc.tail(), 20), proc.tail()
+    start = time.monotonic()
+    assert measure_until(lambda: loop.answers[-1][0] >= base['origin'], 0.5, 30.0), proc.tail()
+    took = time.monotonic() - start
+    assert RECOVER_S * 0.9 <= took < RECOVER_S + 0.05 + 10.0, took
+    n = len(loop.answers)
+    assert measure_until(lambda: len(loop.answers) >= n + 5, 0.5, 30.0)   # and runs on
+    assert int(loop.diag.get('rejected_future', 0)) >= 3
+    assert 'clock step' in proc.tail(50)
+
+
+@pytest.mark.parametrize('sample_time', [0.1, 0.2])
+def test_lockstep_a_measurement_stamped_ahead_of_the_plant_s_tick_does_not_stall_it(
+        procs, node_cmd, ros_env, probe, sample_time):
+    """lockstep, plant ticks of 0.1 s, the reference's setpoint known 8 ticks ahead: a stray
+    measurement stamped two ticks past the latest. With sample_time 0.1 it is more than a
+    sample ahead and refused (``rejected_future``); with 0.2 it is within one sample, answered,
+    and the plant's re-send of the tick it waits at is answered anew. Either way the plant's
+    next tick is answered with its own measurement. (Before: the stray tick was answered and
+    the plant's next tick, older, was dropped as a late duplicate every time it was re-sent.)"""
+    tick = to_ns(0.1)
+    proc = _start(procs, node_cmd, ros_env, 'clock_mode:=lockstep', f'sample_time:={sample_time}',
+                  'kp:=2.0', 'ti:=0.0', 'td:=0.0', 'b:=1.0', 'u_min:=-100.0', 'u_max:=100.0',
+                  'diagnostics_period:=0.1')
+    loop = Loop(probe)
+    assert loop.tick(0, 1.0, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert loop.tick(tick, 1.0, 1.0) == pytest.approx(0.0, abs=1e-12)
+    loop.setp.publish(to_joint_state(8 * tick, ['y'], [1.0]))        # the reference, ahead
+    loop.meas.publish(to_joint_state(3 * tick, ['y'], [-100.0]))     # the stray one
+    assert loop.tick(2 * tick, 0.5, 1.0) == pytest.approx(1.0, abs=1e-12), proc.tail()
+    # (with 0.2 the stray tick 3 was answered already, the held output: the helper takes that)
+    u3 = loop.tick(3 * tick, 0.5, 1.0)
+    assert loop.tick(4 * tick, 0.5, 1.0) == pytest.approx(1.0, abs=1e-12), proc.tail()
+    assert all(a[2][0] != pytest.approx(202.0) for a in loop.answers)   # y = -100 never used
+    if sample_time == 0.1:
+        assert u3 == pytest.approx(1.0, abs=1e-12)
+        assert probe.wait_for(lambda: loop.diag.get('rejected_future') == '1', 20), \
+            (loop.diag.get('rejected_future'), proc.tail())
+    else:
+        assert 're-sent after' in proc.tail(50)
+
+
+def test_unknown_empty_and_non_finite_inputs_are_counted_and_logged_with_a_count(
+        procs, node_cmd, ros_env, probe):
+    """What the plant counts, the controller counts too (before: dropped silently): unknown
+    channels (``unknown_channels``; 300 names: one log line with the count, not one per
+    name), a message with none of its channels (``empty_inputs``), non-finite values
+    (``nonfinite_values``); a message with more than 256 names is refused whole
+    (``rejected_inputs``). The loop goes on."""
+    proc, loop, _, _, instant, measure_until = _wall_loop(procs, node_cmd, ros_env, probe,
+                                                          ts=0.1)
+    names = [f'z{i}' for i in range(200)]
+    loop.meas.publish(to_joint_state(instant(), names, [1.0] * len(names)))   # none of its own
+    loop.setp.publish(to_joint_state(instant(), ['y', 'w'], [float('nan'), 1.0]))
+    big = [f'x{i}' for i in range(10_000)]
+    loop.meas.publish(to_joint_state(instant(), big, [1.0] * len(big)))
+
+    def counted():
+        d = loop.diag
+        return (d.get('unknown_channels') == '201' and d.get('empty_inputs') == '1'
+                and d.get('nonfinite_values') == '1' and int(d.get('rejected_inputs', 0)) >= 2)
+    assert measure_until(counted, 0.5, 30.0), loop.diag
+    n = len(loop.answers)
+    assert measure_until(lambda: len(loop.answers) >= n + 3, 0.5, 30.0)   # the loop goes on
+    log = proc.tail(100)
+    assert log.count("unknown channel(s) 'z0', 'z1', 'z2' and 197 more") == 1, log
+    assert 'at most 256' in log

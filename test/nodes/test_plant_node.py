@@ -175,10 +175,10 @@ def test_wall_mode_a_disturbance_sent_ahead_of_its_instant_acts_from_it(procs, r
     """wall: the reference publishes each instant ``wall.lead`` ahead of it; the plant holds a
     disturbance stamped t_e until the step that starts at t_e. IPDT without dead time, k1 = 1:
     y stays 0 through t_e and is k1·v·(t − t_e) after it (whatever periods a loaded timer
-    skipped)."""
+    skipped). 1 s ahead is beyond the default ``max_future_stamp`` (5 ticks): raised to 2 s."""
     ts = 50_000_000
     proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
-                       gain=1.0, dead_time=0.0)
+                       gain=1.0, dead_time=0.0, max_future_stamp=2.0)
     rec = Recorder(probe)
     assert probe.wait_for(lambda: rec.measurements and rec.disturbance.get_subscription_count(),
                           30), proc.tail()
@@ -339,7 +339,7 @@ def test_garbage_inputs_are_ignored_counted_and_the_last_valid_value_kept(procs,
     (_, _, (y0,)), (_, _, (y1,)) = rec.measurements[-2:]
     assert y1 - y0 == pytest.approx(2.0 * 0.05, abs=1e-12)
     log = proc.tail(50)
-    assert log.count('non-finite value') == 2 and log.count("unknown channel 'w'") == 1
+    assert log.count('non-finite value') == 2 and log.count("unknown channel(s) 'w'") == 1
     assert proc.returncode is None   # still running
 
 
@@ -503,3 +503,67 @@ def test_a_plant_without_controller_and_reference_says_what_it_waits_for(
     assert probe.wait_for(moving, 30), rec.diagnostics[-3:]
     assert probe.wait_for(lambda: 'inputs arrive: the loop moves' in proc.log_path.read_text(),
                           10), proc.tail()
+
+
+def test_wall_mode_an_input_stamped_in_the_future_is_refused_and_the_inputs_go_on(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    """One ``manipulated`` stamped 10 s after the latest measurement (and one an hour, one at
+    the largest stamp, 2038) and a ``disturbance`` an hour ahead are refused (``rejected_future``, /diagnostics
+    WARN); the next valid ``u`` is integrated. (Before: the 10 s one was taken and every valid
+    input after it was "older than the one held" for 10 s.) IPDT, k1 = 1, no dead time: the
+    slope of y is u."""
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       gain=1.0, dead_time=0.0, diagnostics_period=0.1)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.measurements and rec.manipulated.get_subscription_count()
+                          and rec.disturbance.get_subscription_count(), 30), proc.tail()
+    latest = rec.measurements[-1][0]
+    rec.manipulated.publish(to_joint_state(latest, ['u'], [2.0]))
+    for ahead_s in (10.0, 3600.0, (2**31 - 1) - latest / 1e9):    # ... the largest stamp
+        rec.manipulated.publish(to_joint_state(latest + int(ahead_s * 1e9), ['u'], [0.0]))
+    rec.disturbance.publish(to_joint_state(latest + 3600 * 10**9, ['v'], [-5.0]))
+
+    def slope():
+        (s0, _, (y0,)), (s1, _, (y1,)) = rec.measurements[-2:]
+        return (y1 - y0) / ((s1 - s0) / 1e9)
+
+    def integrates(u):
+        def check():
+            rec.manipulated.publish(to_joint_state(rec.measurements[-1][0], ['u'], [u]))
+            n = len(rec.measurements)
+            probe.wait_for(lambda: len(rec.measurements) >= n + 2, 5)
+            return slope() == pytest.approx(u, abs=1e-9)
+        return check
+    assert probe.wait_for(integrates(2.0), 30), (rec.measurements[-3:], proc.tail())
+    assert probe.wait_for(integrates(-1.0), 30), (rec.measurements[-3:], proc.tail())
+    assert probe.wait_for(lambda: rec.diagnostics and
+                          rec.diagnostics[-1].get('rejected_future') == '4', 30), \
+        (rec.diagnostics[-1:], proc.tail())
+    assert rec.diagnostics[-1]['level'] == DiagnosticStatus.WARN
+    assert 'future' in rec.diagnostics[-1]['message']
+
+
+def test_a_message_with_many_unknown_channel_names_costs_the_plant_no_more_than_a_tick(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    """A ``manipulated`` with 100 000 unknown channel names is refused whole (more than
+    ``MAX_NAMES``: ``oversized_inputs``) before its names are decoded; one with 200 is
+    counted (``unknown_channels``) and logged once with the count, not once per name. The
+    plant keeps ticking (before: > 44 s of one warning per name)."""
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       gain=1.0, dead_time=0.0, diagnostics_period=0.1)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.measurements and rec.manipulated.get_subscription_count(),
+                          30), proc.tail()
+    many = [f'x{i}' for i in range(100_000)]
+    rec.manipulated.publish(to_joint_state(0, many, [1.0] * len(many)))
+    some = [f'y{i}' for i in range(200)]            # at most MAX_NAMES (256)
+    rec.manipulated.publish(to_joint_state(0, some, [1.0] * len(some)))
+
+    def counted():
+        d = rec.diagnostics[-1] if rec.diagnostics else {}
+        return d.get('oversized_inputs') == '1' and d.get('unknown_channels') == str(len(some))
+    assert probe.wait_for(counted, 60), (rec.diagnostics[-1:], proc.tail())
+    n = len(rec.measurements)
+    assert probe.wait_for(lambda: len(rec.measurements) >= n + 10, 30)    # still ticking
+    log = proc.tail(200)
+    assert 'at most' in log and log.count('unknown channel') == 1, log
