@@ -8,8 +8,8 @@ the same lists, so a misspelt name is refused alike everywhere.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from tank_control.core import ranges
@@ -152,7 +152,8 @@ def actuator_defaults(controller_values: Mapping[str, Any] | None
     them itself)."""
     if not controller_values:
         return {}
-    from tank_control.core.scenario import controller_setup   # scenario imports this module
+    # scenario imports this module
+    from tank_control.core.scenario import controller_setup
     try:
         setup = controller_setup(controller_values)
     except (ConfigError, ValueError, ArithmeticError):

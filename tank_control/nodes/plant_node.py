@@ -94,8 +94,9 @@ class PlantNode(Node):
         self._controller_values = _controller_values(
             f'{self.get_namespace().rstrip("/")}/controller')
         self._actuator = node_specs.actuator_defaults(self._controller_values)
-        self.params = ParameterBinding(self, node_specs.plant_specs(kind, self._controller_values),
-                                       cross_check=self._cross_check)
+        self.params = ParameterBinding(
+            self, node_specs.plant_specs(kind, self._controller_values),
+            cross_check=self._cross_check)
         values = self.params.values
         try:
             setup = plant_setup(values, self._controller_values)

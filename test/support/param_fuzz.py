@@ -140,7 +140,7 @@ def _thaw(frozen: tuple) -> dict[str, dict[str, Any]]:
 
 
 @cache
-def default_run(frozen: tuple) -> 'Run | None':
+def default_run(frozen: tuple) -> Run | None:
     """The run of the default loop (None if it does not run well)."""
     sections = _thaw(frozen)
     built = scenario.build(sections)
@@ -446,25 +446,18 @@ def _live_controller(target: Target, built: scenario.Built, changes: Mapping[str
     if ranges:
         built.controller_setup = new      # range.* act on the next message
 
-    def accept(t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray) -> Any:
-        if not changed:
-            return None
-        return controllers.prepare_change(kind, controller_ref[0], new.settings, changed,
-                                          trial=(t, y, r, d), u_last=u)
-
-    controller_ref: list[Any] = []
-
-    def live(plant: Any, controller: Any) -> tuple[Any, Any]:
-        wrapped = _LiveController(controller, at, lambda *a: accept(*a))
-        controller_ref.append(controller)
-        return plant, wrapped
     wrapped_holder: list[_LiveController] = []
 
-    def live_recording(plant: Any, controller: Any) -> tuple[Any, Any]:
-        plant, wrapped = live(plant, controller)
-        wrapped_holder.append(wrapped)
-        return plant, wrapped
-    run = simulate(built, live_recording)
+    def live(plant: Any, controller: Any) -> tuple[Any, Any]:
+        def accept(t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray
+                   ) -> Any:
+            if not changed:
+                return None
+            return controllers.prepare_change(kind, controller, new.settings, changed,
+                                              trial=(t, y, r, d), u_last=u)
+        wrapped_holder.append(_LiveController(controller, at, accept))
+        return plant, wrapped_holder[0]
+    run = simulate(built, live)
     wrapped = wrapped_holder[0]
     if wrapped.refused is not None:
         return _refused(ValueError(wrapped.refused))
@@ -500,8 +493,8 @@ def _live_plant(target: Target, built: scenario.Built, changes: Mapping[str, Any
 # ---------------------------------------------------------------------------- the values
 SPECIAL_FLOATS = (0.0, -0.0, 5e-324, -5e-324, 1e-320, 2.2250738585072014e-308, 1e-300,
                   -1e-300, 1e-170, 1e-160, 1e-154, 1e-30, 1e-12, 1e-9, 1e-6, 1e-3, -1.0, 1.0,
-                  1e6, 1e9, 1e12, 1e154, -1e154, 1e300, -1e300, 1e308, -1e308, 1.7976931348623157e308,
-                  math.nan, math.inf, -math.inf)
+                  1e6, 1e9, 1e12, 1e154, -1e154, 1e300, -1e300, 1e308, -1e308,
+                  1.7976931348623157e308, math.nan, math.inf, -math.inf)
 
 
 def value_strategy(spec: ParamSpec) -> Any:

@@ -79,20 +79,21 @@ class LeadLagConfig:
                       'use direct_action for the opposite sign', unit='u units per y unit',
                       min=0.0, max=BIG, name='lead_lag.kp', source='002 §1.4')
     td: float = param(0.0, 'lead time Td: largest phase lead at w_max = 1/(Td sqrt(alpha)) '
-                      '(0 = no lead)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY, name='lead_lag.td',
-                      source='002 §1.2')
+                      '(0 = no lead)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
+                      name='lead_lag.td', source='002 §1.2')
     alpha: float = param(0.1, 'lead pole/zero ratio alpha = Tf/Td; largest lead '
                          'asin((1 - alpha)/(1 + alpha)), high-frequency gain K/alpha', unit='-',
                          min=ALPHA_MIN, max=ALPHA_MAX, name='lead_lag.alpha', source='002 §1.2')
     ti: float = param(math.inf, 'integral time Ti of the series PI (0 = no integral action)',
-                      unit='s', min=0.0, max=BIG, tiny=TIME_TINY, zero=math.inf, name='lead_lag.ti',
-                      source='002 §1.3')
+                      unit='s', min=0.0, max=BIG, tiny=TIME_TINY, zero=math.inf,
+                      name='lead_lag.ti', source='002 §1.3')
     sample_time: float = sample_time_param()
     u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
     u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
     anti_windup: str = anti_windup_param()
     tracking_time: float | None = param(None, 'back-calculation tracking time Tt (0 = default '
-                                        'Ti)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY, zero=None)
+                                        'Ti)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
+                                        zero=None)
     direct_action: bool = param(False, 'true: output rises when the measurement rises')
 
     def reason(self) -> str | None:

@@ -18,8 +18,8 @@ from typing import Any
 from tank_control.core.analysis.robustness import (LoopReport, RobustnessMonitor, finite_or,
                                                    loop_report, pid_key)
 from tank_control.core.interfaces import Controller
-from tank_control.core.params import (TIME_TINY, ConfigError, ParamSpec, coerce, config_from, names_of,
-                                      param, specs_of, unknown_reason)
+from tank_control.core.params import (TIME_TINY, ConfigError, ParamSpec, coerce, config_from,
+                                      names_of, param, specs_of, unknown_reason)
 from tank_control.core.tuning.model import KINDS as MODEL_KINDS, ProcessModel
 from tank_control.core.tuning.rules import RULES, tune
 from tank_control.core.tuning.sampling import sampling_advice
@@ -89,10 +89,11 @@ class Tuning:
                                  min=0.0, max=BIG, tiny=TIME_TINY, name='tuning.time_constant')
     ku: float = param(0.0, 'ultimate gain Ku (0 = not given)', unit='u units per y unit',
                       min=0.0, max=BIG, name='tuning.ku')
-    tu: float = param(0.0, 'ultimate period Tu (0 = not given)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
-                      name='tuning.tu')
+    tu: float = param(0.0, 'ultimate period Tu (0 = not given)', unit='s', min=0.0, max=BIG,
+                      tiny=TIME_TINY, name='tuning.tu')
     te: float = param(0.0, 'smith_pi n = 1: desired closed-loop time constant Te, (0.2...1)*T '
-                      '(0 = not given)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY, name='tuning.te',
+                      '(0 = not given)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
+                      name='tuning.te',
                       source='004 eq. 3.6.7')
     xi: float = param(0.0, 'smith_pi n = 2: damping xi in [0.5, 1]; rule wang: damping of the '
                       'desired closed loop (0 = not given; wang: 0.707)', unit='-',
@@ -112,8 +113,8 @@ class Tuning:
     mt_max: float = param(0.0, 'rule ms: bound on the complementary sensitivity peak Mt '
                           '(0 = none)', unit='-', min=0.0, max=5.0, name='tuning.mt_max')
     tau_c: float = param(0.0, 'rules simc, lambda: desired closed-loop time constant (0 = the '
-                         "rule's default: simc L, lambda T)", unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
-                         name='tuning.tau_c')
+                         "rule's default: simc L, lambda T)", unit='s', min=0.0, max=BIG,
+                         tiny=TIME_TINY, name='tuning.tau_c')
     gain_margin: float = param(0.0, 'rules ho, tan: gain margin A_r (0 = 3)', unit='-',
                                min=0.0, max=100.0, name='tuning.gain_margin',
                                source='004 eqs. 3.4.17, 3.4.22')
