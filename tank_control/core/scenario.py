@@ -67,11 +67,16 @@ def plant_setup(values: Mapping[str, Any],
     kind = plants.get_kind(node_specs.kind_of('plant', dict(values)))
     node_specs.unknown_names(node_specs.plant_specs(kind.name), dict(values))
     model_names = {s.name for s in kind.specs()}
+    node = config_from(PlantNode, _own(PlantNode, values))
+    model = config_from(kind.config, {k: v for k, v in values.items() if k in model_names})
+    reason = kind.tick_reason(model, node.sample_time) if kind.tick_reason else None
+    if reason:
+        raise ConfigError(reason)
     return PlantSetup(
-        node=config_from(PlantNode, _own(PlantNode, values)),
+        node=node,
         noise=config_from(NoiseConfig, _own(NoiseConfig, values)),
         kind=kind,
-        model=config_from(kind.config, {k: v for k, v in values.items() if k in model_names}),
+        model=model,
         ranges=ranges.ranges_from(values, node_specs.plant_channels(kind.name),
                                   node_specs.actuator_defaults(controller_values)))
 

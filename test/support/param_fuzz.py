@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import signal
+import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -42,8 +43,10 @@ SAMPLES = 200
 """Controller samples an accepted change must survive."""
 SETTLE = 10
 """Samples before the setpoint step (and before a live change)."""
-CASE_SECONDS = 60
+CASE_SECONDS = 300
 """Wall time one case may take before it counts as a frozen loop."""
+TICK_SECONDS = 10.0
+"""Wall time one tick of the loop may take before it counts as a frozen loop."""
 DIVERGENCE = 1e3
 """Growth of the tracking error over the run (last quarter vs second quarter), and distance
 above the default run's, that count as divergence (a saturated integrator grows linearly,
@@ -268,7 +271,12 @@ def simulate(built: scenario.Built, live: Any = None, samples: int = SAMPLES) ->
     errors, outputs = [], []
     rows = iter_loop(plant, controller, built.reference, sample_time=built.sample_time,
                      duration=duration, noise=built.noise.sample_floats, guards=built.guards())
+    last = time.monotonic()
     for k, row in enumerate(rows):
+        now = time.monotonic()
+        if now - last > TICK_SECONDS:
+            return Run(broken=f'frozen: tick {k} took {now - last:.3g} s')
+        last = now
         if k % every:
             continue
         values = np.array(row, dtype=float)
