@@ -39,7 +39,7 @@ for minutes)."""
 
 def tick_reason(config: Any, sample_time: float) -> str | None:
     """The RK4 steps one tick of ``sample_time`` [s] needs stay within MAX_STEPS_PER_TICK."""
-    if sample_time / config.integration_step > MAX_STEPS_PER_TICK:
+    if sample_time / config.integration_step > MAX_STEPS_PER_TICK * (1.0 + 1e-9):   # rounding
         return (f'integration_step: {config.integration_step:g} s makes a tick of sample_time '
                 f'{sample_time:g} s {sample_time / config.integration_step:.3g} RK4 steps; '
                 f'allowed at least sample_time/{MAX_STEPS_PER_TICK:g} = '
