@@ -13,7 +13,7 @@ error grows 1000-fold over the run, e.g. an FSA or Smith model far from the plan
 and listed, not failed: the node cannot know the plant its model is wrong for; the outputs stay
 within the controller's limits and the plant's ranges, and the plants clip their states.
 
-Budget: the profile ``HYPOTHESIS_PROFILE`` (default ``ci``: 150 changes per test, about 40 s
+Budget: the profile ``HYPOTHESIS_PROFILE`` (default ``ci``: 400 changes per test, about 15 s
 in ``make test``; ``long``: 5 000 per test; both derandomised, so a run is reproducible)::
 
     HYPOTHESIS_PROFILE=long .venv/bin/python -m pytest -q -n 0 -p no:cacheprovider \
@@ -33,7 +33,7 @@ from support import param_fuzz
 _COMMON = {'deadline': None, 'derandomize': True, 'database': None, 'print_blob': True,
            'suppress_health_check': [HealthCheck.too_slow, HealthCheck.filter_too_much,
                                      HealthCheck.data_too_large]}
-settings.register_profile('ci', max_examples=150, **_COMMON)
+settings.register_profile('ci', max_examples=400, **_COMMON)
 settings.register_profile('long', max_examples=5000, **_COMMON)
 settings.register_profile('dev', max_examples=int(os.environ.get('FUZZ_EXAMPLES', '1000')),
                           **_COMMON)
