@@ -8,8 +8,8 @@ the same lists, so a misspelt name is refused alike everywhere.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from tank_control.core import ranges
@@ -21,6 +21,9 @@ from tank_control.core.stamps import (FUTURE_STAMP_SAMPLES, LOCKSTEP_AHEAD_TICKS
                                       RECOVER_S)
 
 CLOCK_MODES = ('wall', 'sim', 'lockstep')
+RTF_TINY = 1e-3
+"""Smallest non-zero ``real_time_factor``: the plant's tick timer ``sample_time /
+real_time_factor`` (at most 3.6e6 s) stays far inside rclpy's int64 nanoseconds."""
 NODES = ('plant', 'controller', 'reference')
 ROS_OWN = ('use_sim_time', 'start_type_description_service')
 """Parameters rclpy declares itself; accepted in every node section and left to rclpy (also
@@ -59,7 +62,10 @@ class PlantNode:
                             'real_time_factor x real time; lockstep: /clock advances when every '
                             'answer of a tick arrived', choices=CLOCK_MODES, read_only=True)
     real_time_factor: float = param(1.0, 'simulated seconds per wall second in sim/lockstep '
-                                    '(lockstep: 0 = as fast as possible)', min=0.0, max=1e6)
+                                    '(lockstep: 0 = as fast as possible); a non-zero factor is '
+                                    f'at least {RTF_TINY:g} (a tick of up to 3600 s paced at '
+                                    'it is still a timer period rclpy can hold)', min=0.0,
+                                    max=1e6, tiny=RTF_TINY)
     resend_period: float = param(0.5, 'lockstep: re-send the current tick when its answers have '
                                  'not come within this wall time', unit='s', min=0.01, max=60.0,
                                  name='lockstep.resend_period')
@@ -80,7 +86,7 @@ class PlantNode:
     def reason(self) -> str | None:
         if self.clock_mode == 'sim' and self.real_time_factor <= 0:
             return (f'real_time_factor: {self.real_time_factor:g} with clock_mode sim; allowed '
-                    '(0, 1e6] (0 = as fast as possible exists in lockstep only)')
+                    f'[{RTF_TINY:g}, 1e6] (0 = as fast as possible exists in lockstep only)')
         return None
 
 
@@ -152,10 +158,32 @@ def controller_channels(kind: str, values: Mapping[str, Any] | None = None) -> t
     return (*outputs, *controller_kind.disturbances)
 
 
-def plant_specs(kind: str) -> tuple[ParamSpec, ...]:
-    """Every parameter of a plant_node simulating ``kind``."""
+def actuator_defaults(controller_values: Mapping[str, Any] | None
+                      ) -> dict[str, tuple[float, float]]:
+    """Default ``range.*`` of the plant inputs a controller with parameter values
+    ``controller_values`` drives (``ranges.actuator_ranges`` of its kind's ``input_limits``);
+    {} without values, or for values that do not make a controller (the controller refuses
+    them itself)."""
+    if not controller_values:
+        return {}
+    # scenario imports this module
+    from tank_control.core.scenario import controller_setup
+    try:
+        setup = controller_setup(controller_values)
+    except (ConfigError, ValueError, ArithmeticError):
+        return {}
+    kind = setup.kind
+    if kind.input_limits is None:
+        return {}
+    return ranges.actuator_ranges(kind.input_limits(setup.settings))
+
+
+def plant_specs(kind: str, controller_values: Mapping[str, Any] | None = None
+                ) -> tuple[ParamSpec, ...]:
+    """Every parameter of a plant_node simulating ``kind``; ``controller_values``: those of the
+    controller driving it, whose output limits set the inputs' default ranges."""
     return (specs_of(PlantNode) + specs_of(NoiseConfig) + plants.get_kind(kind).specs()
-            + ranges.range_specs(plant_channels(kind)))
+            + ranges.range_specs(plant_channels(kind), actuator_defaults(controller_values)))
 
 
 def controller_specs(kind: str, values: Mapping[str, Any] | None = None

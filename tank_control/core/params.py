@@ -24,6 +24,12 @@ _META = 'tank_control.param'
 _UNSET: Any = object()
 
 
+TIME_TINY = 1e-6
+"""Smallest non-zero time [s] of the parameters where 0 means "none" (``ti``, ``td``, the
+tuning model's times): far below any sample time (>= 1e-4 s), and far above the 1e-154 below
+which a product of two times underflows to 0 (a division by it would fail)."""
+
+
 class ConfigError(ValueError):
     """Parameter values that cannot make a configuration; the message names the parameter."""
 
@@ -32,8 +38,10 @@ class ConfigError(ValueError):
 class ParamSpec:
     """One parameter: name, default (ROS value), description (with units) and allowed values.
 
-    ``min``/``max`` bound numbers (inclusive), ``choices`` restricts strings, ``read_only``
-    parameters are set at start-up only. The type is the default's (ints are accepted for floats).
+    ``min``/``max`` bound numbers (inclusive), ``tiny`` is the smallest magnitude of a non-zero
+    number (a time or factor whose quotients and products must stay finite: 0 < |x| < tiny is
+    refused), ``choices`` restricts strings, ``read_only`` parameters are set at start-up only.
+    The type is the default's (ints are accepted for floats).
     """
 
     name: str
@@ -43,6 +51,7 @@ class ParamSpec:
     max: float | None = None
     choices: tuple[str, ...] | None = None
     read_only: bool = False
+    tiny: float | None = None
 
     def allowed(self) -> str:
         """Human-readable allowed values, used in rejection messages."""
@@ -51,6 +60,10 @@ class ParamSpec:
         if self.min is not None or self.max is not None:
             lo = '-inf' if self.min is None else f'{self.min:g}'
             hi = 'inf' if self.max is None else f'{self.max:g}'
+            if self.tiny is not None and self.min is not None and self.min >= 0:
+                return f'0 or [{self.tiny:g}, {hi}]'
+            if self.tiny is not None:
+                return f'[{lo}, {hi}], 0 or at least {self.tiny:g} in magnitude'
             return f'[{lo}, {hi}]'
         return f'any {type(self.default).__name__}'
 
@@ -74,6 +87,8 @@ class ParamSpec:
                 return f'{item:g} is below the minimum'
             if self.max is not None and item > self.max:
                 return f'{item:g} is above the maximum'
+            if self.tiny is not None and 0 < abs(item) < self.tiny:
+                return f'{item:g} is non-zero and below the smallest magnitude {self.tiny:g}'
         return None
 
 
@@ -167,21 +182,24 @@ class _Meta:
     zero: Any
     name: str | None
     source: str
+    tiny: float | None
 
 
 def param(default: Any, description: str, *, unit: str = '', min: float | None = None,
           max: float | None = None, choices: Iterable[str] | None = None,
           read_only: bool = False, zero: Any = _UNSET, name: str | None = None,
-          source: str = '') -> Any:
+          source: str = '', tiny: float | None = None) -> Any:
     """A dataclass field that is also a ROS 2 parameter.
 
     ``default`` is the field's value (a tuple for a list parameter); ``name`` the parameter name
     when it differs from the field's (``'two_loop.kp_h'``); ``zero`` the field value written as
     0 because ROS cannot hold it (``math.inf``: "0 = none"; ``None``: "0 = default");
-    ``min``/``max`` bound the parameter value; ``source`` cites the document ("000 eq. 19").
+    ``min``/``max`` bound the parameter value; ``tiny`` is the smallest magnitude of a non-zero
+    value (e.g. a time whose products and quotients must stay finite: 0 = none, or at least
+    ``tiny``); ``source`` cites the document ("000 eq. 19").
     """
     meta = _Meta(description, unit, min, max, tuple(choices) if choices else None, read_only,
-                 zero, name, source)
+                 zero, name, source, tiny)
     return dataclasses.field(default=default, metadata={_META: meta})
 
 
@@ -220,7 +238,7 @@ def _params(cls: type) -> dict[str, _Param]:
             f' ({meta.source})' if meta.source else '')
         probe = _Param(f.name, ParamSpec(name, 0.0, ''), meta.zero)
         spec = ParamSpec(name, _encode(probe, f.default), text, meta.min, meta.max,
-                         meta.choices, meta.read_only)
+                         meta.choices, meta.read_only, meta.tiny)
         out[name] = _Param(f.name, spec, meta.zero)
     return out
 

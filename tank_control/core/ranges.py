@@ -14,6 +14,12 @@ atomic), in the channel's units. Defaults come from the mixing tank model (003 �
 * ``F_H``, ``F_Cin``, ``F_D`` [cm³/s]: ``±FLOW_MAX``, the largest flow the tank's parameters allow;
 * ``y`` (SISO output): ``±SISO_OUTPUT``; ``u``, ``v`` and any other channel: ``±SISO_INPUT``.
 
+A plant's manipulated inputs default to the actuator the controller drives them with, when the
+plant is started with its controller's parameters (the same scenario or ``--params-file``): the
+controller kind's output limits (``input_limits``: ``u_min``/``u_max``, ``mpcs.u_min``/``u_max``)
+widened by ``ACTUATOR_MARGIN`` of their span on each side, and within the channel's model
+range above (:func:`actuator_ranges`). An output the controller cannot send is then refused.
+
 Units: those of each channel (docs/nodes.md, "Plausible ranges").
 """
 from __future__ import annotations
@@ -36,6 +42,9 @@ SISO_OUTPUT = 1e5
 """Bound of a SISO output ``y``: far beyond any setpoint of the shipped scenarios."""
 SISO_INPUT = 1e6
 """Bound of a SISO input ``u``/``v`` and of any channel the models do not name."""
+ACTUATOR_MARGIN = 0.1
+"""A plant input accepts its controller's output limits widened by this fraction of their span
+on each side (rounding, a hand-set value near a limit); further out it is no controller's."""
 
 _T = (T_MIN - T_MARGIN, T_MAX + T_MARGIN)
 _F = (-FLOW_MAX, FLOW_MAX)
@@ -56,11 +65,28 @@ def name_of(channel: str) -> str:
     return PREFIX + channel
 
 
-def range_specs(channels: Iterable[str]) -> tuple[ParamSpec, ...]:
-    """One parameter ``range.<channel>`` per channel (in order, duplicates once)."""
+def actuator_ranges(limits: Mapping[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """Default ranges of plant inputs from the output limits ``{channel: (min, max)}`` of the
+    controller driving them: widened by ``ACTUATOR_MARGIN`` of the span on each side, within
+    the channel's model range (:func:`default_range`)."""
+    out = {}
+    for channel, (lo, hi) in limits.items():
+        model_lo, model_hi = default_range(channel)
+        margin = ACTUATOR_MARGIN * (hi - lo)
+        wide = (max(lo - margin, model_lo), min(hi + margin, model_hi))
+        if math.isfinite(wide[0]) and math.isfinite(wide[1]) and wide[0] < wide[1]:
+            out[channel] = (float(wide[0]), float(wide[1]))
+    return out
+
+
+def range_specs(channels: Iterable[str],
+                defaults: Mapping[str, tuple[float, float]] | None = None
+                ) -> tuple[ParamSpec, ...]:
+    """One parameter ``range.<channel>`` per channel (in order, duplicates once); ``defaults``
+    replace the model's default of some channels (:func:`actuator_ranges`)."""
     out: dict[str, ParamSpec] = {}
     for channel in channels:
-        lo, hi = default_range(channel)
+        lo, hi = (defaults or {}).get(channel) or default_range(channel)
         out[channel] = ParamSpec(
             name_of(channel), [float(lo), float(hi)],
             f'plausible range [min, max] of channel {channel} (its units): a value outside is '
@@ -93,11 +119,13 @@ class Ranges:
         return bounds is None or bounds[0] <= value <= bounds[1]
 
 
-def ranges_from(values: Mapping[str, Any], channels: Iterable[str]) -> Ranges:
-    """The ranges of ``channels`` from parameter values (missing ones: the defaults);
-    ``ConfigError`` naming the parameter unless each is two finite values with min < max."""
+def ranges_from(values: Mapping[str, Any], channels: Iterable[str],
+                defaults: Mapping[str, tuple[float, float]] | None = None) -> Ranges:
+    """The ranges of ``channels`` from parameter values (missing ones: the defaults, with
+    ``defaults`` as in :func:`range_specs`); ``ConfigError`` naming the parameter unless each
+    is two finite values with min < max."""
     bounds = {}
-    for spec in range_specs(channels):
+    for spec in range_specs(channels, defaults):
         value = coerce(spec, values.get(spec.name, spec.default))
         reason = spec.check(value)
         if reason is None and (len(value) != 2 or not value[0] < value[1]):

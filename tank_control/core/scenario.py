@@ -60,17 +60,25 @@ class PlantSetup:
             raise ConfigError(str(exc)) from None
 
 
-def plant_setup(values: Mapping[str, Any]) -> PlantSetup:
-    """plant_node's settings from its parameter values; ``ConfigError`` with the reason."""
+def plant_setup(values: Mapping[str, Any],
+                controller_values: Mapping[str, Any] | None = None) -> PlantSetup:
+    """plant_node's settings from its parameter values (``controller_values``: the controller's,
+    whose output limits set the inputs' default ranges); ``ConfigError`` with the reason."""
     kind = plants.get_kind(node_specs.kind_of('plant', dict(values)))
     node_specs.unknown_names(node_specs.plant_specs(kind.name), dict(values))
     model_names = {s.name for s in kind.specs()}
+    node = config_from(PlantNode, _own(PlantNode, values))
+    model = config_from(kind.config, {k: v for k, v in values.items() if k in model_names})
+    reason = kind.tick_reason(model, node.sample_time) if kind.tick_reason else None
+    if reason:
+        raise ConfigError(reason)
     return PlantSetup(
-        node=config_from(PlantNode, _own(PlantNode, values)),
+        node=node,
         noise=config_from(NoiseConfig, _own(NoiseConfig, values)),
         kind=kind,
-        model=config_from(kind.config, {k: v for k, v in values.items() if k in model_names}),
-        ranges=ranges.ranges_from(values, node_specs.plant_channels(kind.name)))
+        model=model,
+        ranges=ranges.ranges_from(values, node_specs.plant_channels(kind.name),
+                                  node_specs.actuator_defaults(controller_values)))
 
 
 # ------------------------------------------------------------------------------ controller
@@ -208,8 +216,9 @@ def validate(sections: Mapping[str, Mapping[str, Any]],
     with the section (``controller.kpp: unknown parameter; did you mean kp?``)."""
     check_sections(sections)
     setups: dict[str, Any] = {}
-    for node, setup in (('plant', plant_setup), ('controller', controller_setup),
-                        ('reference', reference_setup)):
+    controller = node_values(sections, 'controller') if 'controller' in sections else None
+    for node, setup in (('plant', lambda v: plant_setup(v, controller)),
+                        ('controller', controller_setup), ('reference', reference_setup)):
         try:
             setups[node] = setup(node_values(sections, node))
         except ConfigError as exc:

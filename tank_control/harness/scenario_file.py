@@ -19,7 +19,7 @@ import yaml
 
 from tank_control.core import loop, node_specs, params_file, ros_yaml
 from tank_control.core import scenario as core_scenario
-from tank_control.core.node_specs import CLOCK_MODES, NODES
+from tank_control.core.node_specs import CLOCK_MODES, NODES, RTF_TINY
 from tank_control.core.params import ConfigError, config_from, param, specs_of, unknown_reason
 from tank_control.core.scenario import HARNESS
 
@@ -39,8 +39,9 @@ class HarnessConfig:
                             max=1e7)
     clock_mode: str = param('lockstep', 'how the plant advances time', choices=CLOCK_MODES)
     real_time_factor: float = param(0.0, 'sim/lockstep pacing: simulated seconds per wall second '
-                                    '(0 = as fast as possible; sim mode needs > 0)', min=0.0,
-                                    max=1e6)
+                                    '(0 = as fast as possible; sim mode needs > 0; a '
+                                    f'non-zero factor is at least {RTF_TINY:g})', min=0.0,
+                                    max=1e6, tiny=RTF_TINY)
     nodes: tuple[str, ...] = param(NODES, 'node processes to start', choices=NODES)
     startup_timeout: float = param(60.0, 'wall seconds allowed for the graph to come up',
                                    unit='s', min=1.0, max=3600.0)

@@ -84,6 +84,12 @@ def _wildcard_names(node_name: str, argv: list[str] | None = None) -> set[str]:
     return names
 
 
+def _reason(exc: BaseException) -> str:
+    """One line: the exception's text (its type if the text is empty)."""
+    text = ' '.join(str(exc).split())
+    return text if isinstance(exc, ValueError) and text else f'{type(exc).__name__}: {text}'
+
+
 class ParameterError(ValueError):
     """A start-up parameter value (params file or default) that the specs reject."""
 
@@ -190,12 +196,12 @@ class ParameterBinding:
         if not reasons and self._derive is not None:
             try:
                 extra = self._derive(values, frozenset(n for n in self._specs if n in overrides))
-            except ValueError as exc:
-                reasons.append(str(exc))
+            except (ArithmeticError, ValueError) as exc:
+                reasons.append(_reason(exc))
             else:
                 values.update({k: coerce(self._specs[k], v) for k, v in extra.items()})
         if not reasons and self._cross_check is not None:
-            reason = self._cross_check(values, frozenset(n for n in self._specs if n in overrides))
+            reason = self._checked(values, frozenset(n for n in self._specs if n in overrides))
             if reason:
                 reasons.append(reason)
         if reasons:
@@ -244,7 +250,7 @@ class ParameterBinding:
             if not any(self._specs[n].check(v) for n, v in changes.items()):
                 try:
                     extra = self._derive(candidate, frozenset(changes))
-                except ValueError:
+                except (ArithmeticError, ValueError):
                     extra = {}   # the cross-check names the problem
                 cause = 'derived from ' + ', '.join(sorted(changes))
                 for name, value in extra.items():
@@ -287,10 +293,21 @@ class ParameterBinding:
                 return self._reject(reason)
             changes[param.name] = value
         if changes and self._cross_check is not None:
-            reason = self._cross_check({**self._values, **changes}, frozenset(changes))
+            reason = self._checked({**self._values, **changes}, frozenset(changes))
             if reason:
                 return self._reject(reason)
         return SetParametersResult(successful=True)
+
+    def _checked(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
+        """The cross-check; a computation it cannot do with these values (an overflow, a
+        division by an underflowed product) refuses them with that reason instead of ending
+        the node."""
+        assert self._cross_check is not None
+        try:
+            return self._cross_check(values, changed)
+        except (ArithmeticError, ValueError) as exc:
+            return (f'{", ".join(sorted(changed)) or "parameters"}: refused, the values cannot '
+                    f'be used ({_reason(exc)})')
 
     def _reject(self, reason: str) -> SetParametersResult:
         self._note_rejection(reason)

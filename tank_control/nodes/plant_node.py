@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.core import node_specs, ranges
+from tank_control.core import node_specs, params_file, ranges
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import nominal_disturbances, nominal_inputs
 from tank_control.core.node_specs import PlantNode as PlantNodeConfig
@@ -62,6 +62,23 @@ ORIGIN_NOTICE_S = 0.2
 _ANSWERED_BY = {TOPIC_MANIPULATED: 'controller', TOPIC_DISTURBANCE: 'reference'}
 
 
+def _controller_values(name: str, argv: list[str] | None = None) -> dict[str, Any] | None:
+    """The parameter values the controller ``name`` gets from the ``--params-file`` files on
+    this node's command line (None if none has a section for it, or one cannot be read)."""
+    values: dict[str, Any] = {}
+    found = False
+    for path in params_file.ros_params_files(sys.argv if argv is None else argv):
+        try:
+            sections = params_file.read(path)
+        except ConfigError:
+            return None               # rcl reports an unreadable file itself
+        own = params_file.values_for(sections, name)
+        if own is not None and params_file.values_for(sections, name, use_wildcards=False):
+            found = True
+        values.update(own or {})
+    return values if found else None
+
+
 class PlantNode(Node):
     """The plant simulation node, clock master of the run (docs/nodes.md)."""
 
@@ -73,11 +90,17 @@ class PlantNode(Node):
             kind = node_specs.kind_of('plant', {} if override is None else {'plant': override.value})
         except ConfigError as exc:
             raise ParameterError(str(exc)) from None
-        self.params = ParameterBinding(self, node_specs.plant_specs(kind),
-                                       cross_check=self._cross_check)
+        # the controller's parameters in the same --params-file (a scenario, the harness's
+        # file): its output limits are the inputs' default range.* (core/ranges.py)
+        self._controller_values = _controller_values(
+            f'{self.get_namespace().rstrip("/")}/controller')
+        self._actuator = node_specs.actuator_defaults(self._controller_values)
+        self.params = ParameterBinding(
+            self, node_specs.plant_specs(kind, self._controller_values),
+            cross_check=self._cross_check)
         values = self.params.values
         try:
-            setup = plant_setup(values)
+            setup = plant_setup(values, self._controller_values)
             self.plant = setup.build_plant()
             self.noise = setup.build_noise(len(self.plant.output_names))
         except ConfigError as exc:
@@ -210,7 +233,7 @@ class PlantNode(Node):
             return ('lockstep.paused: true refused, a running wall clock cannot be paused '
                     '(only held before its time origin is announced); allowed false')
         try:
-            setup = plant_setup(values)
+            setup = plant_setup(values, getattr(self, '_controller_values', None))
             if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next
                 setup.build_noise(len(self.plant.output_names))
         except ConfigError as exc:
@@ -250,7 +273,8 @@ class PlantNode(Node):
         given = {p.name: p.value for p in parameters if p.name.startswith(ranges.PREFIX)}
         if given:                         # range.* act on the next message
             limits = ranges.ranges_from({**self.params.values, **given},
-                                        node_specs.plant_channels(self.params.values['plant']))
+                                        node_specs.plant_channels(self.params.values['plant']),
+                                        self._actuator)
             for flt in self.filters.values():
                 flt.ranges = limits
         for p in parameters:

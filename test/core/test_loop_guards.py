@@ -116,3 +116,28 @@ def test_an_implausible_setpoint_keeps_the_last_good_one():
     assert held['r.y'].max() == plain['r.y'].max() > 0.5      # the trace shows what was sent
     assert np.all(held['u.u'] == held['u.u'][0])              # y = r = 0 throughout: u constant
     assert not np.all(plain['u.u'] == plain['u.u'][0])
+
+
+FOPDT_AUTOTUNE = 'config/fopdt_autotune.yaml'
+
+
+@pytest.mark.parametrize('value', [1e6, -5000.0, 12000.0])
+def test_an_input_far_outside_the_controllers_limits_is_refused_by_the_plant(value):
+    """Issue 30 §5: the plant's default range.u is the controller's output limits (here
+    u_min 0, u_max 10000) widened by ranges.ACTUATOR_MARGIN (10 % of the span each side):
+    [-1000, 11000]. An injected u outside (1e6 drove the IPDT to y ≈ 5000) is refused and the
+    plant keeps the last good input."""
+    built = scenario.build(scenario.sections_of(FOPDT_AUTOTUNE))
+    assert built.plant_setup.ranges.bounds['u'] == (-1000.0, 11000.0)
+    guards = Guards(controller=built.controller_setup.ranges, plant=built.plant_setup.ranges,
+                    fail_safe_output=(0.0,))
+    trace = run_loop(built.plant, Wild(bad=5, value=value), built.reference, sample_time=0.1,
+                     duration=60.0, guards=guards)
+    # u = 1 throughout as the plant takes it: y of the FOPDT (K 0.05, T 10 s, L 3 s) to u = 1
+    t = trace.t
+    expected = 0.05 * (1.0 - np.exp(-np.maximum(t - 3.0, 0.0) / 10.0))
+    np.testing.assert_allclose(trace['y.y'], expected, atol=1e-9)
+    # within the widened limits a hand-set value is taken
+    inside = scenario.build(scenario.sections_of(FOPDT_AUTOTUNE))
+    assert inside.plant_setup.ranges.accepts('u', 10500.0)
+    assert inside.plant_setup.ranges.accepts('u', -500.0)

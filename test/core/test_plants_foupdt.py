@@ -79,3 +79,16 @@ def test_it_equals_the_transfer_function_kind_on_the_same_model():
                                                  'dead_time': 2.35}),
                 u_of_t, [0.1] * 200, v_of_t=lambda t: 0.3)
     np.testing.assert_allclose(ours, other, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize('dt', [1.0, 3600.0])
+def test_the_smallest_time_constant_with_a_long_step_saturates_instead_of_overflowing(dt):
+    """Issue 30 §3 (found by test_parameter_fuzz): T = 1e-6 s (the smallest allowed) over a
+    1 s step made e^(τ/T) = e^(1e6), an OverflowError that ended the plant. The state runs off
+    to the limit the plant clips it at (counted); at rest it stays at rest."""
+    plant = Foupdt(FoupdtConfig(time_constant=1e-6, dead_time=0.0))
+    plant.step(np.array([0.0]), np.array([0.0]), dt)
+    assert plant.outputs()[0] == 0.0
+    plant.step(np.array([1.0]), np.array([0.0]), dt)
+    assert plant.outputs()[0] == STATE_LIMIT           # x runs away from −K·w = −1, upwards
+    assert plant.status['clipped_states'] == 1

@@ -4,6 +4,7 @@ make the controller compute a non-finite output is refused, and a controller tha
 anyway goes to its fail-safe and says so (/diagnostics ERROR, ``controller_faults``)."""
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -179,3 +180,39 @@ def test_the_plant_refuses_an_implausible_input_and_keeps_its_state_finite(
                           and int(rec.diagnostics[-1].get('out_of_range_inputs', 0)) >= 2, 20)
     assert rec.diagnostics[-1]['level'] == DiagnosticStatus.WARN
     assert proc.tail(50).count("outside range.u") == 1     # logged once
+
+
+def test_the_plant_refuses_an_input_far_outside_its_controllers_limits(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    """Issue 30 §5: the plant started from a file that also holds its controller's section
+    takes the controller's output limits [0, 10], widened by 10 % of the span each side, as
+    range.u's default: [-1, 11]. The issue's injected u = 1e6 (in ±1e6 before, it drove the
+    IPDT to y ≈ 5000) is refused, the last good input kept."""
+    path = tmp_path / 'loop.yaml'
+    plant = dict(plant='ipdt', sample_time=0.1, gain=1.0, dead_time=0.0, clock_mode='lockstep',
+                 real_time_factor=0.0, diagnostics_period=0.1,
+                 **{'lockstep.wait_for_reference': False, 'lockstep.resend_period': 0.2})
+    controller = {'controller': 'pid', 'sample_time': 0.1, 'u_min': 0.0, 'u_max': 10.0}
+    path.write_text(json.dumps({'plant': {'ros__parameters': plant},
+                                'controller': {'ros__parameters': controller}}))
+    proc = procs.start('plant', node_cmd('plant_node', '--params-file', str(path)), env=ros_env)
+    rec = Recorder(probe)
+    u_of_tick = {0: 1.0, 1: 1e6, 2: 12.0, 3: 1.0}
+
+    def answer(k: int) -> None:
+        while True:
+            assert probe.wait_for(lambda: rec.measurements, 20), proc.tail()
+            stamp = rec.measurements[-1][0]
+            j = stamp // TICK
+            rec.manipulated.publish(to_joint_state(stamp, ['u'], [u_of_tick.get(j, 1.0)]))
+            if j >= k:
+                return
+            probe.wait_for(lambda: rec.measurements[-1][0] > stamp, 1.0)
+
+    answer(5)
+    assert probe.wait_for(lambda: rec.measurements[-1][0] >= 5 * TICK, 20)
+    for k in range(6):                        # u = 1 kept: slope 1
+        assert rec.y_at(k * TICK) == pytest.approx(0.1 * k, abs=1e-12), k
+    assert probe.wait_for(lambda: rec.diagnostics
+                          and int(rec.diagnostics[-1].get('out_of_range_inputs', 0)) >= 2, 20)
+    assert proc.tail(50).count('outside range.u [-1, 11]') == 1     # logged once

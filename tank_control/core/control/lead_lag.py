@@ -59,7 +59,7 @@ from tank_control.core.analysis import frequency as fr
 from tank_control.core.control.pid import (BIG, anti_windup_param, limits_reason,
                                            sample_time_param)
 from tank_control.core.control.siso_law import SisoController, SisoLaw
-from tank_control.core.params import ConfigError, check_config, param
+from tank_control.core.params import TIME_TINY, ConfigError, check_config, param
 from tank_control.core.tuning import design_002
 from tank_control.core.tuning.design_002 import Design, LeadStep  # noqa: F401 (re-exported)
 from tank_control.core.tuning.model import ProcessModel
@@ -79,20 +79,21 @@ class LeadLagConfig:
                       'use direct_action for the opposite sign', unit='u units per y unit',
                       min=0.0, max=BIG, name='lead_lag.kp', source='002 §1.4')
     td: float = param(0.0, 'lead time Td: largest phase lead at w_max = 1/(Td sqrt(alpha)) '
-                      '(0 = no lead)', unit='s', min=0.0, max=BIG, name='lead_lag.td',
-                      source='002 §1.2')
+                      '(0 = no lead)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
+                      name='lead_lag.td', source='002 §1.2')
     alpha: float = param(0.1, 'lead pole/zero ratio alpha = Tf/Td; largest lead '
                          'asin((1 - alpha)/(1 + alpha)), high-frequency gain K/alpha', unit='-',
                          min=ALPHA_MIN, max=ALPHA_MAX, name='lead_lag.alpha', source='002 §1.2')
     ti: float = param(math.inf, 'integral time Ti of the series PI (0 = no integral action)',
-                      unit='s', min=0.0, max=BIG, zero=math.inf, name='lead_lag.ti',
-                      source='002 §1.3')
+                      unit='s', min=0.0, max=BIG, tiny=TIME_TINY, zero=math.inf,
+                      name='lead_lag.ti', source='002 §1.3')
     sample_time: float = sample_time_param()
     u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
     u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
     anti_windup: str = anti_windup_param()
     tracking_time: float | None = param(None, 'back-calculation tracking time Tt (0 = default '
-                                        'Ti)', unit='s', min=0.0, max=BIG, zero=None)
+                                        'Ti)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
+                                        zero=None)
     direct_action: bool = param(False, 'true: output rises when the measurement rises')
 
     def reason(self) -> str | None:
@@ -245,10 +246,10 @@ class LeadLagTuning:
                         unit='y units per u unit, per s for ipdt', min=0.0, max=BIG,
                         name='tuning.gain')
     time_constant: float = param(0.0, 'process time constant T (fopdt, sopdt)', unit='s',
-                                 min=0.0, max=BIG, name='tuning.time_constant')
+                                 min=0.0, max=BIG, tiny=TIME_TINY, name='tuning.time_constant')
     time_constant2: float = param(0.0, 'second time constant T2 (sopdt)', unit='s', min=0.0,
-                                  max=BIG, name='tuning.time_constant2')
-    dead_time: float = param(0.0, 'process dead time L', unit='s', min=0.0, max=BIG,
+                                  max=BIG, tiny=TIME_TINY, name='tuning.time_constant2')
+    dead_time: float = param(0.0, 'process dead time L', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
                              name='tuning.dead_time')
     phase_margin: float = param(60.0, 'target phase margin (002: 5 % overshoot, damping 0.6, '
                                 '60 deg)', unit='deg', min=1.0, max=89.0,

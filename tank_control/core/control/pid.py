@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from tank_control.core.control.siso_law import SisoController, SisoLaw
-from tank_control.core.params import param
+from tank_control.core.params import TIME_TINY, param
 
 ANTI_WINDUP_CHOICES = ('back_calculation', 'conditional_integration', 'none')
 
@@ -57,9 +57,9 @@ class PidConfig:
     kp: float = param(1.0, 'proportional gain kp; > 0, use direct_action for the opposite '
                       'sign', unit='u units per y unit', min=0.0, max=BIG, source='000 eq. 19')
     ti: float = param(math.inf, 'integral time Ti (0 = no integral action)', unit='s', min=0.0,
-                      max=BIG, zero=math.inf, source='000 eq. 19')
+                      max=BIG, zero=math.inf, tiny=TIME_TINY, source='000 eq. 19')
     td: float = param(0.0, 'derivative time Td (0 = no derivative action)', unit='s', min=0.0,
-                      max=BIG, source='000 eq. 19')
+                      max=BIG, tiny=TIME_TINY, source='000 eq. 19')
     n: float = param(10.0, 'derivative filter ratio n = Td/Tf', unit='-', min=N_MIN, max=N_MAX,
                      source='000 eq. 14')
     b: float = param(1.0, 'setpoint weight in the P term', unit='-', min=0.0, max=1.0,
@@ -74,7 +74,7 @@ class PidConfig:
     anti_windup: str = anti_windup_param()
     tracking_time: float | None = param(None, 'back-calculation tracking time Tt (0 = default '
                                         'sqrt(Ti*Td) for PID, Ti for PI)', unit='s', min=0.0,
-                                        max=BIG, zero=None)
+                                        max=BIG, zero=None, tiny=TIME_TINY)
     direct_action: bool = param(False, 'true: output rises when the measurement rises '
                                 '(equivalent to a negative kp)')
 

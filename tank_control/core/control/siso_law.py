@@ -88,8 +88,8 @@ class SisoLaw(Generic[ConfigT]):
         self._has_integral = math.isfinite(self._cfg.ti)
         self._tt = (self._cfg.tracking_time or self._default_tracking_time()
                     if self._has_integral else math.inf)
-        # back-calculation gain min(h/Tt, 1) (Tt = 0, from an underflow of √(ti·td): at the sample)
-        self._aw_gain = min(self._cfg.sample_time / self._tt, 1.0) if self._tt else None
+        # back-calculation gain min(h/Tt, 1); Tt = 0 (an underflow of √(ti·td)): 1, at the sample
+        self._aw_gain = min(self._cfg.sample_time / self._tt, 1.0) if self._tt else 1.0
 
     # ----------------------------------------------------------------- state
     @property
@@ -218,8 +218,7 @@ class SisoLaw(Generic[ConfigT]):
         h = cfg.sample_time
         di = k * h / cfg.ti * e
         if cfg.anti_windup == 'back_calculation':
-            gain = self._aw_gain
-            self._i += di + (min(h / self._tt, 1.0) if gain is None else gain) * (u - v)
+            self._i += di + self._aw_gain * (u - v)
             self._aw_active = u != v
         elif cfg.anti_windup == 'conditional_integration':
             if (v > u and di > 0.0) or (v < u and di < 0.0):

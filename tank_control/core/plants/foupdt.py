@@ -20,6 +20,10 @@ from tank_control.core.plants.siso import (DeadTimePlant, dead_time_param, dead_
                                            max_dead_time_param, output_offset_param)
 
 
+_EXP_MAX = 709.0
+"""Largest τ/T whose e^(τ/T) is a float (ln of the largest float is 709.78)."""
+
+
 @dataclass(frozen=True)
 class FoupdtConfig:
     """Parameters of ``Foupdt`` (defaults: K = 1, T = 10 s, L = 3 s: a dead time of 0.3·T)."""
@@ -45,5 +49,9 @@ class Foupdt(DeadTimePlant):
 
     def _advance(self, x: float, w: float, duration: float) -> float:
         target = -self._config.gain * w
+        ratio = duration / self._config.time_constant
+        if ratio > _EXP_MAX:      # e^(τ/T) is beyond a float (T = 1e-6 s, τ = 1 s): the state
+            # runs off to ±inf, which the step clips to ±STATE_LIMIT (counted)
+            return target if x == target else math.copysign(math.inf, x - target)
         # x + (x − target)·(e^(τ/T) − 1), with expm1 for accuracy on short pieces.
-        return x + (x - target) * math.expm1(duration / self._config.time_constant)
+        return x + (x - target) * math.expm1(ratio)

@@ -31,6 +31,20 @@ FLOW_MAX = 1e6
 clipped to it and counted, so the volume and temperature stay finite."""
 
 _MAX_SUBSTEPS = 64          # sub-steps of one RK4 step near an empty tank
+MAX_STEPS_PER_TICK = 5e4
+"""Largest ``sample_time / integration_step``: RK4 steps of one tick (≈ 10 µs each, so at
+most about half a second of CPU per tick; 1e-6 s steps in a 1 s tick stalled a lockstep loop
+for minutes)."""
+
+
+def tick_reason(config: Any, sample_time: float) -> str | None:
+    """The RK4 steps one tick of ``sample_time`` [s] needs stay within MAX_STEPS_PER_TICK."""
+    if sample_time / config.integration_step > MAX_STEPS_PER_TICK * (1.0 + 1e-9):   # rounding
+        return (f'integration_step: {config.integration_step:g} s makes a tick of sample_time '
+                f'{sample_time:g} s {sample_time / config.integration_step:.3g} RK4 steps; '
+                f'allowed at least sample_time/{MAX_STEPS_PER_TICK:g} = '
+                f'{sample_time / MAX_STEPS_PER_TICK:g} s')
+    return None
 _RK4_STABLE = 2.5           # |λ·δ| below which RK4 is used (its stability limit is 2.78)
 
 

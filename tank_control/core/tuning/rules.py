@@ -499,7 +499,15 @@ def tune(rule: str, kind: str, **process: Any) -> TuneResult:
     for name in process:
         if name not in PROCESS_ARGS:
             raise ValueError(f'tune: unknown process argument {name!r}; allowed ' + ', '.join(PROCESS_ARGS))
-    gains = RULES[rule](kind, process)
+    try:
+        gains = RULES[rule](kind, process)
+    except ArithmeticError as exc:      # e.g. k1·To underflowing to 0 in a quotient
+        raise ValueError(f'tune: rule {rule!r} cannot compute gains from these process '
+                         f'arguments ({type(exc).__name__}: {exc})') from None
+    for name, value in gains.items():
+        if value is not None and not math.isfinite(value):
+            raise ValueError(f'tune: rule {rule!r} gives the non-finite {name} = {value!r} for '
+                             'these process arguments')
     model = None
     try:
         if rule in MODEL_RULES or rule in ('oppelt', 'cohen_coon') or (

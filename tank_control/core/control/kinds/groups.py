@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from tank_control.core.params import ConfigError, ParamSpec, config_from, param, specs_of
+from tank_control.core.params import TIME_TINY, ConfigError, ParamSpec, config_from, param, specs_of
 from tank_control.core.tuning.model import KINDS as MODEL_KINDS, ProcessModel
 from tank_control.core.tuning.rules import RULES, tune
 
@@ -72,15 +72,16 @@ class Tuning:
                         unit='y units per u unit, per s for IPDT', min=0.0, max=BIG,
                         name='tuning.gain')
     dead_time: float = param(0.0, 'process dead time L or To (0 = not given)', unit='s',
-                             min=0.0, max=BIG, name='tuning.dead_time')
+                             min=0.0, max=BIG, tiny=TIME_TINY, name='tuning.dead_time')
     time_constant: float = param(0.0, 'process time constant T (0 = not given)', unit='s',
-                                 min=0.0, max=BIG, name='tuning.time_constant')
+                                 min=0.0, max=BIG, tiny=TIME_TINY, name='tuning.time_constant')
     ku: float = param(0.0, 'ultimate gain Ku (0 = not given)', unit='u units per y unit',
                       min=0.0, max=BIG, name='tuning.ku')
     tu: float = param(0.0, 'ultimate period Tu (0 = not given)', unit='s', min=0.0, max=BIG,
-                      name='tuning.tu')
+                      tiny=TIME_TINY, name='tuning.tu')
     te: float = param(0.0, 'smith_pi n = 1: desired closed-loop time constant Te, (0.2...1)*T '
-                      '(0 = not given)', unit='s', min=0.0, max=BIG, name='tuning.te',
+                      '(0 = not given)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
+                      name='tuning.te',
                       source='004 eq. 3.6.7')
     xi: float = param(0.0, 'smith_pi n = 2: damping xi in [0.5, 1]; rule wang: damping of the '
                       'desired closed loop (0 = not given; wang: 0.707)', unit='-',
@@ -92,7 +93,7 @@ class Tuning:
                        'the model of the robustness.* analysis', name='tuning.model',
                        choices=('auto', *MODEL_KINDS))
     time_constant2: float = param(0.0, 'second time constant T2 of an SOPDT model (0 = not '
-                                  'given)', unit='s', min=0.0, max=BIG,
+                                  'given)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
                                   name='tuning.time_constant2')
     ms_target: float = param(1.4, 'rule ms: the sensitivity peak Ms the design may reach',
                              unit='-', min=1.05, max=5.0, name='tuning.ms_target',
@@ -101,7 +102,7 @@ class Tuning:
                           '(0 = none)', unit='-', min=0.0, max=5.0, name='tuning.mt_max')
     tau_c: float = param(0.0, 'rules simc, lambda: desired closed-loop time constant (0 = the '
                          "rule's default: simc L, lambda T)", unit='s', min=0.0, max=BIG,
-                         name='tuning.tau_c')
+                         tiny=TIME_TINY, name='tuning.tau_c')
     gain_margin: float = param(0.0, 'rules ho, tan: gain margin A_r (0 = 3)', unit='-',
                                min=0.0, max=100.0, name='tuning.gain_margin',
                                source='004 eqs. 3.4.17, 3.4.22')

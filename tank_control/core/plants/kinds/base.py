@@ -15,13 +15,16 @@ class PlantKind:
 
     ``config`` is the model's configuration dataclass (its fields are the parameters);
     ``build`` makes the model from a configuration. Live changes go through the model's
-    ``configure(**changes)``.
+    ``configure(**changes)``. ``tick_reason(config, sample_time)``: relations between the
+    model and plant_node's tick ``sample_time`` [s] (a one-line reason or None), e.g. the work
+    one tick may cost.
     """
 
     name: str
     description: str
     config: type
     build: Callable[[Any], Plant]
+    tick_reason: Callable[[Any, float], str | None] | None = None
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The model's parameters."""
