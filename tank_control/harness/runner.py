@@ -281,6 +281,14 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     return RunResult(scenario.name, out, trace, metrics, files)
 
 
+def run_metadata(scenario: Scenario, mode: str) -> dict[str, str]:
+    """What run.mcap says of its run (``recording.RUN_METADATA``; ``tank-control recover``
+    reads it): the scenario's name and path, the overrides (JSON), the clock mode."""
+    return {'scenario': scenario.name, 'path': str(scenario.path),
+            'overrides': json.dumps(list(scenario.overrides)), 'mode': mode,
+            'title': scenario.harness.title, 'claim': scenario.harness.claim}
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text.splitlines()[0]
@@ -378,7 +386,7 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
         raise ScenarioError(f'{scenario.path}: {exc}') from None
     names = core_loop.loop_columns(built.plant, built.controller, built.reference)
     prepare_output(scenario, out)
-    outputs = RunOutputs(out)
+    outputs = RunOutputs(out, metadata=run_metadata(scenario, 'in_process'))
     start = last_report = time.monotonic()
     failure: BaseException | None = None
     states: list[tuple[float, str]] = []       # the controller's state changes (relay auto-tuner)
@@ -504,6 +512,8 @@ class _RosRun:
 
     def _check_alive(self) -> None:
         self.stop.check()
+        if self.stream is not None:     # every wait passes here: run.mcap at most 0.5 s behind
+            self.stream.outputs.flush_now_and_then()
         for name, proc in (self.group.processes.items() if self.group else ()):
             code = proc.returncode
             if code is not None:
@@ -524,7 +534,8 @@ class _RosRun:
         due = due_periods(self.scenario, self.mode, self.tick_ns)
         self.stream = RecordingStream(self.out, self._origin, self.duration_ns, self.tick_ns, due,
                                       self.sample_time,
-                                      held=HELD_IN_LOCKSTEP if self.mode == 'lockstep' else ())
+                                      held=HELD_IN_LOCKSTEP if self.mode == 'lockstep' else (),
+                                      metadata=run_metadata(self.scenario, self.mode))
         recorder.subscribe(self.stream.on_message)
 
     # -- run ----------------------------------------------------------------------------------
