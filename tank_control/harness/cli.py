@@ -208,6 +208,25 @@ def _print_result(result) -> None:
     for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
         if key in result.files:
             print(f'{key}: {result.files[key]}')
+    for line in run_warnings(result.metrics):
+        print(f'tank-control: warning: {line}', file=sys.stderr)
+
+
+def run_warnings(metrics: dict) -> list[str]:
+    """What a user must know of a run that completed: nodes restarted, nodes on the domain
+    that the harness did not start (``run.restarts``, ``run.foreign_nodes``)."""
+    run = metrics.get('run', {})
+    lines = []
+    for r in run.get('restarts', []):
+        at = f' at {r["time"]:g} s' if r.get('time') is not None else ''
+        lines.append(f'node {r["node"]} exited with code {r["exit_code"]}{at} and was restarted '
+                     f'(harness.on_node_exit restart, {r["attempt"]} of this node)')
+    foreign = run.get('foreign_nodes', [])
+    if foreign:
+        seen = ', '.join(f'{n["node"]} ({n["first_seen"]:g}–{n["last_seen"]:g} s)' for n in foreign)
+        lines.append(f'nodes the harness did not start were on its ROS_DOMAIN_ID during the run: '
+                     f'{seen}; they could publish into the loop or change parameters')
+    return lines
 
 
 def _recover(out: Path, force: bool) -> int:

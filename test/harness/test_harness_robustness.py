@@ -490,3 +490,68 @@ def test_recover_refuses_what_is_not_a_killed_run(tmp_path):
     done = subprocess.run([*RECOVER, str(out)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and 'nothing to recover' in done.stderr, done.stderr
     assert json.loads((out / 'metrics.json').read_text())['complete'] is True   # untouched
+
+
+# ---------------------------------------------------------------- a node that dies in the run
+def _kill_controller_mid_run(tmp_path, procs, ros_env, probe, *settings: str):
+    import rclpy
+    """A lockstep run at 5x real time whose controller process is killed (SIGKILL) at 10 s
+    of it, while a node the harness did not start joins the domain; returns the harness's
+    exit code, its output and the output directory."""
+    out = tmp_path / 'run'
+    harness = procs.start('harness', [*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out', str(out),
+                                      '--duration', '60', '--rtf', '5', '--quiet',
+                                      *(f'--set={s}' for s in settings)], env=ros_env)
+    wait_for_stamp(probe, 10.0)
+    intruder = rclpy.create_node(f'intruder_{os.getpid()}')      # on the session's domain
+    try:
+        controllers = [pid for pid in processes_with(str(out / 'scenario.yaml'))
+                       if 'controller_node' in Path(f'/proc/{pid}/cmdline').read_text()]
+        assert len(controllers) == 1, harness.tail()
+        os.kill(controllers[0], signal.SIGKILL)
+        code = harness.popen.wait(timeout=600)
+    finally:
+        intruder.destroy_node()
+    return code, harness.tail(40), out
+
+
+def test_a_controller_killed_mid_run_is_restarted_and_the_run_keeps_every_tick(
+        tmp_path, procs, ros_env, probe):
+    """``harness.on_node_exit: restart``: the controller's process is killed in a lockstep run;
+    the harness starts it again with its parameters, it takes over on the running loop
+    (docs/nodes.md, "Restarts"), and the run completes with every tick recorded and answered.
+    The restart is in metrics.json, in run.mcap and in a warning, so is the node that joined."""
+    code, tail, out = _kill_controller_mid_run(tmp_path, procs, ros_env, probe,
+                                               'harness.on_node_exit=restart')
+    assert code == 0, tail
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['complete'] is True
+    run_info = metrics['run']
+    [restart] = run_info['restarts']
+    assert restart['node'] == 'controller' and restart['exit_code'] == -signal.SIGKILL
+    assert restart['attempt'] == 1 and restart['time'] >= 10.0
+    assert 'node controller exited with code -9' in tail and 'was restarted' in tail
+    trace = Trace.read_csv(out / 'trace.csv')
+    assert len(trace) == 601 and run_info['missed_samples'] == 0
+    np.testing.assert_allclose(np.diff(trace.t), 0.1, rtol=0, atol=1e-9)
+    assert np.isfinite(trace.columns['u.u']).all() and run_info['late_samples'] == 0
+    # up to the kill the loop is the in-process one; after it the new controller answers
+    expected = run_in_process(out / 'scenario.yaml', duration=60.0)
+    before = int(round(restart['time'] / 0.1)) - 1
+    np.testing.assert_allclose(trace.columns['u.u'][:before], expected.columns['u.u'][:before],
+                               rtol=0, atol=1e-9)
+    recorded = read_mcap(out / 'run.mcap')
+    [event] = recorded['/harness/events']
+    assert 'node controller exited with code -9' in event.msg and 'restarted' in event.msg
+    foreign = {n['node']: n for n in run_info['foreign_nodes']}
+    assert f'intruder_{os.getpid()}' in foreign, foreign
+    assert foreign[f'intruder_{os.getpid()}']['first_seen'] >= 10.0
+    assert 'did not start' in tail and f'intruder_{os.getpid()}' in tail
+
+
+def test_a_controller_killed_mid_run_ends_the_run_by_default(tmp_path, procs, ros_env, probe):
+    code, tail, out = _kill_controller_mid_run(tmp_path, procs, ros_env, probe)
+    assert code == 1, tail
+    assert 'run failed: node controller exited with code -9 during the run' in tail
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['complete'] is False and metrics['run']['restarts'] == []
