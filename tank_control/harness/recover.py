@@ -258,6 +258,9 @@ def recover(out: str | Path, force: bool = False) -> tuple[Any, PartialRecording
             'wall_time': 'from the arrival times in run.mcap (first measurement to last message)',
         },
     }
+    events = harness_events(found.messages, origin)
+    if events:
+        run_info['harness_events'] = events
     states = stream.states.result()
     if states:
         run_info['controller_states'] = states
@@ -267,6 +270,24 @@ def recover(out: str | Path, force: bool = False) -> tuple[Any, PartialRecording
     (out / 'metrics.json').unlink(missing_ok=True)
     result = runner.finish(scenario, out, trace, run_info, {}, files, reason)
     return result, found
+
+
+def harness_events(messages: list[RawMessage], origin: int) -> list[dict[str, Any]]:
+    """The harness's own events in a recording (``runner.HARNESS_EVENTS``: a node restarted),
+    ``{'time': s of plant time, 'text': ...}``: a recovered run's ``run.restarts`` in words."""
+    from rcl_interfaces.msg import Log
+    from rclpy.serialization import deserialize_message
+
+    from tank_control.harness.runner import HARNESS_EVENTS
+    events = []
+    for msg in messages:
+        if msg.topic == HARNESS_EVENTS:
+            try:
+                text = deserialize_message(msg.data, Log).msg
+            except Exception:                  # noqa: BLE001 - unreadable bytes: skipped
+                continue
+            events.append({'time': (msg.publish_time_ns - origin) / NS, 'text': text})
+    return events
 
 
 def _rows(path: Path) -> int:

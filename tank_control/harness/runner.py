@@ -606,6 +606,8 @@ class _RosRun:
 
         def alive() -> None:
             self.stop.check()
+            if self.stream is not None:
+                self.stream.outputs.flush_now_and_then()
             if proc.returncode is not None:
                 raise RunFailed(f'node {name} exited with code {proc.returncode} right after '
                                 f'its restart; last lines of {proc.log_path}:\n{proc.tail(15)}')
