@@ -160,7 +160,11 @@ def recover(out: str | Path, force: bool = False) -> tuple[Any, PartialRecording
     for a directory that holds no run, a run still going, or one that finished its results
     (``force``: rebuild those too)."""
     from tank_control.harness import runner
-    from tank_control.harness.scenario_file import Scenario, ScenarioError, load_scenario
+    from tank_control.harness.scenario_file import (
+        Scenario,
+        ScenarioError,
+        load_scenario,
+    )
     from tank_control.harness.stream import RecordingStream
     from tank_control.harness.trace import HELD_IN_LOCKSTEP
 
@@ -190,7 +194,7 @@ def recover(out: str | Path, force: bool = False) -> tuple[Any, PartialRecording
     sample_time = plant.get('sample_time')
     sample_time = (float(sample_time) if isinstance(sample_time, (int, float))
                    and not isinstance(sample_time, bool) and sample_time > 0 else None)
-    tick_ns = int(round(sample_time * NS)) if sample_time else None
+    tick_ns = round(sample_time * NS) if sample_time else None
     origin = 0
     if join_mode == 'wall':
         origins = [m.publish_time_ns for m in found.messages if m.topic.lstrip('/') == 'time_origin']
@@ -201,7 +205,7 @@ def recover(out: str | Path, force: bool = False) -> tuple[Any, PartialRecording
     work = out / '.recover'
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir()
-    stream = RecordingStream(work, lambda: origin, int(round(config.duration * NS)), tick_ns,
+    stream = RecordingStream(work, lambda: origin, round(config.duration * NS), tick_ns,
                              runner.due_periods(scenario, join_mode, tick_ns), sample_time,
                              held=HELD_IN_LOCKSTEP if join_mode == 'lockstep' else (),
                              metadata={**meta, 'recovered': 'true'} if meta else None)
@@ -284,8 +288,8 @@ def harness_events(messages: list[RawMessage], origin: int) -> list[dict[str, An
         if msg.topic == HARNESS_EVENTS:
             try:
                 text = deserialize_message(msg.data, Log).msg
-            except Exception:                  # noqa: BLE001 - unreadable bytes: skipped
-                continue
+            except Exception:                  # noqa: BLE001 - unreadable bytes: in words
+                text = f'(unreadable harness event, {len(msg.data)} bytes)'
             events.append({'time': (msg.publish_time_ns - origin) / NS, 'text': text})
     return events
 

@@ -575,9 +575,11 @@ class _RosRun:
         (a writer's first messages reach only the readers that matched it, and the plant, which
         needs only its own answer, would run up to ``record_window`` ticks whose answers the
         recording then lacks)."""
-        rec = self.recorder
+        rec, group = self.recorder, self.group
+        if group is None:
+            return
         topics = [t for t in PUBLISHES.get(name, ()) if not t.startswith('/')]
-        pause = bool(topics) and self.mode == 'lockstep' and 'plant' in self.group.processes
+        pause = bool(topics) and self.mode == 'lockstep' and 'plant' in group.processes
         if pause:
             self._set_paused(True, name)
         stamp = rec.latest.get('measurement')
@@ -593,7 +595,7 @@ class _RosRun:
         # lease ends (GHOST_LEASE), so the new one is there once the count exceeds the least
         # count seen since the kill.
         least = {t: rec.matched_publishers(t) for t in topics}
-        proc = self.group.restart(name, text)
+        proc = group.restart(name, text)
         if self.stream is not None:
             self.stream.on_message(harness_event(text, stamp if stamp is not None
                                                  else time.time_ns()))
@@ -834,7 +836,7 @@ class _RosRun:
         """Remember every node on the domain that the harness did not start (reported at the
         end: ``run.foreign_nodes``): when first and last seen [s of plant time]."""
         from tank_control.harness.recorder import RECORDER_NAME
-        ours = {*self.group.processes, RECORDER_NAME}
+        ours = {*(self.group.processes if self.group else ()), RECORDER_NAME}
         sim_ns = self._sim_ns()
         sim = sim_ns / NS if sim_ns is not None else 0.0
         for name in counts:
