@@ -2,7 +2,7 @@
 (SIGKILL, a crash, a power cut), rebuilt from what is on disk.
 
 A run flushes ``run.mcap`` at least every ``stream.FLUSH_PERIOD`` (each flush ends a compressed
-chunk), so a harness killed at any moment leaves every message received until half a second
+chunk), so a harness killed at any moment leaves every message received until a quarter second
 before, in whole chunks, followed by at most one chunk cut short; what is missing is the
 summary and index a reader seeks by (``mcap``'s ``make_reader`` refuses such a file). Recovery
 reads the file record by record, keeps every whole chunk whose data checks out (CRC), drops

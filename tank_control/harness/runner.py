@@ -537,7 +537,7 @@ class _RosRun:
 
     def _check_alive(self) -> None:
         self.stop.check()
-        if self.stream is not None:     # every wait passes here: run.mcap at most 0.5 s behind
+        if self.stream is not None:     # every wait passes here: run.mcap at most 0.25 s behind
             self.stream.outputs.flush_now_and_then()
         for name, proc in list(self.group.processes.items() if self.group else ()):
             code = proc.returncode

@@ -20,7 +20,7 @@ from tank_control.harness.trace import LATE_TOPICS, TOPIC_PREFIX, SignalMessage,
 HOLDBACK = 2.0
 #: Wall seconds between flushes of trace.csv and run.mcap (what a harness killed by SIGKILL can
 #: lose, with the time between two checks of the run).
-FLUSH_PERIOD = 0.5
+FLUSH_PERIOD = 0.25
 
 
 class RunOutputs:
