@@ -220,7 +220,7 @@ def run_warnings(metrics: dict) -> list[str]:
     for r in run.get('restarts', []):
         at = f' at {r["time"]:g} s' if r.get('time') is not None else ''
         lines.append(f'node {r["node"]} exited with code {r["exit_code"]}{at} and was restarted '
-                     f'(harness.on_node_exit restart, {r["attempt"]} of this node)')
+                     f'(restart {r["attempt"]} of this node; harness.on_node_exit restart)')
     foreign = run.get('foreign_nodes', [])
     if foreign:
         seen = ', '.join(f'{n["node"]} ({n["first_seen"]:g}–{n["last_seen"]:g} s)' for n in foreign)
