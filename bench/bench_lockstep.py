@@ -16,6 +16,7 @@ Two kinds of measurement, interleaved run by run so that both see the same machi
 
     .venv/bin/python bench/bench_lockstep.py [--runs 3] [--trips 3000] [--only ring|lockstep]
                                              [--baseline OTHER_PYTHON ...]
+                                             [--scenario LABEL_PART ...]
 
 Prints one line per measurement and a markdown table of medians (min–max) with the load
 average before and after.
@@ -157,6 +158,9 @@ def main() -> int:
                         help='the python of another installation (e.g. another checkout\'s '
                              '.venv/bin/python) whose lockstep runs too, in the same runs '
                              '(repeatable)')
+    parser.add_argument('--scenario', action='append', default=[],
+                        help='run only the lockstep scenarios whose label contains this '
+                             '(repeatable; default: all)')
     args = parser.parse_args()
     env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
@@ -175,6 +179,8 @@ def main() -> int:
             pythons = [('', sys.executable)] + [(f' ({python})', python)
                                                 for python in args.baseline]
             for label, config, duration in SCENARIOS:
+                if args.scenario and not any(part in label for part in args.scenario):
+                    continue
                 for suffix, python in pythons:
                     r = lockstep(config, duration, env, python)
                     results.setdefault(label + suffix, []).append(r)

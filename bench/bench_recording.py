@@ -14,6 +14,12 @@ trace to run.mcap, medians (min–max) of ``--repeats`` and the ratio of the med
 
     .venv/bin/python bench/bench_recording.py [--repeats 5] [--messages 20000]
                                               [--scenario config/scenarios/tf_002_pi.yaml]
+
+``--chunks [TICKS_PER_S]`` measures instead what the recording's flushing costs (a hard kill
+loses at most ``stream.FLUSH_PERIOD``): rows/s and bytes per row of writing the trace with the
+writer's 1 MiB chunks and no flush (before) against ``recording.CHUNK_SIZE`` chunks ended
+every ``FLUSH_PERIOD`` of a run going at TICKS_PER_S (default 1000, a lockstep run's pace:
+a flush every 500 rows), interleaved repeat by repeat.
 """
 from __future__ import annotations
 
@@ -93,6 +99,51 @@ def whole_trace(kind: str, trace, folder: Path) -> float:
     return len(trace) / elapsed
 
 
+def chunked_trace(flush_rows: int | None, trace, folder: Path) -> tuple[float, float]:
+    """Rows per second and bytes per row of writing ``trace`` to a run.mcap: ``flush_rows``
+    None = 1 MiB chunks, never flushed (before); else ``CHUNK_SIZE`` chunks flushed every
+    ``flush_rows`` rows."""
+    from tank_control.harness.recording import McapRecording, TraceMessages
+    path = folder / 'chunks.mcap'
+    start = time.perf_counter()
+    with McapRecording(path, chunk_size=1024 * 1024) if flush_rows is None \
+            else McapRecording(path) as recording:
+        rows = TraceMessages(recording, trace.names)
+        for k, row in enumerate(zip(*trace.columns.values())):
+            rows.add(row)
+            if flush_rows and k % flush_rows == flush_rows - 1:
+                recording.flush()
+    elapsed = time.perf_counter() - start
+    size = path.stat().st_size
+    path.unlink()
+    return len(trace) / elapsed, size / len(trace)
+
+
+def chunks_main(args, trace) -> int:
+    from tank_control.harness.stream import FLUSH_PERIOD
+    flush_rows = max(1, int(round(args.chunks * FLUSH_PERIOD)))
+    results: dict[str, list[tuple[float, float]]] = {}
+    load_before = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmp:
+        for repeat in range(args.repeats):
+            for label, rows in (('1 MiB chunks, no flush (before)', None),
+                                (f'flushed every {flush_rows} rows (after)', flush_rows)):
+                rate, size = chunked_trace(rows, trace, Path(tmp))
+                results.setdefault(label, []).append((rate, size))
+                print(f'repeat {repeat + 1}: {label}: {rate:.0f} rows/s, {size:.1f} bytes/row',
+                      flush=True)
+    load_after = os.getloadavg()
+    print(f'\nload average (1 min) before {load_before[0]:.2f}, after {load_after[0]:.2f}; '
+          f'{args.repeats} repeats, medians (min–max); trace of {Path(args.scenario).name}, '
+          f'{len(trace)} rows\n')
+    print('| run.mcap written | rows/s | bytes per row |')
+    print('|---|---|---|')
+    for label, rs in results.items():
+        print(f'| {label} | {_median_range([r for r, _ in rs], ".0f")} | '
+              f'{_median_range([b for _, b in rs], ".1f")} |')
+    return 0
+
+
 def _median_range(values: list[float], fmt: str) -> str:
     return f'{statistics.median(values):{fmt}} ({min(values):{fmt}}–{max(values):{fmt}})'
 
@@ -102,10 +153,14 @@ def main() -> int:
     parser.add_argument('--repeats', type=int, default=5)
     parser.add_argument('--messages', type=int, default=20000)
     parser.add_argument('--scenario', default=str(REPO / 'config/scenarios/tf_002_pi.yaml'))
+    parser.add_argument('--chunks', type=float, nargs='?', const=1000.0, metavar='TICKS_PER_S',
+                        help='measure the cost of flushing the recording instead (docstring)')
     args = parser.parse_args()
     from tank_control.core import params_file
     from tank_control.core.scenario import run_in_process
     trace = run_in_process(params_file.read(args.scenario))
+    if args.chunks:
+        return chunks_main(args, trace)
     load_before = os.getloadavg()
     results: dict[tuple[str, str], list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -40,6 +40,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         'tank-control analyze config/fopdt_zn.yaml',
         'tank-control analyze config/ipdt_pid.yaml --set controller.tuning.rule=experimental',
     ),
+    'tank-control recover': (
+        'tank-control recover runs/ipdt',
+        'tank-control recover runs/ipdt --force',
+    ),
     'tank-control sweep': (
         "tank-control sweep config/scenarios/ipdt_mdp_pi.yaml --out runs/pi "
         "--grid 'plant.dead_time=±20%:9' --grid plant.gain=0.04,0.05,0.06",

@@ -5,6 +5,7 @@
                      [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
     tank-control analyze SCENARIO.yaml [--set NODE.PARAM=VALUE ...]
+    tank-control recover OUT [--force]
     tank-control sweep SCENARIO.yaml ... | STUDY.yaml --out DIR [--grid NODE.PARAM=SPEC ...]
                      [--random NODE.PARAM=DIST ...] [--samples N] [--seed S] [--set ...]
                      [--duration S] [--workers N | --cluster ADDRESS | --scheduler-file F]
@@ -12,7 +13,8 @@
 
 Exit status: 0 done (a sweep: some runs succeeded), 1 the run failed (a node crashed, did not
 start or stalled: its last log lines are printed; another run or graph on the ROS_DOMAIN_ID;
-nothing recorded), 2 bad command line or scenario, 128 + N stopped by signal N (130 SIGINT,
+nothing recorded), 2 bad command line or scenario (recover: not a run's directory, a run still
+writing it, or its results already written), 128 + N stopped by signal N (130 SIGINT,
 143 SIGTERM, 129 SIGHUP). A failed or stopped run leaves what it recorded, with
 ``"complete": false`` and the reason in metrics.json.
 """
@@ -88,6 +90,11 @@ def _parser() -> argparse.ArgumentParser:
     analyze.add_argument('scenario', type=Path)
     analyze.add_argument('--set', dest='overrides', action='append', default=[],
                          metavar='NODE.PARAM=VALUE', help='override a parameter (typed as YAML)')
+    recover = sub.add_parser('recover', help='rebuild run.mcap (indexed), trace.csv and '
+                             'metrics.json of a run whose harness was killed (docs/harness.md)')
+    recover.add_argument('out', type=Path, help="the run's output directory")
+    recover.add_argument('--force', action='store_true',
+                         help='also when metrics.json is there (rebuild from run.mcap)')
     sweep = sub.add_parser('sweep', help='many runs: grids and Monte Carlo over parameters '
                            '(docs/sweeps.md)')
     sweep.add_argument('scenarios', type=Path, nargs='+',
@@ -204,6 +211,47 @@ def _print_result(result) -> None:
     for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
         if key in result.files:
             print(f'{key}: {result.files[key]}')
+    for line in run_warnings(result.metrics):
+        print(f'tank-control: warning: {line}', file=sys.stderr)
+
+
+def run_warnings(metrics: dict) -> list[str]:
+    """What a user must know of a run that completed: nodes restarted, nodes on the domain
+    that the harness did not start (``run.restarts``, ``run.foreign_nodes``)."""
+    run = metrics.get('run', {})
+    lines = []
+    for r in run.get('restarts', []):
+        at = f' at {r["time"]:g} s' if r.get('time') is not None else ''
+        lines.append(f'node {r["node"]} exited with code {r["exit_code"]}{at} and was restarted '
+                     f'(restart {r["attempt"]} of this node; harness.on_node_exit restart)')
+    foreign = run.get('foreign_nodes', [])
+    if foreign:
+        seen = ', '.join(f'{n["node"]} ({n["first_seen"]:g}–{n["last_seen"]:g} s)' for n in foreign)
+        lines.append(f'nodes the harness did not start were on its ROS_DOMAIN_ID during the run: '
+                     f'{seen}; they could publish into the loop or change parameters')
+    return lines
+
+
+def _recover(out: Path, force: bool) -> int:
+    from tank_control.harness.recover import RecoverError, recover
+    from tank_control.harness.scenario_file import ScenarioError
+    try:
+        result, found = recover(out, force)
+    except (RecoverError, ScenarioError) as err:
+        print(f'tank-control: {err}', file=sys.stderr)
+        return 2
+    info = result.metrics['run']['recovered']
+    last = info['last_measurement']
+    print(f'{out}: recovered {info["messages"]} messages of run.mcap'
+          + (f' (last measurement at {last:g} s of plant time)' if last is not None else '')
+          + (f'; dropped {info["bytes_dropped"]} bytes at its end ({found.stopped})'
+             if info['bytes_dropped'] else '')
+          + (f'; skipped {info["bad_chunks"]} damaged chunks' if info['bad_chunks'] else ''))
+    print(f'trace.csv: {result.metrics["run"]["ticks"]} rows; metrics.json: "complete": false')
+    for key in ('plot', 'analysis', 'trace', 'recording', 'metrics'):
+        if key in result.files:
+            print(f'{key}: {result.files[key]}')
+    return 0
 
 
 def _partial(err: BaseException) -> str:
@@ -217,6 +265,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from tank_control.harness.runner import RunFailed, RunInterrupted
     if args.command == 'list':
         return _list(args.dir)
+    if args.command == 'recover':
+        return _recover(args.out, args.force)
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))

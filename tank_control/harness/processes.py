@@ -39,6 +39,10 @@ class ManagedProcess:
     popen: subprocess.Popen
     log_path: Path
     _log: IO[bytes] = field(repr=False)
+    argv: tuple[str, ...] = ()
+    env: dict[str, str] | None = field(default=None, repr=False)
+    cwd: str | os.PathLike | None = None
+    starts: int = 1                    # 1 + the restarts (``ProcessGroup.restart``)
 
     @property
     def returncode(self) -> int | None:
@@ -129,6 +133,13 @@ def stop_process(proc: ManagedProcess, grace: float = 5.0) -> int:
     return popen.returncode
 
 
+def _popen(argv: Sequence[str], log: IO[bytes], env: Mapping[str, str] | None,
+           cwd: str | os.PathLike | None) -> subprocess.Popen:
+    return subprocess.Popen(list(argv), stdin=subprocess.DEVNULL, stdout=log,
+                            stderr=subprocess.STDOUT, env=dict(env) if env else None, cwd=cwd,
+                            start_new_session=True, preexec_fn=_die_with_parent())
+
+
 class ProcessGroup:
     """A set of processes stopped together (context manager)."""
 
@@ -146,11 +157,25 @@ class ProcessGroup:
             raise ValueError(f'process name {name!r} already used')
         log_path = self.log_dir / f'{name}.log'
         log = open(log_path, 'wb')
-        popen = subprocess.Popen(list(argv), stdin=subprocess.DEVNULL, stdout=log,
-                                 stderr=subprocess.STDOUT, env=dict(env) if env else None,
-                                 cwd=cwd, start_new_session=True,
-                                 preexec_fn=_die_with_parent())
-        proc = ManagedProcess(name, popen, log_path, log)
+        proc = ManagedProcess(name, _popen(argv, log, env, cwd), log_path, log, tuple(argv),
+                              dict(env) if env else None, cwd)
+        self.processes[name] = proc
+        return proc
+
+    def restart(self, name: str, note: str = '') -> ManagedProcess:
+        """Start the exited process ``name`` again with the same command, environment and
+        directory (its group stopped and reaped first, so nothing of the old one is left);
+        its output goes on in the same log after a line ``note``."""
+        old = self.processes[name]
+        if exit_code(old.popen) is None:
+            raise ValueError(f'process {name!r} is still running')
+        stop_process(old)
+        log = open(old.log_path, 'ab')
+        if note:
+            log.write(f'\n--- {note} ---\n'.encode())
+            log.flush()
+        proc = ManagedProcess(name, _popen(old.argv, log, old.env, old.cwd), old.log_path, log,
+                              old.argv, old.env, old.cwd, old.starts + 1)
         self.processes[name] = proc
         return proc
 

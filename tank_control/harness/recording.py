@@ -2,7 +2,9 @@
 schemas), readable by the ``mcap`` / ``mcap-ros2-support`` readers, Foxglove and PlotJuggler.
 
 A ROS run stores the serialized bytes exactly as they came off the wire, written as they
-arrive (chunks of 1 MiB, compressed). An
+arrive, in compressed chunks of at most ``CHUNK_SIZE`` that the run ends (``flush``) at least
+every ``stream.FLUSH_PERIOD``: a harness killed by SIGKILL leaves every chunk ended before, and
+``tank-control recover`` (``harness/recover.py``) rebuilds the summary and index. An
 in-process run (no ROS graph) writes the trace as the messages a ROS run would
 have carried: ``measurement``, ``setpoint``, ``manipulated``, ``disturbance``
 (``sensor_msgs/msg/JointState``, one per tick, stamped t_k) and ``/clock``.
@@ -26,6 +28,13 @@ from tank_control.nodes.cdr import JointStateCdr, clock_cdr  # noqa: F401 (re-ex
 _PRIMITIVES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
                'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'}
 _SEPARATOR = '=' * 80
+#: Largest chunk [bytes, uncompressed] before the writer ends it on its own (the writer's
+#: ``chunk_size``); the run also ends one at every flush. 1 MiB by default: at 1000 lockstep ticks
+#: a second (~0.6 MB/s) a hard kill could lose 1.7 s; smaller chunks cost a little compression.
+CHUNK_SIZE = 256 * 1024
+#: Name of the MCAP metadata record that says which scenario a recording is of (written first,
+#: outside the chunks, so a recording cut short still has it).
+RUN_METADATA = 'tank_control.run'
 
 
 @dataclass(frozen=True)
@@ -99,15 +108,24 @@ def _dependencies(type_name: str, text: str) -> list[str]:
 
 
 class McapRecording:
-    """Write raw CDR messages into an MCAP file (context manager)."""
+    """Write raw CDR messages into an MCAP file (context manager). ``metadata``: the
+    ``RUN_METADATA`` record (string values), written at once after the header."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
+                 chunk_size: int = CHUNK_SIZE) -> None:
         self.path = Path(path)
         self._handle = open(self.path, 'wb')
-        self._writer = Writer(self._handle, compression=CompressionType.ZSTD)
+        self._writer = Writer(self._handle, chunk_size=chunk_size,
+                              compression=CompressionType.ZSTD)
         self._writer.start(profile='ros2', library='tank_control harness')
+        if metadata:
+            self._writer.add_metadata(RUN_METADATA, dict(metadata))
+        self._handle.flush()
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
+        #: type name → schema text to register instead of the installed ``message_definition``
+        #: (``recover`` keeps a recording's own)
+        self.schema_data: dict[str, bytes] = {}
         self.count = 0
 
     def add(self, msg: RawMessage) -> None:
@@ -115,9 +133,10 @@ class McapRecording:
         if channel is None:
             schema = self._schemas.get(msg.type_name)
             if schema is None:
+                data = self.schema_data.get(msg.type_name)
                 schema = self._writer.register_schema(
                     name=msg.type_name, encoding=SchemaEncoding.ROS2,
-                    data=message_definition(msg.type_name).encode())
+                    data=data if data is not None else message_definition(msg.type_name).encode())
                 self._schemas[msg.type_name] = schema
             channel = self._writer.register_channel(topic=msg.topic,
                                                     message_encoding=MessageEncoding.CDR,
@@ -127,10 +146,17 @@ class McapRecording:
                                  publish_time=msg.publish_time_ns, data=msg.data, sequence=self.count)
         self.count += 1
 
+    def flush(self) -> None:
+        """End the chunk in progress (if it holds a message) and hand everything to the OS: a
+        process killed after this leaves every message added so far in the file (without the
+        summary until ``close``; ``tank-control recover`` writes it)."""
+        if not self._handle.closed:
+            self._writer.flush()
+
     def close(self) -> None:
         """Write the summary and close: a valid file with every message added (also after a
-        failure; a harness killed by SIGKILL leaves the chunks written so far, without
-        the summary, which MCAP readers can still read in order)."""
+        failure; a harness killed by SIGKILL leaves the chunks flushed so far, without the
+        summary: ``tank-control recover`` rebuilds it)."""
         if self._handle.closed:
             return
         try:

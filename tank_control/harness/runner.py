@@ -69,6 +69,27 @@ GRAPH_TOPICS = ('measurement', 'setpoint', 'manipulated', 'disturbance', '/clock
                 GATED_DISTURBANCE)
 
 
+#: Wall seconds a node killed hard may stay in the graph after its restart (its DDS
+#: participant's lease; measured: docs/harness.md "Restarts") without counting as a second
+#: node of its name.
+GHOST_LEASE = 30.0
+#: run.mcap topic of the harness's own events (a node's restart), ``rcl_interfaces/msg/Log``.
+HARNESS_EVENTS = '/harness/events'
+
+
+def harness_event(text: str, stamp_ns: int) -> Any:
+    """A ``HARNESS_EVENTS`` message for run.mcap (``RawMessage``), stamped ``stamp_ns`` (the
+    loop's time), received now."""
+    from rcl_interfaces.msg import Log
+    from rclpy.serialization import serialize_message
+
+    from tank_control.harness.recording import RawMessage
+    msg = Log(level=Log.WARN, name='tank_control_harness', msg=text)
+    msg.stamp.sec, msg.stamp.nanosec = divmod(stamp_ns, NS)
+    return RawMessage(HARNESS_EVENTS, 'rcl_interfaces/msg/Log', serialize_message(msg),
+                      time.time_ns(), stamp_ns)
+
+
 class RunFailed(RuntimeError):
     """The run could not complete; the message says why (a node's last log lines). Whatever
     was recorded is in the output directory, marked ``"complete": false``."""
@@ -282,6 +303,14 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     return RunResult(scenario.name, out, trace, metrics, files)
 
 
+def run_metadata(scenario: Scenario, mode: str) -> dict[str, str]:
+    """What run.mcap says of its run (``recording.RUN_METADATA``; ``tank-control recover``
+    reads it): the scenario's name and path, the overrides (JSON), the clock mode."""
+    return {'scenario': scenario.name, 'path': str(scenario.path),
+            'overrides': json.dumps(list(scenario.overrides)), 'mode': mode,
+            'title': scenario.harness.title, 'claim': scenario.harness.claim}
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip() or type(exc).__name__
     return text.splitlines()[0]
@@ -379,7 +408,7 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
         raise ScenarioError(f'{scenario.path}: {exc}') from None
     names = core_loop.loop_columns(built.plant, built.controller, built.reference)
     prepare_output(scenario, out)
-    outputs = RunOutputs(out)
+    outputs = RunOutputs(out, metadata=run_metadata(scenario, 'in_process'))
     start = last_report = time.monotonic()
     failure: BaseException | None = None
     states: list[tuple[float, str]] = []       # the controller's state changes (relay auto-tuner)
@@ -489,6 +518,10 @@ class _RosRun:
                             and not isinstance(sample_time, bool) and sample_time > 0 else None)
         self.tick_ns = int(round(self.sample_time * NS)) if self.sample_time else None
         self.stream: RecordingStream | None = None
+        self.restarts: list[dict[str, Any]] = []   # nodes started again (on_node_exit restart)
+        self._restarted_at = -math.inf            # wall time of the latest restart [monotonic s]
+        self._ghosts: dict[str, list[float]] = {}  # name → until when a dead one may be listed
+        self.foreign: dict[str, dict[str, Any]] = {}   # nodes on the domain it did not start
 
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
@@ -505,11 +538,97 @@ class _RosRun:
 
     def _check_alive(self) -> None:
         self.stop.check()
-        for name, proc in (self.group.processes.items() if self.group else ()):
+        if self.stream is not None:     # every wait passes here: run.mcap at most 0.25 s behind
+            self.stream.outputs.flush_now_and_then()
+        for name, proc in list(self.group.processes.items() if self.group else ()):
             code = proc.returncode
-            if code is not None:
-                raise RunFailed(f'node {name} exited with code {code} {self.phase}; '
-                                f'last lines of {proc.log_path}:\n{proc.tail(15)}')
+            if code is None:
+                continue
+            why = self._no_restart(name)
+            if why is None:
+                self._restart(name, code)
+                continue
+            raise RunFailed(f'node {name} exited with code {code} {self.phase}{why}; '
+                            f'last lines of {proc.log_path}:\n{proc.tail(15)}')
+
+    def _no_restart(self, name: str) -> str | None:
+        """None if node ``name`` is to be started again after its exit (``harness.on_node_exit:
+        restart``), else what to add to the reason the run ends ('' for on_node_exit abort)."""
+        config = self.config
+        if config.on_node_exit != 'restart':
+            return ''
+        if self.phase == 'while starting':
+            return ' (harness.on_node_exit restart acts once the run goes)'
+        if name == 'plant':
+            return (' (harness.on_node_exit restart does not restart the plant: its clock and '
+                    'state are the run)')
+        done = sum(r['node'] == name for r in self.restarts)
+        if done >= config.max_restarts:
+            return f' after {done} restarts (harness.max_restarts {config.max_restarts})'
+        return None
+
+    def _restart(self, name: str, code: int) -> None:
+        """Start node ``name`` again with its parameters (docs/nodes.md, "Restarts": it takes
+        over on the running loop), mark it in run.mcap (``HARNESS_EVENTS``) and the metrics.
+
+        Lockstep: the plant is paused over the restart, until the recorder's readers have
+        matched the new process's writers, so that every answer of the new node is recorded
+        (a writer's first messages reach only the readers that matched it, and the plant, which
+        needs only its own answer, would run up to ``record_window`` ticks whose answers the
+        recording then lacks)."""
+        rec, group = self.recorder, self.group
+        if group is None:
+            return
+        topics = [t for t in PUBLISHES.get(name, ()) if not t.startswith('/')]
+        pause = bool(topics) and self.mode == 'lockstep' and 'plant' in group.processes
+        if pause:
+            self._set_paused(True, name)
+        stamp = rec.latest.get('measurement')
+        sim = (stamp - self._origin()) / NS if stamp is not None else None
+        attempt = sum(r['node'] == name for r in self.restarts) + 1
+        text = (f'node {name} exited with code {code} at {sim if sim is not None else 0:g} s; '
+                f'restarted ({attempt} of {self.config.max_restarts}, harness.on_node_exit '
+                'restart)')
+        self.restarts.append({'node': name, 'time': sim, 'exit_code': code, 'attempt': attempt})
+        # A node killed hard stays in the others' graph until its participant's lease ends.
+        self._ghosts.setdefault(name, []).append(time.monotonic() + GHOST_LEASE)
+        # Writers matched before, per topic; a dead node's writer stays matched until its
+        # lease ends (GHOST_LEASE), so the new one is there once the count exceeds the least
+        # count seen since the kill.
+        least = {t: rec.matched_publishers(t) for t in topics}
+        proc = group.restart(name, text)
+        if self.stream is not None:
+            self.stream.on_message(harness_event(text, stamp if stamp is not None
+                                                 else time.time_ns()))
+
+        def matched() -> bool:
+            counts = {t: rec.matched_publishers(t) for t in topics}
+            for t, count in counts.items():
+                least[t] = min(least[t], count)
+            return all(counts[t] > least[t] for t in topics)
+
+        def alive() -> None:
+            self.stop.check()
+            if self.stream is not None:
+                self.stream.outputs.flush_now_and_then()
+            if proc.returncode is not None:
+                raise RunFailed(f'node {name} exited with code {proc.returncode} right after '
+                                f'its restart; last lines of {proc.log_path}:\n{proc.tail(15)}')
+        if topics and not rec.spin_until(matched, self.config.startup_timeout, alive):
+            raise RunFailed(f'node {name} was restarted, but the recorder did not match its '
+                            f'publishers ({", ".join(topics)}) within '
+                            f'{self.config.startup_timeout:g} s (harness.startup_timeout)')
+        if pause:
+            self._set_paused(False, name)
+        self._restarted_at = time.monotonic()
+
+    def _set_paused(self, paused: bool, name: str) -> None:
+        """Pause or resume the lockstep plant's clock over the restart of ``name``."""
+        reason = self.recorder.set_parameters('plant', {'lockstep.paused': paused},
+                                              self.config.startup_timeout, self.stop.check)
+        if reason:
+            raise RunFailed(f'could not {"pause" if paused else "resume"} the plant\'s clock '
+                            f'over the restart of {name}: {reason}')
 
     # -- recording ----------------------------------------------------------------------------
     def _origin(self) -> int:
@@ -525,7 +644,8 @@ class _RosRun:
         due = due_periods(self.scenario, self.mode, self.tick_ns)
         self.stream = RecordingStream(self.out, self._origin, self.duration_ns, self.tick_ns, due,
                                       self.sample_time,
-                                      held=HELD_IN_LOCKSTEP if self.mode == 'lockstep' else ())
+                                      held=HELD_IN_LOCKSTEP if self.mode == 'lockstep' else (),
+                                      metadata=run_metadata(self.scenario, self.mode))
         recorder.subscribe(self.stream.on_message)
 
     # -- run ----------------------------------------------------------------------------------
@@ -701,12 +821,30 @@ class _RosRun:
 
     def _check_no_other_graph(self) -> None:
         counts = self.recorder.node_counts()
+        now = time.monotonic()
+        for name, until in self._ghosts.items():       # restarted: the dead one's lease
+            until[:] = [t for t in until if t > now]
         taken = [name for name in self.config.nodes if counts.get(name, 0) > (
-            1 if name in self.group.processes else 0)]
+            1 + len(self._ghosts.get(name, ())) if name in self.group.processes else 0)]
+        if self.phase == 'during the run':
+            self._note_foreign(counts)
         if taken:
             raise RunFailed(f'node name(s) {", ".join(taken)} already in use on ROS_DOMAIN_ID '
                             f'{self.domain}: another graph is running there and would mix into '
                             'this run; stop it or set a different ROS_DOMAIN_ID')
+
+    def _note_foreign(self, counts: Mapping[str, int]) -> None:
+        """Remember every node on the domain that the harness did not start (reported at the
+        end: ``run.foreign_nodes``): when first and last seen [s of plant time]."""
+        from tank_control.harness.recorder import RECORDER_NAME
+        ours = {*(self.group.processes if self.group else ()), RECORDER_NAME}
+        sim_ns = self._sim_ns()
+        sim = sim_ns / NS if sim_ns is not None else 0.0
+        for name in counts:
+            if name.lstrip('/') in ours:
+                continue
+            seen = self.foreign.setdefault(name, {'node': name, 'first_seen': sim})
+            seen['last_seen'] = sim
 
     def _sim_ns(self) -> int | None:
         """Plant time of the latest measurement (wall: from the plant's time origin, or the
@@ -734,7 +872,7 @@ class _RosRun:
             sim = self._sim_ns()
             if sim is not None and sim != last_sim:
                 last_sim, last_move = sim, now
-            elif now - last_move > self.config.stall_timeout:
+            elif now - max(last_move, self._restarted_at) > self.config.stall_timeout:
                 raise RunFailed(self._stall_message())
             if self.progress and now - last_progress >= 0.5 and sim is not None:
                 last_progress = now
@@ -824,6 +962,8 @@ class _RosRun:
             'rejected_future': rec.future.refused,     # signals stamped too far ahead
             'record_window': self.record_window,
             'exit_codes': dict(codes),
+            'restarts': list(self.restarts),
+            'foreign_nodes': sorted(self.foreign.values(), key=lambda n: n['first_seen']),
         }
         states = stream.states.result()
         if states:

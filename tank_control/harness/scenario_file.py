@@ -24,6 +24,8 @@ from tank_control.core.params import ConfigError, config_from, param, specs_of, 
 from tank_control.core.scenario import HARNESS
 
 ALL_NODES = params_file.WILDCARD
+#: ``harness.on_node_exit``: what a node that exits during a run does to it (docs/harness.md).
+ON_NODE_EXIT = ('abort', 'restart')
 _PARAM_NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$')
 
 
@@ -51,6 +53,13 @@ class HarnessConfig:
                                   'its ROS_DOMAIN_ID before it starts a node (DDS discovers a '
                                   'running participant within one 3 s announcement period on '
                                   'a loaded host)', unit='s', min=0.0, max=60.0)
+    on_node_exit: str = param('abort', 'what a node process that exits during the run does to '
+                              'it: abort ends the run (exit code 1); restart starts the node '
+                              'again with its parameters and the run goes on (not the plant, '
+                              'whose clock and state are the run; at most max_restarts times '
+                              'per node)', choices=ON_NODE_EXIT)
+    max_restarts: int = param(3, 'on_node_exit restart: restarts of one node in a run; its next '
+                              'exit ends the run', min=0, max=100)
     title: str = param('', 'one-line description shown in tables and plots')
     claim: str = param('', 'the documented claim this scenario reproduces (for docs)')
 

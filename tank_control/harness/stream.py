@@ -1,5 +1,5 @@
 """A run's ``trace.csv`` and ``run.mcap`` written as the run goes: ``RunOutputs`` (the two
-files, trace.csv flushed every ``FLUSH_PERIOD``) and ``RecordingStream`` (each recorded
+files, both flushed every ``FLUSH_PERIOD``) and ``RecordingStream`` (each recorded
 message into run.mcap and the trace join; a row is written once a later tick's measurement
 arrived ``HOLDBACK`` ago). docs/harness.md, "Interrupted and failed runs". Wall seconds."""
 from __future__ import annotations
@@ -18,25 +18,28 @@ from tank_control.harness.trace import LATE_TOPICS, TOPIC_PREFIX, SignalMessage,
 
 #: Wall seconds a row waits, after the measurement of a later tick arrived, for late answers.
 HOLDBACK = 2.0
-#: Wall seconds between flushes of trace.csv (what a harness killed by SIGKILL can lose).
-FLUSH_PERIOD = 0.5
+#: Wall seconds between flushes of trace.csv and run.mcap (what a harness killed by SIGKILL can
+#: lose, with the time between two checks of the run).
+FLUSH_PERIOD = 0.25
 
 
 class RunOutputs:
     """``trace.csv`` and ``run.mcap`` in ``out``, written as the run goes."""
 
-    def __init__(self, out: Path, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, out: Path, clock: Callable[[], float] = time.monotonic,
+                 metadata: dict[str, str] | None = None) -> None:
         self.trace = TraceWriter(out / 'trace.csv')
-        self.recording = McapRecording(out / 'run.mcap')
+        self.recording = McapRecording(out / 'run.mcap', metadata)
         self.clock = clock
         self._last_flush = clock()
 
     def flush_now_and_then(self) -> None:
-        """Flush trace.csv if ``FLUSH_PERIOD`` passed since the last flush."""
+        """Flush trace.csv and run.mcap if ``FLUSH_PERIOD`` passed since the last flush."""
         now = self.clock()
         if now - self._last_flush >= FLUSH_PERIOD:
             self._last_flush = now
             self.trace.flush()
+            self.recording.flush()
 
     def close(self) -> Trace:
         """Close both files (valid as far as they go) and return the table."""
@@ -57,14 +60,15 @@ class RecordingStream:
 
     ``origin()`` gives the plant's time origin [ns] when the first row is written;
     ``t_end_ns``, ``tick_ns``, ``due_ns``, ``held`` as for ``trace.TraceJoiner``; ``sample_time``
-    [s] for the sampling statistics; ``clock`` the wall clock of the holdback.
+    [s] for the sampling statistics; ``clock`` the wall clock of the holdback; ``metadata``
+    what run.mcap says of the run (``McapRecording``).
     """
 
     def __init__(self, out: Path, origin: Callable[[], int], t_end_ns: int | None,
                  tick_ns: int | None, due_ns: Mapping[str, int], sample_time: float | None,
                  holdback: float = HOLDBACK, clock: Callable[[], float] = time.monotonic,
-                 held: Iterable[str] = ()) -> None:
-        self.outputs = RunOutputs(out, clock)
+                 held: Iterable[str] = (), metadata: dict[str, str] | None = None) -> None:
+        self.outputs = RunOutputs(out, clock, metadata)
         self.joiner = TraceJoiner(self._on_row, origin, t_end_ns, tick_ns, due_ns, held)
         self.holdback = holdback
         self.clock = clock

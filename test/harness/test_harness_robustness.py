@@ -388,3 +388,171 @@ def test_an_incomplete_run_leaves_out_the_row_whose_answers_never_came(tmp_path)
     assert len(trace) == 10 and trace.t[-1] == pytest.approx(0.9, abs=1e-12)
     assert list(trace.columns['u.u']) == [2.0 - k for k in range(10)]
     assert len(Trace.read_csv(tmp_path / 'run' / 'trace.csv')) == 10
+
+
+# ------------------------------------------------------------------- a hard kill, then recover
+RECOVER = [sys.executable, '-m', 'tank_control.harness.cli', 'recover']
+
+
+@pytest.mark.parametrize('kill_at', [5.0, 25.0])
+def test_a_hard_kill_loses_at_most_the_last_second_and_recover_makes_it_readable(
+        kill_at, tmp_path, procs, ros_env, probe):
+    """SIGKILL of the harness ``kill_at`` seconds into a real-time lockstep run (simulated time
+    = run time), then ``tank-control recover``: mcap's standard reader (``make_reader`` with the
+    ROS 2 decoder) reads every message up to the kill minus at most one second, and metrics.json
+    says the run is not complete and why. The nodes die with the harness."""
+    out = tmp_path / 'run'
+    harness = procs.start('harness', [*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out', str(out),
+                                      '--duration', '3000', '--rtf', '1', '--quiet'], env=ros_env)
+    seen = wait_for_stamp(probe, kill_at) / 1e9      # published before the kill [s]
+    nodes = processes_with(str(out / 'scenario.yaml'))
+    try:
+        assert len(nodes) == 3, (nodes, harness.tail())
+        os.kill(harness.popen.pid, signal.SIGKILL)
+        assert harness.popen.wait(timeout=120) == -signal.SIGKILL
+        assert wait_gone(nodes, 60) == []
+    finally:
+        kill_all(nodes)
+    assert not (out / 'metrics.json').exists()
+    done = subprocess.run([*RECOVER, str(out)], capture_output=True, text=True, check=False, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert 'recovered' in done.stdout and '"complete": false' in done.stdout, done.stdout
+    recorded = read_mcap(out / 'run.mcap')
+
+    def stamps(topic: str) -> list[float]:       # a tick re-sent (tick 0 until held) once
+        times = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in recorded[topic]]
+        assert times == sorted(times)
+        return sorted(set(times))
+    ticks = stamps('/measurement')
+    np.testing.assert_allclose(ticks, 0.1 * np.arange(len(ticks)), rtol=0, atol=1e-9)
+    assert ticks[-1] >= seen - 1.0, (ticks[-1], seen)
+    assert stamps('/manipulated')[:len(ticks) - 1] == ticks[:-1]      # each tick's answer
+    assert len(recorded['/clock']) >= len(ticks) - 1 and recorded['/setpoint']
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['complete'] is False and 'recovered from run.mcap' in metrics['reason']
+    assert metrics['scenario'] == 'ipdt_pid' and metrics['mode'] == 'lockstep'
+    trace = assert_prefix_of_in_process_run(out)
+    assert trace.t[-1] >= seen - 1.0 - 0.1 - 1e-9 and metrics['run']['ticks'] == len(trace)
+    assert 'iae' in metrics['outputs']['y'] and (out / 'plot.png').exists()
+
+
+def _cut_recording(path: Path, messages: int, flush_every: int) -> list[int]:
+    """Write ``messages`` ticks' messages to ``path``, flushing every ``flush_every`` ticks;
+    return the file size after each flush (where a kill would leave it whole)."""
+    from tank_control.harness.recording import McapRecording
+    sizes = []
+    recording = McapRecording(path, {'scenario': 'cut', 'mode': 'lockstep'})
+    for k in range(messages):
+        for raw in _lockstep_raw(k):
+            recording.add(raw)
+        if (k + 1) % flush_every == 0:
+            recording.flush()
+            sizes.append(path.stat().st_size)
+    recording._handle.close()                 # as a kill leaves it: no summary
+    return sizes
+
+
+def test_a_recording_cut_anywhere_keeps_every_flushed_message(tmp_path):
+    """Cut at any byte after a flush, the file still gives every message flushed before it, in
+    order, and nothing that was not whole; a damaged chunk is skipped, later ones are kept."""
+    from tank_control.harness.recover import read_partial
+    full = tmp_path / 'full.mcap'
+    sizes = _cut_recording(full, 100, 10)
+    data = full.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    for flushed, size in enumerate(sizes, start=1):
+        for extra in (0, 1, 9, 200):
+            cut.write_bytes(data[:size + extra])
+            found = read_partial(cut)
+            ticks = [raw.publish_time_ns for raw in found.messages if raw.topic == '/measurement']
+            assert ticks == [k * 100_000_000 for k in range(10 * flushed)], (size, extra)
+            assert found.metadata == {'scenario': 'cut', 'mode': 'lockstep'}
+            assert not found.finished and found.read == size
+    damaged = bytearray(data)
+    middle = sizes[4] + 200                   # inside the sixth chunk's compressed data
+    damaged[middle:middle + 4] = b'\0\0\0\0'
+    cut.write_bytes(bytes(damaged))
+    found = read_partial(cut)
+    assert found.bad_chunks == 1
+    ticks = [raw.publish_time_ns // 100_000_000 for raw in found.messages
+             if raw.topic == '/measurement']
+    assert ticks == [*range(50), *range(60, 100)]
+    empty = tmp_path / 'empty.mcap'           # killed before the recording started
+    empty.write_bytes(b'')
+    found = read_partial(empty)
+    assert found.messages == [] and found.stopped == 'empty file'
+
+
+def test_recover_refuses_what_is_not_a_killed_run(tmp_path):
+    done = subprocess.run([*RECOVER, str(tmp_path)], capture_output=True, text=True, check=False, timeout=120)
+    assert done.returncode == 2 and 'not the output directory of a run' in done.stderr
+    out = tmp_path / 'done'
+    run(CONFIG / 'ipdt_pid.yaml', out, duration=2.0, in_process=True)
+    done = subprocess.run([*RECOVER, str(out)], capture_output=True, text=True, check=False, timeout=120)
+    assert done.returncode == 2 and 'nothing to recover' in done.stderr, done.stderr
+    assert json.loads((out / 'metrics.json').read_text())['complete'] is True   # untouched
+
+
+# ---------------------------------------------------------------- a node that dies in the run
+def _kill_controller_mid_run(tmp_path, procs, ros_env, probe, *settings: str):
+    import rclpy
+    """A lockstep run at 5x real time whose controller process is killed (SIGKILL) at 10 s
+    of it, while a node the harness did not start joins the domain; returns the harness's
+    exit code, its output and the output directory."""
+    out = tmp_path / 'run'
+    harness = procs.start('harness', [*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out', str(out),
+                                      '--duration', '60', '--rtf', '5', '--quiet',
+                                      *(f'--set={s}' for s in settings)], env=ros_env)
+    wait_for_stamp(probe, 10.0)
+    intruder = rclpy.create_node(f'intruder_{os.getpid()}')      # on the session's domain
+    try:
+        controllers = [pid for pid in processes_with(str(out / 'scenario.yaml'))
+                       if 'controller_node' in Path(f'/proc/{pid}/cmdline').read_text()]
+        assert len(controllers) == 1, harness.tail()
+        os.kill(controllers[0], signal.SIGKILL)
+        code = harness.popen.wait(timeout=600)
+    finally:
+        intruder.destroy_node()
+    return code, harness.tail(40), out
+
+
+def test_a_controller_killed_mid_run_is_restarted_and_the_run_keeps_every_tick(
+        tmp_path, procs, ros_env, probe):
+    """``harness.on_node_exit: restart``: the controller's process is killed in a lockstep run;
+    the harness starts it again with its parameters, it takes over on the running loop
+    (docs/nodes.md, "Restarts"), and the run completes with every tick recorded and answered.
+    The restart is in metrics.json, in run.mcap and in a warning, so is the node that joined."""
+    code, tail, out = _kill_controller_mid_run(tmp_path, procs, ros_env, probe,
+                                               'harness.on_node_exit=restart')
+    assert code == 0, tail
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['complete'] is True
+    run_info = metrics['run']
+    [restart] = run_info['restarts']
+    assert restart['node'] == 'controller' and restart['exit_code'] == -signal.SIGKILL
+    assert restart['attempt'] == 1 and restart['time'] >= 10.0
+    assert 'node controller exited with code -9' in tail and 'was restarted' in tail
+    trace = Trace.read_csv(out / 'trace.csv')
+    assert len(trace) == 601 and run_info['missed_samples'] == 0
+    np.testing.assert_allclose(np.diff(trace.t), 0.1, rtol=0, atol=1e-9)
+    assert np.isfinite(trace.columns['u.u']).all() and run_info['late_samples'] == 0
+    # up to the kill the loop is the in-process one; after it the new controller answers
+    expected = run_in_process(out / 'scenario.yaml', duration=60.0)
+    before = round(restart['time'] / 0.1) - 1
+    np.testing.assert_allclose(trace.columns['u.u'][:before], expected.columns['u.u'][:before],
+                               rtol=0, atol=1e-9)
+    recorded = read_mcap(out / 'run.mcap')
+    [event] = recorded['/harness/events']
+    assert 'node controller exited with code -9' in event.msg and 'restarted' in event.msg
+    foreign = {n['node']: n for n in run_info['foreign_nodes']}
+    assert f'intruder_{os.getpid()}' in foreign, foreign
+    assert foreign[f'intruder_{os.getpid()}']['first_seen'] >= 10.0
+    assert 'did not start' in tail and f'intruder_{os.getpid()}' in tail
+
+
+def test_a_controller_killed_mid_run_ends_the_run_by_default(tmp_path, procs, ros_env, probe):
+    code, tail, out = _kill_controller_mid_run(tmp_path, procs, ros_env, probe)
+    assert code == 1, tail
+    assert 'run failed: node controller exited with code -9 during the run' in tail
+    metrics = json.loads((out / 'metrics.json').read_text())
+    assert metrics['complete'] is False and metrics['run']['restarts'] == []
