@@ -17,8 +17,9 @@ from tank_control.harness.trace import SignalMessage
 from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.messages import SIGNAL_QOS
 
+pytestmark = pytest.mark.ros   # every test here puts a recorder on the graph
 
-@pytest.mark.ros
+
 def test_spin_for_takes_every_message_that_came_in_one_call_and_returns_on_time():
     context = Context()
     rclpy.init(context=context, domain_id=int(os.environ.get('ROS_DOMAIN_ID', '0')))
