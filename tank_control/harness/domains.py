@@ -2,7 +2,11 @@
 
 * a *claim* (``claim``, ``claimed``): ``<tmp>/tank_control_domains/<id>.lock``, a free domain
   taken for a while by one holder (a test session, a lockstep sweep run), so concurrent graphs
-  on one host never see each other. Ids 1…100 are valid for LOCALHOST discovery on Linux.
+  on one host never see each other. Ids 1…100 are valid for LOCALHOST discovery on Linux. A
+  domain is free when its lock is free and no DDS participant on this host is on it
+  (``participants_on``: its RTPS ports are bound), whoever started it. A holder that runs the
+  harness on its claimed domain may say so (``EXCLUSIVE_ENV``, ``exclusive_domain``): no run
+  there then waits ``harness.discovery_time`` for a graph that was there before.
 * a *run lock* (``lock_run``): ``<tmp>/tank_control_runs/domain-<id>.lock``, held by every ROS
   run of the harness for its whole length: one run at a time on a domain on this host, whoever
   claimed it (the runs of a test session all happen inside its claim).
@@ -13,8 +17,9 @@ import errno
 import fcntl
 import os
 import random
+import socket
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,13 +28,51 @@ from typing import IO
 LOCK_DIR = Path(tempfile.gettempdir()) / 'tank_control_domains'
 RUN_LOCK_DIR = Path(tempfile.gettempdir()) / 'tank_control_runs'
 DOMAIN_IDS = tuple(range(1, 101))
+#: Set (to the id) by a holder of a domain's claim that runs the harness there: the domain is
+#: its alone (``claim`` found no participant on it), so a run need not wait
+#: ``harness.discovery_time`` for a graph that was there before (docs/harness.md, step 2).
+EXCLUSIVE_ENV = 'TANK_CONTROL_EXCLUSIVE_DOMAIN'
+
+# The RTPS well-known ports (DDSI-RTPS 2.5, 9.6.1.1): PB + DG·domain + d0 (discovery
+# multicast), PB + DG·domain + d1 + PG·participant (discovery unicast of each participant).
+_PB, _DG, _PG, _D0, _D1 = 7400, 250, 2, 0, 10
+_PARTICIPANTS = (_DG - _D1) // _PG       # participant ids that fit below the next domain
 
 
-def claim() -> tuple[int, IO[str]]:
-    """Lock a free domain id; returns it and the open lock file (close it to release)."""
+def participants_on(domain_id: int) -> list[int]:
+    """The RTPS discovery ports of ``domain_id`` that a process on this host holds (each a DDS
+    participant, of Fast DDS or Cyclone DDS, whatever its discovery range; a participant on
+    another host is not seen). Found by binding each port for a moment: instant, where DDS
+    discovery of a running participant takes up to its 3 s announcement period."""
+    base = _PB + _DG * domain_id
+    ports = [base + _D0] + [base + _D1 + _PG * p for p in range(_PARTICIPANTS)]
+    held = []
+    for port in ports:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(('0.0.0.0', port))
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    held.append(port)
+    return held
+
+
+def local_only(env: Mapping[str, str]) -> bool:
+    """A process with environment ``env`` discovers only participants on this host
+    (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and no ``ROS_STATIC_PEERS``): every
+    participant it can meet holds ports that ``participants_on`` sees."""
+    return (env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip().upper() == 'LOCALHOST'
+            and not env.get('ROS_STATIC_PEERS', '').strip())
+
+
+def claim(candidates: Sequence[int] | None = None) -> tuple[int, IO[str]]:
+    """Lock a free domain id (of ``candidates``, default ``DOMAIN_IDS``, in random order):
+    its lock is free and no participant on this host is on it (``participants_on``).
+    Returns it and the open lock file (close it to release)."""
     LOCK_DIR.mkdir(exist_ok=True)
-    candidates = list(DOMAIN_IDS)
+    candidates = list(DOMAIN_IDS if candidates is None else candidates)
     random.SystemRandom().shuffle(candidates)
+    in_use = []
     for domain_id in candidates:
         handle = open(LOCK_DIR / f'{domain_id}.lock', 'w')
         try:
@@ -37,9 +80,36 @@ def claim() -> tuple[int, IO[str]]:
         except OSError:
             handle.close()
             continue
+        if participants_on(domain_id):     # a graph nobody claimed: started by hand
+            handle.close()
+            in_use.append(domain_id)
+            continue
         return domain_id, handle
-    raise RuntimeError(f'no free ROS_DOMAIN_ID in {DOMAIN_IDS[0]}..{DOMAIN_IDS[-1]} '
-                       f'(all locked in {LOCK_DIR})')
+    raise RuntimeError(f'no free ROS_DOMAIN_ID among {len(candidates)} (locked in {LOCK_DIR}'
+                       + (f'; with DDS participants on this host: '
+                          f'{", ".join(map(str, sorted(in_use)))}' if in_use else '') + ')')
+
+
+def claim_held(domain_id: int) -> bool:
+    """Whether some process (this one included) holds the claim of ``domain_id``."""
+    try:
+        handle = open(LOCK_DIR / f'{domain_id}.lock')
+    except OSError:
+        return False
+    with handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        return False
+
+
+def exclusive_domain(env: Mapping[str, str]) -> bool:
+    """A process with environment ``env`` is on a domain held exclusively: ``EXCLUSIVE_ENV``
+    names its ROS_DOMAIN_ID and that domain's claim is held (by the one who set it)."""
+    domain = domain_of(env)
+    return (env.get(EXCLUSIVE_ENV, '').strip() == domain and domain.isdigit()
+            and claim_held(int(domain)))
 
 
 @contextmanager

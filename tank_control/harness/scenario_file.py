@@ -45,10 +45,12 @@ class HarnessConfig:
                                    unit='s', min=1.0, max=3600.0)
     stall_timeout: float = param(30.0, 'wall seconds without simulated-time progress before the '
                                  'run is declared stalled', unit='s', min=1.0, max=3600.0)
-    discovery_time: float = param(4.0, 'wall seconds the harness looks for another graph on '
-                                  'its ROS_DOMAIN_ID before it starts a node (DDS discovers a '
-                                  'running participant within one 3 s announcement period on '
-                                  'a loaded host)', unit='s', min=0.0, max=60.0)
+    discovery_time: float = param(4.0, 'wall seconds (from the recorder joining) the harness '
+                                  'looks for another graph on its ROS_DOMAIN_ID while the '
+                                  'nodes start, before tick 0 (DDS discovers a running '
+                                  'participant within one 3 s announcement period on a loaded '
+                                  'host); not waited for when nobody was on the domain '
+                                  '(docs/harness.md, step 2)', unit='s', min=0.0, max=60.0)
     title: str = param('', 'one-line description shown in tables and plots')
     claim: str = param('', 'the documented claim this scenario reproduces (for docs)')
 
