@@ -376,3 +376,26 @@ def test_a_second_controller_joining_ends_the_test_naming_it(procs, ros_env, nod
     assert got['autotune.state'] in ('aborted', 'failed'), got
     assert '2 nodes named /controller on this graph' in got['autotune.reason'], got
     assert {k: got[k] for k in before} == before
+
+
+def test_a_plant_restarted_during_the_test_aborts_it_naming_that(procs, ros_env, node_cmd,
+                                                                probe, gate, tmp_path):
+    """The plant is stopped and started again during a test: its clock restarts at 0. The test
+    ends aborted with that as its reason and the gains from before it (its measurements would
+    mix two plant sessions)."""
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, fopdt_params(
+        paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
+    before = graph.get('kp', 'ti', 'td')
+    graph.wait_state('idle', 30)
+    assert graph.trigger(graph.start).success
+    graph.wait_state('measuring')
+    since = len(graph.states)
+    procs.stop('plant')
+    argv = node_cmd('plant_node', '--params-file', str(tmp_path / 'autotune.yaml'))
+    procs.start('plant again', argv + GATE_REMAP, env=ros_env)
+    assert probe.wait_for(lambda: {'failed', 'aborted'} & set(graph.states[since:]), 60), (
+        graph.states, graph.logs())
+    got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
+    assert got['autotune.state'] == 'aborted', got
+    assert got['autotune.reason'].startswith('the plant restarted (its clock went back to 0 s'), got
+    assert {k: got[k] for k in before} == before
