@@ -51,15 +51,7 @@ def foreign_graph(node: Any, spin_once: Callable[[float], None], topics: Iterabl
             if now - unnamed_since >= NAMES_WAIT:
                 return '; '.join(f'publisher of {t} (a node not yet named)' for t in unnamed)
         check()
-        if found:
-            remaining = report_by - now
-        elif now < deadline:
-            remaining = deadline - now
-        else:
-            remaining = 0.05
-        if remaining <= 0:
-            return None
-        spin_once(min(0.05, remaining))
+        spin_once(min(0.05, deadline - now) if not found and now < deadline else 0.05)
 
 
 #: Wall seconds to wait, once another graph is seen, for the names of its publishers' nodes.
