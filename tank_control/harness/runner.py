@@ -619,6 +619,7 @@ class _RosRun:
             joined = time.monotonic()              # its participant is on the domain
             self.recorder = recorder
             self._prepare()
+            recorder.subscribe(self.stream.on_message)   # what the nodes say from their start
             # The nodes start at once; the graph is looked at while they come up (step 2).
             nodes = self.config.nodes
             for node in nodes:
@@ -628,7 +629,6 @@ class _RosRun:
                                                '-p', f'port:={self.dashboard}'], env=self.env)
             _warm_up()                             # while the nodes start
             self._look_while_starting(joined)
-            recorder.subscribe(self.stream.on_message)
             if self.record_window:
                 signals = [t for node in self.config.nodes for t in PUBLISHES[node]
                            if not t.startswith('/')]
