@@ -563,7 +563,6 @@ class _RosRun:
         from tank_control.harness.recorder import RECORDER_NAME
         rec = self.recorder
         nodes = list(self.config.nodes)
-        started = [*nodes, *(('dashboard',) if self.dashboard is not None else ())]
         timeout = time.monotonic() + self.config.startup_timeout
 
         def check() -> None:
@@ -576,7 +575,7 @@ class _RosRun:
                                     for name, proc in self.group.processes.items()))
         wait = 0.0 if self.nobody_before else self.config.discovery_time
         found = foreign_graph(rec.node, rec.spin_once, GRAPH_TOPICS, wait, (RECORDER_NAME,),
-                              check, since=joined, started=started,
+                              check, since=joined, started=nodes,
                               ready=lambda: set(nodes) <= rec.node_names())
         if found:
             self._refuse(found)
