@@ -35,7 +35,7 @@ from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
 from tank_control.harness.domains import (domain_of, exclusive_domain, local_only, lock_run,
-                                          participants_on)
+                                          participants_on, start_profile_env)
 from tank_control.harness.graph_check import foreign_graph
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import TraceMessages
@@ -472,7 +472,7 @@ class _RosRun:
         self.config = scenario.harness
         self.out = out
         self.params_file = out / 'scenario.yaml'
-        self.env = dict(env if env is not None else os.environ)
+        self.env = start_profile_env(env if env is not None else os.environ)
         self.env['PYTHONUNBUFFERED'] = '1'
         self.domain = domain_of(self.env)
         self.progress = progress
