@@ -63,3 +63,20 @@ def test_exclusive_only_with_the_variable_and_a_held_claim(monkeypatch, tmp_path
     assert not domains.exclusive_domain({'ROS_DOMAIN_ID': str(domain_id)})
     handle.close()                               # a stale variable: the claim is gone
     assert not domains.exclusive_domain(env)
+
+
+def test_the_start_profile_is_named_unless_the_caller_has_one():
+    """The processes a run starts announce themselves often at first (a Fast DDS profile);
+    a profile the caller names, or another middleware, is left alone."""
+    env = domains.start_profile_env({'ROS_DOMAIN_ID': '7'})
+    text = open(env[domains.PROFILES_ENV]).read()
+    count, period = domains.START_ANNOUNCEMENTS
+    assert f'<count>{count}</count>' in text and f'<nanosec>{int(period * 1e9)}</nanosec>' in text
+    own = {'FASTRTPS_DEFAULT_PROFILES_FILE': '/etc/mine.xml'}
+    assert domains.start_profile_env(own) == own
+    assert domains.start_profile_env({'FASTDDS_DEFAULT_PROFILES_FILE': 'x.xml'}).get(
+        domains.PROFILES_ENV) is None
+    assert domains.PROFILES_ENV not in domains.start_profile_env(
+        {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'})
+    assert domains.PROFILES_ENV in domains.start_profile_env(
+        {'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'})
