@@ -1,7 +1,11 @@
 """Test isolation for a real DDS graph.
 
 * Every pytest session takes its own ``ROS_DOMAIN_ID``, held by an exclusive
-  file lock, so two test runs on one machine never see each other.
+  file lock and on which no DDS participant of this host was found (``domains.claim``), so
+  two test runs on one machine never see each other, nor a graph started by hand. The
+  session says it holds the domain (``domains.EXCLUSIVE_ENV``): a harness run in it does not
+  wait ``harness.discovery_time`` for a graph that was there before; a test that puts a
+  foreign graph on the domain takes the environment ``shared_ros_env`` instead.
 * Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 * Processes started through the ``procs`` fixture run in their own process
   groups and are stopped (SIGINT → SIGTERM → SIGKILL) at the end of the test.
@@ -59,6 +63,7 @@ def pytest_configure(config: pytest.Config) -> None:
     elif _DOMAIN_LOCK is None:
         domain_id, _DOMAIN_LOCK = domains.claim()
         os.environ['ROS_DOMAIN_ID'] = str(domain_id)
+        os.environ[domains.EXCLUSIVE_ENV] = str(domain_id)   # held: no discovery wait in runs
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -77,6 +82,14 @@ def ros_env() -> dict[str, str]:
     env = dict(os.environ)
     env['PYTHONUNBUFFERED'] = '1'
     return env
+
+
+@pytest.fixture(scope='session')
+def shared_ros_env(ros_env: dict[str, str]) -> dict[str, str]:
+    """``ros_env`` for a test that starts a graph of its own beside a harness run (the
+    domain is then not the run's alone): the run looks for another graph for its whole
+    ``harness.discovery_time``."""
+    return {k: v for k, v in ros_env.items() if k != domains.EXCLUSIVE_ENV}
 
 
 @pytest.fixture

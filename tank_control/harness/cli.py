@@ -262,6 +262,12 @@ def _partial(err: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if argv is None and 'rclpy' not in sys.modules:
+        # The command's own participant (the recorder) announces itself at start like the
+        # nodes it starts (domains.START_ANNOUNCEMENTS); Fast DDS reads the variable once,
+        # when rclpy is first imported. Not for main(argv) called inside another program.
+        from tank_control.harness.domains import start_profile_env
+        os.environ.update(start_profile_env(os.environ))
     from tank_control.harness.runner import RunFailed, RunInterrupted
     if args.command == 'list':
         return _list(args.dir)

@@ -2,7 +2,11 @@
 
 * a *claim* (``claim``, ``claimed``): ``<tmp>/tank_control_domains/<id>.lock``, a free domain
   taken for a while by one holder (a test session, a lockstep sweep run), so concurrent graphs
-  on one host never see each other. Ids 1…100 are valid for LOCALHOST discovery on Linux.
+  on one host never see each other. Ids 1…100 are valid for LOCALHOST discovery on Linux. A
+  domain is free when its lock is free and no DDS participant on this host is on it
+  (``participants_on``: its RTPS ports are bound), whoever started it. A holder that runs the
+  harness on its claimed domain may say so (``EXCLUSIVE_ENV``, ``exclusive_domain``): no run
+  there then waits ``harness.discovery_time`` for a graph that was there before.
 * a *run lock* (``lock_run``): ``<tmp>/tank_control_runs/domain-<id>.lock``, held by every ROS
   run of the harness for its whole length: one run at a time on a domain on this host, whoever
   claimed it (the runs of a test session all happen inside its claim).
@@ -13,8 +17,9 @@ import errno
 import fcntl
 import os
 import random
+import socket
 import tempfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,13 +28,92 @@ from typing import IO
 LOCK_DIR = Path(tempfile.gettempdir()) / 'tank_control_domains'
 RUN_LOCK_DIR = Path(tempfile.gettempdir()) / 'tank_control_runs'
 DOMAIN_IDS = tuple(range(1, 101))
+#: Set (to the id) by a holder of a domain's claim that runs the harness there: the domain is
+#: its alone (``claim`` found no participant on it), so a run need not wait
+#: ``harness.discovery_time`` for a graph that was there before (docs/harness.md, step 2).
+EXCLUSIVE_ENV = 'TANK_CONTROL_EXCLUSIVE_DOMAIN'
+
+# The RTPS well-known ports (DDSI-RTPS 2.5, 9.6.1.1): PB + DG·domain + d0 (discovery
+# multicast), PB + DG·domain + d1 + PG·participant (discovery unicast of each participant).
+_PB, _DG, _PG, _D0, _D1 = 7400, 250, 2, 0, 10
+_PARTICIPANTS = (_DG - _D1) // _PG       # participant ids that fit below the next domain
 
 
-def claim() -> tuple[int, IO[str]]:
-    """Lock a free domain id; returns it and the open lock file (close it to release)."""
+def participants_on(domain_id: int) -> list[int]:
+    """The RTPS discovery ports of ``domain_id`` that a process on this host holds (each a DDS
+    participant, of Fast DDS or Cyclone DDS, whatever its discovery range; a participant on
+    another host is not seen). Found by binding each port for a moment: instant, where DDS
+    discovery of a running participant takes up to its 3 s announcement period."""
+    base = _PB + _DG * domain_id
+    ports = [base + _D0] + [base + _D1 + _PG * p for p in range(_PARTICIPANTS)]
+    held = []
+    for port in ports:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(('0.0.0.0', port))
+            except OSError as exc:
+                if exc.errno == errno.EADDRINUSE:
+                    held.append(port)
+    return held
+
+
+#: Fast DDS (2.x) participants that the harness starts (its recorder, the nodes) announce
+#: themselves every 0.1 s for their first 4 s (``initialAnnouncements``; then every 3 s, the
+#: default), so that the run's processes, which join within a second or two of each other, find
+#: each other at once: a participant already on the domain answers a newcomer only at its next
+#: announcement, and the nodes took 2.5 s longer to show in the recorder's graph
+#: (bench/RESULTS.md, "A ROS run starts at once").
+START_ANNOUNCEMENTS = (40, 0.1)
+PROFILES_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+_OWN_PROFILES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+
+
+def start_profile_env(env: Mapping[str, str]) -> dict[str, str]:
+    """``env`` with :data:`PROFILES_ENV` naming a profile of :data:`START_ANNOUNCEMENTS`
+    (written to the temporary directory), unless ``env`` names a profile of its own (kept)
+    or another middleware than Fast DDS."""
+    out = dict(env)
+    rmw = out.get('RMW_IMPLEMENTATION', '').strip()
+    if any(out.get(name, '').strip() for name in _OWN_PROFILES) or (
+            rmw and not rmw.startswith('rmw_fastrtps')):
+        return out
+    count, period = START_ANNOUNCEMENTS
+    text = ('<?xml version="1.0" encoding="UTF-8" ?>\n'
+            '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
+            '  <participant profile_name="tank_control_start" is_default_profile="true">\n'
+            '    <rtps><builtin><discovery_config><initialAnnouncements>\n'
+            f'      <count>{count}</count>\n'
+            f'      <period><sec>0</sec><nanosec>{int(period * 1e9)}</nanosec></period>\n'
+            '    </initialAnnouncements></discovery_config></builtin></rtps>\n'
+            '  </participant>\n</profiles>\n')
+    path = Path(tempfile.gettempdir()) / f'tank_control_fastdds_start_{os.getuid()}.xml'
+    try:
+        if not path.exists() or path.read_text() != text:
+            partial = path.with_name(f'{path.name}.{os.getpid()}')
+            partial.write_text(text)
+            os.replace(partial, path)           # whole or not at all for a concurrent run
+    except OSError:
+        return out                              # no profile: discovery as by default
+    out[PROFILES_ENV] = str(path)
+    return out
+
+
+def local_only(env: Mapping[str, str]) -> bool:
+    """A process with environment ``env`` discovers only participants on this host
+    (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and no ``ROS_STATIC_PEERS``): every
+    participant it can meet holds ports that ``participants_on`` sees."""
+    return (env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip().upper() == 'LOCALHOST'
+            and not env.get('ROS_STATIC_PEERS', '').strip())
+
+
+def claim(candidates: Sequence[int] | None = None) -> tuple[int, IO[str]]:
+    """Lock a free domain id (of ``candidates``, default ``DOMAIN_IDS``, in random order):
+    its lock is free and no participant on this host is on it (``participants_on``).
+    Returns it and the open lock file (close it to release)."""
     LOCK_DIR.mkdir(exist_ok=True)
-    candidates = list(DOMAIN_IDS)
+    candidates = list(DOMAIN_IDS if candidates is None else candidates)
     random.SystemRandom().shuffle(candidates)
+    in_use = []
     for domain_id in candidates:
         handle = open(LOCK_DIR / f'{domain_id}.lock', 'w')
         try:
@@ -37,9 +121,36 @@ def claim() -> tuple[int, IO[str]]:
         except OSError:
             handle.close()
             continue
+        if participants_on(domain_id):     # a graph nobody claimed: started by hand
+            handle.close()
+            in_use.append(domain_id)
+            continue
         return domain_id, handle
-    raise RuntimeError(f'no free ROS_DOMAIN_ID in {DOMAIN_IDS[0]}..{DOMAIN_IDS[-1]} '
-                       f'(all locked in {LOCK_DIR})')
+    raise RuntimeError(f'no free ROS_DOMAIN_ID among {len(candidates)} (locked in {LOCK_DIR}'
+                       + (f'; with DDS participants on this host: '
+                          f'{", ".join(map(str, sorted(in_use)))}' if in_use else '') + ')')
+
+
+def claim_held(domain_id: int) -> bool:
+    """Whether some process (this one included) holds the claim of ``domain_id``."""
+    try:
+        handle = open(LOCK_DIR / f'{domain_id}.lock')
+    except OSError:
+        return False
+    with handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            return True
+        return False
+
+
+def exclusive_domain(env: Mapping[str, str]) -> bool:
+    """A process with environment ``env`` is on a domain held exclusively: ``EXCLUSIVE_ENV``
+    names its ROS_DOMAIN_ID and that domain's claim is held (by the one who set it)."""
+    domain = domain_of(env)
+    return (env.get(EXCLUSIVE_ENV, '').strip() == domain and domain.isdigit()
+            and claim_held(int(domain)))
 
 
 @contextmanager

@@ -110,8 +110,9 @@ def _signal_group(popen: subprocess.Popen, sig: signal.Signals) -> None:
         pass
 
 
-def stop_process(proc: ManagedProcess, grace: float = 5.0) -> int:
-    """SIGINT the group, then SIGTERM, then SIGKILL; return the exit code."""
+def stop_process(proc: ManagedProcess, grace: float = 5.0, interrupted: bool = False) -> int:
+    """SIGINT the group, then SIGTERM, then SIGKILL; return the exit code. ``interrupted``:
+    the SIGINT was sent already (``ProcessGroup.stop_all``): wait for it, then go on."""
     popen = proc.popen
     if popen.returncode is None and exit_code(popen) is not None:
         # Exited on its own and not reaped yet: its children (if any) go with the group
@@ -120,7 +121,8 @@ def stop_process(proc: ManagedProcess, grace: float = 5.0) -> int:
     for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, grace), (signal.SIGKILL, grace)):
         if exit_code(popen) is not None:
             break
-        _signal_group(popen, sig)
+        if not (interrupted and sig == signal.SIGINT):
+            _signal_group(popen, sig)
         try:
             popen.wait(timeout=wait)
         except subprocess.TimeoutExpired:
@@ -183,9 +185,16 @@ class ProcessGroup:
         return stop_process(self.processes[name], grace)
 
     def stop_all(self, grace: float = 5.0) -> dict[str, int]:
-        """Stop in reverse start order; return every exit code by name."""
-        return {name: stop_process(proc, grace)
-                for name, proc in reversed(list(self.processes.items()))}
+        """Stop every process (SIGINT to all in reverse start order at once, so that they stop
+        together, not one after the other: about 0.2 s each for a node); return every exit
+        code by name."""
+        procs = list(reversed(list(self.processes.items())))
+        interrupted = set()
+        for name, proc in procs:
+            if exit_code(proc.popen) is None:
+                _signal_group(proc.popen, signal.SIGINT)
+                interrupted.add(name)
+        return {name: stop_process(proc, grace, name in interrupted) for name, proc in procs}
 
     def __enter__(self) -> ProcessGroup:
         return self

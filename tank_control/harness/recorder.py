@@ -89,8 +89,8 @@ Sink = Callable[[RawMessage], None]
 class Recorder:
     """Subscriptions on a node of its own (in ``context``), spun by ``spin_once``.
 
-    ``subscribe=False`` creates the node only (the harness first looks at the graph from it,
-    ``graph_check.foreign_graph``) and ``subscribe(sink)`` starts recording. Each message goes to
+    ``subscribe=False`` creates the node only (its participant joins the domain before the
+    harness has made the output directory) and ``subscribe(sink)`` starts recording. Each message goes to
     ``sink`` as it arrives; without a sink it is kept in ``messages``."""
 
     def __init__(self, context: Context, name: str = RECORDER_NAME, sink: Sink | None = None,

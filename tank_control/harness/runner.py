@@ -7,8 +7,9 @@ paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harne
 ``trace.csv`` and ``run.mcap`` are written as the run goes (``stream.py``); a failed or
 interrupted run (SIGINT, SIGTERM, SIGHUP: ``signals.py``) leaves them valid up to that
 moment, with ``"complete": false`` and the ``reason`` in metrics.json (docs/harness.md,
-"Interrupted and failed runs"). The domain is checked before anything starts (``domains.py``,
-``graph_check.py``) and the node processes die with the harness (``processes.py``).
+"Interrupted and failed runs"). The domain is checked before anything starts (``domains.py``)
+and its graph while the nodes start, before tick 0 (``graph_check.py``); the node processes die
+with the harness (``processes.py``).
 Times in the results are plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ import gc
 import json
 import math
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -32,7 +34,8 @@ from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
-from tank_control.harness.domains import domain_of, lock_run
+from tank_control.harness.domains import (domain_of, exclusive_domain, local_only, lock_run,
+                                          participants_on, start_profile_env)
 from tank_control.harness.graph_check import foreign_graph
 from tank_control.harness.processes import ProcessGroup
 from tank_control.harness.recording import TraceMessages
@@ -499,12 +502,14 @@ class _RosRun:
         self.config = scenario.harness
         self.out = out
         self.params_file = out / 'scenario.yaml'
-        self.env = dict(env if env is not None else os.environ)
+        self.env = start_profile_env(env if env is not None else os.environ)
         self.env['PYTHONUNBUFFERED'] = '1'
         self.domain = domain_of(self.env)
         self.progress = progress
         self.stop = stop
         self.group: ProcessGroup | None = None
+        self.created_out = False
+        self.nobody_before = False                 # no participant on the domain at the start
         self.duration_ns = int(round(self.config.duration * NS))
         self.mode = self.config.clock_mode
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
@@ -638,7 +643,10 @@ class _RosRun:
             self.t0_ns = rec.latest.get('time_origin', rec.first.get('measurement', 0))
         return self.t0_ns
 
-    def _start_recording(self, recorder: Any) -> None:
+    def _prepare(self) -> None:
+        """The output directory: scenario.yaml (the nodes' parameters), logs/, and the
+        recording's files (a run that fails from here on leaves its results)."""
+        self.created_out = not self.out.exists()
         prepare_output(self.scenario, self.out)
         self.group = ProcessGroup(self.out / 'logs')
         due = due_periods(self.scenario, self.mode, self.tick_ns)
@@ -646,7 +654,64 @@ class _RosRun:
                                       self.sample_time,
                                       held=HELD_IN_LOCKSTEP if self.mode == 'lockstep' else (),
                                       metadata=run_metadata(self.scenario, self.mode))
-        recorder.subscribe(self.stream.on_message)
+
+    def _refuse(self, found: str) -> None:
+        """Another graph was seen before tick 0: stop this run's nodes and remove what it
+        wrote (the output directory if it made it), then refuse."""
+        if self.group is not None:
+            self.group.stop_all()
+            self.group = None
+        if self.stream is not None:
+            self.stream.close(complete=False)
+            self.stream = None
+        if self.created_out:
+            shutil.rmtree(self.out, ignore_errors=True)
+        else:
+            for name in (*OUTPUT_FILES, 'scenario.yaml'):
+                (self.out / name).unlink(missing_ok=True)
+            shutil.rmtree(self.out / 'logs', ignore_errors=True)
+        raise RunFailed(f'another graph is running on ROS_DOMAIN_ID {self.domain} '
+                        f'({found}); this run would mix with it, so it did not start; '
+                        'stop it or set a different ROS_DOMAIN_ID')
+
+    def _look_before_starting(self, joined: float) -> None:
+        """Step 2 of docs/harness.md when somebody may be on the domain (not ``nobody_before``):
+        look for another graph for ``harness.discovery_time`` since the recorder joined,
+        before any node of this run starts — a node started beside a running loop would take
+        part in it (answer its plant's ticks) until the refusal."""
+        from tank_control.harness.recorder import RECORDER_NAME
+        rec = self.recorder
+        found = foreign_graph(rec.node, rec.spin_once, GRAPH_TOPICS, self.config.discovery_time,
+                              (RECORDER_NAME,), self.stop.check, since=joined)
+        if found:
+            self._refuse(found)
+
+    def _look_while_starting(self) -> None:
+        """Step 2 of docs/harness.md, continued: while this run's nodes come up, until every
+        node of the run is in the graph, a second node of one of their names or a publisher of
+        the run's topics from a node it did not start is another graph's. Before it the graph
+        was quiet: nobody on the domain (``nobody_before``: a domain held exclusively,
+        ``domains.exclusive_domain``, or LOCALHOST discovery and no participant on this host,
+        ``domains.participants_on``; a participant that joins later announces itself at once),
+        or ``_look_before_starting`` found nobody."""
+        from tank_control.harness.recorder import RECORDER_NAME
+        rec = self.recorder
+        nodes = list(self.config.nodes)
+        timeout = time.monotonic() + self.config.startup_timeout
+
+        def check() -> None:
+            self._check_alive()
+            if time.monotonic() > timeout:
+                raise RunFailed(f'the nodes {", ".join(nodes)} did not all come up within '
+                                f'{self.config.startup_timeout:g} s (harness.startup_timeout); '
+                                'node logs:\n' + '\n'.join(
+                                    f'--- {name} ---\n{proc.tail(8)}'
+                                    for name, proc in self.group.processes.items()))
+        found = foreign_graph(rec.node, rec.spin_once, GRAPH_TOPICS, 0.0, (RECORDER_NAME,),
+                              check, started=nodes,
+                              ready=lambda: set(nodes) <= rec.node_names())
+        if found:
+            self._refuse(found)
 
     # -- run ----------------------------------------------------------------------------------
     def execute(self) -> RunResult:
@@ -664,9 +729,12 @@ class _RosRun:
         import rclpy
         from rclpy.context import Context
 
-        from tank_control.harness.recorder import RECORDER_NAME, Recorder
+        from tank_control.harness.recorder import Recorder
         from tank_control.nodes.runtime import quiet_collector
 
+        # Nobody on the domain before this run: no graph to wait for (step 0)
+        self.nobody_before = exclusive_domain(self.env) or (
+            local_only(self.env) and not participants_on(int(self.domain)))
         context = Context()
         rclpy.init(context=context, args=['--ros-args', '--disable-rosout-logs'],
                    domain_id=int(self.domain))     # the nodes' domain
@@ -682,25 +750,24 @@ class _RosRun:
             recorder = Recorder(context, subscribe=False, tick_ns=self.tick_ns)
             joined = time.monotonic()              # its participant is on the domain
             self.recorder = recorder
-            _warm_up()                             # while DDS discovers the domain
-            found = foreign_graph(recorder.node, recorder.spin_once, GRAPH_TOPICS,
-                                  self.config.discovery_time, (RECORDER_NAME,), self.stop.check,
-                                  since=joined)
-            if found:
-                raise RunFailed(f'another graph is running on ROS_DOMAIN_ID {self.domain} '
-                                f'({found}); this run would mix with it, so it did not start; '
-                                'stop it or set a different ROS_DOMAIN_ID')
-            self._start_recording(recorder)
-            if self.record_window:
-                signals = [t for node in self.config.nodes for t in PUBLISHES[node]
-                           if not t.startswith('/')]
-                recorder.acknowledge(signals, ACK_EVERY * (self.tick_ns or 0))
+            self._prepare()
+            recorder.subscribe(self.stream.on_message)   # what the nodes say from their start
+            if not self.nobody_before:             # somebody may be there: look first (step 2)
+                _warm_up()                         # while DDS discovers the domain
+                self._look_before_starting(joined)
+            # The graph is looked at while the nodes come up, too (step 2).
             nodes = self.config.nodes
             for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
             if self.dashboard is not None:       # watches only; stopped with the nodes
                 self.group.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
                                                '-p', f'port:={self.dashboard}'], env=self.env)
+            _warm_up()                             # while the nodes start (once)
+            self._look_while_starting()
+            if self.record_window:
+                signals = [t for node in self.config.nodes for t in PUBLISHES[node]
+                           if not t.startswith('/')]
+                recorder.acknowledge(signals, ACK_EVERY * (self.tick_ns or 0))
             self._await_graph(nodes)
             quiet_collector()      # the recorder's arrival times: no long collection in the run
             cpu_start = self._cpu_seconds()

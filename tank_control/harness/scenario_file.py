@@ -49,10 +49,12 @@ class HarnessConfig:
                                    unit='s', min=1.0, max=3600.0)
     stall_timeout: float = param(30.0, 'wall seconds without simulated-time progress before the '
                                  'run is declared stalled', unit='s', min=1.0, max=3600.0)
-    discovery_time: float = param(4.0, 'wall seconds the harness looks for another graph on '
-                                  'its ROS_DOMAIN_ID before it starts a node (DDS discovers a '
-                                  'running participant within one 3 s announcement period on '
-                                  'a loaded host)', unit='s', min=0.0, max=60.0)
+    discovery_time: float = param(4.0, 'wall seconds (from the recorder joining) the harness '
+                                  'looks for another graph on its ROS_DOMAIN_ID before it starts '
+                                  'a node (DDS discovers a running participant within one 3 s '
+                                  'announcement period on a loaded host); not waited for when '
+                                  'nobody was on the domain (docs/harness.md, step 2)',
+                                  unit='s', min=0.0, max=60.0)
     on_node_exit: str = param('abort', 'what a node process that exits during the run does to '
                               'it: abort ends the run (exit code 1); restart starts the node '
                               'again with its parameters and the run goes on (not the plant, '

@@ -399,7 +399,8 @@ def _run_ros(scenario: Scenario) -> tuple[dict[str, Any], Any]:
     from tank_control.harness import domains, runner
     with domains.claimed() as domain, tempfile.TemporaryDirectory(prefix='sweep_') as tmp:
         env = {**os.environ, 'ROS_DOMAIN_ID': str(domain),
-               'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
+               'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+               domains.EXCLUSIVE_ENV: str(domain)}     # claimed empty: no discovery wait
         try:
             result = runner.run_scenario(scenario, tmp, env=env)
         except runner.RunInterrupted:          # a stop signal stops the sweep (its files are

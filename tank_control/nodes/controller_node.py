@@ -43,6 +43,7 @@ from tank_control.nodes.messages import (APPLIED_QOS, LATE_QOS, ORIGIN_QOS, SIGN
                                          reliable_qos, stamp_to_ns, to_joint_state)
 from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.params import ParameterBinding, ParameterError
+from tank_control.nodes.runtime import duplicate_name_problem
 from tank_control.nodes.runtime import main as run_node_main
 
 #: State topic of a kind with a state machine: reliable, transient local, keep-last 10 (a
@@ -68,6 +69,8 @@ class ControllerNode(Node):
         self._kind_names = frozenset(s.name for s in self._kind.specs())
         self._prepared: tuple[registry.PreparedChange, int] | None = None   # (change, _gen)
         self._gen = 0                 # bumped whenever the running controller steps or resets
+        self._r_seen: np.ndarray | None = None     # the setpoint of the last sample
+        self._causes: dict[str, str] = {}   # a test's failure reason → with its likely cause
         self._params = ParameterBinding(
             self, node_specs.controller_specs(kind_name, self._override_values()),
             cross_check=self._cross_check, derive=self._derive)
@@ -433,6 +436,25 @@ class ControllerNode(Node):
             self._last_sample = None
         self.get_logger().info('new plant session (its clock restarted at 0): ticks answered '
                                'from 0 again, control continues from the current state')
+        self._abort_test('the plant restarted (its clock went back to '
+                         f'{seconds(t_ns):g} s from {seconds(last):g} s) during the test')
+
+    def on_name_conflict(self, problem: str) -> None:
+        """``runtime.NameWatch``: another node of this name joined the graph."""
+        self._abort_test(problem)
+
+    def _abort_test(self, cause: str) -> None:
+        """A running auto-tune test ends (aborted, previous gains restored) with ``cause`` as
+        its reason, instead of failing later for what the cause did to the signals (a second
+        reference's setpoints, a restarted plant's jump). Nothing without a running test."""
+        abort = getattr(self._controller, 'abort', None)
+        if abort is None:
+            return
+        accepted, _ = abort(cause)
+        if accepted:
+            self._gen += 1
+            self.get_logger().error(f'auto-tune test aborted: {cause}')
+            self._write_results()
 
     def _on_applied(self, msg: bytes) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet), kept per
@@ -668,6 +690,14 @@ class ControllerNode(Node):
         y_vec = np.array([y[name] for name in self._outputs], dtype=float)
         r_vec = np.array([r[name] for name in self._outputs], dtype=float)
         d_vec = np.array([d.get(name, math.nan) for name in self._disturbances], dtype=float)
+        if (self._r_seen is not None and not np.array_equal(r_vec, self._r_seen, equal_nan=True)
+                and hasattr(self._controller, 'abort')):
+            # A setpoint that changes during an auto-tune test fails it; a second controller
+            # of this name (another graph joined) is the likelier cause: named first.
+            problem = duplicate_name_problem(self)
+            if problem:
+                self.on_name_conflict(problem)
+        self._r_seen = r_vec
         self.counters['samples'] += 1
         fault = 'stale' if stale else self._measurement_fault(y_vec)
         if fault:
@@ -743,13 +773,24 @@ class ControllerNode(Node):
         if self._kind.results is None:
             return
         current = self._params.values
-        changed = {k: v for k, v in self._kind.results(self._controller).items()
-                   if current.get(k) != v}
+        results = self._kind.results(self._controller)
+        state = self._kind.state
+        reason_key = state.rsplit('.', 1)[0] + '.reason' if state and '.' in state else ''
+        if results.get(reason_key) in self._causes:
+            results[reason_key] = self._causes[results[reason_key]]
+        changed = {k: v for k, v in results.items() if current.get(k) != v}
+        if changed.get(state) == 'failed' and changed.get(reason_key):
+            # A test that failed beside a second controller of this name (another graph
+            # joined before the name watch saw it): the failure names it as the likely cause.
+            problem = duplicate_name_problem(self)
+            if problem:
+                reason = changed[reason_key]
+                self._causes = {reason: f'{reason} (likely cause: {problem})'}
+                changed[reason_key] = self._causes[reason]
         if changed:
             result = self._params.write(changed, source=f'controller {self._kind.name}{cause}')
             if not result.successful:
                 self._log_once(f'controller results not written to parameters: {result.reason}')
-            state = self._kind.state
             published = False
             if state is not None and state in changed and self._state_pub is not None:
                 self._state_pub.publish(String(data=str(changed[state])))

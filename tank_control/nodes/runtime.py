@@ -93,32 +93,42 @@ NAME_CHECK_PERIOD = 2.0
 """[s] of wall time between two looks for another node of the same name."""
 
 
+def duplicate_name_problem(node: Node) -> str:
+    """'' or why the graph holds another node with ``node``'s name (one line for a log)."""
+    namespace = node.get_namespace()
+    key = (node.get_name(), namespace if namespace.endswith('/') else namespace + '/')
+    count = sum(1 for name, ns in node.get_node_names_and_namespaces()
+                if (name, ns if ns.endswith('/') else ns + '/') == key)
+    if count <= 1:
+        return ''
+    return (f'{count} nodes named {node.get_fully_qualified_name()} on this graph '
+            '(ROS_DOMAIN_ID ' + os.environ.get('ROS_DOMAIN_ID', '0') + '): their '
+            'topics, parameters and services mix; stop the other one, or start this '
+            'one with -r __node:=<another name> or another ROS_DOMAIN_ID')
+
+
 class NameWatch:
     """Reports another node with this node's name on the graph: two ``plant``s on one
     ROS_DOMAIN_ID mix their topics, parameter services and diagnostics. Looked for every
     :data:`NAME_CHECK_PERIOD` wall seconds (a steady-clock timer: also while a lockstep
     or sim clock stands still); logged as ERROR once each time it starts, and once when it
-    ends. ``problem`` is the current text ('' if none) for a node's diagnostics."""
+    ends; a node with a method ``on_name_conflict(problem)`` is told when it starts (the
+    controller ends a running auto-tune test with it as the reason). ``problem`` is the
+    current text ('' if none) for a node's diagnostics."""
 
     def __init__(self, node: Node) -> None:
         from tank_control.nodes.clock import steady_clock
         self.node = node
         self.problem = ''
-        namespace = node.get_namespace()
-        self._key = (node.get_name(), namespace if namespace.endswith('/') else namespace + '/')
         self.timer = node.create_timer(NAME_CHECK_PERIOD, self.check, clock=steady_clock())
 
     def check(self) -> None:
-        count = sum(1 for name, ns in self.node.get_node_names_and_namespaces()
-                    if (name, ns if ns.endswith('/') else ns + '/') == self._key)
-        problem = ''
-        if count > 1:
-            problem = (f'{count} nodes named {self.node.get_fully_qualified_name()} on this graph '
-                       '(ROS_DOMAIN_ID ' + os.environ.get('ROS_DOMAIN_ID', '0') + '): their '
-                       'topics, parameters and services mix; stop the other one, or start this '
-                       'one with -r __node:=<another name> or another ROS_DOMAIN_ID')
+        problem = duplicate_name_problem(self.node)
         if problem and not self.problem:
             self.node.get_logger().error(problem)
+            on_conflict = getattr(self.node, 'on_name_conflict', None)
+            if on_conflict is not None:
+                on_conflict(problem)
         elif self.problem and not problem:
             self.node.get_logger().info(f'{self.node.get_fully_qualified_name()} is the only '
                                         'node of its name again')

@@ -257,6 +257,30 @@ def test_the_graph_look_counts_the_time_since_the_participant_joined():
     assert found == 'node plant; publisher of /measurement (plant)'
 
 
+def test_the_look_while_the_nodes_start_tells_them_from_another_graph():
+    """The run's own nodes, coming up meanwhile, are not another graph: a name this run
+    started seen once, and its publishers, are its own; a second node of the name or a
+    publisher of a node it did not start is another graph's. The look lasts until the run's
+    nodes are up (``ready``)."""
+    from tank_control.harness.graph_check import foreign_graph
+    joined = time.monotonic() - 10.0
+    started = ('plant', 'controller', 'reference')
+    own = _Graph(started, {'/measurement': ['plant'], '/manipulated': ['controller']})
+    assert foreign_graph(own, own.spin_once, ['measurement', 'manipulated'], 4.0, since=joined,
+                         started=started) is None
+    twice = _Graph((*started, 'reference'), {'/setpoint': ['reference']})
+    assert foreign_graph(twice, twice.spin_once, ['setpoint'], 4.0, since=joined,
+                         started=started) == 'node reference; publisher of /setpoint (reference)'
+    other = _Graph(started, {'/clock': ['plant', 'gazebo']})
+    assert foreign_graph(other, other.spin_once, ['/clock'], 4.0, since=joined,
+                         started=started) == 'publisher of /clock (gazebo)'
+    up = iter([False, False, True])
+    waiting = _Graph(started)
+    assert foreign_graph(waiting, waiting.spin_once, ['measurement'], 0.0, since=joined,
+                         started=started, ready=lambda: next(up)) is None
+    assert waiting.spins == 2
+
+
 # ------------------------------------------------------------------------------ no silent end
 def test_a_run_that_records_nothing_fails(tmp_path, ros_env):
     """A plant whose clock is already beyond the duration (as a left-over plant of another run

@@ -111,28 +111,28 @@ def test_a_node_that_refuses_its_parameters_fails_the_start(scenario_path, tmp_p
 
 
 def test_another_graph_on_the_same_domain_is_refused_before_anything_starts(
-        scenario_path, tmp_path, ros_env, procs, probe):
+        scenario_path, tmp_path, shared_ros_env, procs, probe):
     """A `reference` already running on this ROS_DOMAIN_ID (not started by tank-control) would
-    answer our plant too: the run refuses before it starts a node or writes a file."""
+    answer our plant too: the run refuses before tick 0 and leaves no output directory."""
     foreign = procs.start('foreign', [*standin_command('reference'), '--ros-args', '-p',
-                                      'step_value:=5.0'], env=ros_env)
+                                      'step_value:=5.0'], env=shared_ros_env)
     assert probe.wait_for(lambda: 'reference' in probe.node.get_node_names(), 30), foreign.tail()
     out = tmp_path / 'out'
     with pytest.raises(RunFailed, match='another graph is running on ROS_DOMAIN_ID') as info:
-        run_scenario(standin_scenario(scenario_path), out, env=ros_env,
+        run_scenario(standin_scenario(scenario_path), out, env=shared_ros_env,
                      node_command=standin_command)
     assert 'reference' in str(info.value)
     assert not out.exists()
     assert foreign.returncode is None                     # and it is left alone
 
 
-def test_a_foreign_clock_publisher_is_refused(scenario_path, tmp_path, ros_env, probe):
+def test_a_foreign_clock_publisher_is_refused(scenario_path, tmp_path, shared_ros_env, probe):
     """Any node publishing a topic of the run (here /clock, as a simulator would) is another
     graph, whatever its name."""
     from rosgraph_msgs.msg import Clock
     probe.node.create_publisher(Clock, '/clock', 10)
     out = tmp_path / 'out'
     with pytest.raises(RunFailed, match=r'publisher of /clock \(test_probe'):
-        run_scenario(standin_scenario(scenario_path), out, env=ros_env,
+        run_scenario(standin_scenario(scenario_path), out, env=shared_ros_env,
                      node_command=standin_command)
     assert not out.exists()

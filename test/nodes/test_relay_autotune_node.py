@@ -348,3 +348,54 @@ def test_transient_settings_over_ros_refused_with_the_reason_and_results_declare
     refused = graph.result(graph.controller.set_parameters(
         [Parameter('autotune.transient_gain', value=[1.0])])).results[0]
     assert not refused.successful
+
+
+def test_a_second_controller_joining_ends_the_test_naming_it(procs, ros_env, node_cmd, probe,
+                                                             gate, tmp_path):
+    """Another graph's /controller joins the domain during a test (a hand-started graph): the
+    test ends with the gains from before it and that as its reason — aborted when the name
+    watch sees it first, failed with it as the likely cause when what the second controller
+    does to the loop fails the test first (here: its output pushes the relay amplitude over
+    autotune.max_amplitude)."""
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, fopdt_params(
+        paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
+    before = graph.get('kp', 'ti', 'td')
+    graph.wait_state('idle', 30)
+    assert graph.trigger(graph.start).success
+    graph.wait_state('measuring')
+    since = len(graph.states)
+    path = tmp_path / 'autotune.yaml'
+    foreign = procs.start('foreign', node_cmd('controller_node', '--params-file', str(path)),
+                          env=ros_env)
+    assert probe.wait_for(lambda: {'failed', 'aborted'} & set(graph.states[since:]), 60), (
+        graph.states, graph.logs())
+    procs.stop('foreign')
+    assert foreign.returncode is not None
+    assert probe.wait_for(lambda: probe.node.get_node_names().count('controller') == 1, 30)
+    got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
+    assert got['autotune.state'] in ('aborted', 'failed'), got
+    assert '2 nodes named /controller on this graph' in got['autotune.reason'], got
+    assert {k: got[k] for k in before} == before
+
+
+def test_a_plant_restarted_during_the_test_aborts_it_naming_that(procs, ros_env, node_cmd,
+                                                                probe, gate, tmp_path):
+    """The plant is stopped and started again during a test: its clock restarts at 0. The test
+    ends aborted with that as its reason and the gains from before it (its measurements would
+    mix two plant sessions)."""
+    graph = Graph(procs, ros_env, node_cmd, probe, gate, tmp_path, fopdt_params(
+        paused=False, **{'autotune.min_cycles': 100, 'autotune.timeout': 10000.0}))
+    before = graph.get('kp', 'ti', 'td')
+    graph.wait_state('idle', 30)
+    assert graph.trigger(graph.start).success
+    graph.wait_state('measuring')
+    since = len(graph.states)
+    procs.stop('plant')
+    argv = node_cmd('plant_node', '--params-file', str(tmp_path / 'autotune.yaml'))
+    procs.start('plant again', argv + GATE_REMAP, env=ros_env)
+    assert probe.wait_for(lambda: {'failed', 'aborted'} & set(graph.states[since:]), 60), (
+        graph.states, graph.logs())
+    got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
+    assert got['autotune.state'] == 'aborted', got
+    assert got['autotune.reason'].startswith('the plant restarted (its clock went back to 0 s'), got
+    assert {k: got[k] for k in before} == before
