@@ -773,7 +773,7 @@ class ControllerNode(Node):
         if self._kind.results is None:
             return
         current = self._params.values
-        results = self._kind.results(self._controller)
+        results = dict(self._kind.results(self._controller))
         state = self._kind.state
         reason_key = state.rsplit('.', 1)[0] + '.reason' if state and '.' in state else ''
         if results.get(reason_key) in self._causes:
