@@ -577,7 +577,9 @@ class _RosRun:
         over on the running loop), mark it in run.mcap (``HARNESS_EVENTS``) and the metrics.
 
         Lockstep: the plant is paused over the restart, until the recorder's readers have
-        matched the new process's writers, so that every answer of the new node is recorded
+        matched the new process's writers (and, for a node that reports it on /diagnostics,
+        its writers the readers the graph shows: ``_await_matched``, each side of a match is
+        discovered on its own), so that every answer of the new node is recorded
         (a writer's first messages reach only the readers that matched it, and the plant, which
         needs only its own answer, would run up to ``record_window`` ticks whose answers the
         recording then lacks)."""
@@ -623,6 +625,8 @@ class _RosRun:
             raise RunFailed(f'node {name} was restarted, but the recorder did not match its '
                             f'publishers ({", ".join(topics)}) within '
                             f'{self.config.startup_timeout:g} s (harness.startup_timeout)')
+        if name in ('plant', 'controller'):    # and its writers the recorder's readers
+            self._await_matched([name])
         if pause:
             self._set_paused(False, name)
         self._restarted_at = time.monotonic()

@@ -184,9 +184,8 @@ class ControllerNode(Node):
         self.create_timer(float(values['diagnostics_period']), self._publish_diagnostics,
                           clock=steady_clock())
         self._matched_sent: dict[str, int] | None = None   # in the last /diagnostics
-        self._prestart_calls = 0           # sim/wall (the harness waits for them): _on_prestart
-        self._prestart_timer = (self.create_timer(0.02, self._on_prestart, clock=steady_clock())
-                                if self._mode != 'lockstep' else None)
+        self._prestart_calls = 0           # the harness waits for them: _on_prestart
+        self._prestart_timer = self.create_timer(0.02, self._on_prestart, clock=steady_clock())
         self.get_logger().info(
             f'{kind_name} controller ({self._kind.description}), {self._mode} clock, sample_time '
             f'{self._controller.sample_time:g} s, reads {list(self._outputs)}, '
@@ -877,10 +876,15 @@ class ControllerNode(Node):
 
     def _matched(self) -> dict[str, int]:
         """``matched_writers.<topic>``: writers the middleware has matched to this node's
-        readers of the reference's signals. In /diagnostics: the harness starts the clock once
-        they reach the writers its own graph shows (the plant reports its own topics)."""
-        return {f'matched_writers.{sub.topic_name}': sub.get_publisher_count()
-                for sub in self._reference_subs}
+        readers of the reference's signals; ``matched_readers.<topic>``: readers matched to its
+        writer of ``manipulated``. In /diagnostics: the harness starts the clock (sim/wall), and
+        resumes it after restarting this node (lockstep), once they reach what its own graph
+        shows (the plant reports its own topics): a writer's first answers reach only the
+        readers it has matched."""
+        items = {f'matched_writers.{sub.topic_name}': sub.get_publisher_count()
+                 for sub in self._reference_subs}
+        items[f'matched_readers.{self._pub.topic_name}'] = self._pub.get_subscription_count()
+        return items
 
     def _on_prestart(self) -> None:
         """Before the first sample (every 20 ms): /diagnostics at once when a matched count
