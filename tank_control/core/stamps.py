@@ -60,13 +60,15 @@ class FutureStamps:
 
     ``recover_ns``/``recover_messages``: a run of refusals this long (wall time) and this
     many messages is taken for a clock step (module docstring). ``refused`` counts refused
-    messages; ``recovered`` the clock steps taken."""
+    messages; ``recovered`` the clock steps taken; ``returned`` the streams taken back on this
+    node's clock after a step (``back_on_clock``)."""
 
     tolerance_ns: int
     recover_ns: int = int(RECOVER_S * _NS_PER_S)
     recover_messages: int = RECOVER_MESSAGES
     refused: int = 0
     recovered: int = 0
+    returned: int = 0
     _streams: dict[str, _Stream] = field(default_factory=dict)
     _reports: list[str] = field(default_factory=list)
     _reported: set[str] = field(default_factory=set)
@@ -104,6 +106,25 @@ class FutureStamps:
                      f'clock refused (at most {tolerance / _NS_PER_S:g} s ahead taken); '
                      'the valid messages are taken', key=stream)
         return False
+
+    def back_on_clock(self, stream: str, held_ns: int, stamp_ns: int, now_ns: int | None) -> bool:
+        """A message of ``stream`` stamped ``stamp_ns``, older than the value held (stamped
+        ``held_ns``), that a consumer would not take: True when the held value is stamped
+        beyond the tolerance ahead of now (it came in through a clock step) and this message
+        is within it — the stream's clock went back (the real plant restarted after a stream
+        stamped ahead was taken; a host clock corrected again): the stream's offset is
+        forgotten and the consumer takes the message instead of holding the stepped value
+        until real time passes it. Otherwise False (an out-of-order message: not taken)."""
+        if now_ns is None:
+            return False
+        if held_ns - now_ns <= self.tolerance_ns or stamp_ns - now_ns > self.tolerance_ns:
+            return False
+        self._streams.pop(stream, None)
+        self.returned += 1
+        self._report(f'{stream}: stamped {((stamp_ns - held_ns) / _NS_PER_S):.6g} s before the '
+                     'value held, which was ahead of this node\'s clock: taken as the stream\'s '
+                     'clock going back', key=f'{stream}/returned')
+        return True
 
     def reset(self, stream: str | None = None) -> None:
         """Forget the offsets and runs (of one stream): a new session of the clock."""

@@ -402,7 +402,12 @@ class ControllerNode(Node):
         if self._mode != 'lockstep':
             self._check_late_setpoint(t_ns, parsed[1])
             if self._r_stamp is not None and t_ns < self._r_stamp:
-                return          # older than the setpoint held (out of order): not taken
+                if not self._future.back_on_clock(TOPIC_SETPOINT, self._r_stamp, t_ns,
+                                                  self._now_ns()):
+                    return      # older than the setpoint held (out of order): not taken
+                self._r_ahead.clear()       # the stepped values waiting for their stamps
+                for text in self._future.take_report():
+                    self.get_logger().warning(text)
             self._r_stamp = t_ns
         if self._mode == 'wall':
             self._r_ahead.put(t_ns, self._finite_or_last(TOPIC_SETPOINT, parsed[1], self._outputs,
@@ -624,7 +629,7 @@ class ControllerNode(Node):
             if self._last_instant is not None and instant <= self._last_instant:
                 return
             t_ns = self._origin_ns + instant * self._ts_ns
-            if self._last_out_ns is not None and t_ns <= self._last_out_ns:
+            if self._behind_last_output(t_ns):
                 return      # the new session's grid lags the last output: its next instant
             self._last_instant = instant
         takeover = None
@@ -658,7 +663,7 @@ class ControllerNode(Node):
         instant = (t_ns - self._origin_ns) // self._ts_ns
         if self._last_instant is not None and instant <= self._last_instant:
             return
-        if self._last_out_ns is not None and t_ns <= self._last_out_ns:
+        if self._behind_last_output(t_ns):
             return
         plant_ns = t_ns - self._origin_ns
         takeover = None
@@ -673,6 +678,17 @@ class ControllerNode(Node):
         u = self._sample(plant_ns, self._y, self._r, self._d, stale=False, takeover=takeover)
         self._last_out_ns = t_ns
         self._pub.publish(self._manipulated_cdr.encode_ns(t_ns, u))
+
+    def _behind_last_output(self, t_ns: int) -> bool:
+        """wall: an output stamped ``t_ns`` would go back behind the last one (never published),
+        unless that one is stamped beyond the tolerance ahead of this node's clock: it answered
+        a stream taken through a clock step (core/stamps.py), whose clock has gone back since —
+        waiting until real time passes it would hold the loop as long as the step was."""
+        last = self._last_out_ns
+        if last is None or t_ns > last:
+            return False
+        now = self._now_ns()
+        return now is None or last - now <= self._future.tolerance_ns
 
     def _release_ahead(self, t_ns: int) -> None:
         """wall: the setpoint and disturbance values stamped at or before ``t_ns`` (absolute)

@@ -557,7 +557,13 @@ class PlantNode(Node):
             self.late_pub.publish(to_joint_state(t_ns, list(accepted),
                                                  [used.get(n, math.nan) for n in accepted]))
         if t_ns < self._held_stamp.get(topic, t_ns):
-            return                      # older than the values held: out of order
+            if not self._future.back_on_clock(topic, self._held_stamp[topic], t_ns,
+                                              self._now_ns()):
+                return                  # older than the values held: out of order
+            if topic == TOPIC_DISTURBANCE:
+                self._d_ahead.clear()   # the stepped values waiting for their stamps
+            for text in self._future.take_report():
+                self.get_logger().warning(text)
         self._held_stamp[topic] = t_ns
         if topic == TOPIC_DISTURBANCE and self.mode == 'wall':
             # the reference publishes each instant ``wall.lead`` ahead: held until the step

@@ -102,6 +102,32 @@ def test_streams_recover_independently_and_a_reset_forgets_the_offset():
     assert not guard.admit('setpoint', 101, 1, 4)
 
 
+def test_a_stream_taken_through_a_step_is_taken_again_when_its_clock_goes_back():
+    """A stream stamped an hour ahead is taken as a clock step; then its clock goes back (the
+    real plant restarted): a message on this node's clock, older than the stepped value held,
+    is taken at once (the offset forgotten) instead of waiting an hour. An out-of-order
+    message within the tolerance, or one while the held value is on this node's clock, is
+    still not taken (``back_on_clock`` is False), and a stepped stream that goes on is not
+    treated as going back."""
+    guard = FutureStamps(tolerance_ns=500 * MS, recover_ns=RECOVER_S * S,
+                         recover_messages=RECOVER_MESSAGES)
+    now, wall, step = 10 * S, 0, 3600 * S
+    for k in range(RECOVER_MESSAGES + 20):        # refused, then taken as a step
+        wall = k * 100 * MS
+        taken = guard.admit('manipulated', now + step + wall, now + wall, wall)
+    assert taken and guard.recovered == 1
+    held, now = now + step + wall, now + wall
+    assert not guard.back_on_clock('manipulated', held, held + 100 * MS, now)   # goes on
+    assert guard.back_on_clock('manipulated', held, now + 100 * MS, now)        # went back
+    assert guard.returned == 1
+    assert any('going back' in line for line in guard.take_report())
+    # the offset is gone: a message an hour ahead is refused again
+    assert not guard.admit('manipulated', now + step, now, wall + 200 * MS)
+    # an ordinary out-of-order message (the held value on this node's clock) is not taken
+    assert not guard.back_on_clock('manipulated', now + 200 * MS, now + 100 * MS, now)
+    assert not guard.back_on_clock('manipulated', held, now, None)   # now not known
+
+
 def test_reports_are_rate_limited_and_rearmed():
     guard = FutureStamps(tolerance_ns=0)
     for _ in range(100):

@@ -587,6 +587,18 @@ def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
     assert measure_until(lambda: len(loop.answers) >= n + 5, 0.5, 30.0)   # and runs on
     assert int(loop.diag.get('rejected_future', 0)) >= 3
     assert 'clock step' in proc.tail(50)
+    # The plant restarts again, now on this host's clock (a new origin, an hour back): the
+    # controller answers its measurements at once — not when real time reaches its last
+    # output, stamped an hour ahead (before: silent for as long as the step was).
+    base['skew'] = 0
+    base['origin'] = probe.node.get_clock().now().nanoseconds
+    origins.publish(ns_to_stamp(base['origin']))
+    assert probe.wait_for(lambda: str(base['origin']) in proc.tail(), 20), proc.tail()
+    back = base['origin']
+    assert measure_until(lambda: back <= loop.answers[-1][0] < back + to_ns(60.0), 0.5, 30.0), \
+        (loop.answers[-3:], proc.tail())
+    n = len(loop.answers)
+    assert measure_until(lambda: len(loop.answers) >= n + 5, 0.5, 30.0)   # and runs on
 
 
 @pytest.mark.parametrize('sample_time', [0.1, 0.2])

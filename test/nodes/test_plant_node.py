@@ -543,6 +543,39 @@ def test_wall_mode_an_input_stamped_in_the_future_is_refused_and_the_inputs_go_o
     assert 'future' in rec.diagnostics[-1]['message']
 
 
+def test_wall_mode_a_stream_taken_as_a_clock_step_gives_way_to_inputs_on_the_plant_s_clock(
+        procs, ros_env, node_cmd, probe, tmp_path):
+    """A writer sends ``manipulated`` stamped an hour ahead, u = 50, long enough to be taken as
+    a clock step (core/stamps.py: every message refused for ``RECOVER_S`` and at least
+    ``RECOVER_MESSAGES``); then the controller's own inputs, on the plant's clock, come again.
+    They are integrated at once — the stepped value is not held until real time reaches its
+    stamp (before: an hour, any process on the domain could pin the input so). IPDT, k1 = 1,
+    no dead time: the slope of y is u."""
+    proc = start_plant(procs, ros_env, node_cmd, tmp_path, plant='ipdt', sample_time=0.05,
+                       gain=1.0, dead_time=0.0, diagnostics_period=0.1)
+    rec = Recorder(probe)
+    assert probe.wait_for(lambda: rec.measurements and rec.manipulated.get_subscription_count(),
+                          30), proc.tail()
+
+    def slope():
+        (s0, _, (y0,)), (s1, _, (y1,)) = rec.measurements[-2:]
+        return (y1 - y0) / ((s1 - s0) / 1e9)
+
+    def integrates(u, ahead_ns=0):
+        def check():
+            rec.manipulated.publish(to_joint_state(rec.measurements[-1][0] + ahead_ns, ['u'],
+                                                   [u]))
+            n = len(rec.measurements)
+            probe.wait_for(lambda: len(rec.measurements) >= n + 2, 5)
+            return slope() == pytest.approx(u, abs=1e-9)
+        return check
+    assert probe.wait_for(integrates(50.0, 3600 * 10**9), 60), (rec.measurements[-3:],
+                                                                 proc.tail())
+    assert 'clock step' in proc.tail(50)
+    assert probe.wait_for(integrates(-1.0), 30), (rec.measurements[-3:], proc.tail())
+    assert 'going back' in proc.tail(50)
+
+
 def test_a_message_with_many_unknown_channel_names_costs_the_plant_no_more_than_a_tick(
         procs, ros_env, node_cmd, probe, tmp_path):
     """A ``manipulated`` with 100 000 unknown channel names is refused whole (more than
