@@ -46,6 +46,9 @@ from tank_control.nodes.runtime import main as run_node_main
 _NODE_ONLY = frozenset(names_of(PlantNodeConfig)) | frozenset(names_of(NoiseConfig))
 _NODE_ONLY_PREFIX = ranges.PREFIX      # range.*: the filters', not the model's
 _LOOKAHEAD = 8   # lockstep: answers up to this many ticks ahead are kept (lockstep.lookahead <= 8)
+#: sim/wall: the inputs integrated over this many latest ticks are remembered, for the values a
+#: late answer's report names (~/late_inputs; an answer later than that reports nan)
+_LATE_MEMORY = 1000
 #: lockstep: a tick unanswered for this many ``lockstep.resend_period`` is a stall (WARN)
 STALL_RESENDS = 2
 #: wall/sim: ``manipulated`` silent for this many of its recent intervals (and at least
@@ -421,7 +424,7 @@ class PlantNode(Node):
             self._d_ahead.release(self.k * self.ts_ns, self.d)
         if self.mode != 'lockstep':        # remembered for ~/late_inputs
             self._integrated[self.k * self.ts_ns] = {**self.u, **self.d}
-            self._integrated.pop((self.k - _LOOKAHEAD) * self.ts_ns, None)
+            self._integrated.pop((self.k - _LATE_MEMORY) * self.ts_ns, None)
             self._publish_applied(self.k)   # lockstep: only when the loop stops (_on_resend)
         start = time.perf_counter()
         self.plant.step(np.array([self.u[n] for n in self.plant.input_names]),
