@@ -123,7 +123,7 @@ FOPDT_AUTOTUNE = 'config/fopdt_autotune.yaml'
 
 @pytest.mark.parametrize('value', [1e6, -5000.0, 12000.0])
 def test_an_input_far_outside_the_controllers_limits_is_refused_by_the_plant(value):
-    """Issue 30 §5: the plant's default range.u is the controller's output limits (here
+    """The plant's default range.u is the controller's output limits (here
     u_min 0, u_max 10000) widened by ranges.ACTUATOR_MARGIN (10 % of the span each side):
     [-1000, 11000]. An injected u outside (1e6 drove the IPDT to y ≈ 5000) is refused and the
     plant keeps the last good input."""

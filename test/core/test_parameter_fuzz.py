@@ -6,7 +6,7 @@ one to three of its node's parameters get hostile values — denormals, underflo
 beyond int64, values of the wrong type — given at start-up (a params file) or as a live
 ``ros2 param set``. Each value is refused with a one-line reason by the validation the node
 runs, or the in-process loop with it stays alive (no exception, no frozen step) and finite for
-200 samples. The values of issue 30 §3 that ended the nodes are always tried (``@example``).
+200 samples. The values that once ended the nodes are always tried (``@example``).
 
 An accepted value whose loop diverges geometrically (``param_fuzz.diverged``: the tracking
 error grows 1000-fold over the run, e.g. an FSA or Smith model far from the plant) is counted
@@ -75,7 +75,7 @@ def _target(node: str, source: str) -> param_fuzz.Target:
                 if t.node == node and (t.source == source or t.kind == source))
 
 
-# issue 30 §3: values that crashed the nodes (always tried, before the drawn ones)
+# values that once crashed the nodes (always tried, before the drawn ones)
 @example(('controller', 'ipdt_pid.yaml', 'live', {'tuning.dead_time': 5e-324}))
 @example(('controller', 'ipdt_pid.yaml', 'file', {'tuning.dead_time': 5e-324}))
 @example(('controller', 'pid', 'file', {'ti': 1e-170, 'td': 1e-170}))

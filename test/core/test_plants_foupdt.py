@@ -83,7 +83,7 @@ def test_it_equals_the_transfer_function_kind_on_the_same_model():
 
 @pytest.mark.parametrize('dt', [1.0, 3600.0])
 def test_the_smallest_time_constant_with_a_long_step_saturates_instead_of_overflowing(dt):
-    """Issue 30 §3 (found by test_parameter_fuzz): T = 1e-6 s (the smallest allowed) over a
+    """Found by test_parameter_fuzz: T = 1e-6 s (the smallest allowed) over a
     1 s step made e^(τ/T) = e^(1e6), an OverflowError that ended the plant. The state runs off
     to the limit the plant clips it at (counted); at rest it stays at rest."""
     plant = Foupdt(FoupdtConfig(time_constant=1e-6, dead_time=0.0))

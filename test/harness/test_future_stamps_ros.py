@@ -1,5 +1,5 @@
 """A whole wall-clock loop under the harness (the real plant, controller and reference nodes)
-with one message stamped in the future injected on each signal topic (issue 30 §1): the loop
+with one message stamped in the future injected on each signal topic: the loop
 keeps running — the setpoint step at 10 s acts at 10 s — and the harness's recorder does not
 record them (``rejected_future`` in metrics.json). Before, the measurement stamped 10 s ahead
 froze the controller's samples, the manipulated one the plant's input, the setpoint one the

@@ -1,4 +1,4 @@
-"""Values that once ended a node (issue 30 §3) are refused with a reason over real DDS, and the
+"""Values that once ended a node are refused with a reason over real DDS, and the
 nodes keep running: config/ipdt_pid.yaml in lockstep (plant, controller, reference processes),
 the project's ``ros2 param set`` / ``ros2 param load`` as a user types them:
 

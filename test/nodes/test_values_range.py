@@ -151,6 +151,19 @@ def test_a_non_finite_output_goes_to_the_fail_safe_and_says_so(probe, monkeypatc
         ctrl.destroy_node()
 
 
+def answer_ticks(probe, rec, proc, u_of_tick: dict[int, float], k: int) -> None:
+    """Answer the lockstep plant's ticks up to ``k`` with ``u_of_tick`` (default 1.0), each
+    when its measurement arrives (tick ``j`` re-sent until answered)."""
+    while True:
+        assert probe.wait_for(lambda: rec.measurements, 20), proc.tail()
+        stamp = rec.measurements[-1][0]
+        j = stamp // TICK
+        rec.manipulated.publish(to_joint_state(stamp, ['u'], [u_of_tick.get(j, 1.0)]))
+        if j >= k:
+            return
+        probe.wait_for(lambda: rec.measurements[-1][0] > stamp, 1.0)
+
+
 def test_the_plant_refuses_an_implausible_input_and_keeps_its_state_finite(
         procs, ros_env, node_cmd, probe, tmp_path):
     # IPDT k1 = 1, no dead time, lockstep: the probe answers every tick as the controller
@@ -161,17 +174,7 @@ def test_the_plant_refuses_an_implausible_input_and_keeps_its_state_finite(
     rec = Recorder(probe)
     u_of_tick = {0: 1.0, 1: -1e308, 2: -1e308, 3: 1.0}
 
-    def answer(k: int) -> None:
-        while True:
-            assert probe.wait_for(lambda: rec.measurements, 20), proc.tail()
-            stamp = rec.measurements[-1][0]
-            j = stamp // TICK
-            rec.manipulated.publish(to_joint_state(stamp, ['u'], [u_of_tick.get(j, 1.0)]))
-            if j >= k:
-                return
-            probe.wait_for(lambda: rec.measurements[-1][0] > stamp, 1.0)
-
-    answer(5)
+    answer_ticks(probe, rec, proc, u_of_tick, 5)
     assert probe.wait_for(lambda: rec.measurements[-1][0] >= 5 * TICK, 20)
     # the issue's -1e308 (it wrecked the state: y = -5e305) is refused, u = 1 kept: slope 1
     for k in range(6):
@@ -184,7 +187,7 @@ def test_the_plant_refuses_an_implausible_input_and_keeps_its_state_finite(
 
 def test_the_plant_refuses_an_input_far_outside_its_controllers_limits(
         procs, ros_env, node_cmd, probe, tmp_path):
-    """Issue 30 §5: the plant started from a file that also holds its controller's section
+    """The plant started from a file that also holds its controller's section
     takes the controller's output limits [0, 10], widened by 10 % of the span each side, as
     range.u's default: [-1, 11]. The issue's injected u = 1e6 (in ±1e6 before, it drove the
     IPDT to y ≈ 5000) is refused, the last good input kept."""
@@ -199,17 +202,7 @@ def test_the_plant_refuses_an_input_far_outside_its_controllers_limits(
     rec = Recorder(probe)
     u_of_tick = {0: 1.0, 1: 1e6, 2: 12.0, 3: 1.0}
 
-    def answer(k: int) -> None:
-        while True:
-            assert probe.wait_for(lambda: rec.measurements, 20), proc.tail()
-            stamp = rec.measurements[-1][0]
-            j = stamp // TICK
-            rec.manipulated.publish(to_joint_state(stamp, ['u'], [u_of_tick.get(j, 1.0)]))
-            if j >= k:
-                return
-            probe.wait_for(lambda: rec.measurements[-1][0] > stamp, 1.0)
-
-    answer(5)
+    answer_ticks(probe, rec, proc, u_of_tick, 5)
     assert probe.wait_for(lambda: rec.measurements[-1][0] >= 5 * TICK, 20)
     for k in range(6):                        # u = 1 kept: slope 1
         assert rec.y_at(k * TICK) == pytest.approx(0.1 * k, abs=1e-12), k
