@@ -12,8 +12,10 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
+import yaml
 from support import CONFIG
 from support.netns import Host, two_hosts
 
@@ -21,6 +23,8 @@ pytestmark = pytest.mark.netns
 
 PROFILE = CONFIG / 'fastdds_loopback_only.xml'
 PARAMS = str(CONFIG / 'ipdt_pid.yaml')
+#: the controller's u_max in that file (the value a set changes from)
+U_MAX = float(yaml.safe_load(Path(PARAMS).read_text())['controller']['ros__parameters']['u_max'])
 WAIT = 60.0
 
 
@@ -59,7 +63,7 @@ def test_a_remote_host_naming_the_plant_host_changes_gains_unless_loopback_only(
             assert done.returncode == 0, done.stderr
             assert 'Set parameter successful' in done.stdout
             log = proc.log_path.read_text(errors='replace')
-            assert 'parameter u_max: 1000000000.0 -> 0.5 (set_parameters service)' in log
+            assert f'parameter u_max: {U_MAX!r} -> 0.5 (set_parameters service)' in log
         else:
             assert done.returncode != 0
             assert "Node not found: '/controller'" in done.stderr, done.stderr
@@ -67,7 +71,7 @@ def test_a_remote_host_naming_the_plant_host_changes_gains_unless_loopback_only(
             own = param_set(hosts.plant, local, '0.25')
             assert own.returncode == 0, own.stderr
             log = proc.log_path.read_text(errors='replace')
-            assert 'u_max: 1000000000.0 -> 0.25' in log and '-> 0.5' not in log
+            assert f'u_max: {U_MAX!r} -> 0.25' in log and '-> 0.5' not in log
 
 
 def test_the_wheels_fast_dds_has_no_security_plugins(tmp_path, ros_env):
