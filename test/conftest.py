@@ -55,11 +55,13 @@ def pytest_configure(config: pytest.Config) -> None:
         os.environ['ROS_DOMAIN_ID'] = NO_GRAPH_DOMAIN
         import rclpy
 
-        def refuse(*args: object, **kwargs: object) -> None:
-            pytest.fail('this test starts ROS (rclpy.init) under --no-graph: mark it '
-                        '@pytest.mark.ros or give it a graph fixture', pytrace=False)
-        rclpy.init = refuse
-        domains.claim = refuse   # sweep --ros claims a domain per run
+        def refuse(what: str) -> Callable[..., None]:
+            def refused(*args: object, **kwargs: object) -> None:
+                pytest.fail(f'this test {what} under --no-graph: mark it @pytest.mark.ros or '
+                            'give it a graph fixture', pytrace=False)
+            return refused
+        rclpy.init = refuse('starts ROS (rclpy.init)')
+        domains.claim = refuse('claims a ROS_DOMAIN_ID (domains.claim; sweep --ros does)')
     elif _DOMAIN_LOCK is None:
         domain_id, _DOMAIN_LOCK = domains.claim()
         os.environ['ROS_DOMAIN_ID'] = str(domain_id)

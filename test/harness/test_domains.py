@@ -9,6 +9,9 @@ import pytest
 
 from tank_control.harness import domains
 
+#: every test here claims real domains (lock files beside those of the test sessions; one
+#: starts a participant)
+pytestmark = pytest.mark.ros
 
 @pytest.fixture
 def two_domains() -> Iterator[tuple[int, int]]:
