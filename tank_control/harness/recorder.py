@@ -27,7 +27,7 @@ from tank_control.nodes.cdr import (JointStateCdr, cdr_stamp_ns,  # noqa: F401 (
 from tank_control.nodes.clock import Held
 from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
                                          quiet_publisher_events, quiet_subscription_events)
-from tank_control.nodes.services import RESEND_AFTER, answer
+from tank_control.nodes.services import RESEND_AFTER, answer, prime
 
 #: The recorder's node name (another graph's recorder on the domain is another run).
 RECORDER_NAME = 'tank_control_recorder'
@@ -348,6 +348,9 @@ class Recorder:
         try:
             if not self.spin_until(client.service_is_ready, timeout, check):
                 return f'/{node}/set_parameters did not become available in {timeout:g} s'
+            if not prime(client, SetParameters.Request(),
+                         lambda done, wait: self.spin_until(done, wait, check), timeout):
+                return f'/{node}/set_parameters did not answer in {timeout:g} s'
             request = SetParameters.Request(
                 parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
             response = self._call(client, request, timeout, check)

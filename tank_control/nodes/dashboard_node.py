@@ -432,7 +432,7 @@ class DashboardNode(Node):
             state: dict[str, Any] = {}
 
             def both() -> None:
-                if 'desc' in state and 'values' in state:
+                if 'desc' in state and 'values' in state and 'primed' in state:
                     params = {n: _descriptor_json(d, v) for n, d, v
                               in zip(names, state['desc'], state['values'])}
                     with self._lock:
@@ -452,6 +452,11 @@ class DashboardNode(Node):
             self._call(view.clients['describe'], DescribeParameters.Request(names=names),
                        described, failed)
             self._call(view.clients['get'], GetParameters.Request(names=names), got, failed)
+            # An empty set changes nothing; its answer shows the node matched the set
+            # client's response reader, so a later set's answer is not lost
+            # (nodes/services.py). Without it the panel is not shown yet: tried again.
+            self._call(view.clients['set'], SetParameters.Request(),
+                       lambda _: (state.__setitem__('primed', True), both()), failed)
         self._call(view.clients['list'], ListParameters.Request(), listed, failed)
 
     # ------------------------------------------------------------ updates from the graph

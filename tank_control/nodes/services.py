@@ -6,7 +6,10 @@ within 100 ms ("client will not receive response" in the server's log), which ha
 loaded machine while discovery is still going on; the client then waits in vain. A request
 that may be repeated without effect (a read: list, get, describe parameters) is therefore
 sent again when no answer came, first after ``resend_after`` s, then after twice as long, ...
-A request with an effect (a set) is sent once.
+A request with an effect (a set) is sent once, and only after ``prime`` has had an answer
+to a request without effect on the same client (an empty SetParameters changes nothing):
+that answer proves the server matched this client's response reader, so the set's
+response cannot be lost that way.
 """
 from __future__ import annotations
 
@@ -51,3 +54,14 @@ def answer(client: Any, request: Any, spin: Spin, timeout: float,
     """The first done future of ``request`` on ``client`` within ``timeout`` s, else None
     (``answers`` of one call)."""
     return answers({None: (client, request)}, spin, timeout, resend_after)[None]
+
+
+def prime(client: Any, empty_request: Any, spin: Spin, timeout: float,
+          resend_after: float = RESEND_AFTER) -> bool:
+    """Send ``empty_request`` (a request without effect, e.g. ``SetParameters.Request()``)
+    on ``client`` until one is answered (resent as for a read); False after ``timeout`` s.
+
+    Afterwards a request with an effect on the same client is sent once and its response
+    reaches the client (module docstring).
+    """
+    return answer(client, empty_request, spin, timeout, resend_after) is not None

@@ -157,16 +157,23 @@ def wait_for_node(node: 'Node', full_name: str, timeout: float) -> None:
 
 
 def call_service(node: 'Node', srv_type: type, name: str, request: object,
-                 timeout: float, resend_after: float | None = None) -> Any:
+                 timeout: float, resend_after: float | None = None,
+                 prime_with: object | None = None) -> Any:
     """Call a service with one deadline for discovery and the answer together;
-    ``resend_after`` [s] for a read: ``nodes/services.answer`` (a response can be lost)."""
-    from tank_control.nodes.services import answer
+    ``resend_after`` [s] for a read: ``nodes/services.answer`` (a response can be lost);
+    ``prime_with`` a request without effect answered first, for a request sent once
+    (``nodes/services.prime``)."""
+    from tank_control.nodes.services import answer, prime
 
     deadline = time.monotonic() + timeout
     client = node.create_client(srv_type, name)
     try:
         if not spin_until(node, client.service_is_ready, timeout):
             raise CliError(f"Service '{name}' not available (waited {timeout:g} s)")
+        if prime_with is not None and not prime(
+                client, prime_with, lambda done, wait: spin_until(node, done, wait),
+                max(0.0, deadline - time.monotonic())):
+            raise CliError(f"No response from service '{name}' within {timeout:g} s")
         future = answer(client, request, lambda done, wait: spin_until(node, done, wait),
                         max(0.0, deadline - time.monotonic()), resend_after)
         if future is None:

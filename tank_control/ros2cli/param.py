@@ -137,7 +137,8 @@ def _describe(node: 'Node', target: str, names: list[str], timeout: float) -> li
 def _set(node: 'Node', target: str, parameters: list[Any], timeout: float) -> list[Any]:
     from rcl_interfaces.srv import SetParameters
     response = call_service(node, SetParameters, f'{target}/set_parameters',
-                            SetParameters.Request(parameters=parameters), timeout)
+                            SetParameters.Request(parameters=parameters), timeout,
+                            prime_with=SetParameters.Request())
     return list(response.results)
 
 

@@ -20,26 +20,14 @@ class _Lost(Exception):
     """Raised by the server's callback: the request is taken and never answered."""
 
 
-@pytest.fixture
-def lossy_server(rclpy_session):
-    """``/lossy/get_parameters`` that loses the response of its first request."""
+def _serve(srv_type, name, answer):
+    """A node serving ``name`` with ``answer`` until the generator is resumed."""
     import rclpy
-    from rcl_interfaces.msg import ParameterValue
-    from rcl_interfaces.srv import GetParameters
     from rclpy.executors import SingleThreadedExecutor
 
     node = rclpy.create_node(f'lossy_{time.monotonic_ns()}', namespace='/lossy',
                              start_parameter_services=False)
-    requests: list[list[str]] = []
-
-    def answer(request, response):
-        requests.append(list(request.names))
-        if len(requests) == 1:
-            raise _Lost()
-        response.values = [ParameterValue(type=3, double_value=2.5) for _ in request.names]
-        return response
-
-    node.create_service(GetParameters, '/lossy/get_parameters', answer)
+    node.create_service(srv_type, name, answer)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     stop = threading.Event()
@@ -53,12 +41,54 @@ def lossy_server(rclpy_session):
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
-    yield requests
+    yield
     stop.set()
     thread.join()
     executor.remove_node(node)
     node.destroy_node()
     executor.shutdown()
+
+
+@pytest.fixture
+def lossy_server(rclpy_session):
+    """``/lossy/get_parameters`` that loses the response of its first request."""
+    from rcl_interfaces.msg import ParameterValue
+    from rcl_interfaces.srv import GetParameters
+    requests: list[list[str]] = []
+
+    def answer(request, response):
+        requests.append(list(request.names))
+        if len(requests) == 1:
+            raise _Lost()
+        response.values = [ParameterValue(type=3, double_value=2.5) for _ in request.names]
+        return response
+    yield from _with_requests(_serve(GetParameters, '/lossy/get_parameters', answer), requests)
+
+
+@pytest.fixture
+def lossy_setter(rclpy_session):
+    """``/lossy/set_parameters`` that loses the response of its first request and applies
+    each non-empty request (the values it holds are returned with the requests)."""
+    from rcl_interfaces.msg import SetParametersResult
+    from rcl_interfaces.srv import SetParameters
+    requests: list[list[str]] = []
+    applied: list[tuple[str, float]] = []
+
+    def answer(request, response):
+        requests.append([p.name for p in request.parameters])
+        applied.extend((p.name, p.value.double_value) for p in request.parameters)
+        if len(requests) == 1:
+            raise _Lost()
+        response.results = [SetParametersResult(successful=True) for _ in request.parameters]
+        return response
+    yield from _with_requests(_serve(SetParameters, '/lossy/set_parameters', answer),
+                              (requests, applied))
+
+
+def _with_requests(serving, requests):
+    next(serving)
+    yield requests
+    next(serving, None)
 
 
 @pytest.fixture
@@ -85,3 +115,20 @@ def test_without_resending_a_lost_response_ends_in_a_clear_error(lossy_server, c
         call_service(client, GetParameters, '/lossy/get_parameters',
                      GetParameters.Request(names=['kp']), 3.0)
     assert lossy_server == [['kp']]
+
+
+def test_a_set_is_applied_once_and_answered_when_a_response_would_be_lost(lossy_setter, client):
+    """`ros2 param set` sends the set once, after an empty set (no effect) was answered.
+
+    CI saw `ros2 param set` wait its whole timeout for a lost response; sending the set
+    again could apply it twice, so the client proves the route back first."""
+    from rcl_interfaces.msg import Parameter, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    requests, applied = lossy_setter
+    request = SetParameters.Request(parameters=[
+        Parameter(name='kp', value=ParameterValue(type=3, double_value=1.5))])
+    response = call_service(client, SetParameters, '/lossy/set_parameters', request, 20.0,
+                            prime_with=SetParameters.Request())
+    assert [r.successful for r in response.results] == [True]
+    assert applied == [('kp', 1.5)]               # applied exactly once
+    assert requests[-1] == ['kp'] and all(r == [] for r in requests[:-1])
