@@ -455,8 +455,10 @@ class DashboardNode(Node):
             # An empty set changes nothing; its answer shows the node matched the set
             # client's response reader, so a later set's answer is not lost
             # (nodes/services.py). Without it the panel is not shown yet: tried again.
-            self._call(view.clients['set'], SetParameters.Request(),
-                       lambda _: (state.__setitem__('primed', True), both()), failed)
+            def primed(_: SetParameters.Response) -> None:
+                state['primed'] = True
+                both()
+            self._call(view.clients['set'], SetParameters.Request(), primed, failed)
         self._call(view.clients['list'], ListParameters.Request(), listed, failed)
 
     # ------------------------------------------------------------ updates from the graph
