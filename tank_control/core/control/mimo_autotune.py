@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from tank_control.core.control.autotune_machine import AutotuneMachine
 from tank_control.core.control.multiloop import D21Filter, TwoLoopPi, TwoLoopPiConfig, _d21_gain
 from tank_control.core.control.pid import PidConfig
 from tank_control.core.control.relay_autotune import AutotuneConfig, RelayAutotuner, autotune_param
@@ -198,12 +199,13 @@ class _Pi:
         return v
 
 
-class MimoAutotuner:
+class MimoAutotuner(AutotuneMachine):
     """Controller (core/interfaces.py): :class:`TwoLoopPi` with 004 §3.7's auto-tuning (module
     docstring). ``start()``, ``abort()``, ``apply()``, ``revert()`` return ``(accepted,
     message)`` for std_srvs/Trigger services."""
 
     disturbance_names: tuple[str, ...] = ()
+    TESTING = TESTING
 
     def __init__(self, config: TwoLoopPiConfig, mimo: MimoAutotuneConfig | None = None,
                  relay: AutotuneConfig | None = None, pi: TwoLoopPi | None = None) -> None:
@@ -234,21 +236,19 @@ class MimoAutotuner:
         return self.pi.config
 
     @property
-    def state(self) -> str:
-        return self._state
-
-    @property
     def proposal(self) -> tuple[mlt.PiGains, mlt.PiGains] | None:
         return self._proposal
 
-    def start(self) -> tuple[bool, str]:
+    # operator requests: AutotuneMachine; its hooks
+    def _start_refusal(self) -> str:
         if self.mimo.mode == 'none':
-            return False, 'autotune: autotune.mode is none; set relay, model_zn or model_ls'
-        if self._state in TESTING:
-            return False, f'autotune: a test is already running (state {self._state})'
+            return 'autotune.mode is none; set relay, model_zn or model_ls'
         if self.pi.scheduler is not None:
-            return False, ('autotune: two_loop.schedule is active (the gains come from its '
-                           'table); tune without it')
+            return 'two_loop.schedule is active (the gains come from its table); tune without it'
+        return ''
+
+    def _begin(self) -> tuple[bool, str]:
+        """relay: settle, then the sequential relay test; model_*: design at once."""
         self._saved = self.pi.config
         self._clear()
         self._found = {}
@@ -263,42 +263,26 @@ class MimoAutotuner:
         self._state, self._reason = 'settling', ''
         return True, 'autotune: test started (settling)'
 
-    def abort(self, reason: str = 'abort requested') -> tuple[bool, str]:
-        if self._state not in TESTING:
-            return False, f'autotune: no test is running (state {self._state})'
-        self._end('aborted', reason)
-        return True, 'autotune: test aborted, previous gains restored'
-
     def interrupted(self, reason: str) -> None:
         """Report a test that ended outside this tuner (state ``aborted`` with ``reason``): a
         live change of a setting rebuilt the controller, which runs the new settings' gains."""
         self._state, self._reason = 'aborted', reason
 
-    def apply(self) -> tuple[bool, str]:
-        if self._state in TESTING:
-            return False, f'autotune: a test is running (state {self._state})'
-        if self._proposal is None:
-            return False, 'autotune: no proposal to apply; run a test first'
+    def _has_proposal(self) -> bool:
+        return self._proposal is not None
+
+    def _apply_proposal(self) -> str:
+        assert self._proposal is not None
         self._set_gains(self._with(self._proposal))
         self._state, self._reason = 'running', ''
-        return True, 'autotune: applied ' + _gains_text(self._proposal)
+        return 'applied ' + _gains_text(self._proposal)
 
-    def revert(self) -> tuple[bool, str]:
-        if self._saved is None:
-            return False, 'autotune: no gains from before a test to return to'
-        if self._state in TESTING:
-            self._end('aborted', 'revert requested')
-            return True, 'autotune: test aborted, gains from before the test restored'
+    def _has_saved(self) -> bool:
+        return self._saved is not None
+
+    def _restore_saved(self) -> None:
+        assert self._saved is not None
         self._set_gains(self._saved)
-        self._state, self._reason = 'reverted', ''
-        return True, 'autotune: gains from before the test restored'
-
-    def command(self, name: str) -> tuple[bool, str]:
-        commands = {'start_autotune': self.start, 'abort_autotune': self.abort,
-                    'apply_autotune': self.apply, 'revert_gains': self.revert}
-        if name not in commands:
-            raise ValueError(f'command: {name!r} is unknown; allowed ' + ', '.join(commands))
-        return commands[name]()
 
     def reset(self, y: np.ndarray, u: np.ndarray) -> None:
         """Bumpless (re)start of the PI from ``u``; a running test is aborted (not one started

@@ -26,6 +26,7 @@ import numpy as np
 from tank_control.core.analysis.robustness import (LoopReport, Prediction, finite_or,
                                                    loop_report, predict)
 from tank_control.core.analysis.step_metrics import iae, step_metrics
+from tank_control.core.control.autotune_machine import AutotuneMachine
 from tank_control.core.control.pid import PidConfig, Pid2Dof
 from tank_control.core.params import check_config, param
 from tank_control.core.tuning import identification as ident
@@ -462,7 +463,7 @@ class _Check:
     calm_since: float | None = None
 
 
-class RelayAutotuner:
+class RelayAutotuner(AutotuneMachine):
     """SISO Controller (core/interfaces.py): a :class:`Pid2Dof` with a relay auto-tuning test.
 
     ``pid_config``: the PID in normal operation (its limits bound the relay too);
@@ -473,6 +474,7 @@ class RelayAutotuner:
     """
 
     disturbance_names: tuple[str, ...] = ()
+    TESTING = TESTING
 
     def __init__(self, pid_config: PidConfig, autotune: AutotuneConfig | None = None,
                  output_name: str = 'y', input_name: str = 'u') -> None:
@@ -506,10 +508,6 @@ class RelayAutotuner:
     @property
     def sample_time(self) -> float:
         return self.pid.config.sample_time
-
-    @property
-    def state(self) -> str:
-        return self._state
 
     @property
     def config(self) -> AutotuneConfig:
@@ -561,40 +559,9 @@ class RelayAutotuner:
                     f'{rep.model}')
         return ''
 
-    def apply(self) -> tuple[bool, str]:
-        """Apply the pending proposal bumplessly (state ``running``) and arm the verification.
-        Returns ``(accepted, message)``."""
-        if self._state in TESTING:
-            return False, f'autotune: a test is running (state {self._state})'
-        if self._proposal is None:
-            return False, 'autotune: no proposal to apply; run a test first'
-        refusal = self.refusal(self._proposal)
-        if refusal:
-            return False, f'autotune: proposal not applied: {refusal}'
-        self.pid.set_gains(**self._proposal.gains)
-        self._state, self._reason, self._warning = 'running', '', ''
-        self._arm_check()
-        g = self._proposal.gains
-        return True, (f"autotune: applied kp {abs(g['kp']):.4g}, ti {g['ti']:.4g} s, "
-                      f"td {g['td']:.4g} s (predicted Ms {self._proposal.report.ms:.3g})")
-
-    def revert(self) -> tuple[bool, str]:
-        """Return to the gains from before the last test, bumplessly (state ``reverted``; a
-        running test is aborted, which restores them too)."""
-        if self._saved_gains is None:
-            return False, 'autotune: no gains from before a test to return to'
-        if self._state in TESTING:
-            self._end('aborted', 'revert requested')
-            return True, 'autotune: test aborted, gains from before the test restored'
-        self.pid.set_gains(**self._saved_gains)
-        self._state, self._reason = 'reverted', ''
-        self._cancel_check()
-        return True, 'autotune: gains from before the test restored'
-
-    def start(self) -> tuple[bool, str]:
-        """Begin a test (from idle, running, tuned, failed or aborted). Returns ``(accepted, message)``."""
-        if self._state in TESTING:
-            return False, f'autotune: a test is already running (state {self._state})'
+    # operator requests: AutotuneMachine; its hooks
+    def _begin(self) -> tuple[bool, str]:
+        """A test from idle, running, tuned, failed or aborted: settle first."""
         self._saved_gains = _gain_fields(self.pid.config)
         self._clear_test()
         self._cancel_check()
@@ -602,21 +569,30 @@ class RelayAutotuner:
         self._reason = ''
         return True, 'autotune: test started (settling)'
 
-    def abort(self, reason: str = 'abort requested') -> tuple[bool, str]:
-        """End a running test now: previous gains restored, the PID resumes from u0 at the next sample."""
-        if self._state not in TESTING:
-            return False, f'autotune: no test is running (state {self._state})'
-        self._end('aborted', reason)
-        return True, 'autotune: test aborted, previous gains restored'
+    def _has_proposal(self) -> bool:
+        return self._proposal is not None
 
-    def command(self, name: str) -> tuple[bool, str]:
-        """Operator commands for a node's std_srvs/Trigger services: ``start_autotune``,
-        ``abort_autotune``, ``apply_autotune``, ``revert_gains``."""
-        commands = {'start_autotune': self.start, 'abort_autotune': self.abort,
-                    'apply_autotune': self.apply, 'revert_gains': self.revert}
-        if name not in commands:
-            raise ValueError(f'command: {name!r} is unknown; allowed ' + ', '.join(commands))
-        return commands[name]()
+    def _apply_refusal(self) -> str:
+        assert self._proposal is not None
+        return self.refusal(self._proposal)
+
+    def _apply_proposal(self) -> str:
+        """The proposal's gains, bumplessly, and the verification armed."""
+        assert self._proposal is not None
+        self.pid.set_gains(**self._proposal.gains)
+        self._state, self._reason, self._warning = 'running', '', ''
+        self._arm_check()
+        g = self._proposal.gains
+        return (f"applied kp {abs(g['kp']):.4g}, ti {g['ti']:.4g} s, "
+                f"td {g['td']:.4g} s (predicted Ms {self._proposal.report.ms:.3g})")
+
+    def _has_saved(self) -> bool:
+        return self._saved_gains is not None
+
+    def _restore_saved(self) -> None:
+        assert self._saved_gains is not None
+        self.pid.set_gains(**self._saved_gains)
+        self._cancel_check()
 
     def results(self) -> dict[str, Any]:
         """Parameter values the tuner produced (see :class:`AutotuneResults`), the PID's

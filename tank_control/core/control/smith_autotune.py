@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from tank_control.core.analysis.robustness import smith_report
+from tank_control.core.control.autotune_machine import AutotuneMachine
 from tank_control.core.control.pid import PidConfig
 from tank_control.core.control.relay_autotune import AutotuneConfig, RelayAutotuner
 from tank_control.core.control.smith import SmithModel, SmithPredictor
@@ -98,7 +99,7 @@ def model_of(model: SmithModel) -> ProcessModel:
                         model.time_constant if model.model == 'fopdt' else 0.0)
 
 
-class SmithAutotuner:
+class SmithAutotuner(AutotuneMachine):
     """SISO Controller (core/interfaces.py): a :class:`SmithPredictor` with 004 §3.6's
     auto-tuning chain (see the module docstring). Idle, it is the Smith predictor exactly.
 
@@ -107,6 +108,9 @@ class SmithAutotuner:
     """
 
     disturbance_names: tuple[str, ...] = ()
+    TESTING = TESTING
+    COMMANDS = ('start_autotune', 'abort_autotune')
+    RESTORED = 'the Smith predictor from before restored'
 
     def __init__(self, model: SmithModel, primary: PidConfig,
                  autotune: AutotuneConfig | None = None, design: SmithDesign | None = None,
@@ -146,10 +150,6 @@ class SmithAutotuner:
         return self.smith.sample_time
 
     @property
-    def state(self) -> str:
-        return self._state
-
-    @property
     def config(self) -> AutotuneConfig:
         return self._cfg
 
@@ -168,30 +168,15 @@ class SmithAutotuner:
             self._scheduled_done = False
         self._cfg = autotune
 
-    def start(self) -> tuple[bool, str]:
-        """Begin the chain (settling under the Smith predictor first)."""
-        if self._state in TESTING:
-            return False, f'autotune: a test is already running (state {self._state})'
-        reason = self.design.reason()
-        if reason:
-            return False, f'autotune: {reason}'
+    # operator requests (start, abort, command): AutotuneMachine; its hooks
+    def _start_refusal(self) -> str:
+        return self.design.reason() or ''
+
+    def _begin(self) -> tuple[bool, str]:
+        """The chain, settling under the Smith predictor first."""
         self._clear()
         self._state, self._reason = 'settling', ''
         return True, 'autotune: test started (settling)'
-
-    def abort(self, reason: str = 'abort requested') -> tuple[bool, str]:
-        """End a running chain: the Smith predictor from before it resumes bumplessly."""
-        if self._state not in TESTING:
-            return False, f'autotune: no test is running (state {self._state})'
-        self._end('aborted', reason)
-        return True, 'autotune: test aborted, the Smith predictor from before restored'
-
-    def command(self, name: str) -> tuple[bool, str]:
-        """``start_autotune``, ``abort_autotune`` (std_srvs/Trigger services)."""
-        commands = {'start_autotune': self.start, 'abort_autotune': self.abort}
-        if name not in commands:
-            raise ValueError(f'command: {name!r} is unknown; allowed ' + ', '.join(commands))
-        return commands[name]()
 
     def set_manual(self, u: float | None = None) -> None:
         self.smith.set_manual(u)
