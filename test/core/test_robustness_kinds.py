@@ -124,9 +124,11 @@ def test_smith_robustness_is_the_dense_grid_and_the_simulation():
     # the delay-free loop K(1 − a)·kp/(z − a) (ti large) is unstable for kp·K(1 − a) > 1 + a
     a = math.exp(-H / T)
     kp_limit = (1 + a) / (K * (1 - a))
-    bad = kind.results(kind.build(resolve(kind, {**SM, 'kp': 1.2 * kp_limit, 'ti': 1e6})))
-    assert bad['robustness.stable'] is False and 'unstable' in bad['robustness.warning']
+    # a predictor unstable on its own model is refused, no robustness bound needed
+    with pytest.raises(ConfigError, match='the Smith loop would be unstable'):
+        resolve(kind, {**SM, 'kp': 1.2 * kp_limit, 'ti': 1e6})
     assert abs(simulate_smith(1.2 * kp_limit, 1e6)[-50:]).max() > 1e3
+    resolve(kind, {**SM, 'kp': 0.95 * kp_limit, 'ti': 1e6})      # just stable: runs
 
 
 def test_smith_guard_and_model_update():
@@ -134,7 +136,7 @@ def test_smith_guard_and_model_update():
     bound = {**SM, 'robustness.ms_max': 1.5}
     with pytest.raises(ConfigError, match=r'kp: Ms would be 1\.\d+ > robustness.ms_max 1.5'):
         resolve(kind, {**bound, 'kp': 3.0}, given={'kp'})
-    with pytest.raises(ConfigError, match='kp: the loop would be unstable'):
+    with pytest.raises(ConfigError, match='the Smith loop would be unstable'):
         resolve(kind, {**bound, 'kp': 60.0}, given={'kp'})
     controller = kind.build(resolve(kind, {**bound, 'kp': 1.0}, given={'kp'}))
     assert kind.results(controller)['robustness.ms'] == pytest.approx(

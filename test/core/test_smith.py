@@ -278,3 +278,20 @@ def test_kind_second_order_model_and_its_rule():
         resolve(kind, {**base_values, 'tuning.order': 1, 'tuning.te': 2.0})
     with pytest.raises(ValueError, match='smith.time_constant2'):
         SmithPredictor(SmithModel('sopdt', 1.0, 5.0, 1.0, time_constant2=math.nan), PidConfig())
+
+
+def test_a_predictor_unstable_on_its_own_model_is_refused_without_a_robustness_bound():
+    """smith.gain of the sign opposite to kp: on the plant the predictor is designed for (its
+    model) the loop diverges, so the kind refuses it (no robustness.ms_max needed) with its
+    reason; the same numbers with the sign that matches kp run."""
+    model, primary = smith_config('fopdt', -0.05, 3.0, kp=24.0, ti=12.0, time_constant=10.0,
+                                  sample_time=0.1)
+    _, y = run(smith_step((model, primary)), 0.1, 300.0, 'fopdt', -0.05, 3.0, 10.0)
+    assert np.abs(y[-100:]).max() > 1e3 * np.abs(y[:300]).max()     # diverges on its model
+
+    kind = registry.get_kind('smith_pi')
+    values = {'smith.gain': -0.05, 'smith.time_constant': 10.0, 'smith.dead_time': 3.0,
+              'kp': 24.0, 'ti': 12.0, 'sample_time': 0.1}
+    with pytest.raises(ConfigError, match='on the plant it is designed for .* would be unstable'):
+        resolve(kind, values)
+    resolve(kind, {**values, 'smith.gain': 0.05})    # the same with the right sign runs

@@ -93,9 +93,24 @@ def reason(settings: Settings) -> str | None:
     if rule == 'smith_pi' and settings.config.gain < 0:
         return ('smith.gain: tuning.rule smith_pi needs a positive model gain (the primary has '
                 'kp > 0); allowed (0, 1e9]')
-    return base.siso_reason(settings, settings.primary) or base.guard_reason(
+    return base.siso_reason(settings, settings.primary) or _inner_reason(settings) or \
+        base.guard_reason(
         settings, process_model(settings.config), _loop(settings.config, settings.primary),
         analyse, GUARDED, _gains)
+
+
+def _inner_reason(settings: Settings) -> str | None:
+    """The Smith predictor is its model: on a plant equal to it the loop is the primary on
+    the delay-free model, delayed (C·Gm0 of :func:`smith_report`). Unstable there, the
+    configuration contradicts itself (e.g. a negative smith.gain, as kp >= 0) and is refused
+    without robustness.ms_max, which bounds Ms of the loops that are stable."""
+    model, primary = settings.config, settings.primary
+    loop = _loop(model, primary)
+    if analyse(process_model(model), loop).stable:
+        return None
+    return (f'smith.gain, kp: on the plant it is designed for (its model, smith.gain '
+            f'{model.gain:g}) the Smith loop would be unstable ({_gains(loop)}); allowed: '
+            'kp·smith.gain > 0 and a PI that is stable on the model')
 
 
 def _design(settings: Settings) -> SmithDesign:
