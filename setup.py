@@ -19,6 +19,8 @@ setup(
     # the dashboard's page and its vendored plotting library (scripts/vendor_uplot.sh)
     package_data={'tank_control.dashboard': ['static/*.*', 'static/vendor/*']},
     install_requires=['setuptools'],
+    # tank_control/python_control.py (round trips with python-control), optional
+    extras_require={'control': ['control==0.10.2']},
     zip_safe=True,
     maintainer='tank_control team',
     maintainer_email='team@tank-control.invalid',
