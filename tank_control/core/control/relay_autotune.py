@@ -16,7 +16,9 @@ the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -175,6 +177,12 @@ class AutotuneConfig:
                              unit='-', min=0.0, max=100.0, source='004 eqs. 3.4.17, 3.4.22')
     phase_margin: float = _at(0.0, 'rule ho: phase margin (0 = 60)', 'phase_margin', unit='deg',
                               min=0.0, max=89.0, source='004 eq. 3.4.18')
+    design_time: float = _at(0.0, 'time the identification and design of a relay test may take '
+                             'off the sampling path: the relay keeps running meanwhile and the '
+                             'result takes effect at the first sample this long after the '
+                             "test's data were complete (the same sample in every clock mode; "
+                             'a sample waits only if the work is not done by then); 0 = at once, '
+                             'on the sampling path', 'design_time', unit='s', min=0.0, max=3600.0)
     apply: str = _at('auto', 'auto: the tuned gains take over at the end of the test; preview: '
                      'they are proposed (autotune.proposed_*, predicted margins and response) and '
                      'applied by the ~/apply_autotune service or autotune.apply_time', 'apply',
@@ -754,6 +762,7 @@ class RelayAutotuner(AutotuneMachine):
         check_config(cfg)
 
     def _clear_test(self) -> None:
+        self._job: _Job | None = None  # identification + design running off the sampling path
         self._t_start = math.nan       # start of the current phase [s]
         self._r_test = math.nan
         self._win_t: deque[float] = deque()
@@ -821,6 +830,7 @@ class RelayAutotuner(AutotuneMachine):
 
     def _end(self, state: str, reason: str) -> None:
         """Leave the test: restore the gains from before it, PID resumes bumplessly from u0."""
+        self._job = None                          # a result still being computed is dropped
         if self._saved_gains is not None:
             self.pid.set_gains(**self._saved_gains)
         if self._u0 is not None:
@@ -911,8 +921,13 @@ class RelayAutotuner(AutotuneMachine):
                 self._finish_transient()
                 if self._state not in TESTING:
                     return None
+        elif self._job is not None:
+            if t >= self._job.due - 1e-9:
+                self._conclude(self._job.outcome())
+                if self._state not in TESTING:
+                    return None   # tuned (PID takes over from u0) or failed
         elif switched:
-            self._analyse(r)
+            self._analyse(t, r)
             if self._state not in TESTING:
                 return None       # tuned (PID takes over from u0) or failed
         if t - self._t_start > cfg.timeout:
@@ -921,8 +936,9 @@ class RelayAutotuner(AutotuneMachine):
             return None
         return u
 
-    def _analyse(self, r: float) -> bool:
-        """At a relay switch: count cycles, correct the bias, identify and tune when enough are stationary."""
+    def _analyse(self, t: float, r: float) -> bool:
+        """At a relay switch: count cycles, correct the bias, identify and tune when enough are
+        stationary (:meth:`_identify`, concluded at once or ``autotune.design_time`` s later)."""
         cfg = self._cfg
         tt = np.array(self._rec_t)
         uu, ref = self._identification_input()
@@ -951,9 +967,24 @@ class RelayAutotuner(AutotuneMachine):
                 else ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack))
         if tail is None:
             return False
+        job = _Job(self._identify, t + cfg.design_time,
+                   (tt, uu, yy, self._u0_start, r, self._eps, tail, cfg),
+                   background=cfg.design_time > 0.0)
+        if cfg.design_time > 0.0:
+            self._job = job                       # the relay runs on until it is due
+            return False
+        self._conclude(job.outcome())
+        return True
+
+    def _identify(self, tt: np.ndarray, uu: np.ndarray, yy: np.ndarray, u0_start: float | None,
+                  r: float, eps: float, tail: list[ident.RelayCycle], cfg: AutotuneConfig
+                  ) -> _Outcome:
+        """The identification from the relay record and the design from it: the heavy work,
+        which reads no state a sample changes (a worker thread may run it)."""
+        extra = cfg.additional_relay > 0.0
         sopdt = cfg.model == 'sopdt'
         try:
-            res = ident.identify_relay(tt, uu, yy, self._u0_start, r, self._eps, cycles=tail,
+            res = ident.identify_relay(tt, uu, yy, u0_start, r, eps, cycles=tail,
                                        gain=cfg.process_gain or None,
                                        kind='auto' if sopdt else cfg.model)
             if extra:
@@ -967,16 +998,34 @@ class RelayAutotuner(AutotuneMachine):
                                                         complex(-1.0 / res.ku), w_half, g[1])
                     res = replace(res, model=model, model_method='two_points')
             elif sopdt:
-                self._begin_integrator(res)
-                return False
-            if cfg.transient and self._hold_for_transient(res):
-                return False
-            proposal = self._design(res, cfg)
+                return _Outcome(res)              # the integrator phase follows
+        except (ValueError, ArithmeticError) as exc:
+            return _Outcome(error=f'identification/tuning failed: {exc}')
+        try:
+            return _Outcome(res, proposal=self._design(res, cfg))
+        except (ValueError, ArithmeticError) as exc:
+            return _Outcome(res, design_error=f'identification/tuning failed: {exc}')
+
+    def _conclude(self, outcome: _Outcome) -> None:
+        """The test's next step from :meth:`_identify`'s outcome (on the sampling path)."""
+        self._job = None
+        cfg = self._cfg
+        if outcome.res is None:
+            self._end('failed', outcome.error)
+            return
+        try:
+            if cfg.model == 'sopdt' and cfg.additional_relay <= 0.0:
+                self._begin_integrator(outcome.res)
+                return
+            if cfg.transient and self._hold_for_transient(outcome.res):
+                return
         except (ValueError, ArithmeticError) as exc:
             self._end('failed', f'identification/tuning failed: {exc}')
-            return True
-        self._finish(res, proposal)
-        return True
+            return
+        if outcome.proposal is None:
+            self._end('failed', outcome.design_error)
+            return
+        self._finish(outcome.res, outcome.proposal)
 
     def _hold_for_transient(self, res: ident.RelayIdentification) -> bool:
         """After the identification: keep the relay running until the record is long enough
@@ -1394,3 +1443,48 @@ def _scalar(value: Any, name: str) -> float:
     if arr.size != 1:
         raise ValueError(f'{name}: expected 1 value for the SISO relay auto-tuner, got {arr.size}')
     return float(arr[0])
+
+
+@dataclass(frozen=True)
+class _Outcome:
+    """What :meth:`RelayAutotuner._identify` found: the identification ``res`` (None:
+    ``error`` says why) and its ``proposal`` (None: ``design_error`` says why, or the
+    integrator phase of an SOPDT test follows)."""
+
+    res: ident.RelayIdentification | None = None
+    proposal: Proposal | None = None
+    error: str = ''
+    design_error: str = ''
+
+
+_WORKER: ThreadPoolExecutor | None = None
+_WORKER_LOCK = threading.Lock()
+
+
+def _worker() -> ThreadPoolExecutor:
+    """One thread for the auto-tuners' heavy work (numpy/scipy release the GIL in their
+    kernels; the sampling thread keeps its instants)."""
+    global _WORKER
+    with _WORKER_LOCK:
+        if _WORKER is None:
+            _WORKER = ThreadPoolExecutor(max_workers=1, thread_name_prefix='autotune')
+        return _WORKER
+
+
+class _Job:
+    """``work(*args)`` computed in the worker thread (``background``) or when first asked for;
+    its outcome is taken at the first sample at or after ``due`` [s]. A copy of a tuner (a
+    live change's trial) shares the job: its outcome does not depend on who asks."""
+
+    def __init__(self, work: Any, due: float, args: tuple[Any, ...], background: bool) -> None:
+        self.due = due
+        self._work, self._args = work, args
+        self._future: Future[Any] | None = _worker().submit(work, *args) if background else None
+
+    def outcome(self) -> Any:
+        if self._future is None:
+            return self._work(*self._args)
+        return self._future.result()     # waits only if the work is not done by its sample
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> _Job:
+        return self

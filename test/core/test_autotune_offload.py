@@ -1,0 +1,111 @@
+"""``autotune.design_time``: the relay test's identification and design run off the sampling
+path (issue "operate a loop" §7). The result takes effect at a sample fixed by the loop's
+time, so every clock mode and every machine load gives the same trace."""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from tank_control.core.control.kinds.registry import make_controller
+from tank_control.core.tuning import identification as ident
+from tank_control.core.tuning.model import ProcessModel
+
+H = 0.1
+SETTINGS = {'kp': 20.0, 'ti': 12.0, 'u_min': 0.0, 'u_max': 10000.0, 'sample_time': H,
+            'autotune.relay_amplitude': 200.0, 'autotune.settle_time': 5.0,
+            'autotune.settle_band': 0.5, 'autotune.max_amplitude': 20.0,
+            'autotune.rule': 'zn_001', 'autotune.kind': 'pid'}
+
+
+def run(design_time: float, steps: int = 2500) -> dict:
+    """001's FOPDT (K 0.05, T 10 s, L 3 s) under the relay tuner from rest at r = 100."""
+    controller = make_controller('relay_autotune', {**SETTINGS,
+                                                    'autotune.design_time': design_time})
+    plant = ProcessModel('fopdt', 0.05, 3.0, 10.0).plant()
+    r = np.array([100.0])
+    controller.start()
+    u_out, states = [], []
+    for k in range(steps):
+        y = plant.outputs()
+        u = controller.step(k * H, y, r, np.array([]))
+        u_out.append(float(u[0]))
+        states.append(controller.state)
+        plant.step(u, np.array([0.0]), H)
+    return {'u': np.array(u_out), 'states': states, 'status': controller.status}
+
+
+def first(states: list[str], state: str) -> int:
+    return states.index(state)
+
+
+def test_the_result_takes_effect_design_time_later_and_equals_the_one_on_the_sampling_path():
+    now, later = run(0.0), run(2.0)
+    assert now['status']['ku'] == later['status']['ku']           # the same record, bit for bit
+    assert now['status']['tu'] == later['status']['tu']
+    assert now['status']['gains'] == later['status']['gains']
+    k_now, k_later = first(now['states'], 'tuned'), first(later['states'], 'tuned')
+    assert k_later - k_now == round(2.0 / H)                      # 20 samples later, exactly
+    # until then the relay ran on: outputs at the relay's two levels
+    relay = later['u'][k_now:k_later]
+    levels = {round(v, 6) for v in now['u'][k_now - 300:k_now]}   # both relay levels
+    assert {round(v, 6) for v in relay} <= levels
+    # the PID takes over from the bias u0 in both cases: no jump beyond the relay's own step
+    u0 = later['status']['u0']
+    assert abs(later['u'][k_later] - u0) <= abs(now['u'][k_now] - now['status']['u0']) + 1.0
+
+
+def test_a_deferred_result_gives_the_same_trace_whatever_the_worker_thread_takes(monkeypatch):
+    """Determinism: the worker is slowed down until the sample that needs it; the trace equals
+    the undisturbed one (the sample waits, it does not move)."""
+    plain = run(2.0)
+    slow = threading.Event()
+    real = ident.identify_relay
+
+    def slowed(*args, **kwargs):
+        slow.wait(0.5)                      # the sampling thread reaches the due sample first
+        return real(*args, **kwargs)
+    monkeypatch.setattr(ident, 'identify_relay', slowed)
+    delayed = run(2.0)
+    assert np.array_equal(plain['u'], delayed['u']) and plain['states'] == delayed['states']
+
+
+def test_the_identification_runs_in_another_thread_than_the_samples(monkeypatch):
+    threads = []
+    real = ident.identify_relay
+
+    def recorded(*args, **kwargs):
+        threads.append(threading.current_thread())
+        return real(*args, **kwargs)
+    monkeypatch.setattr(ident, 'identify_relay', recorded)
+    run(2.0)
+    assert threads and all(t is not threading.current_thread() for t in threads)
+    threads.clear()
+    run(0.0)
+    assert threads == [threading.current_thread()]               # 0: on the sampling path
+
+
+def test_an_abort_while_the_result_is_computed_drops_it():
+    controller = make_controller('relay_autotune', {**SETTINGS, 'autotune.design_time': 5.0})
+    plant = ProcessModel('fopdt', 0.05, 3.0, 10.0).plant()
+    r = np.array([100.0])
+    controller.start()
+    k = 0
+    while controller._job is None:            # noqa: SLF001 - the pending job is the state here
+        u = controller.step(k * H, plant.outputs(), r, np.array([]))
+        plant.step(u, np.array([0.0]), H)
+        k += 1
+        assert k < 3000, 'the relay test never completed its data'
+    assert controller.abort()[0]
+    for j in range(k, k + 100):
+        u = controller.step(j * H, plant.outputs(), r, np.array([]))
+        plant.step(u, np.array([0.0]), H)
+    assert controller.state == 'aborted' and controller.proposal is None
+
+
+@pytest.mark.parametrize('bad', [-1.0, 3601.0, float('nan')])
+def test_design_time_is_checked(bad):
+    from tank_control.core.params import ConfigError
+    with pytest.raises(ConfigError, match='autotune.design_time'):
+        make_controller('relay_autotune', {**SETTINGS, 'autotune.design_time': bad})
