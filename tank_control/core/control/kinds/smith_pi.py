@@ -8,6 +8,8 @@ import math
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
+
 from tank_control.core.analysis.robustness import LoopReport, smith_report
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings, Tuning
@@ -106,7 +108,9 @@ def _inner_reason(settings: Settings) -> str | None:
     without robustness.ms_max, which bounds Ms of the loops that are stable."""
     model, primary = settings.config, settings.primary
     loop = _loop(model, primary)
-    if analyse(process_model(model), loop).stable:
+    with np.errstate(all='ignore'):       # extreme settings: inf/nan points are not stable
+        stable = analyse(process_model(model), loop).stable
+    if stable:
         return None
     return (f'smith.gain, kp: on the plant it is designed for (its model, smith.gain '
             f'{model.gain:g}) the Smith loop would be unstable ({_gains(loop)}); allowed: '
