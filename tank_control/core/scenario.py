@@ -24,6 +24,7 @@ from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNod
 from tank_control.core.params import (ConfigError, coerce, config_from, names_of, specs_of,
                                       unknown_reason, values_of)
 from tank_control.core.plants.kinds import registry as plants
+from tank_control.core.plants.actuator import ActuatorConfig, with_actuator
 from tank_control.core.plants.kinds.base import PlantKind
 from tank_control.core.plants.noise import MeasurementNoise, NoiseConfig
 from tank_control.core.reference import Reference, channel_specs, reference_from_params
@@ -40,7 +41,8 @@ def _own(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------- plant
 @dataclass(frozen=True)
 class PlantSetup:
-    """plant_node's settings: its own, the noise, the model kind and the model's config."""
+    """plant_node's settings: its own, the noise, the model kind and the model's config, the
+    actuator faults on its inputs."""
 
     node: PlantNode
     noise: NoiseConfig
@@ -48,9 +50,12 @@ class PlantSetup:
     model: Any
     ranges: ranges.Ranges = ranges.Ranges()
     """plausible ranges of the inputs and disturbances it receives (``range.*``)"""
+    actuator: ActuatorConfig = ActuatorConfig()
+    """faults between the received inputs and the model (``actuator.*``, core/plants/actuator.py)"""
 
     def build_plant(self) -> Plant:
-        return self.kind.build(self.model)
+        """The model, behind the actuator faults when any is on (every kind alike)."""
+        return with_actuator(self.kind.build(self.model), self.actuator)
 
     def build_noise(self, n_outputs: int) -> MeasurementNoise:
         """The seeded measurement noise (one ``sample()`` per tick)."""
@@ -72,13 +77,16 @@ def plant_setup(values: Mapping[str, Any],
     reason = kind.tick_reason(model, node.sample_time) if kind.tick_reason else None
     if reason:
         raise ConfigError(reason)
+    actuator = config_from(ActuatorConfig, _own(ActuatorConfig, values))
+    actuator.vectors(kind.build.input_names)      # one value or one per input channel
     return PlantSetup(
         node=node,
         noise=config_from(NoiseConfig, _own(NoiseConfig, values)),
         kind=kind,
         model=model,
         ranges=ranges.ranges_from(values, node_specs.plant_channels(kind.name),
-                                  node_specs.actuator_defaults(controller_values)))
+                                  node_specs.actuator_defaults(controller_values)),
+        actuator=actuator)
 
 
 # ------------------------------------------------------------------------------ controller
