@@ -3,6 +3,7 @@ bench of the well-tuned one.
 
     .venv/bin/python bench/monitor_cases.py write      # (re)write config/scenarios/monitor_*.yaml
     .venv/bin/python bench/monitor_cases.py bench [N]  # N seeds (default 50) of the well-tuned case
+    .venv/bin/python bench/monitor_cases.py figures    # docs/images/monitor_*.png and the table
 
 Two plants: a lag-dominant FOPDT (K = 1, T = 20 s, L = 2 s, sampled every 0.5 s) for the
 well-tuned, sluggish, aggressive and saturated loops, and a flow-like FOPDT (K = 1, T = 2 s,
@@ -109,8 +110,35 @@ def bench(n: int = 50) -> None:
           f'Harris index median {np.median(h):.3f}, min {h.min():.3f}, max {h.max():.3f}')
 
 
+def figures() -> None:
+    """Each shipped case run in-process, assessed as metrics.json does, plotted as
+    ``tank-control assess`` plots; a markdown table of the indices."""
+    from tank_control.core import scenario
+    from tank_control.harness.performance import plot_assessment, trace_performance
+    print('| case | verdict | Harris | oscillation period / amplitude / regularity | '
+          'stiction index | saturation % |')
+    print('|---|---|---|---|---|---|')
+    for name in CASES:
+        secs = scenario.sections_of(REPO / 'config' / 'scenarios' / f'monitor_{name}.yaml')
+        trace = scenario.run_in_process(secs)
+        body = trace_performance(trace, secs)['y']
+        step = int(round(secs['controller']['sample_time'] / secs['plant']['sample_time']))
+        cols = {'t': trace.t[::step], 'pv': trace['y.y'][::step], 'sp': trace['r.y'][::step],
+                'op': trace['u.u'][::step]}
+        plot_assessment(cols, body, REPO / 'docs' / 'images' / f'monitor_{name}.png',
+                        title=f'monitor_{name}')
+        osc = body['oscillation']
+        o = (f'{osc["period"]:.1f} s / {osc["amplitude"]:.2f} / {osc["regularity"]:.1f}'
+             if osc['detected'] else f'none (regularity {osc["regularity"] or 0:.2f})')
+        st = body['stiction']['index']
+        print(f'| `monitor_{name}` | {body["verdict"]} | {body["harris_index"]:.2f} | {o} | '
+              f'{"–" if st is None else f"{st:.2f}"} | {body["saturation_pct"]:.1f} |')
+
+
 if __name__ == '__main__':
     if len(sys.argv) > 1 and sys.argv[1] == 'write':
         write()
+    elif len(sys.argv) > 1 and sys.argv[1] == 'figures':
+        figures()
     else:
         bench(int(sys.argv[2]) if len(sys.argv) > 2 else 50)

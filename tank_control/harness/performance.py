@@ -173,6 +173,6 @@ def plot_assessment(columns: Mapping[str, np.ndarray], body: Mapping[str, Any], 
     ax_p.set_title('\n'.join(x for x in lines if x), fontsize=9)
     fig.suptitle(f'{title}: {body["verdict"]}' if title else body['verdict'])
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=72)
     plt.close(fig)
     return path

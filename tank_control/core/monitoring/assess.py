@@ -9,7 +9,6 @@ Settings: :class:`MonitorConfig` (parameters ``monitor.*``, declared once). Indi
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -156,7 +155,10 @@ class LoopMonitor:
         self.u_limits = u_limits
         self.ms = ms
         size = max(int(round(config.window / self.sample_time)), 2)
-        self._rows: deque[tuple[float, float, float, float, bool, bool]] = deque(maxlen=size)
+        self._data = np.zeros((size, 4))             # ring buffer of t, y, r, u
+        self._flags = np.zeros((size, 2), dtype=bool)  # manual, fail-safe
+        self._head = 0                                # next row written
+        self._filled = 0
         self._every = max(int(round(config.period / self.sample_time)), 1)
         self._count = 0
         self.rejected_samples = 0
@@ -169,7 +171,10 @@ class LoopMonitor:
         if not all(math.isfinite(v) for v in values):
             self.rejected_samples += 1
             return None
-        self._rows.append((*values, bool(manual), bool(fail_safe)))
+        self._data[self._head] = values
+        self._flags[self._head] = (bool(manual), bool(fail_safe))
+        self._head = (self._head + 1) % len(self._data)
+        self._filled = min(self._filled + 1, len(self._data))
         self._count += 1
         if self._count % self._every:
             return None
@@ -177,8 +182,9 @@ class LoopMonitor:
 
     def recompute(self) -> dict[str, Any]:
         """Assess the window now."""
-        data = np.array([row[:4] for row in self._rows], dtype=float).reshape(-1, 4)
-        flags = np.array([row[4:] for row in self._rows], dtype=bool).reshape(-1, 2)
+        size = len(self._data)
+        order = (np.arange(self._head - self._filled, self._head) % size)
+        data, flags = self._data[order], self._flags[order]
         body = assess(data[:, 0], data[:, 1], data[:, 2], data[:, 3], self.sample_time,
                       self.config, u_limits=self.u_limits, manual=flags[:, 0],
                       fail_safe=flags[:, 1], ms=self.ms)

@@ -72,7 +72,11 @@ def ar_fit(x: np.ndarray | list[np.ndarray], order: int) -> tuple[np.ndarray, fl
         blocks.append(np.column_stack([p[order - i - 1:n - i - 1] for i in range(order)]))
         targets.append(p[order:])
     rows, target = np.vstack(blocks), np.concatenate(targets)
-    a, *_ = np.linalg.lstsq(rows, target, rcond=None)
+    # the normal equations (an SVD least squares costs ~100x more on a long window, live)
+    try:
+        a = np.linalg.solve(rows.T @ rows, rows.T @ target)
+    except np.linalg.LinAlgError:
+        a, *_ = np.linalg.lstsq(rows, target, rcond=None)
     resid = target - rows @ a
     return a, float(np.mean(resid ** 2))
 
