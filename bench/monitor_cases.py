@@ -135,10 +135,16 @@ def figures() -> None:
               f'{"–" if st is None else f"{st:.2f}"} | {body["saturation_pct"]:.1f} |')
 
 
-if __name__ == '__main__':
-    if len(sys.argv) > 1 and sys.argv[1] == 'write':
+def main(argv: list[str] | None = None) -> None:
+    args = sys.argv[1:] if argv is None else argv
+    command = args[0] if args else 'bench'
+    if command == 'write':
         write()
-    elif len(sys.argv) > 1 and sys.argv[1] == 'figures':
+    elif command == 'figures':
         figures()
     else:
-        bench(int(sys.argv[2]) if len(sys.argv) > 2 else 50)
+        bench(int(args[1]) if len(args) > 1 else 50)
+
+
+if __name__ == '__main__':
+    main()

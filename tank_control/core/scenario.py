@@ -78,7 +78,8 @@ def plant_setup(values: Mapping[str, Any],
     if reason:
         raise ConfigError(reason)
     actuator = config_from(ActuatorConfig, _own(ActuatorConfig, values))
-    actuator.vectors(kind.build.input_names)      # one value or one per input channel
+    model_class: Any = kind.build                  # a plant class: its input_names
+    actuator.vectors(model_class.input_names)      # one value or one per input channel
     return PlantSetup(
         node=node,
         noise=config_from(NoiseConfig, _own(NoiseConfig, values)),

@@ -135,7 +135,7 @@ def ccf(u: np.ndarray, y: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndar
     if norm <= 0.0:
         return lags, np.zeros(lags.size)
     values = np.array([float(np.dot(u[max(0, -k):n - max(0, k)], y[max(0, k):n - max(0, -k)]))
-                       for k in lags]) / norm
+                       for k in range(-max_lag, max_lag + 1)]) / norm
     return lags, values
 
 

@@ -122,7 +122,7 @@ class ActuatorChain:
         # 2. stiction [Choudhury2005]
         x = rated.copy()
         for i in np.flatnonzero(self.s > 0.0):
-            x[i] = self._stiction(i, float(rated[i]))
+            x[i] = self._stiction(int(i), float(rated[i]))
         # 3. backlash
         out = x.copy()
         for i in np.flatnonzero(self.band > 0.0):
@@ -198,4 +198,4 @@ def with_actuator(plant: Plant, config: ActuatorConfig) -> Plant:
     """``plant`` itself when no fault is on, else wrapped in :class:`ActuatedPlant`."""
     if not config.active():
         return plant
-    return ActuatedPlant(plant, config)  # type: ignore[return-value]
+    return ActuatedPlant(plant, config)
