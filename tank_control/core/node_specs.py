@@ -14,6 +14,7 @@ from typing import Any
 
 from tank_control.core import ranges
 from tank_control.core.control.kinds import registry as controllers
+from tank_control.core.monitoring.assess import MonitorConfig
 from tank_control.core.params import ConfigError, ParamSpec, param, specs_of, unknown_reason
 from tank_control.core.plants.kinds import registry as plants
 from tank_control.core.plants.actuator import ActuatorConfig
@@ -193,7 +194,7 @@ def controller_specs(kind: str, values: Mapping[str, Any] | None = None
     """Every parameter of a controller_node running ``kind`` (``values``: its parameter values,
     whose ``output_names`` name the ``range.*`` parameters)."""
     return (specs_of(ControllerNode) + controllers.get_kind(kind).specs()
-            + ranges.range_specs(controller_channels(kind, values)))
+            + ranges.range_specs(controller_channels(kind, values)) + specs_of(MonitorConfig))
 
 
 def kind_of(node: str, values: dict[str, Any]) -> str:

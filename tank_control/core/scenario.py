@@ -19,6 +19,8 @@ from tank_control.core.control.kinds import registry as controllers
 from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.interfaces import Controller, Plant
 from tank_control.core.loop import Guards, run_loop, sample_time_reason
+from tank_control.core.monitoring.assess import PREFIX as MONITOR_PREFIX
+from tank_control.core.monitoring.assess import MonitorConfig
 from tank_control.core.trace import Trace
 from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNode
 from tank_control.core.params import (ConfigError, coerce, config_from, names_of, specs_of,
@@ -100,6 +102,8 @@ class ControllerSetup:
     settings: Settings
     ranges: ranges.Ranges = ranges.Ranges()
     """plausible ranges of the measurements, setpoints and disturbances it reads"""
+    monitor: MonitorConfig = MonitorConfig()
+    """its loops' performance monitoring (``monitor.*``, docs/monitoring.md)"""
 
     def build_controller(self) -> Controller:
         return controllers.build(self.kind, self.settings)
@@ -108,7 +112,8 @@ class ControllerSetup:
         """Every parameter value of the node (its own and the kind's, derived ones included,
         the ranges)."""
         return {**values_of(self.node), **self.settings.values,
-                **{ranges.name_of(c): list(b) for c, b in self.ranges.bounds.items()}}
+                **{ranges.name_of(c): list(b) for c, b in self.ranges.bounds.items()},
+                **values_of(self.monitor)}
 
 
 def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = None
@@ -119,12 +124,14 @@ def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = No
     node_specs.unknown_names(node_specs.controller_specs(kind.name, values), dict(values))
     node_names = set(names_of(ControllerNode))
     own = {k: v for k, v in values.items() if k not in node_names and not node_specs.is_ros_own(k)
-           and not k.startswith(ranges.PREFIX)}
+           and not k.startswith((ranges.PREFIX, MONITOR_PREFIX))}
     settings = controllers.settings(kind, own, given)
     return ControllerSetup(
         node=config_from(ControllerNode, _own(ControllerNode, values)), kind=kind,
         settings=settings, ranges=ranges.ranges_from(values, node_specs.controller_channels(
-            kind.name, settings.values)))
+            kind.name, settings.values)),
+        monitor=config_from(MonitorConfig, {k: v for k, v in values.items()
+                                            if k.startswith(MONITOR_PREFIX)}))
 
 
 # ------------------------------------------------------------------------------- reference

@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 
 from tank_control.core.monitoring import MonitorConfig, assess
-from tank_control.core.monitoring.assess import DEFAULT
+from tank_control.core.monitoring.assess import DEFAULT, PREFIX
+from tank_control.core.params import ConfigError, config_from
 from tank_control.core.trace import Trace
 
 
@@ -44,11 +45,19 @@ def _number(value: Any, default: float) -> float:
 def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
                       controller_params: Mapping[str, Any] | None = None,
                       input_limits: Mapping[str, tuple[float, float]] | None = None,
-                      ms: float | None = None, config: MonitorConfig = DEFAULT
+                      ms: float | None = None, config: MonitorConfig | None = None
                       ) -> dict[str, Any]:
-    """``loop_performance``: output channel → :func:`core.monitoring.assess` body."""
+    """``loop_performance``: output channel → :func:`core.monitoring.assess` body; settings
+    ``config``, default the controller's ``monitor.*`` (with ``monitor.dead_time`` 0: the
+    plant's ``dead_time``)."""
     controller = dict(sections.get('controller', {}))
     controller.update(controller_params or {})
+    if config is None:
+        try:
+            config = config_from(MonitorConfig, {k: v for k, v in controller.items()
+                                                 if k.startswith(PREFIX)})
+        except ConfigError:
+            config = DEFAULT
     plant = sections.get('plant', {})
     ts_values = [controller.get('sample_time'), plant.get('sample_time')]
     sample_time = next((v for v in (_number(x, 0.0) for x in ts_values) if v > 0), 0.0)

@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from tank_control.core.monitoring import LoopMonitor, MonitorConfig, assess, verdict
+from tank_control.core.monitoring import (LoopMonitor, MonitorConfig, assess, diagnostics_line,
+                                          loop_monitors, verdict)
 from tank_control.core.monitoring import indices as ix
 
 
@@ -184,3 +185,21 @@ def test_loop_monitor_recomputes_every_period_over_its_window() -> None:
     assert last['oscillation']['period'] == pytest.approx(offline['oscillation']['period'])
     assert monitor.level() == 1
     json.dumps(last, allow_nan=False)
+
+
+def test_loop_monitors_of_a_controller_and_their_diagnostics_line() -> None:
+    """What controller_node wires: one monitor per output paired with the input at the same
+    position, the output limits per input, one /diagnostics line (WARN unless every loop is
+    good or has no data yet)."""
+    monitors = loop_monitors(MonitorConfig(window=100.0, period=100.0), 1.0, ['h', 'T'],
+                             ['F_H', 'F_C'], {'F_H': (0.0, 10.0)})
+    assert list(monitors) == ['h', 'T'] and monitors['h'][0] == 'F_H'
+    assert monitors['h'][1].u_limits == (0.0, 10.0)
+    assert monitors['T'][1].u_limits == (-math.inf, math.inf)
+    assert loop_monitors(MonitorConfig(), 1.0, ['a', 'b'], ['u']) == {}
+    assert diagnostics_line(monitors) == (0, 'loop h: no data; loop T: no data')
+    rng = np.random.default_rng(0)
+    for k in range(100):
+        monitors['h'][1].update(k, rng.standard_normal(), 0.0, 10.0)       # at its limit
+        monitors['T'][1].update(k, rng.standard_normal(), 0.0, 1.0)
+    assert diagnostics_line(monitors) == (1, 'loop h: saturated 100 % of the time; loop T: good')

@@ -224,3 +224,19 @@ def test_shipped_files_are_the_bench_definition() -> None:
             assert shipped[node].keys() == built[node].keys(), (name, node)
             for key, value in built[node].items():
                 assert shipped[node][key] == pytest.approx(value), (name, node, key)
+
+
+def test_monitor_parameters_are_the_controllers_and_checked() -> None:
+    """monitor.* are controller parameters (declared once in MonitorConfig): a scenario's
+    values reach the assessment; a misspelt or out-of-range one is refused naming it."""
+    sections = scenario.sections_of(SCENARIOS / 'monitor_sluggish.yaml')
+    sections['controller'].update({'monitor.harris_limit': 0.3, 'monitor.dead_time': 4.0})
+    body = trace_performance(scenario.run_in_process(sections), sections)['y']
+    assert body['dead_time_samples'] == 9 and body['verdict'] == 'good'
+    for name, value, reason in (('monitor.harris_lim', 0.3, 'did you mean monitor.harris_limit'),
+                                ('monitor.harris_limit', 1.5, 'above the maximum'),
+                                ('monitor.ar_order', 0, 'below the minimum')):
+        bad = scenario.sections_of(SCENARIOS / 'monitor_sluggish.yaml')
+        bad['controller'][name] = value
+        with pytest.raises(scenario.ConfigError, match=reason):
+            scenario.validate(bad)

@@ -9,6 +9,7 @@ Settings: :class:`MonitorConfig` (parameters ``monitor.*``, declared once). Indi
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,6 +17,10 @@ import numpy as np
 
 from tank_control.core.monitoring import indices as ix
 from tank_control.core.params import param
+
+
+PREFIX = 'monitor.'
+"""The parameters' prefix (controller_node's; not the controller kind's)."""
 
 
 @dataclass(frozen=True)
@@ -200,3 +205,27 @@ class LoopMonitor:
     def level(self) -> int:
         """The /diagnostics level of the latest verdict: 0 OK ("good", "no data"), 1 WARN."""
         return 0 if self._summary.get('verdict') in ('good', 'no data') else 1
+
+
+def loop_monitors(config: MonitorConfig, sample_time: float, outputs: Sequence[str],
+                  inputs: Sequence[str],
+                  limits: Mapping[str, tuple[float, float]] | None = None
+                  ) -> dict[str, tuple[str, LoopMonitor]]:
+    """A controller's loops as monitors: output channel → (its input, monitor), pairing
+    ``outputs[i]`` with ``inputs[i]`` (none when the counts differ); ``limits`` the output
+    limits by input channel."""
+    if len(outputs) != len(inputs):
+        return {}
+    out = {}
+    for y, u in zip(outputs, inputs):
+        lo, hi = (limits or {}).get(u, (-math.inf, math.inf))
+        out[y] = (u, LoopMonitor(sample_time, config, u_limits=(float(lo), float(hi))))
+    return out
+
+
+def diagnostics_line(monitors: Mapping[str, tuple[str, LoopMonitor]]) -> tuple[int, str]:
+    """/diagnostics level (0 OK, 1 WARN) and message of a controller's loops:
+    ``'loop y: good'``, ``'loop y: valve: stiction suspected — do not retune'``."""
+    level = max((m.level() for _, m in monitors.values()), default=0)
+    text = '; '.join(f'loop {y}: {m.summary()["verdict"]}' for y, (_, m) in monitors.items())
+    return level, text
