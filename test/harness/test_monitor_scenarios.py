@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tank_control.core import scenario
+from tank_control.core.analysis.metrics_row import flat_metrics
 from tank_control.core.monitoring import LoopMonitor, MonitorConfig
 from tank_control.harness import cli, runner
 from tank_control.harness.performance import trace_performance
@@ -144,6 +145,11 @@ def test_metrics_json_holds_loop_performance(tmp_path: Path) -> None:
     assert body['ms'] > 3.0
     assert body['verdict'] == f'retune (oscillating, period {body["oscillation"]["period"]:.3g} s, ' \
         f'Ms {body["ms"]:.1f}, no stiction)'
+    # a sweep's row of the run
+    row = flat_metrics(result.metrics)
+    assert row['y.harris_index'] == pytest.approx(body['harris_index'])
+    assert row['y.oscillating'] == 1.0 and row['y.stiction_index'] == pytest.approx(0.0, abs=0.05)
+    assert row['y.saturation_pct'] == 0.0
 
 
 def numpy_loop(n: int = 3000, seed: int = 4) -> np.ndarray:
