@@ -137,6 +137,9 @@ def assess_csv(path: Path, pv: str, sp: str, op: str, sample_time: float,
         raise AssessError(f'--sample-time: {sample_time:g}; allowed a positive number of seconds')
     if not (math.isfinite(dead_time) and dead_time >= 0):
         raise AssessError(f'--dead-time: {dead_time:g}; allowed a number of seconds >= 0')
+    lo, hi = op_limits
+    if math.isnan(lo) or math.isnan(hi) or lo >= hi:
+        raise AssessError(f'--op-limits: {lo:g} {hi:g}; allowed LO < HI')
     names = [pv, sp, op] + ([time_column] if time_column else []) + ([manual] if manual else [])
     cols = read_columns(path, names)
     n = cols[pv].size

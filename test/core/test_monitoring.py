@@ -173,7 +173,8 @@ def test_loop_monitor_recomputes_every_period_over_its_window() -> None:
         if out is not None:
             published.append(out)
     assert monitor.update(1e9, math.nan, 0.0, 0.0) is None
-    assert monitor.rejected_samples == 1
+    assert monitor.update(1e9, 'abc', None, 0.0) is None           # type: ignore[arg-type]
+    assert monitor.rejected_samples == 2
     assert len(published) == t.size // 100
     last = monitor.summary()
     window = slice(t.size - 600, t.size)

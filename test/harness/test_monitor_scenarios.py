@@ -246,3 +246,41 @@ def test_monitor_parameters_are_the_controllers_and_checked() -> None:
         bad['controller'][name] = value
         with pytest.raises(scenario.ConfigError, match=reason):
             scenario.validate(bad)
+
+
+@pytest.mark.parametrize('text, args, reason', [
+    ('', [], 'empty file'),
+    ('PV,SP,OP\n', [], '0 data rows'),
+    ('PV,SP,OP\n1,2,3\n', ['--op-limits', '5', '1'], '--op-limits: 5 1; allowed LO < HI'),
+    ('PV,SP,OP\n1,2,3\n4,5,6\n', ['--sample-time', '-1'], '--sample-time: -1'),
+    ('PV,SP,OP\n1,2,3\n4,5,6\n', ['--sample-time', 'nan'], '--sample-time: nan'),
+    ('PV,SP,OP\n1,2,3\n4,5,6\n', ['--dead-time', '-2'], '--dead-time: -2'),
+    ('\x00\xff\xfe garbage', [], 'historian.csv'),
+])
+def test_assess_refuses_a_bad_file_or_option_in_one_line(tmp_path: Path, capsys, text, args,
+                                                         reason) -> None:
+    path = tmp_path / 'historian.csv'
+    path.write_bytes(text.encode('latin-1'))
+    argv = ['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP', '--sample-time', '1',
+            *args]
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and err.count('\n') == 1 and reason in err, err
+
+
+def test_assess_survives_hostile_cells(tmp_path: Path, capsys) -> None:
+    """Empty, non-numeric, inf and nan cells leave their rows out; a huge dead time gives no
+    Harris index instead of exhausting memory; nothing raises."""
+    rng = np.random.default_rng(0)
+    rows = [f'{rng.standard_normal():.4f},0,{rng.standard_normal():.4f}' for _ in range(500)]
+    rows[3], rows[7], rows[11], rows[13] = ',0,1', 'abc,0,1', 'inf,0,1', '1,0,nan'
+    path = tmp_path / 'h.csv'
+    path.write_text('PV,SP,OP\n' + '\n'.join(rows) + '\n')
+    assert cli.main(['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP',
+                     '--sample-time', '1', '--dead-time', '1e6', '--json']) == 0
+    out = capsys.readouterr().out
+    body = json.loads(out[:out.rindex('}') + 1])
+    assert body['samples'] == 496 and body['harris_index'] is None
+    assert cli.main(['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP',
+                     '--sample-time', '1']) == 0
+    assert 'PV: good' in capsys.readouterr().out

@@ -105,7 +105,8 @@ def assess(t: np.ndarray, y: np.ndarray, r: np.ndarray, u: np.ndarray, sample_ti
         'samples': int(t.size),
         'duration': float(t[-1] - t[0]) if t.size else 0.0,
         'regulation_samples': int(sum(s.stop - s.start for s in segments)),
-        'harris_index': ix.harris_index(e_reg, b, config.ar_order) if e_reg else None,
+        'harris_index': (ix.harris_index(e_reg, b, config.ar_order)
+                         if e_reg and b < sum(len(x) for x in e_reg) // 4 else None),
         'dead_time_samples': b,
         'oscillation': osc,
         'stiction': {'detected': bool(stiction_index is not None
@@ -172,7 +173,10 @@ class LoopMonitor:
     def update(self, t: float, y: float, r: float, u: float, manual: bool = False,
                fail_safe: bool = False) -> dict[str, Any] | None:
         """Add one sample; the new summary when it was recomputed, else None."""
-        values = (float(t), float(y), float(r), float(u))
+        try:
+            values = (float(t), float(y), float(r), float(u))
+        except (TypeError, ValueError):
+            values = (math.nan,) * 4
         if not all(math.isfinite(v) for v in values):
             self.rejected_samples += 1
             return None
