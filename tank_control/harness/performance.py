@@ -146,7 +146,7 @@ def assess_csv(path: Path, pv: str, sp: str, op: str, sample_time: float,
     if n < 2:
         raise AssessError(f'{path}: {n} data rows; at least 2 are needed')
     t = cols[time_column] if time_column else np.arange(n) * sample_time
-    flags = cols[manual] != 0 if manual else None
+    flags = (np.isfinite(cols[manual]) & (cols[manual] != 0)) if manual else None   # empty: auto
     body = assess(t, cols[pv], cols[sp], cols[op], sample_time,
                   replace(config, dead_time=dead_time), u_limits=op_limits, manual=flags)
     return body, {'t': t, 'pv': cols[pv], 'sp': cols[sp], 'op': cols[op]}

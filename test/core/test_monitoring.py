@@ -172,9 +172,6 @@ def test_loop_monitor_recomputes_every_period_over_its_window() -> None:
         out = monitor.update(t[k], y[k], 0.0, u[k])
         if out is not None:
             published.append(out)
-    assert monitor.update(1e9, math.nan, 0.0, 0.0) is None
-    assert monitor.update(1e9, 'abc', None, 0.0) is None           # type: ignore[arg-type]
-    assert monitor.rejected_samples == 2
     assert len(published) == t.size // 100
     last = monitor.summary()
     window = slice(t.size - 600, t.size)
@@ -204,3 +201,19 @@ def test_loop_monitors_of_a_controller_and_their_diagnostics_line() -> None:
         monitors['h'][1].update(k, rng.standard_normal(), 0.0, 10.0)       # at its limit
         monitors['T'][1].update(k, rng.standard_normal(), 0.0, 1.0)
     assert diagnostics_line(monitors) == (1, 'loop h: saturated 100 % of the time; loop T: good')
+
+
+def test_loop_monitor_counts_fault_samples_for_the_fail_safe_time() -> None:
+    """A measurement fault (non-finite or non-numeric value) is left out of the indices but its
+    sample counts for the fail-safe and manual times; nothing raises."""
+    monitor = LoopMonitor(1.0, MonitorConfig(window=100.0, period=100.0))
+    rng = np.random.default_rng(1)
+    for k in range(100):
+        if k % 10 == 0:
+            out = monitor.update(k, math.nan if k % 20 else 'abc', 0.0, 0.0, fail_safe=True)
+        else:
+            out = monitor.update(k, rng.standard_normal(), 0.0, rng.standard_normal())
+    assert out is not None and monitor.nonfinite_samples == 10
+    assert out['samples'] == 90 and out['fail_safe_pct'] == pytest.approx(10.0)
+    assert out['verdict'] == 'fail-safe output 10 % of the time' and out['time'] == 99.0
+    json.dumps(out, allow_nan=False)

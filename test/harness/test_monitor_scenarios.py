@@ -284,3 +284,16 @@ def test_assess_survives_hostile_cells(tmp_path: Path, capsys) -> None:
     assert cli.main(['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP',
                      '--sample-time', '1']) == 0
     assert 'PV: good' in capsys.readouterr().out
+
+
+def test_assess_manual_column(tmp_path: Path, capsys) -> None:
+    """--manual COL: rows where it is non-zero are manual time (an empty cell: auto)."""
+    rng = np.random.default_rng(0)
+    lines = ['PV,SP,OP,MAN'] + [f'{rng.standard_normal():.4f},0,{rng.standard_normal():.4f},'
+                                 f'{"1" if k < 300 else "" if k == 300 else "0"}'
+                                 for k in range(500)]
+    path = tmp_path / 'm.csv'
+    path.write_text('\n'.join(lines) + '\n')
+    assert cli.main(['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP',
+                     '--sample-time', '1', '--manual', 'MAN']) == 0
+    assert 'PV: in manual 60 % of the time' in capsys.readouterr().out

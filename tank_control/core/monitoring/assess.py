@@ -147,11 +147,19 @@ def verdict(body: dict[str, Any], config: MonitorConfig = DEFAULT) -> str:
     return 'good'
 
 
+def _number(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        return math.nan
+
+
 class LoopMonitor:
     """Live assessment of one loop over a sliding window: :meth:`update` once per controller
     sample; every ``monitor.period`` it recomputes :meth:`summary` (JSON-ready, with ``time``
-    [s] and ``window`` [s] actually covered) with :func:`assess`. Non-finite samples are kept
-    out (counted in ``rejected_samples``)."""
+    [s] of its last sample) with :func:`assess`. A sample with a non-finite or non-numeric
+    value (a measurement fault) still counts for the manual and fail-safe times but is left
+    out of the indices (counted in ``nonfinite_samples``); nothing raises."""
 
     def __init__(self, sample_time: float, config: MonitorConfig = DEFAULT, *,
                  u_limits: tuple[float, float] = (-math.inf, math.inf), ms: float | None = None
@@ -167,19 +175,15 @@ class LoopMonitor:
         self._filled = 0
         self._every = max(int(round(config.period / self.sample_time)), 1)
         self._count = 0
-        self.rejected_samples = 0
+        self.nonfinite_samples = 0
         self._summary: dict[str, Any] = {'verdict': 'no data', 'samples': 0}
 
     def update(self, t: float, y: float, r: float, u: float, manual: bool = False,
                fail_safe: bool = False) -> dict[str, Any] | None:
         """Add one sample; the new summary when it was recomputed, else None."""
-        try:
-            values = (float(t), float(y), float(r), float(u))
-        except (TypeError, ValueError):
-            values = (math.nan,) * 4
+        values = tuple(_number(v) for v in (t, y, r, u))
         if not all(math.isfinite(v) for v in values):
-            self.rejected_samples += 1
-            return None
+            self.nonfinite_samples += 1
         self._data[self._head] = values
         self._flags[self._head] = (bool(manual), bool(fail_safe))
         self._head = (self._head + 1) % len(self._data)
@@ -197,8 +201,9 @@ class LoopMonitor:
         body = assess(data[:, 0], data[:, 1], data[:, 2], data[:, 3], self.sample_time,
                       self.config, u_limits=self.u_limits, manual=flags[:, 0],
                       fail_safe=flags[:, 1], ms=self.ms)
-        body['time'] = float(data[-1, 0]) if len(data) else None
-        body['rejected_samples'] = self.rejected_samples
+        times = data[:, 0][np.isfinite(data[:, 0])]
+        body['time'] = float(times[-1]) if times.size else None
+        body['nonfinite_samples'] = self.nonfinite_samples
         self._summary = body
         return body
 
