@@ -72,6 +72,8 @@ def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
                                 _number(controller.get('u_max'), math.inf)))
         cfg = replace(config, dead_time=_number(plant.get('dead_time'), 0.0)) \
             if config.dead_time == 0.0 else config
+        if cfg.load_ti == 0.0 and _number(controller.get('ti'), 0.0) > 0.0:
+            cfg = replace(cfg, load_ti=_number(controller.get('ti'), 0.0))
         t, yy, rr, uu = trace.t, trace[f'y.{y}'], trace[f'r.{y}'], trace[f'u.{u}']
         # the controller samples every controller sample time: assess at its instants
         step = max(int(round(sample_time / _plant_ts(trace, plant, sample_time))), 1)

@@ -217,3 +217,23 @@ def test_loop_monitor_counts_fault_samples_for_the_fail_safe_time() -> None:
     assert out['samples'] == 90 and out['fail_safe_pct'] == pytest.approx(10.0)
     assert out['verdict'] == 'fail-safe output 10 % of the time' and out['time'] == 99.0
     json.dumps(out, allow_nan=False)
+
+
+def test_hagglund_load_disturbances_of_a_sine_against_the_half_wave_iae() -> None:
+    """[Hagglund1995]: a half-wave of A·sin(2πt/P) has IAE A·P/π; with Ti the limit 2a/ω_u is
+    a·Ti/π. Above it every whole half-wave counts, below none; white noise's short half-waves
+    never count."""
+    ts, period, amplitude, ti = 0.1, 20.0, 1.0, 10.0
+    t = np.arange(0.0, 5000.0, ts) + ts / 2          # 10·T_sup; no sample on a crossing
+    e = amplitude * np.sin(2 * np.pi * t / period)
+    half_waves = int(t[-1] // (period / 2))          # whole half-waves after the first
+    counted = ix.load_disturbances(e, ts, amplitude=1.0, ti=ti)   # limit 3.18 < IAE 6.37
+    assert counted['count'] == half_waves - 1 and counted['detected']
+    # the forgetting counter: 2 per period, γ per sample over 50·Ti: about 1/(1 − γ^(P/2/ts))
+    gamma = 1 - ts / (50 * ti)
+    assert counted['rate'] == pytest.approx(1 / (1 - gamma ** (period / 2 / ts)), rel=0.1)
+    assert ix.load_disturbances(e, ts, amplitude=3.0, ti=ti)['count'] == 0     # limit 9.5
+    noise = 0.1 * np.random.default_rng(0).standard_normal(t.size)
+    assert ix.load_disturbances(noise, ts, amplitude=0.1, ti=ti)['count'] == 0
+    assert ix.load_disturbances(e, ts, amplitude=0.0, ti=ti) == {
+        'count': None, 'rate': None, 'detected': False}

@@ -297,3 +297,19 @@ def test_assess_manual_column(tmp_path: Path, capsys) -> None:
     assert cli.main(['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP',
                      '--sample-time', '1', '--manual', 'MAN']) == 0
     assert 'PV: in manual 60 % of the time' in capsys.readouterr().out
+
+
+def test_hagglund_detector_with_the_controllers_ti(runs) -> None:
+    """monitor.load_amplitude switches Hägglund's counting on, with Ti the controller's ti: at
+    a = 0.3 the well-tuned loop raises no alarm and the aggressive one does (measured: it also
+    alarms on the sluggish loop's long error half-waves, docs/monitoring.md)."""
+    found = {}
+    for name in ('well_tuned', 'aggressive'):
+        sections, trace, body = runs[name]
+        assert body['oscillation']['load_disturbances']['count'] is None      # off by default
+        sections = {**sections, 'controller': {**sections['controller'],
+                                               'monitor.load_amplitude': 0.3}}
+        found[name] = trace_performance(trace, sections)['y']
+    assert not found['well_tuned']['oscillation']['load_disturbances']['detected']
+    assert found['well_tuned']['verdict'] == 'good'
+    assert found['aggressive']['oscillation']['load_disturbances']['detected']

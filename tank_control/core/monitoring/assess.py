@@ -48,6 +48,14 @@ class MonitorConfig:
     acf_peak_limit: float = param(0.2, 'and the autocorrelation\'s first peak above this '
                                   '(an oscillation, not filtered noise)', min=0.0, max=1.0,
                                   name='monitor.acf_peak_limit')
+    load_amplitude: float = param(0.0, 'Hägglund\'s acceptable error amplitude a: a half-wave '
+                                  'of the error with IAE above 2a/ω_u (ω_u = 2π/Ti) is a load '
+                                  'disturbance, more than 10 per 50·Ti an oscillation '
+                                  '[Hagglund1995]; 0 = not used', unit='output units', min=0.0,
+                                  max=1e12, name='monitor.load_amplitude')
+    load_ti: float = param(0.0, 'the integral time Ti of Hägglund\'s detector; 0 = the '
+                           'controller\'s ti where known (runs), else not used', unit='s',
+                           min=0.0, max=1e7, name='monitor.load_ti')
     min_amplitude: float = param(0.0, 'an oscillation smaller than this is not reported',
                                  unit='output units', min=0.0, max=1e12,
                                  name='monitor.min_amplitude')
@@ -99,8 +107,12 @@ def assess(t: np.ndarray, y: np.ndarray, r: np.ndarray, u: np.ndarray, sample_ti
                          config.acf_peak_limit)
     if osc['detected'] and osc['amplitude'] < config.min_amplitude:
         osc['detected'] = False
+    loads = ix.load_disturbances(joined(e), sample_time, config.load_amplitude, config.load_ti)
+    osc['load_disturbances'] = loads
+    if loads['detected']:                   # Hägglund's alarm (when configured)
+        osc['detected'] = True
     stiction_index = (ix.stiction(joined(u), joined(y), osc['period'] / sample_time)
-                      if osc['detected'] else None)
+                      if osc['detected'] and osc['period'] else None)
     body: dict[str, Any] = {
         'samples': int(t.size),
         'duration': float(t[-1] - t[0]) if t.size else 0.0,
@@ -138,7 +150,9 @@ def verdict(body: dict[str, Any], config: MonitorConfig = DEFAULT) -> str:
         ms = f'Ms {body["ms"]:.1f}, ' if body.get('ms') else ''
         stiction = ('no stiction' if body['stiction']['index'] is not None
                     else 'stiction not assessed')
-        return f'retune (oscillating, period {osc["period"]:.3g} s, {ms}{stiction})'
+        what = (f'period {osc["period"]:.3g} s' if osc.get('period')
+                else f'{osc["load_disturbances"]["count"]} load disturbances')
+        return f'retune (oscillating, {what}, {ms}{stiction})'
     harris = body.get('harris_index')
     if harris is None:
         return 'no data' if body.get('samples', 0) < 50 else 'good'

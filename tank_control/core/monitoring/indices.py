@@ -7,6 +7,8 @@
 * :func:`oscillation` — regularity of the zero crossings of the autocorrelation function
   [Thornhill2003]: ``r = mean(Tp) / (3·std(Tp))`` of the periods ``Tp`` read from successive
   zero crossings; a regular oscillation has ``r > 1``.
+* :func:`load_disturbances` — Hägglund's IAE between zero crossings of the error, counted with
+  forgetting [Hagglund1995] (with an acceptable amplitude and the integral time given).
 * :func:`stiction` — the cross-correlation test of [Horch1999]: in a loop oscillating because of
   a sticky valve (integrating controller, self-regulating process) the cross-correlation of the
   controller output and the process output is odd (zero at lag 0); in one oscillating because
@@ -169,6 +171,35 @@ def oscillation(x: np.ndarray, sample_time: float, regularity_limit: float = 1.0
     out['period'] = mean * sample_time
     out['amplitude'] = math.sqrt(2.0) * float(np.std(x))
     out['detected'] = bool(regularity > regularity_limit and mean >= 4.0 and peak > peak_limit)
+    return out
+
+
+def load_disturbances(e: np.ndarray, sample_time: float, amplitude: float, ti: float,
+                      n_lim: float = 10.0) -> dict[str, Any]:
+    """Hägglund's load-disturbance counting [Hagglund1995]: the IAE of the error between
+    successive zero crossings; one above ``IAE_lim = 2a/ω_u`` (acceptable amplitude ``a``,
+    ``ω_u ≈ 2π/Ti``) is a load disturbance; counted with exponential forgetting over
+    ``T_sup = 50·Ti``, more than ``n_lim`` means an oscillation. ``count`` (in the record),
+    ``rate`` (the forgetting counter at its end), ``detected`` (the counter exceeded ``n_lim``
+    at some time); all None/False when ``a`` or ``Ti`` is 0."""
+    out: dict[str, Any] = {'count': None, 'rate': None, 'detected': False}
+    if amplitude <= 0.0 or ti <= 0.0 or e.size < 2:
+        return out
+    iae_lim = amplitude * ti / math.pi                 # 2a/ω_u with ω_u = 2π/Ti
+    gamma = 1.0 - sample_time / (50.0 * ti)
+    sign = np.signbit(e)
+    crossings = np.flatnonzero(sign[1:] != sign[:-1]) + 1
+    iae = np.add.reduceat(np.abs(e), np.r_[0, crossings]) * sample_time
+    ends = np.r_[crossings, e.size]                  # the sample closing each half-wave
+    hits = ends[1:-1][iae[1:-1] > iae_lim]           # whole half-waves only
+    counter, last, peak = 0.0, 0, 0.0
+    for k in hits:
+        counter = counter * gamma ** (k - last) + 1.0
+        last = int(k)
+        peak = max(peak, counter)
+    out['count'] = int(hits.size)
+    out['rate'] = float(counter * gamma ** (e.size - last))
+    out['detected'] = bool(peak > n_lim)
     return out
 
 
