@@ -36,6 +36,12 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         'tank-control compare config/fopdt_zn.yaml config/fopdt_zn_ramp.yaml --out runs/zn '
         '--in-process',
     ),
+    'tank-control assess': (
+        'tank-control assess runs/x/trace.csv --pv y.y --sp r.y --op u.u --sample-time 0.5 '
+        '--dead-time 2 --op-limits -50 50',
+        'tank-control assess historian.csv --pv FIC101.PV --sp FIC101.SP --op FIC101.OP '
+        '--sample-time 1 --time t --plot fic101.png',
+    ),
     'tank-control analyze': (
         'tank-control analyze config/fopdt_zn.yaml',
         'tank-control analyze config/ipdt_pid.yaml --set controller.tuning.rule=experimental',

@@ -14,8 +14,10 @@ from typing import Any
 
 from tank_control.core import ranges
 from tank_control.core.control.kinds import registry as controllers
+from tank_control.core.monitoring.assess import MonitorConfig
 from tank_control.core.params import ConfigError, ParamSpec, param, specs_of, unknown_reason
 from tank_control.core.plants.kinds import registry as plants
+from tank_control.core.plants.actuator import ActuatorConfig
 from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.stamps import (FUTURE_STAMP_SAMPLES, LOCKSTEP_AHEAD_TICKS, RECOVER_MESSAGES,
                                       RECOVER_S)
@@ -182,7 +184,8 @@ def plant_specs(kind: str, controller_values: Mapping[str, Any] | None = None
                 ) -> tuple[ParamSpec, ...]:
     """Every parameter of a plant_node simulating ``kind``; ``controller_values``: those of the
     controller driving it, whose output limits set the inputs' default ranges."""
-    return (specs_of(PlantNode) + specs_of(NoiseConfig) + plants.get_kind(kind).specs()
+    return (specs_of(PlantNode) + specs_of(NoiseConfig) + specs_of(ActuatorConfig)
+            + plants.get_kind(kind).specs()
             + ranges.range_specs(plant_channels(kind), actuator_defaults(controller_values)))
 
 
@@ -191,7 +194,7 @@ def controller_specs(kind: str, values: Mapping[str, Any] | None = None
     """Every parameter of a controller_node running ``kind`` (``values``: its parameter values,
     whose ``output_names`` name the ``range.*`` parameters)."""
     return (specs_of(ControllerNode) + controllers.get_kind(kind).specs()
-            + ranges.range_specs(controller_channels(kind, values)))
+            + ranges.range_specs(controller_channels(kind, values)) + specs_of(MonitorConfig))
 
 
 def kind_of(node: str, values: dict[str, Any]) -> str:

@@ -19,11 +19,14 @@ from tank_control.core.control.kinds import registry as controllers
 from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.interfaces import Controller, Plant
 from tank_control.core.loop import Guards, run_loop, sample_time_reason
+from tank_control.core.monitoring.assess import PREFIX as MONITOR_PREFIX
+from tank_control.core.monitoring.assess import MonitorConfig
 from tank_control.core.trace import Trace
 from tank_control.core.node_specs import ControllerNode, PlantNode, ReferenceNode
 from tank_control.core.params import (ConfigError, coerce, config_from, names_of, specs_of,
                                       unknown_reason, values_of)
 from tank_control.core.plants.kinds import registry as plants
+from tank_control.core.plants.actuator import ActuatorConfig, with_actuator
 from tank_control.core.plants.kinds.base import PlantKind
 from tank_control.core.plants.noise import MeasurementNoise, NoiseConfig
 from tank_control.core.reference import Reference, channel_specs, reference_from_params
@@ -40,7 +43,8 @@ def _own(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------- plant
 @dataclass(frozen=True)
 class PlantSetup:
-    """plant_node's settings: its own, the noise, the model kind and the model's config."""
+    """plant_node's settings: its own, the noise, the model kind and the model's config, the
+    actuator faults on its inputs."""
 
     node: PlantNode
     noise: NoiseConfig
@@ -48,9 +52,12 @@ class PlantSetup:
     model: Any
     ranges: ranges.Ranges = ranges.Ranges()
     """plausible ranges of the inputs and disturbances it receives (``range.*``)"""
+    actuator: ActuatorConfig = ActuatorConfig()
+    """faults between the received inputs and the model (``actuator.*``, core/plants/actuator.py)"""
 
     def build_plant(self) -> Plant:
-        return self.kind.build(self.model)
+        """The model, behind the actuator faults when any is on (every kind alike)."""
+        return with_actuator(self.kind.build(self.model), self.actuator)
 
     def build_noise(self, n_outputs: int) -> MeasurementNoise:
         """The seeded measurement noise (one ``sample()`` per tick)."""
@@ -72,13 +79,17 @@ def plant_setup(values: Mapping[str, Any],
     reason = kind.tick_reason(model, node.sample_time) if kind.tick_reason else None
     if reason:
         raise ConfigError(reason)
+    actuator = config_from(ActuatorConfig, _own(ActuatorConfig, values))
+    model_class: Any = kind.build                  # a plant class: its input_names
+    actuator.vectors(model_class.input_names)      # one value or one per input channel
     return PlantSetup(
         node=node,
         noise=config_from(NoiseConfig, _own(NoiseConfig, values)),
         kind=kind,
         model=model,
         ranges=ranges.ranges_from(values, node_specs.plant_channels(kind.name),
-                                  node_specs.actuator_defaults(controller_values)))
+                                  node_specs.actuator_defaults(controller_values)),
+        actuator=actuator)
 
 
 # ------------------------------------------------------------------------------ controller
@@ -91,6 +102,8 @@ class ControllerSetup:
     settings: Settings
     ranges: ranges.Ranges = ranges.Ranges()
     """plausible ranges of the measurements, setpoints and disturbances it reads"""
+    monitor: MonitorConfig = MonitorConfig()
+    """its loops' performance monitoring (``monitor.*``, docs/monitoring.md)"""
 
     def build_controller(self) -> Controller:
         return controllers.build(self.kind, self.settings)
@@ -99,7 +112,8 @@ class ControllerSetup:
         """Every parameter value of the node (its own and the kind's, derived ones included,
         the ranges)."""
         return {**values_of(self.node), **self.settings.values,
-                **{ranges.name_of(c): list(b) for c, b in self.ranges.bounds.items()}}
+                **{ranges.name_of(c): list(b) for c, b in self.ranges.bounds.items()},
+                **values_of(self.monitor)}
 
 
 def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = None
@@ -110,12 +124,14 @@ def controller_setup(values: Mapping[str, Any], given: Iterable[str] | None = No
     node_specs.unknown_names(node_specs.controller_specs(kind.name, values), dict(values))
     node_names = set(names_of(ControllerNode))
     own = {k: v for k, v in values.items() if k not in node_names and not node_specs.is_ros_own(k)
-           and not k.startswith(ranges.PREFIX)}
+           and not k.startswith((ranges.PREFIX, MONITOR_PREFIX))}
     settings = controllers.settings(kind, own, given)
     return ControllerSetup(
         node=config_from(ControllerNode, _own(ControllerNode, values)), kind=kind,
         settings=settings, ranges=ranges.ranges_from(values, node_specs.controller_channels(
-            kind.name, settings.values)))
+            kind.name, settings.values)),
+        monitor=config_from(MonitorConfig, {k: v for k, v in values.items()
+                                            if k.startswith(MONITOR_PREFIX)}))
 
 
 # ------------------------------------------------------------------------------- reference

@@ -3,7 +3,8 @@
 A run folder is one ``tank-control run --out`` folder (docs/harness.md): it holds
 ``metrics.json`` (scenario, title, complete flag, measured sections) and, when they were
 written, ``plot.png`` and ``analysis.png``. The key metrics are those of a sweep's table
-(``core/analysis/metrics_row.flat_metrics``: IAE, worst step, input use, loop robustness). Files are served
+(``core/analysis/metrics_row.flat_metrics``: IAE, worst step, input use, loop robustness) and
+each loop's performance verdict (``loop_performance``, docs/monitoring.md). Files are served
 only from inside ``runs_dir``: :func:`run_file` refuses any path that resolves outside it.
 """
 from __future__ import annotations
@@ -37,7 +38,7 @@ def _run_folders(root: Path) -> list[Path]:
 def _run(root: Path, folder: Path) -> dict[str, Any]:
     name = folder.relative_to(root).as_posix()
     row: dict[str, Any] = {'name': name, 'scenario': '', 'title': '', 'complete': None,
-                           'reason': '', 'error': '', 'metrics': {},
+                           'reason': '', 'error': '', 'metrics': {}, 'verdicts': {},
                            'files': [p for p in PICTURES if (folder / p).is_file()]}
     try:
         data = json.loads((folder / 'metrics.json').read_text())
@@ -49,6 +50,10 @@ def _run(root: Path, folder: Path) -> dict[str, Any]:
     row.update(scenario=str(data.get('scenario') or ''), title=str(data.get('title') or ''),
                complete=data.get('complete'), reason=str(data.get('reason') or ''),
                mode=str(data.get('mode') or ''))
+    performance = data.get('loop_performance')
+    if isinstance(performance, dict):       # each loop's verdict (docs/monitoring.md)
+        row['verdicts'] = {str(k): v['verdict'] for k, v in performance.items()
+                           if isinstance(v, dict) and isinstance(v.get('verdict'), str)}
     try:
         row['metrics'] = {k: jsonable(v) for k, v in flat_metrics(data).items()}
     except (AttributeError, TypeError, ValueError) as exc:

@@ -5,6 +5,8 @@
                      [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
     tank-control analyze SCENARIO.yaml [--set NODE.PARAM=VALUE ...]
+    tank-control assess FILE.csv --pv COL --sp COL --op COL --sample-time S [--dead-time L]
+                     [--time COL] [--op-limits LO HI] [--manual COL] [--plot PNG] [--json]
     tank-control recover OUT [--force]
     tank-control sweep SCENARIO.yaml ... | STUDY.yaml --out DIR [--grid NODE.PARAM=SPEC ...]
                      [--random NODE.PARAM=DIST ...] [--samples N] [--seed S] [--set ...]
@@ -90,6 +92,23 @@ def _parser() -> argparse.ArgumentParser:
     analyze.add_argument('scenario', type=Path)
     analyze.add_argument('--set', dest='overrides', action='append', default=[],
                          metavar='NODE.PARAM=VALUE', help='override a parameter (typed as YAML)')
+    assess = sub.add_parser('assess', help='control performance of one loop recorded in a CSV '
+                            '(Harris index, oscillation, stiction, saturation; a verdict and a '
+                            'plot: docs/monitoring.md)')
+    assess.add_argument('csv', type=Path, help='a CSV file with a header row')
+    assess.add_argument('--pv', required=True, help='column of the process value (measurement)')
+    assess.add_argument('--sp', required=True, help='column of the setpoint')
+    assess.add_argument('--op', required=True, help='column of the controller output')
+    assess.add_argument('--sample-time', required=True, type=float, help='[s] between rows')
+    assess.add_argument('--dead-time', type=float, default=0.0,
+                        help='[s] of the loop (Harris index; default 0: one sample)')
+    assess.add_argument('--time', dest='time_column', help='column of the time [s] (default: '
+                        'row number x sample time)')
+    assess.add_argument('--op-limits', type=float, nargs=2, metavar=('LO', 'HI'),
+                        help='the controller output limits (saturation time)')
+    assess.add_argument('--manual', help='column that is non-zero while the loop is in manual')
+    assess.add_argument('--plot', type=Path, help='the plot (default: FILE.assess.png)')
+    assess.add_argument('--json', action='store_true', help='print every index as JSON')
     recover = sub.add_parser('recover', help='rebuild run.mcap (indexed), trace.csv and '
                              'metrics.json of a run whose harness was killed (docs/harness.md)')
     recover.add_argument('out', type=Path, help="the run's output directory")
@@ -232,6 +251,39 @@ def run_warnings(metrics: dict) -> list[str]:
     return lines
 
 
+def _assess(args: argparse.Namespace) -> int:
+    """``tank-control assess``: the verdict on stdout, the plot written; 2 for a bad file or
+    column (one line naming it)."""
+    import json
+
+    from tank_control.harness.performance import AssessError, assess_csv, plot_assessment
+    limits = tuple(args.op_limits) if args.op_limits else (-math.inf, math.inf)
+    try:
+        body, columns = assess_csv(args.csv, args.pv, args.sp, args.op, args.sample_time,
+                                   args.dead_time, args.time_column, limits, args.manual)
+    except AssessError as err:
+        print(f'tank-control: {err}', file=sys.stderr)
+        return 2
+    plot = args.plot or args.csv.with_suffix('.assess.png')
+    plot_assessment(columns, body, plot, title=f'{args.csv.name} {args.pv}')
+    if args.json:
+        print(json.dumps(body, indent=1))
+    harris = body['harris_index']
+    print(f'{args.pv}: {body["verdict"]}')
+    print(f'  Harris index {harris:.2f}' if harris is not None else '  Harris index: too few data',
+          f'(dead time {body["dead_time_samples"]} samples)')
+    osc = body['oscillation']
+    if osc['detected']:
+        print(f'  oscillation: period {osc["period"]:.3g} s, amplitude {osc["amplitude"]:.3g}, '
+              f'regularity {osc["regularity"]:.2f}')
+    if body['stiction']['index'] is not None:
+        print(f'  stiction index {body["stiction"]["index"]:.2f} (Horch cross-correlation)')
+    if body['saturation_pct'] is not None:
+        print(f'  saturated {body["saturation_pct"]:.1f} % of the time')
+    print(f'plot: {plot}')
+    return 0
+
+
 def _recover(out: Path, force: bool) -> int:
     from tank_control.harness.recover import RecoverError, recover
     from tank_control.harness.scenario_file import ScenarioError
@@ -273,6 +325,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _list(args.dir)
     if args.command == 'recover':
         return _recover(args.out, args.force)
+    if args.command == 'assess':
+        return _assess(args)
     try:
         if args.command == 'run':
             _print_result(_run_one(args.scenario, args.out, args))

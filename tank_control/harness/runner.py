@@ -270,6 +270,12 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
         'loop_analysis': {case.label: {k: v for k, v in vars(case.report()).items()}
                           for case in cases} or analysis_note or None,
     }
+    from tank_control.harness.performance import trace_performance
+    ms = next((m for m in (metrics['loop_analysis'][c.label].get('ms') for c in cases
+                           if c.label.startswith('plant')) if m is not None), None) \
+        if isinstance(metrics['loop_analysis'], dict) else None
+    metrics['loop_performance'] = trace_performance(trace, scenario.sections, controller_params,
+                                                    limits, ms=ms)
     return metrics, cases
 
 
@@ -291,6 +297,7 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'run': run_info,
         'controller': measured['controller'],
         'loop_analysis': measured['loop_analysis'],
+        'loop_performance': measured['loop_performance'],
     }
     from tank_control.harness.analysis import plot_analysis
     from tank_control.harness.plotting import plot_runs, run_plot

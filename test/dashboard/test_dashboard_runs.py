@@ -92,6 +92,7 @@ def test_the_list_says_what_metrics_json_says(runs_dir):
             metrics['scenario'], metrics['title'], metrics['complete'])
         assert row['complete'] is True
         assert row['metrics']['y.iae'] == metrics['outputs']['y']['iae']
+        assert row['verdicts'] == {'y': metrics['loop_performance']['y']['verdict']}
         assert row['files'] == ['plot.png', 'analysis.png']
     assert 'broken/metrics.json: not readable' in rows['broken']['error']
     assert 'runs_dir:=' in list_runs('')['hint']
@@ -146,6 +147,8 @@ def test_the_runs_page_lists_links_and_compares(dashboard, runs_dir):
             assert cells[4].text == 'yes'
             iae = row.find_element(By.CSS_SELECTOR, '.metric[data-metric="y.iae"]').text
             assert float(iae.split()[-1]) == shown(metrics['outputs']['y']['iae'])
+            verdict = row.find_element(By.CSS_SELECTOR, '.verdict[data-loop="y"]').text
+            assert verdict == f"y: {metrics['loop_performance']['y']['verdict']}"
             links = row.find_elements(By.CSS_SELECTOR, 'a.picture')
             assert [a.text for a in links] == ['plot.png', 'analysis.png']
             for a in links:

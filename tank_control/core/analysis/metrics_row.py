@@ -21,7 +21,8 @@ def flat_metrics(metrics: Mapping[str, Any]) -> dict[str, Any]:
     """One row of numbers per run from ``metrics.json``'s measured sections: per output the
     IAE and ISE, the worst setpoint step (overshoot, rise, settling, steady-state error) and
     the worst disturbance step (peak error, recovery); per input min, max, total variation
-    and constraint violations; the loop's robustness on the plant when it can be analysed.
+    and constraint violations; the loop's robustness on the plant when it can be analysed; per
+    loop its performance indices (Harris index, oscillating 0/1, stiction index, saturation %).
     A step that does not settle in its window has settling time ``inf``."""
     row: dict[str, Any] = {}
     for name, out in (metrics.get('outputs') or {}).items():
@@ -51,5 +52,10 @@ def flat_metrics(metrics: Mapping[str, Any]) -> dict[str, Any]:
             for key in ('stable', 'gain_margin', 'phase_margin', 'delay_margin', 'ms', 'mt'):
                 value = plant.get(key)
                 row[f'loop.{key}'] = float(value) if value is not None else None
+    for name, perf in (metrics.get('loop_performance') or {}).items():   # docs/monitoring.md
+        row[f'{name}.harris_index'] = perf.get('harris_index')
+        row[f'{name}.oscillating'] = float(bool((perf.get('oscillation') or {}).get('detected')))
+        row[f'{name}.stiction_index'] = (perf.get('stiction') or {}).get('index')
+        row[f'{name}.saturation_pct'] = perf.get('saturation_pct')
     return {k: (float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
                 else v) for k, v in row.items()}

@@ -74,6 +74,10 @@ window.tankRuns = (() => {
         metrics.append(el('span', {className: 'metric', textContent: `${k} ${show(v)}`,
                                    'data-metric': k}), ' ');
       }
+      for (const [loop, verdict] of Object.entries(run.verdicts || {})) {   // docs/monitoring.md
+        metrics.append(el('span', {className: 'verdict', textContent: `${loop}: ${verdict}`,
+                                   'data-loop': loop}), ' ');
+      }
       const pics = row.insertCell();
       for (const file of run.files) {
         pics.append(el('a', {href: fileUrl(run.name, file), textContent: file, target: '_blank',
