@@ -248,4 +248,4 @@ def test_every_kind_module_is_in_the_table_and_an_error_in_one_surfaces():
     import tank_control.core.control.kinds as package
     helpers = {'base', 'groups', 'guard', 'registry'}       # what kinds share, and the table
     modules = {m.name for m in pkgutil.iter_modules(package.__path__)} - helpers
-    assert modules == {name for name in registry.KINDS}
+    assert modules == {name for name in registry.BUILT_IN}

@@ -7,7 +7,7 @@ import pytest
 
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import ConfigError, specs_of
-from tank_control.core.plants.kinds.registry import KINDS, get_kind, make_plant
+from tank_control.core.plants.kinds.registry import BUILT_IN, KINDS, get_kind, make_plant
 
 
 @pytest.mark.parametrize('kind', KINDS)
@@ -73,4 +73,4 @@ def test_every_plant_kind_module_is_in_the_table():
 
     import tank_control.core.plants.kinds as package
     modules = {m.name for m in pkgutil.iter_modules(package.__path__)} - {'base', 'registry'}
-    assert modules == set(KINDS)
+    assert modules == set(BUILT_IN)
