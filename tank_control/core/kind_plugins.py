@@ -88,13 +88,13 @@ def load(group: str, built_in: Mapping[str, Any], kind_type: type, what: str,
     return table
 
 
-def _check(kind: Any, name: str, kind_type: type, what: str, table: PluginTable) -> str | None:
+def _check(kind: Any, name: str, kind_type: type[Any], what: str, table: PluginTable) -> str | None:
     if not isinstance(kind, kind_type):
         return (f'is a {type(kind).__name__}, not a {kind_type.__name__} (the value must name '
                 'the module attribute holding the kind, e.g. my_pkg.my_kind:KIND)')
-    if kind.name != name:
-        return f'names the {what} {kind.name!r}; the entry point must be named after it'
-    if kind.name in table.kinds:
-        owner = table.origins[kind.name]
-        return f'the name {kind.name!r} is taken by the {owner} {what}'
+    own: str = kind.name
+    if own != name:
+        return f'names the {what} {own!r}; the entry point must be named after it'
+    if own in table.kinds:
+        return f'the name {own!r} is taken by the {table.origins[own]} {what}'
     return None

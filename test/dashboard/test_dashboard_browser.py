@@ -207,11 +207,10 @@ def expected_margins(kp):
 
     from tank_control.core import scenario as core_scenario
     from tank_control.core.analysis.robustness import loop_report
-    from tank_control.core.tuning.model import from_plant
     from tank_control.harness.scenario_file import load_scenario
     sections = load_scenario(SCENARIO).sections
     plant = core_scenario.plant_setup(core_scenario.node_values(sections, 'plant'))
-    model = from_plant(plant.kind.name, plant.model)
+    model = plant.kind.linear(plant.model)
     config = core_scenario.controller_setup(
         core_scenario.node_values(sections, 'controller')).settings.config
     return loop_report(model, replace(config, kp=kp))
