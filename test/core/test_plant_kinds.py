@@ -1,4 +1,5 @@
-"""The plant kinds (``core/plants/kinds``): parameters declared once, built and changed live."""
+"""The plant kinds (``core/plants/kinds``): parameters declared once and built (the contract,
+live changes included: test_kind_contract.py)."""
 from __future__ import annotations
 
 import dataclasses
@@ -6,7 +7,7 @@ import dataclasses
 import pytest
 
 from tank_control.core.interfaces import Plant
-from tank_control.core.params import ConfigError, specs_of
+from tank_control.core.params import ConfigError
 from tank_control.core.plants.kinds.registry import BUILT_IN, KINDS, get_kind, make_plant
 
 
@@ -53,19 +54,6 @@ def test_an_unknown_kind_is_refused_with_the_nearest_name():
 def test_bad_values_are_rejected_with_a_reason(kind, values, words):
     with pytest.raises(ValueError, match=words):
         make_plant(kind, values)
-
-
-@pytest.mark.parametrize('kind', KINDS)
-def test_every_plant_changes_live_through_configure_and_keeps_read_only_ones(kind):
-    plant = make_plant(kind)
-    specs = specs_of(get_kind(kind).config)
-    name = next(s.name for s in specs if s.name in ('dead_time', 'tau_out'))
-    plant.configure(**{name: 2.5})
-    assert getattr(plant.config, name) == 2.5
-    for spec in specs:
-        if spec.read_only:
-            with pytest.raises(ValueError, match=f'{spec.name}: read-only'):
-                plant.configure(**{spec.name: spec.default})
 
 
 def test_every_plant_kind_module_is_in_the_table():
