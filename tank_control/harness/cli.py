@@ -88,7 +88,7 @@ def _parser() -> argparse.ArgumentParser:
     compare = sub.add_parser('compare', help='run several scenarios and compare their metrics')
     compare.add_argument('scenarios', type=Path, nargs='+')
     options(compare)
-    analyze = sub.add_parser('analyze', help="robustness of a scenario's PID loop on its plant "
+    analyze = sub.add_parser('analyze', help="robustness of a scenario's SISO loop on its plant "
                              'model (stability, GM, PM, Ms, Mt, delay margin), without running')
     analyze.add_argument('scenario', type=Path)
     analyze.add_argument('--set', dest='overrides', action='append', default=[],
