@@ -99,3 +99,15 @@ def test_the_node_help_lists_the_installed_kinds(ros_env):
                           env=ros_env, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert 'fsa, on_off' in done.stdout              # the built-ins, then the plugin's
+
+
+def test_the_kits_lockstep_check_on_the_example_scenario(ros_env, monkeypatch, tmp_path):
+    """``check_controller_kind(..., scenario=)``: the contract with lockstep == in-process."""
+    for name, value in ros_env.items():
+        monkeypatch.setenv(name, value)
+    report = check_controller_kind('on_off', {'u_min': 0.0, 'u_max': 60.0}, y0=20.0, r0=20.0,
+                                   scenario=str(SCENARIO),
+                                   scenario_overrides=['harness.duration=60.0'],
+                                   out_dir=tmp_path)
+    assert 'lockstep == in-process' in report.checked
+    assert (tmp_path / 'lockstep' / 'trace.csv').is_file()
