@@ -273,7 +273,7 @@ def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env
     with headless_chromium() as driver:
         driver.get(dashboard_url(dash))
         wait = WebDriverWait(driver, WAIT)
-        line = 'controller two_loop_pi: the frequency analysis describes a SISO loop'
+        line = 'controller two_loop_pi: the kind gives no linear description'
         wait.until(lambda d: line in d.find_element(By.ID, 'robustness-reason').text)
         panel = driver.find_element(By.ID, 'robustness')
         assert panel.get_attribute('data-available') == 'false'
