@@ -142,9 +142,10 @@ def check_controller_kind(kind: ControllerKind | str, values: Mapping[str, Any] 
     * output limits hold under large errors of either sign (setpoint ``r0``), and anti-windup: after
       ``windup_samples`` saturated, the output leaves the limit within ``recovery_samples``
       once the measurement reverses the error;
-    * manual/auto (kinds with ``mode``): manual output applied at the change, held, and a
+    * manual/auto (kinds with ``mode``): manual output applied at the change, held, a
       bumpless return to auto (the first automatic output, at the last manual sample's
-      measurement, equals the manual output);
+      measurement, equals the manual output), and a controller started in manual outputs
+      ``manual_output`` first;
     * bumpless live change: each of ``changes`` (name → new value; default: each changeable
       float parameter of the kind's own configuration, +10 %) applied with
       ``registry.step_with_changes`` at a sample whose measurement equals the previous
@@ -294,6 +295,12 @@ def check_controller_kind(kind: ControllerKind | str, values: Mapping[str, Any] 
         if not np.allclose(u, manual, atol=max(tol, 1e-9) * (1 + np.max(np.abs(manual)))):
             raise _fail(name, 'manual/auto', f'back to auto the output jumped from '
                         f'{manual.tolist()} to {u.tolist()}')
+        started = loop(_build(kind, changed)[1])           # started in manual
+        started.t = 0.0
+        u = started.step(y0v + _signal(0, n_out, amplitude, 0), r0v)
+        if not np.allclose(u, manual, atol=tol * (1 + np.max(np.abs(manual)))):
+            raise _fail(name, 'manual/auto', f'started with mode manual, manual_output '
+                        f'{manual.tolist()}, the first output is {u.tolist()}')
         report.checked.append('manual/auto')
 
     # ------------------------------------------------------ bumpless live change
