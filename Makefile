@@ -22,10 +22,12 @@ browser:
 	  fi; \
 	fi
 
-$(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml
+$(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml examples/heater_kinds/pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements.txt -r requirements-colcon.txt
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
+	# the example package of user kinds (docs/extending.md; test/examples)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e examples/heater_kinds
 	@touch $(STAMP)
 
 # Byte-compile the package first: this environment sets PYTHONDONTWRITEBYTECODE, so without

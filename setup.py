@@ -36,5 +36,7 @@ setup(
             'ros2 = tank_control.ros2cli.main:main',
             'tank-control = tank_control.harness.cli:main',
         ],
+        # the conformance kit's fixtures for users' tests of their kinds (docs/extending.md)
+        'pytest11': ['tank_control = tank_control.testing.plugin'],
     },
 )

@@ -2,12 +2,11 @@
 
 Pure (no rclpy): from the plant node's and the controller node's parameter values to one
 JSON-safe message. The loop is the implemented one, as ``tank-control analyze`` and
-``analysis.png`` describe it (``harness/analysis.py``: :func:`loop_cases`, ``loop_report``):
-``Pid2Dof`` (``frequency.pid_feedback_discrete``) on the exact ZOH model of the plant at the
-controller's sample time, exact dead time (SPEC §3; 002). Plants: ``fopdt``, ``ipdt``,
-``sopdt`` (through their process model) and ``transfer_function`` (``frequency.rational_zoh``);
-controllers ``pid`` and ``relay_autotune``. Frequencies in rad/s, phase in degrees, delay
-margin in s.
+``analysis.png`` describe it (``core/analysis/loops.py``): the controller kind's discrete
+transfer function on the exact ZOH model of the plant kind's linear description at the
+controller's sample time, exact dead time (SPEC §3; 002). Any kinds that describe themselves
+(``ControllerKind.linear``, ``PlantKind.linear``; docs/extending.md). Frequencies in rad/s,
+phase in degrees, delay margin in s.
 """
 from __future__ import annotations
 
@@ -15,21 +14,20 @@ import json
 import math
 import threading
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from tank_control.core.analysis import frequency as fr
-from tank_control.core.control.pid import PidConfig
+from tank_control.core.analysis.linear import frequency_scale
+from tank_control.core.analysis.loops import LoopCase, describe_loop
 from tank_control.core.params import ConfigError
-from tank_control.core.scenario import controller_setup, plant_setup
+from tank_control.core.scenario import plant_setup
 from tank_control.dashboard.values import jsonable
-from tank_control.core.analysis.loops import PID_KINDS, loop_cases
 
 #: Points of the Bode and Nyquist curves sent to the page.
 CURVE_POINTS = 600
-#: The margins shown (keys of ``frequency.controller_report``).
+#: The margins shown (fields of ``robustness.LoopReport``).
 MARGIN_KEYS = ('stable', 'gain_margin', 'phase_margin', 'ms', 'mt', 'delay_margin', 'wc',
                'w180')
 
@@ -45,78 +43,45 @@ def _grid(loop: fr.FrequencyResponse, wu: float) -> np.ndarray:
     return np.logspace(math.log10(lo), math.log10(hi), CURVE_POINTS)
 
 
-def _case(label: str, ctrl: fr.FrequencyResponse, plant: fr.FrequencyResponse,
-          setpoint: fr.FrequencyResponse, w: np.ndarray) -> dict[str, Any]:
-    """One model's margins (``frequency.controller_report``, as ``loop_report``) and curves
-    of L = C·G on the grid ``w``."""
-    loop = ctrl * plant
-    report = fr.controller_report(ctrl, plant, setpoint)
+def _case(case: LoopCase, w: np.ndarray) -> dict[str, Any]:
+    """One model's margins (:meth:`LoopCase.report`) and curves of L = C·G on the grid
+    ``w``."""
+    loop = case.controller.feedback * case.model.response(case.controller.sample_time)
+    report = case.report()
     _, mag, phase = fr.bode(loop, w)
     values = loop(w)
-    return {'label': label,
-            'margins': {key: jsonable(bool(report[key]) if key == 'stable'
-                                      else float(report[key])) for key in MARGIN_KEYS},
+    return {'label': case.label,
+            'margins': {key: jsonable(bool(getattr(report, key)) if key == 'stable'
+                                      else float(getattr(report, key))) for key in MARGIN_KEYS},
             'mag': jsonable(mag), 'phase': jsonable(phase),
             're': jsonable(values.real), 'im': jsonable(values.imag)}
 
 
-def _pid(config: PidConfig) -> tuple[fr.FrequencyResponse, fr.FrequencyResponse]:
-    """The controller's feedback (−U/Y) and setpoint (U/R) responses, as ``loop_report``."""
-    h, kp = config.sample_time, abs(config.kp)
-    return (fr.pid_feedback_discrete(kp, config.ti, config.td, config.n, sample_time=h),
-            fr.pid_setpoint_discrete(kp, config.ti, config.td, config.n, config.b, config.c,
-                                     sample_time=h))
-
-
 def loop_analysis(plant_values: Mapping[str, Any] | None,
                   controller_values: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The panel's message: ``available``, ``reason`` (one line when not available), the
-    controller's settings ``pid`` and per case (the plant's model, the controller's own model)
-    ``label``, ``margins`` and the curves ``mag``, ``phase`` (Bode of L = C·G) and ``re``,
-    ``im`` (Nyquist of L) on the common grid ``w`` [rad/s]."""
+    """The panel's message: ``available``, ``reason`` (one line when not available),
+    ``controller`` (one line of its settings) and per case (the plant's model, the models the
+    controller carries) ``label``, ``margins`` and the curves ``mag``, ``phase`` (Bode of
+    L = C·G) and ``re``, ``im`` (Nyquist of L) on the common grid ``w`` [rad/s]. Any pair of
+    kinds that describe themselves (``core/analysis/loops.describe_loop``) is analysed."""
     if controller_values is None or plant_values is None:
         missing = 'controller' if controller_values is None else 'plant'
         return _unavailable(f'no {missing} node (yet): its parameters are needed')
-    kind = controller_values.get('controller')
-    plant_kind = plant_values.get('plant', 'fopdt')
-    if kind not in PID_KINDS:
-        return _unavailable(f'controller {kind}: the frequency analysis describes a SISO loop '
-                            f'of a PID-family controller ({", ".join(PID_KINDS)})')
     try:
-        setup = controller_setup(controller_values, given=())
-        config = setup.settings.config
-        if not isinstance(config, PidConfig):
-            return _unavailable(f'controller {kind}: not a PID configuration')
-        config = replace(config, kp=abs(config.kp), direct_action=False)
-        ctrl, setpoint = _pid(config)
-        if plant_kind == 'transfer_function':
-            model = plant_setup(plant_values).model
-            plant = fr.rational_zoh(model.num, model.den, model.dead_time, config.sample_time)
-            try:
-                wu = fr.ultimate_point(fr.plant_response(model)).wu
-            except ValueError:                     # no phase crossover: the slowest corner
-                wu = min(c for c in (ctrl * plant).corners if c > 0)
-            w = _grid(ctrl * plant, wu)
-            cases = [_case(f'plant (transfer_function, L={model.dead_time:.6g} s)', ctrl,
-                           plant, setpoint, w)]
-        else:
-            plant_setup(plant_values)              # a bad value: ConfigError with its reason
-            found = loop_cases({'plant': plant_values}, controller_values)
-            if not found or not found[0].label.startswith('plant'):
-                return _unavailable(
-                    f'plant {plant_kind}: the frequency analysis describes fopdt, ipdt, sopdt '
-                    '(critically damped or two lags) with a non-zero gain and '
-                    'transfer_function plants')
-            first = found[0].model
-            wu = first.ultimate_point().wu if first.dead_time > 0 else 1.0
-            w = _grid(ctrl * first.response(config.sample_time), wu)
-            cases = [_case(case.label, ctrl, case.model.response(config.sample_time), setpoint,
-                           w) for case in found]
-    except (ConfigError, ValueError, ZeroDivisionError) as exc:
+        plant_setup(plant_values)                  # a bad value: ConfigError with its reason
+        found, reason = describe_loop(plant_values, controller_values)
+        if not found or not found[0].label.startswith('plant'):
+            return _unavailable(reason or 'the plant has no linear model of these settings')
+        first = found[0]
+        ctrl = first.controller
+        w = _grid(ctrl.feedback * first.model.response(ctrl.sample_time),
+                  frequency_scale(first.model))
+        cases = [_case(case, w) for case in found]
+    except (ConfigError, ValueError, ZeroDivisionError, ArithmeticError) as exc:
         return _unavailable(f'the loop cannot be analysed: {exc}')
-    pid = {'kp': config.kp, 'ti': config.ti, 'td': config.td, 'n': config.n, 'b': config.b,
-           'c': config.c, 'sample_time': config.sample_time}
-    return {'available': True, 'reason': '', 'pid': {k: jsonable(v) for k, v in pid.items()},
+    return {'available': True, 'reason': '',
+            'controller': f'{ctrl.describe}; discrete loop, h = {ctrl.sample_time:.4g} s; '
+                          'exact dead time',
             'w': jsonable(w), 'cases': cases}
 
 

@@ -1,12 +1,12 @@
-"""Robustness of a scenario's SISO PID loop on its process models: a table and ``analysis.png``.
+"""Robustness of a scenario's SISO loop on its linear models: a table and ``analysis.png``.
 
-A SISO loop is a ``pid`` or ``relay_autotune`` controller on a plant that is a process model
-(``fopdt``, ``ipdt``, ``sopdt``: ``core/tuning/model.from_plant``).
-The loop analysed is the implemented one: the exact ZOH model at the controller's sample time
-and the transfer function of ``Pid2Dof`` with the given gains (``core/analysis/robustness.py``;
-exact dead time, SPEC §3, 002's gang of four). The plant section gives the true model; the
-controller's own model (``tuning.*``, or the auto-tuner's identified one) is analysed beside it
-when there is one. Frequencies in rad/s, phase in degrees, delay margin in s.
+A SISO loop is analysed when its controller kind and its plant kind describe themselves
+(``ControllerKind.linear``, ``PlantKind.linear``: ``core/analysis/linear.py``,
+``core/analysis/loops.py``). The loop analysed is the implemented one: the exact ZOH model at
+the controller's sample time and the controller's discrete transfer function (exact dead time,
+SPEC §3, 002's gang of four). The plant section gives the true model; the models the
+controller carries (``tuning.*``, the auto-tuner's identified one, a predictor's internal
+model) are analysed beside it. Frequencies in rad/s, phase in degrees, delay margin in s.
 """
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from tank_control.core.analysis import frequency as fr
-from tank_control.core.analysis.loops import LoopCase, loop_cases
+from tank_control.core.analysis.linear import frequency_scale
+from tank_control.core.analysis.loops import LoopCase, describe_loop, loop_cases
 
 
 def _num(value: float, fmt: str = '.3g') -> str:
@@ -32,10 +33,9 @@ def robustness_table(cases: list[LoopCase]) -> str:
     phase margin [deg], Ms, Mt, delay margin [s], crossover [rad/s]."""
     if not cases:
         return ''
-    c = cases[0].config
-    head = (f'loop {cases[0].output} <- {cases[0].input}: PID kp {c.kp:.4g}, ti {_num(c.ti, ".4g")} '
-            f's, td {c.td:.4g} s, n {c.n:g}, b {c.b:g}, c {c.c:g}; implemented discrete loop, '
-            f'h = {c.sample_time:g} s\n\n')
+    c = cases[0].controller
+    head = (f'loop {cases[0].output} <- {cases[0].input}: {c.describe}; implemented discrete '
+            f'loop, h = {c.sample_time:g} s\n\n')
     lines = ['| model | stable | GM | PM [deg] | Ms | Mt | delay margin [s] | crossover [rad/s] |',
              '|---|---|---|---|---|---|---|---|']
     for case in cases:
@@ -56,14 +56,14 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     (ax_mag, ax_nyq), (ax_ph, ax_g4) = axes
     for i, case in enumerate(cases):
         color = f'C{i}'
-        h = case.config.sample_time
+        h = case.controller.sample_time
         plant = case.model.response(h)
-        ctrl = fr.pid_feedback_discrete(case.config.kp, case.config.ti, case.config.td,
-                                        case.config.n, sample_time=h)
+        ctrl = case.controller.feedback
         loop = ctrl * plant
         rep = case.report()
-        wu = case.model.ultimate_point().wu if case.model.dead_time > 0 else 1.0
-        w = np.logspace(math.log10(wu / 200.0), math.log10(math.pi / h * (1 - 1e-9)), 1500)
+        wu = frequency_scale(case.model)
+        hi = math.pi / h * (1 - 1e-9)
+        w = np.logspace(math.log10(min(wu / 200.0, hi / 1e4)), math.log10(hi), 1500)
         w, mag, phase = fr.bode(loop, w)
         ax_mag.loglog(w, mag, color=color, label=case.label)
         ax_ph.semilogx(w, phase, color=color)
@@ -113,13 +113,17 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
 
 def analyze(path: str | Path, overrides: tuple[str, ...] = ()) -> str:
     """The robustness table of a scenario file's controller on its plant model (and on the
-    controller's own model), without running it; a line saying so when there is no SISO
-    PID loop on a process model."""
+    controller's own models), without running it; a line saying why when there is no SISO
+    loop with linear descriptions to analyse."""
+    from tank_control.core import scenario as core_scenario
     from tank_control.harness.scenario_file import load_scenario
     scenario = load_scenario(path, overrides)
     cases = loop_cases(scenario.sections)
     if not cases:
-        return (f'{scenario.path}: no SISO PID loop on a process model to analyse (controller '
-                f"{scenario.params('controller').get('controller', 'pid')}, plant "
-                f"{scenario.params('plant').get('plant', 'fopdt')})\n")
+        try:
+            _, reason = describe_loop(core_scenario.node_values(scenario.sections, 'plant'),
+                                      core_scenario.node_values(scenario.sections, 'controller'))
+        except (ValueError, ArithmeticError) as exc:
+            reason = str(exc)
+        return f'{scenario.path}: no SISO loop to analyse: {reason}\n'
     return robustness_table(cases)

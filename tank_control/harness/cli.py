@@ -78,6 +78,9 @@ def _parser() -> argparse.ArgumentParser:
 
     listing = sub.add_parser('list', help='the shipped scenarios and studies with their titles')
     listing.add_argument('--dir', type=Path, help='list this folder instead (recursively)')
+    listing.add_argument('--kinds', action='store_true',
+                         help='list the controller and plant kinds and where each comes from '
+                              '(built-in or an installed distribution; docs/extending.md)')
     run = sub.add_parser('run', help='run one scenario')
     run.add_argument('scenario', type=Path)
     options(run)
@@ -87,7 +90,7 @@ def _parser() -> argparse.ArgumentParser:
     compare = sub.add_parser('compare', help='run several scenarios and compare their metrics')
     compare.add_argument('scenarios', type=Path, nargs='+')
     options(compare)
-    analyze = sub.add_parser('analyze', help="robustness of a scenario's PID loop on its plant "
+    analyze = sub.add_parser('analyze', help="robustness of a scenario's SISO loop on its plant "
                              'model (stability, GM, PM, Ms, Mt, delay margin), without running')
     analyze.add_argument('scenario', type=Path)
     analyze.add_argument('--set', dest='overrides', action='append', default=[],
@@ -321,6 +324,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tank_control.harness.domains import start_profile_env
         os.environ.update(start_profile_env(os.environ))
     from tank_control.harness.runner import RunFailed, RunInterrupted
+    if args.command == 'list' and args.kinds:
+        from tank_control.harness.kinds_list import kinds_listing
+        print(kinds_listing(), end='')
+        return 0
     if args.command == 'list':
         return _list(args.dir)
     if args.command == 'recover':

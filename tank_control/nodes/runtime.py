@@ -50,24 +50,36 @@ def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = No
 
 
 NODE_HELP = {
-    'plant_node': ('plant', 'The plant simulation (IPDT, FOPDT, SOPDT, FOUPDT, a transfer '
-                   'function, the mixing tank) and the clock master of the loop.'),
+    'plant_node': ('plant', 'The plant simulation selected by the parameter `plant` ({kinds}) '
+                   'and the clock master of the loop.'),
     'controller_node': ('controller', 'The controller selected by the parameter `controller` '
-                        '(pid, two_loop_pi, smith_pi, relay_autotune, mpcs, lead_lag, fsa).'),
+                        '({kinds}).'),
     'reference_node': ('reference', 'Setpoint and disturbance schedules.'),
     'dashboard_node': ('dashboard', 'A web page on localhost (parameter port, default 8080) '
                        'with the graph\'s trends, parameters and margins.'),
 }
 
 
+def _kind_names(node: str) -> str:
+    """The kinds a plant or controller node can run (built-in and installed plugins)."""
+    if node == 'plant':
+        from tank_control.core.plants.kinds import registry as plants
+        return ', '.join(plants.KINDS)
+    from tank_control.core.control.kinds import registry as controllers
+    return ', '.join(controllers.KINDS)
+
+
 def node_help(name: str) -> str:
     """``<node> --help``: what the node is, how it takes its parameters, an example."""
     node, what = NODE_HELP[name]
+    if '{kinds}' in what:
+        what = what.replace('{kinds}', _kind_names(node))
     return (f'usage: {name} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] '
             f'[-r __node:=NAME] ...]\n\n{what}\n\n'
             f'Parameters come from ROS 2 params files and -p (a -p does not override the '
             f'node\'s own section of a params file); on a running node: ros2 param list '
-            f'/{node}, ros2 param describe /{node} NAME. All of them: docs/nodes.md.\n\n'
+            f'/{node}, ros2 param describe /{node} NAME. All of them: docs/nodes.md; '
+            f'every kind with its origin: tank-control list --kinds.\n\n'
             f'example:\n  ros2 run tank_control {name} --ros-args --params-file '
             f'config/fopdt_autotune.yaml')
 

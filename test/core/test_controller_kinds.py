@@ -118,20 +118,6 @@ def test_live_gain_change_is_bumpless_and_then_in_effect():
     assert u_next - u_after == pytest.approx(-3.0 * 0.1, abs=1e-12)
 
 
-def test_manual_mode_and_bumpless_return():
-    values = {'kp': 1.0, 'ti': 10.0}
-    ctrl = make(values)
-    u0 = step(ctrl, 0.0, 0.0, 1.0)
-    values.update(mode='manual', manual_output=7.0)
-    y, r, d = np.array([0.0]), np.array([1.0]), np.array([])
-    ctrl, u = change(ctrl, values, {'mode', 'manual_output'}, 1.0, y, r, d)
-    assert u[0] == 7.0 and ctrl.status['mode'] == 'manual'
-    values['mode'] = 'auto'
-    ctrl, u = change(ctrl, values, {'mode'}, 2.0, y, r, d)
-    assert u[0] == pytest.approx(7.0, abs=1e-12)
-    assert u0 != 7.0
-
-
 class _Proportional:
     """A minimal Controller (u = u0 + gain·(r − y)) to exercise the registry hooks."""
 
@@ -248,4 +234,4 @@ def test_every_kind_module_is_in_the_table_and_an_error_in_one_surfaces():
     import tank_control.core.control.kinds as package
     helpers = {'base', 'groups', 'guard', 'registry'}       # what kinds share, and the table
     modules = {m.name for m in pkgutil.iter_modules(package.__path__)} - helpers
-    assert modules == {name for name in registry.KINDS}
+    assert modules == {name for name in registry.BUILT_IN}

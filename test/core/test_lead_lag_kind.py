@@ -133,23 +133,6 @@ def test_live_change_is_bumpless_in_place_and_then_in_effect():
     assert (ctrl.lead_lag.config.kp, ctrl.lead_lag.config.td) == (3.0, 4.0)
 
 
-def test_manual_mode_and_bumpless_return():
-    values = {'controller': 'lead_lag', 'lead_lag.kp': 2.0, 'lead_lag.ti': 10.0,
-              'lead_lag.td': 1.0}
-    ctrl = make(values)
-    u0 = step(ctrl, 0.0, 0.0, 1.0)
-    values.update(mode='manual', manual_output=7.0)
-    ctrl, u = change(ctrl, values, {'mode', 'manual_output'}, 1.0, 0.0, 1.0)
-    assert u == 7.0 and ctrl.status['mode'] == 'manual'
-    assert step(ctrl, 2.0, 0.3, 1.0) == 7.0              # manual holds whatever y does
-    values['mode'] = 'auto'
-    ctrl, u = change(ctrl, values, {'mode'}, 3.0, 0.3, 1.0)
-    assert u == pytest.approx(7.0, abs=1e-12) and u0 != 7.0
-    assert ctrl.status['mode'] == 'auto'
-    # started in manual: the first output is manual_output
-    assert step(make({**values, 'mode': 'manual', 'manual_output': 3.0}), 0.0, 0.0, 1.0) == 3.0
-
-
 def test_non_finite_measurement_holds_the_last_output():
     values = {'controller': 'lead_lag', 'lead_lag.kp': 2.0, 'lead_lag.ti': 4.0,
               'lead_lag.td': 1.0, 'u_max': 100.0}

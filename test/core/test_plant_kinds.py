@@ -1,4 +1,5 @@
-"""The plant kinds (``core/plants/kinds``): parameters declared once, built and changed live."""
+"""The plant kinds (``core/plants/kinds``): parameters declared once and built (the contract,
+live changes included: test_kind_contract.py)."""
 from __future__ import annotations
 
 import dataclasses
@@ -6,8 +7,8 @@ import dataclasses
 import pytest
 
 from tank_control.core.interfaces import Plant
-from tank_control.core.params import ConfigError, specs_of
-from tank_control.core.plants.kinds.registry import KINDS, get_kind, make_plant
+from tank_control.core.params import ConfigError
+from tank_control.core.plants.kinds.registry import BUILT_IN, KINDS, get_kind, make_plant
 
 
 @pytest.mark.parametrize('kind', KINDS)
@@ -55,22 +56,9 @@ def test_bad_values_are_rejected_with_a_reason(kind, values, words):
         make_plant(kind, values)
 
 
-@pytest.mark.parametrize('kind', KINDS)
-def test_every_plant_changes_live_through_configure_and_keeps_read_only_ones(kind):
-    plant = make_plant(kind)
-    specs = specs_of(get_kind(kind).config)
-    name = next(s.name for s in specs if s.name in ('dead_time', 'tau_out'))
-    plant.configure(**{name: 2.5})
-    assert getattr(plant.config, name) == 2.5
-    for spec in specs:
-        if spec.read_only:
-            with pytest.raises(ValueError, match=f'{spec.name}: read-only'):
-                plant.configure(**{spec.name: spec.default})
-
-
 def test_every_plant_kind_module_is_in_the_table():
     import pkgutil
 
     import tank_control.core.plants.kinds as package
     modules = {m.name for m in pkgutil.iter_modules(package.__path__)} - {'base', 'registry'}
-    assert modules == set(KINDS)
+    assert modules == set(BUILT_IN)

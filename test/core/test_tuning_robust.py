@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tank_control.core.analysis import frequency as fr
+from tank_control.core.analysis.linear import RationalModel
 from tank_control.core.tuning.model import DiscretePlant, ProcessModel
 from tank_control.core.tuning.rules import tune
 
@@ -87,7 +88,8 @@ def sopdt_values(**values):
     (sopdt_values(time_constant_1=0.0, time_constant_2=3.0), ProcessModel('fopdt', 2.0, 0.7, 3.0)),
     (sopdt_values(form='damping', time_constant=2.0, damping=1.0),
      ProcessModel('sopdt', 2.0, 0.7, 2.0, 2.0)),                   # critical: two equal lags
-    (sopdt_values(form='damping', time_constant=2.0, damping=0.5), None),   # underdamped
+    (sopdt_values(form='damping', time_constant=2.0, damping=0.5),        # underdamped
+     RationalModel((2.0,), (4.0, 2.0, 1.0), 0.7, 'sopdt')),
     (sopdt_values(time_constant_1=0.0, time_constant_2=0.0), None),          # no lag
     ({'plant': 'fopdt', 'gain': 0.05, 'time_constant': 10.0, 'dead_time': 3.0},
      ProcessModel('fopdt', 0.05, 3.0, 10.0)),
@@ -95,22 +97,21 @@ def sopdt_values(**values):
     ({'plant': 'ipdt', 'gain': 0.05, 'dead_time': 5.0}, ProcessModel('ipdt', 0.05, 5.0)),
     ({'plant': 'mixing_tank'}, None),
 ])
-def test_from_plant_knows_the_siso_plant_kinds(values, expected):
+def test_each_siso_plant_kind_gives_its_linear_model(values, expected):
     from tank_control.core.scenario import plant_setup
-    from tank_control.core.tuning.model import from_plant
     setup = plant_setup(values)
-    assert from_plant(setup.kind.name, setup.model) == expected
+    linear = setup.kind.linear
+    assert (linear(setup.model) if linear is not None else None) == expected
 
 
 def test_the_model_of_an_sopdt_plant_is_simulated_as_the_plant_runs():
     """The plant (form damping, ζ = 1, its own arithmetic) sampled at H and the simulation of
     its model (two equal lags) agree; both are the continuous step response."""
     from tank_control.core.scenario import plant_setup
-    from tank_control.core.tuning.model import from_plant
     setup = plant_setup(sopdt_values(form='damping', time_constant=4.0, damping=1.0,
                                      dead_time=1.25))
     plant = setup.kind.build(setup.model)
-    sim = DiscretePlant(from_plant('sopdt', setup.model), H)
+    sim = DiscretePlant(setup.kind.linear(setup.model), H)
     t = H * np.arange(300)
     tau = np.maximum(t - 1.25, 0.0)
     exact = -2.0 * (1.0 - (1.0 + tau / 4.0) * np.exp(-tau / 4.0))    # K < 0: the plant's sign

@@ -207,11 +207,10 @@ def expected_margins(kp):
 
     from tank_control.core import scenario as core_scenario
     from tank_control.core.analysis.robustness import loop_report
-    from tank_control.core.tuning.model import from_plant
     from tank_control.harness.scenario_file import load_scenario
     sections = load_scenario(SCENARIO).sections
     plant = core_scenario.plant_setup(core_scenario.node_values(sections, 'plant'))
-    model = from_plant(plant.kind.name, plant.model)
+    model = plant.kind.linear(plant.model)
     config = core_scenario.controller_setup(
         core_scenario.node_values(sections, 'controller')).settings.config
     return loop_report(model, replace(config, kp=kp))
@@ -274,7 +273,7 @@ def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env
     with headless_chromium() as driver:
         driver.get(dashboard_url(dash))
         wait = WebDriverWait(driver, WAIT)
-        line = 'controller two_loop_pi: the frequency analysis describes a SISO loop'
+        line = 'controller two_loop_pi: the kind gives no linear description'
         wait.until(lambda d: line in d.find_element(By.ID, 'robustness-reason').text)
         panel = driver.find_element(By.ID, 'robustness')
         assert panel.get_attribute('data-available') == 'false'

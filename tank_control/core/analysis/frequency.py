@@ -816,14 +816,16 @@ def controller_report(ctrl: FrequencyResponse, plant: FrequencyResponse,
         out['stable'] = _nyquist_count_on(loop, w, val) == 0
     else:
         out['stable'] = closed_loop_poles_unstable(characteristic) == 0
-        if out['stable'] and m.gain_crossovers:
-            # L may have open-loop unstable poles (a Smith predictor's equivalent controller):
-            # the phase a delay may still remove at each crossover is 180° + ∠L modulo 360°.
-            pms = [(math.pi + _phase_scalar(loop, x, w, ph)) % (2 * math.pi)
-                   for x in m.gain_crossovers]
-            j = int(np.argmin(pms))
-            out['phase_margin'], out['wc'] = math.degrees(pms[j]), m.gain_crossovers[j]
-            out['delay_margin'] = min(p / x for p, x in zip(pms, m.gain_crossovers))
+    wrapped = not 0.0 <= float(out['phase_margin']) < 360.0
+    if out['stable'] and m.gain_crossovers and (characteristic is not None or wrapped):
+        # L may have open-loop unstable poles (a Smith predictor's equivalent controller, an
+        # FSA law) or cross |L| = 1 where the dead time has turned its phase past −360°: the
+        # phase a delay may still remove at each crossover is 180° + ∠L modulo 360°.
+        pms = [(math.pi + _phase_scalar(loop, x, w, ph)) % (2 * math.pi)
+               for x in m.gain_crossovers]
+        j = int(np.argmin(pms))
+        out['phase_margin'], out['wc'] = math.degrees(pms[j]), m.gain_crossovers[j]
+        out['delay_margin'] = min(p / x for p, x in zip(pms, m.gain_crossovers))
     out['setpoint_peak'] = peak
     return out
 

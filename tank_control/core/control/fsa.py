@@ -224,6 +224,34 @@ def prediction_weights(des: FsaDesign) -> tuple[float, np.ndarray, float, np.nda
     return float(powers[d]), a, float(partial[d]), b
 
 
+def transfer_polynomials(config: FsaConfig) -> tuple[tuple[np.ndarray, np.ndarray],
+                                                     tuple[np.ndarray, np.ndarray]]:
+    """``((num, den), (num_r, den))`` in z, highest power first, of the implemented law in
+    its linear range: ``C(z) = −U/Y`` and ``U/R``. With ``A(z) = Σ a_i·z^(−i−1)``,
+    ``B(z) = Σ b_i·z^(−i−1)`` (:func:`prediction_weights`), the integral
+    ``z(k) = h·Σ_{j<k} (r(j−d) − y(j))`` and the stored setpoints, ``ζ`` carries
+    ``h/(z − 1)·(R − Y) − h·(b_y·Y + B·U)`` and the law
+    ``u = −F_ξ·(a_y·Y + A·U) − F_ζ·ζ − F_u·z^(−1)·U`` gives
+    ``C = (F_ξ·a_y − F_ζ·h·b_y − F_ζ·h/(z − 1))/D``, ``U/R = −F_ζ·h/(z − 1)/D``,
+    ``D = 1 + F_ξ·A − F_ζ·h·B + F_u·z^(−1)``; both are multiplied by ``z^(d+1)·(z − 1)``."""
+    des = design(config)
+    h = config.sample_time
+    f_xi, f_zeta, f_u = des.gains
+    a_y, a, b_y, b = prediction_weights(des)
+    d = des.d
+    dpoly = np.zeros(d + 2)
+    dpoly[0] = 1.0
+    dpoly[1:] += f_xi * a - f_zeta * h * b
+    dpoly[1] += f_u
+    den = np.convolve(dpoly, [1.0, -1.0])
+    k = f_xi * a_y - f_zeta * h * b_y
+    shift = np.zeros(d + 2)
+    shift[0] = 1.0                                            # z^(d+1)
+    num = np.convolve([k, -k - f_zeta * h], shift)
+    num_r = -f_zeta * h * shift
+    return (num, den), (num_r, den)
+
+
 # ============================================================================ controller
 class FsaController:
     """The FSA law behind the Controller protocol (SISO; see the module docstring).

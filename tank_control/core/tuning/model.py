@@ -202,33 +202,6 @@ def from_identified(model: Any) -> ProcessModel:
                         float(model.time_constant))
 
 
-def from_plant(kind: str, config: Any) -> ProcessModel | None:
-    """The model of a plant kind's configuration (``core/plants``): ``fopdt``, ``ipdt`` and
-    ``sopdt`` (form ``time_constants``, or ``damping`` with ζ = 1: two equal lags; a zero time
-    constant drops that lag); None for a plant without a lag where one is needed, an
-    underdamped SOPDT, a zero gain, or another plant (the mixing tank is not SISO)."""
-    gain = abs(float(getattr(config, 'gain', 0.0) or 0.0))
-    if kind not in KINDS or gain == 0.0:
-        return None
-    dead = float(config.dead_time)
-    if kind == 'ipdt':
-        return ProcessModel('ipdt', gain, dead)
-    if kind == 'fopdt':
-        lags = [config.time_constant]
-    elif config.form == 'damping':
-        if config.damping != 1.0:
-            return None
-        lags = [config.time_constant] * 2
-    else:
-        lags = [config.time_constant_1, config.time_constant_2]
-    lags = sorted((float(t) for t in lags if t > 0.0), reverse=True)
-    if not lags:
-        return None
-    if len(lags) == 1:
-        return ProcessModel('fopdt', gain, dead, lags[0])
-    return ProcessModel('sopdt', gain, dead, lags[0], lags[1])
-
-
 class DiscretePlant:
     """:meth:`ProcessModel.plant` sampled every ``sample_time`` [s]: ``output()`` is y(k)
     (deviation from the rest state), ``step(u)`` holds ``u`` (the plant input, load

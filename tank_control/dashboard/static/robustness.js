@@ -140,10 +140,7 @@ window.tankRobustness = (() => {
     const body = $('#robustness-body');
     body.hidden = !msg.available;
     if (!msg.available) return;
-    const p = msg.pid;
-    $('#robustness-pid').textContent = `PID kp ${fmt(p.kp, 4)}, ti ${fmt(p.ti, 4)} s, `
-      + `td ${fmt(p.td, 4)} s, n ${fmt(p.n, 4)}, b ${fmt(p.b, 3)}, c ${fmt(p.c, 3)}; `
-      + `discrete loop, h = ${fmt(p.sample_time, 4)} s; exact dead time`;
+    $('#robustness-pid').textContent = msg.controller;
     $('#margins').replaceChildren(table(msg));
     const w = msg.w.map(num);
     const ones = w.map(() => 1);

@@ -18,6 +18,7 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
+from tank_control.core.analysis.linear import LinearController
 from tank_control.core.control.kinds.groups import (BIG, MODE, TUNING, Channels, FailSafe, Group,
                                                     Mode, Tuning, WarmStart, channels, fail_safe,
                                                     group, warm_start)
@@ -90,7 +91,11 @@ class ControllerKind:
       its gains; '' for nothing yet), logged by the node when it changes, printed by the harness;
     * ``gains``: parameters reported as the run's final gains; ``input_limits(settings)``:
       ``{input channel: (min, max)}`` for constraint metrics; ``disturbances``: the measured
-      disturbance channels the controller reads (feed-forward).
+      disturbance channels the controller reads (feed-forward);
+    * ``linear(settings)`` → the controller's linear description
+      (:class:`~tank_control.core.analysis.linear.LinearController`: its discrete transfer
+      function, the models it carries) or None; a kind without it (``linear=None``) is not
+      analysed (``tank-control analyze``, ``analysis.png``, the dashboard's robustness panel).
 
     ``update``, ``results`` and ``commands`` take the kind's own controller (what its ``build``
     returns, typed ``Any`` here).
@@ -112,6 +117,7 @@ class ControllerKind:
     input_limits: Callable[[Settings], Mapping[str, tuple[float, float]]] | None = None
     disturbances: tuple[str, ...] = ()
     summary: Callable[[Values], str] | None = None
+    linear: Callable[[Settings], LinearController | None] | None = None
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The kind's parameters: its configuration's, then each group's."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from tank_control.core.analysis.linear import LinearController
 from tank_control.core.analysis.robustness import LoopReport, response_report
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
@@ -75,6 +76,17 @@ def results(controller: LeadLagController) -> dict[str, Any]:
     return base.attached(controller).loop_watch.values(controller.lead_lag.config)
 
 
+def linear(settings: Settings) -> LinearController:
+    """The implemented discrete lead-lag (one degree of freedom; gain magnitude), and the
+    ``tuning.*`` model."""
+    c = settings.config
+    return LinearController(
+        discrete_response(abs(c.kp), c.td, c.alpha, c.ti, c.sample_time),
+        f'lead-lag kp {abs(c.kp):.4g}, td {c.td:.4g} s, alpha {c.alpha:.3g}, ti {c.ti:.4g} s',
+        models=tuple(('tuning.*', m) for m in (process_model(settings.values),)
+                     if m is not None))
+
+
 def derive(values: base.Values) -> dict[str, float]:
     """``lead_lag.kp``, ``lead_lag.td``, ``lead_lag.ti`` from 002's design (002 §1.1–1.4) of
     ``tuning.kind`` on ``tuning.model`` with ``lead_lag.alpha``; none without a rule."""
@@ -93,5 +105,5 @@ KIND = ControllerKind(
             TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),
     build=build, update=update, derive=derive, reason=reason, results=results,
     gains=('lead_lag.kp', 'lead_lag.td', 'lead_lag.alpha', 'lead_lag.ti'),
-    input_limits=base.scalar_limits,
+    input_limits=base.scalar_limits, linear=linear,
 )

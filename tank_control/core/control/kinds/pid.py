@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from tank_control.core.analysis.linear import LinearController, pid_controller
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
 from tank_control.core.control.pid import PidConfig, PidController
@@ -33,6 +34,11 @@ def reason(settings: Settings) -> str | None:
         settings, base.tuning_model(settings.values), settings.config)
 
 
+def linear(settings: Settings) -> LinearController:
+    """The implemented 2-DOF PID's discrete transfer function, and the ``tuning.*`` model."""
+    return pid_controller(settings.config, (('tuning.*', base.tuning_model(settings.values)),))
+
+
 def results(controller: PidController) -> dict[str, Any]:
     """``robustness.*`` of the running loop and 001's sampling advice on the model."""
     watch = base.attached(controller).loop_watch
@@ -47,5 +53,5 @@ KIND = ControllerKind(
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             base.TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS, base.SAMPLING_RESULTS),
     build=build, update=update, derive=base.tuned_gains, reason=reason, results=results,
-    gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits,
+    gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits, linear=linear,
 )

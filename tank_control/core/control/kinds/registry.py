@@ -1,4 +1,4 @@
-"""The controller kinds by name (a plain table), and what every caller does with a kind:
+"""The controller kinds by name (the built-in table plus installed plugins), and what every caller does with a kind:
 resolve parameter values, make the controller, step it with accepted changes.
 
 controller_node, the in-process loop (``core/scenario.py``) and the harness all go through
@@ -13,13 +13,14 @@ from typing import Any
 
 import numpy as np
 
+from tank_control.core import kind_plugins
 from tank_control.core.control.kinds import (fsa, lead_lag, mpcs, pid, relay_autotune, smith_pi,
                                              two_loop_pi)
 from tank_control.core.control.kinds.base import ControllerKind, Settings, attached, resolve
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import by_name, finder
 
-KINDS: dict[str, ControllerKind] = by_name(
+BUILT_IN: dict[str, ControllerKind] = by_name(
     pid.KIND,
     two_loop_pi.KIND,
     smith_pi.KIND,
@@ -28,6 +29,14 @@ KINDS: dict[str, ControllerKind] = by_name(
     lead_lag.KIND,
     fsa.KIND,
 )
+"""The kinds shipped in tank_control."""
+
+PLUGINS = kind_plugins.load(kind_plugins.CONTROLLER_GROUP, BUILT_IN, ControllerKind,
+                            'controller kind')
+KINDS: dict[str, ControllerKind] = PLUGINS.kinds
+"""Every controller kind by name: the built-in ones, then those of installed distributions
+(entry points of ``tank_control.controller_kinds``, :mod:`tank_control.core.kind_plugins`);
+``PLUGINS.origins`` says where each comes from, ``PLUGINS.errors`` what was left out."""
 
 
 get_kind: Callable[[str], ControllerKind] = finder(KINDS, 'controller kind')

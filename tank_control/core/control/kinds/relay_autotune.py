@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any
 
+from tank_control.core.analysis.linear import LinearController, pid_controller
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings
 from tank_control.core.control.pid import PidConfig
@@ -159,6 +160,12 @@ def results(tuner: RelayAutotuner) -> dict[str, Any]:
             **watch.sampling(tuner.pid.config.sample_time)}
 
 
+def linear(settings: Settings) -> LinearController:
+    """The implemented PID's discrete transfer function (the gains in force), and the model
+    the auto-tuner identified."""
+    return pid_controller(settings.config, (('identified', identified_model(settings.values)),))
+
+
 KIND = ControllerKind(
     name='relay_autotune',
     description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3)',
@@ -170,4 +177,5 @@ KIND = ControllerKind(
     build=build, update=update, reason=reason, results=results, state='autotune.state',
     commands={name: (lambda tuner, name=name: tuner.command(name)) for name in COMMANDS},
     gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits, summary=summary,
+    linear=linear,
 )

@@ -10,7 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from tank_control.core.analysis.robustness import LoopReport, smith_report
+from tank_control.core.analysis import frequency as fr
+from tank_control.core.analysis.linear import LinearController, model_sum
+from tank_control.core.analysis.robustness import LoopReport, smith_report, smith_responses
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, LoopWatch, Settings, Tuning
 from tank_control.core.control.pid import PidConfig
@@ -63,6 +65,28 @@ def _key(loop: tuple[PidConfig, float]) -> tuple[float, ...]:
 
 def _gains(loop: tuple[PidConfig, float]) -> str:
     return f'kp {loop[0].kp:.4g}, ti {loop[0].ti:.4g} s'
+
+
+def linear(settings: Settings) -> LinearController:
+    """The Smith predictor as implemented: the equivalent controller ``C_eq`` (−U/Y) and its
+    setpoint path (:func:`smith_responses`) on the internal model, stability on any plant
+    ``G`` from ``C·(Gm0 − Gm + G)`` (the closed loop's characteristic equation
+    ``1 + C·(Gm0 − Gm + G) = 0``: no hidden poles of ``C_eq``), and the internal model."""
+    model = process_model(settings.config)
+    primary, sign = _loop(settings.config, settings.primary)
+    primary = replace(primary, kp=primary.kp * sign)
+    ceq, req, _ = smith_responses(model, primary)
+    h = primary.sample_time
+    c = fr.pid_feedback_discrete(abs(primary.kp), primary.ti, 0.0, primary.n, sample_time=h)
+    c = c * (-1.0 if primary.kp < 0 else 1.0)
+    gm, gm0 = model.response(h), replace(model, dead_time=0.0).response(h)
+
+    def characteristic(g: fr.FrequencyResponse) -> fr.FrequencyResponse:
+        return c * model_sum(((1.0, gm0), (-1.0, gm), (1.0, g)), g.integrators,
+                             g.unstable_poles + gm.unstable_poles)
+    return LinearController(
+        ceq, f'Smith predictor, PI primary kp {primary.kp:.4g}, ti {primary.ti:.4g} s, '
+        f'b {primary.b:g}', req, characteristic, models=(('internal', model),))
 
 
 def derive(values: base.Values) -> dict[str, float]:
@@ -184,4 +208,5 @@ KIND = ControllerKind(
     commands={name: (lambda c, name=name: c.command(name)) for name in COMMANDS},
     gains=('kp', 'ti', 'b'),
     input_limits=lambda s: {s.channels.input_names[0]: (s.primary.u_min, s.primary.u_max)},
+    linear=linear,
 )

@@ -5,6 +5,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from tank_control.core.analysis.linear import LinearModel
 from tank_control.core.interfaces import Plant
 from tank_control.core.params import ParamSpec, config_from, specs_of
 
@@ -17,7 +18,9 @@ class PlantKind:
     ``build`` makes the model from a configuration. Live changes go through the model's
     ``configure(**changes)``. ``tick_reason(config, sample_time)``: relations between the
     model and plant_node's tick ``sample_time`` [s] (a one-line reason or None), e.g. the work
-    one tick may cost.
+    one tick may cost. ``linear(config)``: the model's linear description for the loop
+    analysis (a :class:`~tank_control.core.analysis.linear.LinearModel`, gain magnitude; None
+    when these settings have none); ``linear=None``: the kind has none.
     """
 
     name: str
@@ -25,6 +28,7 @@ class PlantKind:
     config: type
     build: Callable[[Any], Plant]
     tick_reason: Callable[[Any, float], str | None] | None = None
+    linear: Callable[[Any], LinearModel | None] | None = None
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The model's parameters."""

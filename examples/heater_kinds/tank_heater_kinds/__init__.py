@@ -1,0 +1,1 @@
+"""Example kinds for tank_control (docs/extending.md): ``on_off`` and ``heater``."""
