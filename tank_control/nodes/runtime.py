@@ -57,6 +57,8 @@ NODE_HELP = {
     'reference_node': ('reference', 'Setpoint and disturbance schedules.'),
     'dashboard_node': ('dashboard', 'A web page on localhost (parameter port, default 8080) '
                        'with the graph\'s trends, parameters and margins.'),
+    'opcua_bridge_node': ('opcua_bridge', 'An OPC UA server\'s variables as the loop\'s plant: '
+                          'measurement from, manipulated to the server (docs/opcua.md).'),
 }
 
 
