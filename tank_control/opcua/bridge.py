@@ -226,12 +226,14 @@ class Bridge:
         delay = self.cfg.reconnect_min
         while not self._stop.is_set():
             client = self._client()
-            was_up = False
+            connections = self.counters['connections']
             try:
-                was_up = await self._session(client)
+                await self._session(client)
             except NodeFault as exc:
                 self._set_down('node_fault', str(exc))
-                self._log_once('node_fault', 'error', str(exc))
+                if self._first.is_set():     # at start-up the node exits with it (one line)
+                    self._log_once('node_fault', 'error', str(exc) + '; checked again at each '
+                                   'reconnection')
             except (OSError, asyncio.TimeoutError, ua.UaError, ConnectionError) as exc:
                 self._set_down('down', self._reason(exc))
             except Exception as exc:         # asyncua may raise others on a broken connection
@@ -241,12 +243,13 @@ class Bridge:
             self._first.set()
             if self._stop.is_set():
                 break
-            if was_up:
-                delay = self.cfg.reconnect_min
-            self._log_once('down:' + self.problem.split(':')[0], 'error',
-                           f'OPC UA {self.cfg.endpoint}: {self.problem}; reconnecting every '
-                           f'{delay:g} s and more rarely (at most every '
-                           f'{self.cfg.reconnect_max:g} s)')
+            if self.counters['connections'] > connections:
+                delay = self.cfg.reconnect_min      # it was up: a new loss
+            if self.state != 'node_fault':
+                self._log_once('down:' + self.problem.split('(')[0], 'error',
+                               f'OPC UA {self.cfg.endpoint}: {self.problem}; reconnecting after '
+                               f'{delay:g} s, then more rarely (at most every '
+                               f'{self.cfg.reconnect_max:g} s)')
             try:
                 await asyncio.wait_for(self._stop.wait(), delay)
             except asyncio.TimeoutError:
@@ -288,9 +291,9 @@ class Bridge:
             except Exception:
                 pass
 
-    async def _session(self, client: Client) -> bool:
-        """One connection: connect, check, subscribe, write until lost or stopped. Returns
-        whether it was up."""
+    async def _session(self, client: Client) -> None:
+        """One connection: connect, check, subscribe, write until lost (raises) or
+        stopped."""
         assert self._stop is not None and self._write_wake is not None
         if self.cfg.policy != 'None':
             uri = _certificate_uri(self.cfg.certificate)
@@ -349,12 +352,11 @@ class Bridge:
             raise writer.exception()      # type: ignore[misc]
         if not self._stop.is_set():
             raise ConnectionError('connection lost')
-        return True
 
     def _monitor_request(self, node_id: ua.NodeId, handle: int) -> ua.MonitoredItemCreateRequest:
         params = ua.MonitoringParameters()
         params.ClientHandle = handle
-        params.SamplingInterval = self.ts * 1000.0
+        params.SamplingInterval = self.cfg.publishing_s() * 1000.0
         params.QueueSize = 4              # every scan of an interval, in order
         params.DiscardOldest = True
         flt = ua.DataChangeFilter()
@@ -384,8 +386,8 @@ class Bridge:
                                     f'({status_name(values[0].StatusCode)})')
                 node_class = values[0].Value.Value
                 if node_class != ua.NodeClass.Variable:
-                    raise NodeFault(f'{where}: a {ua.NodeClass(node_class).name}, not a '
-                                    'variable')
+                    raise NodeFault(f'{where}: node class {ua.NodeClass(node_class).name}, '
+                                    'not a variable')
                 data_type = values[1].Value.Value if values[1].StatusCode.is_good() else None
                 vtype = (NUMERIC_TYPES.get(data_type.Identifier)
                          if data_type is not None and data_type.NamespaceIndex == 0 else None)

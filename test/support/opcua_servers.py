@@ -80,7 +80,8 @@ class LagServer:
         self.y = 0.0
         self.u = u0
         self.k = 0
-        self.trace: list[tuple[int, int, float, float]] = []   # (k, stamp_ns, y_k, u in [k, k+1))
+        # (k, stamp_ns, y_k, u integrated over [k, k+1): nan until tick k+1)
+        self.trace: list[tuple[int, int, float, float]] = []
         self.writes: list[tuple[float, float]] = []            # (monotonic s, value written)
         self.status = ua.StatusCodes.Good
         self.level_nodeid = ''
@@ -162,14 +163,20 @@ class LagServer:
                 self.u = value
 
     async def _tick_loop(self) -> None:
+        """Tick k: integrate [k-1, k) with the input written during it (the latest value, as
+        plant_node does: the answer to measurement k-1 acts from its arrival's next tick on),
+        then publish y_k stamped with the tick's instant."""
         a = math.exp(-self.ts / self.tau)
         start = time.monotonic()
         while True:
+            if self.k > 0:
+                self.y = a * self.y + (1 - a) * self.gain * self.u
+                with self._lock:
+                    self.trace[-1] = (*self.trace[-1][:3], self.u)
             stamp = time.time_ns()
             await self._publish(stamp)
             with self._lock:
-                self.trace.append((self.k, stamp, self.y, self.u))
-            self.y = a * self.y + (1 - a) * self.gain * self.u
+                self.trace.append((self.k, stamp, self.y, math.nan))
             self.k += 1
             await asyncio.sleep(max(0.0, start + self.k * self.ts - time.monotonic()))
 
