@@ -157,7 +157,14 @@ class OpcUaBridgeNode(Node):
         super().destroy_node()
 
     def _log(self, level: str, text: str) -> None:
-        getattr(self.get_logger(), level)(text)
+        # one call site per severity: rclpy refuses another severity at the same site
+        logger = self.get_logger()
+        if level == 'error':
+            logger.error(text)
+        elif level == 'warning':
+            logger.warning(text)
+        else:
+            logger.info(text)
 
     def _log_once(self, key: str, text: str) -> None:
         if key not in self._logged:

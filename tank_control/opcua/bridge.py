@@ -171,7 +171,14 @@ class Bridge:
     def _log_once(self, key: str, level: str, text: str) -> None:
         if key not in self._logged:
             self._logged.add(key)
+            self._say(level, text)
+
+    def _say(self, level: str, text: str) -> None:
+        """The log callback; a failing one never stops the bridge's thread."""
+        try:
             self._log(level, text)
+        except Exception:
+            pass
 
     # ---------------------------------------------------------------- writes
     def write(self, values: Mapping[str, float], instant: int | None = None) -> list[str]:
@@ -334,7 +341,7 @@ class Bridge:
             self.problem = ''
         self.counters['connections'] += 1
         self._logged.discard('node_fault')
-        self._log('info', f'OPC UA {self.cfg.endpoint}: connected ({self.cfg.policy}'
+        self._say('info', f'OPC UA {self.cfg.endpoint}: connected ({self.cfg.policy}'
                   + (f', {self.cfg.mode}' if self.cfg.policy != 'None' else '') + '), '
                   f'{len(self.settings.measurement)} measurement and '
                   f'{len(self.settings.manipulated)} manipulated variable(s)')
@@ -470,8 +477,11 @@ class Bridge:
             if len(self._latest) < len(self.settings.measurement):
                 continue                 # a channel has no good value yet
             self.counters['samples'] += 1
-            self._on_sample(Sample(stamp, dict(self._latest), self.cfg.stamp == 'source'
-                                   and stamp != received))
+            try:
+                self._on_sample(Sample(stamp, dict(self._latest), self.cfg.stamp == 'source'
+                                       and stamp != received))
+            except Exception as exc:     # the receiver's fault: said once, the bridge goes on
+                self._log_once('on_sample', 'error', f'measurement not handed on: {exc!r}')
 
     @staticmethod
     def _number(value: Any) -> float | None:
