@@ -184,19 +184,19 @@ class PlantServer:
         server.set_server_name(self.name)
         idx = await server.register_namespace(NAMESPACE)
         self.namespace_index = idx
-        plant = await server.nodes.objects.add_object(ua.NodeId('Plant', idx), 'Plant')
+        plant = await server.nodes.objects.add_object(ua.NodeId('Plant', idx), ua.QualifiedName('Plant', idx))
         for ch in (*self.outputs, *self.inputs):
             writable = ch in self.inputs
             value = self.initial.get(ch, 0.0)
             var = await plant.add_variable(ua.NodeId(f'Plant.{ch}', idx), ua.QualifiedName(ch, idx),
                                            ua.Variant(float(value), ua.VariantType.Double))
             code, shown = UNITS.get(ch, _ONE)
-            await var.add_property(idx, 'EngineeringUnits', ua.EUInformation(
+            await var.add_property(ua.NodeId(f'Plant.{ch}.EngineeringUnits', idx), ua.QualifiedName('EngineeringUnits', 0), ua.EUInformation(
                 NamespaceUri=_UNECE_URI, UnitId=unece_id(code),
                 DisplayName=ua.LocalizedText(shown), Description=ua.LocalizedText(shown)),
                 datatype=ua.NodeId(ua.ObjectIds.EUInformation))
             lo, hi = self.ranges.bounds.get(ch) or default_range(ch)
-            await var.add_property(idx, 'EURange', ua.Range(Low=lo, High=hi),
+            await var.add_property(ua.NodeId(f'Plant.{ch}.EURange', idx), ua.QualifiedName('EURange', 0), ua.Range(Low=lo, High=hi),
                                    datatype=ua.NodeId(ua.ObjectIds.Range))
             if writable:
                 await var.set_writable()
