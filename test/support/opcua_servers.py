@@ -55,9 +55,10 @@ class LoopThread:
 
 
 async def make_server(port: int, setup: Callable[[Server], Any] | None = None,
-                      name: str = 'test') -> Server:
-    """An initialised (not yet started) asyncua server on 127.0.0.1:``port``."""
-    server = Server()
+                      name: str = 'test', user_manager: Any = None) -> Server:
+    """An initialised (not yet started) asyncua server on 127.0.0.1:``port``; ``setup``
+    (maybe async) configures it before it starts (security, identity tokens)."""
+    server = Server(user_manager=user_manager)
     await server.init()
     server.set_endpoint(f'opc.tcp://127.0.0.1:{port}/{name}')
     server.set_server_name(f'tank_control {name}')
@@ -72,11 +73,13 @@ class LagServer:
     """The first-order plant inside an asyncua server (module doc)."""
 
     def __init__(self, ts: float = 0.1, gain: float = 2.0, tau: float = 1.0, u0: float = 0.0,
-                 port: int | None = None, setup: Callable[[Server], Any] | None = None) -> None:
+                 port: int | None = None, setup: Callable[[Server], Any] | None = None,
+                 user_manager: Any = None) -> None:
         self.ts, self.gain, self.tau = ts, gain, tau
         self.port = port or free_port()
         self.endpoint = f'opc.tcp://127.0.0.1:{self.port}/test'
         self._setup = setup
+        self._user_manager = user_manager
         self.y = 0.0
         self.u = u0
         self.k = 0
@@ -130,7 +133,7 @@ class LagServer:
             self._server = server
             self.up = True
             return
-        server = await make_server(self.port, self._setup)
+        server = await make_server(self.port, self._setup, user_manager=self._user_manager)
         idx = await server.register_namespace(NS_URI)
         tank = await server.nodes.objects.add_object(ua.NodeId('Tank', idx), 'Tank')
         self._level = await tank.add_variable(ua.NodeId('Tank.Level', idx), 'Level',
