@@ -124,7 +124,7 @@ class OpcUaBridgeNode(Node):
         if self.bridge.state == 'node_fault':
             self.bridge.stop()
             raise ParameterError(self.bridge.problem)
-        self.create_timer(float(self.params.values['diagnostics_period']),
+        self.create_timer(settings.node.diagnostics_period,
                           self._publish_diagnostics, clock=steady_clock())
         self.get_logger().info(
             f'OPC UA bridge to {settings.node.endpoint}: measurement {list(settings.measurement)}'

@@ -12,8 +12,9 @@ Manipulated values (:meth:`Bridge.write`, any thread): re-checked against the li
 latest-wins slot and written at most once per sample instant (the instant of the controller's
 stamp: a value for an instant already written is dropped, counted in ``coalesced_writes``) and
 never twice within half a sample time; values that come while the connection is down are
-dropped (``dropped_writes``), so a reconnection writes nothing old and never a burst. A write the server refuses is counted (``refused_writes``) and logged once per
-channel and StatusCode.
+dropped (``dropped_writes``), so a reconnection writes nothing old and never a burst. A
+write the server refuses is counted (``refused_writes``) and logged once per channel and
+StatusCode.
 
 Connection: connect, check every node (a missing node, one that is no variable, not numeric, or
 a manipulated one not writable is a :class:`NodeFault`, one line naming the parameter and the
@@ -54,6 +55,15 @@ WATCHDOG_S = 0.5
 
 Log = Callable[[str, str], None]
 """``log(level, text)``; level 'info', 'warning' or 'error'."""
+
+
+def _good(dv: ua.DataValue) -> bool:
+    return dv.StatusCode is None or dv.StatusCode.is_good()
+
+
+def _value(dv: ua.DataValue) -> Any:
+    """The value of a DataValue read (None if its status is not Good or it has none)."""
+    return dv.Value.Value if _good(dv) and dv.Value is not None else None
 
 
 class NodeFault(Exception):
@@ -387,15 +397,16 @@ class Bridge:
                 attrs = [ua.AttributeIds.NodeClass, ua.AttributeIds.DataType]
                 if direction == 'manipulated':
                     attrs.append(ua.AttributeIds.UserAccessLevel)
-                values = await node.read_attributes(attrs)
-                if not values[0].StatusCode.is_good():
+                read = await node.read_attributes(attrs)
+                if not _good(read[0]):
                     raise NodeFault(f'{where}: no such node on {self.cfg.endpoint} '
-                                    f'({status_name(values[0].StatusCode)})')
-                node_class = values[0].Value.Value
+                                    f'({status_name(read[0].StatusCode)})')
+                values = [_value(dv) for dv in read]
+                node_class = values[0]
                 if node_class != ua.NodeClass.Variable:
                     raise NodeFault(f'{where}: node class {ua.NodeClass(node_class).name}, '
                                     'not a variable')
-                data_type = values[1].Value.Value if values[1].StatusCode.is_good() else None
+                data_type = values[1]
                 vtype = (NUMERIC_TYPES.get(data_type.Identifier)
                          if data_type is not None and data_type.NamespaceIndex == 0 else None)
                 if vtype is None:
@@ -407,8 +418,8 @@ class Bridge:
                     raise NodeFault(f'{where}: data type {shown}, not a number; allowed '
                                     'Double, Float, (U)Int8..64')
                 if direction == 'manipulated':
-                    level = values[2].Value.Value if values[2].StatusCode.is_good() else 0
-                    if not int(level) & ua.AccessLevel.CurrentWrite.mask:
+                    level = values[2]
+                    if not int(level or 0) & ua.AccessLevel.CurrentWrite.mask:
                         raise NodeFault(f'{where}: not writable for this session (its '
                                         'UserAccessLevel has no CurrentWrite)')
                     self._vtypes[ch] = vtype

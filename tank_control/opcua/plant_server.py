@@ -56,6 +56,16 @@ def mode_reason(clock_mode: str, endpoint: str) -> str | None:
     return None
 
 
+def _nid(name: str, idx: int) -> ua.NodeId:
+    """The string NodeId ``ns=<idx>;s=<name>``."""
+    return ua.NodeId.from_string(f'ns={idx};s={name}')
+
+
+def _type(object_id: int) -> ua.NodeId:
+    """The NodeId of a standard (ns=0) data type."""
+    return ua.NodeId.from_string(f'i={object_id}')
+
+
 def unece_id(code: str) -> int:
     """The UnitId of a UNECE common code (OPC UA Part 8: its characters packed into an int)."""
     value = 0
@@ -164,7 +174,7 @@ class PlantServer:
                 pending, self._pending = self._pending, None
             if pending and self._server is not None:
                 for ch, (value, stamp) in pending.items():
-                    when = datetime.datetime.fromtimestamp(stamp / 1e9, datetime.timezone.utc)
+                    when = ua.DateTime.fromtimestamp(stamp / 1e9, datetime.timezone.utc)
                     await self._server.write_attribute_value(self._nodes[ch].nodeid, ua.DataValue(
                         Value=ua.Variant(value, ua.VariantType.Double), SourceTimestamp=when,
                         ServerTimestamp=when))
@@ -184,20 +194,25 @@ class PlantServer:
         server.set_server_name(self.name)
         idx = await server.register_namespace(NAMESPACE)
         self.namespace_index = idx
-        plant = await server.nodes.objects.add_object(ua.NodeId('Plant', idx), ua.QualifiedName('Plant', idx))
+        plant = await server.nodes.objects.add_object(_nid('Plant', idx),
+                                                      ua.QualifiedName('Plant', idx))
         for ch in (*self.outputs, *self.inputs):
             writable = ch in self.inputs
             value = self.initial.get(ch, 0.0)
-            var = await plant.add_variable(ua.NodeId(f'Plant.{ch}', idx), ua.QualifiedName(ch, idx),
+            var = await plant.add_variable(_nid(f'Plant.{ch}', idx), ua.QualifiedName(ch, idx),
                                            ua.Variant(float(value), ua.VariantType.Double))
             code, shown = UNITS.get(ch, _ONE)
-            await var.add_property(ua.NodeId(f'Plant.{ch}.EngineeringUnits', idx), ua.QualifiedName('EngineeringUnits', 0), ua.EUInformation(
-                NamespaceUri=_UNECE_URI, UnitId=unece_id(code),
-                DisplayName=ua.LocalizedText(shown), Description=ua.LocalizedText(shown)),
-                datatype=ua.NodeId(ua.ObjectIds.EUInformation))
+            # the standard properties (OPC UA Part 8), their browse names in namespace 0
+            await var.add_property(
+                _nid(f'Plant.{ch}.EngineeringUnits', idx),
+                ua.QualifiedName('EngineeringUnits', 0), ua.EUInformation(
+                    NamespaceUri=_UNECE_URI, UnitId=unece_id(code),
+                    DisplayName=ua.LocalizedText(shown), Description=ua.LocalizedText(shown)),
+                datatype=_type(ua.ObjectIds.EUInformation))
             lo, hi = self.ranges.bounds.get(ch) or default_range(ch)
-            await var.add_property(ua.NodeId(f'Plant.{ch}.EURange', idx), ua.QualifiedName('EURange', 0), ua.Range(Low=lo, High=hi),
-                                   datatype=ua.NodeId(ua.ObjectIds.Range))
+            await var.add_property(_nid(f'Plant.{ch}.EURange', idx),
+                                   ua.QualifiedName('EURange', 0), ua.Range(Low=lo, High=hi),
+                                   datatype=_type(ua.ObjectIds.Range))
             if writable:
                 await var.set_writable()
                 server.set_attribute_value_setter(var.nodeid, self._setter(ch, var))
@@ -210,9 +225,8 @@ class PlantServer:
         refused with BadOutOfRange (the variable keeps its value)."""
         def setter(node: Any, attr: Any, value: ua.DataValue) -> None:
             number = value.Value.Value if value.Value is not None else None
-            ok = (isinstance(number, (int, float)) and not isinstance(number, bool)
-                  and math.isfinite(number) and self.ranges.accepts(channel, float(number)))
-            if not ok:
+            if (not isinstance(number, (int, float)) or isinstance(number, bool)
+                    or not math.isfinite(number) or not self.ranges.accepts(channel, number)):
                 self.counters['refused_writes'] += 1
                 raise ua.uaerrors.BadOutOfRange()
             node.attributes[attr].value = value

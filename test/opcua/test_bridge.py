@@ -124,7 +124,7 @@ def test_writes_are_checked_against_the_limits_and_a_refusal_is_counted_and_logg
             assert wait(lambda: plant.take_inputs() == {'u': 2.0})
             for i in range(4, 8):
                 run.bridge.write({'u': 4.0}, i)
-                assert wait(lambda: run.bridge.counters['refused_writes'] >= i - 3)
+                assert wait(lambda n=i - 3: run.bridge.counters['refused_writes'] >= n)
             assert plant.counters['writes'] == 1
             refusals = [t for _, t in run.logs if 'refused the write' in t]
             assert len(refusals) == 1 and 'BadOutOfRange' in refusals[0]
