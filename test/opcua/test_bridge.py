@@ -156,3 +156,30 @@ def test_at_most_one_write_per_sample_instant_and_none_while_down():
             assert [v for _, v in server.snapshot()[1]][2:] == []
     finally:
         server.close()
+
+
+def test_the_shipped_example_files_make_valid_settings():
+    """docs/opcua/bridge.yaml (+ bridge_secure.yaml): the bridge's parameters are valid, and
+    the writes' limits are the controller's u_min/u_max of the same file."""
+    from support import REPO
+    from tank_control.core import params_file
+    sections = params_file.read(str(REPO / 'docs/opcua/bridge.yaml'))
+    values = params_file.values_for(sections, '/opcua_bridge')
+    limits = config.controller_limits(params_file.values_for(sections, '/controller'))
+    settings = config.settings_from(values, limits)
+    assert settings.limits.bounds == {'F_H': (0.0, 400.0)}
+    assert settings.measurement == {'h': 'ns=2;s=Tank.Level'}
+    secure = params_file.values_for(params_file.read(str(REPO / 'docs/opcua/bridge_secure.yaml')),
+                                    '/opcua_bridge')
+    assert {s.name for s in config.specs(values)} >= set(secure)
+
+
+def test_the_opcua_package_never_imports_rclpy():
+    import json
+    import subprocess
+    import sys
+    code = ('import json, sys\nimport tank_control.opcua.bridge, tank_control.opcua.config, '
+            'tank_control.opcua.plant_server\nprint(json.dumps(sorted(sys.modules)))')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True)
+    assert not [m for m in json.loads(out.stdout) if m == 'rclpy' or m.startswith('rclpy.')]
