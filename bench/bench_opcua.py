@@ -107,7 +107,7 @@ class EchoServer:
         return self.ids[name].to_string()
 
     def round_trips(self, name: str, since_ns: int) -> np.ndarray:
-        return np.array([(t - self.sent[v]) / 1e6 for v, t in self.echoed[name].items()
+        return np.array([(t - self.sent[v]) / 1e6 for v, t in dict(self.echoed[name]).items()
                          if v in self.sent and self.sent[v] >= since_ns])
 
 

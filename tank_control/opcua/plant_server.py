@@ -26,8 +26,9 @@ from typing import Any
 
 from asyncua import Server, ua
 
-from tank_control.core.params import ConfigError, param
+from tank_control.core.params import ConfigError
 from tank_control.core.ranges import Ranges, default_range
+from tank_control.opcua.plant_params import endpoint_param, mode_reason  # noqa: F401 (re-exported)
 
 NAMESPACE = 'urn:tank_control:plant'
 #: channel -> (UNECE common code, display name) of its unit (docs/nodes.md "Plausible ranges")
@@ -37,23 +38,6 @@ UNITS: Mapping[str, tuple[str, str]] = {
     'F_D': ('2J', 'cm³/s')}
 _ONE = ('C62', '1')          # a SISO channel: the model's own units
 _UNECE_URI = 'http://www.opcfoundation.org/UA/units/un/cefact'
-
-
-def endpoint_param() -> Any:
-    """plant_node's ``opcua.endpoint`` (a field of core/node_specs.PlantNode)."""
-    return param('', 'serve the plant\'s outputs (read-only) and inputs (writable) as OPC UA '
-                 'variables Objects/Plant/<channel> at this address, e.g. '
-                 'opc.tcp://0.0.0.0:4840/tank (docs/opcua.md); empty: no server. wall and sim '
-                 'only', name='opcua.endpoint', read_only=True)
-
-
-def mode_reason(clock_mode: str, endpoint: str) -> str | None:
-    """Why ``opcua.endpoint`` cannot be used with ``clock_mode`` (None if it can)."""
-    if endpoint and clock_mode == 'lockstep':
-        return ('opcua.endpoint: set with clock_mode lockstep; an OPC UA client answers no '
-                '/clock tick, so nothing would pace the plant: use clock_mode wall or sim, or '
-                'an empty opcua.endpoint')
-    return None
 
 
 def _nid(name: str, idx: int) -> ua.NodeId:
