@@ -61,17 +61,21 @@ NODE_HELP = {
                           'measurement from, manipulated to the server (docs/opcua.md).'),
 }
 
+#: a node documented elsewhere than docs/nodes.md: (its page, its example file)
+NODE_DOCS = {'opcua_bridge_node': ('docs/opcua.md', 'docs/opcua/bridge.yaml')}
+
 
 def node_help(name: str) -> str:
     """``<node> --help``: what the node is, how it takes its parameters, an example."""
     node, what = NODE_HELP[name]
+    docs, example = NODE_DOCS.get(name, ('docs/nodes.md', 'config/fopdt_autotune.yaml'))
     return (f'usage: {name} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] '
             f'[-r __node:=NAME] ...]\n\n{what}\n\n'
             f'Parameters come from ROS 2 params files and -p (a -p does not override the '
             f'node\'s own section of a params file); on a running node: ros2 param list '
-            f'/{node}, ros2 param describe /{node} NAME. All of them: docs/nodes.md.\n\n'
+            f'/{node}, ros2 param describe /{node} NAME. All of them: {docs}.\n\n'
             f'example:\n  ros2 run tank_control {name} --ros-args --params-file '
-            f'config/fopdt_autotune.yaml')
+            f'{example}')
 
 
 def params_files_reason(args: Sequence[str]) -> str | None:
