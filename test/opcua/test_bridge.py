@@ -88,6 +88,7 @@ def test_the_password_comes_from_a_file_or_an_environment_variable_never_a_param
                                            for n in names)
 
 
+@pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
 def test_bad_status_values_are_never_published_and_are_counted():
     server = LagServer(ts=TS).start()
     try:
@@ -106,6 +107,7 @@ def test_bad_status_values_are_never_published_and_are_counted():
         server.close()
 
 
+@pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
 def test_writes_are_checked_against_the_limits_and_a_refusal_is_counted_and_logged_once():
     """range.u [0, 5] at the bridge: 7 is refused there (never written); the plant server's
     EURange [0, 3]: 4 is refused by the server (BadOutOfRange), counted, logged once."""
@@ -133,6 +135,7 @@ def test_writes_are_checked_against_the_limits_and_a_refusal_is_counted_and_logg
         plant.stop()
 
 
+@pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
 def test_at_most_one_write_per_sample_instant_and_none_while_down():
     server = LagServer(ts=TS).start()
     try:

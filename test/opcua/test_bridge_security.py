@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import pytest
 from asyncua import ua
 from asyncua.crypto.permission_rules import User, UserRole
 
@@ -12,6 +13,9 @@ from support.opcua_certs import self_signed
 from support.opcua_servers import LagServer
 from tank_control.opcua import config
 from tank_control.opcua.bridge import Bridge
+
+#: each test starts an asyncua server (4-6 s of start-up on a busy machine)
+pytestmark = pytest.mark.slow
 
 TS = 0.1
 SERVER_URI = 'urn:tank_control:test:server'

@@ -16,6 +16,9 @@ from support.opcua_servers import free_port
 from tank_control.core.scenario import plant_setup
 from tank_control.opcua.plant_server import NAMESPACE, PlantServer, mode_reason, unece_id
 
+#: each test starts an asyncua server (4-6 s of start-up on a busy machine)
+pytestmark = pytest.mark.slow
+
 TS = 0.05
 
 
