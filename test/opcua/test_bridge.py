@@ -108,6 +108,22 @@ def test_bad_status_values_are_never_published_and_are_counted():
 
 
 @pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
+def test_a_value_without_source_timestamp_is_stamped_on_receipt_and_counted():
+    server = LagServer(ts=TS, u0=1.0)      # y changes every tick: a notification each
+    server.source_stamps = False
+    server.start()
+    try:
+        with Run(values_for(server.endpoint, server.level_nodeid)) as run:
+            assert wait(lambda: len(run.samples) > 5)
+            assert not any(s.source_stamped for s in run.samples)
+            assert run.bridge.counters['receive_stamps'] >= len(run.samples)
+            now = time.time_ns()
+            assert all(now - 10**10 < s.stamp_ns <= now for s in run.samples)
+    finally:
+        server.close()
+
+
+@pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
 def test_writes_are_checked_against_the_limits_and_a_refusal_is_counted_and_logged_once():
     """range.u [0, 5] at the bridge: 7 is refused there (never written); the plant server's
     EURange [0, 3]: 4 is refused by the server (BadOutOfRange), counted, logged once."""

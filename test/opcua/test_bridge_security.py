@@ -86,6 +86,16 @@ def test_sign_and_encrypt_with_self_signed_certificates_and_a_password_from_a_fi
             assert any('Basic256Sha256, SignAndEncrypt' in text for text in logs)
         finally:
             bridge.stop()
+        # the server takes nothing else: the same bridge without security is refused
+        values = bridge_values(tmp_path, server, server_cert, 'correct horse')
+        values['security.policy'] = 'None'
+        plain = Bridge(config.settings_from(values), samples.append, lambda level, text: None)
+        plain.start()
+        try:
+            assert plain.wait_first_attempt(60)
+            assert plain.state == 'down' and plain.counters['connections'] == 0, plain.problem
+        finally:
+            plain.stop()
     finally:
         server.close()
 

@@ -87,6 +87,7 @@ class LagServer:
         self.trace: list[tuple[int, int, float, float]] = []
         self.writes: list[tuple[float, float]] = []            # (monotonic s, value written)
         self.status = ua.StatusCodes.Good
+        self.source_stamps = True          # False: the level is served without SourceTimestamp
         self.level_nodeid = ''
         self.inflow_nodeid = ''
         self.up = False
@@ -188,6 +189,7 @@ class LagServer:
             return
         when = datetime.datetime.fromtimestamp(stamp / 1e9, datetime.timezone.utc)
         dv = ua.DataValue(Value=ua.Variant(self.y, ua.VariantType.Double),
-                          StatusCode=ua.StatusCode(self.status), SourceTimestamp=when,
+                          StatusCode=ua.StatusCode(self.status),
+                          SourceTimestamp=when if self.source_stamps else None,
                           ServerTimestamp=when)
         await self._server.write_attribute_value(self._level.nodeid, dv)
