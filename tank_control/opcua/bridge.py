@@ -49,8 +49,8 @@ _INT_BOUNDS = {ua.VariantType.SByte: (-2 ** 7, 2 ** 7 - 1), ua.VariantType.Byte:
                ua.VariantType.Int32: (-2 ** 31, 2 ** 31 - 1), ua.VariantType.UInt32: (0, 2 ** 32 - 1),
                ua.VariantType.Int64: (-2 ** 63, 2 ** 63 - 1), ua.VariantType.UInt64: (0, 2 ** 64 - 1)}
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
-#: the client's health probe (a read of the server state) period [s]: a server that stops
-#: answering without closing the connection is found within about this time
+#: the client's health probe (a read of the server state) period and timeout [s]: a server
+#: that stops answering without closing the connection is found within about twice this
 WATCHDOG_S = 0.5
 
 Log = Callable[[str, str], None]
