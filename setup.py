@@ -33,6 +33,7 @@ setup(
             'controller_node = tank_control.nodes.controller_node:main',
             'reference_node = tank_control.nodes.reference_node:main',
             'dashboard_node = tank_control.nodes.dashboard_node:main',
+            'opcua_bridge_node = tank_control.nodes.opcua_bridge_node:main',
             'ros2 = tank_control.ros2cli.main:main',
             'tank-control = tank_control.harness.cli:main',
         ],

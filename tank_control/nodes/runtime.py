@@ -57,7 +57,12 @@ NODE_HELP = {
     'reference_node': ('reference', 'Setpoint and disturbance schedules.'),
     'dashboard_node': ('dashboard', 'A web page on localhost (parameter port, default 8080) '
                        'with the graph\'s trends, parameters and margins.'),
+    'opcua_bridge_node': ('opcua_bridge', 'An OPC UA server\'s variables as the loop\'s plant: '
+                          'measurement from, manipulated to the server (docs/opcua.md).'),
 }
+
+#: a node documented elsewhere than docs/nodes.md: (its page, its example file)
+NODE_DOCS = {'opcua_bridge_node': ('docs/opcua.md', 'docs/opcua/bridge.yaml')}
 
 
 def _kind_names(node: str) -> str:
@@ -74,14 +79,16 @@ def node_help(name: str) -> str:
     node, what = NODE_HELP[name]
     if '{kinds}' in what:
         what = what.replace('{kinds}', _kind_names(node))
+    docs, example = NODE_DOCS.get(name, ('docs/nodes.md', 'config/fopdt_autotune.yaml'))
+    kinds = ('; every kind with its origin: tank-control list --kinds'
+             if node in ('plant', 'controller') else '')
     return (f'usage: {name} [-h] [--ros-args [--params-file FILE] [-p NAME:=VALUE] '
             f'[-r __node:=NAME] ...]\n\n{what}\n\n'
             f'Parameters come from ROS 2 params files and -p (a -p does not override the '
             f'node\'s own section of a params file); on a running node: ros2 param list '
-            f'/{node}, ros2 param describe /{node} NAME. All of them: docs/nodes.md; '
-            f'every kind with its origin: tank-control list --kinds.\n\n'
+            f'/{node}, ros2 param describe /{node} NAME. All of them: {docs}{kinds}.\n\n'
             f'example:\n  ros2 run tank_control {name} --ros-args --params-file '
-            f'config/fopdt_autotune.yaml')
+            f'{example}')
 
 
 def params_files_reason(args: Sequence[str]) -> str | None:
