@@ -5,9 +5,10 @@ steps in either direction are accepted (responses are normalised by the signed s
 :func:`iae` ∫|e| dt [unit·s] and :func:`ise` ∫e² dt [unit²·s] (trapezoidal rule);
 :func:`noise_std` the white measurement noise of a record, estimated robustly;
 :func:`step_metrics` overshoot [%], 10–90 % rise time [s], ±2 % settling time [s],
-steady-state error, peak, read through that noise (docs/harness.md, "Measurement noise"); :func:`deviation_metrics` for an error that should stay at 0 (a load
-change, a coupling): peak error and time, IAE, ∫e dt (000 eq. 10 for a load step), recovery
-time into ±2 % of the peak, final and initial error.
+steady-state error, peak, read through that noise (docs/harness.md, "Measurement noise");
+:func:`deviation_metrics` for an error that should stay at 0 (a load change, a coupling):
+peak error and time, IAE, ∫e dt (000 eq. 10 for a load step), recovery time into ±2 % of the
+peak, final and initial error.
 """
 from __future__ import annotations
 
@@ -172,12 +173,12 @@ def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | 
 
     With noise of relative size n = σ/|step| above band/SETTLE_K, the metrics are read
     on z smoothed by a centred moving average of w samples, w the smallest with
-    SETTLE_K·n/√w ≤ band, but spanning at most a quarter of the time from the first sample
-    beyond 10 % to the first beyond 90 % (so the average does not flatten the response); the smoothed noise is σ_s = n/√w. The overshoot is
-    the peak of the smoothed z above 1, counted only when it exceeds σ_s·√(2 ln(N/w))
-    (N samples: the level that noise alone stays below); the settling band is
-    max(band, SETTLE_K·σ_s). Without noise (w = 1, σ_s = 0) these are the raw-record
-    definitions.
+    SETTLE_K·n/√w ≤ band, but spanning at most a quarter of the time from the first
+    sample beyond 10 % to the first beyond 90 % (so the average does not flatten the
+    response); the smoothed noise is σ_s = n/√w. The overshoot is the peak of the
+    smoothed z above 1, counted only when it exceeds σ_s·√(2 ln(N/w)) (N samples: the
+    level that noise alone stays below); the settling band is max(band, SETTLE_K·σ_s).
+    Without noise (w = 1, σ_s = 0) these are the raw-record definitions.
     """
     t, y = _as_arrays(t, y)
     t_step = float(t[0]) if t_step is None else float(t_step)
