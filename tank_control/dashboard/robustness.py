@@ -4,7 +4,7 @@ Pure (no rclpy): from the plant node's and the controller node's parameter value
 JSON-safe message. The loop is the implemented one, as ``tank-control analyze`` and
 ``analysis.png`` describe it (``harness/analysis.py``: :func:`loop_cases`, ``loop_report``):
 ``Pid2Dof`` (``frequency.pid_feedback_discrete``) on the exact ZOH model of the plant at the
-controller's sample time, exact dead time (SPEC §3; 002). Plants: ``fopdt``, ``ipdt``,
+controller's sample time, exact dead time ([Checks] §2; [Ikonen]). Plants: ``fopdt``, ``ipdt``,
 ``sopdt`` (through their process model) and ``transfer_function`` (``frequency.rational_zoh``);
 controllers ``pid`` and ``relay_autotune``. Frequencies in rad/s, phase in degrees, delay
 margin in s.

@@ -4,7 +4,7 @@ A SISO loop is a ``pid`` or ``relay_autotune`` controller on a plant that is a p
 (``fopdt``, ``ipdt``, ``sopdt``: ``core/tuning/model.from_plant``).
 The loop analysed is the implemented one: the exact ZOH model at the controller's sample time
 and the transfer function of ``Pid2Dof`` with the given gains (``core/analysis/robustness.py``;
-exact dead time, SPEC §3, 002's gang of four). The plant section gives the true model; the
+exact dead time, [Checks] §2, [Ikonen]'s gang of four). The plant section gives the true model; the
 controller's own model (``tuning.*``, or the auto-tuner's identified one) is analysed beside it
 when there is one. Frequencies in rad/s, phase in degrees, delay margin in s.
 """
@@ -103,7 +103,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_nyq.set_xlabel('Re L')
     ax_nyq.set_ylabel('Im L')
     ax_nyq.legend(fontsize='small')
-    ax_g4.set_title('gang of four (002)')
+    ax_g4.set_title('gang of four ([Ikonen])')
     ax_g4.set_xlabel('ω [rad/s]')
     ax_g4.legend(fontsize='small')
     for ax in axes.flat:

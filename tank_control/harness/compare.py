@@ -1,4 +1,4 @@
-"""Compare runs: a markdown table of their metrics and an overlay plot (as 003 compares
+"""Compare runs: a markdown table of their metrics and an overlay plot (as [Michalski2021] compares
 controllers on the same tank)."""
 from __future__ import annotations
 

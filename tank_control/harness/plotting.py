@@ -7,7 +7,7 @@ controller's state changes (the relay auto-tuner's ``settling``, ``relay``, ...)
 lines with the state's name. An input panel's y-range is the robust range of its signals
 (percentiles), so one derivative kick does not flatten the rest; clipped samples are marked at
 the edge. Several runs overlaid keep one colour per run in every panel; legends sit outside the
-axes. Units: the mixing tank's (003 §1: h in cm, temperatures in °C, flows in cm³/s); the SISO
+axes. Units: the mixing tank's ([Michalski2021] §1: h in cm, temperatures in °C, flows in cm³/s); the SISO
 plants' signals are in the units of the process, shown as "process units".
 """
 from __future__ import annotations

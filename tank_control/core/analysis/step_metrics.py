@@ -7,7 +7,7 @@ steps in either direction are accepted (responses are normalised by the signed s
 :func:`step_metrics` overshoot [%], 10–90 % rise time [s], ±2 % settling time [s],
 steady-state error, peak, read through that noise (docs/harness.md, "Measurement noise");
 :func:`deviation_metrics` for an error that should stay at 0 (a load change, a coupling):
-peak error and time, IAE, ∫e dt (000 eq. 10 for a load step), recovery time into ±2 % of the
+peak error and time, IAE, ∫e dt ([Viteckova] eq. 10 for a load step), recovery time into ±2 % of the
 peak, final and initial error.
 """
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Plant kind ``ipdt``: integrator plus dead time k1/s·e^(−To·s) (000 eq. 1)."""
+"""Plant kind ``ipdt``: integrator plus dead time k1/s·e^(−To·s) ([Viteckova] eq. 1)."""
 from tank_control.core.plants.ipdt import Ipdt, IpdtConfig
 from tank_control.core.plants.kinds.base import PlantKind
 
-KIND = PlantKind('ipdt', 'integrator plus dead time k1/s·e^(−To·s) (000 eq. 1)', IpdtConfig, Ipdt)
+KIND = PlantKind('ipdt', 'integrator plus dead time k1/s·e^(−To·s) ([Viteckova] eq. 1)', IpdtConfig, Ipdt)
