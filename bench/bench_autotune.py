@@ -1,4 +1,4 @@
-"""Relay auto-tuning accuracy: describing function vs first harmonic (001 §1.3, 004 §3.2–3.3).
+"""Relay auto-tuning accuracy: describing function vs first harmonic ([DeadTimeNotes] §1.3, [Precup2013] §3.2–3.3).
 
 For FOPDT (K = 1, T = 1, L/T in {0.1, 0.3, 1, 3}), IPDT (k1 = 0.05, To = 5) and, outside
 the model family, 1/(s+1)²·e^(−L·s) (L = 0.3, 1), a relay of amplitude d = 1 runs on the
@@ -105,7 +105,7 @@ def relay_run(case: float | str, noise: float, seed: int, spp: float, periods: i
 
 def closed_loop_run(case: float | str, seed: int) -> tuple[float, float, float, str]:
     """The whole RelayAutotuner (settling, auto hysteresis, relay, fit, ZN PI) on core/plants
-    Fopdt (K = 2, T = 5, L = ratio·T; '001': K = 0.05, T = 10, L = 3) or Ipdt (k1 = 0.05,
+    Fopdt (K = 2, T = 5, L = ratio·T; '[DeadTimeNotes]': K = 0.05, T = 10, L = 3) or Ipdt (k1 = 0.05,
     To = 5) at rest, noise 1 % of the relay output amplitude, 50 samples per Tu.
     Returns (Ku error %, Tu error %, relay start → tuned in periods Tu, final state)."""
     from tank_control.core.control.pid import PidConfig
@@ -118,14 +118,14 @@ def closed_loop_run(case: float | str, seed: int) -> tuple[float, float, float, 
         ku, tu = math.pi / (2 * k1 * dead), 4 * dead
         d, amp, pid = 1.0, k1 * dead, dict(kp=0.2 / (k1 * dead), ti=40.0)
     else:
-        gain, tc, dead = (0.05, 10.0, 3.0) if case == '001' else (2.0, 5.0, 5.0 * float(case))
+        gain, tc, dead = (0.05, 10.0, 3.0) if case == '[DeadTimeNotes]' else (2.0, 5.0, 5.0 * float(case))
         plant = Fopdt(FopdtConfig(gain=gain, time_constant=tc, dead_time=dead, initial_output=10.0))
         lo, hi = 0.0, math.pi / dead
         for _ in range(200):
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if mid * dead + math.atan(mid * tc) < math.pi else (lo, mid)
         ku, tu = math.sqrt(1 + (lo * tc) ** 2) / gain, 2 * math.pi / lo
-        d = 200.0 if case == '001' else 1.0
+        d = 200.0 if case == '[DeadTimeNotes]' else 1.0
         amp, pid = gain * d * (1 - math.exp(-dead / tc)), dict(kp=0.2 * ku, ti=tc + dead)
     ts = tu / 50
     tuner = RelayAutotuner(PidConfig(sample_time=ts, **pid),
@@ -153,10 +153,10 @@ def closed_loop_table(seeds: int) -> None:
     print(f'\nRelayAutotuner closed loop on core/plants, 1 % noise, 50 samples per Tu, {seeds} seeds: '
           'worst |error| in %, experiment length (relay start → tuned PID) in Tu')
     print(f"{'plant':>12} | {'Ku':>6} {'Tu':>6} | {'periods':>7} | all running")
-    for case in (0.1, 0.3, 1.0, 3.0, 'ipdt', '001'):
+    for case in (0.1, 0.3, 1.0, 3.0, 'ipdt', '[DeadTimeNotes]'):
         runs = [closed_loop_run(case, seed) for seed in range(seeds)]
         e = np.array([r[:3] for r in runs])
-        name = {'ipdt': 'IPDT', '001': '001 example'}.get(case, f'FOPDT L/T={case}')
+        name = {'ipdt': 'IPDT', '[DeadTimeNotes]': '[DeadTimeNotes] example'}.get(case, f'FOPDT L/T={case}')
         print(f'{name:>12} | {np.abs(e[:, 0]).max():6.2f} {np.abs(e[:, 1]).max():6.2f} | '
               f'{e[:, 2].max():7.2f} | {all(r[3] == "running" for r in runs)}')
 

@@ -1,5 +1,5 @@
 """MPCS benchmarks: per-sample time of the analytic and QP versions at the default horizons
-and at 003's (100, 50) (the baseline, measured in the same run), the QP library comparison,
+and at [Michalski2021]'s (100, 50) (the baseline, measured in the same run), the QP library comparison,
 a one-hour tank scenario run in-process, design rebuild times and IAE.
 
     .venv/bin/python bench/bench_mpcs.py [--runs 3] [--quick]
@@ -22,7 +22,7 @@ import numpy as np
 from tank_control.core.control.mpcs import Mpcs, MpcsConfig
 from tank_control.core.plants.mixing_tank import MixingTank
 
-DOCUMENT = (100, 50, 1)     # 003 §6 (N, Nu, block): the baseline of the timing tables
+DOCUMENT = (100, 50, 1)     # [Michalski2021] §6 (N, Nu, block): the baseline of the timing tables
 
 
 class _Tank(MixingTank):
@@ -280,11 +280,11 @@ def main() -> None:
     try:
         from tank_control.core.control.multiloop import TwoLoopPi, document_config
     except ImportError:
-        print('| two-loop PI (003 §2) | not available in this checkout | |')
+        print('| two-loop PI ([Michalski2021] §2) | not available in this checkout | |')
     else:
         for dec in ('none', 'static'):
             iae = run_loop(None, 3600, controller=TwoLoopPi(document_config(dec)))[4]
-            print(f'| two-loop PI of 003, decoupling {dec} | {iae[0]:.0f} | {iae[1]:.0f} |')
+            print(f'| two-loop PI of [Michalski2021], decoupling {dec} | {iae[0]:.0f} | {iae[1]:.0f} |')
 
 
 if __name__ == '__main__':

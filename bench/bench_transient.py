@@ -1,7 +1,7 @@
-"""Frequency points from the relay transient (004 eqs. 3.3.1–3.3.10): what they need.
+"""Frequency points from the relay transient ([Precup2013] eqs. 3.3.1–3.3.10): what they need.
 
 Part A — ``transient_response`` on a relay record from rest (ideal relay ±1, hysteresis 4σ,
-exact ZOH plant sampled at 0.1 s) of 001's FOPDT 0.05/(10s + 1)·e^(−3s) (ωc = 2π/10.82 s) and
+exact ZOH plant sampled at 0.1 s) of [DeadTimeNotes]'s FOPDT 0.05/(10s + 1)·e^(−3s) (ωc = 2π/10.82 s) and
 of the IPDT 0.05/s·e^(−5s) (ωc = 2π/20 s): record length, α, cut (horizon) and the Gaussian
 lag window (Tu/20) varied; the error is the worst over 0.25, 0.5, 1, 1.5, 2·ωc of |Ĝ/G − 1| [%]
 (and of |arg Ĝ − arg G| [°]); with noise σ = 1 % of the relay output amplitude, the median
@@ -9,7 +9,7 @@ and the worst of that over ``--seeds`` seeds.
 
 Part B — the whole RelayAutotuner with ``autotune.transient_points`` [0.25, 0.5, 1, 1.5, 2]
 (its own α, cut, window and record length from the identified model), started from rest, on
-001's FOPDT, the IPDT and plants the tests do not use: FOPDT 2/(5s + 1)·e^(−s) and
+[DeadTimeNotes]'s FOPDT, the IPDT and plants the tests do not use: FOPDT 2/(5s + 1)·e^(−s) and
 2/(5s + 1)·e^(−5s), SOPDT e^(−2s)/((10s + 1)(4s + 1)) (with the automatic cut, which takes
 the IPDT that ``autotune.model auto`` identifies there, and with autotune.transient_horizon 80 s).
 Per point: worst magnitude error [%] and phase error [°] over the seeds; the mean record length.
@@ -33,7 +33,7 @@ RATIOS = np.array([0.25, 0.5, 1.0, 1.5, 2.0])
 
 # name: (A, B, C, dead time [s], exact G(jω), Tu [s] (for part A), PI before the test)
 PLANTS = {
-    '001 FOPDT 0.05, 10 s, 3 s': ([[-0.1]], [0.005], [1.0], 3.0,
+    '[DeadTimeNotes] FOPDT 0.05, 10 s, 3 s': ([[-0.1]], [0.005], [1.0], 3.0,
                                   lambda w: 0.05 * np.exp(-3j * w) / (10j * w + 1), 10.82,
                                   dict(kp=20.0, ti=12.0), 200.0),
     'IPDT 0.05/s, 5 s': ([[0.0]], [0.05], [1.0], 5.0,
@@ -102,7 +102,7 @@ def part_a(seeds: int) -> None:
           '1 % noise: worst |')
     print('|---|---|---|---|---|---|---|---|')
     rows = {
-        '001 FOPDT 0.05, 10 s, 3 s': [
+        '[DeadTimeNotes] FOPDT 0.05, 10 s, 3 s': [
             (46, 0.1, 32, False), (46, 0.1, 32, True), (100, 0.1, 70, False),
             (91, 4 / 73, 73, True), (110, 4 / 73, 73, True), (146, 4 / 73, 73, True),
             (219, 4 / 73, 73, True), (146, 4 / 73, 73, False), (146, 4 / 73, 40, True),

@@ -1,5 +1,5 @@
 """Tuning with a robustness target: realised Ms of the implemented discrete loop, load IAE and
-setpoint overshoot of the Ms-constrained design (004 §3.4.2 by optimisation) beside
+setpoint overshoot of the Ms-constrained design ([Precup2013] §3.4.2 by optimisation) beside
 Ziegler–Nichols, Cohen–Coon, AMIGO and SIMC on the same plants; and the cost of one live
 robustness analysis.
 

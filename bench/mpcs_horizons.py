@@ -33,7 +33,7 @@ from tank_control.core.scenario import run_in_process
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / 'config' / 'scenarios' / 'tank_mpcs_qp_003.yaml'
 SETTLED = 1200.0          # [s] after a change: from here to the next change the claim holds
-DOCUMENT = (100, 50, 1)   # 003 §6 (N, Nu, block)
+DOCUMENT = (100, 50, 1)   # [Michalski2021] §6 (N, Nu, block)
 ISSUE = (400, 50, 1)      # a longer N alone
 DEFAULT = (MpcsConfig().horizon, MpcsConfig().control_horizon, MpcsConfig().block)
 
@@ -106,7 +106,7 @@ def main() -> None:
     base = MpcsConfig()
     print(f'Default (N, Nu, block) = {fmt_h(DEFAULT)}; warning for the defaults: '
           f'{horizon_warning(base) or "none"}')
-    print(f'Warning for 003 §6 (100, 50, 1): '
+    print(f'Warning for [Michalski2021] §6 (100, 50, 1): '
           f'{horizon_warning(replace(base, horizon=100, control_horizon=50, block=1))}\n')
 
     print('## 1. Document sequence (tank_mpcs_qp_003.yaml), QP, nonlinear tank, in-process\n')

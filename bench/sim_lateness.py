@@ -2,7 +2,7 @@
 
 Runs the scenario over ROS 2 once in lockstep and ``--runs`` times in sim per real-time factor,
 and prints per run the overshoot of the setpoint step [%], the IAE and ``late_by_signal`` of
-``metrics.json``. Then it checks what the plant really integrated: for the IPDT (000:
+``metrics.json``. Then it checks what the plant really integrated: for the IPDT ([Viteckova]:
 k1 = 0.05 1/s, To = 5 s, ts = 0.1 s, no noise) ``y_k+1 − y_k = k1·ts·u(t_k − To)``, so the
 input of each tick follows from the recorded response. For the ticks whose ``u`` answer was on
 time it must equal that answer; for the late ones (no answer recorded, or reported on

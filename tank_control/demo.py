@@ -1,8 +1,8 @@
-"""The main job (``make demo``): the mixing tank of 003 in lockstep over a real ROS 2 graph.
+"""The main job (``make demo``): the mixing tank of [Michalski2021] in lockstep over a real ROS 2 graph.
 
-Runs ``config/scenarios/tank_mpcs_qp.yaml`` — the nonlinear tank of 003 §1 under the
-offset-free MPCS-QP of 003 §6 at its default horizons (N, Nu, block) = (600, 200, 10) with
-003's λ = 0.5, within the document's constraints
+Runs ``config/scenarios/tank_mpcs_qp.yaml`` — the nonlinear tank of [Michalski2021] §1 under the
+offset-free MPCS-QP of [Michalski2021] §6 at its default horizons (N, Nu, block) = (600, 200, 10) with
+[Michalski2021]'s λ = 0.5, within the document's constraints
 0 ≤ F_H, F_Cin ≤ 100 cm³/s and |ΔF| ≤ 0.2 cm³/s per sample, warm-started at the operating point;
 setpoint changes on h and T_out and ±25 % steps of F_D, 9100 s simulated — as three node
 processes plus the harness's recorder, then prints the metrics table, the inputs' ranges and

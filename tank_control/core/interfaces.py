@@ -3,7 +3,7 @@
 The contracts between ``core/`` objects, ``core/loop.py`` and the ROS 2 nodes. Signals are
 named channels: a plant declares its outputs, inputs and disturbances, a controller the outputs
 it reads and the inputs it writes, a setpoint carries its output's name. SISO plants use ``y``,
-``u`` and ``v`` (load at the plant input, 000 Fig. 1); the mixing tank (003 §1) ``h`` [cm],
+``u`` and ``v`` (load at the plant input, [Viteckova] Fig. 1); the mixing tank ([Michalski2021] §1) ``h`` [cm],
 ``T_out`` [°C], ``F_H``, ``F_Cin``, ``F_D`` [cm³/s], ``T_D``, ``T_H``, ``T_C`` [°C]. Vectors
 are 1-D float64 arrays in the declared order. Time is integer nanoseconds wherever samples are
 counted, so the in-process loop and the ROS graph see bit-identical instants;

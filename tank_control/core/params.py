@@ -196,7 +196,7 @@ def param(default: Any, description: str, *, unit: str = '', min: float | None =
     0 because ROS cannot hold it (``math.inf``: "0 = none"; ``None``: "0 = default");
     ``min``/``max`` bound the parameter value; ``tiny`` is the smallest magnitude of a non-zero
     value (e.g. a time whose products and quotients must stay finite: 0 = none, or at least
-    ``tiny``); ``source`` cites the document ("000 eq. 19").
+    ``tiny``); ``source`` cites the document ("[Viteckova] eq. 19").
     """
     meta = _Meta(description, unit, min, max, tuple(choices) if choices else None, read_only,
                  zero, name, source, tiny)

@@ -4,7 +4,7 @@ A value outside its channel's range is treated like a non-finite one by controll
 plant_node and the in-process loop (``core/loop.py``): refused, counted, the last good value kept
 (a measurement: the controller holds or sends its fail-safe output). Each channel a node receives
 has one parameter ``range.<channel>`` = ``[min, max]`` (both bounds in one list, so a change is
-atomic), in the channel's units. Defaults come from the mixing tank model (003 §1,
+atomic), in the channel's units. Defaults come from the mixing tank model ([Michalski2021] §1,
 ``core/plants/mixing_tank.py``) and, for the SISO channels, from how far a SISO loop can go:
 
 * ``h`` [cm]: ``[-h_max, 10·h_max]`` with the tank's default brim ``h_max`` = 200 cm (the linear

@@ -1,7 +1,7 @@
 """Setpoint and disturbance schedules per channel: the reference publisher's arithmetic.
 
 A channel is a piecewise-constant target — ``values[i]`` from ``times[i]`` on — optionally
-followed at the rate ``ramp_rate`` [channel units/s] (001 Fig. 1.15: 0 → 100 in 25 s is
+followed at the rate ``ramp_rate`` [channel units/s] ([DeadTimeNotes] Fig. 1.15: 0 → 100 in 25 s is
 ``ramp_rate = 4``). The value at time ``t`` [s] is a closed-form function of the schedule and
 ``t`` (no hidden integrator state), so reference_node and the in-process loop compute
 bit-identical values. Parameter layout (``setpoint.<ch>.times`` ...), ``value`` and runtime

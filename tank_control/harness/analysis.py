@@ -4,7 +4,7 @@ A SISO loop is analysed when its controller kind and its plant kind describe the
 (``ControllerKind.linear``, ``PlantKind.linear``: ``core/analysis/linear.py``,
 ``core/analysis/loops.py``). The loop analysed is the implemented one: the exact ZOH model at
 the controller's sample time and the controller's discrete transfer function (exact dead time,
-SPEC §3, 002's gang of four). The plant section gives the true model; the models the
+SPEC §3, [Ikonen]'s gang of four). The plant section gives the true model; the models the
 controller carries (``tuning.*``, the auto-tuner's identified one, a predictor's internal
 model) are analysed beside it. Frequencies in rad/s, phase in degrees, delay margin in s.
 """
@@ -103,7 +103,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_nyq.set_xlabel('Re L')
     ax_nyq.set_ylabel('Im L')
     ax_nyq.legend(fontsize='small')
-    ax_g4.set_title('gang of four (002)')
+    ax_g4.set_title('gang of four ([Ikonen])')
     ax_g4.set_xlabel('ω [rad/s]')
     ax_g4.legend(fontsize='small')
     for ax in axes.flat:

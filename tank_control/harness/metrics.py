@@ -23,6 +23,9 @@ STEP_TOL = 1e-3
 #: Sample-to-sample differences below this fraction of the magnitude (at least of 1
 #: unit) are floating-point rounding, not movement.
 MOVE_TOL = 1e-9
+#: The run starts with a setpoint change only if |r(0) − y(0)| exceeds this many σ̂ of the
+#: output's measurement noise (besides STEP_TOL): noise on y(0) is no setpoint change.
+INITIAL_NOISE_K = 5.0
 
 
 @dataclass(frozen=True)
@@ -41,12 +44,13 @@ class Event:
 
 
 def column_changes(v: np.ndarray, initial: float | None = None,
-                   step_tol: float = STEP_TOL) -> list[tuple[int, int, float, float]]:
+                   step_tol: float = STEP_TOL, initial_tol: float = 0.0
+                   ) -> list[tuple[int, int, float, float]]:
     """``(start, settled, from, to)`` of each change of the column ``v``: consecutive
     samples moving in one direction are one change (a ramp); a change smaller than
     ``step_tol`` × max(|v|, |initial|) is dropped. ``initial``: the value before the
-    first sample (a setpoint's output y(0)); if it differs from v[0], sample 0 is a
-    change from it."""
+    first sample (a setpoint's output y(0)); if it differs from v[0] by more than that and
+    than ``initial_tol`` (the noise on y(0)), sample 0 is a change from it."""
     v = np.asarray(v, dtype=float)
     n = len(v)
     if n == 0:
@@ -62,7 +66,7 @@ def column_changes(v: np.ndarray, initial: float | None = None,
     direction = np.where(np.abs(diff) > tol_move, np.sign(diff), 0.0)   # NaN → 0
     changes: list[tuple[int, int, float, float]] = []
     if (initial is not None and math.isfinite(initial) and math.isfinite(v[0])
-            and abs(v[0] - initial) > tol_step):
+            and abs(v[0] - initial) > max(tol_step, initial_tol)):
         changes.append((0, 0, float(initial), float(v[0])))
     i = 1
     while i < n:
@@ -83,7 +87,7 @@ def setpoint_changes(t: np.ndarray, y: np.ndarray, r: np.ndarray, step_tol: floa
     """``(start, settled, stop, r_from, r_to)`` of each setpoint change of one output;
     ``stop`` is the next change of this setpoint (or the end), not of other events."""
     y0 = float(y[0]) if len(y) else None
-    changes = column_changes(r, y0, step_tol)
+    changes = column_changes(r, y0, step_tol, INITIAL_NOISE_K * sm.noise_std(y))
     stops = [c[0] for c in changes[1:]] + [len(r)]
     return [(start, settled, stop, r_from, r_to)
             for (start, settled, r_from, r_to), stop in zip(changes, stops)]
@@ -97,7 +101,8 @@ def find_events(outputs: Mapping[str, tuple[np.ndarray, np.ndarray]],
     the first sample of the next event of any kind, or ``n``."""
     found = [Event('setpoint', name, *c)
              for name, (y, r) in outputs.items()
-             for c in column_changes(r, float(y[0]) if len(y) else None, step_tol)]
+             for c in column_changes(r, float(y[0]) if len(y) else None, step_tol,
+                                     INITIAL_NOISE_K * sm.noise_std(y))]
     found += [Event('disturbance', name, *c)
               for name, d in disturbances.items() for c in column_changes(d, None, step_tol)]
     starts = sorted({e.start for e in found})
@@ -111,30 +116,35 @@ def _clean(entry: dict[str, Any]) -> dict[str, Any]:
             for k, v in entry.items()}
 
 
-def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float) -> dict[str, Any]:
+def change_metrics(t: np.ndarray, y: np.ndarray, r_from: float, r_to: float,
+                   noise: float = 0.0) -> dict[str, Any]:
     """Metrics of one setpoint change over its window (``core.analysis.step_metrics`` with the
-    response normalised by the setpoint change r_from → r_to)."""
+    response normalised by the setpoint change r_from → r_to, read through measurement
+    noise of σ ``noise`` [unit])."""
     entry: dict[str, Any] = {'t': float(t[0]), 'r_from': r_from, 'r_to': r_to,
                              'overshoot_pct': None, 'rise_time': None, 'settling_time': None,
                              'ss_error': None}
     finite = np.isfinite(y)
     if finite.sum() < 2 or r_to == r_from:
         return entry
-    m = sm.step_metrics(t[finite], y[finite], r_final=r_to, y0=r_from, final_window=SS_WINDOW)
+    m = sm.step_metrics(t[finite], y[finite], r_final=r_to, y0=r_from, final_window=SS_WINDOW,
+                        noise=noise)
     entry.update(overshoot_pct=m.overshoot, rise_time=m.rise_time,
                  settling_time=m.settling_time, ss_error=m.steady_state_error,
-                 peak=m.peak, peak_time=m.peak_time)
+                 peak=m.peak, peak_time=m.peak_time, settling_band_pct=m.band * 100.0,
+                 smoothing=m.smoothing)
     return _clean(entry)
 
 
-def load_metrics(t: np.ndarray, e: np.ndarray) -> dict[str, Any]:
-    """Deviation metrics (docs/harness.md) of the error ``e`` over a window starting at t[0]."""
+def load_metrics(t: np.ndarray, e: np.ndarray, noise: float = 0.0) -> dict[str, Any]:
+    """Deviation metrics (docs/harness.md) of the error ``e`` over a window starting at t[0];
+    ``noise``: σ of the measurement noise on e [unit]."""
     finite = np.isfinite(e)
     if finite.sum() < 2:
         return {'peak_error': None, 'peak_signed': None, 'peak_time': None, 'iae': None,
                 'integral_error': None, 'recovery_time': None, 'final_error': None,
                 'initial_error': None}
-    m = sm.deviation_metrics(t[finite], e[finite], final_window=SS_WINDOW)
+    m = sm.deviation_metrics(t[finite], e[finite], final_window=SS_WINDOW, noise=noise)
     return _clean(m.as_dict())
 
 
@@ -147,6 +157,7 @@ def signal_metrics(t: np.ndarray, outputs: Mapping[str, tuple[np.ndarray, np.nda
     n = len(t)
     events = find_events(outputs, disturbances or {}, n, step_tol)
     errors = {name: r - y for name, (y, r) in outputs.items()}
+    noise = {name: sm.noise_std(y) for name, (y, r) in outputs.items()}
     t_end = [float(t[min(ev.stop, n - 1)]) if n else None for ev in events]
 
     def label(ev: Event) -> str:
@@ -162,6 +173,7 @@ def signal_metrics(t: np.ndarray, outputs: Mapping[str, tuple[np.ndarray, np.nda
         enough = int(finite.sum()) >= 2
         result[name] = {'iae': sm.iae(t[finite], e[finite]) if enough else 0.0,
                         'ise': sm.ise(t[finite], e[finite]) if enough else 0.0,
+                        'noise_std': noise[name],
                         'steps': [], 'disturbance_steps': []}
     load_instants: dict[int, list[int]] = {}
     for k, ev in enumerate(events):
@@ -170,10 +182,10 @@ def signal_metrics(t: np.ndarray, outputs: Mapping[str, tuple[np.ndarray, np.nda
             load_instants.setdefault(ev.start, []).append(k)
             continue
         y = outputs[ev.channel][0]
-        entry = change_metrics(t[window], y[window], ev.value_from, ev.value_to)
+        entry = change_metrics(t[window], y[window], ev.value_from, ev.value_to, noise[ev.channel])
         own_steps = {o.channel for o in events if o.start == ev.start and o.kind == 'setpoint'}
         entry = {'t': entry.pop('t'), 't_end': t_end[k], **entry,
-                 'interaction': {other: load_metrics(t[window], errors[other][window])
+                 'interaction': {other: load_metrics(t[window], errors[other][window], noise[other])
                                  for other in outputs if other not in own_steps},
                  'coincident': coincident(ev)}
         result[ev.channel]['steps'].append(entry)
@@ -185,7 +197,8 @@ def signal_metrics(t: np.ndarray, outputs: Mapping[str, tuple[np.ndarray, np.nda
         for name in outputs:
             result[name]['disturbance_steps'].append(
                 {'t': float(t[start]), 't_end': t_end[ks[0]], 'changes': changes,
-                 'coincident': others, **load_metrics(t[window], errors[name][window])})
+                 'coincident': others,
+                 **load_metrics(t[window], errors[name][window], noise[name])})
     return {'events': [{'t': float(t[ev.start]), 't_end': t_end[k], 'kind': ev.kind,
                         'channel': ev.channel, 'from': ev.value_from, 'to': ev.value_to}
                        for k, ev in enumerate(events)],

@@ -1,13 +1,15 @@
 """``plot.png``: outputs with their setpoints, inputs and disturbances against time (matplotlib Agg).
 
 One panel per output channel (setpoint dashed), then one panel per unit for the inputs (with the
-controller's limits, grey dotted) and for the disturbances. The title names the controller's
-gains and the ``--set`` overrides of the run; a side table holds each run's key metrics; the
-controller's state changes (the relay auto-tuner's ``settling``, ``relay``, ...) are vertical
-lines with the state's name. An input panel's y-range is the robust range of its signals
+controller's limits, grey dotted) and for the disturbances; an input or disturbance that stays
+constant gets no flat panel, the title names it and its value. The title names the controller's
+gains, the ``--set`` overrides of the run and, once, the input limits beyond the view; a table
+beside the legends holds each run's key metrics; the controller's state changes (the relay
+auto-tuner's ``settling``, ``relay``, ...) are vertical lines with the state's name, names that
+would overlap written on lower rows. An input panel's y-range is the robust range of its signals
 (percentiles), so one derivative kick does not flatten the rest; clipped samples are marked at
 the edge. Several runs overlaid keep one colour per run in every panel; legends sit outside the
-axes. Units: the mixing tank's (003 §1: h in cm, temperatures in °C, flows in cm³/s); the SISO
+axes. Units: the mixing tank's ([Michalski2021] §1: h in cm, temperatures in °C, flows in cm³/s); the SISO
 plants' signals are in the units of the process, shown as "process units".
 """
 from __future__ import annotations
@@ -34,6 +36,14 @@ CLIP_RATIO = 3.0
 times the 0.5–99.5 percentile span."""
 LIMIT_REACH = 0.25
 """A limit further than this fraction of the view's height beyond it is named, not drawn in."""
+AXES_RIGHT = 0.70
+"""Right edge of the panels (figure fraction); their legends follow, then the metrics table."""
+TABLE_GAP = 0.015
+"""Space between the widest legend and the metrics table (figure fraction)."""
+MARK_ROWS = (0.98, 0.66, 0.34)
+"""Heights (axes fraction) of the rows the state names are written in."""
+MARK_GAP = 0.025
+"""State names closer than this fraction of the time span go to different rows."""
 
 
 def unit(channel: str) -> str:
@@ -57,15 +67,38 @@ class RunPlot:
     marks: Sequence[tuple[float, str]] = ()
 
 
-def _panels(trace: Trace) -> list[tuple[str, str, list[str]]]:
-    """(kind, unit, channels) per panel: each output alone, inputs and disturbances by unit."""
+def constant_value(traces: Sequence[Trace], column: str) -> float | None:
+    """The value of ``column`` if it is the same finite constant in every trace, else None."""
+    values: set[float] = set()
+    for trace in traces:
+        data = trace.columns.get(column)
+        if data is None:
+            continue
+        data = np.asarray(data, dtype=float)
+        if data.size == 0 or not np.all(np.isfinite(data)) or data.min() != data.max():
+            return None
+        values.add(float(data[0]))
+    return values.pop() if len(values) == 1 else None
+
+
+def _panels(traces: Sequence[Trace]) -> tuple[list[tuple[str, str, list[str]]], list[str]]:
+    """(kind, unit, channels) per panel — each output alone, inputs and disturbances by unit —
+    and the input and disturbance channels that stay constant in every run (``name value
+    unit``): those get no flat panel, the title names them."""
+    trace = traces[0]
     panels = [('y', unit(name), [name]) for name in trace.channels('y')]
+    constant: list[str] = []
     for prefix in ('u', 'd'):
         by_unit: dict[str, list[str]] = {}
         for name in trace.channels(prefix):
+            value = constant_value(traces, f'{prefix}.{name}')
+            if value is not None:
+                shown = unit(name) if unit(name) != DEFAULT_UNIT else ''
+                constant.append(f'{name} {_fmt(value)}{" " + shown if shown else ""}')
+                continue
             by_unit.setdefault(unit(name), []).append(name)
         panels += [(prefix, u, names) for u, names in by_unit.items()]
-    return panels
+    return panels, constant
 
 
 _TITLES = {'y': 'output', 'u': 'manipulated input', 'd': 'disturbance'}
@@ -140,11 +173,12 @@ def figure_runs(runs: Sequence[RunPlot | tuple[str, Trace]], title: str = ''):
     """The figure of one run, or several overlaid (same channels): a matplotlib Figure."""
     runs = _as_runs(runs)
     first = runs[0].trace
-    panels = _panels(first)
+    panels, constant = _panels([run.trace for run in runs])
     overlay = len(runs) > 1
-    fig = plt.figure(figsize=(14, 2.4 * len(panels) + 1.2))
-    gs = fig.add_gridspec(len(panels), 1, left=0.07, right=0.56, top=0.9, bottom=0.08,
+    fig = plt.figure(figsize=(14, 2.4 * len(panels) + 1.4))
+    gs = fig.add_gridspec(len(panels), 1, left=0.06, right=AXES_RIGHT, top=0.88, bottom=0.08,
                           hspace=0.25)
+    off_scale: list[str] = []
     axes = []
     for i in range(len(panels)):
         axes.append(fig.add_subplot(gs[i, 0], sharex=axes[0] if axes else None))
@@ -167,10 +201,11 @@ def figure_runs(runs: Sequence[RunPlot | tuple[str, Trace]], title: str = ''):
                     ax.plot(trace.t, trace.columns[f'r.{name}'], 'k--', linewidth=1,
                             label=f'setpoint {name}', drawstyle='steps-post')
         if kind == 'u' and view:
-            _input_view(ax, runs, names, np.concatenate(view))
+            off_scale += _input_view(ax, runs, names, np.concatenate(view))
+        span = float(np.ptp(np.asarray(first.t, dtype=float))) if len(first.t) else 0.0
         for i, run in enumerate(runs):
             if run.marks:
-                _mark_states(ax, run.marks, label_them=ax is axes[0] and i == 0)
+                _mark_states(ax, run.marks, label_them=ax is axes[0] and i == 0, span=span)
         ax.set_ylabel(f'{_TITLES[kind]} [{panel_unit}]')
         ax.grid(True, alpha=0.3)
         ax.legend(loc='upper left', bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
@@ -178,12 +213,17 @@ def figure_runs(runs: Sequence[RunPlot | tuple[str, Trace]], title: str = ''):
     for ax in axes[:-1]:
         ax.tick_params(labelbottom=False)
     axes[-1].set_xlabel('time [s]')
-    _side_table(fig, runs)
-    fig.suptitle(_title(title, runs), fontsize='medium')
+    _side_table(fig, gs, runs)
+    notes = []
+    if constant:
+        notes.append('constant: ' + ', '.join(constant))
+    if off_scale:
+        notes.append('limits off scale: ' + ', '.join(dict.fromkeys(off_scale)))
+    fig.suptitle(_title(title, runs, '; '.join(notes)), fontsize='medium')
     return fig
 
 
-def _title(title: str, runs: Sequence[RunPlot]) -> str:
+def _title(title: str, runs: Sequence[RunPlot], notes: str = '') -> str:
     lines = [title] if title else []
     if len(runs) == 1:
         run = runs[0]
@@ -197,11 +237,14 @@ def _title(title: str, runs: Sequence[RunPlot]) -> str:
             extra += ['--set ' + ' '.join(run.overrides)] if run.overrides else []
             if extra:
                 lines.append(f'{run.label}: ' + '; '.join(extra))
+    if notes:
+        lines.append(notes)
     return '\n'.join(lines)
 
 
-def _input_view(ax, runs: Sequence[RunPlot], names: Sequence[str], values: np.ndarray) -> None:
-    """Limits drawn, the y-range robust to spikes, clipped samples marked at the edge."""
+def _input_view(ax, runs: Sequence[RunPlot], names: Sequence[str], values: np.ndarray) -> list[str]:
+    """Limits in view drawn, the y-range robust to spikes, clipped samples marked at the edge;
+    returns the limits off scale (``u ≤ 1e+04``), for the title to name once."""
     lo, hi, clipped = robust_range(values)
     limits = sorted({v for run in runs for n in names
                      for v in run.limits.get(n, ()) if math.isfinite(v)})
@@ -209,10 +252,14 @@ def _input_view(ax, runs: Sequence[RunPlot], names: Sequence[str], values: np.nd
     for value in limits:
         if lo - reach <= value <= hi + reach:        # near the data (e.g. saturation): in view
             lo, hi = min(lo, value - 0.02 * (hi - lo)), max(hi, value + 0.02 * (hi - lo))
+    off_scale: dict[float, list[str]] = {}
     for value in limits:
-        inside = lo <= value <= hi
-        ax.axhline(value, color='0.5', linestyle=':', linewidth=1.2,
-                   label=f'limit {_fmt(float(value))}' + ('' if inside else ' (off scale)'))
+        if lo <= value <= hi:
+            ax.axhline(value, color='0.5', linestyle=':', linewidth=1.2,
+                       label=f'limit {_fmt(float(value))}')
+        else:
+            off_scale[value] = [n for n in names
+                                if any(v == value for run in runs for v in run.limits.get(n, ()))]
     if clipped:
         for run in runs:
             for name in names:
@@ -230,19 +277,30 @@ def _input_view(ax, runs: Sequence[RunPlot], names: Sequence[str], values: np.nd
                                 label=f'{name}: {int(out.sum())} samples clipped '
                                       f'(to {_fmt(float(extreme))})')
     ax.set_ylim(lo, hi)
+    return [f'{", ".join(chans)} {"≥" if value < lo else "≤"} {_fmt(float(value))}'
+            for value, chans in off_scale.items()]
 
 
-def _mark_states(ax, marks: Sequence[tuple[float, str]], label_them: bool) -> None:
-    """A vertical line at each change of the controller's state, its name on the top panel."""
+def _mark_states(ax, marks: Sequence[tuple[float, str]], label_them: bool,
+                 span: float = 0.0) -> None:
+    """A vertical line at each change of the controller's state, its name on the top panel.
+    A name closer than ``MARK_GAP`` of the time ``span`` to the previous one on its row moves
+    down to the next free row (``MARK_ROWS``), so names do not overlap."""
+    last: list[float] = [-math.inf] * len(MARK_ROWS)
     for t, label in marks:
         ax.axvline(t, color='0.35', linestyle=(0, (1, 2)), linewidth=0.9)
         if label_them:
-            ax.text(t, 0.98, f' {label}', transform=ax.get_xaxis_transform(), rotation=90,
-                    va='top', ha='left', fontsize='x-small', color='0.25')
+            free = [k for k, x in enumerate(last) if t - x >= MARK_GAP * span]
+            row = free[0] if free else int(np.argmin(last))
+            last[row] = t
+            ax.text(t, MARK_ROWS[row], f' {label}', transform=ax.get_xaxis_transform(),
+                    rotation=90, va='top', ha='left', fontsize='x-small', color='0.25')
 
 
-def _side_table(fig, runs: Sequence[RunPlot]) -> None:
-    """The runs' key metrics as a text table right of the legends."""
+def _side_table(fig, gs, runs: Sequence[RunPlot]) -> None:
+    """The runs' key metrics as a text table beside the legends. The panels narrow (their
+    legends move with them) when the table would not fit between the widest legend and the
+    figure's edge."""
     lines: list[str] = []
     for run in runs:
         if not run.table:
@@ -251,9 +309,22 @@ def _side_table(fig, runs: Sequence[RunPlot]) -> None:
         width = max(len(name) for name, _ in run.table)
         lines += [f'  {name:<{width}}  {value}' for name, value in run.table]
         lines.append('')
-    if lines:
-        fig.text(0.78, 0.9, '\n'.join(lines).rstrip(), va='top', ha='left', family='monospace',
-                 fontsize='small')
+    if not lines:
+        return
+    text = fig.text(0.0, 0.88, '\n'.join(lines).rstrip(), va='top', ha='left',
+                    family='monospace', fontsize='small')
+    renderer = fig.canvas.get_renderer()
+    fig_width = fig.get_window_extent(renderer).width
+
+    def legends_right() -> float:
+        return max((ax.get_legend().get_window_extent(renderer).x1 / fig_width
+                    for ax in fig.axes if ax.get_legend() is not None), default=AXES_RIGHT)
+
+    table = text.get_window_extent(renderer).width / fig_width
+    overflow = legends_right() + TABLE_GAP + table - 0.995
+    if overflow > 0:
+        gs.update(right=max(AXES_RIGHT - overflow, 0.3))
+    text.set_x(legends_right() + TABLE_GAP)
 
 
 def plot_runs(runs: Sequence[RunPlot | tuple[str, Trace]], path: str | Path,

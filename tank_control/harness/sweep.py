@@ -711,6 +711,7 @@ def summarize(rows: Sequence[Mapping[str, Any]], spec: SweepSpec) -> dict[str, A
             entry['metrics'][metric] = {
                 'n': int(arr.size), 'min': float(arr.min()), 'p5': pct[0], 'p50': pct[1],
                 'p95': pct[2], 'max': float(arr.max()), 'worst': float(worst_value),
+                'worse': 'smaller' if smaller else 'larger',
                 'worst_run': worst_row.get('run'),
                 'worst_at': {k: worst_row.get(k) for k in swept if worst_row.get(k) is not None}}
         out['scenarios'][name] = entry
@@ -718,24 +719,28 @@ def summarize(rows: Sequence[Mapping[str, Any]], spec: SweepSpec) -> dict[str, A
 
 
 KEY_METRICS = ('overshoot_pct', 'settling_time', 'iae', 'peak_error', 'constraint_violations',
-               'ms', 'phase_margin')
+               'ms', 'gain_margin', 'phase_margin', 'delay_margin')
 
 
 def summary_markdown(summary: Mapping[str, Any]) -> str:
-    """The key metrics of the summary as a Markdown table (p50, p95, worst and where)."""
+    """The key metrics of the summary as a Markdown table: p50, the tail on the bad side (p95;
+    p5 for a margin, where smaller is worse), the worst (largest; smallest for a margin) and
+    where it occurred."""
     lines = []
     if summary.get('title'):
         lines.append(f'# {summary["title"]}\n')
     if summary.get('claim'):
         lines.append(f'Claim: {summary["claim"]}\n')
-    lines.append('| scenario | metric | runs | p50 | p95 | worst | worst at |')
+    lines.append('| scenario | metric | runs | p50 | p95 (margins: p5) | worst (margins: min) '
+                 '| worst at |')
     lines.append('|---|---|---|---|---|---|---|')
     for name, entry in summary['scenarios'].items():
         shown = [m for m in entry['metrics'] if m.split('.')[-1] in KEY_METRICS]
         for metric in shown:
             s = entry['metrics'][metric]
             where = ', '.join(f'{k} = {_fmt(v)}' for k, v in s['worst_at'].items())
-            lines.append(f'| {name} | {metric} | {s["n"]} | {_fmt(s["p50"])} | {_fmt(s["p95"])} '
+            tail = s['p5'] if s.get('worse') == 'smaller' else s['p95']
+            lines.append(f'| {name} | {metric} | {s["n"]} | {_fmt(s["p50"])} | {_fmt(tail)} '
                          f'| {_fmt(s["worst"])} | {where} |')
         if entry['failed']:
             lines.append(f'| {name} | failed runs | {entry["failed"]} | | | | '

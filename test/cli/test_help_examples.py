@@ -97,9 +97,9 @@ def test_list_shows_every_shipped_scenario_with_its_title(capsys, monkeypatch):
         listed[path] = title.strip()
     assert sorted(listed) == shipped
     assert all(listed.values()), [p for p, t in listed.items() if not t]
-    assert listed['config/ipdt_pid.yaml'].startswith('000 IPDT')
-    assert listed['config/scenarios/tank_mpcs_qp.yaml'].startswith('003 §6 MPCS, QP solver')
-    assert re.match('000: MDP', listed['config/studies/000_robustness.yaml'])
+    assert listed['config/ipdt_pid.yaml'].startswith('[Viteckova] IPDT')
+    assert listed['config/scenarios/tank_mpcs_qp.yaml'].startswith('[Michalski2021] §6 MPCS, QP solver')
+    assert listed['config/studies/000_robustness.yaml'].startswith('[Viteckova]: MDP')
     assert lines[0].startswith('config/') and '/' not in lines[0].split()[0][len('config/'):]
 
 

@@ -1,5 +1,5 @@
 """The auto-tuning chain of RelayAutotuner without ROS: identify → design (rule and target) →
-preview → apply → verify → revert, on 001's FOPDT (K = 0.05, T = 10 s, L = 3 s) integrated
+preview → apply → verify → revert, on [DeadTimeNotes]'s FOPDT (K = 0.05, T = 10 s, L = 3 s) integrated
 exactly by test/support/relay.py.
 
 Expected values are derived independently: the design from ``tune`` on the reported model,

@@ -28,11 +28,11 @@ def change(ctrl: Controller, values: dict, changed: set, t: float, y, r, d=np.ar
     return registry.step_with_changes(setup.kind, ctrl, setup.settings, frozenset(changed), t,
                                       np.asarray(y, dtype=float), np.asarray(r, dtype=float), d)
 
-K1, TO = 0.05, 5.0     # 000's worked example (SPEC §1.1)
+K1, TO = 0.05, 5.0     # [Viteckova]'s worked example ([Viteckova] eq. 1)
 
 
 def mdp_pid_closed_form(k1: float, to: float) -> dict[str, float]:
-    """000 eqs. 25–26, 32 (SPEC §2.2), written out independently of the tuning module."""
+    """[Viteckova] eqs. 25–26, 32 ([Checks] §3), written out independently of the tuning module."""
     s3 = math.sqrt(3.0)
     return {'kp': 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (k1 * to), 'ti': (2 + s3) * to,
             'td': (3 + s3) / 18 * to, 'b': (3 - s3) / 3, 'c': (3 - s3) / 2}
@@ -59,7 +59,7 @@ def test_make_controller_builds_the_described_pid():
     assert isinstance(ctrl, Controller)
     assert ctrl.output_names == ('h',) and ctrl.input_names == ('F_H',)
     assert ctrl.sample_time == 0.1
-    # P only (ti = 0 → no integral): u = kp·(b·r − y), 000 eq. 19
+    # P only (ti = 0 → no integral): u = kp·(b·r − y), [Viteckova] eq. 19
     assert step(ctrl, 0.0, 1.0, 4.0) == pytest.approx(2.0 * (0.5 * 4.0 - 1.0), abs=1e-12)
 
 
@@ -170,7 +170,7 @@ def test_two_loop_pi_registered_and_rebuilt_bumplessly_on_a_gain_change():
     ctrl = make(values)
     assert ctrl.output_names == ('h', 'T_out') and ctrl.input_names == ('F_H', 'F_Cin')
     y, r = np.array([80.0, 34.0]), np.array([81.0, 33.57])
-    # 003 §2.1 gains, first sample from zero integral: u = kp·e, clipped to 0…300
+    # [Michalski2021] §2.1 gains, first sample from zero integral: u = kp·e, clipped to 0…300
     u0 = ctrl.step(0.0, y, r, np.array([]))
     assert u0 == pytest.approx(np.clip([0.9 * 1.0, -0.2 * -0.43], 0, 300), abs=1e-12)
     twin = make(values)          # the same loop without the change
@@ -191,7 +191,7 @@ SMITH = {'controller': 'smith_pi', 'smith.gain': 0.05, 'smith.time_constant': 10
 def test_smith_pi_tuning_rule_and_bumpless_changes():
     values = {**SMITH, 'tuning.rule': 'smith_pi', 'tuning.te': 5.0}
     derived = controller_setup(values).settings.values
-    # 004 eq. 3.6.7 (n = 1): kR = T/(kP·Te), Ti = T
+    # [Precup2013] eq. 3.6.7 (n = 1): kR = T/(kP·Te), Ti = T
     assert (derived['kp'], derived['ti']) == pytest.approx((10.0 / (0.05 * 5.0), 10.0), rel=1e-12)
     for bad in ({'ti': 20.0}, {'tuning.rule': 'mdp'}):
         with pytest.raises(ConfigError, match='tuning.rule'):

@@ -1,7 +1,7 @@
-"""002's design procedure (core/tuning/design_002.py) against numbers derived here by hand or
-with independent tools, and the shipped 002 scenarios (config/scenarios/tf_002_*.yaml) run
+"""[Ikonen]'s design procedure (core/tuning/design_002.py) against numbers derived here by hand or
+with independent tools, and the shipped [Ikonen] scenarios (config/scenarios/tf_002_*.yaml) run
 in-process with the document's time-domain claims asserted on the measured trace
-(docs/scenarios.md, 002; SPEC-supplement §3)."""
+(docs/scenarios.md, [Ikonen]; [Checks] §5)."""
 from __future__ import annotations
 
 import math
@@ -17,7 +17,7 @@ from tank_control.core.params import ConfigError
 from tank_control.core.tuning import design_002 as d
 from tank_control.core.tuning.model import ProcessModel
 
-G_002 = fr.rational([4.0], [1.0, 3.0, 2.0])          # 002's process 4/((s + 1)(s + 2))
+G_002 = fr.rational([4.0], [1.0, 3.0, 2.0])          # [Ikonen]'s process 4/((s + 1)(s + 2))
 MODEL_002 = ProcessModel('sopdt', 2.0, 0.0, 1.0, 0.5)  # the same, as the lead_lag kind's model
 T_STEP = 1.0                                           # [s] the scenarios' setpoint step
 
@@ -32,7 +32,7 @@ def loop_at(kp, td, alpha, ti, w):
 
 # ------------------------------------------------------------ PM ↔ damping ↔ overshoot
 def test_phase_margin_damping_overshoot_chain():
-    """002 §1.2: ζ ≈ PM/100, Mp = exp(−πζ/√(1 − ζ²)); the document's 5 % → ζ 0.6 → 60°.
+    """[Ikonen] §1.2: ζ ≈ PM/100, Mp = exp(−πζ/√(1 − ζ²)); the document's 5 % → ζ 0.6 → 60°.
     By the same formulas 5 % needs ζ = 0.690 (69.0°) and ζ = 0.6 gives 9.48 %."""
     assert d.damping_from_phase_margin(60.0) == 0.6
     assert d.phase_margin_from_damping(0.6) == pytest.approx(60.0)
@@ -63,7 +63,7 @@ def test_the_rule_against_the_second_order_loop(zeta):
 
 # ------------------------------------------------------------------------ the pieces
 def test_p_gain_and_its_steady_state_error():
-    """002 §1.1: 1/(1 + 2·kp) = 0.05 → kp = 9.5."""
+    """[Ikonen] §1.1: 1/(1 + 2·kp) = 0.05 → kp = 9.5."""
     assert d.p_gain(2.0, 0.05) == pytest.approx(9.5, rel=1e-15)
     assert d.steady_state_error(9.5, 2.0) == pytest.approx(0.05)
     assert d.static_gain(G_002) == 2.0 and d.static_gain(MODEL_002) == 2.0
@@ -73,7 +73,7 @@ def test_p_gain_and_its_steady_state_error():
 
 
 def test_lead_largest_phase_where_and_how_much():
-    """002 §1.2: (Td s + 1)/(α Td s + 1) has its largest phase asin((1 − α)/(1 + α)) (54.9°
+    """[Ikonen] §1.2: (Td s + 1)/(α Td s + 1) has its largest phase asin((1 − α)/(1 + α)) (54.9°
     for α = 0.1) at ω_max = 1/(Td√α): read off a dense grid of frequency.py's response."""
     assert d.lead_max_phase(0.1) == pytest.approx(math.degrees(math.asin(9 / 11)))
     assert round(d.lead_max_phase(0.1), 1) == 54.9
@@ -87,7 +87,7 @@ def test_lead_largest_phase_where_and_how_much():
 
 
 def test_integral_corner_a_decade_below():
-    """002 §1.3: Ti = 10/2.4 = 4.17 → 4.2 s."""
+    """[Ikonen] §1.3: Ti = 10/2.4 = 4.17 → 4.2 s."""
     assert d.integral_time(2.4) == pytest.approx(4.1667, abs=1e-4)
     assert d.integral_time(2.0, ratio=5.0) == 2.5
 
@@ -127,7 +127,7 @@ def test_p_design_reproduces_fig_2():
 
 
 def test_lead_iteration_steps_and_target():
-    """002 §1.2: ω_max first at the P crossover, then the mean of it and the new crossover;
+    """[Ikonen] §1.2: ω_max first at the P crossover, then the mean of it and the new crossover;
     each step's margin is frequency.py's; the last meets the 60° target (70.5° at 10.9 rad/s,
     Td 0.29 s: Fig. 6)."""
     steps = d.lead_iteration(G_002, 9.5, 60.0, 0.1)
@@ -153,7 +153,7 @@ def test_lead_iteration_steps_and_target():
 
 def test_pi_design_meets_its_target_and_gives_the_documents_pi_at_its_margin():
     """The PI loop has exactly the target (frequency.py) with Ti = 10/(its P loop's
-    crossover); asked for the 57.07° that 002's kp 2, Ti 4.2 s has (Fig. 10), the design
+    crossover); asked for the 57.07° that [Ikonen]'s kp 2, Ti 4.2 s has (Fig. 10), the design
     gives back kp 2.00, Ti 4.21 s: the document's PI is this design at a lower target."""
     x = d.design(G_002, 'pi')
     assert fr.margins(fr.pi(x.kp, x.ti) * G_002).phase_margin == pytest.approx(60.0, abs=1e-7)
@@ -175,8 +175,8 @@ def test_series_pid_is_the_product_with_the_mean_gain():
 
 
 def test_design_with_dead_time_on_a_third_order_process():
-    """Beyond 002: 1/(s + 1)³ with 0.2 s dead time — the PD and PI meet 45° (frequency.py with
-    the exact delay), stable by the Nyquist count. The series PID's mean gain is 002's
+    """Beyond [Ikonen]: 1/(s + 1)³ with 0.2 s dead time — the PD and PI meet 45° (frequency.py with
+    the exact delay), stable by the Nyquist count. The series PID's mean gain is [Ikonen]'s
     heuristic, not a design for the margin: here it has 43.0°."""
     g = fr.rational([1.0], [1.0, 3.0, 3.0, 1.0], 0.2)
     for kind in ('pd', 'pi', 'pid'):
@@ -298,7 +298,7 @@ def test_002_pid_fast_start_and_no_final_error():
 
 
 def test_the_command_prints_the_worked_example(capsys):
-    """``python -m tank_control.core.tuning.design_002`` (docs/tuning.md): 002's process by
+    """``python -m tank_control.core.tuning.design_002`` (docs/tuning.md): [Ikonen]'s process by
     default, the steps and the four designs; a refused design is a line, not a crash."""
     assert d.main([]) == 0
     out = capsys.readouterr().out

@@ -1,5 +1,5 @@
 """Measured-disturbance feedforward of the two-loop PI (core/control/feedforward.py), checked on
-the nonlinear tank of 003 §1 (core/plants/mixing_tank.py)."""
+the nonlinear tank of [Michalski2021] §1 (core/plants/mixing_tank.py)."""
 from __future__ import annotations
 
 import math
@@ -11,7 +11,7 @@ from tank_control.core.control.feedforward import DisturbanceFeedforward, Feedfo
 from tank_control.core.control.kinds import registry
 from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
 
-T0 = 2115.0 / 63.0                                    # operating-point temperature [°C] (003 §1)
+T0 = 2115.0 / 63.0                                    # operating-point temperature [°C] ([Michalski2021] §1)
 D_NEW = (15.0, 40.0)                                  # F_D [cm³/s], T_D [°C]: both changed
 
 
@@ -92,7 +92,7 @@ def _closed_loop(mode: str, t_end: int = 6000) -> tuple[MixingTank, object, list
 
 @pytest.mark.parametrize('mode', ['static', 'dynamic'])
 def test_in_the_loop_the_feedforward_carries_the_whole_correction(mode):
-    """Closed loop (003's gains) on the nonlinear tank: after the disturbance step the PI
+    """Closed loop ([Michalski2021]'s gains) on the nonlinear tank: after the disturbance step the PI
     integrals return to their values before it — the feedforward holds the new steady state
     alone — while without feedforward they must move to carry it."""
     _, ctl, integrals = _closed_loop(mode)
@@ -116,7 +116,7 @@ def test_take_over_with_feedforward_is_bumpless():
 def test_dynamic_feedforward_predicts_the_level_excursion_it_causes():
     """Open loop on the nonlinear tank (flows at the operating point plus the dynamic
     feedforward, F_D 12 → 15 cm³/s): over the τ_C window the mass imbalance raises the level;
-    the predicted ``level_offset`` (the linearised level of 003 eq. 4) follows the tank's level
+    the predicted ``level_offset`` (the linearised level of [Michalski2021] eq. 4) follows the tank's level
     to within 2 % of the excursion, and both return to 0 once the cold part has arrived."""
     tank = _tank()
     ff = DisturbanceFeedforward(FeedforwardConfig(mode='dynamic'), 1.0)

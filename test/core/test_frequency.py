@@ -1,4 +1,4 @@
-"""Frequency-domain tools against closed forms (SPEC §1.2, §3; 001 eq. 6.10–6.13)."""
+"""Frequency-domain tools against closed forms ([Checks] §1, §3; [DeadTimeNotes] eq. 6.10–6.13)."""
 from __future__ import annotations
 
 import math
@@ -14,7 +14,7 @@ def p_control(kp: float) -> fr.FrequencyResponse:
 
 
 def i_control(ti: float) -> fr.FrequencyResponse:
-    """Pure integral controller 1/(Ti·s) (001 Fig. 6.4)."""
+    """Pure integral controller 1/(Ti·s) ([DeadTimeNotes] Fig. 6.4)."""
     return fr.rational([1.0], [ti, 0.0])
 
 
@@ -24,7 +24,7 @@ def delay(dead_time: float) -> fr.FrequencyResponse:
 
 # ------------------------------------------------------------ ultimate point
 def test_fopdt_ultimate_point_of_spec():
-    """SPEC §1.2 (checked): K = 0.05, T = 10 s, L = 3 s → Ku = 117.80, Tu = 10.824 s."""
+    """[Checks] §1 (checked): K = 0.05, T = 10 s, L = 3 s → Ku = 117.80, Tu = 10.824 s."""
     ku, tu, wu = fr.ultimate_point(fr.fopdt(0.05, 10.0, 3.0))
     assert ku == pytest.approx(117.80, abs=0.005)
     assert tu == pytest.approx(10.824, abs=0.0005)
@@ -36,7 +36,7 @@ def test_fopdt_ultimate_point_of_spec():
 
 @pytest.mark.parametrize('k1,to', [(0.05, 5.0), (2.0, 0.1), (0.001, 120.0)])
 def test_ipdt_ultimate_point_closed_form(k1, to):
-    """SPEC §1.2: ωu = π/(2·To), Ku = π/(2·k1·To), Tu = 4·To."""
+    """[Checks] §1: ωu = π/(2·To), Ku = π/(2·k1·To), Tu = 4·To."""
     up = fr.ultimate_point(fr.ipdt(k1, to))
     assert up.wu == pytest.approx(math.pi / (2 * to), rel=1e-10)
     assert up.ku == pytest.approx(math.pi / (2 * k1 * to), rel=1e-10)
@@ -71,7 +71,7 @@ def test_reverse_acting_plant_ultimate_point_via_negated_response():
 
 
 def test_discrete_ipdt_ultimate_point_closed_form():
-    """Sampled IPDT with ZOH, To = d·h: k1·h·z^(−d)/(z − 1) (001 eq. 6.7); its phase
+    """Sampled IPDT with ZOH, To = d·h: k1·h·z^(−d)/(z − 1) ([DeadTimeNotes] eq. 6.7); its phase
     is −90° − ω·h/2 − ω·To, so ωu = π/(2·(To + h/2)), Ku = 2·sin(ωu·h/2)/(k1·h)."""
     k1, to, h = 0.05, 5.0, 0.5
     up = fr.ultimate_point(fr.ipdt_zoh(k1, to, h))
@@ -84,7 +84,7 @@ def test_discrete_ipdt_ultimate_point_closed_form():
 
 # ------------------------------------------------------- responses, exact delay
 def test_fopdt_response_has_exact_dead_time_phase():
-    """|G| unchanged by the dead time, phase lowered by ω·L (001 eq. 6.4) — far
+    """|G| unchanged by the dead time, phase lowered by ω·L ([DeadTimeNotes] eq. 6.4) — far
     beyond where a Padé approximation would hold (phase of several turns)."""
     k, t, dead = 0.05, 10.0, 3.0
     w = np.logspace(-3, 2, 400)
@@ -124,7 +124,7 @@ def test_controller_responses_match_their_formulas():
 
 
 def test_lead_maximum_phase_and_its_frequency():
-    """002 §1.2: phase lead peaks at ω_max = 1/(td·√α), α = 1/n, at asin((1−α)/(1+α))."""
+    """[Ikonen] §1.2: phase lead peaks at ω_max = 1/(td·√α), α = 1/n, at asin((1−α)/(1+α))."""
     td, n = 0.53, 10.0
     w = np.logspace(-1, 3, 20001)
     _, _, ph = fr.bode(fr.lead(1.0, td, n), w)
@@ -136,7 +136,7 @@ def test_lead_maximum_phase_and_its_frequency():
 # ----------------------------------------------------------------- margins
 @pytest.mark.parametrize('dead,ti', [(3.0, 20.0), (1.0, 1.0), (0.5, 10.0), (2.0, 1.5)])
 def test_i_control_of_pure_delay(dead, ti):
-    """001 eq. 6.11–6.13 (SPEC §3): ωc = 1/Ti, PM = 90° − L/Ti [rad]. Also by hand:
+    """[DeadTimeNotes] eq. 6.11–6.13 ([Checks] §2): ωc = 1/Ti, PM = 90° − L/Ti [rad]. Also by hand:
     −90° − ωL = −180° at ω180 = π/(2L), GM = π·Ti/(2L), delay margin = π·Ti/2 − L."""
     m = fr.margins(i_control(ti) * delay(dead))
     assert m.wc == pytest.approx(1.0 / ti, rel=1e-10)
@@ -151,7 +151,7 @@ def test_i_control_of_pure_delay(dead, ti):
 
 
 def test_i_control_of_pure_delay_stability_boundary():
-    """PM > 0 ⇔ L/Ti < π/2 ⇔ closed loop stable (001: large Ti guarantees stability)."""
+    """PM > 0 ⇔ L/Ti < π/2 ⇔ closed loop stable ([DeadTimeNotes]: large Ti guarantees stability)."""
     assert fr.closed_loop_stable(i_control(1.0) * delay(1.5))
     assert not fr.closed_loop_stable(i_control(1.0) * delay(1.65))
     m = fr.margins(i_control(1.0) * delay(1.65))
@@ -243,7 +243,7 @@ def test_gang_of_four_identities():
     assert np.allclose(gang['T'], fr.complementary_sensitivity(c * g, w))
     # integral action: S ≈ jω·ti/(kp·K) → 0 as ω → 0 (no static error)
     assert gang['S'][0] == pytest.approx(1j * w[0] * 5.41 / (70.68 * 0.05), rel=1e-2)
-    # CS at high frequency → kp·(1 + n) (000 eq. 16: the derivative kick), S → 1
+    # CS at high frequency → kp·(1 + n) ([Viteckova] eq. 16: the derivative kick), S → 1
     gang_hi = fr.gang_of_four(c, g, np.array([1e4]))
     assert abs(gang_hi['CS'][0]) == pytest.approx(70.68 * 11, rel=1e-2)
 
@@ -273,7 +273,7 @@ def test_bad_input_rejected_with_reason(call, match):
 
 # ------------------------------------------------------------ discrete models
 def test_rational_discrete_equals_fopdt_zoh_for_whole_sample_delay():
-    """001 eq. 6.7: with L = d·h, the ZOH FOPDT is K·(1 − a)·z^(−d)/(z − a), a = e^(−h/T)."""
+    """[DeadTimeNotes] eq. 6.7: with L = d·h, the ZOH FOPDT is K·(1 − a)·z^(−d)/(z − a), a = e^(−h/T)."""
     k, t, h, d = 0.05, 10.0, 0.5, 6
     a = math.exp(-h / t)
     general = fr.rational_discrete([k * (1 - a)], [1.0, -a], h, delay_samples=d)
@@ -316,7 +316,7 @@ def p_control_discrete(kp: float, h: float = 1.0) -> fr.FrequencyResponse:
 @pytest.mark.parametrize('k', [1e-3, 0.1, 10.0])
 def test_i_control_of_ipdt_is_unstable_for_every_gain(k):
     """k/s · k1/s · e^(−To·s): phase below −180° at every ω > 0, so two closed-loop
-    poles in the right half plane for any gain (why 000 uses PI/PID, not I)."""
+    poles in the right half plane for any gain (why [Viteckova] uses PI/PID, not I)."""
     loop = fr.rational([k], [1.0, 0.0]) * fr.ipdt(0.05, 5.0)
     assert fr.closed_loop_poles_unstable(loop) == 2
     assert fr.margins(loop).phase_margin < 0

@@ -1,4 +1,4 @@
-"""Frequency-domain tools cross-checked against the documents (000, 001, 002) and
+"""Frequency-domain tools cross-checked against the documents ([Viteckova], [DeadTimeNotes], [Ikonen]) and
 against time-domain simulations of the implemented plants and PID."""
 from __future__ import annotations
 
@@ -15,29 +15,29 @@ from tank_control.core.plants.kinds.registry import make_plant
 from tank_control.core.tuning.identification import FopdtModel, IpdtModel
 from tank_control.tuning import tune
 
-# 002's process, reconstructed from the garbled text: the P gain 9.5 meets the 5 %
+# [Ikonen]'s process, reconstructed from the garbled text: the P gain 9.5 meets the 5 %
 # steady-state error, so G(0) = 2; "2/((s+1)(0.5s+1))" = 4/((s+1)(s+2)). Every
 # margin below then reproduces the document's (digit-damaged) MATLAB printouts.
 PLANT_002 = fr.rational([4.0], [1.0, 3.0, 2.0])
 
 
 def td_for(w_max: float, n: float = 10.0) -> float:
-    """002 §1.2: the lead's maximum phase sits at ω_max = 1/(td·√α), α = 1/n."""
+    """[Ikonen] §1.2: the lead's maximum phase sits at ω_max = 1/(td·√α), α = 1/n."""
     return 1.0 / (w_max * math.sqrt(1.0 / n))
 
 
 @pytest.mark.parametrize('name,controller,pm,wc,tol_pm', [
-    # 002 Fig. 2: "Pm = 28.(1) deg (at 5.96 rad/s)"; gc ≈ 6 rad/s
+    # [Ikonen] Fig. 2: "Pm = 28.(1) deg (at 5.96 rad/s)"; gc ≈ 6 rad/s
     ('P', fr.rational([9.5], [1.0]), 28.1, 5.96, 0.1),
-    # 002 Fig. 4: lead at ω_max = 6 → td = 0.53 s, Tf = 0.053 s: "Pm = 54.9 deg (at 15.5 rad/s)"
+    # [Ikonen] Fig. 4: lead at ω_max = 6 → td = 0.53 s, Tf = 0.053 s: "Pm = 54.9 deg (at 15.5 rad/s)"
     ('PD', fr.lead(9.5, td_for(6.0)), 54.9, 15.5, 0.1),
-    # 002 Fig. 6: iterated ω_max = 10.8 → td = 0.29 s: "Pm = 70.5 deg (at 10.9 rad/s)"
+    # [Ikonen] Fig. 6: iterated ω_max = 10.8 → td = 0.29 s: "Pm = 70.5 deg (at 10.9 rad/s)"
     ('PD iterated', fr.lead(9.5, td_for(10.8)), 70.5, 10.9, 0.1),
-    # 002 Fig. 8: lower gain kp = 2: "Pm = 62.9 deg (at 2.37 rad/s)"
+    # [Ikonen] Fig. 8: lower gain kp = 2: "Pm = 62.9 deg (at 2.37 rad/s)"
     ('P low gain', fr.rational([2.0], [1.0]), 62.9, 2.37, 0.1),
-    # 002 Fig. 10: PI, kp = 2, corner a decade below 2.4 rad/s → ti = 4.2 s: "Pm = 57.(1) deg (at 2.38)"
+    # [Ikonen] Fig. 10: PI, kp = 2, corner a decade below 2.4 rad/s → ti = 4.2 s: "Pm = 57.(1) deg (at 2.38)"
     ('PI', fr.pi(2.0, 4.2), 57.1, 2.38, 0.1),
-    # 002 §1.4: series PID, kp = (9.5 + 2)/2 = 5.75: "crossover 7 rad/s, phase margin 75°"
+    # [Ikonen] §1.4: series PID, kp = (9.5 + 2)/2 = 5.75: "crossover 7 rad/s, phase margin 75°"
     ('PID', fr.series_pid(5.75, 4.2, td_for(10.8)), 75.0, 7.0, 1.0),
 ])
 def test_002_design_margins(name, controller, pm, wc, tol_pm):
@@ -49,7 +49,7 @@ def test_002_design_margins(name, controller, pm, wc, tol_pm):
 
 
 def test_002_gang_of_four_observations():
-    """002 §1.4: the PI loop has the weakest stability margin (largest Ms, its
+    """[Ikonen] §1.4: the PI loop has the weakest stability margin (largest Ms, its
     Nyquist curve passes closest to −1); |T(0)| with PD is 0.95 (−0.44 dB)."""
     pd, pi_, pid = fr.lead(9.5, td_for(10.8)), fr.pi(2.0, 4.2), fr.series_pid(5.75, 4.2, td_for(10.8))
     ms = {k: fr.margins(c * PLANT_002).ms for k, c in (('PD', pd), ('PI', pi_), ('PID', pid))}
@@ -88,9 +88,9 @@ def envelope_ratio(t: np.ndarray, e: np.ndarray, t_split: float) -> float:
 
 
 def test_zn_pid_of_001_on_fopdt_frequency_and_time_domain_agree():
-    """001 example (K = 0.05, T = 10 s, L = 3 s) with the ZN PID of Table 6.2 on the
+    """[DeadTimeNotes] example (K = 0.05, T = 10 s, L = 3 s) with the ZN PID of Table 6.2 on the
     exact ultimate point: PM > 0 and stable by Nyquist; the simulation settles
-    with a large overshoot (ZN aims at quarter-amplitude damping, SPEC §2.4) and
+    with a large overshoot (ZN aims at quarter-amplitude damping, [Checks] §4) and
     rings at about the frequency of the |T| peak."""
     g = fr.fopdt(0.05, 10.0, 3.0)
     up = fr.ultimate_point(g)
@@ -101,7 +101,7 @@ def test_zn_pid_of_001_on_fopdt_frequency_and_time_domain_agree():
     cfg = PidConfig(kp=gains['kp'], ti=gains['ti'], td=gains['td'], n=10.0, sample_time=0.02)
     t, y = simulate(make_plant('fopdt', {}), cfg, 120.0)
     overshoot = 100 * (y.max() - 1.0)
-    assert 25.0 < overshoot < 70.0                    # 1-DOF ZN: ~40 % (001 Fig. 6.13)
+    assert 25.0 < overshoot < 70.0                    # 1-DOF ZN: ~40 % ([DeadTimeNotes] Fig. 6.13)
     assert abs(y[t > 100].mean() - 1.0) < 2e-3         # settles, no static error
     # ringing period: time between the first two maxima above the setpoint (each
     # the largest value within ±1 s) vs 2π/ω at the |T| peak
@@ -118,7 +118,7 @@ def test_zn_pid_of_001_on_fopdt_frequency_and_time_domain_agree():
 
 @pytest.mark.parametrize('factor,grows', [(0.97, False), (1.03, True)])
 def test_sampled_ultimate_gain_matches_simulated_p_loop(factor, grows):
-    """The ZOH model fopdt_zoh (001 eq. 6.7) predicts the stability limit of the
+    """The ZOH model fopdt_zoh ([DeadTimeNotes] eq. 6.7) predicts the stability limit of the
     implemented sampled loop (P control through Pid2Dof, plant Fopdt, h = 0.5 s)."""
     h = 0.5
     ku = fr.ultimate_point(fr.fopdt_zoh(0.05, 10.0, 3.0, h)).ku
@@ -129,8 +129,8 @@ def test_sampled_ultimate_gain_matches_simulated_p_loop(factor, grows):
 
 
 def test_mdp_pid_of_000_on_ipdt_is_robust_to_20_percent_dead_time():
-    """000 example (k1 = 0.05, To = 5 s), MDP PID (eqs. 26, 32): Ms in a sensible
-    range, and the delay margin exceeds 20 % of To — the ±20 % claim of 000
+    """[Viteckova] example (k1 = 0.05, To = 5 s), MDP PID (eqs. 26, 32): Ms in a sensible
+    range, and the delay margin exceeds 20 % of To — the ±20 % claim of [Viteckova]
     Figs. 6–7 — so the loop stays stable (Nyquist, exact delay) for To·0.8 and To·1.2."""
     gains = tune('mdp', 'pid', gain=0.05, dead_time=5.0)
     rep = fr.report_from_gains(fr.ipdt(0.05, 5.0), gains)

@@ -1,4 +1,4 @@
-"""The FSA controller (004 §3.6.2, eqs. 3.6.10–3.6.15; core/control/fsa.py) on stable and
+"""The FSA controller ([Precup2013] §3.6.2, eqs. 3.6.10–3.6.15; core/control/fsa.py) on stable and
 unstable first-order plants with dead time: the assigned poles, the exact prediction, the
 designed step response, integral action, robustness, a safe implementation of the
 prediction, limits, bumpless operation and refused parameters."""
@@ -41,7 +41,7 @@ def closed_loop(controller, plant, t_end: float, r_of_t=lambda t: 1.0 if t >= 1.
 
 
 def second_order_step(w0: float, xi: float, t: np.ndarray) -> np.ndarray:
-    """Unit step response of ω0²/p(s), p(s) = s² + 2ξω0·s + ω0² (004 eq. 3.6.12), ξ < 1."""
+    """Unit step response of ω0²/p(s), p(s) = s² + 2ξω0·s + ω0² ([Precup2013] eq. 3.6.12), ξ < 1."""
     t = np.maximum(t, 0.0)
     wd = w0 * math.sqrt(1.0 - xi * xi)
     return 1.0 - np.exp(-xi * w0 * t) / math.sqrt(1.0 - xi * xi) * np.sin(wd * t + math.acos(xi))
@@ -70,7 +70,7 @@ def config_of(case, **changes) -> FsaConfig:
 # ------------------------------------------------------------------------------- design
 @pytest.mark.parametrize('case', CASES)
 def test_the_diophantine_solution_assigns_exactly_the_poles_of_p(case):
-    """004 eq. 3.6.12: the predicted loop's poles are e^(s·h) at the roots s of
+    """[Precup2013] eq. 3.6.12: the predicted loop's poles are e^(s·h) at the roots s of
     s² + 2ξω0·s + ω0² (and 0), computed here independently of the design's own check."""
     cfg = config_of(case)
     des = design(cfg)
@@ -84,7 +84,7 @@ def test_the_diophantine_solution_assigns_exactly_the_poles_of_p(case):
 @pytest.mark.parametrize('model', ['fopdt', 'foupdt'])
 def test_the_sampled_gains_tend_to_the_continuous_fsa_law(model):
     """h → 0: F_ξ → f1 = (2ξω0 + α)/β, F_ζ → f2 = −ω0²/β; the integral gain ω0²·T/K is the
-    h1 of 004 eq. 3.6.15, h(s) = ω0²(1 + s·T)/K."""
+    h1 of [Precup2013] eq. 3.6.15, h(s) = ω0²(1 + s·T)/K."""
     cfg = FsaConfig(model=model, gain=2.0, time_constant=10.0, dead_time=4.0, omega0=0.3,
                     xi=0.8, sample_time=0.001)
     des = design(cfg)

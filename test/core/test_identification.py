@@ -1,8 +1,8 @@
 """Relay-test identification (core/tuning/identification.py) against closed forms.
 
 References are independent of the code under test: the exact ultimate point is
-solved in the helper by bisection of the phase condition (SPEC §1.2), the ideal
-relay limit cycle of FOPDT has a closed form (SPEC §1.2), the plants are exact.
+solved in the helper by bisection of the phase condition ([Checks] §1), the ideal
+relay limit cycle of FOPDT has a closed form ([Checks] §1), the plants are exact.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ LT_RATIOS = (0.1, 0.3, 1.0, 3.0)
 
 def test_exact_ultimate_point_of_001_example_matches_the_documents():
     ku, tu = exact_fopdt_ultimate(0.05, 10.0, 3.0)
-    assert ku == pytest.approx(117.80, abs=0.01)      # SPEC §1.2 (checked)
+    assert ku == pytest.approx(117.80, abs=0.01)      # [Checks] §1 (checked)
     assert tu == pytest.approx(10.824, abs=0.001)
     model_ku, model_tu = ident.FopdtModel(0.05, 10.0, 3.0).ultimate_point()
     assert (model_ku, model_tu) == pytest.approx((ku, tu), rel=1e-9)
@@ -35,7 +35,7 @@ def test_exact_ultimate_point_of_001_example_matches_the_documents():
 
 @pytest.mark.parametrize('ratio', LT_RATIOS)
 def test_ideal_relay_cycle_period_and_amplitude_match_the_closed_form(ratio):
-    """SPEC §1.2: a = K·d·(1 − e^(−L/T)), P = 2T·ln(2·e^(L/T) − 1); ku_df = 4d/(πa) (001 eq. 6.22)."""
+    """[Checks] §1: a = K·d·(1 − e^(−L/T)), P = 2T·ln(2·e^(L/T) − 1); ku_df = 4d/(πa) ([DeadTimeNotes] eq. 6.22)."""
     gain, tc, d = 2.0, 1.0, 0.5
     period = 2 * tc * math.log(2 * math.exp(ratio) - 1)
     amp = gain * d * (1 - math.exp(-ratio))
@@ -82,7 +82,7 @@ def test_first_harmonic_ultimate_point_within_3_and_2_percent(case, noise):
 
 @pytest.mark.parametrize('case', (0.1, 'ipdt'))
 def test_describing_function_is_the_classical_biased_estimate(case):
-    """SPEC §2.5: the describing function underestimates Ku by ~18 % at L/T = 0.1
+    """[DeadTimeNotes] eqs. 6.20–6.22: the describing function underestimates Ku by ~18 % at L/T = 0.1
     (IPDT: 8/π² − 1 = −19 %), which is why the first harmonic is used."""
     t, u, y, eps, ku, _ = _noisy_relay(case, 0.0, seed=0, samples_per_period=200)
     res = ident.identify_relay(t, u, y, 0.0, 0.0, eps)
@@ -90,7 +90,7 @@ def test_describing_function_is_the_classical_biased_estimate(case):
 
 
 def test_biased_hysteresis_relay_limit_cycle_and_fopdt_from_it():
-    """004 eqs. 3.3.12–3.3.17: the exact limit cycle, kP from integrals, τ from A_u, T from Tu1."""
+    """[Precup2013] eqs. 3.3.12–3.3.17: the exact limit cycle, kP from integrals, τ from A_u, T from Tu1."""
     model = ident.FopdtModel(gain=2.0, time_constant=4.0, dead_time=2.0)
     mu, mu0, eps = 1.0, 0.3, 0.1
     cyc = ident.fopdt_relay_limit_cycle(model, mu, mu0, eps)
@@ -193,7 +193,7 @@ def test_local_model_through_two_harmonics_is_exact_for_its_family(order, alpha)
 
 
 def test_known_static_gain_gives_the_fopdt_by_eq_3_6_2():
-    """001 example with kP = 0.05 supplied: T and L from 004 eq. 3.6.2 through the measured ku, tu."""
+    """[DeadTimeNotes] example with kP = 0.05 supplied: T and L from [Precup2013] eq. 3.6.2 through the measured ku, tu."""
     ts = 0.05
     plant = ExactDelayPlant(0.05, 10.0, 3.0)
     amp = 0.05 * 200 * (1 - math.exp(-0.3))
@@ -206,9 +206,9 @@ def test_known_static_gain_gives_the_fopdt_by_eq_3_6_2():
 
 @pytest.mark.parametrize('abc_tm', [(2.0, 3.0, 1.0, 1.5), (1.0, 0.6, 1.0, 0.5), (10.0, 7.0, 1.0, 2.0)])
 def test_sopdt_from_the_two_points_of_004_eqs_3_5_8_to_3_5_14(abc_tm):
-    """SPEC-supplement §2.11's round trips: the −180° and −90° points of e^(−Tm·s)/(a·s² + b·s
+    """[Precup2013] §3.5.2's round trips: the −180° and −90° points of e^(−Tm·s)/(a·s² + b·s
     + c) (found here by bisection on the phase) return (a, b, c, Tm); so do two other points.
-    For (2, 3, 1, 1.5) the supplement lists ω_b 0.3766, ω_c 0.8981, |H_b| 0.7475, |H_c| 0.3619."""
+    For (2, 3, 1, 1.5) our own round trip ([Checks]) gives ω_b 0.3766, ω_c 0.8981, |H_b| 0.7475, |H_c| 0.3619."""
     a, b, c, tm = abc_tm
 
     def g(w):
@@ -229,7 +229,7 @@ def test_sopdt_from_the_two_points_of_004_eqs_3_5_8_to_3_5_14(abc_tm):
 
 
 def test_sopdt_from_two_points_of_a_first_order_process_is_first_order():
-    """For an FOPDT, Tm is a double root of 004 eq. 3.5.10 (both points' linear terms in Tm are
+    """For an FOPDT, Tm is a double root of [Precup2013] eq. 3.5.10 (both points' linear terms in Tm are
     equal), so 0.2 % error on one point either splits it into two roots — the smaller one trades
     dead time for a small second lag, L + T2 ≈ 3 s — or lifts the touching point off zero, and
     the closest approach gives a ≈ 0, first order (T2 below 0.1 % of T1)."""
@@ -260,8 +260,8 @@ def test_sopdt_from_two_points_refuses_points_no_lag_fits():
 
 @pytest.mark.parametrize('method, t_tol', [('tangent', 0.04), ('two_point', 0.01)])
 def test_fopdt_from_a_sampled_step_response(method, t_tol):
-    """001 eq. 6.15 (tangent of steepest slope) and the 28.3 %/63.2 % two-point method on the
-    exact sampled response of 001's FOPDT (K 0.05, T 10 s, L 3 s) to a step of 200, 80 s at
+    """[DeadTimeNotes] eq. 6.15 (tangent of steepest slope) and the 28.3 %/63.2 % two-point method on the
+    exact sampled response of [DeadTimeNotes]'s FOPDT (K 0.05, T 10 s, L 3 s) to a step of 200, 80 s at
     0.1 s: K from the last 10 % (e^(−7.7) of the change still to come), T, L; the tangent's
     slope over a window of 1 % of the record is a little below the true K/T at the corner."""
     t = np.arange(0.0, 80.0, 0.1)
@@ -280,7 +280,7 @@ def test_fopdt_from_a_sampled_step_response(method, t_tol):
 
 
 def test_frequency_points_from_the_relay_transient_of_004_eqs_3_3_1_to_3_3_10():
-    """SPEC-supplement §2.2's check: FOPDT (1, 10 s, 3 s) under an ideal relay ±1 from rest,
+    """[Precup2013] §3.3 A's check: FOPDT (1, 10 s, 3 s) under an ideal relay ±1 from rest,
     150 s recorded, α = 0.08/s: G(jω) to 3–4 digits at 0.05, 0.2, 0.58 and 1.0 rad/s with the
     pulse response cut at 100 s (≈ 10 T); kept to 200 s, the unweighting e^(α·t) ruins it.
     The hold correction makes 0.1 s sampling as good as 0.01 s."""

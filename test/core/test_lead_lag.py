@@ -1,5 +1,5 @@
 """The lead-lag compensator (core/control/lead_lag.py): its discrete transfer function sample
-by sample, the choice of discretisation, and 002's worked example (SPEC-supplement §3) —
+by sample, the choice of discretisation, and [Ikonen]'s worked example ([Checks] §5) —
 the design procedure's numbers, the documents' margins, Ms values and step responses."""
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from tank_control.core.control.lead_lag import (LeadLag, LeadLagConfig, LeadLagT
                                                 continuous_response, design,
                                                 discrete_polynomials, discrete_response)
 
-ALPHA = 0.1                                   # 002: derivative filter ten times faster
-PLANT_002 = fr.rational([4.0], [1.0, 3.0, 2.0])   # 002's process (SPEC-supplement §3)
+ALPHA = 0.1                                   # [Ikonen]: derivative filter ten times faster
+PLANT_002 = fr.rational([4.0], [1.0, 3.0, 2.0])   # [Ikonen]'s process ([Checks] §5)
 TUNING_002 = dict(rule='frequency_002', model='sopdt', gain=2.0, time_constant=1.0,
                   time_constant2=0.5)
 
@@ -25,7 +25,7 @@ def design_002(kind: str, **targets):
 
 
 def td_for(w_max: float, alpha: float = ALPHA) -> float:
-    """002 §1.2: the lead's largest phase sits at w_max = 1/(td·√alpha)."""
+    """[Ikonen] §1.2: the lead's largest phase sits at w_max = 1/(td·√alpha)."""
     return 1.0 / (w_max * math.sqrt(alpha))
 
 
@@ -86,7 +86,7 @@ def test_lead_is_stable_without_ringing_and_exact_at_low_frequency_for_any_sampl
 
 
 def test_discrete_law_tends_to_the_continuous_series_pid():
-    """As h → 0 C(e^(jωh)) → 002's series PID kp·(1 + 1/(ti s))·(td s + 1)/(alpha td s + 1)
+    """As h → 0 C(e^(jωh)) → [Ikonen]'s series PID kp·(1 + 1/(ti s))·(td s + 1)/(alpha td s + 1)
     of core/analysis/frequency.py (written independently) on 0.01…100 rad/s."""
     kp, td, ti = 5.75, td_for(10.8), 4.2
     w = np.logspace(-2, 2, 30)
@@ -98,7 +98,7 @@ def test_discrete_law_tends_to_the_continuous_series_pid():
 
 
 def zoh_002(h: float) -> fr.FrequencyResponse:
-    """Exact step-invariant model of 002's process (scipy's ZOH discretisation)."""
+    """Exact step-invariant model of [Ikonen]'s process (scipy's ZOH discretisation)."""
     num, den, _ = signal.cont2discrete(([4.0], [1.0, 3.0, 2.0]), h, 'zoh')
     with np.errstate(invalid='ignore'):      # its sampling zero is negative: log(<0) for a corner
         return fr.rational_discrete(np.ravel(num), den, h)
@@ -106,7 +106,7 @@ def zoh_002(h: float) -> fr.FrequencyResponse:
 
 @pytest.mark.parametrize('h', [0.005, 0.01, 0.02])
 def test_matched_lead_costs_hardly_more_than_the_hold(h):
-    """Why matched pole-zero for the lead: on the sampled 002 PD loop (exact ZOH plant) its
+    """Why matched pole-zero for the lead: on the sampled [Ikonen] PD loop (exact ZOH plant) its
     phase margin stays within a fifth of the hold's half-sample loss ω_c·h/2 of the
     continuous design with h/2 of dead time added, while the backward difference (the
     PID's derivative filter) loses about another ω_c·h/2."""
@@ -121,9 +121,9 @@ def test_matched_lead_costs_hardly_more_than_the_hold(h):
     assert lagged.phase_margin - backward.phase_margin > 0.6 * half_sample
 
 
-# ------------------------------------------------------------------- 002's design steps
+# ------------------------------------------------------------------- [Ikonen]'s design steps
 def test_002_p_gain_and_its_loop():
-    """002 §1.1: 1/(1 + 2·kp) = 5 % → kp = 9.5; Fig. 2 "Pm = 28.(1) deg (at 5.96 rad/s)".
+    """[Ikonen] §1.1: 1/(1 + 2·kp) = 5 % → kp = 9.5; Fig. 2 "Pm = 28.(1) deg (at 5.96 rad/s)".
     The crossover in closed form: 38² = (ω² + 1)(ω² + 4)."""
     d = design_002('p')
     assert d.kp == pytest.approx(9.5, rel=1e-12)
@@ -135,7 +135,7 @@ def test_002_p_gain_and_its_loop():
 
 
 def test_002_lead_iteration_reproduces_figs_4_and_6():
-    """002 §1.2: w_max at the P crossover (Fig. 4), then the mean of it and the new crossover
+    """[Ikonen] §1.2: w_max at the P crossover (Fig. 4), then the mean of it and the new crossover
     (Fig. 6, PM "already 70°": stop). The margins are checked with frequency.py."""
     d = design_002('pd')
     wc_p = math.sqrt((-5 + math.sqrt(25 + 4 * (38 ** 2 - 4))) / 2)
@@ -163,7 +163,7 @@ def test_002_lead_iteration_reproduces_figs_4_and_6():
 
 
 def test_002_pi_doc_numbers_and_our_design():
-    """002 §1.3: kp = 2 (Fig. 8 "Pm = 62.9 deg (at 2.37 rad/s)"), Ti = 10/2.4 = 4.2 s
+    """[Ikonen] §1.3: kp = 2 (Fig. 8 "Pm = 62.9 deg (at 2.37 rad/s)"), Ti = 10/2.4 = 4.2 s
     (Fig. 10 "Pm = 57.(1) deg (at 2.38 rad/s)", "still nearly 60"). The document picked
     kp = 2 off the plot; the integral then costs 5.9 deg. Our design solves for the target:
     the PI loop's margin is exactly 60 deg with Ti = 10/(the P loop's crossover)."""
@@ -180,7 +180,7 @@ def test_002_pi_doc_numbers_and_our_design():
 
 
 def test_002_series_pid():
-    """002 §1.4: PID = PD·PI, gain the mean of the two; the document's (9.5 + 2)/2 = 5.75,
+    """[Ikonen] §1.4: PID = PD·PI, gain the mean of the two; the document's (9.5 + 2)/2 = 5.75,
     T_D 0.29, Ti 4.2 s: "crossover 7 rad/s, phase margin 75°" (Fig. 17)."""
     doc = fr.margins(fr.series_pid(5.75, 4.2, td_for(10.8), 1 / ALPHA) * PLANT_002)
     assert round(doc.phase_margin) == 75 and round(doc.wc) == 7
@@ -193,7 +193,7 @@ def test_002_series_pid():
 
 
 def test_002_gang_of_four_ms_and_high_frequency_gain():
-    """002 Figs. 14–16: Ms of the document's designs PI 1.44, PD 1.20, PID 1.14 (PI weakest);
+    """[Ikonen] Figs. 14–16: Ms of the document's designs PI 1.44, PD 1.20, PID 1.14 (PI weakest);
     the same order for ours. C(∞) = kp/alpha: 95 (PD), 57.5 (PID) — the implemented law's
     output step after a unit setpoint step tends to it as h → 0."""
     doc = {'PD': (9.5, td_for(10.8), math.inf), 'PI': (2.0, 0.0, 4.2),
@@ -216,7 +216,7 @@ def test_002_gang_of_four_ms_and_high_frequency_gain():
 # ------------------------------------------------------------------ step responses
 def simulate_002(kp, td, ti, h=0.001, t_end=12.0, r=1.0, u_min=-1e9, u_max=1e9,
                  anti_windup='back_calculation'):
-    """Setpoint step on 002's process at rest (exact ZOH state-space model of scipy),
+    """Setpoint step on [Ikonen]'s process at rest (exact ZOH state-space model of scipy),
     the implemented LeadLag in the loop; returns (t, y, u)."""
     a, b, c, dd = signal.tf2ss([4.0], [1.0, 3.0, 2.0])
     ad, bd, cd, _, _ = signal.cont2discrete((a, b, c, dd), h, 'zoh')
@@ -240,7 +240,7 @@ def settled_after(t, y, final, band):
 
 
 def test_002_step_responses_of_the_documents_designs():
-    """SPEC-supplement §3 "time-domain claims" (continuous simulations there) with the
+    """[Checks] §5 "time-domain claims" (continuous simulations there) with the
     implemented law at h = 1 ms: P overshoot 46.4 % of the final value; PD: final 0.95
     (SSE 5.0 %), peak 1.0044, ±5 % after 0.35 s, 10–90 % rise 0.12 s; PI: overshoot 4.1 %,
     5 % band of the setpoint after 5.77 s ("nearly 6 s"); PID: no overshoot, ±5 % after
@@ -262,7 +262,7 @@ def test_002_step_responses_of_the_documents_designs():
 
 def test_peaks_differ_from_the_documents_continuous_ones_by_the_hold():
     """Where the sampled loop's peaks differ from the continuous simulation (P: 1.3912,
-    SPEC-supplement §3), the excess is the hold's: it grows in proportion to h."""
+    [Checks] §5), the excess is the hold's: it grows in proportion to h."""
     num = 9.5 * np.array([4.0])
     t = np.linspace(0.0, 20.0, 200001)
     _, y_cont = signal.step((num, np.polyadd([1.0, 3.0, 2.0], num)), T=t)
@@ -304,7 +304,7 @@ def test_anti_windup_removes_the_overshoot_of_a_saturated_start():
 # ------------------------------------------------------------- other plants and models
 def test_fopdt_and_ipdt_designs_meet_their_targets_with_exact_dead_time():
     """The design's closed-form margins checked with frequency.py (exact dead time):
-    PI on the 001 FOPDT and the 000 IPDT has exactly the target margin; PD on an FOPDT
+    PI on the [DeadTimeNotes] FOPDT and the [Viteckova] IPDT has exactly the target margin; PD on an FOPDT
     at least the target; every loop is stable (Nyquist)."""
     cases = [('pi', dict(model='fopdt', gain=0.05, time_constant=10.0, dead_time=3.0),
               fr.fopdt(0.05, 10.0, 3.0)),
@@ -324,7 +324,7 @@ def test_fopdt_and_ipdt_designs_meet_their_targets_with_exact_dead_time():
             assert m.phase_margin == pytest.approx(target, abs=1e-6)
         else:
             assert m.phase_margin >= target - 1e-9
-        if kind == 'pd':                               # 002 §1.1: 1/(1 + kp·K) = 10 %
+        if kind == 'pd':                               # [Ikonen] §1.1: 1/(1 + kp·K) = 10 %
             assert d.kp == pytest.approx(9.0, rel=1e-12)
 
 

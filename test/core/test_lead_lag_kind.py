@@ -1,5 +1,5 @@
 """Controller kind ``lead_lag`` (core/control/kinds/lead_lag.py) through the paths every kind
-takes: parameters, 002's design written back and enforced, live changes, mode, faults, warm
+takes: parameters, [Ikonen]'s design written back and enforced, live changes, mode, faults, warm
 start and an in-process run of a parameter file's sections."""
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ def test_registered_with_its_parameters_described():
                  'tuning.integral_ratio', 'output_names', 'input_names'):
         assert name in specs, name
     assert 0.0 < specs['lead_lag.alpha'].min < specs['lead_lag.alpha'].max < 1.0   # a lead
-    assert '002' in specs['lead_lag.td'].description and '[s]' in specs['lead_lag.td'].description
+    assert '[Ikonen]' in specs['lead_lag.td'].description and '[s]' in specs['lead_lag.td'].description
     assert specs['tuning.rule'].choices == ('none', 'frequency_002')
     assert specs['sample_time'].read_only and specs['lead_lag.ti'].default == 0.0   # none
 
@@ -72,14 +72,14 @@ def test_hand_set_compensator_is_the_configured_law():
 
 
 def test_002_design_is_derived_written_back_and_enforced():
-    """tuning.rule frequency_002 sets lead_lag.kp, lead_lag.td, lead_lag.ti (002 §1.1–1.4):
-    pd → kp 9.5 (5 % steady-state error, 002 §1.1) and no integral; a hand value for a
+    """tuning.rule frequency_002 sets lead_lag.kp, lead_lag.td, lead_lag.ti ([Ikonen] §1.1–1.4):
+    pd → kp 9.5 (5 % steady-state error, [Ikonen] §1.1) and no integral; a hand value for a
     derived parameter is refused naming the rule, its own value is accepted."""
     pd = controller_setup({**DESIGN_002, 'tuning.kind': 'pd'}).settings.values
     assert pd['lead_lag.kp'] == pytest.approx(9.5, rel=1e-12) and pd['lead_lag.ti'] == 0.0
     m = fr.margins(fr.lead(pd['lead_lag.kp'], pd['lead_lag.td'], 1 / 0.1)
                    * fr.rational([4.0], [1.0, 3.0, 2.0]))
-    assert round(m.phase_margin, 1) == 70.5 and round(m.wc, 1) == 10.9     # 002 Fig. 6
+    assert round(m.phase_margin, 1) == 70.5 and round(m.wc, 1) == 10.9     # [Ikonen] Fig. 6
     pid = controller_setup({**DESIGN_002, 'tuning.kind': 'pid'}).settings.values
     assert pid['lead_lag.td'] == pd['lead_lag.td'] and pid['lead_lag.ti'] > 0.0
     with pytest.raises(ConfigError) as info:
@@ -171,10 +171,10 @@ def test_limits_and_direct_action():
 
 
 def test_in_process_run_of_a_parameter_file_on_the_fopdt_plant():
-    """A parameter file's sections (plant fopdt K 1, T 10 s, L 1 s; lead_lag with the 002 PID
+    """A parameter file's sections (plant fopdt K 1, T 10 s, L 1 s; lead_lag with the [Ikonen] PID
     design on that model; a setpoint step) run through the in-process loop: the output stays
     within its limits, the loop settles at the setpoint without steady-state error, and the
-    overshoot is below the 10 % a 60 deg margin allows (002: ζ ≈ PM/100)."""
+    overshoot is below the 10 % a 60 deg margin allows ([Ikonen]: ζ ≈ PM/100)."""
     sections = {
         '/**': {'clock_mode': 'lockstep'},
         'plant': {'plant': 'fopdt', 'sample_time': 0.05, 'gain': 1.0, 'time_constant': 10.0,

@@ -10,7 +10,7 @@ from tank_control.core.trace import Trace
 
 
 class Integrator:
-    """y' = k1·(u + v) with exact ZOH (the IPDT of 000 eq. 1 without dead time)."""
+    """y' = k1·(u + v) with exact ZOH (the IPDT of [Viteckova] eq. 1 without dead time)."""
 
     output_names, input_names, disturbance_names = ('y',), ('u',), ('v',)
 

@@ -1,4 +1,4 @@
-"""004 §3.5.1 (eqs. 3.5.1–3.5.7): PI/PID fitted to a desired closed loop (core/tuning/loop_fit.py,
+"""[Precup2013] §3.5.1 (eqs. 3.5.1–3.5.7): PI/PID fitted to a desired closed loop (core/tuning/loop_fit.py,
 rule ``wang``), checked with the project's exact-delay frequency analysis and in the loop."""
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ from tank_control.core.scenario import build
 from tank_control.core.tuning import loop_fit
 from tank_control.core.tuning.rules import tune
 
-FOPDT = dict(gain=0.05, time_constant=10.0, dead_time=3.0)       # 001 §1.2.2
+FOPDT = dict(gain=0.05, time_constant=10.0, dead_time=3.0)       # [DeadTimeNotes] §1.2.2
 
 
 def test_the_target_has_the_documents_margins():
-    """ξ = 0.707, ωn·Tm = 2: 004 says 5 % overshoot, φ_r 60°, A_r 2.2; SPEC-supplement §2.10
+    """ξ = 0.707, ωn·Tm = 2: [Precup2013] says 5 % overshoot, φ_r 60°, A_r 2.2; [Precup2013] §3.5.1
     checked 4.3 %, 60.3°, 2.26 — here from H_0d directly: |H_0d(jωp)| = 1/A_r at the phase
     crossover and the phase at |H_0d| = 1."""
     tm = 3.0

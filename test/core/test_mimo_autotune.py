@@ -1,4 +1,4 @@
-"""Multivariable auto-tuning of the two-loop PI (004 §3.7) on the nonlinear tank: the sequential
+"""Multivariable auto-tuning of the two-loop PI ([Precup2013] §3.7) on the nonlinear tank: the sequential
 relay test (loop h with T held, loop T with h closed, loop h with T closed), the model designs
 (model_zn, model_ls), preview/apply/revert, and abort and failures restoring the gains."""
 from __future__ import annotations
@@ -23,7 +23,7 @@ TEST = AutotuneConfig(stationarity_tol=0.15, timeout=6000.0)
 
 
 def run(tuner, duration, setpoint=lambda t: R0, actions=None):
-    """The tank at 003's operating point with ``tuner`` (warm start at the operating flows);
+    """The tank at [Michalski2021]'s operating point with ``tuner`` (warm start at the operating flows);
     ``actions[k]`` acts before sample k. Returns t, h, T_out, u (k × 2), states, status log."""
     plant = MixingTank(MixingTankConfig(integration_step=0.5))
     tuner.reset(np.full(2, math.nan), FLOWS)

@@ -16,7 +16,7 @@ from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError, config_from, defaults_of, specs_of
 from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
 
-T0 = 2115.0 / 63.0     # document's operating temperature (SPEC §1.3)
+T0 = 2115.0 / 63.0     # document's operating temperature ([Michalski2021] §1)
 U0 = np.array([14.0, 37.0])
 D0 = np.array([12.0, 33.0])
 
@@ -103,7 +103,7 @@ def test_constraints_never_violated_with_qp(horizons):
 
 def test_large_setpoint_change_with_relinearisation():
     """h 81 → 115 cm, T_out → 40 °C, then down to 60 cm / 30 °C, (N, Nu) = (300, 100),
-    |Δu| ≤ 2: re-linearising at each setpoint (003 §4's weak point: linearisation
+    |Δu| ≤ 2: re-linearising at each setpoint ([Michalski2021] §4's weak point: linearisation
     error for large changes) settles offset-free and with a lower IAE than one
     linearisation at 81 cm."""
     ref = lambda t: np.array([115.0, 40.0]) if t < 1500 else np.array([60.0, 30.0])
@@ -123,14 +123,14 @@ def test_large_setpoint_change_with_relinearisation():
 
 
 def test_unreachable_temperature_setpoint_does_not_wind_up():
-    """003 §2.2's failure mode: T_out = 24 °C with F_D at 33 °C is unreachable at h = 81
+    """[Michalski2021] §2.2's failure mode: T_out = 24 °C with F_D at 33 °C is unreachable at h = 81
     (best: F_H = 0 → T = 24.9 °C). The QP saturates F_H at 0 without windup, the level
     stays at the cost's compromise between the two errors and the loop recovers at once
     when the setpoint becomes reachable again."""
     ref = lambda t: np.array([81.0, 24.0 if t < 1200 else 30.0])
     y, r, u = run(Mpcs(MpcsConfig(solver='qp')), make_tank(), 2600, ref, lambda t: D0)
     # With F_H at 0 only F_Cin is left for two errors: the steady state minimising
-    # e_h² + e_T² (W_y = 1, 1) of the linear model (003 eqs. 4-6 at h0 = 81 cm: level gain
+    # e_h² + e_T² (W_y = 1, 1) of the linear model ([Michalski2021] eqs. 4-6 at h0 = 81 cm: level gain
     # 2·√h0/α cm, temperature gain (T_C − T0)/q0 °C per cm³/s) raises F_Cin by δ and
     # gives up g_h·δ of level for a little temperature.
     g_h, g_t = 2 * 9.0 / 7.0, (23.0 - T0) / 63.0
@@ -313,7 +313,7 @@ def test_controller_kind_builds_checks_and_updates_from_parameter_values():
     """resolve/build/update from flat parameter values, as controller_node drives them."""
     kind = mpcs_kind.KIND
     values = {'mpcs.solver': 'qp', 'mpcs.horizon': 80, 'mpcs.control_horizon': 30}
-    resolve(kind, values)                  # 003 §6's (80, 30): accepted (with a warning)
+    resolve(kind, values)                  # [Michalski2021] §6's (80, 30): accepted (with a warning)
     ctl = kind.build(resolve(kind, values))
     assert ctl.config.solver == 'qp' and ctl.config.horizon == 80
     with pytest.raises(ConfigError, match='mpcs.control_horizon'):
@@ -378,9 +378,9 @@ def test_unmeasured_disturbance_channels_use_the_operating_point_then_the_last_v
 # --- horizons: the defaults cover the dead times; shorter ones are accepted with a warning ---
 
 #: [s] time constant of the level at the document's operating point, from V = C·h² and
-#: F = α·√h linearised at h0 = 81 cm: τ = 4·C·h0^1.5/α (003 §1; the slowest mode of the model)
+#: F = α·√h linearised at h0 = 81 cm: τ = 4·C·h0^1.5/α ([Michalski2021] §1; the slowest mode of the model)
 TAU_LEVEL = 4 * 0.7 * 81.0 ** 1.5 / 7.0
-F_CIN_DELAY = 180          # [samples] the cold-water dead time at Ts = 1 s (003 §1)
+F_CIN_DELAY = 180          # [samples] the cold-water dead time at Ts = 1 s ([Michalski2021] §1)
 CHANGES = (100, 1600, 3100)         # [s] h step, T_out step, F_D step, 1500 s apart
 SETTLED = 1200             # [s] after a change the claim holds from here to the next change
 
@@ -411,7 +411,7 @@ def settled_errors(y, r):
 ])
 def test_default_horizons_settle_offset_free_with_unequal_weights(weights, lam, solver):
     """The claim |e_h| ≤ 0.05 cm, |e_T| ≤ 0.02 °C (from 1200 s after each change) holds with
-    the default horizons for strongly unequal output weights and 003's range of λ, within
+    the default horizons for strongly unequal output weights and [Michalski2021]'s range of λ, within
     the rate limit 0.2 cm³/s per sample; the defaults give no warning."""
     ctl = Mpcs(MpcsConfig(solver=solver, output_weights=weights, lam=(lam,)))
     assert ctl.warning == ''
@@ -422,7 +422,7 @@ def test_default_horizons_settle_offset_free_with_unequal_weights(weights, lam, 
 
 
 def test_document_horizons_warn_and_leave_the_level_off_with_a_heavy_temperature_weight():
-    """003 §6's (N, Nu) = (100, 50) with W_y = (1, 30): accepted with a warning naming both
+    """[Michalski2021] §6's (N, Nu) = (100, 50) with W_y = (1, 30): accepted with a warning naming both
     horizons, and 1200 s after the h step the level is still more than 0.05 cm off (moving
     h at a fixed T needs F_Cin, which acts only after 180 s, beyond every planned move)."""
     ctl = Mpcs(MpcsConfig(solver='qp', horizon=100, control_horizon=50, block=1,
@@ -459,7 +459,7 @@ def test_horizon_warning_names_each_parameter_and_its_minimum():
 
 @pytest.mark.parametrize('solver, n, nu, lam', [
     ('analytic', 50, 10, 1.0), ('analytic', 300, 100, 0.1), ('analytic', 500, 60, 0.4),
-    ('qp', 100, 50, 0.5), ('qp', 50, 10, 0.2), ('qp', 80, 30, 0.3)])   # SPEC §2.8
+    ('qp', 100, 50, 0.5), ('qp', 50, 10, 0.2), ('qp', 80, 30, 0.3)])   # [Michalski2021] §4, §6
 def test_the_documents_settings_are_accepted_with_a_warning(solver, n, nu, lam):
     values = {'mpcs.solver': solver, 'mpcs.horizon': n, 'mpcs.control_horizon': nu,
               'mpcs.block': 1, 'mpcs.lambda': [lam]}

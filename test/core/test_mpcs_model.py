@@ -14,7 +14,7 @@ from tank_control.core.control.mpcs_prediction import CostConfig, Prediction
 
 
 def test_linearization_matches_document_matrices():
-    """003 eq. 6 (SPEC §1.3): A and B of the tank at the operating point, Ts = 1 s."""
+    """[Michalski2021] eq. 6 ([Michalski2021] §1): A and B of the tank at the operating point, Ts = 1 s."""
     a, b = linearize_mixing_tank(TankOperatingPoint(), 1.0)
     assert a[0, 0] == pytest.approx(0.99658, abs=1e-5)
     assert a[1, 1] == pytest.approx(0.98638, abs=1e-5)

@@ -1,4 +1,4 @@
-"""Two-loop PI for the mixing tank (003 §2–3, SPEC §2.7)."""
+"""Two-loop PI for the mixing tank ([Michalski2021] §2–3, [Michalski2021] §2–3)."""
 from __future__ import annotations
 
 import math
@@ -19,12 +19,12 @@ from tank_control.core.control.multiloop import (
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError
 
-C, ALPHA, TC, TH, TD = 0.7, 7.0, 23.0, 62.0, 33.0      # 003 §1
+C, ALPHA, TC, TH, TD = 0.7, 7.0, 23.0, 62.0, 33.0      # [Michalski2021] §1
 T0 = 2115.0 / 63.0                                    # operating-point temperature 33.571 °C
 
 
 def tank_run(ctl, r_fn, t_end: int, fd: float = 12.0) -> np.ndarray:
-    """Nonlinear tank of 003 §1 (Euler, 0.5 s steps) with 180 s delay on F_C and 120 s on
+    """Nonlinear tank of [Michalski2021] §1 (Euler, 0.5 s steps) with 180 s delay on F_C and 120 s on
     T_out, controller at 1 s, started at the operating point. Rows: h, T_out, F_H, F_Cin, F_C."""
     vol, temp = C * 81.0 ** 2, T0
     fc_line, t_line = [37.0] * 180, [T0] * 120
@@ -61,7 +61,7 @@ def test_without_decoupling_tracks_both_setpoints_and_shows_coupling():
     _physical(out)
     assert abs(out[2499, 0] - 85.0) < 0.05
     assert abs(out[-1, 1] - 35.0) < 0.05
-    assert np.abs(out[100:2500, 1] - T0).max() > 0.5     # 003: a level step disturbs T visibly
+    assert np.abs(out[100:2500, 1] - T0).max() > 0.5     # [Michalski2021]: a level step disturbs T visibly
 
 
 def test_with_decoupling_reduces_the_interaction():
@@ -73,7 +73,7 @@ def test_with_decoupling_reduces_the_interaction():
 
 
 def test_static_and_dynamic_d21_behave_alike():
-    """003 §3: 'the differences were unnoticeable'."""
+    """[Michalski2021] §3: 'the differences were unnoticeable'."""
     a = tank_run(TwoLoopPi(document_config('static')), steps, 1500)
     b = tank_run(TwoLoopPi(document_config('dynamic')), steps, 1500)
     assert np.abs(a[:, :2] - b[:, :2]).max() < 0.05
@@ -166,7 +166,7 @@ def test_protocol_params_and_validation():
 
 
 def test_setpoint_guard_prevents_the_unreachable_temperature_failure_of_003():
-    """003 §2.2: T_out setpoint near T_C with the warmer disturbance inflow is unreachable; the
+    """[Michalski2021] §2.2: T_out setpoint near T_C with the warmer disturbance inflow is unreachable; the
     integrators then keep F_Cin up and the level drifts. The guard limits r_T to the reachable
     steady-state interval at the level setpoint: ((F − F_D)·T_C + F_D·T_D)/F + margin."""
     r_fn = lambda k: np.array([81.0, T0 if k < 100 else 24.0])      # noqa: E731

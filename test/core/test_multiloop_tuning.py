@@ -1,4 +1,4 @@
-"""004 §3.7's equations (eqs. 3.7.4–3.7.10) against hand-computed cases, and the tank's
+"""[Precup2013] §3.7's equations (eqs. 3.7.4–3.7.10) against hand-computed cases, and the tank's
 H_P(jω) against its mass and heat balance."""
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ def test_least_squares_recovers_the_exact_mimo_pi_eq_3_7_10():
 
 
 def test_tank_static_gains_from_the_balances():
-    """h = (F/α)² → ∂h/∂F = 2F/α²; T = ΣF_i·T_i/F → ∂T/∂F_i = (T_i − T)/F (003 §1)."""
+    """h = (F/α)² → ∂h/∂F = 2F/α²; T = ΣF_i·T_i/F → ∂T/∂F_i = (T_i − T)/F ([Michalski2021] §1)."""
     cfg = MixingTankConfig(T_op=2115.0 / 63.0)
     g = mlt.tank_frequency_response(cfg, 1e-9)
     f, t = 63.0, 2115.0 / 63.0

@@ -1,4 +1,4 @@
-"""Unit behaviour of the discrete 2-DOF PID (000 eq. 19, SPEC §2.1)."""
+"""Unit behaviour of the discrete 2-DOF PID ([Viteckova] eq. 19, [Viteckova] eqs. 13–19)."""
 from __future__ import annotations
 
 import math
@@ -40,7 +40,7 @@ def _backward_difference_d(kp: float, td: float, n: float, h: float, e: list[flo
 @pytest.mark.parametrize('h', [0.5, 0.05, 1e-4])
 def test_standard_pid_initial_output_of_a_setpoint_step(h):
     """u(0) = kp·(b + c·td/(Tf + h))·w0 with Tf = td/n (backward-difference filter from
-    rest); as h → 0 it tends to kp·(1 + n)·w0, 000 eq. 16 with Td/Tf = n, b = c = 1."""
+    rest); as h → 0 it tends to kp·(1 + n)·w0, [Viteckova] eq. 16 with Td/Tf = n, b = c = 1."""
     kp, td, w0 = 2.0, 2.0, 3.0
     for n in (5.0, 10.0, 20.0):
         for b, c in ((1.0, 1.0), (0.4, 0.6)):
@@ -53,7 +53,7 @@ def test_standard_pid_initial_output_of_a_setpoint_step(h):
 
 
 def test_c_zero_removes_the_derivative_kick():
-    """With c = 0 only the weighted P term reacts to a setpoint step (000 eq. 18 with b)."""
+    """With c = 0 only the weighted P term reacts to a setpoint step ([Viteckova] eq. 18 with b)."""
     pid = make(b=0.4, c=0.0)
     pid.reset(0.0, 0.0, 0.0)
     assert pid.update(3.0, 0.0) == pytest.approx(2.0 * 0.4 * 3.0, rel=1e-12)
@@ -366,7 +366,7 @@ def test_a_gain_given_with_a_rule_must_agree_with_it_in_every_path():
 
 
 def test_setpoint_weights_can_be_set_by_hand_with_the_rule_gains():
-    """000 Figs. 4-5: the MDP gains with b = c = 0 (tuning.setpoint_weights false)."""
+    """[Viteckova] Figs. 4-5: the MDP gains with b = c = 0 (tuning.setpoint_weights false)."""
     settings = resolve(pid_kind.KIND, {**MDP, 'tuning.setpoint_weights': False, 'b': 0.0,
                                        'c': 0.0})
     tuned = resolve(pid_kind.KIND, MDP).config

@@ -1,11 +1,11 @@
-"""Closed-loop claims of 000 and 001 with the discrete PID on exact discrete plants.
+"""Closed-loop claims of [Viteckova] and [DeadTimeNotes] with the discrete PID on exact discrete plants.
 
 The plants are simulated exactly at the controller sample time h (ZOH input,
 dead time a whole number of samples): IPDT y(k+1) = y(k) + k1·h·u(k − d),
 FOPDT y(k+1) = a·y(k) + K·(1 − a)·u(k − d), a = exp(−h/T).
 Measured with h = 0.05 s, n = 10: MDP PID 2-DOF 0.02 %, MDP PI 2-DOF 0.00 %,
 b = c = 1: PI 34.9 %, PID 45.3 % (the continuous loop: 0.02 %, 0 %, 34.6 %, 44.7 %,
-SPEC-supplement §1.1).
+[Checks] §3).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.tuning import tune
 
 H = 0.05
-K1, TO = 0.05, 5.0                    # 000 example
+K1, TO = 0.05, 5.0                    # [Viteckova] example
 
 
 def _pid(g: dict, **override) -> Pid2Dof:
@@ -40,7 +40,7 @@ def ipdt_loop(pid: Pid2Dof, t_end: float, w=lambda t: 1.0, v=lambda t: 0.0, dead
         u = pid.update(w(t), y)
         ts.append(t)
         ys.append(y)
-        line.append(u + v(t))            # load disturbance at the plant input (000 Fig. 1)
+        line.append(u + v(t))            # load disturbance at the plant input ([Viteckova] Fig. 1)
         y += K1 * H * line.pop(0)
     return np.array(ts), np.array(ys)
 
@@ -77,13 +77,13 @@ def test_mdp_pi_2dof_setpoint_step_is_aperiodic():
 
 @pytest.mark.parametrize('kind', ['pi', 'pid'])
 def test_one_dof_weights_overshoot(kind):
-    """000 eq. 9: with b = c = 1 an integrating loop must overshoot a setpoint step."""
+    """[Viteckova] eq. 9: with b = c = 1 an integrating loop must overshoot a setpoint step."""
     assert overshoot(tune('mdp', kind, gain=K1, dead_time=TO), b=1.0, c=1.0) >= 30.0
 
 
 @pytest.mark.parametrize('kind', ['pi', 'pid'])
 def test_load_step_is_rejected_and_error_integral_matches_eq_10(kind):
-    """000 eq. 10: ∫e_v dt = −Ti·v0/kp; and no sustained oscillation afterwards."""
+    """[Viteckova] eq. 10: ∫e_v dt = −Ti·v0/kp; and no sustained oscillation afterwards."""
     g = tune('mdp', kind, gain=K1, dead_time=TO)
     v0 = 1.0
     t, y = ipdt_loop(_pid(g), 300.0, w=lambda t: 0.0, v=lambda t: v0)
@@ -98,7 +98,7 @@ def test_load_step_is_rejected_and_error_integral_matches_eq_10(kind):
 @pytest.mark.parametrize('rule, kind', [('mdp', 'pi'), ('mdp', 'pid'), ('experimental', 'pi'),
                                         ('experimental', 'pid')])
 def test_dead_time_plus_20_percent_stays_stable(rule, kind):
-    """000 Figs. 6–7: the tuned loops tolerate To × 1.2."""
+    """[Viteckova] Figs. 6–7: the tuned loops tolerate To × 1.2."""
     g = tune(rule, kind, gain=K1, dead_time=TO)
     t, y = ipdt_loop(_pid(g), 200.0, dead_time=1.2 * TO)
     m = step_metrics(t, y, 1.0)
@@ -107,12 +107,12 @@ def test_dead_time_plus_20_percent_stays_stable(rule, kind):
 
 
 def test_zn_pid_on_001_fopdt_step_versus_ramp():
-    """001 §1.2.2: the ZN PID (Ku = 118.2, Tu = 11 s) overshoots a step of 100 strongly
+    """[DeadTimeNotes] §1.2.2: the ZN PID (Ku = 118.2, Tu = 11 s) overshoots a step of 100 strongly
     (the document: ~40 %); ramping the setpoint over 25 s cuts that to a few %.
 
     Measured here with the ideal-form PID, b = c = 1, n = 10, h = 0.05 s: 55.0 % with the
-    step, 7.9 % with the ramp (the continuous loop: 54.0 % and 7.5–7.7 %, SPEC-supplement
-    §1.10; docs/scenarios.md on the gap to the document's figures)."""
+    step, 7.9 % with the ramp (the continuous loop: 54.0 % and 7.5–7.7 %, [Checks]
+    §4; docs/scenarios.md on the gap to the document's figures)."""
     g = tune('zn_001', 'pid', ku=118.2, tu=11.0)
     t, y = fopdt_loop(_pid(g), 150.0, w=lambda t: 100.0)
     step = step_metrics(t, y, 100.0)

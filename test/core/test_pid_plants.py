@@ -36,7 +36,7 @@ def _pid(g, h):
 
 
 def test_ipdt_mdp_pid_with_dead_time_raised_20_percent_at_runtime():
-    """000 Figs. 6–7 as an operator would see it: To 5 → 6 s while running, then a setpoint step."""
+    """[Viteckova] Figs. 6–7 as an operator would see it: To 5 → 6 s while running, then a setpoint step."""
     g = tune('mdp', 'pid', gain=0.05, dead_time=5.0)
     plant = make_plant('ipdt', {'gain': 0.05, 'dead_time': 5.0})
     events = {1000: lambda p: p.configure(dead_time=6.0)}          # at t = 100 s
@@ -73,7 +73,7 @@ def test_fopdt_zn_pid_step_versus_ramp():
 
 
 def test_both_two_loop_variants_on_the_nonlinear_tank():
-    """003 §2–3 gains on the MixingTank of core/plants: physical, tracking, coupling as in 003."""
+    """[Michalski2021] §2–3 gains on the MixingTank of core/plants: physical, tracking, coupling as in [Michalski2021]."""
     dev = {}
     for variant in ('none', 'dynamic'):
         plant = make_plant('mixing_tank', {'integration_step': 0.5})

@@ -25,9 +25,9 @@ def test_every_parameter_is_a_described_config_field_with_an_accepted_default(ki
 
 def test_defaults_are_the_documents_examples():
     ipdt, fopdt, tank = (make_plant(k).config for k in ('ipdt', 'fopdt', 'mixing_tank'))
-    assert (ipdt.gain, ipdt.dead_time) == (0.05, 5.0)                 # 000
-    assert (fopdt.gain, fopdt.time_constant, fopdt.dead_time) == (0.05, 10.0, 3.0)   # 001
-    assert (tank.C, tank.alpha, tank.tau_cold, tank.tau_out) == (0.7, 7.0, 180.0, 120.0)  # 003
+    assert (ipdt.gain, ipdt.dead_time) == (0.05, 5.0)                 # [Viteckova]
+    assert (fopdt.gain, fopdt.time_constant, fopdt.dead_time) == (0.05, 10.0, 3.0)   # [DeadTimeNotes]
+    assert (tank.C, tank.alpha, tank.tau_cold, tank.tau_out) == (0.7, 7.0, 180.0, 120.0)  # [Michalski2021]
     assert (tank.F_H, tank.F_C, tank.F_D, tank.T_H, tank.T_C, tank.T_D) == (14, 37, 12, 62, 23, 33)
     assert (tank.initial_h, tank.initial_T) == (81.0, 2115.0 / 63.0)   # its steady state
 

@@ -1,4 +1,4 @@
-"""The first-order unstable plus dead time plant K/(T·s − 1)·e^(−L·s) (004 §3.6.2) against
+"""The first-order unstable plus dead time plant K/(T·s − 1)·e^(−L·s) ([Precup2013] §3.6.2) against
 closed forms and an independent quadrature."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The linearised mixing tank (003 eqs. 4–6): equilibrium, closed forms, exact delays that are
+"""The linearised mixing tank ([Michalski2021] eqs. 4–6): equilibrium, closed forms, exact delays that are
 not multiples of the tick, agreement with the nonlinear tank for small moves, and no clipping."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from tank_control.core.plants.kinds.registry import make_plant
 
-OP_T = 2115.0 / 63.0        # the tank's steady state at 003's operating point [°C]
+OP_T = 2115.0 / 63.0        # the tank's steady state at [Michalski2021]'s operating point [°C]
 
 
 def run(plant, steps, h=1.0, u=(14.0, 37.0), d=()):
@@ -22,7 +22,7 @@ def run(plant, steps, h=1.0, u=(14.0, 37.0), d=()):
 
 
 def test_at_the_operating_point_nothing_moves_and_t_is_the_tank_steady_state():
-    # 003 prints T_op = 33.57; with the constant term the linear equilibrium is 2115/63.
+    # [Michalski2021] prints T_op = 33.57; with the constant term the linear equilibrium is 2115/63.
     y = run(make_plant('mixing_tank_linear'), 500)
     np.testing.assert_allclose(y[:, 0], 81.0, atol=1e-12)
     np.testing.assert_allclose(y[:, 1], OP_T, atol=1e-12)
@@ -75,7 +75,7 @@ def test_small_moves_agree_with_the_nonlinear_tank_to_first_order():
 
 
 def test_nothing_is_clipped_the_linear_temperature_can_leave_the_physical_range():
-    # 003 §3.3: the linear model lets T fall below T_C, which no mixture can produce.
+    # [Michalski2021] §3.3: the linear model lets T fall below T_C, which no mixture can produce.
     plant = make_plant('mixing_tank_linear', {'tau_out': 0.0})
     y = run(plant, 3000, u=(0.0, 200.0))
     assert y[-1, 1] < 23.0

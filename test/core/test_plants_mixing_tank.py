@@ -1,4 +1,4 @@
-"""The nonlinear mixing tank of 003 §1 (SPEC §1.3): steady state, delays, physics, linear model."""
+"""The nonlinear mixing tank of [Michalski2021] §1 ([Michalski2021] §1): steady state, delays, physics, linear model."""
 from __future__ import annotations
 
 import math
@@ -9,7 +9,7 @@ import pytest
 from tank_control.core.interfaces import Plant
 from tank_control.core.plants.mixing_tank import MixingTank, MixingTankConfig
 
-U0 = [14.0, 37.0]                      # F_H, F_Cin at 003's operating point [cm³/s]
+U0 = [14.0, 37.0]                      # F_H, F_Cin at [Michalski2021]'s operating point [cm³/s]
 D0 = [12.0, 33.0, 62.0, 23.0]          # F_D, T_D, T_H, T_C
 T_SS = (14 * 62 + 37 * 23 + 12 * 33) / 63          # = 2115/63, the steady temperature
 
@@ -26,7 +26,7 @@ def test_tank_satisfies_the_protocol():
 
 
 def test_operating_point_is_a_steady_state():
-    # SPEC §1.3: outflow 7·√81 = 63 = 14 + 37 + 12 and T = 2115/63, so dh/dt = dT/dt = 0.
+    # [Michalski2021] §1: outflow 7·√81 = 63 = 14 + 37 + 12 and T = 2115/63, so dh/dt = dT/dt = 0.
     tank = MixingTank()
     np.testing.assert_allclose(tank.outputs(), [81.0, T_SS], rtol=0, atol=1e-12)
     for _ in range(600):
@@ -147,7 +147,7 @@ def test_overflow_spills_above_h_max():
 
 
 def test_linearize_reproduces_the_documents_matrices():
-    # 003 eq. 6 / SPEC §1.3, compared at the printed number of significant digits.
+    # [Michalski2021] eq. 6 / [Michalski2021] §1, compared at the printed number of significant digits.
     A, B, C, D = MixingTank().linearize(1.0)
     printed_A = [[0.9966, 0.0], [-4.23e-09, 0.9864]]
     printed_B = [[0.9983, 0.9983, 0.9983, 0, 0, 0],

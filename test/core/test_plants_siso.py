@@ -1,4 +1,4 @@
-"""IPDT and FOPDT plants against closed forms (SPEC §1.1, §1.2)."""
+"""IPDT and FOPDT plants against closed forms ([Viteckova] eq. 1, §1.2)."""
 from __future__ import annotations
 
 import copy
@@ -67,7 +67,7 @@ def test_plants_satisfy_the_protocol():
 
 
 def test_fopdt_relay_limit_cycle_matches_closed_form():
-    # SPEC §1.2: a = K·d·(1 − e^(−L/T)), P = 2T·ln(2·e^(L/T) − 1); L not a multiple of ts.
+    # [Checks] §1: a = K·d·(1 − e^(−L/T)), P = 2T·ln(2·e^(L/T) − 1); L not a multiple of ts.
     K, T, L, d, y0 = 0.05, 10.0, 2.7183, 1.0, 1.5
     plant = Fopdt(FopdtConfig(gain=K, time_constant=T, dead_time=L, output_offset=y0))
     crossings, times, ys = relay_loop(plant, d, y0, L, ts=0.01, t_end=45.0)

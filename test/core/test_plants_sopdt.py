@@ -1,4 +1,4 @@
-"""SOPDT plant (004 eq. 3.5.8) against closed forms, the exact-delay frequency model and an
+"""SOPDT plant ([Precup2013] eq. 3.5.8) against closed forms, the exact-delay frequency model and an
 independent ODE integration; the kind ``sopdt`` through the plant-kind table."""
 from __future__ import annotations
 
@@ -80,7 +80,7 @@ def test_plant_satisfies_the_protocol_with_channels_y_u_v():
 
 
 def test_kind_is_in_the_table_and_defaults_are_002s_plant():
-    # SPEC-supplement §3: 002's plant G(s) = 2/((s + 1)(0.5 s + 1)), no dead time.
+    # [Checks] §5: [Ikonen]'s plant G(s) = 2/((s + 1)(0.5 s + 1)), no dead time.
     assert 'sopdt' in KINDS and get_kind('sopdt').config is SopdtConfig
     config = make_plant('sopdt').config
     assert (config.gain, config.form, config.time_constant_1, config.time_constant_2,
@@ -311,7 +311,7 @@ def test_reset_returns_to_rest():
 
 
 def test_a_scenario_with_plant_sopdt_runs_in_process_through_the_kind_table():
-    # 001's ZN scenario with the plant replaced by K/(T²s² + 2ζTs + 1)·e^(−Ls), K = 0.05,
+    # [DeadTimeNotes]'s ZN scenario with the plant replaced by K/(T²s² + 2ζTs + 1)·e^(−Ls), K = 0.05,
     # T = 10 s, ζ = 0.7, L = 3 s, and the ZN PID from this plant's ultimate point.
     sections = params_file.read(CONFIG / 'fopdt_zn.yaml')
     sections['plant'].update(plant='sopdt', form='damping', time_constant=10.0, damping=0.7)

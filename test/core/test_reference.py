@@ -1,4 +1,4 @@
-"""Reference schedules: steps, rate-limited ramps (001 Fig. 1.15), limits, live changes."""
+"""Reference schedules: steps, rate-limited ramps ([DeadTimeNotes] Fig. 1.15), limits, live changes."""
 from __future__ import annotations
 
 import pytest
@@ -12,7 +12,7 @@ from tank_control.core.reference import (
 
 
 def ramp_001() -> Reference:
-    """001 Fig. 1.15: setpoint 0 → 100 reached in 25 s (rate 4/s), starting at t = 10 s."""
+    """[DeadTimeNotes] Fig. 1.15: setpoint 0 → 100 reached in 25 s (rate 4/s), starting at t = 10 s."""
     return reference_from_params({
         'setpoint.channels': ['y'],
         'setpoint.y.times': [0.0, 10.0], 'setpoint.y.values': [0.0, 100.0],

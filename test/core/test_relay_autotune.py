@@ -1,7 +1,7 @@
 """RelayAutotuner (core/control/relay_autotune.py): the whole test on exact dead-time plants.
 
 Required: Ku within ±3 % and Tu within ±2 % of the exact ultimate point
-(solved independently in the helper) with 1 % measurement noise; 001's example ends
+(solved independently in the helper) with 1 % measurement noise; [DeadTimeNotes]'s example ends
 with a running PID within 8 oscillation periods after settling; every failure path
 restores the previous gains and leaves the loop running.
 """
@@ -30,10 +30,10 @@ from tank_control.core.control.relay_autotune import (
 from tank_control.core.interfaces import Controller
 from tank_control.core.params import ConfigError, check_config, config_from, defaults_of, specs_of
 
-# 001 §1.2.2: K = 0.05, T = 10 s, L = 3 s, setpoint 100 (u = 2000 at rest)
+# [DeadTimeNotes] §1.2.2: K = 0.05, T = 10 s, L = 3 s, setpoint 100 (u = 2000 at rest)
 K, T, L, R, U0 = 0.05, 10.0, 3.0, 100.0, 2000.0
 D = 200.0                                   # relay amplitude
-AMP = K * D * (1 - math.exp(-L / T))        # ideal-relay output amplitude (SPEC §1.2) ≈ 2.6
+AMP = K * D * (1 - math.exp(-L / T))        # ideal-relay output amplitude ([Checks] §1) ≈ 2.6
 PID_BEFORE = dict(kp=20.0, ti=12.0, td=0.0)
 
 
@@ -78,7 +78,7 @@ def test_001_example_tunes_within_3_and_2_percent_in_at_most_8_periods():
     t_relay = log['t'][states.index('relay')]
     t_tuned = log['t'][states.index('tuned')]
     assert t_tuned - t_relay <= 8 * tu_exact
-    # ZN PID of 001 Table 6.2 from the identified point (kp = 0.6 Ku, ti = 0.5 Tu, td = 0.12 Tu)
+    # ZN PID of [DeadTimeNotes] Table 6.2 from the identified point (kp = 0.6 Ku, ti = 0.5 Tu, td = 0.12 Tu)
     cfg = tuner.pid.config
     assert (cfg.kp, cfg.ti, cfg.td) == pytest.approx((0.6 * 117.8, 0.5 * 10.82, 0.12 * 10.82), rel=0.03)
     # bumpless switch: the first PID output equals the relay bias u0, and the loop settles
@@ -116,8 +116,8 @@ def test_ku_tu_through_the_state_machine_with_noise(case):
 
 @pytest.mark.parametrize('bias', (60.0, -60.0))
 def test_biased_relay_identifies_the_static_gain_and_the_fopdt_of_004_eqs_3_3_12_to_3_3_17(bias):
-    """001's FOPDT under a live relay u0 + μ0 ± d (μ0 = ±0.3 d): the asymmetric cycle gives
-    kP = 0.05 (004 eq. 3.3.13) and T = 10 s, L = 3 s (eqs. 3.3.15–3.3.17; the sampled relay
+    """[DeadTimeNotes]'s FOPDT under a live relay u0 + μ0 ± d (μ0 = ±0.3 d): the asymmetric cycle gives
+    kP = 0.05 ([Precup2013] eq. 3.3.13) and T = 10 s, L = 3 s (eqs. 3.3.15–3.3.17; the sampled relay
     switches up to one 0.1 s sample late, which the dead time absorbs: L ≤ 3 + Ts); the
     first-harmonic ultimate point is unaffected by the bias; the PID takes over from u0, not
     u0 + μ0; the model-based rule runs on that model."""
@@ -145,8 +145,8 @@ def test_biased_relay_identifies_the_static_gain_and_the_fopdt_of_004_eqs_3_3_12
 @pytest.mark.parametrize('method', ('tangent', 'two_point'))
 @pytest.mark.parametrize('gain', (K, -K))
 def test_step_test_identifies_the_fopdt_and_tunes_oppelt(method, gain):
-    """autotune.test step (001 §1.2.1): from the settled loop a manual step of 200 (as the
-    loop acts), held until steady; the FOPDT by the tangent (001 eq. 6.15) or the two-point
+    """autotune.test step ([DeadTimeNotes] §1.2.1): from the settled loop a manual step of 200 (as the
+    loop acts), held until steady; the FOPDT by the tangent ([DeadTimeNotes] eq. 6.15) or the two-point
     method; Oppelt's PI (Table 6.1, a = K·L/T) takes over from u0. A reverse-acting plant
     (direct_action) is stepped so that the output rises, and gives |K|."""
     plant = ExactDelayPlant(gain, T, L, y0=R, u0=U0)
@@ -193,7 +193,7 @@ def test_step_test_abort_and_bad_settings():
 
 @pytest.mark.parametrize('rho', (0.1, 0.3))
 def test_additional_relay_measures_the_process_at_half_the_oscillation_frequency(rho):
-    """004 eqs. 3.3.18–3.3.21 on 001's FOPDT: u2 = ±ρ·d flips at every upward switch, the
+    """[Precup2013] eqs. 3.3.18–3.3.21 on [DeadTimeNotes]'s FOPDT: u2 = ±ρ·d flips at every upward switch, the
     relay's cycles alternate (11.8 s / 10.1 s at ρ = 0.2), whole pairs are judged stationary
     and the Fourier ratio over them gives G(j·0.5ωc) (noise 1 % of the amplitude: gain within
     4 %, phase within 1°); the ultimate point is still found."""
@@ -230,7 +230,7 @@ def test_relay_bias_must_stay_below_the_relay_amplitude():
 
 def test_ipdt_model_based_rule_and_bias_correction():
     """A wrong bias (u0 = 0.3 where the plant rests at 0) makes the half-periods asymmetric;
-    the bias is corrected, and the mdp rule (000 eqs. 25–26) runs on the identified IPDT."""
+    the bias is corrected, and the mdp rule ([Viteckova] eqs. 25–26) runs on the identified IPDT."""
     plant = ExactDelayPlant(0.05, None, 5.0, y0=0.0, u0=0.0)
     cfg = AutotuneConfig(relay_amplitude=1.0, settle_time=0.0, hysteresis=0.01, rule='mdp', kind='pid',
                          timeout=400.0)
@@ -243,7 +243,7 @@ def test_ipdt_model_based_rule_and_bias_correction():
     assert st['u0'] == pytest.approx(0.0, abs=0.05)            # corrected from 0.3
     assert st['model']['gain'] == pytest.approx(0.05, rel=0.03)
     assert st['model']['dead_time'] == pytest.approx(5.0, rel=0.02)
-    # 000 eq. 26: kp = 6(2√3−3)e^(√3−3)/(k1·To), Ti = (2+√3)·To
+    # [Viteckova] eq. 26: kp = 6(2√3−3)e^(√3−3)/(k1·To), Ti = (2+√3)·To
     kp = 6 * (2 * math.sqrt(3) - 3) * math.exp(math.sqrt(3) - 3) / (0.05 * 5.0)
     assert tuner.pid.config.kp == pytest.approx(kp, rel=0.04)
     assert tuner.pid.config.ti == pytest.approx((2 + math.sqrt(3)) * 5.0, rel=0.03)
@@ -387,7 +387,7 @@ def test_reverse_action_by_negative_kp_is_kept():
 
 @pytest.mark.parametrize('plant_kind', ('fopdt', 'ipdt'))
 def test_pressing_start_from_rest_on_the_plants_module(plant_kind):
-    """core/plants Fopdt (001 example) / Ipdt (000 example) from y = 0 with the setpoint at 100
+    """core/plants Fopdt ([DeadTimeNotes] example) / Ipdt ([Viteckova] example) from y = 0 with the setpoint at 100
     (FOPDT) or 10 (IPDT): start is pressed at once, settling waits for the PID to bring y to
     the setpoint, then relay, identification and the tuned PID; 1 % noise."""
     from tank_control.core.plants.fopdt import Fopdt, FopdtConfig
@@ -412,8 +412,8 @@ def test_pressing_start_from_rest_on_the_plants_module(plant_kind):
 
 
 def test_describing_function_method_tunes_from_the_classical_estimate():
-    """autotune.method = describing_function: ZN from 4d/(πa) (001 eq. 6.22), which on 001's
-    example is ~19 % below the exact Ku (SPEC §2.5) — the reason the first harmonic is the default."""
+    """autotune.method = describing_function: ZN from 4d/(πa) ([DeadTimeNotes] eq. 6.22), which on [DeadTimeNotes]'s
+    example is ~19 % below the exact Ku ([DeadTimeNotes] eqs. 6.20–6.22) — the reason the first harmonic is the default."""
     tuner = _tuner(method='describing_function')
     log = _run(tuner, 2500)
     st = tuner.status
@@ -487,7 +487,7 @@ def _transient(res: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @pytest.mark.parametrize('noise, tol_gain, tol_deg', [(0.0, 0.002, 0.1), (0.01, 0.06, 3.5)])
 def test_transient_points_match_the_exact_frequency_response_of_001s_fopdt(noise, tol_gain,
                                                                            tol_deg):
-    """autotune.transient_points (004 eqs. 3.3.1–3.3.10) on 001's FOPDT from rest: the relay runs
+    """autotune.transient_points ([Precup2013] eqs. 3.3.1–3.3.10) on [DeadTimeNotes]'s FOPDT from rest: the relay runs
     on until the record is horizon + 4/α long (horizon L + 7T of the identified FOPDT, α =
     4/horizon: ≈ 146 s), then G(jω) at 0.25…2·ωc matches K·e^(−jωL)/(1 + jωT) — to 0.2 % and
     0.1° noise-free, to 6 % and 3.5° with noise 1 % of the amplitude — phases unwrapped (the
@@ -524,7 +524,7 @@ def test_transient_points_match_the_exact_frequency_response_of_001s_fopdt(noise
 
 @pytest.mark.parametrize('noise, tol_gain, tol_deg', [(0.0, 0.002, 0.1), (0.01, 0.06, 3.5)])
 def test_transient_points_of_an_integrating_process(noise, tol_gain, tol_deg):
-    """IPDT k1/s·e^(−To·s) (000's k1 0.05, To 5 s): the differenced output's pulse response ends
+    """IPDT k1/s·e^(−To·s) ([Viteckova]'s k1 0.05, To 5 s): the differenced output's pulse response ends
     at To, so the cut is To + Tu/4; G(jω) = k1·e^(−jωTo)/(jω) at 0.25…2·ωc."""
     k1, to = 0.05, 5.0
     plant = ExactDelayPlant(k1, None, to, y0=0.0, u0=0.0)
@@ -547,7 +547,7 @@ def test_transient_points_of_an_integrating_process(noise, tol_gain, tol_deg):
 
 
 def test_transient_points_are_skipped_with_a_reason_when_the_loop_was_not_at_rest():
-    """The points need the relay to start from rest: 001's FOPDT with the PID still settling
+    """The points need the relay to start from rest: [DeadTimeNotes]'s FOPDT with the PID still settling
     (started 0.5 % off its equilibrium input) drifts visibly over the settling window; the test
     tunes as usual and autotune.warning says why there are no points."""
     tuner = _tuner(transient_points=POINTS, settle_time=20.0)

@@ -22,7 +22,7 @@ from tank_control.core.params import ConfigError
 from tank_control.core.tuning.model import ProcessModel
 
 FOPDT_001 = ProcessModel('fopdt', 0.05, 3.0, 10.0)
-ZN_001 = dict(kp=70.92, ti=5.5, td=1.32)              # 001's example, Table 6.2 gains
+ZN_001 = dict(kp=70.92, ti=5.5, td=1.32)              # [DeadTimeNotes]'s example, Table 6.2 gains
 
 
 def simulate(plant: ExactDelayPlant, config: PidConfig, steps: int, r: float, v: float
@@ -98,7 +98,7 @@ MODEL_001 = {'tuning.gain': 0.05, 'tuning.time_constant': 10.0, 'tuning.dead_tim
 
 
 def test_guard_refuses_a_gain_change_with_the_numbers():
-    """Ms of 001's ZN PID on the model is 2.73 (frequency module); with ms_max 2 the gains are
+    """Ms of [DeadTimeNotes]'s ZN PID on the model is 2.73 (frequency module); with ms_max 2 the gains are
     refused naming the gains and both numbers, in a file (all names given) as live."""
     ms = loop_report(FOPDT_001, PidConfig(sample_time=0.1, **ZN_001)).ms
     values = {**MODEL_001, 'robustness.ms_max': 2.0, **ZN_001}

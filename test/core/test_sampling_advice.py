@@ -1,4 +1,4 @@
-"""001's sampling-time advice (SPEC-supplement §5.2): T ≈ 0.3·L (Oppelt) and T ≈ (0.1…0.3)·Tu
+"""[DeadTimeNotes]'s sampling-time advice ([DeadTimeNotes] §1.2): T ≈ 0.3·L (Oppelt) and T ≈ (0.1…0.3)·Tu
 (Ziegler–Nichols), reported as ``sampling.warning`` by the PID kinds on their process model."""
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ from tank_control.core.control.kinds.base import resolve
 from tank_control.core.tuning.model import ProcessModel
 from tank_control.core.tuning.sampling import sampling_advice, ultimate_period
 
-#: 001's example process (SPEC §1.2): K = 0.05, T = 10 s, L = 3 s; Tu = 10.824 s (checked)
+#: [DeadTimeNotes]'s example process ([Checks] §1): K = 0.05, T = 10 s, L = 3 s; Tu = 10.824 s (checked)
 MODEL_001 = ProcessModel('fopdt', 0.05, 3.0, 10.0)
 
 
 def test_001_example_bounds():
-    """001's own numbers: Oppelt's T = 0.9 s for L = 3 s is within the advice; ZN's range for
+    """[DeadTimeNotes]'s own numbers: Oppelt's T = 0.9 s for L = 3 s is within the advice; ZN's range for
     T_krit = 11 s is 1.1–3.3 s, for the exact Tu 10.824 s it ends at 3.247 s."""
     assert ultimate_period(MODEL_001) == pytest.approx(10.824, abs=5e-4)
     assert sampling_advice(0.1, MODEL_001) == ''
@@ -30,7 +30,7 @@ def test_001_example_bounds():
 
 
 def test_ipdt_tu_is_four_dead_times_and_no_model_means_no_advice():
-    """IPDT: Tu = 4·To (SPEC §1.1), so 0.3·L is the tighter bound; no model, no advice; a
+    """IPDT: Tu = 4·To ([Viteckova] eq. 1), so 0.3·L is the tighter bound; no model, no advice; a
     delay-free first-order model has no ultimate point (phase above −90°)."""
     ipdt = ProcessModel('ipdt', 0.05, 5.0)
     assert ultimate_period(ipdt) == pytest.approx(20.0, rel=1e-6)

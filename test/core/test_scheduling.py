@@ -11,7 +11,7 @@ from tank_control.core.control.scheduling import (GainSchedule, design_schedule,
                                                   diagonal_channels, interpolate)
 from tank_control.core.params import ConfigError
 
-T0 = 2115.0 / 63.0                                    # operating-point temperature [°C] (003 §1)
+T0 = 2115.0 / 63.0                                    # operating-point temperature [°C] ([Michalski2021] §1)
 KIND = two_loop_pi.KIND
 
 
@@ -62,9 +62,9 @@ def test_the_table_is_declared_once_and_refused_with_reasons():
 
 
 def test_design_at_the_operating_point_gives_the_document_s_temperature_gain():
-    """The diagonal channels at 003's point, and the SIMC design on them: the temperature loop
-    designed with the level loop closed (sequential) has kp_T = −0.196, 003 §2.1's −0.2; the
-    open channel's design (−0.72, interaction ignored) is 3.7 times larger (003's RGA)."""
+    """The diagonal channels at [Michalski2021]'s point, and the SIMC design on them: the temperature loop
+    designed with the level loop closed (sequential) has kp_T = −0.196, [Michalski2021] §2.1's −0.2; the
+    open channel's design (−0.72, interaction ignored) is 3.7 times larger ([Michalski2021]'s RGA)."""
     m = diagonal_channels(81.0, T0)
     assert (m.F_H, m.F_C) == pytest.approx((14.0, 37.0))
     assert m.level == pytest.approx((2.0 * 81.0 / 63.0, 4.0 * 0.7 * 81.0 ** 2 / 63.0, 0.5))

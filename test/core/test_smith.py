@@ -1,4 +1,4 @@
-"""Smith predictor (004 §3.6.1): with a perfect model the loop equals the delay-free loop, delayed."""
+"""Smith predictor ([Precup2013] §3.6.1): with a perfect model the loop equals the delay-free loop, delayed."""
 from __future__ import annotations
 
 import math
@@ -90,7 +90,7 @@ def test_ipdt_perfect_model_equals_delayed_delay_free_loop(dead_time):
 
 
 def test_smith_pi_design_gives_first_order_like_response():
-    """004 eq. 3.6.6–7: closed loop ≈ e^(−L s)/(te·s + 1): no overshoot, 2 % settling ≈ L + 3.9·te."""
+    """[Precup2013] eq. 3.6.6–7: closed loop ≈ e^(−L s)/(te·s + 1): no overshoot, 2 % settling ≈ L + 3.9·te."""
     k, t_c, dead, te, h = 0.05, 10.0, 3.0, 4.0, 0.1
     g = tune('smith_pi', 'pi', gain=k, time_constant=t_c, te=te, n=1)
     cfg = smith_config(model='fopdt', gain=k, time_constant=t_c, dead_time=dead,
@@ -163,7 +163,7 @@ def test_params_and_validation():
     assert resolve(kind, {}).config == SmithModel()
     tuned = resolve(kind, {'tuning.rule': 'smith_pi', 'tuning.te': 4.0, 'smith.gain': 0.05,
                            'smith.time_constant': 10.0, 'smith.dead_time': 3.0}).primary
-    assert tuned.kp == pytest.approx(10.0 / (0.05 * 4.0)) and tuned.ti == 10.0   # 004 eq. 3.6.7
+    assert tuned.kp == pytest.approx(10.0 / (0.05 * 4.0)) and tuned.ti == 10.0   # [Precup2013] eq. 3.6.7
     assert reason({'u_min': 1.0, 'u_max': 0.0}).startswith('u_min')
     assert reason({'tuning.rule': 'mdp'}).startswith('tuning.rule')
     # the internal model is first order: a rule for a second-order model is refused, not ignored
@@ -183,7 +183,7 @@ def test_registered_as_smith_pi_kind_with_derived_gains_and_bumpless_rebuild():
               'smith.time_constant': 10.0, 'smith.dead_time': 3.0, 'output_names': ['T'],
               'input_names': ['Q']}
     settings = resolve(kind, values)
-    assert settings.values['kp'] == pytest.approx(10.0 / (0.05 * 4.0))    # 004 eq. 3.6.7
+    assert settings.values['kp'] == pytest.approx(10.0 / (0.05 * 4.0))    # [Precup2013] eq. 3.6.7
     assert settings.values['ti'] == 10.0
     ctl = registry.build(kind, settings)
     assert ctl.output_names == ('T',) and ctl.input_names == ('Q',)
@@ -210,7 +210,7 @@ def test_registered_as_smith_pi_kind_with_derived_gains_and_bumpless_rebuild():
 
 @pytest.mark.parametrize('t1, t2, dead_time', [(5.0, 5.0, 2.0), (5.0, 5.0, 3.7), (4.0, 1.5, 0.3)])
 def test_sopdt_internal_model_is_the_exact_zoh_plant(t1, t2, dead_time):
-    """The second-order internal model (004 eq. 3.6.5, n = 2: T2 = T; distinct T2 too) against
+    """The second-order internal model ([Precup2013] eq. 3.6.5, n = 2: T2 = T; distinct T2 too) against
     the project's exact SOPDT plant under a random held input: ŷ_L is the plant's output for
     any dead time (fractional ones included) and ŷ* the delay-free plant's."""
     from tank_control.core.tuning.model import DiscretePlant, ProcessModel
@@ -233,7 +233,7 @@ def test_sopdt_internal_model_is_the_exact_zoh_plant(t1, t2, dead_time):
 
 
 def test_sopdt_perfect_model_follows_eq_3_6_8_delayed():
-    """n = 2, T2 = T, primary by 004 eq. 3.6.9 (kR = 1/(4ξ²kP), Ti = T): with a perfect model
+    """n = 2, T2 = T, primary by [Precup2013] eq. 3.6.9 (kR = 1/(4ξ²kP), Ti = T): with a perfect model
     the loop is the delay-free loop delayed by L (whole samples), and at a small sample time
     that loop is eq. 3.6.8's second order with ω0 = 1/(2ξT)."""
     from tank_control.core.tuning.model import DiscretePlant, ProcessModel
@@ -262,7 +262,7 @@ def test_sopdt_perfect_model_follows_eq_3_6_8_delayed():
 
 
 def test_kind_second_order_model_and_its_rule():
-    """smith.model sopdt with smith.time_constant2 = smith.time_constant is 004's n = 2 model:
+    """smith.model sopdt with smith.time_constant2 = smith.time_constant is [Precup2013]'s n = 2 model:
     tuning.rule smith_pi with tuning.order 2 designs eq. 3.6.9; the order must match the model."""
     kind = smith_kind.KIND
     base_values = {'smith.model': 'sopdt', 'smith.gain': 2.0, 'smith.time_constant': 5.0,

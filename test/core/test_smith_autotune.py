@@ -1,4 +1,4 @@
-"""The auto-tuned Smith predictor (004 §3.6, SPEC-supplement §2.12–2.13) on exact plants: relay →
+"""The auto-tuned Smith predictor ([Precup2013] §3.6, [Precup2013] §3.6–2.13) on exact plants: relay →
 ZN PI → kP from a setpoint change → eq. 3.6.2 → Smith PI by eq. 3.6.7 (n = 1) or 3.6.9 (n = 2),
 and the response the design predicts (eqs. 3.6.6, 3.6.8); abort and failures restore the Smith
 predictor from before. Exact ultimate points are solved independently (support.relay)."""
@@ -48,7 +48,7 @@ CHAIN = ['idle', 'settling', 'relay', 'measuring', 'waiting', 'process_gain', 't
 
 
 def test_eq_3_6_2_checks_of_the_supplement():
-    """SPEC-supplement §2.12: 001's plant n = 1 from ku 117.80, Tu 10.824 s gives T 10.000 s,
+    """[Precup2013] §3.6: [DeadTimeNotes]'s plant n = 1 from ku 117.80, Tu 10.824 s gives T 10.000 s,
     Tm 3.000 s; (1, T 5 s, Tm 2 s) n = 2 from ku 5.6838, Tu 14.516 s gives T 5.000, Tm 2.000."""
     m1 = smith_model(117.80, 10.824, 0.05, 1)
     assert (m1.model, m1.time_constant, m1.dead_time) == ('fopdt', pytest.approx(10.0, abs=5e-3),
@@ -76,13 +76,13 @@ def tuner_for(guess: SmithModel, kp: float, ti: float, design: SmithDesign, **au
 
 
 def first_order_prediction(run, t_step, dead_time, te, r0, step):
-    """004 eq. 3.6.6 delayed by the dead time: the Smith loop's setpoint response."""
+    """[Precup2013] eq. 3.6.6 delayed by the dead time: the Smith loop's setpoint response."""
     tt = run['t'] - t_step - dead_time      # u moves at the step's sample (P kick, b = 1)
     return r0 + step * np.where(tt > 0, 1 - np.exp(-np.maximum(tt, 0) / te), 0.0)
 
 
 @pytest.mark.parametrize('plant_args, guess, te, steps, relay', [
-    ((0.05, 10.0, 3.0), SmithModel('fopdt', 0.05, 12.0, 3.5), 5.0, (10.0, 5.0), 200.0),  # 001
+    ((0.05, 10.0, 3.0), SmithModel('fopdt', 0.05, 12.0, 3.5), 5.0, (10.0, 5.0), 200.0),  # [DeadTimeNotes]
     ((1.0, 2.0, 10.0), SmithModel('fopdt', 1.0, 3.0, 9.0), 1.0, (0.2, 0.1), 0.2),  # L/T = 5
 ], ids=['001_fopdt', 'dead_time_dominant'])
 def test_chain_n1_recovers_the_fopdt_and_follows_eq_3_6_6(plant_args, guess, te, steps, relay):

@@ -1,4 +1,4 @@
-"""Tuning rules against the documents' numbers (000 Table 1, 001 §1.2, 004 Tables/eqs)."""
+"""Tuning rules against the documents' numbers ([Viteckova] Table 1, [DeadTimeNotes] §1.2, [Precup2013] Tables/eqs)."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,7 @@ import pytest
 
 from tank_control.tuning import RULES, tune
 
-IPDT = dict(gain=0.05, dead_time=5.0)        # 000 worked example: k1 = 0.05 1/s, To = 5 s
+IPDT = dict(gain=0.05, dead_time=5.0)        # [Viteckova] worked example: k1 = 0.05 1/s, To = 5 s
 
 
 def _printed(gains: dict, **table: float) -> None:
@@ -32,7 +32,7 @@ def test_000_table1_multiple_dominant_pole():
 
 
 def test_000_mdp_normalised_coefficients():
-    """The rounded constants of 000 eqs. 26, 28, 32, 34."""
+    """The rounded constants of [Viteckova] eqs. 26, 28, 32, 34."""
     g = tune('mdp', 'pid', gain=1.0, dead_time=1.0)
     assert round(g['kp'], 3) == 0.784 and round(g['ti'], 3) == 3.732 and round(g['td'], 3) == 0.263
     assert round(g['b'], 3) == 0.423 and round(g['c'], 3) == 0.634
@@ -41,7 +41,7 @@ def test_000_mdp_normalised_coefficients():
 
 
 def test_mdp_pid_gives_a_quadruple_root_of_the_quasi_polynomial():
-    """000 eqs. 22–25: N(s) and its first three derivatives vanish at s* = −(3 − √3)/To."""
+    """[Viteckova] eqs. 22–25: N(s) and its first three derivatives vanish at s* = −(3 − √3)/To."""
     k1, to = 0.05, 5.0
     g = tune('mdp', 'pid', gain=k1, dead_time=to)
     kp, ti, td = g['kp'], g['ti'], g['td']
@@ -57,12 +57,12 @@ def test_000_table1_experimental_and_the_pi_discrepancy():
     _printed(tune('experimental', 'pid', **IPDT), kp=4.0, ti=15.0, td=1.75, b=0.3, c=0.3)
     pi = tune('experimental', 'pi', **IPDT)
     _printed(pi, ti=20.75, b=0.25)
-    # 000 eq. 36 gives kp = 0.6/(k1·To) = 2.4; Table 1 prints 2.5. We follow the equation.
+    # [Viteckova] eq. 36 gives kp = 0.6/(k1·To) = 2.4; Table 1 prints 2.5. We follow the equation.
     assert pi['kp'] == pytest.approx(2.4)
 
 
 def test_001_ziegler_nichols_example():
-    """001 example 6.1: Ku = 118.2, Tu = 11 s → P kp = 53.19; PID Ti = 5.5 s, Td = 1.32 s."""
+    """[DeadTimeNotes] example 6.1: Ku = 118.2, Tu = 11 s → P kp = 53.19; PID Ti = 5.5 s, Td = 1.32 s."""
     assert tune('zn_001', 'p', ku=118.2, tu=11.0)['kp'] == pytest.approx(53.19)
     pid = tune('zn_001', 'pid', ku=118.2, tu=11.0)
     _printed(pid, ti=5.5, td=1.32)
@@ -73,7 +73,7 @@ def test_001_ziegler_nichols_example():
 
 def test_classical_ziegler_nichols_1942():
     """Ziegler & Nichols (1942), ultimate-point rule: P Ku/2; PI 0.45·Ku, Tu/1.2;
-    PID 0.6·Ku, Tu/2, Tu/8 (SPEC-supplement §1.9)."""
+    PID 0.6·Ku, Tu/2, Tu/8 ([ZieglerNichols1942])."""
     ku, tu = 118.2, 11.0
     assert tune('zn', 'p', ku=ku, tu=tu) == dict(kp=59.1, ti=None, td=None, b=None, c=None)
     pi = tune('zn', 'pi', ku=ku, tu=tu)
@@ -81,7 +81,7 @@ def test_classical_ziegler_nichols_1942():
     pid = tune('zn', 'pid', ku=ku, tu=tu)
     assert (pid['kp'], pid['ti'], pid['td']) == pytest.approx((70.92, 5.5, 1.375))
     assert pid['b'] is None and pid['c'] is None
-    # 001 Table 6.2 and 004's q = 1 column differ from it only in td = 0.12·Tu
+    # [DeadTimeNotes] Table 6.2 and [Precup2013]'s q = 1 column differ from it only in td = 0.12·Tu
     for rule in ('zn_001', 'zn_004_q1'):
         assert tune(rule, 'pid', ku=ku, tu=tu)['td'] == pytest.approx(1.32)
     with pytest.raises(ValueError, match="kind 'pd'"):
@@ -113,7 +113,7 @@ def test_001_oppelt_table_6_1():
 
 @pytest.mark.parametrize('tau', [0.1, 0.3, 0.5, 0.7])
 def test_cohen_coon_matches_004_normalised_form(tau):
-    """004 eqs. 3.4.12–15 (τ = L/(L+T), a = K·L/T) agree with the classical formulas
+    """[Precup2013] eqs. 3.4.12–15 (τ = L/(L+T), a = K·L/T) agree with the classical formulas
     within the rounding of their coefficients (≤ 5 %), except the PI gain (see rules.py)."""
     t, k = 10.0, 2.0
     dead = tau / (1 - tau) * t
@@ -132,12 +132,12 @@ def test_cohen_coon_matches_004_normalised_form(tau):
         pairs.append((g['pd']['td'] / dead, (0.27 - 0.36 * tau) / (1 - 0.87 * tau)))
     for ours, doc in pairs:
         assert ours == pytest.approx(doc, rel=0.05)
-    # classical PI gain 0.9 + L/(12T); 004 prints 0.92 where the classical value is 0.0926
+    # classical PI gain 0.9 + L/(12T); [Precup2013] prints 0.92 where the classical value is 0.0926
     assert g['pi']['kp'] * a == pytest.approx(0.9 * (1 + 0.0926 * x), rel=1e-3)
 
 
 def test_smith_pi_n1_gives_the_desired_time_constant():
-    """004 eq. 3.6.6–7: with ti = T the delay-free loop is 1/(te·s + 1)."""
+    """[Precup2013] eq. 3.6.6–7: with ti = T the delay-free loop is 1/(te·s + 1)."""
     k, t, te = 0.05, 10.0, 4.0
     g = tune('smith_pi', 'pi', gain=k, time_constant=t, te=te, n=1)
     assert g['ti'] == t
@@ -145,7 +145,7 @@ def test_smith_pi_n1_gives_the_desired_time_constant():
 
 
 def test_smith_pi_n2_gives_the_desired_damping():
-    """004 eq. 3.6.8–9: characteristic T²s² + Ts + kp·K has damping xi."""
+    """[Precup2013] eq. 3.6.8–9: characteristic T²s² + Ts + kp·K has damping xi."""
     k, t, xi = 0.05, 10.0, 0.7
     g = tune('smith_pi', 'pi', gain=k, time_constant=t, xi=xi, n=2)
     roots = np.roots([t * t, t, g['kp'] * k])

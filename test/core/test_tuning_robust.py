@@ -1,8 +1,8 @@
-"""Model-based tuning rules with a robustness target: ``ms`` (the kappa-tau idea of 004 §3.4.2
-by optimisation), AMIGO, SIMC, lambda, Ho et al. (004 eqs. 3.4.16–3.4.18) and Tan et al. (004
+"""Model-based tuning rules with a robustness target: ``ms`` (the kappa-tau idea of [Precup2013] §3.4.2
+by optimisation), AMIGO, SIMC, lambda, Ho et al. ([Precup2013] eqs. 3.4.16–3.4.18) and Tan et al. ([Precup2013]
 eqs. 3.4.19, 3.4.22), the exact ZOH model of an SOPDT, and what ``tune`` says it returns.
 
-Expected values come from the documents (SPEC-supplement §2.8–2.9), published tables
+Expected values come from the documents ([Precup2013] §3.4.3–2.9), published tables
 (Skogestad 2003), closed forms derived here, or an independent computation (a brute-force
 search of the same optimisation with the frequency module's margins)."""
 from __future__ import annotations
@@ -292,7 +292,7 @@ def test_lambda_ipdt_chien_fruehauf():
 
 # ---------------------------------------------------------------------------------- Ho
 def test_ho_reproduces_the_supplements_checks():
-    """SPEC-supplement §2.8: (A_r, φ_r) = (3, 60°) on 001's plant gives kp = 34.91,
+    """[Precup2013] §3.4.3: (A_r, φ_r) = (3, 60°) on [DeadTimeNotes]'s plant gives kp = 34.91,
     ti = 10 s, GM 3.00, PM 60.0°; (4, 70°) on (1, 10, 3): GM 4.02, PM 70.2°; (2, 60°) on
     (1, 10, 3) is incompatible (ti < 0)."""
     g = tune('ho', 'pi', gain=0.05, time_constant=10.0, dead_time=3.0)
@@ -323,7 +323,7 @@ def test_ho_ipdt_is_the_limit_of_large_time_constants():
 
 # --------------------------------------------------------------------------------- Tan
 def test_tan_reproduces_the_supplements_check():
-    """SPEC-supplement §2.9: (1, 10 s, 3 s), r = 0.8, A_r = 3: kp = 1.465, ti = 5.24 s;
+    """[Precup2013] §3.4.4: (1, 10 s, 3 s), r = 0.8, A_r = 3: kp = 1.465, ti = 5.24 s;
     GM 3.00 at 0.464 rad/s (= 0.8·ωu), PM 40.7°, Ms 1.84."""
     g = tune('tan', 'pi', gain=1.0, time_constant=10.0, dead_time=3.0)
     assert g['kp'] == pytest.approx(1.465, abs=0.0005)

@@ -1,5 +1,5 @@
-"""Margins of 003's two-loop PI on the linearised tank with its delays (core/analysis/two_loop.py):
-why the decoupled loop of 003 §3 is lightly damped on our tank (docs/scenarios.md, "003").
+"""Margins of [Michalski2021]'s two-loop PI on the linearised tank with its delays (core/analysis/two_loop.py):
+why the decoupled loop of [Michalski2021] §3 is lightly damped on our tank (docs/scenarios.md, "[Michalski2021]").
 """
 from __future__ import annotations
 
@@ -48,11 +48,11 @@ def test_the_decoupler_of_003_cancels_the_interaction_only_at_steady_state():
 
 
 def test_document_decoupled_gains_are_lightly_damped_only_because_of_the_delays():
-    """The central measured fact: 003 §3.1's gains (level 0.04/0.0004, T 0/−0.01) with the
+    """The central measured fact: [Michalski2021] §3.1's gains (level 0.04/0.0004, T 0/−0.01) with the
     decoupler, on the tank with τ_C = 180 s and τ = 120 s, give the T loop a phase margin
     below 20° and Ms above 4 (the level loop closed), the level loop Ms above 2; the same
     gains with the delays removed give both loops PM above 60° and Ms below 1.3 — the well
-    damped loop 003 §3.5 describes. 003 §2.1's gains without decoupling keep PM above 60°
+    damped loop [Michalski2021] §3.5 describes. [Michalski2021] §2.1's gains without decoupling keep PM above 60°
     with the delays."""
     with_delays = document_analysis('dynamic').report()
     assert with_delays['T_out|h closed']['phase_margin'] < 20.0
@@ -84,7 +84,7 @@ def test_d12_makes_the_temperature_loop_aggressive_d21_delays_the_level_loop():
 
 
 def test_lower_gains_restore_the_margins_with_the_delays():
-    """Level gains halved (0.02/0.0002) and ki_T = −0.002 (003 §2.1's T integral gain): both
+    """Level gains halved (0.02/0.0002) and ki_T = −0.002 ([Michalski2021] §2.1's T integral gain): both
     loops Ms < 1.45 with the other closed, on the tank with its delays."""
     report = document_analysis('dynamic', kp_h=0.02, ki_h=0.0002, ki_T=-0.002).report()
     for loop in ('h|T_out closed', 'T_out|h closed'):
@@ -94,8 +94,8 @@ def test_lower_gains_restore_the_margins_with_the_delays():
 
 def test_stability_of_the_analysis_agrees_with_the_linearised_plant():
     """The Nyquist count of the analysis against a simulation of the linearised tank
-    (core LinearTank + TwoLoopPi, a 0.5 cm level step): 003 §2.1's gains with the decoupler
-    are predicted unstable and their oscillation grows; 003 §3.1's are predicted stable and
+    (core LinearTank + TwoLoopPi, a 0.5 cm level step): [Michalski2021] §2.1's gains with the decoupler
+    are predicted unstable and their oscillation grows; [Michalski2021] §3.1's are predicted stable and
     theirs decays."""
     from tank_control.core.control.multiloop import TwoLoopPi
     from tank_control.core.plants.linear_tank import LinearTank

@@ -18,15 +18,15 @@ def make_controller(values: dict):
     """The controller controller_node builds from these parameter values."""
     return controller_setup(values).build_controller()
 
-T0 = 2115.0 / 63.0          # 003 operating-point temperature [°C]
+T0 = 2115.0 / 63.0          # [Michalski2021] operating-point temperature [°C]
 H0 = 81.0                   # [cm]
 DECOUPLED = {'two_loop.kp_h': 0.04, 'two_loop.ki_h': 0.0004, 'two_loop.kp_T': 0.0,
-             'two_loop.ki_T': -0.01}                                        # 003 §3.1
+             'two_loop.ki_T': -0.01}                                        # [Michalski2021] §3.1
 SMITH = {'smith.gain': 0.05, 'smith.time_constant': 10.0, 'smith.dead_time': 3.0}
 
 
 def operating_point_flows() -> tuple[float, float]:
-    """003 §1 steady state, solved here: F_H + F_C + F_D = α·√h and
+    """[Michalski2021] §1 steady state, solved here: F_H + F_C + F_D = α·√h and
     F_H·T_H + F_C·T_C + F_D·T_D = α·√h·T (α 7, F_D 12 at 33 °C, T_H 62, T_C 23 °C)."""
     total = 7.0 * np.sqrt(H0)
     a = np.array([[1.0, 1.0], [62.0, 23.0]])

@@ -1,7 +1,7 @@
 """``make demo`` (the main job): its default path, cut short with ``--duration``.
 
-The default scenario is the mixing tank of 003 under the constrained, offset-free MPCS-QP
-with the default horizons and the document's own constraints (003 §6: 0 <= F <= 100 cm³/s, |ΔF| <= 0.2 cm³/s per
+The default scenario is the mixing tank of [Michalski2021] under the constrained, offset-free MPCS-QP
+with the default horizons and the document's own constraints ([Michalski2021] §6: 0 <= F <= 100 cm³/s, |ΔF| <= 0.2 cm³/s per
 sample), run in lockstep over ROS 2; the demo prints the metrics table and the paths of
 plot, trace and recording, and the recorded trace equals the in-process loop to 1e-9.
 """
@@ -26,7 +26,7 @@ def test_default_scenario_is_mpcs_qp_within_the_documents_constraints():
     assert path.name == 'tank_mpcs_qp.yaml'
     ctrl = params_file.read(path)['controller']
     assert (ctrl['controller'], ctrl['mpcs.solver']) == ('mpcs', 'qp')
-    # the default horizons (no warning), 003's λ 0.5 and constraints 0 <= u <= 100, |Δu| <= 0.2
+    # the default horizons (no warning), [Michalski2021]'s λ 0.5 and constraints 0 <= u <= 100, |Δu| <= 0.2
     from tank_control.core.control.mpcs import MpcsConfig
     c = MpcsConfig()
     assert (ctrl['mpcs.horizon'], ctrl['mpcs.control_horizon'], ctrl['mpcs.block']) == (

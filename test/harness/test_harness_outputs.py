@@ -350,7 +350,7 @@ def test_setpoint_changes_below_the_tolerance_are_not_steps():
 
 
 def test_a_ramp_is_one_change_and_a_reversal_starts_another():
-    """A reference ramp (several samples moving one way) is one change, as 001's 25 s ramp
+    """A reference ramp (several samples moving one way) is one change, as [DeadTimeNotes]'s 25 s ramp
     needs; a setpoint that goes up and straight back down is two."""
     t = np.arange(0.0, 100.0, 1.0)
     ramp = np.clip((t - 10.0) * 4.0, 0.0, 100.0)           # 0 → 100 at 4 /s from 10 s

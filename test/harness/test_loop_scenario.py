@@ -56,7 +56,7 @@ def test_shipped_scenarios_run_in_process_and_reach_their_final_setpoints(config
 
 
 def test_the_001_ramp_cuts_the_zn_overshoot_of_the_step(tmp_path):
-    """001 Fig. 1.15: the same ZN PID overshoots far less with a 25 s setpoint ramp."""
+    """[DeadTimeNotes] Fig. 1.15: the same ZN PID overshoots far less with a 25 s setpoint ramp."""
     step = run_in_process(CONFIG / 'fopdt_zn.yaml')
     ramp = run_in_process(CONFIG / 'fopdt_zn_ramp.yaml')
     over_step = step['y.y'].max() / 100.0 - 1.0

@@ -1,5 +1,5 @@
-"""004 §3.7 on 003's tank, as shipped: config/scenarios/tank_pi_autotuned.yaml (the sequential
-relay test tunes the decoupled two-loop PI at the operating point, then 003's setpoint steps)
+"""[Precup2013] §3.7 on [Michalski2021]'s tank, as shipped: config/scenarios/tank_pi_autotuned.yaml (the sequential
+relay test tunes the decoupled two-loop PI at the operating point, then [Michalski2021]'s setpoint steps)
 and tank_fill_pi_autotuned.yaml (filling with those gains). The claims run in-process; the
 lockstep run over ROS equals the in-process one to 1e-9 (cut to the first relay, and the
 model_ls design) — docs/scenarios.md, docs/tuning.md."""
@@ -44,7 +44,7 @@ def steps(result, channel):
 @pytest.mark.slow
 def test_sequential_relay_tunes_then_level_steps_meet_the_goal(runs):
     """The test ends (state running) before the first step at 12100 s; level overshoot ≤ 10 %
-    on both level steps; T_out's peak deviation on each level step below that of 003's PI
+    on both level steps; T_out's peak deviation on each level step below that of [Michalski2021]'s PI
     without decoupling (tank_pi, the same steps)."""
     tuned, plain = runs['tank_pi_autotuned'], runs['tank_pi']
     at = tuned.metrics['controller']['autotune']
@@ -72,7 +72,7 @@ def test_sequential_relay_tunes_then_level_steps_meet_the_goal(runs):
 
 @pytest.mark.slow
 def test_least_squares_design_on_the_model_meets_the_level_goal_too(runs):
-    """model_ls (004 eqs. 3.7.8–3.7.10, default target) designed at 1 s on the linearised tank:
+    """model_ls ([Precup2013] eqs. 3.7.8–3.7.10, default target) designed at 1 s on the linearised tank:
     level overshoot ≤ 10 % and less T_out deviation on level steps than tank_pi."""
     ls, plain = runs['model_ls'], runs['tank_pi']
     at = ls.metrics['controller']['autotune']
@@ -87,7 +87,7 @@ def test_least_squares_design_on_the_model_meets_the_level_goal_too(runs):
 def test_filling_with_the_tuned_gains(runs):
     """tank_fill_pi_autotuned (and tank_mpcs_two_loop_autotuned, the auto-tuned row of the tank
     comparison) hold the gains the relay test found (to 1e-9); tank_fill_pi_autotuned
-    fills the tank without level overshoot beyond 10 %, with a smaller T_out peak than 003's
+    fills the tank without level overshoot beyond 10 %, with a smaller T_out peak than [Michalski2021]'s
     decoupled gains (tank_fill_pi_decoupled)."""
     tuned = runs['tank_pi_autotuned'].metrics['controller']['final_gains']
     for name in ('tank_fill_pi_autotuned', 'tank_mpcs_two_loop_autotuned'):  # and the compare row

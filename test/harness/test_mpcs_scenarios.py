@@ -10,7 +10,7 @@ file itself; the claims:
 * the limits of the controller section (0 <= F <= 100 cm³/s, |ΔF| <= 0.2 cm³/s per sample)
   hold at every sample;
 * IAE on both outputs (over the whole run: every controller takes over bumplessly at its
-  initial_output, so there is no lead-in to leave out) is lower than the two-loop PI of 003,
+  initial_output, so there is no lead-in to leave out) is lower than the two-loop PI of [Michalski2021],
   with and without the dynamic decoupler, on the same plant and reference sections.
 
 On the same runs, metrics.json must attribute each deviation to the event in whose window (up
@@ -49,7 +49,7 @@ def _iae(trace, name: str) -> float:
 
 @pytest.fixture(scope='module')
 def pi_iae():
-    """Per output, the lower whole-run IAE of the two-loop PI of 003 §2 (no decoupling)
+    """Per output, the lower whole-run IAE of the two-loop PI of [Michalski2021] §2 (no decoupling)
     and §3 (dynamic decoupler)."""
     best = {name: np.inf for name in TOL}
     for name in ('tank_mpcs_two_loop', 'tank_mpcs_two_loop_decoupled'):
@@ -69,9 +69,9 @@ def test_the_comparison_files_share_plant_and_reference():
 
 
 @pytest.mark.parametrize('name, horizons', [
-    ('tank_mpcs_analytic', (50, 10, 1, 1.0)),      # SPEC §2.8 analytic (N, Nu, block, λ)
-    ('tank_mpcs_qp_003', (100, 50, 1, 0.5)),       # SPEC §2.8 numeric
-    ('tank_mpcs_qp', (600, 200, 10, 0.5)),         # the defaults, with 003's λ
+    ('tank_mpcs_analytic', (50, 10, 1, 1.0)),      # [Michalski2021] §4, §6 analytic (N, Nu, block, λ)
+    ('tank_mpcs_qp_003', (100, 50, 1, 0.5)),       # [Michalski2021] §4, §6 numeric
+    ('tank_mpcs_qp', (600, 200, 10, 0.5)),         # the defaults, with [Michalski2021]'s λ
 ])
 def test_mpcs_is_offset_free_within_limits_and_beats_the_two_loop_pi(name, horizons, pi_iae):
     params = _params(name)
@@ -158,7 +158,7 @@ def test_harness_knows_the_controllers_limits_for_its_constraint_column():
 @pytest.mark.slow
 def test_default_horizons_are_the_demo_files_and_the_documents_warn_in_metrics(tmp_path):
     """tank_mpcs_qp.yaml writes out the defaults (no warning); the document reproductions
-    (003's short horizons) run, and their warning is in metrics.json."""
+    ([Michalski2021]'s short horizons) run, and their warning is in metrics.json."""
     from dataclasses import replace
 
     from tank_control.core.control.mpcs import MpcsConfig
@@ -195,7 +195,7 @@ def _step_overshoots(trace, changes: list[float], duration: float) -> list[float
 
 @pytest.mark.slow
 def test_on_the_linearised_tank_mpcs_is_almost_ideal_as_003_reports():
-    """003 §4, Figs. 18/20/22: "almost ideal" control of the linear state-space plant, whose
+    """[Michalski2021] §4, Figs. 18/20/22: "almost ideal" control of the linear state-space plant, whose
     model is the controller's. Measured on tank_mpcs_linear (300, 100, 0.1): every settled
     error is at rounding level, and without the rate limit (clipped after the unconstrained
     optimum) no step overshoots; on the tank the same controller keeps errors and needs longer."""
@@ -231,9 +231,9 @@ def _level_overshoot_and_iae(params: dict) -> tuple[float, float]:
 
 @pytest.mark.slow
 def test_analytic_and_qp_at_the_document_horizons_differ_by_the_rate_limit_alone():
-    """003 §6–7 (Figs. 23–25): the two solvers at identical (N, Nu, λ). The QP plans with
+    """[Michalski2021] §6–7 (Figs. 23–25): the two solvers at identical (N, Nu, λ). The QP plans with
     |ΔF| <= 0.2 per sample and does not overshoot the level; the analytic solver clips an
-    unconstrained plan and overshoots strongly (003 §7.2 (i)). At (50, 10, 0.2) the QP's
+    unconstrained plan and overshoots strongly ([Michalski2021] §7.2 (i)). At (50, 10, 0.2) the QP's
     slower rise costs it level IAE; lifting the rate limit makes the two the same loop; at
     long horizons the QP is no worse."""
     def case(solver: str, n: int, nu: int, lam: float, du_max: float | None = None) -> dict:
@@ -268,7 +268,7 @@ def _worst_settled(params: dict) -> float:
 
 
 def test_the_delay_free_model_fails_because_of_the_delays_not_the_nonlinearity():
-    """tank_mpcs_delay_free (003 §4's model and cost taken literally) loses the level on the
+    """tank_mpcs_delay_free ([Michalski2021] §4's model and cost taken literally) loses the level on the
     tank. The same controller on the linearised tank is exact without dead times and fails
     as on the tank with the document's 180 s / 120 s, so the unmodelled delays are the cause."""
     params = _params('tank_mpcs_delay_free')

@@ -41,11 +41,12 @@ def test_run_plot_shows_limits_gains_overrides_metrics_and_autotune_states(tmp_p
         assert f"gains: kp {gains['kp']:.4g}, ti {gains['ti']:.4g}" in title
         assert '--set controller.kp=21.0' in title
         assert metrics['overrides'] == ['controller.kp=21.0']
-        # input limits 0 and 10000: 0 in view (u starts there), 10000 named off scale
+        # input limits 0 and 10000: 0 in view (u starts there), 10000 named once in the title
         u_ax = axis_of(fig, 'manipulated input')
-        assert hlines_at(u_ax) == {0.0, 10000.0}
+        assert hlines_at(u_ax) == {0.0}
         labels = u_ax.get_legend_handles_labels()[1]
-        assert 'limit 0' in labels and 'limit 1e+04 (off scale)' in labels
+        assert 'limit 0' in labels and not any('off scale' in label for label in labels)
+        assert title.count('off scale') == 1 and 'limits off scale: u ≤ 1e+04' in title
         assert u_ax.get_ylim()[1] < 3000.0               # the far limit does not squash u
         # the state changes, as the tuner went through them, marked with their names
         states = metrics['run']['controller_states']
@@ -57,6 +58,10 @@ def test_run_plot_shows_limits_gains_overrides_metrics_and_autotune_states(tmp_p
         vlines = {float(line.get_xdata()[0]) for line in u_ax.get_lines()
                   if list(line.get_ydata()) == [0, 1]}
         assert vlines == {t for t, _ in states}
+        # the names do not overlap (tuned and running are 0.1 s apart here)
+        fig.canvas.draw()
+        boxes = [t.get_window_extent(fig.canvas.get_renderer()) for t in y_ax.texts]
+        assert not [(a, b) for i, a in enumerate(boxes) for b in boxes[i + 1:] if a.overlaps(b)]
         # the side table: this run's metrics, as metrics.json has them
         table = '\n'.join(t.get_text() for t in fig.texts)
         assert f"{metrics['outputs']['y']['iae']:.4g}" in table and 'y IAE' in table
@@ -89,7 +94,7 @@ def test_a_derivative_kick_is_clipped_and_marked_instead_of_squashing_the_input_
         assert len(clipped) == 1 and 'to 500' in clipped[0].get_label()
         assert list(clipped[0].get_xdata()) == [trace.t[100]]
         assert list(clipped[0].get_ydata()) == [hi]                # at the top edge
-        assert 'limit 600 (off scale)' in u_ax.get_legend_handles_labels()[1]
+        assert 'u ≤ 600' in fig._suptitle.get_text().split('limits off scale: ')[1]
     finally:
         plt.close(fig)
 
@@ -124,5 +129,39 @@ def test_overlay_keeps_one_colour_per_run_and_legends_outside_the_axes():
             legend = ax.get_legend()
             assert legend is not None
             assert legend.get_window_extent(renderer).x0 >= ax.get_window_extent(renderer).x1
+    finally:
+        plt.close(fig)
+
+
+def test_a_constant_channel_is_named_in_the_title_not_drawn_flat():
+    t = np.arange(0.0, 50.0, 0.1)
+    y = np.where(t < 10.0, 0.0, 1.0)
+    trace = Trace.ordered({'t': t, 'y.y': y, 'r.y': y, 'u.u': 2.0 * y, 'd.v': np.zeros(t.size),
+                           'd.T_D': np.full(t.size, 33.0), 'd.F_D': np.where(t < 20.0, 12.0, 15.0)})
+    fig = figure_runs([RunPlot('c', trace)])
+    try:
+        labels = [label for ax in fig.axes for label in ax.get_legend_handles_labels()[1]]
+        assert 'v' not in labels and 'T_D' not in labels and 'F_D' in labels
+        assert 'constant: v 0, T_D 33 °C' in fig._suptitle.get_text()
+        assert len(fig.axes) == 3          # y, u, F_D: no flat panel
+    finally:
+        plt.close(fig)
+
+
+def test_the_metrics_table_sits_beside_the_legends_inside_the_figure():
+    """No empty right third: the panels reach well past half the width, the table follows the
+    widest legend (a long one here: the clipped kick) and ends inside the figure."""
+    trace = kick_trace()
+    runs = [RunPlot('a long run label', trace, table=[('y IAE', '1.234'), ('u range', '0 … 12345.678')])]
+    fig = figure_runs(runs)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        width = fig.get_window_extent(renderer).x1
+        assert all(ax.get_position().x1 >= 0.6 for ax in fig.axes)
+        (table,) = [t for t in fig.texts if 'y IAE' in t.get_text()]
+        box = table.get_window_extent(renderer)
+        assert box.x1 <= width
+        assert box.x0 >= max(ax.get_legend().get_window_extent(renderer).x1 for ax in fig.axes)
     finally:
         plt.close(fig)

@@ -106,7 +106,7 @@ def test_harness_prints_and_records_the_identified_model_and_gains(tmp_path, cap
 
 
 def test_ipdt_loop_tunes_to_the_exact_ultimate_point_with_noise():
-    k1, to = 0.05, 5.0                                      # 000's process, SPEC §1.1
+    k1, to = 0.05, 5.0                                      # [Viteckova]'s process, [Viteckova] eq. 1
     amp = k1 * 1.0 * to                                     # relay output amplitude ≈ 0.25
     params = {
         'plant': {'plant': 'ipdt', 'sample_time': 0.1, 'gain': k1, 'dead_time': to,
@@ -125,7 +125,7 @@ def test_ipdt_loop_tunes_to_the_exact_ultimate_point_with_noise():
     st = tuner.status
     assert st['ku'] == pytest.approx(ku, rel=0.03) and st['tu'] == pytest.approx(tu, rel=0.02)
     assert st['model']['kind'] == 'ipdt'
-    # mdp (000 eqs. 25-26) from the identified model: kp = 6(2√3−3)e^(√3−3)/(k1·To)
+    # mdp ([Viteckova] eqs. 25-26) from the identified model: kp = 6(2√3−3)e^(√3−3)/(k1·To)
     s3 = math.sqrt(3.0)
     kp_mdp = 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (st['model']['gain'] * st['model']['dead_time'])
     assert tuner.pid.config.kp == pytest.approx(kp_mdp, rel=1e-9)
@@ -133,8 +133,8 @@ def test_ipdt_loop_tunes_to_the_exact_ultimate_point_with_noise():
 
 
 def test_tank_temperature_loop_by_channel_names():
-    """T_out ← F_Cin of 003's tank (reverse acting: direct_action), the level left open.
-    Linearised at 003's operating point: gain (T_C − T)/F, time constant C·h²/F, dead time
+    """T_out ← F_Cin of [Michalski2021]'s tank (reverse acting: direct_action), the level left open.
+    Linearised at [Michalski2021]'s operating point: gain (T_C − T)/F, time constant C·h²/F, dead time
     τ_C + τ (F = 63 cm³/s, h = 81 cm, T = 2115/63 °C)."""
     t_op, flow = 2115 / 63, 63.0
     gain, tau = (t_op - 23.0) / flow, 0.7 * 81.0 ** 2 / flow
@@ -159,7 +159,7 @@ def test_tank_temperature_loop_by_channel_names():
     assert st['ku'] == pytest.approx(ku, rel=0.03) and st['tu'] == pytest.approx(tu, rel=0.02)
     assert st['model']['dead_time'] == pytest.approx(300.0, rel=0.02)
     assert st['model']['gain'] == pytest.approx(gain, rel=0.03)
-    # the reverse action is kept: ZN PI of 001 Table 6.2 (0.45 Ku, Tu/1.2), still direct_action
+    # the reverse action is kept: ZN PI of [DeadTimeNotes] Table 6.2 (0.45 Ku, Tu/1.2), still direct_action
     assert tuner.pid.config.kp == pytest.approx(0.45 * st['ku'], rel=1e-9)
     assert tuner.pid.config.direct_action
     assert set(trace.names) >= {'y.T_out', 'u.F_Cin', 'r.T_out'}
@@ -184,8 +184,8 @@ def test_scheduled_start_fires_once_and_is_rearmed_by_a_new_start_time():
 
 
 def test_shipped_biased_relay_scenario_identifies_the_static_gain_and_tunes_simc_pi():
-    """config/scenarios/fopdt_biased_relay.yaml (004 eqs. 3.3.12–3.3.17): one biased relay test
-    on 001's FOPDT gives kP, T and L; SIMC PI from that model follows the later setpoint step."""
+    """config/scenarios/fopdt_biased_relay.yaml ([Precup2013] eqs. 3.3.12–3.3.17): one biased relay test
+    on [DeadTimeNotes]'s FOPDT gives kP, T and L; SIMC PI from that model follows the later setpoint step."""
     params = params_file.read(SCENARIOS / 'fopdt_biased_relay.yaml')
     duration = float(params['harness']['duration'])
     trace, tuner, log = run_logged(params, duration)
@@ -219,7 +219,7 @@ def _sopdt_run(**plant):
 
 def test_shipped_sopdt_scenario_fits_the_two_relay_points_and_tunes_simc_pid():
     """config/scenarios/sopdt_relay_two_points.yaml: the relay (−180°) and the relay with an
-    integrator (−90°, both in state measuring) give an SOPDT through both points (004 eqs.
+    integrator (−90°, both in state measuring) give an SOPDT through both points ([Precup2013] eqs.
     3.5.8–3.5.14) close to the plant; the −90° point is the process's own response there."""
     params, trace, tuner, log = _sopdt_run()
     assert [s for _, s in log] == ['idle', 'settling', 'relay', 'measuring', 'tuned', 'running']
@@ -277,9 +277,9 @@ def test_sopdt_relay_on_a_first_order_and_a_double_lag(plant, kind):
 
 
 def test_shipped_step_test_scenario_identifies_the_fopdt_by_the_tangent_and_tunes_oppelt():
-    """config/scenarios/fopdt_step_test.yaml (001 §1.2.1): the manual step from the settled
-    loop, the tangent construction (eq. 6.15) and Oppelt's PI (Table 6.1; SPEC-supplement §5.1
-    works the example: a = 0.015, kp 53.3, Ti 9 s), which 001 expects to be weakly damped
+    """config/scenarios/fopdt_step_test.yaml ([DeadTimeNotes] §1.2.1): the manual step from the settled
+    loop, the tangent construction (eq. 6.15) and Oppelt's PI (Table 6.1; [DeadTimeNotes] Table 6.1
+    works the example: a = 0.015, kp 53.3, Ti 9 s), which [DeadTimeNotes] expects to be weakly damped
     (ζ = 0.25)."""
     params = params_file.read(SCENARIOS / 'fopdt_step_test.yaml')
     trace, tuner, log = run_logged(params, float(params['harness']['duration']))
@@ -301,7 +301,7 @@ def test_shipped_step_test_scenario_identifies_the_fopdt_by_the_tangent_and_tune
 
 def test_sopdt_from_the_additional_relay_in_one_phase():
     """autotune.additional_relay 0.3 with model sopdt: the second point is G(j·0.5ωc) of the
-    same relay test (004 eqs. 3.3.18–3.3.21), no integrator phase: the SOPDT (K 1, 10 s, 4 s,
+    same relay test ([Precup2013] eqs. 3.3.18–3.3.21), no integrator phase: the SOPDT (K 1, 10 s, 4 s,
     2 s) within 3 %, 5 %, 10 %, 0.1 s, tuned in less than half the time of the two phases."""
     params, _, _, log_two_phases = _sopdt_run()
     params['controller']['autotune.additional_relay'] = 0.3
@@ -319,7 +319,7 @@ def test_sopdt_from_the_additional_relay_in_one_phase():
 
 
 def test_shipped_smith_autotune_scenario_recovers_the_model_and_follows_eq_3_6_6():
-    """config/scenarios/fopdt_smith_autotune.yaml (004 §3.6): relay → ZN PI → kP from the
+    """config/scenarios/fopdt_smith_autotune.yaml ([Precup2013] §3.6): relay → ZN PI → kP from the
     setpoint step at 300 s → eq. 3.6.2 → Smith PI (eq. 3.6.7, Te = 5 s); the step at 600 s
     follows eq. 3.6.6's first order delayed by Tm (noise σ 0.03 on the measurement)."""
     params = params_file.read(SCENARIOS / 'fopdt_smith_autotune.yaml')
@@ -348,7 +348,7 @@ def test_shipped_smith_autotune_scenario_recovers_the_model_and_follows_eq_3_6_6
 
 
 def test_shipped_transient_scenario_gives_five_points_of_the_exact_response_and_tunes_simc_pi():
-    """config/scenarios/fopdt_relay_transient.yaml (004 §3.3 A, eqs. 3.3.1–3.3.10): one relay
+    """config/scenarios/fopdt_relay_transient.yaml ([Precup2013] §3.3 A, eqs. 3.3.1–3.3.10): one relay
     test from rest at 300 s (noise σ 0.03 ≈ 1 % of the amplitude) gives G(jω) at 0.25, 0.5, 1,
     1.5 and 2·ωc within its claim of the plant's exact K·e^(−jωL)/(1 + jωT); the relay runs on
     in 'measuring' until the record is ≈ 146 s; SIMC PI then follows the setpoint step."""

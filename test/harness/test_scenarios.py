@@ -1,5 +1,5 @@
 """The documents' experiments as shipped scenarios (config/scenarios/, config/), each run through the harness and
-its documented claim asserted with tolerances (SPEC §2.2, §2.4, §2.7; docs/scenarios.md).
+its documented claim asserted with tolerances ([Checks] §3–4, [Michalski2021] §2; docs/scenarios.md).
 
 The claims run ``--in-process`` (core/loop.py, the same core objects as the nodes); that a
 lockstep run over ROS gives the very same trace is asserted in test_scenarios_ros.py, which
@@ -17,7 +17,7 @@ from support.scenario_runs import cached_runs
 
 from tank_control.harness.runner import RunResult
 
-T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1, SPEC §1.3)
+T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] ([Michalski2021] §1, [Michalski2021] §1)
 
 
 @pytest.fixture(scope='module')
@@ -34,11 +34,11 @@ def load_step(result: RunResult, output: str = 'y') -> dict:
     return result.metrics['outputs'][output]['disturbance_steps'][0]
 
 
-# --------------------------------------------------------------------------------- 000 (IPDT)
+# --------------------------------------------------------------------------------- [Viteckova] (IPDT)
 
 @pytest.mark.parametrize('scenario, limit', [
-    ('ipdt_pid', 0.5),            # MDP PID 2-DOF: aperiodic, SPEC-supplement §1.1: 0.02 %
-    ('ipdt_mdp_pi', 0.5),         # MDP PI 2-DOF: aperiodic, SPEC-supplement §1.1: 0.00 %
+    ('ipdt_pid', 0.5),            # MDP PID 2-DOF: aperiodic, [Checks] §3: 0.02 %
+    ('ipdt_mdp_pi', 0.5),         # MDP PI 2-DOF: aperiodic, [Checks] §3: 0.00 %
     ('ipdt_exp_pid', 5.0),        # experimental PID 2-DOF: "nearly aperiodic"
     ('ipdt_exp_pi', 5.0),         # experimental PI 2-DOF: "nearly aperiodic"
 ])
@@ -50,11 +50,11 @@ def test_000_two_dof_setpoint_response_is_nearly_aperiodic(results, scenario, li
 
 
 @pytest.mark.parametrize('scenario, low, high', [
-    ('ipdt_mdp_pi_1dof', 30.0, 40.0),    # SPEC-supplement §1.1: 34.6 %
-    ('ipdt_mdp_pid_1dof', 30.0, 60.0),   # SPEC-supplement §1.1: 44.7 % (we measure 45.8 %)
+    ('ipdt_mdp_pi_1dof', 30.0, 40.0),    # [Checks] §3: 34.6 %
+    ('ipdt_mdp_pid_1dof', 30.0, 60.0),   # [Checks] §3: 44.7 % (we measure 45.8 %)
 ])
 def test_000_one_dof_controller_overshoots_a_setpoint_step(results, scenario, low, high):
-    """000 eq. 9: with b = c = 1 the integral of the setpoint error is 0, so y must overshoot."""
+    """[Viteckova] eq. 9: with b = c = 1 the integral of the setpoint error is 0, so y must overshoot."""
     assert low <= first_step(results(scenario))['overshoot_pct'] <= high
 
 
@@ -63,9 +63,9 @@ def test_000_one_dof_controller_overshoots_a_setpoint_step(results, scenario, lo
     ('ipdt_exp_pid', 'experimental', 'pid'), ('ipdt_exp_pi', 'experimental', 'pi'),
 ])
 def test_000_load_step_rejected_as_eq_10_predicts(results, scenario, rule, kind):
-    """000 eq. 10: after an input load step v0 the error integral is −Ti·v0/kp (here
+    """[Viteckova] eq. 10: after an input load step v0 the error integral is −Ti·v0/kp (here
     v0 = −0.1, e = r − y, so ∫e dt = Ti·0.1/kp); the response dies out (no sustained
-    oscillation). Gains from the tuning formulas of 000, computed independently here."""
+    oscillation). Gains from the tuning formulas of [Viteckova], computed independently here."""
     k1, to = 0.05, 5.0
     if rule == 'mdp':
         kp = (6 * (2 * math.sqrt(3) - 3) * math.exp(math.sqrt(3) - 3) if kind == 'pid'
@@ -88,7 +88,7 @@ def test_000_load_step_rejected_as_eq_10_predicts(results, scenario, rule, kind)
     ('ipdt_exp_pi', ('plant.dead_time=6.0',)), ('ipdt_exp_pi', ('plant.dead_time=4.0',)),
 ])
 def test_000_dead_time_off_by_20_percent_stays_well_behaved(results, scenario, overrides):
-    """000 Figs. 6–7: with To ±20 % both methods stay "relatively robust": the loop is
+    """[Viteckova] Figs. 6–7: with To ±20 % both methods stay "relatively robust": the loop is
     stable (setpoint and load responses settle), overshoot ≤ 20 % (docs/scenarios.md)."""
     result = results(scenario, *overrides)
     step, load = first_step(result), load_step(result)
@@ -99,15 +99,15 @@ def test_000_dead_time_off_by_20_percent_stays_well_behaved(results, scenario, o
 
 
 def test_000_controller_gains_are_those_of_table_1(results):
-    """000 Table 1 (k1 = 0.05, To = 5): MDP PID 3.14 / 18.66 / 1.32 / 0.42 / 0.63."""
+    """[Viteckova] Table 1 (k1 = 0.05, To = 5): MDP PID 3.14 / 18.66 / 1.32 / 0.42 / 0.63."""
     gains = results('ipdt_pid').metrics['controller']['final_gains']
     assert [round(gains[k], 2) for k in ('kp', 'ti', 'td', 'b', 'c')] == [3.13, 18.66, 1.31, 0.42, 0.63]
 
 
-# ------------------------------------------------------------------------------- 001 (FOPDT)
+# ------------------------------------------------------------------------------- [DeadTimeNotes] (FOPDT)
 
 def test_001_zn_pid_overshoots_a_step_and_a_25_s_ramp_cuts_it(results):
-    """001 §1.2.2, Figs. 1.13/1.15: the ZN PID overshoots a step of 100 by "about 40 %";
+    """[DeadTimeNotes] §1.2.2, Figs. 1.13/1.15: the ZN PID overshoots a step of 100 by "about 40 %";
     ramping the setpoint over 25 s cuts it to "about 3 %". We measure 56.6 % and 8.0 %
     (docs/scenarios.md; test_scenarios_001_forms.py on the gap): the claim asserted is a
     large step overshoot (≥ 30 %), a few % with the ramp (≤ 10 %), at least five times less."""
@@ -120,7 +120,7 @@ def test_001_zn_pid_overshoots_a_step_and_a_25_s_ramp_cuts_it(results):
         assert abs(m['ss_error']) < 0.1
 
 
-# ------------------------------------------------------------------- 002 (transfer function)
+# ------------------------------------------------------------------- [Ikonen] (transfer function)
 
 def _band_entry(result: RunResult, t_step: float, band: float) -> float:
     """Seconds after ``t_step`` from which y stays within ``band`` of the setpoint 1."""
@@ -130,7 +130,7 @@ def _band_entry(result: RunResult, t_step: float, band: float) -> float:
 
 
 def test_002_pi_meets_the_criteria_and_converges_to_the_continuous_loop(results):
-    """002 (SPEC-supplement §3), Fig. 11: the PI kp 2, Ti 4.2 s on 4/((s + 1)(s + 2)) meets the
+    """[Ikonen] ([Checks] §5), Fig. 11: the PI kp 2, Ti 4.2 s on 4/((s + 1)(s + 2)) meets the
     criteria (overshoot ≤ 5 %, zero final error) and enters the 5 % band after "nearly 6 s".
     The continuous loop, simulated here by scipy, gives the reference; the sampled loop
     approaches it as the sample time shrinks (docs/scenarios.md)."""
@@ -150,10 +150,10 @@ def test_002_pi_meets_the_criteria_and_converges_to_the_continuous_loop(results)
     assert abs(fine['overshoot_pct'] - continuous) < abs(step['overshoot_pct'] - continuous) / 5
 
 
-# ------------------------------------------------------------------------------ 004 (FSA)
+# ------------------------------------------------------------------------------ [Precup2013] (FSA)
 
 def _second_order_step(w0: float, xi: float, t: np.ndarray) -> np.ndarray:
-    """Unit step response of ω0²/(s² + 2ξω0·s + ω0²) (004 eq. 3.6.12), ξ < 1."""
+    """Unit step response of ω0²/(s² + 2ξω0·s + ω0²) ([Precup2013] eq. 3.6.12), ξ < 1."""
     t = np.maximum(t, 0.0)
     wd = w0 * math.sqrt(1.0 - xi * xi)
     return 1.0 - np.exp(-xi * w0 * t) / math.sqrt(1.0 - xi * xi) * np.sin(wd * t + math.acos(xi))
@@ -162,7 +162,7 @@ def _second_order_step(w0: float, xi: float, t: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize('scenario, dead_time', [('fopdt_fsa', 10.0), ('foupdt_fsa', 5.0)])
 def test_004_fsa_gives_the_designed_response_delayed_by_the_dead_time(results, scenario,
                                                                       dead_time):
-    """004 §3.6.2: FSA removes the dead time from the characteristic equation, so on the
+    """[Precup2013] §3.6.2: FSA removes the dead time from the characteristic equation, so on the
     matching model — stable 1/(10s + 1)·e^(−10s) or unstable 1/(10s − 1)·e^(−5s) — the
     setpoint response is ω0²/p(s)·e^(−L·s) (ξ 0.7, ω0 0.2 rad/s): overshoot 4.60 %, rise and
     2 % settling times those of p(s) plus L (to a sample), the trace within 0.01 of it; after
@@ -199,7 +199,7 @@ def test_004_fsa_tolerates_a_ten_percent_model_error(results, scenario, override
     assert abs(load_step(result)['final_error']) < 1e-3
 
 
-# -------------------------------------------------------------------------- 003 (mixing tank)
+# -------------------------------------------------------------------------- [Michalski2021] (mixing tank)
 
 def window_max_abs(result: RunResult, column: str, ref: str, start: float, stop: float) -> float:
     t = result.trace.t
@@ -218,7 +218,7 @@ def assert_physical(result: RunResult) -> None:
 
 @pytest.mark.parametrize('scenario', ['tank_pi', 'tank_pi_decoupled'])
 def test_003_two_loop_pi_follows_the_setpoint_sequence(results, scenario):
-    """003 §2.2/§3.2: both variants bring h and T_out towards each new setpoint within the
+    """[Michalski2021] §2.2/§3.2: both variants bring h and T_out towards each new setpoint within the
     2000 s until the next change of either setpoint (each step's window). Without decoupling
     every change is reached to within 5 % of its size by then (measured: ≤ 3.0 %, the T_out
     step at 2100 s) and the level steps settle into 2 %; the decoupled loop, lightly damped
@@ -243,7 +243,7 @@ def test_003_two_loop_pi_follows_the_setpoint_sequence(results, scenario):
 
 
 def test_003_coupling_visible_without_decoupling_and_reduced_by_the_decoupler(results):
-    """003 §2: "a change of the setpoint of one output visibly affects the other" — a level
+    """[Michalski2021] §2: "a change of the setpoint of one output visibly affects the other" — a level
     step moves T_out by degrees while its setpoint is constant; §3: the decoupler has a
     positive effect there (the level step barely moves T_out). Read from each level step's
     ``interaction`` in metrics.json, whose window ends at the next change of any setpoint
@@ -263,7 +263,7 @@ def test_003_coupling_visible_without_decoupling_and_reduced_by_the_decoupler(re
 
 
 def test_003_disturbance_steps_compensated_and_decoupling_comparable(results):
-    """003 §2.4: with F_D steps (±25 %) the deviations are not large (< 10 % of the level,
+    """[Michalski2021] §2.4: with F_D steps (±25 %) the deviations are not large (< 10 % of the level,
     < 10 % of the T_C–T_H span) and are compensated; §3.4: with decoupling "comparable;
     some errors smaller, some larger"."""
     plain, decoupled = results('tank_pi_disturbance'), results('tank_pi_decoupled_disturbance')
@@ -283,7 +283,7 @@ def test_003_disturbance_steps_compensated_and_decoupling_comparable(results):
 
 
 def test_003_filling_the_tank_overshoots_in_temperature_less_with_decoupling(results):
-    """003 §2.5: filling from a low level, the temperature overshoots significantly (the hot
+    """[Michalski2021] §2.5: filling from a low level, the temperature overshoots significantly (the hot
     loop fills the tank while cold water arrives 180 s late); §3.5: with decoupling it
     copes better. Measured: 219 % vs 161 % of the 10.6 °C change — better, but not the
     "negligible" overshoot of the document (docs/scenarios.md)."""
@@ -318,7 +318,7 @@ def test_003_tank_files_start_the_temperature_setpoint_exactly_at_the_operating_
 
 
 def test_003_unreachable_temperature_setpoint_winds_up_and_raises_the_level(results):
-    """003 §2.2: with T_out set near T_C while warm F_D flows in, the temperature error stays
+    """[Michalski2021] §2.2: with T_out set near T_C while warm F_D flows in, the temperature error stays
     and the level rises (the cold-water integrator keeps opening F_Cin)."""
     result = results('tank_pi_unreachable')
     (step,) = result.metrics['outputs']['T_out']['steps']
@@ -330,7 +330,7 @@ def test_003_unreachable_temperature_setpoint_winds_up_and_raises_the_level(resu
 
 
 def test_003_the_linearised_tank_makes_the_unreachable_setpoint_look_reachable(results):
-    """003 §2.3 (Figs. 4–6): on the linearised plant the same loop looks better behaved at
+    """[Michalski2021] §2.3 (Figs. 4–6): on the linearised plant the same loop looks better behaved at
     the extreme setpoint — dangerous, since the tank cannot get there. The linear model's T
     equation reaches 24 °C with F_H = 0 at a cold flow the tank would need twice of."""
     linear, tank = results('tank_pi_linear_extreme'), results('tank_pi_unreachable')
@@ -349,7 +349,7 @@ def test_003_the_linearised_tank_makes_the_unreachable_setpoint_look_reachable(r
 
 
 def test_003_decoupled_loop_on_the_linearised_tank_undershoots_below_t_c(results):
-    """003 §3.3 (Figs. 10–12): with decoupling, the linear model is "even more dangerous": it
+    """[Michalski2021] §3.3 (Figs. 10–12): with decoupling, the linear model is "even more dangerous": it
     lets the temperature fall below T_C = 23 °C, which no mixture of the tank's inflows
     (23, 33 and 62 °C) can produce. The same loop on the tank stays physical (and overflows
     the tank instead: docs/scenarios.md)."""

@@ -1,15 +1,15 @@
-"""001's ZN experiment: which reading of its PID gives its figures (docs/scenarios.md, 001).
+"""[DeadTimeNotes]'s ZN experiment: which reading of its PID gives its figures (docs/scenarios.md, [DeadTimeNotes]).
 
-001 §1.2.2 reports "about 40 %" overshoot for a step (Fig. 1.13) and "about 3 %" for a setpoint
+[DeadTimeNotes] §1.2.2 reports "about 40 %" overshoot for a step (Fig. 1.13) and "about 3 %" for a setpoint
 ramped over 25 s (Fig. 1.15) with the ZN PID kp = 70.1 (printed; Table 6.2 gives 0.6·118.2 =
 70.92), T_I = 5.5 s, T_D = 1.32 s. The 40 % is what it expects from the damping ζ = 0.25 it
 gives for its table (it says to expect about 40 % of the P and the PID alike); the 3 % is read
 from its figure.
 
-* The table's gains in the ideal form of 000 eq. 19 leave ≥ 7 % with the ramp and overshoot a
+* The table's gains in the ideal form of [Viteckova] eq. 19 leave ≥ 7 % with the ramp and overshoot a
   step by > 50 %, whichever detail we vary: the printed kp, the exact ultimate point
   (117.80, 10.824 s), the derivative filter n, the series (interacting) form, or c = 0.
-* 001 describes its Simulink PID block as one where "T_I = 0 makes the integral channel's
+* [DeadTimeNotes] describes its Simulink PID block as one where "T_I = 0 makes the integral channel's
   output zero" — a parallel block K_P + T_I/s + T_D·s into which the table's 5.5 and 1.32 were
   typed as *gains*: ti = kp/5.5 s and td = 1.32/kp s in our form. Only this reading meets the
   ramp's "about 3 %"; its step overshoot (47–48 %) is near the 44 % of ζ = 0.25.
@@ -23,7 +23,7 @@ from support import CONFIG
 
 from tank_control.harness.runner import run
 
-KP = 70.92                                  # 001 Table 6.2 with Ku = 118.2: 0.6·Ku
+KP = 70.92                                  # [DeadTimeNotes] Table 6.2 with Ku = 118.2: 0.6·Ku
 TI, TD = 5.5, 1.32                          # 0.5·Tu, 0.12·Tu with Tu = 11 s
 
 
@@ -55,7 +55,7 @@ def first_steps(tmp_path: Path, overrides: tuple[str, ...]) -> tuple[dict, dict]
 def test_001_figures_are_met_with_the_gains_read_as_the_documents_parallel_block(tmp_path):
     step, ramp = first_steps(tmp_path, SIMULINK_FORM)
     assert 35.0 <= step['overshoot_pct'] <= 50.0      # "about 40 %" (ζ = 0.25: 44 %)
-    assert ramp['overshoot_pct'] <= 4.0               # "about 3 %" (001, Fig. 1.15)
+    assert ramp['overshoot_pct'] <= 4.0               # "about 3 %" ([DeadTimeNotes], Fig. 1.15)
     assert abs(step['ss_error']) < 0.01 and abs(ramp['ss_error']) < 0.01
 
 

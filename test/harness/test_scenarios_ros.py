@@ -48,7 +48,7 @@ def assert_equal_traces(ros_csv: Path, in_process_csv: Path) -> None:
 
 
 def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_path, ros_env):
-    """Through the command line: 000 MDP PID 2-DOF (config/ipdt_pid.yaml), 200 s with the
+    """Through the command line: [Viteckova] MDP PID 2-DOF (config/ipdt_pid.yaml), 200 s with the
     setpoint step at 10 s and the load step at 150 s."""
     scenario = str(CONFIG / 'ipdt_pid.yaml')
     ros = cli('run', scenario, '--out', str(tmp_path / 'ros'), '--duration', '200', env=ros_env)
@@ -64,7 +64,7 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
     assert metrics['mode'] == 'lockstep'
     assert metrics['run']['ticks'] == 2001
     assert metrics['run']['missed_samples'] == 0 and metrics['run']['late_samples'] == 0
-    assert metrics['outputs']['y']['steps'][0]['overshoot_pct'] <= 3.0       # SPEC §2.2
+    assert metrics['outputs']['y']['steps'][0]['overshoot_pct'] <= 3.0       # [Checks] §3
     gains = metrics['controller']['final_gains']                              # from the node
     assert round(gains['kp'], 2) == 3.13 and round(gains['b'], 2) == 0.42
 
@@ -117,7 +117,7 @@ def test_lockstep_beside_busy_loops_records_every_tick_equal_to_in_process(tmp_p
 
 
 def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
-    """tank_pi_decoupled (003 two-loop PI with decoupling, delays of 180 s and 120 s):
+    """tank_pi_decoupled ([Michalski2021] two-loop PI with decoupling, delays of 180 s and 120 s):
     every signal of both outputs and inputs equal to 1e-9 over 1000 ticks."""
     scenario = CONFIG / 'scenarios' / 'tank_pi_decoupled.yaml'
     ros = run(scenario, tmp_path / 'ros', duration=1000.0, env=ros_env)
@@ -135,7 +135,7 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
 
 
 def test_fsa_on_the_unstable_plant_over_ros_equals_in_process(tmp_path, ros_env):
-    """foupdt_fsa (004 §3.6.2): controller_node runs the fsa kind on the unstable
+    """foupdt_fsa ([Precup2013] §3.6.2): controller_node runs the fsa kind on the unstable
     1/(10s − 1)·e^(−5s); the lockstep trace over the setpoint and the load step (120 s) equals
     the in-process one to 1e-9 and keeps the designed overshoot (4.60 %)."""
     scenario = CONFIG / 'scenarios' / 'foupdt_fsa.yaml'
@@ -171,7 +171,7 @@ def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, r
 
 
 def test_transient_points_over_ros_equal_the_in_process_ones(tmp_path, ros_env):
-    """fopdt_relay_transient (004 eqs. 3.3.1–3.3.10), cut after the tuner took over (≈ 466 s):
+    """fopdt_relay_transient ([Precup2013] eqs. 3.3.1–3.3.10), cut after the tuner took over (≈ 466 s):
     controller_node reports the same transient points (autotune.transient_omega/gain/phase,
     read-only parameters) and summary line as the in-process loop, on an equal trace."""
     scenario = CONFIG / 'scenarios' / 'fopdt_relay_transient.yaml'

@@ -8,10 +8,10 @@ in ``fopdt_autotune``):
   test/core/test_frequency_crosschecks.py) at the shipped sample time — has an Ms within 5 %
   of the continuous design's (the same gains on the continuous plant);
 * the setpoint-step overshoot changes by less than 3 percentage points between the shipped
-  sample time h (0.1 s, 0.01 s for 002's faster loop) and h/10 (controller and plant sample
+  sample time h (0.1 s, 0.01 s for [Ikonen]'s faster loop) and h/10 (controller and plant sample
   time), and at h/10 it is within 0.5 points of the continuous-time simulations of
-  SPEC-supplement §1.1 / §1.10 / §3;
-* the IPDT MDP PID (000) stays stable and nearly aperiodic at h = 1 s (To/5).
+  [Checks] §3–5;
+* the IPDT MDP PID ([Viteckova]) stays stable and nearly aperiodic at h = 1 s (To/5).
 """
 from __future__ import annotations
 
@@ -55,8 +55,8 @@ SHIPPED_PID = sorted(str(p.relative_to(CONFIG)) for p in CONFIG.rglob('*.yaml')
                      and not p.name.startswith('monitor_'))
 
 # Overshoot [%] of the continuous loop (exact delay, filtered derivative n = 10), simulated
-# independently in SPEC-supplement §1.1 (000; ±20 % dead time: "MDP PID 4.6 % / 0.96 %") and
-# §1.10 (001: "54.0 % with T_d/T_f = 10", ramp "7.5–7.7 %").
+# independently in [Checks] §3 ([Viteckova]; ±20 % dead time: "MDP PID 4.6 % / 0.96 %") and
+# §1.10 ([DeadTimeNotes]: "54.0 % with T_d/T_f = 10", ramp "7.5–7.7 %").
 CONTINUOUS_OVERSHOOT = {
     'ipdt_pid.yaml': 0.02,
     'scenarios/ipdt_mdp_pi.yaml': 0.0,
@@ -70,7 +70,7 @@ CONTINUOUS_OVERSHOOT = {
     'scenarios/ipdt_mdp_pid_deadtime_minus20.yaml': 0.96,
     'fopdt_zn.yaml': 54.0,
     'fopdt_zn_ramp.yaml': 7.6,
-    'scenarios/tf_002_pi.yaml': 4.1,          # SPEC-supplement §3 (002 Fig. 11): 4.1 %
+    'scenarios/tf_002_pi.yaml': 4.1,          # [Checks] §5 ([Ikonen] Fig. 11): 4.1 %
 }
 
 
@@ -125,7 +125,7 @@ def test_relay_autotuned_pid_ms_within_5_percent_of_the_continuous_design():
 
 
 def test_001_zn_pid_stable_at_the_sample_times_that_used_to_diverge():
-    """001's ZN PID on its FOPDT used to diverge from h = 0.3 s; 001 §1.2.2 recommends
+    """[DeadTimeNotes]'s ZN PID on its FOPDT used to diverge from h = 0.3 s; [DeadTimeNotes] §1.2.2 recommends
     h = (0.1…0.3)·Tu = 1.1…3.3 s. Stable up to h = 1 s now (Nyquist on the implemented loop)."""
     g = tune('zn_001', 'pid', ku=118.2, tu=11.0)
     for h in (0.3, 0.5, 1.0):
@@ -141,7 +141,7 @@ def first_step_overshoot(name: str, h: float) -> tuple[float, float]:
     params = read_params_file(CONFIG / name)
     params['plant']['sample_time'] = h
     params['controller']['sample_time'] = h
-    duration = min(float(params['harness']['duration']), 150.0)   # 000: load step at 150 s
+    duration = min(float(params['harness']['duration']), 150.0)   # [Viteckova]: load step at 150 s
     trace = run_in_process(params, duration=duration)
     t, y, r = trace.columns['t'], trace.columns['y.y'], trace.columns['r.y']
     start = int(np.flatnonzero(np.diff(r) != 0)[0]) + 1
@@ -181,7 +181,7 @@ def test_overshoot_hardly_depends_on_the_sample_time(overshoots, name):
 
 
 def test_ipdt_mdp_pid_stable_and_nearly_aperiodic_at_h_1s():
-    """000's MDP PID design (delay margin 4.09 s) at h = 1 s = To/5: the ZOH costs about
+    """[Viteckova]'s MDP PID design (delay margin 4.09 s) at h = 1 s = To/5: the ZOH costs about
     h/2 of delay, well inside the margin; the loop settles with < 10 % overshoot and
     rejects the load step (the step-invariant derivative made this loop diverge)."""
     params = read_params_file(CONFIG / 'ipdt_pid.yaml')

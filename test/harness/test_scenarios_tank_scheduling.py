@@ -13,7 +13,7 @@ from tank_control.core.control.scheduling import GAIN_NAMES, design_schedule
 from tank_control.core.params_file import read as read_params_file
 from tank_control.harness.runner import RunResult
 
-T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] (003 §1)
+T0 = 2115.0 / 63.0                     # tank operating-point temperature [°C] ([Michalski2021] §1)
 
 
 @pytest.fixture(scope='module')
@@ -83,7 +83,7 @@ def test_scheduled_gains_keep_the_loops_damped_where_fixed_gains_degrade(results
 
 
 def test_disturbance_feedforward_rejects_the_f_d_steps(results):
-    """tank_pi_disturbance's F_D steps (12 → 15 → 9 cm³/s at 33 °C), 003's gains. Without
+    """tank_pi_disturbance's F_D steps (12 → 15 → 9 cm³/s at 33 °C), [Michalski2021]'s gains. Without
     feedforward T_out deviates 1.54/3.01 °C (IAE 3327 °C·s): the level loop cuts F_H against
     the extra inflow. Static feedforward: 1.05/2.19 °C (IAE 1566), level 1.04/2.10 cm instead
     of 1.40/2.83. Dynamic: 0.014/0.068 °C (IAE 46) — the hot flow keeps the heat balance
@@ -119,7 +119,7 @@ def test_disturbance_feedforward_rejects_the_f_d_steps(results):
 
 
 def test_dynamic_feedforward_with_the_decoupled_loop_improves_both_outputs(results):
-    """tank_pi_decoupled_disturbance (003 §3.4) with --set controller.two_loop.feedforward:
+    """tank_pi_decoupled_disturbance ([Michalski2021] §3.4) with --set controller.two_loop.feedforward:
     the dynamic feedforward cuts the T_out IAE 553 → 14 °C·s and the level IAE 10944 → 4270
     cm·s (level peaks 3.6 / 7.5 cm instead of 4.5 / 9.1): the decoupled level loop is slow, so
     here the planned excursion is smaller than the one the loop lets happen without it."""

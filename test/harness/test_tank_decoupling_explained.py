@@ -1,5 +1,5 @@
-"""Why the decoupled two-loop PI of 003 §3 does not reproduce the document's claims on our tank,
-measured on the shipped scenarios with one change each (docs/scenarios.md, "003 — why the
+"""Why the decoupled two-loop PI of [Michalski2021] §3 does not reproduce the document's claims on our tank,
+measured on the shipped scenarios with one change each (docs/scenarios.md, "[Michalski2021] — why the
 decoupled loop differs"; the margins: test/core/test_two_loop_analysis.py).
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ def overshoot(result: RunResult, output: str) -> list[float]:
 
 
 def test_filling_is_what_003_s_5_describes_once_the_delays_are_removed(results):
-    """003 §3.5: "overshoots negligible, quickly damped". As shipped (τ_C = 180 s, τ = 120 s)
+    """[Michalski2021] §3.5: "overshoots negligible, quickly damped". As shipped (τ_C = 180 s, τ = 120 s)
     the level overshoots > 50 %; the same loop on the tank without delays overshoots the
     level < 5 % and T_out < 10 %; τ_C = 0 alone already takes the level's overshoot below
     5 %. The static D21 instead of eq. 2's filter changes nothing (< 0.1 point)."""
@@ -54,11 +54,11 @@ def test_setpoint_steps_are_well_damped_without_the_delays(results):
 
 
 def test_unreachable_setpoint_the_applied_flow_anti_windup_fills_the_tank(results):
-    """003 §3.2: with the decoupler the loop "no longer tries to remove the error and
+    """[Michalski2021] §3.2: with the decoupler the loop "no longer tries to remove the error and
     stabilises". The shipped back-calculation sees the applied flows: F_H held at 0 by the
     decoupler's −v_T makes the level loop's effective output v_T, its integral is pulled up to
     it and D21·v_h opens the cold valve — the tank fills to the brim. With anti-windup off
-    (003's anti-windup acts on the PI outputs' ±300, never reached here) the level stays
+    ([Michalski2021]'s anti-windup acts on the PI outputs' ±300, never reached here) the level stays
     where the two integrators ramp together: F_Cin = v_T + D21·v_h constant needs
     ki_T·e_T + D21·ki_h·e_h = 0, so h = r_h + ki_T·e_T/(D21·ki_h) (≈ 88.6 cm); later, v_T at
     its +300 limit, the level returns to 81 cm (a 50000 s run, docs/scenarios.md)."""

@@ -88,7 +88,7 @@ def analyze(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_analyze_prints_the_robustness_table_without_running():
-    """001's ZN PID (config/fopdt_zn.yaml) on its FOPDT: the numbers of the frequency module,
+    """[DeadTimeNotes]'s ZN PID (config/fopdt_zn.yaml) on its FOPDT: the numbers of the frequency module,
     and an override changes them as it would change the run."""
     out = analyze(str(CONFIG / 'fopdt_zn.yaml'))
     assert out.returncode == 0, out.stderr

@@ -19,11 +19,11 @@ from tank_control.core.interfaces import to_ns
 from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, ns_to_stamp, stamp_to_ns,
                                          to_joint_state)
 
-K1 = 0.05      # 000's worked example, SPEC §1.1
+K1 = 0.05      # [Viteckova]'s worked example, [Viteckova] eq. 1
 
 
 def mdp_pid(k1: float, to: float) -> dict[str, float]:
-    """000 eqs. 25–26, 32 (SPEC §2.2), independent of the tuning module."""
+    """[Viteckova] eqs. 25–26, 32 ([Checks] §3), independent of the tuning module."""
     s3 = math.sqrt(3.0)
     return {'kp': 6 * (2 * s3 - 3) * math.exp(s3 - 3) / (k1 * to), 'ti': (2 + s3) * to,
             'td': (3 + s3) / 18 * to, 'b': (3 - s3) / 3, 'c': (3 - s3) / 2}
@@ -134,7 +134,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
 
     tick = to_ns(0.1)     # plant tick 0.1 s; controller samples every second tick
     # tick 0, y = r: the warm start (reset(y, initial_output)) gives u = initial_output
-    # exactly, not the cold start's kp·(b·r − y) = −0.5 (000 eq. 19 with I = 0)
+    # exactly, not the cold start's kp·(b·r − y) = −0.5 ([Viteckova] eq. 19 with I = 0)
     assert loop.tick(0, 1.0, 1.0) == pytest.approx(-0.3, abs=1e-12)
     # idempotent: tick 0 re-sent with another measurement gets the same answer again
     before = len(loop.answers)
@@ -204,7 +204,7 @@ def test_wall_mode_tuning_rule_and_stale_measurement(procs, node_cmd, ros_env, p
            'diagnostics_period:=0.1', 'u_min:=-100.0', 'u_max:=100.0')
     loop = Loop(probe)
 
-    # the rule's gains are applied and visible as parameters (000 Table 1: 3.14 / 18.66 / ...)
+    # the rule's gains are applied and visible as parameters ([Viteckova] Table 1: 3.14 / 18.66 / ...)
     for name, value in mdp_pid(K1, 5.0).items():
         assert loop.get(name) == pytest.approx(value, rel=1e-9)
     assert loop.set('tuning.dead_time', 6.0).successful
@@ -409,7 +409,7 @@ def test_two_loop_pi_on_tank_channels_in_lockstep(procs, node_cmd, ros_env, prob
     loop = Loop(probe)
     y, r = {'h': 80.0, 'T_out': 34.0, 'extra': 1.0}, {'h': 81.0, 'T_out': 33.57}
     u = loop.tick(0, y, r)
-    # warm start: the first sample takes over at initial_output (default: 003's operating-point
+    # warm start: the first sample takes over at initial_output (default: [Michalski2021]'s operating-point
     # flows 14, 37 cm³/s) whatever the error (a cold start gave kp·e = 0.9, 0.086)
     assert u == pytest.approx({'F_H': 14.0, 'F_Cin': 37.0}, abs=1e-12)
     result = loop.set('two_loop.kp_h', 2)

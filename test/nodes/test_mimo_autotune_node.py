@@ -1,4 +1,4 @@
-"""controller: two_loop_pi with its multivariable auto-tuning (004 §3.7) in controller_node: the
+"""controller: two_loop_pi with its multivariable auto-tuning ([Precup2013] §3.7) in controller_node: the
 operator commands ``~/start_autotune``, ``~/apply_autotune``, ``~/revert_gains``,
 ``~/abort_autotune`` as std_srvs/Trigger services, the state on ``~/autotune_state`` and the
 results and running gains in parameters (the same interface as relay_autotune). The lockstep
@@ -88,7 +88,7 @@ def test_relay_test_abort_and_failure_restore_the_gains_over_the_graph(procs, ro
                                                                        probe, tmp_path):
     """tank_pi_autotuned's sequential relay test on the running graph (plant, controller,
     reference; lockstep at 200x real time), started by the service: the relay runs on loop h
-    (stage 1); ``~/abort_autotune`` ends it with 003's gains back; started again by the
+    (stage 1); ``~/abort_autotune`` ends it with [Michalski2021]'s gains back; started again by the
     ``autotune.start`` parameter with a 50 s relay timeout it fails, gains back again."""
     params = params_file.read(SCENARIOS / 'tank_pi_autotuned.yaml')
     params['controller']['autotune.start_time'] = 0.0

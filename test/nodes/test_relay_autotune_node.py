@@ -3,8 +3,8 @@ possible), controller and reference in three processes, driven by the operator i
 ``/controller/start_autotune`` / ``abort_autotune`` services, the ``autotune.start``
 parameter, the ``/controller/autotune_state`` topic and parameter reads.
 
-001 §1.2.2's FOPDT (K = 0.05, T = 10 s, L = 3 s): exact ultimate point Ku = 117.8,
-Tu = 10.82 s (SPEC §1.2); the tuner must find them within 3 % and 2 %.
+[DeadTimeNotes] §1.2.2's FOPDT (K = 0.05, T = 10 s, L = 3 s): exact ultimate point Ku = 117.8,
+Tu = 10.82 s ([Checks] §1); the tuner must find them within 3 % and 2 %.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from tank_control.harness.recorder import joint_state_from_cdr
 from tank_control.harness.trace import GATED_DISTURBANCE
 from tank_control.nodes.controller_node import STATE_QOS
 
-KU_001, TU_001 = 117.8, 10.82          # 001 §1.2.2 / SPEC §1.2
+KU_001, TU_001 = 117.8, 10.82          # [DeadTimeNotes] §1.2.2 / [Checks] §1
 NODES = ('plant', 'controller', 'reference')
 
 
@@ -189,7 +189,7 @@ def test_start_service_tunes_001_example_like_the_in_process_loop(procs, ros_env
     assert got['autotune.tu'] == pytest.approx(TU_001, rel=0.02)
     assert got['autotune.model_kind'] == 'fopdt'
     assert got['autotune.model_dead_time'] == pytest.approx(3.0, rel=0.05)
-    # the tuned gains: Ziegler-Nichols PID of 001 Table 6.2 from the identified Ku, Tu
+    # the tuned gains: Ziegler-Nichols PID of [DeadTimeNotes] Table 6.2 from the identified Ku, Tu
     ku, tu = got['autotune.ku'], got['autotune.tu']
     assert (got['kp'], got['ti'], got['td']) == pytest.approx((0.6 * ku, 0.5 * tu, 0.12 * tu),
                                                               rel=1e-9)
@@ -276,10 +276,10 @@ def _assert_loop_runs_at_setpoint(graph: Graph, t_event: float) -> None:
 
 def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env, node_cmd,
                                                                   probe, gate, tmp_path):
-    """003's tank: T_out ← F_Cin is tuned (relay_autotune by channel names, reverse acting);
+    """[Michalski2021]'s tank: T_out ← F_Cin is tuned (relay_autotune by channel names, reverse acting);
     the level loop h ← F_H is a second controller_node (pid, renamed) in manual at the
     operating point, so the lockstep plant gets both inputs each tick. Exact point from the
-    tank linearised at 003's operating point (gain (T_C − T)/F, time constant C·h²/F, dead
+    tank linearised at [Michalski2021]'s operating point (gain (T_C − T)/F, time constant C·h²/F, dead
     time τ_C + τ), as in test_relay_autotune_scenarios.py."""
     t_op, flow = 2115 / 63, 63.0
     ku, tu = exact_fopdt_ultimate((t_op - 23.0) / flow, 0.7 * 81.0 ** 2 / flow, 300.0)
@@ -315,7 +315,7 @@ def test_one_tank_loop_is_tuned_while_the_other_is_held_in_manual(procs, ros_env
     assert got['autotune.ku'] == pytest.approx(ku, rel=0.03)
     assert got['autotune.tu'] == pytest.approx(tu, rel=0.02)
     assert got['autotune.model_dead_time'] == pytest.approx(300.0, rel=0.02)
-    assert got['kp'] == pytest.approx(0.45 * got['autotune.ku'], rel=1e-9)   # ZN PI, 001
+    assert got['kp'] == pytest.approx(0.45 * got['autotune.ku'], rel=1e-9)   # ZN PI, [DeadTimeNotes]
     assert got['direct_action'] is True
     # the level loop stayed in manual: F_H = 14 on every recorded tick
     assert {v.get('F_H') for v in graph.signals['manipulated'].values()} <= {14.0, None}

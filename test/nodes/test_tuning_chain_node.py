@@ -2,7 +2,7 @@
 as three processes in lockstep (as fast as possible), operated as a user does — parameter
 sets (what ``ros2 param set`` sends), ``std_srvs/Trigger`` services, ``/diagnostics``.
 
-* controller: pid on 001's FOPDT with the model in tuning.*: the running loop's robustness.*
+* controller: pid on [DeadTimeNotes]'s FOPDT with the model in tuning.*: the running loop's robustness.*
   and a gain change refused by robustness.ms_max with the numbers in the reason, also
   through the project's ``ros2 param set`` (exit 1, the reason printed);
 * controller: relay_autotune (config/fopdt_ms_autotune.yaml): relay test → proposal (preview)
@@ -150,7 +150,7 @@ def test_live_robustness_and_guard_of_a_pid(procs, ros_env, node_cmd, probe, tmp
     warning = op.wait_param('robustness.warning', bool)
     assert f'Ms {slower.ms:.3g} > robustness.ms_max 3' in warning
     assert probe.wait_for(lambda: op.diag_level == 1 and 'robustness.warning' in op.diag, 20)
-    # 001's sampling advice follows the model: L = 0.3 s puts sample_time 0.1 s above 0.3·L
+    # [DeadTimeNotes]'s sampling advice follows the model: L = 0.3 s puts sample_time 0.1 s above 0.3·L
     assert op.get('sampling.warning')['sampling.warning'] == ''
     assert all(r.successful for r in op.set(op.controller, tuning__dead_time=0.3))
     advice = op.wait_param('sampling.warning', bool)

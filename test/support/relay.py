@@ -15,8 +15,8 @@ import numpy as np
 
 
 class ExactDelayPlant:
-    """``gain/(time_constant·s + 1)·e^(−dead_time·s)`` (FOPDT, SPEC §1.2) or, with
-    ``time_constant=None``, ``gain/s·e^(−dead_time·s)`` (IPDT, SPEC §1.1); starts at
+    """``gain/(time_constant·s + 1)·e^(−dead_time·s)`` (FOPDT, [Checks] §1) or, with
+    ``time_constant=None``, ``gain/s·e^(−dead_time·s)`` (IPDT, [Viteckova] eq. 1); starts at
     rest at output ``y0`` with input ``u0`` applied for ever."""
 
     output_names = ('y',)
@@ -75,14 +75,14 @@ def exact_fopdt_ultimate(gain: float, time_constant: float, dead_time: float) ->
 
 
 def exact_ipdt_ultimate(k1: float, dead_time: float) -> tuple[float, float]:
-    """SPEC §1.2: Ku = π/(2·k1·To), Tu = 4·To."""
+    """[Checks] §1: Ku = π/(2·k1·To), Tu = 4·To."""
     return math.pi / (2.0 * k1 * dead_time), 4.0 * dead_time
 
 
 def relay_record(plant: ExactDelayPlant, d: float, hysteresis: float, noise_std: float,
                  sample_time: float, samples: int, seed: int = 0, bias: float = 0.0,
                  setpoint: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A plain relay loop (004 Fig. 3.1/3.3): u = u0 + bias ± d switched by e = r − y with
+    """A plain relay loop ([Precup2013] Fig. 3.1/3.3): u = u0 + bias ± d switched by e = r − y with
     hysteresis; the measurement carries seeded white noise. Returns t, u, y (measured)."""
     rng = np.random.default_rng(seed)
     u0 = plant.u0

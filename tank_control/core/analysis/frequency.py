@@ -1,9 +1,10 @@
-"""Frequency-domain analysis with exact dead time (001 §1.1 eqs. 6.4–6.7, 002, 004 §3.4; SPEC §3).
+"""Frequency-domain analysis with exact dead time ([DeadTimeNotes] §1.1 eqs. 6.4–6.7,
+[Ikonen], [Precup2013] §3.4; [Checks] §2).
 
 A :class:`FrequencyResponse` is a rational part times the exact dead time ``e^(−L·s)``
 (continuous) or ``z^(−d)`` (discrete, sampled loop with ZOH, also fractional dead time); no
 Padé approximation anywhere. Models: plants (:func:`ipdt`, :func:`fopdt`, :func:`rational`),
-the 2-DOF PID of 000 eq. 19 and 002's compensators, the discrete transfer functions of the
+the 2-DOF PID of [Viteckova] eq. 19 and [Ikonen]'s compensators, the discrete transfer functions of the
 implemented ``Pid2Dof``, exact ZOH models of any strictly proper rational plant with dead time
 (:func:`rational_zoh`). Analysis: :func:`ultimate_point`, :func:`margins`,
 :func:`closed_loop_poles_unstable`, :func:`gang_of_four`, :func:`tuning_report`. Units: ω in
@@ -66,7 +67,7 @@ def _nonzero(name: str, value: Any) -> float:
 def _filter_n(n: Any) -> float:
     n = _finite('n', n)
     if n <= 0.0:
-        raise ValueError(f'n = {n!r} must be > 0 (000 eq. 14 recommends 5…20); allowed (0, inf)')
+        raise ValueError(f'n = {n!r} must be > 0 ([Viteckova] eq. 14 recommends 5…20); allowed (0, inf)')
     return n
 
 
@@ -74,7 +75,7 @@ def _filter_n(n: Any) -> float:
 @dataclass(frozen=True)
 class FrequencyResponse:
     """``G = rational · e^(−dead_time·s)`` (continuous) or ``rational(z) · z^(−d)``
-    with ``d = dead_time/sample_time`` (discrete, 001 eq. 6.7).
+    with ``d = dead_time/sample_time`` (discrete, [DeadTimeNotes] eq. 6.7).
 
     ``rational`` maps complex ``s`` (or ``z`` when ``sample_time > 0``) to complex
     values, elementwise. ``integrators``: net number of poles at s = 0 (z = 1);
@@ -171,7 +172,7 @@ def _delay_corner(dead_time: float) -> tuple[float, ...]:
 def rational(num: ArrayLike, den: ArrayLike, dead_time: float = 0.0) -> FrequencyResponse:
     """``num(s)/den(s) · e^(−dead_time·s)``; coefficients highest power first
     (numpy ``polyval`` order), ``dead_time`` [s] ≥ 0. Must be proper
-    (deg num ≤ deg den). General form of 001 eq. 6.5 (H_N1(s)·e^(−sτ))."""
+    (deg num ≤ deg den). General form of [DeadTimeNotes] eq. 6.5 (H_N1(s)·e^(−sτ))."""
     num, den = _poly('num', num), _poly('den', den)
     if num.size > den.size:
         raise ValueError(f'num: degree {num.size - 1} exceeds den degree {den.size - 1}; '
@@ -185,7 +186,7 @@ def rational(num: ArrayLike, den: ArrayLike, dead_time: float = 0.0) -> Frequenc
 
 
 def ipdt(gain: float, dead_time: float) -> FrequencyResponse:
-    """IPDT ``k1/s · e^(−To·s)`` (000 eq. 1, SPEC §1.1): ``gain`` = k1 [1/s],
+    """IPDT ``k1/s · e^(−To·s)`` ([Viteckova] eq. 1, [Viteckova] eq. 1): ``gain`` = k1 [1/s],
     ``dead_time`` = To [s]."""
     k1 = _nonzero('gain', gain)
     to = _non_negative('dead_time', dead_time)
@@ -193,7 +194,7 @@ def ipdt(gain: float, dead_time: float) -> FrequencyResponse:
 
 
 def fopdt(gain: float, time_constant: float, dead_time: float) -> FrequencyResponse:
-    """FOPDT ``K/(T·s + 1) · e^(−L·s)`` (001 eq. 6.14, 004 eq. 3.3.11, SPEC §1.2):
+    """FOPDT ``K/(T·s + 1) · e^(−L·s)`` ([DeadTimeNotes] eq. 6.14, [Precup2013] eq. 3.3.11, [Checks] §1):
     ``gain`` K, ``time_constant`` T [s] (0: pure gain with delay), ``dead_time`` L [s]."""
     k = _nonzero('gain', gain)
     t = _non_negative('time_constant', time_constant)
@@ -208,7 +209,7 @@ def plant_response(config: Any) -> FrequencyResponse:
     ``TransferFunctionConfig``: num, den, dead_time), of a plant
     object with such a ``config``, or of an identified model of
     ``core.tuning.identification`` (``FopdtModel`` with ``order`` 1 or 2:
-    ``K/(T·s + 1)^n·e^(−L·s)``, 004 eq. 3.6.1; ``IpdtModel``)."""
+    ``K/(T·s + 1)^n·e^(−L·s)``, [Precup2013] eq. 3.6.1; ``IpdtModel``)."""
     config = getattr(config, 'config', config)
     if hasattr(config, 'num') and hasattr(config, 'den'):        # TransferFunctionConfig
         return rational(config.num, config.den, config.dead_time)
@@ -258,7 +259,7 @@ def _pid_law(kp: float, ti: float, td: float, n: float, b: float, c: float) -> R
 
 
 def pid_feedback(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0) -> FrequencyResponse:
-    """Feedback part of the 2-DOF PID (000 eq. 19, filter eq. 13–14, SPEC §2.1):
+    """Feedback part of the 2-DOF PID ([Viteckova] eq. 19, filter eq. 13–14, [Viteckova] eqs. 13–19):
     ``C(s) = kp·(1 + 1/(ti·s) + td·s/(td/n·s + 1))``, ``U = Cr·W − C·Y``.
     ``ti`` [s] (``inf``: no integral), ``td`` [s] (0: PI), ``n`` = td/Tf."""
     kp, ti, td, n = _pid_args(kp, ti, td, n)
@@ -275,7 +276,7 @@ def _weight(name: str, value: Any) -> float:
 
 def pid_setpoint(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0,
                  b: float = 1.0, c: float = 1.0) -> FrequencyResponse:
-    """Setpoint part of the 2-DOF PID (000 eq. 19):
+    """Setpoint part of the 2-DOF PID ([Viteckova] eq. 19):
     ``Cr(s) = kp·(b + 1/(ti·s) + c·td·s/(td/n·s + 1))``; ``b``, ``c`` in [0, 1]."""
     kp, ti, td, n = _pid_args(kp, ti, td, n)
     b, c = _weight('b', b), _weight('c', c)
@@ -284,12 +285,12 @@ def pid_setpoint(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10
 
 
 def pi(kp: float, ti: float) -> FrequencyResponse:
-    """PI ``kp·(1 + 1/(ti·s))`` (001 Table 6.1/6.2, 002 §1.3), ``ti`` [s]."""
+    """PI ``kp·(1 + 1/(ti·s))`` ([DeadTimeNotes] Table 6.1/6.2, [Ikonen] §1.3), ``ti`` [s]."""
     return pid_feedback(kp, ti)
 
 
 def lead(kp: float, td: float, n: float = 10.0) -> FrequencyResponse:
-    """002's PD / phase-lead compensator ``kp·(td·s + 1)/(td/n·s + 1)`` (002 §1.2,
+    """[Ikonen]'s PD / phase-lead compensator ``kp·(td·s + 1)/(td/n·s + 1)`` ([Ikonen] §1.2,
     filter ten times faster: n = 10). Maximum phase lead ``asin((n−1)/(n+1))``
     at ``ω_max = √n/td`` [rad/s]."""
     kp = _nonzero('kp', kp)
@@ -301,7 +302,7 @@ def lead(kp: float, td: float, n: float = 10.0) -> FrequencyResponse:
 
 
 def series_pid(kp: float, ti: float, td: float, n: float = 10.0) -> FrequencyResponse:
-    """002's series (interacting) PID, PI × lead (002 §1.4):
+    """[Ikonen]'s series (interacting) PID, PI × lead ([Ikonen] §1.4):
     ``kp·(1 + 1/(ti·s))·(td·s + 1)/(td/n·s + 1)``, ``ti``, ``td`` [s]."""
     return pi(kp, ti) * lead(1.0, td, n)
 
@@ -312,7 +313,7 @@ def _sample_time(sample_time: float) -> float:
 
 
 def _split_delay(dead_time: float, h: float) -> tuple[int, float]:
-    """``L = d·h + θ`` with integer ``d`` and ``0 ≤ θ < h`` (001 eq. 6.6: d = τ/T)."""
+    """``L = d·h + θ`` with integer ``d`` and ``0 ≤ θ < h`` ([DeadTimeNotes] eq. 6.6: d = τ/T)."""
     d = math.floor(dead_time / h + 1e-9)
     theta = max(0.0, dead_time - d * h)
     if theta < 1e-9 * h:
@@ -323,7 +324,7 @@ def _split_delay(dead_time: float, h: float) -> tuple[int, float]:
 def ipdt_zoh(gain: float, dead_time: float, sample_time: float) -> FrequencyResponse:
     """Exact ZOH (step-invariant) model of the IPDT ``k1/s·e^(−To·s)``:
     ``k1·z^(−d)·((h − θ)·z + θ)/(z·(z − 1))`` with ``To = d·h + θ``, ``h`` = Ts [s]
-    (001 eq. 6.7 for θ = 0: ``k1·h·z^(−d)/(z − 1)``)."""
+    ([DeadTimeNotes] eq. 6.7 for θ = 0: ``k1·h·z^(−d)/(z − 1)``)."""
     k1 = _nonzero('gain', gain)
     to = _non_negative('dead_time', dead_time)
     h = _sample_time(sample_time)
@@ -335,7 +336,7 @@ def ipdt_zoh(gain: float, dead_time: float, sample_time: float) -> FrequencyResp
 def fopdt_zoh(gain: float, time_constant: float, dead_time: float, sample_time: float) -> FrequencyResponse:
     """Exact ZOH model of ``K/(T·s+1)·e^(−L·s)`` with ``L = d·h + θ`` (0 ≤ θ < h):
     ``K·z^(−d)·(b1·z + b2)/(z·(z − a))``, ``a = e^(−h/T)``,
-    ``b1 = 1 − e^(−(h−θ)/T)``, ``b2 = e^(−(h−θ)/T) − a`` (001 eq. 6.7, SPEC §3)."""
+    ``b1 = 1 − e^(−(h−θ)/T)``, ``b2 = e^(−(h−θ)/T) − a`` ([DeadTimeNotes] eq. 6.7, [Checks] §2)."""
     k = _nonzero('gain', gain)
     t = _positive('time_constant', time_constant)
     dead = _non_negative('dead_time', dead_time)
@@ -353,7 +354,7 @@ class ZohStateSpace:
     """Exact ZOH model of a strictly proper ``num(s)/den(s)·e^(−L·s)`` at sample time ``h``
     with ``L = d·h + θ`` (0 ≤ θ < h): ``x(k+1) = Φ·x(k) + Γ0·u(k−d) + Γ1·u(k−d−1)``,
     ``y(k) = C·x(k)``; ``Φ = e^(A·h)``, ``Γ0 = ∫_0^(h−θ) e^(A·s) ds·B``,
-    ``Γ1 = e^(A·(h−θ))·∫_0^θ e^(A·s) ds·B`` (001 eq. 6.7 generalised)."""
+    ``Γ1 = e^(A·(h−θ))·∫_0^θ e^(A·s) ds·B`` ([DeadTimeNotes] eq. 6.7 generalised)."""
 
     phi: np.ndarray
     gamma0: np.ndarray
@@ -398,8 +399,8 @@ def zoh_state_space(num: ArrayLike, den: ArrayLike, dead_time: float,
 def rational_zoh(num: ArrayLike, den: ArrayLike, dead_time: float,
                  sample_time: float) -> FrequencyResponse:
     """Exact ZOH (step-invariant) model of the strictly proper ``num(s)/den(s)·e^(−L·s)``,
-    also with a fractional dead time (:class:`ZohStateSpace`; 001 eq. 6.7 generalised,
-    SPEC §3): ``G(z) = z^(−d)·C·(z·I − Φ)^(−1)·(Γ0 + Γ1/z)``. :func:`fopdt_zoh` and
+    also with a fractional dead time (:class:`ZohStateSpace`; [DeadTimeNotes] eq. 6.7 generalised,
+    [Checks] §2): ``G(z) = z^(−d)·C·(z·I − Φ)^(−1)·(Γ0 + Γ1/z)``. :func:`fopdt_zoh` and
     :func:`ipdt_zoh` are its closed forms. Times in s."""
     ss = zoh_state_space(num, den, dead_time, sample_time)
     m = ss.phi.shape[0]
@@ -416,7 +417,7 @@ def rational_zoh(num: ArrayLike, den: ArrayLike, dead_time: float,
 def rational_discrete(num: ArrayLike, den: ArrayLike, sample_time: float,
                       delay_samples: int = 0) -> FrequencyResponse:
     """``num(z)/den(z) · z^(−d)``, coefficients in z highest power first,
-    ``d = delay_samples`` ≥ 0 (001 eq. 6.7), ``sample_time`` [s]."""
+    ``d = delay_samples`` ≥ 0 ([DeadTimeNotes] eq. 6.7), ``sample_time`` [s]."""
     num, den = _poly('num', num), _poly('den', den)
     h = _sample_time(sample_time)
     if isinstance(delay_samples, bool) or not isinstance(delay_samples, (int, np.integer)) \
@@ -455,7 +456,7 @@ def pid_feedback_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: f
     """Transfer function −U/Y of the implemented ``Pid2Dof`` (core/control/pid.py):
     ``C(z) = kp·(1 + h/(ti·(z − 1)) + n·β·(z − 1)/(z − β))``, ``β = Tf/(Tf + h)``,
     ``Tf = td/n``: forward-Euler integral and the backward-difference
-    discretisation of ``td·s/(td/n·s + 1)`` (000 eq. 13, 19), whose gain at low
+    discretisation of ``td·s/(td/n·s + 1)`` ([Viteckova] eq. 13, 19), whose gain at low
     frequency is exactly ``td·s``; ``h`` = ``sample_time`` [s]."""
     kp, ti, td, n = _pid_args(kp, ti, td, n)
     h = _sample_time(sample_time)
@@ -466,7 +467,7 @@ def pid_feedback_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: f
 def pid_setpoint_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0,
                           b: float = 1.0, c: float = 1.0, sample_time: float = 1.0) -> FrequencyResponse:
     """Transfer function U/R of the implemented ``Pid2Dof``:
-    ``kp·(b + h/(ti·(z − 1)) + c·n·β·(z − 1)/(z − β))`` (000 eq. 19)."""
+    ``kp·(b + h/(ti·(z − 1)) + c·n·β·(z − 1)/(z − β))`` ([Viteckova] eq. 19)."""
     kp, ti, td, n = _pid_args(kp, ti, td, n)
     b, c = _weight('b', b), _weight('c', c)
     h = _sample_time(sample_time)
@@ -579,7 +580,7 @@ def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> lis
 @dataclass(frozen=True)
 class UltimatePoint:
     """Ultimate (critical) point: the lowest ω where the phase is −180°
-    (004 §3.2: punctul critic). ``ku`` = 1/|G(jωu)|, ``tu`` = 2π/ωu [s], ``wu`` [rad/s]."""
+    ([Precup2013] §3.2: punctul critic). ``ku`` = 1/|G(jωu)|, ``tu`` = 2π/ωu [s], ``wu`` [rad/s]."""
 
     ku: float
     tu: float
@@ -591,7 +592,7 @@ class UltimatePoint:
 
 def ultimate_point(g: FrequencyResponse) -> UltimatePoint:
     """``(ku, tu, wu)`` of ``g`` under proportional control: the lowest −180° phase
-    crossing, bracketed on a refined grid then solved with brentq. SPEC §1.2:
+    crossing, bracketed on a refined grid then solved with brentq. [Checks] §1:
     FOPDT 0.05/(10s+1)·e^(−3s) → ku = 117.80, tu = 10.824 s; IPDT k1/s·e^(−To·s)
     → ωu = π/(2·To), ku = π/(2·k1·To), tu = 4·To. Raises ``ValueError`` when the
     phase never reaches −180° (e.g. FOPDT without dead time) or starts there
@@ -613,7 +614,7 @@ def ultimate_point(g: FrequencyResponse) -> UltimatePoint:
 # ------------------------------------------------------------------ margins
 @dataclass(frozen=True)
 class Margins:
-    """Stability margins of a loop ``L = C·G`` (002; 004 §3.4.3: rezerva de fază /
+    """Stability margins of a loop ``L = C·G`` ([Ikonen]; [Precup2013] §3.4.3: rezerva de fază /
     de modul). ``gain_margin`` [ratio] = 1/|L| at the phase crossover (worst one,
     ``inf`` if the phase never reaches −180°); ``phase_margin`` [deg] = 180° + ∠L at
     the gain crossover (worst one; NaN if |L| never crosses 1), with the continuous
@@ -677,10 +678,10 @@ def _peak(fn: Callable[[np.ndarray], np.ndarray], w: np.ndarray) -> tuple[float,
 def margins(loop: FrequencyResponse) -> Margins:
     """Gain margin, phase margin, crossovers, delay margin and ``Ms = max|S|``,
     ``Mt = max|T|`` of the loop ``L`` (e.g. ``pid_feedback(...) * fopdt(...)``).
-    Dead time lowers the phase by ω·L, so PM drops by ωc·L (001 §1.1,
+    Dead time lowers the phase by ω·L, so PM drops by ωc·L ([DeadTimeNotes] §1.1,
     eq. 6.4–6.5); for pure I control of a pure delay ωc = 1/Ti and
-    PM = 90° − L/Ti rad (001 eq. 6.13). Ms is the inverse of the shortest
-    distance from L(jω) to −1 (002: stabiilisuusmarginaali)."""
+    PM = 90° − L/Ti rad ([DeadTimeNotes] eq. 6.13). Ms is the inverse of the shortest
+    distance from L(jω) to −1 ([Ikonen]: stabiilisuusmarginaali)."""
     return _margins_on(loop, *_refined(loop))
 
 
@@ -747,22 +748,22 @@ def closed_loop_stable(loop: FrequencyResponse) -> bool:
 
 # ----------------------------------------------------------- gang of four
 def sensitivity(loop: FrequencyResponse, w: np.ndarray) -> np.ndarray:
-    """``S(jω) = 1/(1 + L(jω))`` (002 §1.4)."""
+    """``S(jω) = 1/(1 + L(jω))`` ([Ikonen] §1.4)."""
     return 1.0 / (1.0 + loop(w))
 
 
 def complementary_sensitivity(loop: FrequencyResponse, w: np.ndarray) -> np.ndarray:
-    """``T(jω) = L/(1 + L)`` (002 §1.4)."""
+    """``T(jω) = L/(1 + L)`` ([Ikonen] §1.4)."""
     lv = loop(w)
     return lv / (1.0 + lv)
 
 
 def gang_of_four(controller: FrequencyResponse, plant: FrequencyResponse,
                  w: np.ndarray) -> dict[str, np.ndarray]:
-    """002 §1.4 "neljän kopla": complex arrays over ``w`` [rad/s] of
+    """[Ikonen] §1.4 "neljän kopla": complex arrays over ``w`` [rad/s] of
     ``S = 1/(1+PC)`` (output ← output disturbance), ``T = PC/(1+PC)`` (output ←
     measurement noise / 1-DOF setpoint), ``PS = P/(1+PC)`` (output ← load
-    disturbance at the plant input, 000 Fig. 1), ``CS = C/(1+PC)`` (control ←
+    disturbance at the plant input, [Viteckova] Fig. 1), ``CS = C/(1+PC)`` (control ←
     noise / 1-DOF setpoint)."""
     p, c = plant(w), controller(w)
     s = 1.0 / (1.0 + p * c)
@@ -773,7 +774,7 @@ def gang_of_four(controller: FrequencyResponse, plant: FrequencyResponse,
 def tuning_report(plant: FrequencyResponse | Any, kp: float, ti: float | None = math.inf,
                   td: float | None = 0.0, b: float | None = 1.0, c: float | None = 1.0,
                   n: float = 10.0) -> dict[str, float | bool]:
-    """Frequency-domain report of a 2-DOF PID tuning (000 eq. 19) on ``plant``
+    """Frequency-domain report of a 2-DOF PID tuning ([Viteckova] eq. 19) on ``plant``
     (a :class:`FrequencyResponse`, or a plant, plant configuration or identified
     model that :func:`plant_response` accepts; ``None`` for ti/td/b/c as returned by
     ``tune()`` means no integral / no derivative / weight 1). A discrete plant

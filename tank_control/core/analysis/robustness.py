@@ -3,10 +3,10 @@
 The loop is the one that runs: the exact ZOH model of the process at the controller's
 sample time (``core/tuning/model.py``, fractional dead time included) in feedback with the
 transfer function of ``Pid2Dof`` (``frequency.pid_feedback_discrete``: forward-Euler integral,
-backward-difference filtered derivative, 000 eqs. 13, 19). :func:`loop_report` gives the
+backward-difference filtered derivative, [Viteckova] eqs. 13, 19). :func:`loop_report` gives the
 Nyquist stability with the exact delay, gain and phase margins, Ms, Mt, delay margin and
-crossovers (SPEC §3; 002); :func:`predict` simulates the same loop on the model for a unit
-setpoint step and a unit load step at the plant input (000 Fig. 1) and gives overshoot,
+crossovers ([Checks] §2; [Ikonen]); :func:`predict` simulates the same loop on the model for a unit
+setpoint step and a unit load step at the plant input ([Viteckova] Fig. 1) and gives overshoot,
 IAE and settling time. :func:`response_report` does the same analysis for any controller's
 discrete response (the lead-lag's, the Smith predictor's equivalent controller,
 :func:`smith_report`). Units: margins as ratios, phase in degrees, frequencies in rad/s,
@@ -74,13 +74,13 @@ def loop_report(model: ProcessModel, config: PidConfig) -> LoopReport:
 
 def smith_responses(model: ProcessModel, primary: PidConfig
                     ) -> tuple[fr.FrequencyResponse, fr.FrequencyResponse, fr.FrequencyResponse]:
-    """``(C_eq, R_eq, C·Gm0)`` of the Smith predictor (004 §3.6.1) with the discrete PI
+    """``(C_eq, R_eq, C·Gm0)`` of the Smith predictor ([Precup2013] §3.6.1) with the discrete PI
     ``primary`` (td = c = 0) and the internal model ``model`` as implemented at its sample
     time ``h`` (exact ZOH, fractional dead time; a negative ``kp`` acts on the positive
     ``model`` with the opposite sign): the equivalent feedback controller
     ``C_eq = C/(1 + C·(Gm0 − Gm))`` (−U/Y), its setpoint path ``R_eq = C_r/(1 + C·(Gm0 − Gm))``
     (U/R, weight b) and the delay-free loop ``C·Gm0`` whose closed-loop poles are the loop's
-    when the plant equals the model (004 eq. 3.6.5)."""
+    when the plant equals the model ([Precup2013] eq. 3.6.5)."""
     h, kp = primary.sample_time, abs(primary.kp)
     sign = -1.0 if primary.kp < 0 else 1.0       # kp < 0 on a positive model: positive feedback
     c = fr.pid_feedback_discrete(kp, primary.ti, 0.0, primary.n, sample_time=h) * sign

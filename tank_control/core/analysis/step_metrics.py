@@ -3,10 +3,12 @@
 ``t`` in s (strictly increasing), signals in the units of the measured output; noisy data and
 steps in either direction are accepted (responses are normalised by the signed step size).
 :func:`iae` ∫|e| dt [unit·s] and :func:`ise` ∫e² dt [unit²·s] (trapezoidal rule);
+:func:`noise_std` the white measurement noise of a record, estimated robustly;
 :func:`step_metrics` overshoot [%], 10–90 % rise time [s], ±2 % settling time [s],
-steady-state error, peak; :func:`deviation_metrics` for an error that should stay at 0 (a load
-change, a coupling): peak error and time, IAE, ∫e dt (000 eq. 10 for a load step), recovery
-time into ±2 % of the peak, final and initial error.
+steady-state error, peak, read through that noise (docs/harness.md, "Measurement noise");
+:func:`deviation_metrics` for an error that should stay at 0 (a load change, a coupling):
+peak error and time, IAE, ∫e dt ([Viteckova] eq. 10 for a load step), recovery time into ±2 % of the
+peak, final and initial error.
 """
 from __future__ import annotations
 
@@ -47,6 +49,52 @@ def ise(t, e) -> float:
     return _trapz(t, e * e)
 
 
+#: Normal consistency factor of the median absolute deviation (σ = 1.4826 · MAD).
+_MAD_TO_STD = 1.482602218505602
+#: Smoothed noise (σ_s) allowed inside the settling band: band ≥ SETTLE_K · σ_s.
+SETTLE_K = 4.0
+
+
+def noise_std(y) -> float:
+    """Standard deviation [unit] of white measurement noise on the record ``y``, estimated from
+    its second differences d_k = y_{k+1} − 2 y_k + y_{k−1}: for white noise of σ they have
+    σ·√6, while a smooth response adds only its curvature (≈ 0 between its rare kinks).
+    σ̂ = 1.4826 · median|d − median d| / √6, so a step or a kink in a few samples does not
+    count. 0 for fewer than 5 finite samples or a noise-free record."""
+    y = np.asarray(y, dtype=float).reshape(-1)
+    y = y[np.isfinite(y)]
+    if y.size < 5:
+        return 0.0
+    d = y[2:] - 2.0 * y[1:-1] + y[:-2]
+    return float(_MAD_TO_STD * np.median(np.abs(d - np.median(d))) / math.sqrt(6.0))
+
+
+#: The moving average spans at most this fraction of the raw first-crossing 10–90 % rise time.
+CAP_FRACTION = 0.25
+
+
+def _first_rise(t: np.ndarray, z: np.ndarray) -> float:
+    """Time from the first sample at or beyond 0.1 to the first at or beyond 0.9 (noise makes
+    both early, so it does not overstate the rise); 0 if 0.9 is never reached."""
+    above10 = np.nonzero(z >= 0.1)[0]
+    above90 = np.nonzero(z >= 0.9)[0]
+    if above90.size == 0:
+        return 0.0
+    return float(t[above90[0]] - t[above10[0]])
+
+
+def _smooth(z: np.ndarray, w: int) -> np.ndarray:
+    """Centred moving average over ``w`` (odd) samples; the window shrinks at the ends."""
+    if w <= 1:
+        return z
+    half = w // 2
+    c = np.concatenate(([0.0], np.cumsum(z)))
+    i = np.arange(z.size)
+    lo = np.maximum(i - half, 0)
+    hi = np.minimum(i + half + 1, z.size)
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
 class _Metrics:
     def as_dict(self) -> dict[str, float]:
         """The metrics by field name."""
@@ -63,6 +111,9 @@ class StepMetrics(_Metrics):
     ``band``·|step| of the final setpoint [s]; NaN if it never settles.
     ``steady_state_error``: final setpoint − mean output over the final window [unit].
     ``peak``: extreme output in the step direction [unit]; ``peak_time`` [s] after the step.
+    ``noise``: the measurement noise σ the metrics allowed for [unit] (0: none);
+    ``smoothing``: samples of the moving average read (1: the raw record);
+    ``band``: the settling band used, as a fraction of |step| (≥ the band asked for).
     """
 
     overshoot: float
@@ -71,6 +122,9 @@ class StepMetrics(_Metrics):
     steady_state_error: float
     peak: float
     peak_time: float
+    noise: float = 0.0
+    smoothing: int = 1
+    band: float = 0.02
 
 
 def _interp(t: np.ndarray, z: np.ndarray, level: float, i: int) -> float:
@@ -100,7 +154,8 @@ def _level_time(t: np.ndarray, z: np.ndarray, level: float, i_peak: int) -> floa
 
 
 def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | None = None,
-                 band: float = 0.02, final_window: float = 0.1) -> StepMetrics:
+                 band: float = 0.02, final_window: float = 0.1,
+                 noise: float = 0.0) -> StepMetrics:
     """Step-response metrics of output ``y`` for a setpoint change to ``r_final``.
 
     t, y: samples [s], [unit]. ``t_step``: instant of the setpoint change
@@ -108,13 +163,22 @@ def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | 
     the step (default: ``y`` at ``t_step``). ``band``: settling band as a
     fraction of |r_final − y0| (default 2 %). ``final_window``: fraction of
     the record after the step averaged for the steady state (default 10 %).
+    ``noise``: σ of white measurement noise on ``y`` [unit] (e.g. :func:`noise_std`
+    of the whole record; default 0: read the raw record).
 
     The response is normalised as z = (y − y0)/(r_final − y0), so steps in
     either direction are handled alike. Each of the 10 % and 90 % instants is
     the mean of the first and the last crossing of that level before the peak,
-    so noise that wanders across a level does not bias the rise time. The
-    settling time is read on the raw record (noise that leaves the band
-    delays it; filter the record first if the noise is not small vs the band).
+    so noise that wanders across a level does not bias the rise time.
+
+    With noise of relative size n = σ/|step| above band/SETTLE_K, the metrics are read
+    on z smoothed by a centred moving average of w samples, w the smallest with
+    SETTLE_K·n/√w ≤ band, but spanning at most a quarter of the time from the first
+    sample beyond 10 % to the first beyond 90 % (so the average does not flatten the
+    response); the smoothed noise is σ_s = n/√w. The overshoot is the peak of the
+    smoothed z above 1, counted only when it exceeds σ_s·√(2 ln(N/w)) (N samples: the
+    level that noise alone stays below); the settling band is max(band, SETTLE_K·σ_s).
+    Without noise (w = 1, σ_s = 0) these are the raw-record definitions.
     """
     t, y = _as_arrays(t, y)
     t_step = float(t[0]) if t_step is None else float(t_step)
@@ -126,27 +190,46 @@ def step_metrics(t, y, r_final: float, y0: float | None = None, t_step: float | 
     step = float(r_final) - y0
     if step == 0.0 or not math.isfinite(step):
         raise ValueError(f'r_final: {r_final} gives no step from y0 = {y0}')
+    if not (math.isfinite(noise) and noise >= 0.0):
+        raise ValueError(f'noise: {noise} must be finite and >= 0')
     z = (y - y0) / step
     n_final = max(1, int(round(final_window * len(y))))
     sse = float(r_final - np.mean(y[-n_final:]))
 
-    i_peak = int(np.argmax(z))
-    overshoot = max(0.0, float(z[i_peak]) - 1.0) * 100.0
+    rel = noise / abs(step)
+    w = 1
+    if rel * SETTLE_K > band:
+        w = math.ceil((SETTLE_K * rel / band) ** 2)
+        dt = float(np.median(np.diff(t)))
+        cap = int(CAP_FRACTION * _first_rise(t, z) / dt) or len(z) // 20
+        w = max(1, min(w, cap, len(z)))
+        w -= 1 - w % 2                      # odd: centred
+    zs = _smooth(z, w)
+    sigma_s = rel / math.sqrt(w)
 
-    t10 = _level_time(t, z, 0.1, i_peak)
-    t90 = _level_time(t, z, 0.9, i_peak)
+    i_peak = int(np.argmax(zs))
+    beyond = float(zs[i_peak]) - 1.0
+    # the universal threshold: m independent samples of noise σ_s stay below σ_s·√(2 ln m)
+    threshold = sigma_s * math.sqrt(2.0 * math.log(max(len(zs) / w, 2.0)))
+    overshoot = beyond * 100.0 if beyond > threshold else 0.0
+
+    t10 = _level_time(t, zs, 0.1, i_peak)
+    t90 = _level_time(t, zs, 0.9, i_peak)
     rise = t90 - t10
 
-    outside = np.nonzero(np.abs(z - 1.0) > band)[0]
+    band_used = max(band, SETTLE_K * sigma_s)
+    outside = np.nonzero(np.abs(zs - 1.0) > band_used)[0]
     if outside.size == 0:
         settling = 0.0
-    elif outside[-1] == len(z) - 1:
+    elif outside[-1] == len(zs) - 1:
         settling = math.nan
     else:
         settling = float(t[outside[-1] + 1] - t_step)
     return StepMetrics(overshoot=overshoot, rise_time=rise, settling_time=settling,
-                       steady_state_error=sse, peak=float(y[i_peak]),
-                       peak_time=float(t[i_peak] - t_step))
+                       steady_state_error=sse,
+                       peak=float(y[i_peak] if w == 1 else y0 + step * zs[i_peak]),
+                       peak_time=float(t[i_peak] - t_step), noise=float(noise), smoothing=w,
+                       band=band_used)
 
 
 @dataclass(frozen=True)
@@ -172,15 +255,17 @@ class DeviationMetrics(_Metrics):
     initial_error: float
 
 
-def deviation_metrics(t, e, band: float = 0.02, final_window: float = 0.1) -> DeviationMetrics:
+def deviation_metrics(t, e, band: float = 0.02, final_window: float = 0.1,
+                      noise: float = 0.0) -> DeviationMetrics:
     """Peak, integrals and recovery of the error ``e`` [unit] over ``t`` [s] (from ``t[0]``,
     the event). ``band``: recovery band as a fraction of the peak |e| (default 2 %, the
     settling band of :func:`step_metrics`); ``final_window``: fraction of the record
-    averaged for ``final_error``. Read on the raw record, like the settling time."""
+    averaged for ``final_error``; ``noise``: σ of white measurement noise on e [unit]: the
+    recovery band is max(band·peak, SETTLE_K·noise) (read on the raw record)."""
     t, e = _as_arrays(t, e)
     i = int(np.argmax(np.abs(e)))
     peak = float(abs(e[i]))
-    outside = np.nonzero(np.abs(e) > band * peak)[0]
+    outside = np.nonzero(np.abs(e) > max(band * peak, SETTLE_K * noise))[0]
     if outside.size == 0:
         recovery = 0.0
     elif outside[-1] == len(e) - 1:

@@ -1,21 +1,21 @@
-"""Loop margins of the two-loop PI of 003 §2–3 on the mixing tank linearised at its operating
-point, with the exact delays (003 §1; 004 §3.7.1 eqs. 3.7.4–3.7.5).
+"""Loop margins of the two-loop PI of [Michalski2021] §2–3 on the mixing tank linearised at its operating
+point, with the exact delays ([Michalski2021] §1; [Precup2013] §3.7.1 eqs. 3.7.4–3.7.5).
 
-Plant: 003 §1 linearised (``mixing_tank.jacobian``), x = [V, T], the level h = V/(2·C·h_op)
+Plant: [Michalski2021] §1 linearised (``mixing_tank.jacobian``), x = [V, T], the level h = V/(2·C·h_op)
 to first order, T_out(t) = T(t − τ), F_C(t) = F_Cin(t − τ_C):
 
     G(s) = [[h/F_H, h/F_Cin], [T_out/F_H, T_out/F_Cin]]     (continuous, e^(−τ·s) exact)
 
 Controller: :class:`~tank_control.core.control.multiloop.TwoLoopPiConfig` — each loop the
 parallel PI ``kp + ki/s``, the decoupler ``u = W·v``, W = [[1, D12], [D21, 1]] (identity
-without decoupling). The dynamic D21 of 003 eq. 2 has its pole (z = −0.003432) on its zero
+without decoupling). The dynamic D21 of [Michalski2021] eq. 2 has its pole (z = −0.003432) on its zero
 (z = −0.003428), so it is its static gain 2.69 to 4e-6 at every frequency and enters as that.
 The decoupled plant ``Q = G·W``; loop i with loop j open sees ``Q_ii``, with loop j closed the
-equivalent SISO process of 004 eq. 3.7.4 (negative feedback):
+equivalent SISO process of [Precup2013] eq. 3.7.4 (negative feedback):
 
     Q_i = Q_ii − Q_ij·Q_ji·C_j/(1 + C_j·Q_jj)
 
-The controller's sample-and-hold (003: Ts = 1 s) is left out: it costs ω_c·Ts/2 of phase,
+The controller's sample-and-hold ([Michalski2021]: Ts = 1 s) is left out: it costs ω_c·Ts/2 of phase,
 < 0.2° at these crossovers (< 0.006 rad/s). Units: cm, °C, cm³/s, s, rad/s, degrees.
 """
 from __future__ import annotations
@@ -30,12 +30,12 @@ from tank_control.core.control.multiloop import D21Filter, TwoLoopPiConfig, docu
 from tank_control.core.plants.mixing_tank import OPERATING_POINT, MixingTankConfig, jacobian
 
 LOOPS = ('h', 'T_out')
-"""The loops: h ← F_H (index 0) and T_out ← F_Cin (index 1), 003's pairing."""
+"""The loops: h ← F_H (index 0) and T_out ← F_Cin (index 1), [Michalski2021]'s pairing."""
 
 
 @dataclass(frozen=True)
 class LinearisedTank:
-    """003 §1 linearised at an operating point: ``a`` (2×2) and ``b`` (2×2, columns F_H, F_C)
+    """[Michalski2021] §1 linearised at an operating point: ``a`` (2×2) and ``b`` (2×2, columns F_H, F_C)
     of dx/dt for x = [V, T] [cm³, °C], ``h_per_volume`` = 1/(2·C·h_op) [1/cm²], the delays
     ``tau_cold`` (on F_Cin) and ``tau_out`` (on T_out) [s]."""
 
@@ -47,7 +47,7 @@ class LinearisedTank:
 
     @classmethod
     def from_config(cls, config: Any = None) -> LinearisedTank:
-        """From a ``MixingTankConfig`` (its operating point, C, α and delays); default: 003's,
+        """From a ``MixingTankConfig`` (its operating point, C, α and delays); default: [Michalski2021]'s,
         at the exact steady state T_op = 2115/63 °C."""
         cfg = config if config is not None else MixingTankConfig(T_op=OPERATING_POINT.T)
         a, b = jacobian(cfg)
@@ -109,7 +109,7 @@ class TwoLoopAnalysis:
 
     def equivalent_plant(self, i: int, s: np.ndarray, other_closed: bool = True) -> np.ndarray:
         """The process loop ``i`` (0: h, 1: T_out) controls: Q_ii, or with the other loop
-        closed Q_ii − Q_ij·Q_ji·C_j/(1 + C_j·Q_jj) (004 eq. 3.7.4)."""
+        closed Q_ii − Q_ij·Q_ji·C_j/(1 + C_j·Q_jj) ([Precup2013] eq. 3.7.4)."""
         q = self.decoupled_plant(s)
         j = 1 - i
         if not other_closed:
@@ -152,8 +152,8 @@ class TwoLoopAnalysis:
 
 def document_analysis(decoupling: str = 'dynamic', tau_cold: float | None = None,
                       tau_out: float | None = None, **gains: Any) -> TwoLoopAnalysis:
-    """003's loop (§2.1 gains with ``decoupling='none'``, §3.1 otherwise; ``gains``: other
-    ``TwoLoopPiConfig`` values) on 003's operating point, delays 180/120 s unless given."""
+    """[Michalski2021]'s loop (§2.1 gains with ``decoupling='none'``, §3.1 otherwise; ``gains``: other
+    ``TwoLoopPiConfig`` values) on [Michalski2021]'s operating point, delays 180/120 s unless given."""
     plant = LinearisedTank.from_config()
     plant = plant.with_delays(plant.tau_cold if tau_cold is None else tau_cold,
                               plant.tau_out if tau_out is None else tau_out)

@@ -1,13 +1,13 @@
 """Measured-disturbance feedforward for the mixing tank's two-loop PI, from F_D and T_D.
 
 Units: flows cm³/s, temperatures °C, time s. The disturbance inflow ``F_D`` at ``T_D`` enters
-the tank at once (003 §1); the hot flow ``F_H`` too, the cold flow only ``tau_cold`` after its
+the tank at once ([Michalski2021] §1); the hot flow ``F_H`` too, the cold flow only ``tau_cold`` after its
 command (F_C(t) = F_Cin(t − τ_C)); ``T_out`` is measured ``tau_out`` after the tank (T_out(t) =
 T(t − τ)). Added to the PI outputs (after the decoupler) are the deviations from the flows
 that suit the nominal disturbance ``(F_D0, T_D0)``, so at the nominal disturbance nothing
 changes:
 
-* ``static``: the steady-state mass and energy balances of 003 §1, F_H + F_C + F_D = α·√h and
+* ``static``: the steady-state mass and energy balances of [Michalski2021] §1, F_H + F_C + F_D = α·√h and
   F_H·T_H + F_C·T_C + F_D·T_D = α·√h·T, solved for the change of (F_H, F_C) that keeps h and T:
 
       ΔF_H* = −Δ[F_D·(T_D − T_C)]/(T_H − T_C),   ΔF_C* = −Δ[F_D·(T_H − T_D)]/(T_H − T_C)
@@ -28,7 +28,7 @@ changes:
   imbalance m = ΔF_H + ΔF_C,arr + ΔF_D over the τ_C window moves the level; were the level
   loop to correct that with F_H it would undo the heat balance (measured: then dynamic is
   no better than static), so the level it causes is predicted with the linearised level of
-  003 eq. 4 at the level setpoint r_h (V = C·r_h², F = α·√r_h, time constant 4V/F, gain
+  [Michalski2021] eq. 4 at the level setpoint r_h (V = C·r_h², F = α·√r_h, time constant 4V/F, gain
   1/(2·C·r_h) from volume to level; exact discretisation) and added to the level loop's
   error (``level_offset`` [cm]): the level loop leaves that excursion to the tank's
   self-regulation and corrects only what the model does not explain. tau_out enters no
@@ -56,19 +56,19 @@ _OP = OPERATING_POINT
 
 @dataclass(frozen=True)
 class FeedforwardConfig:
-    """Settings of :class:`DisturbanceFeedforward`; defaults: 003's tank (§1)."""
+    """Settings of :class:`DisturbanceFeedforward`; defaults: [Michalski2021]'s tank (§1)."""
 
     mode: str = param('none', 'measured-disturbance feedforward from F_D and T_D: none, static '
                       '(steady-state balances) or dynamic (with the cold-flow delay); not '
                       'none: the controller reads the disturbance topic',
                       choices=FEEDFORWARD_CHOICES, read_only=True, name='two_loop.feedforward')
     T_H: float = param(_OP.T_H, 'feedforward model: hot water temperature T_H', unit='°C',
-                       min=T_MIN, max=T_MAX, name='two_loop.ff.T_H', source='003 §1')
+                       min=T_MIN, max=T_MAX, name='two_loop.ff.T_H', source='[Michalski2021] §1')
     T_C: float = param(_OP.T_C, 'feedforward model: cold water temperature T_C', unit='°C',
-                       min=T_MIN, max=T_MAX, name='two_loop.ff.T_C', source='003 §1')
+                       min=T_MIN, max=T_MAX, name='two_loop.ff.T_C', source='[Michalski2021] §1')
     tau_cold: float = param(_OP.tau_c, 'feedforward model (dynamic): delay from F_Cin to the '
                             'tank', unit='s', min=0.0, max=1e4, name='two_loop.ff.tau_cold',
-                            source='003 §1')
+                            source='[Michalski2021] §1')
     F_D0: float = param(_OP.F_D, 'nominal disturbance inflow: no feedforward there; also used '
                         'while F_D is not measured', unit='cm³/s', min=0.0, max=1e6,
                         name='two_loop.ff.F_D0')
@@ -76,10 +76,10 @@ class FeedforwardConfig:
                         'used while T_D is not measured', unit='°C', min=T_MIN, max=T_MAX,
                         name='two_loop.ff.T_D0')
     C: float = param(_OP.C, 'feedforward model (dynamic): volume constant C in V = C·h²',
-                     unit='cm', min=1e-6, max=1e6, name='two_loop.ff.C', source='003 §1')
+                     unit='cm', min=1e-6, max=1e6, name='two_loop.ff.C', source='[Michalski2021] §1')
     alpha: float = param(_OP.alpha, 'feedforward model (dynamic): outflow constant α in '
                          'F = α·√h', unit='cm^2.5/s', min=1e-6, max=1e6,
-                         name='two_loop.ff.alpha', source='003 §1')
+                         name='two_loop.ff.alpha', source='[Michalski2021] §1')
 
     @property
     def active(self) -> bool:

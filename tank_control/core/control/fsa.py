@@ -1,16 +1,16 @@
 """FSA (finite spectrum assignment) controller with integral action for first-order plants
 with dead time, stable ``K/(T·s + 1)·e^(−L·s)`` or unstable ``K/(T·s − 1)·e^(−L·s)``
-(004 §3.6.2, eqs. 3.6.10–3.6.15; Wang et al. 1995).
+([Precup2013] §3.6.2, eqs. 3.6.10–3.6.15; Wang et al. 1995).
 
-Principle (004 §3.6.2): state feedback on the state *predicted* one dead time ahead removes
+Principle ([Precup2013] §3.6.2): state feedback on the state *predicted* one dead time ahead removes
 the dead time from the characteristic equation; the "generalised process" is the process plus
-an integrator of its output (004 eq. 3.6.10, ``a0/(s·(s + b1))``, eq. 3.6.11
+an integrator of its output ([Precup2013] eq. 3.6.10, ``a0/(s·(s + b1))``, eq. 3.6.11
 ``a0 = K/T``, ``b1 = ±1/T``), and its two closed-loop poles are the roots of
-``p(s) = s² + 2ξ·ω0·s + ω0²`` (004 eq. 3.6.12). With the model ``ẋ = α·x + β·u(t − L)``
+``p(s) = s² + 2ξ·ω0·s + ω0²`` ([Precup2013] eq. 3.6.12). With the model ``ẋ = α·x + β·u(t − L)``
 (``α = −1/T`` stable, ``+1/T`` unstable, ``β = K/T``) and ``z = ∫(r(t − L) − y)``, the
 continuous law ``u = −f1·x(t + L) − f2·z(t + L)`` gives ``s² + (β·f1 − α)·s − β·f2 = p(s)``:
 ``f1 = (2ξ·ω0 + α)/β``, ``f2 = −ω0²/β`` (our derivation; the integral gain ``ω0²·T/K`` is the
-``h1`` of 004 eqs. 3.6.14–3.6.15, ``h(s) = ω0²·(1 + s·T)/K``). On the matching model the
+``h1`` of [Precup2013] eqs. 3.6.14–3.6.15, ``h(s) = ω0²·(1 + s·T)/K``). On the matching model the
 setpoint response is ``ω0²/p(s)·e^(−L·s)`` and a constant load leaves no steady-state error.
 
 Implementation, exact for the zero-order-hold output (sample time ``h``, ``L = (d + f)·h``,
@@ -66,26 +66,26 @@ their precision."""
 
 @dataclass(frozen=True)
 class FsaConfig:
-    """Settings of :class:`FsaController` (004 §3.6.2); every field is a parameter.
+    """Settings of :class:`FsaController` ([Precup2013] §3.6.2); every field is a parameter.
 
     As parameters ``tracking_time = 0`` means the default ``Tt = 1/ω0``."""
 
     model: str = param('fopdt', 'process model: fopdt K/(T s + 1) e^(-L s) (stable) or foupdt '
                        'K/(T s - 1) e^(-L s) (unstable)', choices=MODELS, name='fsa.model',
-                       source='004 eq. 3.6.1')
+                       source='[Precup2013] eq. 3.6.1')
     gain: float = param(1.0, 'model gain K (a negative K for a reverse-acting process)',
                         unit='y units per u unit', min=-1e9, max=1e9, name='fsa.gain',
-                        source='004 eq. 3.6.11')
+                        source='[Precup2013] eq. 3.6.11')
     time_constant: float = param(10.0, 'model time constant T', unit='s', min=1e-6, max=1e9,
-                                 name='fsa.time_constant', source='004 eq. 3.6.11')
-    dead_time: float = param(3.0, 'model dead time L (Tm in 004)', unit='s', min=0.0, max=1e6,
-                             name='fsa.dead_time', source='004 eq. 3.6.1')
+                                 name='fsa.time_constant', source='[Precup2013] eq. 3.6.11')
+    dead_time: float = param(3.0, 'model dead time L (Tm in [Precup2013])', unit='s', min=0.0, max=1e6,
+                             name='fsa.dead_time', source='[Precup2013] eq. 3.6.1')
     omega0: float = param(0.2, 'closed-loop natural frequency w0 of p(s) = s^2 + 2 xi w0 s + '
-                          'w0^2; 004: 1/(xi w0) = (0.5...1) T', unit='rad/s', min=0.0,
-                          max=1e6, name='fsa.omega0', source='004 eq. 3.6.12')
-    xi: float = param(0.7, 'closed-loop damping xi of p(s) (set by the allowed overshoot; 004: '
+                          'w0^2; [Precup2013]: 1/(xi w0) = (0.5...1) T', unit='rad/s', min=0.0,
+                          max=1e6, name='fsa.omega0', source='[Precup2013] eq. 3.6.12')
+    xi: float = param(0.7, 'closed-loop damping xi of p(s) (set by the allowed overshoot; [Precup2013]: '
                       '0.5...1)', unit='-', min=0.05, max=10.0, name='fsa.xi',
-                      source='004 eq. 3.6.12')
+                      source='[Precup2013] eq. 3.6.12')
     sample_time: float = sample_time_param(0.1)
     u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
     u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
@@ -162,7 +162,7 @@ class FsaDesign:
 
 def model_poles(config: FsaConfig) -> tuple[float, float]:
     """``(α, β)`` of ``ẋ = α·x + β·u(t − L)``: ``α = −1/T`` (fopdt) or ``+1/T`` (foupdt),
-    ``β = K/T`` (004 eq. 3.6.11: ``a0 = K/T``, ``b1 = −α``)."""
+    ``β = K/T`` ([Precup2013] eq. 3.6.11: ``a0 = K/T``, ``b1 = −α``)."""
     alpha = 1.0 / config.time_constant
     return (alpha if config.model == 'foupdt' else -alpha), config.gain / config.time_constant
 
@@ -174,7 +174,7 @@ def _zoh_gain(alpha: float, beta: float, tau: float) -> float:
 
 def design(config: FsaConfig) -> FsaDesign:
     """The sampled model and the state feedback placing the poles of the predicted system at
-    ``e^(s·h)`` for the roots of p(s) (004 eq. 3.6.12) and at 0 (Ackermann's formula). The
+    ``e^(s·h)`` for the roots of p(s) ([Precup2013] eq. 3.6.12) and at 0 (Ackermann's formula). The
     closed loop's eigenvalues are computed and compared with the assigned ones; a mismatch
     (ill-conditioning) raises ``ValueError`` naming ``fsa.omega0``."""
     reason = config.reason()

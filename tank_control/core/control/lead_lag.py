@@ -1,6 +1,6 @@
-"""Discrete lead-lag compensator and 002's frequency-domain design of it (002 §1.1–1.4, SPEC §3).
+"""Discrete lead-lag compensator and [Ikonen]'s frequency-domain design of it ([Ikonen] §1.1–1.4, [Checks] §2).
 
-Continuous law (002 §1.2 lead "PD", §1.3 PI, §1.4 series PID)::
+Continuous law ([Ikonen] §1.2 lead "PD", §1.3 PI, §1.4 series PID)::
 
     C(s) = kp · (td·s + 1)/(alpha·td·s + 1) · (1 + 1/(ti·s)),   E = W − Y
 
@@ -39,7 +39,7 @@ output ``u``; bumpless gain changes (the integral, or without integral action th
 ``I``, absorbs them); manual/auto bumpless both ways; a non-finite ``r`` or ``y`` holds the
 last output and leaves the state untouched; ``direct_action`` reverses the sign.
 
-Design (:func:`design`, 002; the procedure is ``core/tuning/design_002.py``): P for the
+Design (:func:`design`, [Ikonen]; the procedure is ``core/tuning/design_002.py``): P for the
 steady-state error ``1/(1 + kp·K) <= e`` (§1.1); PD: the lead's ``w_max`` at the P loop's gain
 crossover, moved to the mean of itself and the new crossover until the phase margin reaches
 its target (§1.2; no lead if the P loop has it); PI: the gain and ``ti = ratio/w_c`` (the
@@ -70,23 +70,23 @@ ALPHA_MIN, ALPHA_MAX = 0.01, 0.99
 # ============================================================================ the law
 @dataclass
 class LeadLagConfig:
-    """Settings of :class:`LeadLag` (002 §1.2–1.4); every field is a parameter.
+    """Settings of :class:`LeadLag` ([Ikonen] §1.2–1.4); every field is a parameter.
 
     As parameters ``lead_lag.ti = 0`` means no integral action (``inf``) and
     ``tracking_time = 0`` the default ``Tt = ti``."""
 
     kp: float = param(1.0, 'gain K of C(s) = K (Td s + 1)/(alpha Td s + 1) (1 + 1/(Ti s)); > 0, '
                       'use direct_action for the opposite sign', unit='u units per y unit',
-                      min=0.0, max=BIG, name='lead_lag.kp', source='002 §1.4')
+                      min=0.0, max=BIG, name='lead_lag.kp', source='[Ikonen] §1.4')
     td: float = param(0.0, 'lead time Td: largest phase lead at w_max = 1/(Td sqrt(alpha)) '
                       '(0 = no lead)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
-                      name='lead_lag.td', source='002 §1.2')
+                      name='lead_lag.td', source='[Ikonen] §1.2')
     alpha: float = param(0.1, 'lead pole/zero ratio alpha = Tf/Td; largest lead '
                          'asin((1 - alpha)/(1 + alpha)), high-frequency gain K/alpha', unit='-',
-                         min=ALPHA_MIN, max=ALPHA_MAX, name='lead_lag.alpha', source='002 §1.2')
+                         min=ALPHA_MIN, max=ALPHA_MAX, name='lead_lag.alpha', source='[Ikonen] §1.2')
     ti: float = param(math.inf, 'integral time Ti of the series PI (0 = no integral action)',
                       unit='s', min=0.0, max=BIG, tiny=TIME_TINY, zero=math.inf,
-                      name='lead_lag.ti', source='002 §1.3')
+                      name='lead_lag.ti', source='[Ikonen] §1.3')
     sample_time: float = sample_time_param()
     u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
     u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
@@ -116,7 +116,7 @@ def lead_constants(td: float, alpha: float, h: float) -> tuple[float, float]:
 
 
 class LeadLag(SisoLaw[LeadLagConfig]):
-    """Discrete lead-lag compensator (002 §1.2–1.4); see the module docstring.
+    """Discrete lead-lag compensator ([Ikonen] §1.2–1.4); see the module docstring.
 
     ``update(r, y)`` once per sample (every ``sample_time`` seconds) returns the output.
     Modes, limits, faults and the integral: :class:`SisoLaw`."""
@@ -218,7 +218,7 @@ def discrete_response(kp: float, td: float, alpha: float, ti: float,
 
 def continuous_response(kp: float, td: float, alpha: float,
                         ti: float = math.inf) -> fr.FrequencyResponse:
-    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` (002 §1.4;
+    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` ([Ikonen] §1.4;
     :func:`design_002.controller_response`)."""
     return design_002.controller_response(kp, td, alpha, ti)
 
@@ -234,8 +234,8 @@ class LeadLagTuning:
     """The design group: a rule, the structure it designs, the process model and the targets."""
 
     rule: str = param('none', "design rule; frequency_002: lead_lag.kp, lead_lag.td, lead_lag.ti "
-                      "come from 002's frequency-domain design on the model tuning.model",
-                      name='tuning.rule', choices=RULES, source='002 §1')
+                      "come from [Ikonen]'s frequency-domain design on the model tuning.model",
+                      name='tuning.rule', choices=RULES, source='[Ikonen] §1')
     kind: str = param('pid', 'structure designed: p (gain for the steady-state error), pd (lead '
                       'at the crossover), pi (gain and Ti for the phase margin), pid (series '
                       'PD times PI, the mean gain)', name='tuning.kind', choices=STRUCTURES)
@@ -251,16 +251,16 @@ class LeadLagTuning:
                                   max=BIG, tiny=TIME_TINY, name='tuning.time_constant2')
     dead_time: float = param(0.0, 'process dead time L', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
                              name='tuning.dead_time')
-    phase_margin: float = param(60.0, 'target phase margin (002: 5 % overshoot, damping 0.6, '
+    phase_margin: float = param(60.0, 'target phase margin ([Ikonen]: 5 % overshoot, damping 0.6, '
                                 '60 deg)', unit='deg', min=1.0, max=89.0,
-                                name='tuning.phase_margin', source='002 §1.2')
+                                name='tuning.phase_margin', source='[Ikonen] §1.2')
     steady_state_error: float = param(0.05, 'largest steady-state error after a setpoint step, '
                                       'a fraction of the step (sets the gain of p, pd and the '
                                       'PD part of pid)', unit='-', min=0.001, max=0.4,
-                                      name='tuning.steady_state_error', source='002 §1.1')
+                                      name='tuning.steady_state_error', source='[Ikonen] §1.1')
     integral_ratio: float = param(10.0, 'integral corner 1/Ti this many times below the P '
-                                  "loop's crossover (002: a decade)", unit='-', min=2.0,
-                                  max=1000.0, name='tuning.integral_ratio', source='002 §1.3')
+                                  "loop's crossover ([Ikonen]: a decade)", unit='-', min=2.0,
+                                  max=1000.0, name='tuning.integral_ratio', source='[Ikonen] §1.3')
 
     def reason(self) -> str | None:
         """The model's parameters a rule needs, and none it does not use (one line)."""
@@ -282,14 +282,14 @@ class LeadLagTuning:
         return None
 
     def process(self) -> ProcessModel:
-        """The model (002's 4/((s+1)(s+2)) is ``sopdt`` K 2, T 1 s, T2 0.5 s; FOPDT 001 eq.
-        6.14; IPDT 000 eq. 1) with its closed-form magnitude and phase."""
+        """The model ([Ikonen]'s 4/((s+1)(s+2)) is ``sopdt`` K 2, T 1 s, T2 0.5 s; FOPDT [DeadTimeNotes] eq.
+        6.14; IPDT [Viteckova] eq. 1) with its closed-form magnitude and phase."""
         return ProcessModel(self.model, self.gain, self.dead_time, self.time_constant,
                             self.time_constant2)
 
 
 def design(tuning: LeadLagTuning, alpha: float) -> Design:
-    """002's design of ``tuning.kind`` for ``tuning.process()`` with the lead ratio ``alpha``
+    """[Ikonen]'s design of ``tuning.kind`` for ``tuning.process()`` with the lead ratio ``alpha``
     (:func:`tank_control.core.tuning.design_002.design`). Raises :class:`ConfigError` (one
     line naming the parameter) when the target is out of reach or the rule does not apply."""
     if tuning.rule == 'none':

@@ -1,9 +1,9 @@
-"""Multivariable auto-tuning of the two-loop PI of the mixing tank (004 §3.7).
+"""Multivariable auto-tuning of the two-loop PI of the mixing tank ([Precup2013] §3.7).
 
 A :class:`MimoAutotuner` is the :class:`~tank_control.core.control.multiloop.TwoLoopPi` with an
 auto-tuning test; idle it is that controller exactly. ``autotune.mode``:
 
-* ``relay`` — the sequential relay test (004 §3.7.1, Fig. 3.8): after settling under the running
+* ``relay`` — the sequential relay test ([Precup2013] §3.7.1, Fig. 3.8): after settling under the running
   PI, a relay on loop h with loop T held (open) gives the ultimate point of ``H_P11``; loop h is
   placed (eqs. 3.7.6–3.7.7) and closed; a relay on loop T gives the ultimate point of its
   equivalent process ``H_P2`` (eq. 3.7.5), loop T is placed and closed; a relay on loop h again
@@ -11,9 +11,9 @@ auto-tuning test; idle it is that controller exactly. ``autotune.mode``:
   the PI outputs ``v`` before it, so the equivalent processes are those of the decoupled tank.
   Each relay is a :class:`~tank_control.core.control.relay_autotune.RelayAutotuner` (its cycle
   detection, stationarity check and first-harmonic ultimate point).
-* ``model_zn`` — the same three placements on the tank linearised at 003's operating point with
+* ``model_zn`` — the same three placements on the tank linearised at [Michalski2021]'s operating point with
   its delays (``multiloop_tuning.multiloop_design``), no experiment.
-* ``model_ls`` — 004 eqs. 3.7.8–3.7.10: the two-loop PI (with its decoupler) fitted by least
+* ``model_ls`` — [Precup2013] eqs. 3.7.8–3.7.10: the two-loop PI (with its decoupler) fitted by least
   squares to the decoupled second-order-plus-dead-time target on that model.
 
 States (``autotune.state``): ``idle → settling → relay ⇄ measuring → tuned → running``, or
@@ -53,23 +53,23 @@ _m = autotune_param
 
 @dataclass(frozen=True)
 class MimoAutotuneConfig:
-    """Settings of the multivariable auto-tuning of ``two_loop_pi`` (004 §3.7)."""
+    """Settings of the multivariable auto-tuning of ``two_loop_pi`` ([Precup2013] §3.7)."""
 
     mode: str = _m('none', 'multivariable auto-tuning: none; relay (sequential relay test on the '
-                   'running loop, 004 §3.7.1); model_zn (the same placements on the tank '
-                   'linearised at 003\'s operating point with its delays); model_ls (two-loop PI '
-                   'by least squares on a decoupled target, 004 eqs. 3.7.8–3.7.10)', 'mode',
-                   choices=MODES, read_only=True, source='004 §3.7')
-    rule: str = _m('point', 'loop point each loop is placed at (004 eqs. 3.7.6–3.7.7): zn = '
+                   'running loop, [Precup2013] §3.7.1); model_zn (the same placements on the tank '
+                   'linearised at [Michalski2021]\'s operating point with its delays); model_ls (two-loop PI '
+                   'by least squares on a decoupled target, [Precup2013] eqs. 3.7.8–3.7.10)', 'mode',
+                   choices=MODES, read_only=True, source='[Precup2013] §3.7')
+    rule: str = _m('point', 'loop point each loop is placed at ([Precup2013] eqs. 3.7.6–3.7.7): zn = '
                    'the Ziegler–Nichols PI (0.45·Ku, Ti = Tu/1.2; r_b 0.458, φ_b −10.8°), point '
                    '= autotune.loop_gain, autotune.loop_phase (default 0.3, −8°: kR = 0.297·Ku, '
                    'Ti = 1.13·Tu, what the decoupled tank takes)', 'rule', choices=RULES)
     loop_gain: float = _m(0.3, 'rule point: |H_0(jω_u)| = r_b of the loop at the ultimate '
                           'frequency of its equivalent process', 'loop_gain', unit='-',
-                          min=1e-3, max=0.99, source='004 eq. 3.7.7')
+                          min=1e-3, max=0.99, source='[Precup2013] eq. 3.7.7')
     loop_phase: float = _m(-8.0, 'rule point: φ_b, the loop point at −180° + φ_b (a PI needs '
                            'φ_b < 0)', 'loop_phase', unit='deg', min=-89.0, max=-0.01,
-                           source='004 eq. 3.7.7')
+                           source='[Precup2013] eq. 3.7.7')
     relay_amplitude_h: float = _m(2.0, 'relay amplitude on loop h (on the PI output v_h before '
                                   'the decoupler)', 'relay_amplitude_h', unit='cm³/s',
                                   min=1e-6, max=1e4)
@@ -83,15 +83,15 @@ class MimoAutotuneConfig:
                              unit='°C', min=0.0, max=100.0)
     ls_omega0_h: float = _m(0.004, 'model_ls: natural frequency ω0 of the level target',
                             'ls_omega0_h', unit='rad/s', min=1e-6, max=10.0,
-                            source='004 eq. 3.7.9')
+                            source='[Precup2013] eq. 3.7.9')
     ls_omega0_T: float = _m(0.003, 'model_ls: natural frequency ω0 of the T_out target',
                             'ls_omega0_T', unit='rad/s', min=1e-6, max=10.0,
-                            source='004 eq. 3.7.9')
+                            source='[Precup2013] eq. 3.7.9')
     ls_xi: float = _m(1.5, 'model_ls: damping ξ of both targets', 'ls_xi', unit='-', min=0.1,
-                      max=5.0, source='004 eq. 3.7.9')
+                      max=5.0, source='[Precup2013] eq. 3.7.9')
     ls_dead_time_T: float = _m(120.0, 'model_ls: dead time Tm of the T_out target (the level '
                                'target has none: F_H acts at once)', 'ls_dead_time_T', unit='s',
-                               min=0.0, max=1e4, source='004 eq. 3.7.9')
+                               min=0.0, max=1e4, source='[Precup2013] eq. 3.7.9')
     ls_omega_max: float = _m(0.02, 'model_ls: highest fitted frequency (40 points from '
                              'ls_omega_max/1000 up, logarithmic)', 'ls_omega_max',
                              unit='rad/s', min=1e-5, max=10.0)
@@ -136,7 +136,7 @@ class MimoAutotuneResults:
                               max=_BIG, read_only=True)
     proposed_ki_T: float = _m(0.0, 'designed ki of loop T_out', 'proposed_ki_T', min=-_BIG,
                               max=_BIG, read_only=True)
-    ls_residual: float = _m(0.0, 'model_ls: relative residual of the fit of 004 eq. 3.7.10',
+    ls_residual: float = _m(0.0, 'model_ls: relative residual of the fit of [Precup2013] eq. 3.7.10',
                             'ls_residual', min=0.0, max=_BIG, read_only=True)
 
 
@@ -147,7 +147,7 @@ RELAY_SETTINGS = ('settle_time', 'settle_band', 'settle_timeout', 'timeout', 'mi
 
 
 def model_response(cfg: TwoLoopPiConfig) -> tuple[mlt.Response, mlt.Response]:
-    """``(H_P·D, D)``: the tank linearised at 003's operating point (delays included) seen
+    """``(H_P·D, D)``: the tank linearised at [Michalski2021]'s operating point (delays included) seen
     through the decoupler of ``cfg``, and the decoupler."""
     from tank_control.core.plants.mixing_tank import OPERATING_POINT, MixingTankConfig
     tank = MixingTankConfig(T_op=OPERATING_POINT.T)        # the exact steady state 2115/63
@@ -200,7 +200,7 @@ class _Pi:
 
 
 class MimoAutotuner(AutotuneMachine):
-    """Controller (core/interfaces.py): :class:`TwoLoopPi` with 004 §3.7's auto-tuning (module
+    """Controller (core/interfaces.py): :class:`TwoLoopPi` with [Precup2013] §3.7's auto-tuning (module
     docstring). ``start()``, ``abort()``, ``apply()``, ``revert()`` return ``(accepted,
     message)`` for std_srvs/Trigger services."""
 

@@ -1,7 +1,7 @@
-"""MPCS: offset-free predictive control of the mixing tank (003 §4 analytic, §6 QP; SPEC §2.8).
+"""MPCS: offset-free predictive control of the mixing tank ([Michalski2021] §4 analytic, §6 QP; [Michalski2021] §4, §6).
 
 Outputs ``h`` [cm], ``T_out`` [°C]; inputs ``F_H``, ``F_Cin`` [cm³/s]; measured disturbances
-``F_D`` [cm³/s], ``T_D`` [°C] as feed-forward; time in s (sample time 1 s in 003). Per sample:
+``F_D`` [cm³/s], ``T_D`` [°C] as feed-forward; time in s (sample time 1 s in [Michalski2021]). Per sample:
 Kalman correction (:mod:`mpcs_estimator`), prediction over the delayed model
 (:mod:`mpcs_prediction`), the analytic move clipped to the limits or the constrained QP
 (:mod:`mpcs_qp`, clipped analytic fallback), estimator time update. The algorithm and why the
@@ -49,13 +49,13 @@ class MpcsConfig:
     ``mpcs.lambda``, ``sample_time`` the common ``sample_time``). Lists are one value for both
     inputs [F_H, F_Cin] (outputs [h, T_out]) or one per channel."""
 
-    sample_time: float = sample_time_param(1.0, 0.01, 60.0, ' (003: 1 s); the dead times must '
+    sample_time: float = sample_time_param(1.0, 0.01, 60.0, ' ([Michalski2021]: 1 s); the dead times must '
                                            'be multiples of it')
-    horizon: int = _m(600, 'prediction horizon N [samples] (003: 50…500)', 'horizon', 1, 2000)
-    control_horizon: int = _m(200, 'control horizon Nu [samples], <= N (003: 10…100)',
+    horizon: int = _m(600, 'prediction horizon N [samples] ([Michalski2021]: 50…500)', 'horizon', 1, 2000)
+    control_horizon: int = _m(200, 'control horizon Nu [samples], <= N ([Michalski2021]: 10…100)',
                               'control_horizon', 1, 2000)
     lam: tuple[float, ...] = _m((0.5,), 'move weight λ on ||Δu||², one value or one per input '
-                                '[F_H, F_Cin] ((cm/(cm³/s))² scale; 003: 0.1…1)', 'lambda',
+                                '[F_H, F_Cin] ((cm/(cm³/s))² scale; [Michalski2021]: 0.1…1)', 'lambda',
                                 1e-6, 1e6)
     output_weights: tuple[float, ...] = _m((1.0, 1.0), 'output weights W_y on [h (per cm), '
                                            'T_out (per °C)], one value or one per output',
@@ -74,7 +74,7 @@ class MpcsConfig:
     u_max: tuple[float, ...] = _m((100.0, 100.0), f'upper limits of [F_H, F_Cin] '
                                   f'[{_UNITS_IN}]', 'u_max', 0.0, 1e4)
     du_max: tuple[float, ...] = _m((0.2, 0.2), 'rate limits |Δu| per sample of [F_H, F_Cin] '
-                                   f'[{_UNITS_IN} per sample] (003: 0.2)', 'du_max', 1e-6, 1e4)
+                                   f'[{_UNITS_IN} per sample] ([Michalski2021]: 0.2)', 'du_max', 1e-6, 1e4)
     soft_bounds: bool = _m(False, 'qp only: keep the predicted outputs within mpcs.y_min … '
                            'mpcs.y_max as soft constraints (penalised slack)', 'soft_bounds')
     y_min: tuple[float, ...] = _m((0.0, 0.0), 'soft lower bounds on predicted [h [cm], T_out '
@@ -162,7 +162,7 @@ def horizon_warning(cfg: MpcsConfig, model: DelayedModel | None = None) -> str:
     """A one-line warning when the horizons do not cover the model's dead times, else ''.
 
     ``model``: the prediction model in use (default: the tank at the configured
-    operating point). Not a refusal: the document's own horizons (003 §4, §6:
+    operating point). Not a refusal: the document's own horizons ([Michalski2021] §4, §6:
     N = 50…100) are shorter on purpose and stay usable as reproductions. Two
     conditions, each named with its minimum (derivation and measurements:
     docs/mpcs.md):
@@ -454,7 +454,7 @@ class Mpcs:
     # --- internals -----------------------------------------------------------------
     def _relinearize(self, r: np.ndarray, d: np.ndarray | None) -> None:
         """Gain scheduling on the setpoint: a new operating point at the equilibrium of
-        ``r`` (003 §4: the linearisation error grows with the distance from it)."""
+        ``r`` ([Michalski2021] §4: the linearisation error grows with the distance from it)."""
         cfg, m = self._design.cfg, self._design.model
         if r.shape != m.y0.shape or not _finite(r):
             return

@@ -1,4 +1,4 @@
-"""Offset-free state and disturbance estimation for MPCS over the delayed model (003 §4).
+"""Offset-free state and disturbance estimation for MPCS over the delayed model ([Michalski2021] §4).
 
 Augmented state ``ξ = [x, w, r_1, …]``: model state ``x`` (level [cm], temperature [°C]
 deviations), integrating disturbances ``w`` (``'input'``: added to the state equation;

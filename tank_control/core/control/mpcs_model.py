@@ -1,10 +1,10 @@
-"""MPCS prediction model: the linearised tank (003 eqs. 4–7) with exact input/output dead times.
+"""MPCS prediction model: the linearised tank ([Michalski2021] eqs. 4–7) with exact input/output dead times.
 
-Unlike 003 §4 the dead times are in the model: the input delay on ``F_Cin`` enters the
+Unlike [Michalski2021] §4 the dead times are in the model: the input delay on ``F_Cin`` enters the
 prediction as known past inputs, the output delay on ``T_out`` as a register in the estimator
 (:mod:`mpcs_estimator`). Deviation variables around an operating point; the volume deviation
 is rescaled by ``dh/dV = 1/(2·C·h0)`` so the first state is the level deviation in cm and C is
-the identity (003 eq. 7 divided the volume by 100). Units: h [cm], T [°C], flows [cm³/s], s.
+the identity ([Michalski2021] eq. 7 divided the volume by 100). Units: h [cm], T [°C], flows [cm³/s], s.
 """
 from __future__ import annotations
 
@@ -16,14 +16,14 @@ from tank_control.core.scipy_lazy import expm
 
 from tank_control.core.plants.mixing_tank import TankOperatingPoint
 
-# Column order of the document's B matrix (003 eq. 5).
+# Column order of the document's B matrix ([Michalski2021] eq. 5).
 TANK_INPUTS = ('F_H', 'F_C', 'F_D', 'T_H', 'T_C', 'T_D')
 
 
 def equilibrium_inputs(op: TankOperatingPoint, h: float, temperature: float
                        ) -> tuple[float, float] | None:
     """``(F_H, F_C)`` [cm³/s] holding the tank at level ``h`` [cm] and ``temperature``
-    [°C] with the disturbance inflow of ``op`` (SPEC §1.3 at steady state):
+    [°C] with the disturbance inflow of ``op`` ([Michalski2021] §1 at steady state):
 
         F_H + F_C = alpha·√h − F_D,   F_H·T_H + F_C·T_C = alpha·√h·T − F_D·T_D.
 
@@ -43,8 +43,8 @@ def linearize_mixing_tank(op: TankOperatingPoint, ts: float) -> tuple[np.ndarray
     """Exact zero-order-hold discretisation of the tank linearised at ``op``.
 
     State ``x = [V, T]`` [cm³, °C], inputs ``u = [F_H, F_C, F_D, T_H, T_C, T_D]``
-    (003 eqs. 4–6; SPEC §1.3 gives A11 = 0.99658, A22 = 0.98638 at Ts = 1 s).
-    Returns ``(A, B)``; ``C = I``, ``D = 0`` (delays excluded, as in 003 eq. 6).
+    ([Michalski2021] eqs. 4–6; [Michalski2021] §1 gives A11 = 0.99658, A22 = 0.98638 at Ts = 1 s).
+    Returns ``(A, B)``; ``C = I``, ``D = 0`` (delays excluded, as in [Michalski2021] eq. 6).
     """
     if op.inflow <= 0.0:
         raise ValueError(f'operating point: total inflow {op.inflow:g} must be > 0')

@@ -1,4 +1,4 @@
-"""Condensed MPCS prediction and cost with dead times (003 §4 and §6, SPEC §2.8).
+"""Condensed MPCS prediction and cost with dead times ([Michalski2021] §4 and §6, [Michalski2021] §4, §6).
 
 ``Ŷ = M_z z + G ΔU`` and ``ŷ_∞ = M∞ z + G∞ ΔU`` with the known vector
 ``z = [ξ̂(k|k), inputs still in the delay lines, u(k−1), d(k)]`` (deviations) and the future
@@ -132,7 +132,7 @@ class Prediction:
                              'that has no effect within the horizon?)') from exc
         if not np.all(np.isfinite(h_inv)) or np.linalg.cond(self.hessian) > 1e12:
             raise ValueError('mpcs: cost Hessian is ill-conditioned; increase mpcs.lambda')
-        # analytic first move: Δu(k) = −K_z z + K_r r       (SPEC §2.8 "analytic")
+        # analytic first move: Δu(k) = −K_z z + K_r r       ([Michalski2021] §4, §6 "analytic")
         first = h_inv[:nu]
         self.k_z = first @ self.f_z
         self.k_r = first @ self.f_r

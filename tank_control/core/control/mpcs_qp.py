@@ -1,4 +1,4 @@
-"""The constrained MPCS step as a dense QP (003 §6, SPEC §2.8 "numeric").
+"""The constrained MPCS step as a dense QP ([Michalski2021] §6, [Michalski2021] §4, §6 "numeric").
 
     minimise   ½ xᵀ H x + fᵀ x
     subject to lb ≤ x ≤ ub                   (|Δu| ≤ du_max, slack ≥ 0)

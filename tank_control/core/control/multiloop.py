@@ -1,10 +1,10 @@
-"""Two-loop PI for the mixing tank, with or without decoupling (003 §2–3, eqs. 1–3).
+"""Two-loop PI for the mixing tank, with or without decoupling ([Michalski2021] §2–3, eqs. 1–3).
 
-Pairing of 003: level ``h`` [cm] ← hot inflow ``F_H`` [cm³/s], outlet temperature ``T_out``
+Pairing of [Michalski2021]: level ``h`` [cm] ← hot inflow ``F_H`` [cm³/s], outlet temperature ``T_out``
 [°C] ← cold inflow command ``F_Cin`` [cm³/s]. Each loop a parallel PI ``v = kp·e + ki·∫e dt``
 (forward Euler); decoupling ``F_H = v_h + D12·v_T``, ``F_Cin = v_T + D21·v_h`` with D12 = −1
-and D21 static (2.69) or the filter of 003 eq. 2; a setpoint guard for setpoints the tank
-cannot hold (003 §2.2); anti-windup on the applied flows. Document settings, limits and the
+and D21 static (2.69) or the filter of [Michalski2021] eq. 2; a setpoint guard for setpoints the tank
+cannot hold ([Michalski2021] §2.2); anti-windup on the applied flows. Document settings, limits and the
 reasoning: docs/controllers.md ("two_loop_pi").
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ from tank_control.core.params import param
 from tank_control.core.plants.mixing_tank import OPERATING_POINT
 
 DECOUPLING_CHOICES = ('none', 'static', 'dynamic')
-D21_NUM = (0.00619, 2.122e-5)        # 003 eq. 2, numerator in z: b0·z + b1
+D21_NUM = (0.00619, 2.122e-5)        # [Michalski2021] eq. 2, numerator in z: b0·z + b1
 D21_DEN = (0.002301, 7.897e-6)       # denominator: a0·z + a1
 _GAIN = 1e6
 
@@ -31,7 +31,7 @@ class PiLoop:
     """One parallel PI loop: v = kp·e + ki·∫e dt. kp [u/y units], ki [u/(y units·s)],
     tracking_time [s] (None: kp/ki, or the sample time for a pure integral loop).
 
-    003's ``Ki`` (a discrete PI at 1 s) is read as the integral gain kp/ti in 1/s: the same
+    [Michalski2021]'s ``Ki`` (a discrete PI at 1 s) is read as the integral gain kp/ti in 1/s: the same
     number as a per-sample gain at Ts = 1 s, and meaningful at other sample times. The parallel
     form is needed because the decoupled T loop has kp = 0, which has no kp/ti form.
     """
@@ -43,8 +43,8 @@ class PiLoop:
 
 @dataclass
 class SetpointGuard:
-    """Steady-state feasibility of the setpoints (003 §1 balance at nominal disturbances).
-    Flows cm³/s, temperatures °C, levels cm, alpha cm^2.5/s; defaults: 003's operating point."""
+    """Steady-state feasibility of the setpoints ([Michalski2021] §1 balance at nominal disturbances).
+    Flows cm³/s, temperatures °C, levels cm, alpha cm^2.5/s; defaults: [Michalski2021]'s operating point."""
 
     enabled: bool = True
     h_min: float = 1.0
@@ -77,13 +77,13 @@ class SetpointGuard:
 
 @dataclass
 class TwoLoopPiConfig:
-    """Settings of :class:`TwoLoopPi` (003 §2–3); flows in cm³/s, time in s. Defaults: 003 §2.1
+    """Settings of :class:`TwoLoopPi` ([Michalski2021] §2–3); flows in cm³/s, time in s. Defaults: [Michalski2021] §2.1
     without decoupling. ``v_limit`` (not a parameter): |PI output| limit with decoupling,
     None → u_max."""
 
-    sample_time: float = sample_time_param(note=' (003 used 1 s)')
-    decoupling: str = param('none', 'decoupler: none (003 §2), static D21 = 2.69 or dynamic D21 '
-                            'filter (003 eqs. 1-3)', choices=DECOUPLING_CHOICES, read_only=True,
+    sample_time: float = sample_time_param(note=' ([Michalski2021] used 1 s)')
+    decoupling: str = param('none', 'decoupler: none ([Michalski2021] §2), static D21 = 2.69 or dynamic D21 '
+                            'filter ([Michalski2021] eqs. 1-3)', choices=DECOUPLING_CHOICES, read_only=True,
                             name='two_loop.decoupling')
     kp_h: float = param(0.9, 'h ← F_H proportional gain', unit='cm³/s per cm', min=-_GAIN,
                         max=_GAIN, name='two_loop.kp_h')
@@ -94,17 +94,17 @@ class TwoLoopPiConfig:
     ki_T: float = param(-0.002, 'T_out ← F_Cin integral gain', unit='cm³/s per °C·s',
                         min=-_GAIN, max=_GAIN, name='two_loop.ki_T')
     d12: float = param(-1.0, 'decoupler D12 (v_T into F_H)', unit='-', min=-100.0, max=100.0,
-                       name='two_loop.d12', source='003 eq. 1')
+                       name='two_loop.d12', source='[Michalski2021] eq. 1')
     d21: float = param(2.69, 'static decoupler D21 (v_h into F_Cin); ignored with decoupling = '
                        'dynamic', unit='-', min=-100.0, max=100.0, name='two_loop.d21',
-                       source='003 eq. 2')
+                       source='[Michalski2021] eq. 2')
     u_min: float = param(0.0, 'lower flow limit for F_H and F_Cin', unit='cm³/s', min=0.0,
                          max=1e4)
     u_max: float = param(300.0, 'upper flow limit for F_H and F_Cin', unit='cm³/s', min=0.0,
                          max=1e4)
     anti_windup: str = anti_windup_param()
     setpoint_guard: bool = param(True, 'limit setpoints to what the tank can reach at steady '
-                                 'state (nominal disturbance inflow), see 003 §2.2',
+                                 'state (nominal disturbance inflow), see [Michalski2021] §2.2',
                                  name='two_loop.setpoint_guard')
     h_min: float = param(1.0, 'lowest level setpoint used', unit='cm', min=0.1, max=1e4,
                          name='two_loop.h_min')
@@ -132,7 +132,7 @@ class TwoLoopPiConfig:
 
 
 def document_config(decoupling: str = 'none', **changes: Any) -> TwoLoopPiConfig:
-    """The settings of 003: §2.1 without decoupling, §3.1 with it ('static' or 'dynamic')."""
+    """The settings of [Michalski2021]: §2.1 without decoupling, §3.1 with it ('static' or 'dynamic')."""
     if decoupling == 'none':
         cfg = TwoLoopPiConfig()
     else:
@@ -198,9 +198,9 @@ def _d21_gain(cfg: TwoLoopPiConfig) -> float:
 
 
 class D21Filter:
-    """003 eq. 2 as a difference equation: a0·y(k) + a1·y(k−1) = b0·u(k) + b1·u(k−1).
+    """[Michalski2021] eq. 2 as a difference equation: a0·y(k) + a1·y(k−1) = b0·u(k) + b1·u(k−1).
 
-    003 eq. 3 prints ``+7.897e−6·y(k−1)``; the transfer function of eq. 2 and its quoted gain
+    [Michalski2021] eq. 3 prints ``+7.897e−6·y(k−1)``; the transfer function of eq. 2 and its quoted gain
     2.69 need ``−`` (eq. 3 as printed has DC gain 2.709), so eq. 2 is implemented.
     """
 
@@ -248,7 +248,7 @@ def _integrate(method: str, integral: float, di: float, aw_gain: float, w: float
 
 
 class TwoLoopPi:
-    """Two-loop PI of 003 behind the Controller protocol.
+    """Two-loop PI of [Michalski2021] behind the Controller protocol.
 
     Outputs (measured) ``('h', 'T_out')``, inputs (manipulated)
     ``('F_H', 'F_Cin')``, no measured disturbances. ``reset(y, u)`` is
@@ -423,7 +423,7 @@ class TwoLoopPi:
             cross_h = cross_t = 0.0
         else:
             c21 = self._d21.step(v_h) if cfg.decoupling == 'dynamic' else cfg.d21 * v_h
-            # 003 §3.1: decoupler outputs clipped
+            # [Michalski2021] §3.1: decoupler outputs clipped
             cross_h, cross_t = min(max(cfg.d12 * v_t, lo), hi), min(max(c21, lo), hi)
         ff_h, ff_t = self._ff
         cross_h += ff_h          # the feedforward flows enter like the decoupler terms

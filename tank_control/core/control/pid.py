@@ -1,4 +1,4 @@
-"""Discrete two-degree-of-freedom PID controller (000 eq. 19 with the real derivative of eq. 13).
+"""Discrete two-degree-of-freedom PID controller ([Viteckova] eq. 19 with the real derivative of eq. 13).
 
     U = kp·[ (b·W − Y) + 1/(ti·s)·(W − Y) + td·s/(Tf·s + 1)·(c·W − Y) ],   Tf = td/n
 
@@ -46,7 +46,7 @@ def anti_windup_param() -> Any:
 
 @dataclass
 class PidConfig:
-    """Settings of :class:`Pid2Dof` (000 eq. 19); every field is a parameter of the same name.
+    """Settings of :class:`Pid2Dof` ([Viteckova] eq. 19); every field is a parameter of the same name.
 
     ``kp`` in output units per measurement unit (a negative kp reverses the sign, as
     ``direct_action`` does; the parameter takes kp > 0), times in seconds, limits in output
@@ -55,17 +55,17 @@ class PidConfig:
     """
 
     kp: float = param(1.0, 'proportional gain kp; > 0, use direct_action for the opposite '
-                      'sign', unit='u units per y unit', min=0.0, max=BIG, source='000 eq. 19')
+                      'sign', unit='u units per y unit', min=0.0, max=BIG, source='[Viteckova] eq. 19')
     ti: float = param(math.inf, 'integral time Ti (0 = no integral action)', unit='s', min=0.0,
-                      max=BIG, zero=math.inf, tiny=TIME_TINY, source='000 eq. 19')
+                      max=BIG, zero=math.inf, tiny=TIME_TINY, source='[Viteckova] eq. 19')
     td: float = param(0.0, 'derivative time Td (0 = no derivative action)', unit='s', min=0.0,
-                      max=BIG, tiny=TIME_TINY, source='000 eq. 19')
+                      max=BIG, tiny=TIME_TINY, source='[Viteckova] eq. 19')
     n: float = param(10.0, 'derivative filter ratio n = Td/Tf', unit='-', min=N_MIN, max=N_MAX,
-                     source='000 eq. 14')
+                     source='[Viteckova] eq. 14')
     b: float = param(1.0, 'setpoint weight in the P term', unit='-', min=0.0, max=1.0,
-                     source='000 eq. 19')
+                     source='[Viteckova] eq. 19')
     c: float = param(1.0, 'setpoint weight in the D term', unit='-', min=0.0, max=1.0,
-                     source='000 eq. 19')
+                     source='[Viteckova] eq. 19')
     sample_time: float = sample_time_param()
     u_min: float = param(-1e9, 'lower output limit', unit='u units', min=-BIG, max=BIG)
     u_max: float = param(1e9, 'upper output limit', unit='u units', min=-BIG, max=BIG)
@@ -95,7 +95,7 @@ def config_reason(config: PidConfig) -> str | None:
     checks = [
         ('kp', config.kp != 0.0, 'must be non-zero (negative = reverse sign)'),
         ('td', config.td >= 0.0, 'allowed [0, inf)'),
-        ('n', N_MIN <= config.n <= N_MAX, f'allowed [{N_MIN:g}, {N_MAX:g}] (000 eq. 14)'),
+        ('n', N_MIN <= config.n <= N_MAX, f'allowed [{N_MIN:g}, {N_MAX:g}] ([Viteckova] eq. 14)'),
         ('b', 0.0 <= config.b <= 1.0, 'allowed [0, 1]'),
         ('c', 0.0 <= config.c <= 1.0, 'allowed [0, 1]'),
         ('sample_time', config.sample_time > 0.0, 'allowed (0, inf) s'),
@@ -146,7 +146,7 @@ def _beta(cfg: PidConfig) -> float:
 
 
 class Pid2Dof(SisoLaw[PidConfig]):
-    """Discrete 2-DOF PID with filtered derivative (000 eq. 19, eqs. 13–14).
+    """Discrete 2-DOF PID with filtered derivative ([Viteckova] eq. 19, eqs. 13–14).
 
     ``update`` is called once per sample (every ``sample_time`` seconds). P static, D a
     backward difference on the filter (pole ``β = Tf/(Tf + h)``, state ``x`` of ``c·r − y``),
@@ -233,7 +233,7 @@ class Pid2Dof(SisoLaw[PidConfig]):
         return self._apply(r, y, v, k, r - y)
 
     def _retune(self, old: PidConfig, new: PidConfig, r: float, y: float) -> None:
-        """Keep P + I + D of the next sample at unchanged inputs (000 eq. 19 gains, limits, ...)."""
+        """Keep P + I + D of the next sample at unchanged inputs ([Viteckova] eq. 19 gains, limits, ...)."""
         x_new = self._x + (new.c - old.c) * r     # keeps c·r − y − x unchanged
         p_old = self._gain(old) * (old.b * r - y)
         # D of the next sample at unchanged inputs: kp·n·β·(c·r − y − x)

@@ -1,6 +1,6 @@
 """Relay auto-tuner: a PID that identifies its process with a relay test and tunes itself.
 
-001 §1.3 (Fig. 6.16, PID and on-off controller in parallel) and 004 §3.2–3.3, made safe to run
+[DeadTimeNotes] §1.3 (Fig. 6.16, PID and on-off controller in parallel) and [Precup2013] §3.2–3.3, made safe to run
 on a live loop: ``idle → settling → relay → measuring → proposed/tuned → running``, with
 ``failed`` / ``aborted`` / ``reverted`` restoring the previous gains bumplessly. The ultimate
 point and model come from :func:`~tank_control.core.tuning.identification.identify_relay`, the
@@ -9,7 +9,7 @@ or target change re-derives the proposal without a new test. Each proposal carri
 and predicted response (``core/analysis/robustness.py``); it is applied at once or previewed,
 reverted on request and verified against its prediction after the apply. With
 ``autotune.transient_points`` the relay runs on until its record from rest gives ``G(jω)`` at
-several frequencies (004 eqs. 3.3.1–3.3.10, :func:`transient_plan`). Times in s, signals in
+several frequencies ([Precup2013] eqs. 3.3.1–3.3.10, :func:`transient_plan`). Times in s, signals in
 the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.md
 ("relay_autotune").
 """
@@ -57,7 +57,7 @@ TRANSIENT_MAX_RATIO = 5.0
 e^((ω·Tu/20)²/2))."""
 TRANSIENT_MAX_DRIFT = 0.002
 """Largest output drift at the relay's start, per Tu and relay output amplitude a, that the
-transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on 001's FOPDT
+transient points accept: the points' error grew as ≈ 10·(drift·Tu/a) in % on [DeadTimeNotes]'s FOPDT
 (docs/tuning.md); above it (and above 6 standard errors of the slope: the loop's response to
 the noise makes the samples correlated, and 3 errors were exceeded at rest) they are skipped."""
 TRANSIENT_CHECK_WARN = 0.05
@@ -65,7 +65,7 @@ TRANSIENT_CHECK_WARN = 0.05
 oscillation frequency, ``autotune.warning`` says so."""
 TRANSIENT_MAX_ALPHA_H = 8.0
 """Largest α·horizon: the unweighting e^(α·t) amplifies the noise of the pulse response; on
-001's FOPDT with 1 % noise the points were within 10 % at α·H = 2…8 and useless at 15
+[DeadTimeNotes]'s FOPDT with 1 % noise the points were within 10 % at α·H = 2…8 and useless at 15
 (docs/tuning.md)."""
 
 
@@ -81,40 +81,40 @@ _at = autotune_param
 class AutotuneConfig:
     """Settings of the relay test; each field is the parameter ``autotune.<field>``."""
 
-    test: str = _at('relay', 'the identification test: relay (004 §3.2–3.3) or step: an '
+    test: str = _at('relay', 'the identification test: relay ([Precup2013] §3.2–3.3) or step: an '
                     'open-loop step of autotune.step_size from the settled bias u0 in manual '
                     'mode, held until the output is steady, FOPDT by autotune.step_method '
-                    '(001 §1.2.1)', 'test', choices=('relay', 'step'))
+                    '([DeadTimeNotes] §1.2.1)', 'test', choices=('relay', 'step'))
     step_size: float = _at(1.0, 'step test: input change Δu from u0 (signed as the loop acts: '
                            'positive raises the output)', 'step_size', unit='u units',
-                           min=-_BIG, max=_BIG, source='001 eq. 6.15')
-    step_method: str = _at('tangent', 'step test: tangent of steepest slope (001 eq. 6.15) or '
+                           min=-_BIG, max=_BIG, source='[DeadTimeNotes] eq. 6.15')
+    step_method: str = _at('tangent', 'step test: tangent of steepest slope ([DeadTimeNotes] eq. 6.15) or '
                            'two_point (28.3 % and 63.2 % times)', 'step_method',
                            choices=ident.STEP_METHODS)
     relay_amplitude: float = _at(1.0, 'relay amplitude d around the bias u0', 'relay_amplitude',
                                  unit='u units', min=1e-9, max=_BIG,
-                                 source='001 eq. 6.22, 004 eq. 3.2.1')
-    relay_bias: float = _at(0.0, 'relay bias μ0: the relay switches between u0 + μ0 ± d (004 eq. '
+                                 source='[DeadTimeNotes] eq. 6.22, [Precup2013] eq. 3.2.1')
+    relay_bias: float = _at(0.0, 'relay bias μ0: the relay switches between u0 + μ0 ± d ([Precup2013] eq. '
                             '3.3.12, in the frame of a positive-gain plant); the asymmetric cycle '
-                            'gives the static gain kP (004 eq. 3.3.13) and the FOPDT of 004 eqs. '
+                            'gives the static gain kP ([Precup2013] eq. 3.3.13) and the FOPDT of [Precup2013] eqs. '
                             '3.3.14–3.3.17; |μ0| must stay below relay_amplitude; 0 = symmetric '
                             'relay', 'relay_bias', unit='u units', min=-_BIG, max=_BIG,
-                            source='004 eqs. 3.3.12–3.3.17')
-    additional_relay: float = _at(0.0, 'amplitude ratio ρ of the additional relay (004 eq. '
+                            source='[Precup2013] eqs. 3.3.12–3.3.17')
+    additional_relay: float = _at(0.0, 'amplitude ratio ρ of the additional relay ([Precup2013] eq. '
                                   '3.3.18): ±ρ·d added to the relay output, changing sign at '
                                   'every upward switch of the relay, so that the oscillation '
                                   'also holds 0.5·ωc, 1.5·ωc; G(j0.5ωc) becomes point2 and, '
                                   'with autotune.model sopdt, the second point of the SOPDT '
-                                  'without the integrator phase; 004 recommends 0.1–0.3; 0 = '
+                                  'without the integrator phase; [Precup2013] recommends 0.1–0.3; 0 = '
                                   'off', 'additional_relay', unit='-', min=0.0, max=0.5,
-                                  source='004 eqs. 3.3.18–3.3.21')
+                                  source='[Precup2013] eqs. 3.3.18–3.3.21')
     transient_points: tuple[float, ...] = _at(
         (0.0,), 'frequencies ω/ωc (ωc = 2π/Tu of this test) at which G(jω) is computed from the '
-        'recorded relay transient with the decaying exponential (004 eqs. 3.3.1–3.3.10): the '
+        'recorded relay transient with the decaying exponential ([Precup2013] eqs. 3.3.1–3.3.10): the '
         'relay runs on after the stationary cycles until the record from its start is '
         'transient_horizon + 4/transient_alpha long; results autotune.transient_*; [0] = off',
         'transient_points', unit='ωc', min=0.0, max=TRANSIENT_MAX_RATIO,
-        source='004 eqs. 3.3.1–3.3.10')
+        source='[Precup2013] eqs. 3.3.1–3.3.10')
     transient_horizon: float = _at(0.0, 'transient points: cut of the pulse response (after it '
                                    'has died out); 0 = from the identified model: L + 7·T '
                                    '(FOPDT; T1 + T2 for an SOPDT), L + Tu/4 (IPDT)',
@@ -123,8 +123,8 @@ class AutotuneConfig:
                                  'e^(−α·t); 0 = 4/transient_horizon; α·horizon above '
                                  f'{TRANSIENT_MAX_ALPHA_H:g} amplifies the noise too much',
                                  'transient_alpha', unit='1/s', min=0.0, max=_BIG,
-                                 source='004 eqs. 3.3.1–3.3.2')
-    hysteresis: float = _at(0.0, 'relay hysteresis ε (noise band, 004 Fig. 3.3); the larger of '
+                                 source='[Precup2013] eqs. 3.3.1–3.3.2')
+    hysteresis: float = _at(0.0, 'relay hysteresis ε (noise band, [Precup2013] Fig. 3.3); the larger of '
                             'this and noise_band·σ is used', 'hysteresis', unit='y units',
                             min=0.0, max=_BIG)
     noise_band: float = _at(4.0, 'automatic hysteresis in units of the noise standard deviation '
@@ -135,7 +135,7 @@ class AutotuneConfig:
                                 'relay_bias)', 'bias_correction')
     asymmetry_tol: float = _at(0.1, '|Tu1 − Tu2|/period above which the bias is corrected',
                                'asymmetry_tol', unit='-', min=0.0, max=1.0)
-    min_cycles: int = _at(4, 'stationary relay periods used for identification (004 §3.3: at '
+    min_cycles: int = _at(4, 'stationary relay periods used for identification ([Precup2013] §3.3: at '
                           'least four)', 'min_cycles', min=2, max=100)
     stationarity_tol: float = _at(0.05, 'relative spread of periods and first-harmonic '
                                   'amplitudes allowed among the measured cycles',
@@ -152,14 +152,14 @@ class AutotuneConfig:
     max_amplitude: float = _at(0.0, 'largest |y − setpoint| allowed during the test; exceeding '
                                'it fails the test; 0 = no limit', 'max_amplitude',
                                unit='y units', min=0.0, max=_BIG)
-    method: str = _at('first_harmonic', 'ultimate point used for tuning: first_harmonic (004 '
-                      'eqs. 3.3.19–3.3.21, corrected to −180°) or describing_function (001 eq. '
+    method: str = _at('first_harmonic', 'ultimate point used for tuning: first_harmonic ([Precup2013] '
+                      'eqs. 3.3.19–3.3.21, corrected to −180°) or describing_function ([DeadTimeNotes] eq. '
                       '6.22)', 'method', choices=('first_harmonic', 'describing_function'))
-    model: str = _at('auto', 'model identified from the relay data (004 §3.3, 3.6.2); sopdt: '
+    model: str = _at('auto', 'model identified from the relay data ([Precup2013] §3.3, 3.6.2); sopdt: '
                      'after the relay, a second relay phase with an integrator in series finds '
-                     'the −90° point, and the SOPDT goes through both points (004 §3.3 intro, '
+                     'the −90° point, and the SOPDT goes through both points ([Precup2013] §3.3 intro, '
                      'eqs. 3.5.8–3.5.14)', 'model', choices=('auto', 'fopdt', 'ipdt', 'sopdt'))
-    process_gain: float = _at(0.0, 'known static gain kP for the FOPDT model (004 eq. 3.6.2); '
+    process_gain: float = _at(0.0, 'known static gain kP for the FOPDT model ([Precup2013] eq. 3.6.2); '
                               '0 = identify', 'process_gain', unit='y units per u unit',
                               min=0.0, max=_BIG)
     rule: str = _at('zn_001', 'tuning rule: zn / zn_001 / zn_004_q0 / zn_004_q1 from ku, tu; mdp / '
@@ -170,13 +170,13 @@ class AutotuneConfig:
                     'rule', choices=RULES)
     kind: str = _at('pid', 'controller type the rule designs', 'kind', choices=('p', 'pi', 'pid'))
     ms_target: float = _at(1.4, 'rule ms: the sensitivity peak Ms the design may reach',
-                           'ms_target', unit='-', min=1.05, max=5.0, source='004 eq. 3.4.7')
+                           'ms_target', unit='-', min=1.05, max=5.0, source='[Precup2013] eq. 3.4.7')
     tau_c: float = _at(0.0, "rules simc, lambda: desired closed-loop time constant (0 = the rule's "
                        'default)', 'tau_c', unit='s', min=0.0, max=_BIG)
     gain_margin: float = _at(0.0, 'rules ho, tan: gain margin A_r (0 = 3)', 'gain_margin',
-                             unit='-', min=0.0, max=100.0, source='004 eqs. 3.4.17, 3.4.22')
+                             unit='-', min=0.0, max=100.0, source='[Precup2013] eqs. 3.4.17, 3.4.22')
     phase_margin: float = _at(0.0, 'rule ho: phase margin (0 = 60)', 'phase_margin', unit='deg',
-                              min=0.0, max=89.0, source='004 eq. 3.4.18')
+                              min=0.0, max=89.0, source='[Precup2013] eq. 3.4.18')
     design_time: float = _at(0.0, 'time the identification and design of a relay test may take '
                              'off the sampling path: the relay keeps running meanwhile and the '
                              'result takes effect at the first sample this long after the '
@@ -222,7 +222,7 @@ class AutotuneConfig:
         if abs(self.relay_bias) >= self.relay_amplitude:
             return (f'autotune.relay_bias: |{self.relay_bias:g}| must be below '
                     f'autotune.relay_amplitude {self.relay_amplitude:g}: the relay output would '
-                    'not change sides around u0 and no cycle forms (004 eq. 3.3.12)')
+                    'not change sides around u0 and no cycle forms ([Precup2013] eq. 3.3.12)')
         return None
 
     @property
@@ -278,16 +278,16 @@ class AutotuneResults:
                     unit='u units per y unit', min=0.0, max=_BIG, read_only=True)
     tu: float = _at(0.0, 'identified ultimate period Tu', 'tu', unit='s', min=0.0, max=_BIG,
                     read_only=True)
-    ku_df: float = _at(0.0, 'describing-function Ku = 4d/(πa) (001 eq. 6.22)', 'ku_df', min=0.0,
+    ku_df: float = _at(0.0, 'describing-function Ku = 4d/(πa) ([DeadTimeNotes] eq. 6.22)', 'ku_df', min=0.0,
                        max=_BIG, read_only=True)
     tu_df: float = _at(0.0, 'mean relay period', 'tu_df', unit='s', min=0.0, max=_BIG,
                        read_only=True)
     model_kind: str = _at('none', 'identified model', 'model_kind',
                           choices=('none', 'fopdt', 'ipdt', 'sopdt'), read_only=True)
     model_method: str = _at('none', 'how the model was found: time_domain (fit on the relay '
-                            'record), eq_3_6_2 (known static gain, 004 eq. 3.6.2), eq_3_3_15 '
-                            '(biased relay, 004 eqs. 3.3.13–3.3.17), two_points (SOPDT through '
-                            'the −180° and −90° points, 004 eqs. 3.5.8–3.5.14)', 'model_method',
+                            'record), eq_3_6_2 (known static gain, [Precup2013] eq. 3.6.2), eq_3_3_15 '
+                            '(biased relay, [Precup2013] eqs. 3.3.13–3.3.17), two_points (SOPDT through '
+                            'the −180° and −90° points, [Precup2013] eqs. 3.5.8–3.5.14)', 'model_method',
                             choices=MODEL_METHODS, read_only=True)
     model_gain: float = _at(0.0, 'model gain K (FOPDT) or k1 (IPDT, per s)', 'model_gain',
                             min=-_BIG, max=_BIG, read_only=True)
@@ -310,7 +310,7 @@ class AutotuneResults:
                                              '(autotune.transient_points·ωc); [0] = none',
                                              'transient_omega', unit='rad/s', min=0.0,
                                              max=_BIG, read_only=True)
-    transient_gain: tuple[float, ...] = _at((0.0,), '|G(jω)| at transient_omega (004 eqs. '
+    transient_gain: tuple[float, ...] = _at((0.0,), '|G(jω)| at transient_omega ([Precup2013] eqs. '
                                             '3.3.1–3.3.10), in the frame of a positive-gain '
                                             'plant like model_gain', 'transient_gain',
                                             unit='y units per u unit', min=0.0, max=_BIG,
@@ -426,7 +426,7 @@ class TransientPoints:
 
 def transient_plan(model: ident.Model | ident.SopdtModel, tu: float,
                    cfg: AutotuneConfig) -> TransientPlan:
-    """α, cut, lag window and record length of the transient points (004 eqs. 3.3.1–3.3.10;
+    """α, cut, lag window and record length of the transient points ([Precup2013] eqs. 3.3.1–3.3.10;
     the choices are ours, measured in docs/tuning.md): the cut where the pulse response has died
     out, ``L + 7·T`` for a lag (``T1 + T2`` for an SOPDT; e^(−7) ≈ 0.1 % left) and ``L + Tu/4``
     for an integrator (its differenced output's pulse ends at L); α = 4/cut (the unweighting
@@ -988,7 +988,7 @@ class RelayAutotuner(AutotuneMachine):
                                        gain=cfg.process_gain or None,
                                        kind='auto' if sopdt else cfg.model)
             if extra:
-                # 004 eqs. 3.3.19–3.3.21: over whole periods 2·Tc of u1 + u2 the harmonics of
+                # [Precup2013] eqs. 3.3.19–3.3.21: over whole periods 2·Tc of u1 + u2 the harmonics of
                 # π/Tc are the points 0.5·ωc, 1.5·ωc (those of 2π/Tc are ωc, 3ωc as before)
                 w_half, g = ident.harmonic_response(tt, uu, yy, tail[0].start, tail[-1].end,
                                                     len(tail) // 2, (1, 3))
@@ -1061,7 +1061,7 @@ class RelayAutotuner(AutotuneMachine):
         return True
 
     def _finish_transient(self) -> None:
-        """The record is long enough: G(jω) at the transient points (004 eqs. 3.3.1–3.3.10),
+        """The record is long enough: G(jω) at the transient points ([Precup2013] eqs. 3.3.1–3.3.10),
         then the design of the identification held since the stationary cycles."""
         assert self._held is not None
         res, plan = self._held
@@ -1092,7 +1092,7 @@ class RelayAutotuner(AutotuneMachine):
                                                     float(tt[-1] - tt[0]), phase, check))
 
     def _step_test(self, t: float, y: float, r: float) -> float | None:
-        """One sample of the open-loop step test (001 §1.2.1): the input held at u0 + Δu; when
+        """One sample of the open-loop step test ([DeadTimeNotes] §1.2.1): the input held at u0 + Δu; when
         the mean of the last window (a quarter of the time since the step, at least
         autotune.settle_time and 10 samples) differs from the window before by less than 0.5 %
         of the change since the step, the FOPDT is identified (for a first-order tail the change
@@ -1137,7 +1137,7 @@ class RelayAutotuner(AutotuneMachine):
         self._finish(res, proposal)
 
     def _additional(self, sign: float) -> float:
-        """The additional relay's output u2 (004 eq. 3.3.18): ρ·d at the start, negated at
+        """The additional relay's output u2 ([Precup2013] eq. 3.3.18): ρ·d at the start, negated at
         every upward switch of the relay (``sign`` −1 → +1); 0 when off."""
         rho = self._cfg.additional_relay
         if rho == 0.0:
@@ -1150,7 +1150,7 @@ class RelayAutotuner(AutotuneMachine):
         return self._u2
 
     def _begin_integrator(self, first: ident.RelayIdentification) -> None:
-        """Second phase of ``autotune.model`` sopdt (004 §3.3 intro): the relay drives an
+        """Second phase of ``autotune.model`` sopdt ([Precup2013] §3.3 intro): the relay drives an
         integrator, so the loop oscillates where arg G = −π/2. The integrator's rate makes the
         input a triangle of about ±d at the −90° frequency of the first phase's FOPDT (an IPDT
         has none: then at the period 3·Tu); it starts at the far side of the relay's direction,
@@ -1188,8 +1188,8 @@ class RelayAutotuner(AutotuneMachine):
 
     def _analyse_integrator(self) -> None:
         """At a switch of the integrator phase: when enough cycles are stationary, ``G(jω90)``
-        by the first harmonic (004 eqs. 3.3.19–3.3.21) and the SOPDT through it and the
-        ultimate point (004 eqs. 3.5.8–3.5.14)."""
+        by the first harmonic ([Precup2013] eqs. 3.3.19–3.3.21) and the SOPDT through it and the
+        ultimate point ([Precup2013] eqs. 3.5.8–3.5.14)."""
         cfg, first = self._cfg, self._first
         tt, yy = np.array(self._rec_t), np.array(self._rec_y)
         cycles = ident.relay_cycles(tt, np.array(self._rec_s), yy, 0.0)[1:]

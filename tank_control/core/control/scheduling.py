@@ -11,7 +11,7 @@ continuous when the gains move by adding ``(kp_old − kp_new)·e`` to ``I``
 (:meth:`TwoLoopPi.set_gains`); a new ``ki`` acts on future errors only.
 
 :func:`design_schedule` computes such a table: at each operating point (level, temperature,
-nominal disturbance) the linearised tank (003 eqs. 4–6 at that point, with its delays) gives
+nominal disturbance) the linearised tank ([Michalski2021] eqs. 4–6 at that point, with its delays) gives
 the two diagonal channels as first-order-plus-dead-time models, and a tuning rule of
 ``core/tuning/rules.py`` is applied to each.
 """
@@ -161,7 +161,7 @@ class Scheduler:
 @dataclass(frozen=True)
 class ChannelModels:
     """The diagonal channels of the linearised tank at one operating point, as FOPDT models
-    ``K·e^(−L·s)/(T·s + 1)`` (003 eqs. 4–6 with the delays; derivation in
+    ``K·e^(−L·s)/(T·s + 1)`` ([Michalski2021] eqs. 4–6 with the delays; derivation in
     :func:`diagonal_channels`). Level: K [cm per cm³/s], T, L [s]; temperature: K [°C per
     cm³/s], T, L [s]; ``F_H``, ``F_C`` [cm³/s] hold the point."""
 
@@ -179,7 +179,7 @@ def steady_flows(h: float, T: float, F_D: float = OPERATING_POINT.F_D,
                  T_C: float = OPERATING_POINT.T_C, alpha: float = OPERATING_POINT.alpha
                  ) -> tuple[float, float]:
     """``(F_H, F_C)`` [cm³/s] holding level ``h`` [cm] and temperature ``T`` [°C] at steady
-    state (003 §1: F_H + F_C + F_D = α·√h, F_H·T_H + F_C·T_C + F_D·T_D = α·√h·T)."""
+    state ([Michalski2021] §1: F_H + F_C + F_D = α·√h, F_H·T_H + F_C·T_C + F_D·T_D = α·√h·T)."""
     total = alpha * math.sqrt(h)
     f_h = (total * (T - T_C) - F_D * (T_D - T_C)) / (T_H - T_C)
     return f_h, total - F_D - f_h
@@ -200,9 +200,9 @@ def diagonal_channels(h: float, T: float, F_D: float = OPERATING_POINT.F_D,
     so that delay-based rules apply.
 
     ``temperature_closed`` is the T_out ← F_Cin channel with the (fast) level loop closed, the
-    equivalent process of sequential loop closing (Hovd & Skogestad 1994; 004 §3.7): the level
+    equivalent process of sequential loop closing (Hovd & Skogestad 1994; [Precup2013] §3.7): the level
     loop takes back every change of the cold flow with the hot one (ΔF_H = −ΔF_C), so
-    K = (T_C − T_H)/F, (T_H − T_C)/(T − T_C) times the open channel's (3.7 at 003's point: its
+    K = (T_C − T_H)/F, (T_H − T_C)/(T − T_C) times the open channel's (3.7 at [Michalski2021]'s point: its
     relative gain); T and L as open.
     """
     volume, total = C * h * h, alpha * math.sqrt(h)

@@ -1,4 +1,4 @@
-"""What every sampled SISO control law here shares (000 eq. 19 PID, 002 §1.2–1.4 lead-lag).
+"""What every sampled SISO control law here shares ([Viteckova] eq. 19 PID, [Ikonen] §1.2–1.4 lead-lag).
 
 :class:`SisoLaw`: manual/auto with bumpless transfer, bumpless ``reset``, output limits, hold of
 the last output on a non-finite input, ``direct_action``, the forward-Euler integral in output
@@ -208,7 +208,7 @@ class SisoLaw(Generic[ConfigT]):
         return u
 
     def _integrate(self, k: float, e: float, u: float, v: float) -> None:
-        """Forward Euler ``I ← I + k·h/ti·e`` (000 eq. 19) with anti-windup: back-calculation
+        """Forward Euler ``I ← I + k·h/ti·e`` ([Viteckova] eq. 19) with anti-windup: back-calculation
         ``+ min(h/Tt, 1)·(u − v)`` (h/Tt ≤ 1: stable for any Tt), conditional integration
         (no step that drives further into the limit), or none. ``ti = inf``: no integral."""
         cfg = self._cfg

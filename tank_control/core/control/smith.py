@@ -1,8 +1,8 @@
-"""Smith predictor with a PI primary (004 §3.6.1, Fig. 3.6; eqs. 3.6.3–3.6.6).
+"""Smith predictor with a PI primary ([Precup2013] §3.6.1, Fig. 3.6; eqs. 3.6.3–3.6.6).
 
 The primary PI (a :class:`Pid2Dof` with ``td = 0``) acts on ``y_pred(k) = y(k) + ŷ*(k) −
 ŷ_L(k)``: the internal model without and with its dead time L, exact for a zero-order-hold
-input (``fopdt`` K/(T·s+1)·e^(−L·s), ``sopdt`` K/((T·s+1)(T2·s+1))·e^(−L·s) — 004 eq. 3.6.5
+input (``fopdt`` K/(T·s+1)·e^(−L·s), ``sopdt`` K/((T·s+1)(T2·s+1))·e^(−L·s) — [Precup2013] eq. 3.6.5
 with n = 2 is T2 = T — or ``ipdt`` k1/s·e^(−L·s)). Times in s. Structure, the
 IPDT load-offset limitation and tuning: docs/controllers.md ("smith_pi").
 """
@@ -25,11 +25,11 @@ MODELS = ('fopdt', 'ipdt', 'sopdt')
 
 @dataclass(frozen=True)
 class SmithModel:
-    """The internal model (004 eqs. 3.6.3–3.6.5): ``fopdt`` K/(T·s+1)·e^(−L·s), ``ipdt``
-    k1/s·e^(−L·s) or ``sopdt`` K/((T·s+1)(T2·s+1))·e^(−L·s) (004's n = 2: T2 = T)."""
+    """The internal model ([Precup2013] eqs. 3.6.3–3.6.5): ``fopdt`` K/(T·s+1)·e^(−L·s), ``ipdt``
+    k1/s·e^(−L·s) or ``sopdt`` K/((T·s+1)(T2·s+1))·e^(−L·s) ([Precup2013]'s n = 2: T2 = T)."""
 
     model: str = param('fopdt', 'internal model: fopdt K/(T s+1) e^(-L s), ipdt k1/s e^(-L s) or '
-                       "sopdt K/((T s+1)(T2 s+1)) e^(-L s) (004 eq. 3.6.5's n = 2: T2 = T)",
+                       "sopdt K/((T s+1)(T2 s+1)) e^(-L s) ([Precup2013] eq. 3.6.5's n = 2: T2 = T)",
                        choices=MODELS, read_only=True, name='smith.model')
     gain: float = param(1.0, 'model gain K (ipdt: k1)', unit='y units per u unit (ipdt: per s)',
                         min=-1e9, max=1e9, name='smith.gain')
@@ -37,7 +37,7 @@ class SmithModel:
                                  max=1e9, name='smith.time_constant')
     dead_time: float = param(0.0, 'model dead time L', unit='s', min=0.0, max=1e6,
                              name='smith.dead_time')
-    time_constant2: float = param(1.0, 'second model time constant T2 (sopdt; 004 eq. 3.6.5 with '
+    time_constant2: float = param(1.0, 'second model time constant T2 (sopdt; [Precup2013] eq. 3.6.5 with '
                                   'n = 2: T2 = T)', unit='s', min=1e-6, max=1e9,
                                   name='smith.time_constant2')
 

@@ -1,9 +1,9 @@
-"""The auto-tuned Smith predictor: 004 §3.6's identification chain run on the live loop.
+"""The auto-tuned Smith predictor: [Precup2013] §3.6's identification chain run on the live loop.
 
 ``idle → settling → relay → measuring → waiting → process_gain → tuned → running`` (Hang 1995,
-004 §3.6.1; SPEC-supplement §2.12): while the Smith predictor holds the loop steady, a relay
+[Precup2013] §3.6.1; [Precup2013] §3.6): while the Smith predictor holds the loop steady, a relay
 test (:class:`~tank_control.core.control.relay_autotune.RelayAutotuner`, its relay replacing
-the predictor and its primary) gives ku, Tu; a Ziegler–Nichols PI (004 Table 3.1: kR = 0.45·ku,
+the predictor and its primary) gives ku, Tu; a Ziegler–Nichols PI ([Precup2013] Table 3.1: kR = 0.45·ku,
 Ti = 0.8·Tu) then runs the loop without predictor; at the next setpoint change, once the
 transient has died out, ``kP = Δy∞/Δu∞``; eq. 3.6.2 gives T, Tm of ``kP·e^(−s·Tm)/(1 + sT)ⁿ``
 (eq. 3.6.1, n = 1 or 2) and eq. 3.6.7 (n = 1, te) or 3.6.9 (n = 2, xi) the PI primary; the
@@ -37,12 +37,12 @@ STEADY_U = 0.005
 """``process_gain``: the mean input of the last window may differ from the window before by at
 most this fraction of its change since the setpoint step (as the step test's output)."""
 ZN_RULE = 'zn_004_q0'
-"""004 Table 3.1's Ziegler–Nichols PI: kR = 0.45·ku, Ti = 0.8·Tu."""
+"""[Precup2013] Table 3.1's Ziegler–Nichols PI: kR = 0.45·ku, Ti = 0.8·Tu."""
 
 
 @dataclass(frozen=True)
 class SmithDesign:
-    """The design of the primary: model order n (1 or 2), te [s] for n = 1 (004 eq. 3.6.7),
+    """The design of the primary: model order n (1 or 2), te [s] for n = 1 ([Precup2013] eq. 3.6.7),
     xi for n = 2 (eq. 3.6.9) — the ``tuning.order``, ``tuning.te``, ``tuning.xi`` parameters."""
 
     order: int = 1
@@ -54,16 +54,16 @@ class SmithDesign:
             return f'tuning.order: {self.order} is not 1 or 2'
         if self.order == 1 and not self.te > 0:
             return ('tuning.te: the auto-tuned Smith predictor with tuning.order 1 needs the '
-                    'closed-loop time constant te > 0 (004 eq. 3.6.7: te = (0.2…1)·T)')
+                    'closed-loop time constant te > 0 ([Precup2013] eq. 3.6.7: te = (0.2…1)·T)')
         if self.order == 2 and not 0 < self.xi <= 1:
             return ('tuning.xi: the auto-tuned Smith predictor with tuning.order 2 needs the '
-                    'damping xi in (0, 1] (004 eq. 3.6.9: xi in [0.5, 1])')
+                    'damping xi in (0, 1] ([Precup2013] eq. 3.6.9: xi in [0.5, 1])')
         return None
 
 
 def process_gain(y_before: float, y_after: float, u_before: float, u_after: float) -> float:
     """``kP = Δy∞/Δu∞``: the steady output change over the steady input change of a
-    closed-loop setpoint step (004 §3.6, step 3; the document gives no formula)."""
+    closed-loop setpoint step ([Precup2013] §3.6, step 3; the document gives no formula)."""
     du = u_after - u_before
     if du == 0.0 or not math.isfinite(du):
         raise ValueError('the steady input did not change with the setpoint: no process gain')
@@ -71,7 +71,7 @@ def process_gain(y_before: float, y_after: float, u_before: float, u_after: floa
 
 
 def smith_model(ku: float, tu: float, gain: float, order: int) -> SmithModel:
-    """The internal model ``kP·e^(−s·Tm)/(1 + sT)ⁿ`` (004 eq. 3.6.1) through the ultimate
+    """The internal model ``kP·e^(−s·Tm)/(1 + sT)ⁿ`` ([Precup2013] eq. 3.6.1) through the ultimate
     point and the static gain (eq. 3.6.2): ``fopdt`` (n = 1) or ``sopdt`` with T2 = T (n = 2)."""
     fit = ident.fopdt_from_ultimate(ku, tu, gain, order)
     if fit.time_constant <= 0.0:
@@ -82,7 +82,7 @@ def smith_model(ku: float, tu: float, gain: float, order: int) -> SmithModel:
 
 
 def smith_primary(model: SmithModel, design: SmithDesign, running: PidConfig) -> PidConfig:
-    """The PI primary of 004 eq. 3.6.7 (n = 1) or 3.6.9 (n = 2) on ``model``, with the running
+    """The PI primary of [Precup2013] eq. 3.6.7 (n = 1) or 3.6.9 (n = 2) on ``model``, with the running
     primary's sample time, limits and setpoint weight."""
     args = {'te': design.te} if design.order == 1 else {'xi': design.xi}
     g = tune('smith_pi', 'pi', gain=model.gain, time_constant=model.time_constant,
@@ -100,7 +100,7 @@ def model_of(model: SmithModel) -> ProcessModel:
 
 
 class SmithAutotuner(AutotuneMachine):
-    """SISO Controller (core/interfaces.py): a :class:`SmithPredictor` with 004 §3.6's
+    """SISO Controller (core/interfaces.py): a :class:`SmithPredictor` with [Precup2013] §3.6's
     auto-tuning chain (see the module docstring). Idle, it is the Smith predictor exactly.
 
     ``autotune``: the relay and settling settings (``autotune.*``); ``design``: the primary's

@@ -1,4 +1,4 @@
-"""Exact transport delays, pure dead time e^(−L·s) (000 eq. 1, 001 eq. 6.14, 003 §1).
+"""Exact transport delays, pure dead time e^(−L·s) ([Viteckova] eq. 1, [DeadTimeNotes] eq. 6.14, [Michalski2021] §1).
 
 ``DelayLine`` delays a zero-order-hold signal exactly (stored as switch instants, returned as
 constant pieces a plant integrates in closed form); ``HermiteDelayLine`` delays a continuous

@@ -1,6 +1,6 @@
-"""First-order unstable plus dead time plant, ``G(s) = K/(T·s − 1) · e^(−L·s)`` (004 §3.6.2).
+"""First-order unstable plus dead time plant, ``G(s) = K/(T·s − 1) · e^(−L·s)`` ([Precup2013] §3.6.2).
 
-The process for which 004 §3.6.2 recommends the FSA controller (a Smith predictor gives an
+The process for which [Precup2013] §3.6.2 recommends the FSA controller (a Smith predictor gives an
 unstable loop). Load disturbance ``v`` at the plant input: ``y = y0 + G(s)·(u + v)``; the
 delay-free state obeys ``T·ẋ = x + K·w``, so its open-loop pole is ``+1/T`` and its
 equilibrium for a constant ``w`` is ``x = −K·w`` (unstable). Units: ``T``, ``L`` in s, ``K`` in
@@ -30,7 +30,7 @@ class FoupdtConfig:
 
     gain: float = param(1.0, 'gain K of K/(T·s − 1) (the static gain is −K)',
                         unit='output units/input unit', min=-1e6, max=1e6,
-                        source='004 §3.6.2')
+                        source='[Precup2013] §3.6.2')
     time_constant: float = param(10.0, 'time constant T of the unstable pole +1/T', unit='s',
                                  min=1e-6, max=1e6)
     dead_time: float = dead_time_param(3.0)
@@ -42,7 +42,7 @@ class FoupdtConfig:
 
 
 class Foupdt(DeadTimePlant):
-    """``K/(T·s − 1) · e^(−L·s)`` with input load disturbance (004 §3.6.2)."""
+    """``K/(T·s − 1) · e^(−L·s)`` with input load disturbance ([Precup2013] §3.6.2)."""
 
     def __init__(self, config: FoupdtConfig | None = None) -> None:
         super().__init__(config if config is not None else FoupdtConfig())

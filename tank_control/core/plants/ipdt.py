@@ -1,7 +1,7 @@
-"""IPDT plant: integrator plus dead time, ``G(s) = k1/s · e^(−To·s)`` (000 eq. 1, SPEC §1.1).
+"""IPDT plant: integrator plus dead time, ``G(s) = k1/s · e^(−To·s)`` ([Viteckova] eq. 1, [Viteckova] eq. 1).
 
-Load disturbance ``v`` at the plant input (000 Fig. 1): ``y = y0 + G(s)·(u + v)``.
-Worked example of 000: ``k1 = 0.05 s⁻¹``, ``To = 5 s`` (the defaults).
+Load disturbance ``v`` at the plant input ([Viteckova] Fig. 1): ``y = y0 + G(s)·(u + v)``.
+Worked example of [Viteckova]: ``k1 = 0.05 s⁻¹``, ``To = 5 s`` (the defaults).
 Exact discretisation: over a piece of constant delayed input ``w`` lasting
 ``τ`` seconds, ``x ← x + k1·w·τ``.
 """
@@ -16,10 +16,10 @@ from tank_control.core.plants.siso import (DeadTimePlant, dead_time_param, dead_
 
 @dataclass(frozen=True)
 class IpdtConfig:
-    """Parameters of ``Ipdt`` (defaults: 000's example k1 = 0.05 s⁻¹, To = 5 s)."""
+    """Parameters of ``Ipdt`` (defaults: [Viteckova]'s example k1 = 0.05 s⁻¹, To = 5 s)."""
 
     gain: float = param(0.05, 'integrating gain k1', unit='output units/(input unit·s)',
-                        min=-1e6, max=1e6, source='000 eq. 1')
+                        min=-1e6, max=1e6, source='[Viteckova] eq. 1')
     dead_time: float = dead_time_param(5.0)
     output_offset: float = output_offset_param()
     max_dead_time: float = max_dead_time_param()
@@ -29,7 +29,7 @@ class IpdtConfig:
 
 
 class Ipdt(DeadTimePlant):
-    """``k1/s · e^(−To·s)`` with input load disturbance (000 eq. 1, Fig. 1)."""
+    """``k1/s · e^(−To·s)`` with input load disturbance ([Viteckova] eq. 1, Fig. 1)."""
 
     def __init__(self, config: IpdtConfig | None = None) -> None:
         super().__init__(config if config is not None else IpdtConfig())

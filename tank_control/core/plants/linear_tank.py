@@ -1,15 +1,15 @@
-"""The mixing tank linearised at its operating point, with its two delays (003 eqs. 4–6, §2.3).
+"""The mixing tank linearised at its operating point, with its two delays ([Michalski2021] eqs. 4–6, §2.3).
 
-The first-order Taylor expansion of 003 §1 around ``x_op = [V_op, T_op]`` (``V_op = C·h_op²``)
+The first-order Taylor expansion of [Michalski2021] §1 around ``x_op = [V_op, T_op]`` (``V_op = C·h_op²``)
 and the operating-point inflows ``w_op = [F_H, F_C, F_D, T_H, T_C, T_D]``:
 
     dx/dt = f(x_op, w_op) + A·(x − x_op) + B·(w − w_op)        (A, B: ``mixing_tank.jacobian``)
     h = h_op + (V − V_op)/(2·C·h_op),   T_out(t) = T(t − τ),   F_C(t) = F_Cin(t − τ_C)
 
-The constant term ``f(x_op, w_op)`` (003's k_const) makes the equilibrium of the linear
-plant that of the tank to first order (003 §1 prints T_op = 33.57; the steady state is
+The constant term ``f(x_op, w_op)`` ([Michalski2021]'s k_const) makes the equilibrium of the linear
+plant that of the tank to first order ([Michalski2021] §1 prints T_op = 33.57; the steady state is
 2115/63). Nothing physical is clipped: flows may go negative and T may leave [T_C, T_H] — what
-003 §2.3/§3.3 call the danger of trusting the linear model (only a value beyond ±FLOW_MAX is,
+[Michalski2021] §2.3/§3.3 call the danger of trusting the linear model (only a value beyond ±FLOW_MAX is,
 so the state stays finite). Exact: the inputs are held over
 each step and F_C is delayed exactly (``DelayLine``); the state is advanced over every
 constant piece by ``exp([[A, B·w + f], [0, 0]]·τ)``, and T_out is the state ``τ`` seconds

@@ -1,4 +1,4 @@
-"""Nonlinear mixing tank with transport delays (003 §1). Units: cm, cm³, cm³/s, °C, s.
+"""Nonlinear mixing tank with transport delays ([Michalski2021] §1). Units: cm, cm³, cm³/s, °C, s.
 
     dV/dt   = F_H + F_C + F_D − F(h)
     V·dT/dt = F_H·T_H + F_C·T_C + F_D·T_D − (F_H + F_C + F_D)·T
@@ -50,7 +50,7 @@ _RK4_STABLE = 2.5           # |λ·δ| below which RK4 is used (its stability li
 
 @dataclass(frozen=True)
 class TankOperatingPoint:
-    """Operating point and constants of the mixing tank (003 §1, SPEC §1.3).
+    """Operating point and constants of the mixing tank ([Michalski2021] §1, [Michalski2021] §1).
 
     The equilibrium level and temperature follow from the inflows:
     ``h = ((F_H + F_C + F_D)/alpha)²`` [cm] and
@@ -91,24 +91,24 @@ class TankOperatingPoint:
 
 
 OPERATING_POINT = TankOperatingPoint()
-"""003's operating point: F_H 14, F_C 37, F_D 12 cm³/s; T_H 62, T_C 23, T_D 33 °C; h 81 cm."""
+"""[Michalski2021]'s operating point: F_H 14, F_C 37, F_D 12 cm³/s; T_H 62, T_C 23, T_D 33 °C; h 81 cm."""
 _OP = OPERATING_POINT
 
 
 @dataclass(frozen=True)
 class MixingTankConfig:
-    """Parameters of ``MixingTank``; defaults are 003's constants and operating point."""
+    """Parameters of ``MixingTank``; defaults are [Michalski2021]'s constants and operating point."""
 
     C: float = param(_OP.C, 'volume constant C in V = C·h²', unit='cm', min=1e-6, max=1e6,
-                     source='003 §1')
+                     source='[Michalski2021] §1')
     alpha: float = param(_OP.alpha, 'outflow constant α in F(h) = α·√h', unit='cm^2.5/s',
-                         min=0.0, max=1e6, source='003 §1')
+                         min=0.0, max=1e6, source='[Michalski2021] §1')
     F_H: float = param(_OP.F_H, 'operating point: hot inflow F_H', unit='cm³/s', min=0.0,
-                       max=1e6, source='003 §1')
+                       max=1e6, source='[Michalski2021] §1')
     F_C: float = param(_OP.F_C, 'operating point: cold inflow F_C; also fills the τ_C delay '
-                       'line at reset', unit='cm³/s', min=0.0, max=1e6, source='003 §1')
+                       'line at reset', unit='cm³/s', min=0.0, max=1e6, source='[Michalski2021] §1')
     F_D: float = param(_OP.F_D, 'operating point: disturbance inflow F_D', unit='cm³/s',
-                       min=0.0, max=1e6, source='003 §1')
+                       min=0.0, max=1e6, source='[Michalski2021] §1')
     T_H: float = param(_OP.T_H, 'operating point: hot water temperature T_H', unit='°C',
                        min=T_MIN, max=T_MAX)
     T_C: float = param(_OP.T_C, 'operating point: cold water temperature T_C', unit='°C',
@@ -116,15 +116,15 @@ class MixingTankConfig:
     T_D: float = param(_OP.T_D, 'operating point: disturbance temperature T_D', unit='°C',
                        min=T_MIN, max=T_MAX)
     h_op: float = param(_OP.h, 'operating point: level h for linearize', unit='cm', min=1e-6,
-                        max=1e6, source='003 §1')
-    T_op: float = param(33.57, 'operating point: temperature T for linearize (003 §1 prints '
+                        max=1e6, source='[Michalski2021] §1')
+    T_op: float = param(33.57, 'operating point: temperature T for linearize ([Michalski2021] §1 prints '
                         '33.57; the exact steady state is 2115/63 = 33.5714)', unit='°C',
                         min=T_MIN, max=T_MAX)
     tau_cold: float = param(_OP.tau_c, 'transport delay τ_C from F_Cin to F_C', unit='s',
-                            min=0.0, max=1e4, source='003 §1')
+                            min=0.0, max=1e4, source='[Michalski2021] §1')
     tau_out: float = param(_OP.tau, 'transport delay τ from T to T_out', unit='s', min=0.0,
-                           max=1e4, source='003 §1')
-    h_max: float = param(200.0, 'overflow height: above it the tank spills (not in 003)',
+                           max=1e4, source='[Michalski2021] §1')
+    h_max: float = param(200.0, 'overflow height: above it the tank spills (not in [Michalski2021])',
                          unit='cm', min=1e-6, max=1e6)
     integration_step: float = param(0.1, 'RK4 step inside each sample', unit='s', min=1e-6,
                                     max=1e3)
@@ -179,7 +179,7 @@ def _inflow(flows: tuple[float, float, float], temps: tuple[float, float, float]
 
 
 def jacobian(cfg: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Continuous-time (A, B) of 003 §1 at the operating point of ``cfg`` (any object with
+    """Continuous-time (A, B) of [Michalski2021] §1 at the operating point of ``cfg`` (any object with
     ``C, alpha, F_H, F_C, F_D, T_H, T_C, T_D, h_op, T_op``), derived analytically with
     x = [V, T] (cm³, °C), u = [F_H, F_C, F_D, T_H, T_C, T_D] (cm³/s, °C).
 
@@ -203,7 +203,7 @@ def jacobian(cfg: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 class MixingTank:
-    """The nonlinear mixing tank of 003 §1 with delays on F_Cin (τ_C) and T_out (τ).
+    """The nonlinear mixing tank of [Michalski2021] §1 with delays on F_Cin (τ_C) and T_out (τ).
 
     Inside every ``step`` the state (V, T) is integrated with fixed-step RK4
     (``integration_step``). The delayed cold inflow F_C is piecewise constant (exact
@@ -380,12 +380,12 @@ class MixingTank:
         return jacobian(self._config)
 
     def linearize(self, ts: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Discrete (A, B, C, D) at the operating point, sampling ``ts`` [s] (003 eqs. 4–6).
+        """Discrete (A, B, C, D) at the operating point, sampling ``ts`` [s] ([Michalski2021] eqs. 4–6).
 
         x = [V, T] (V in cm³), u = [F_H, F_C, F_D, T_H, T_C, T_D], y = x (C = I, D = 0).
         Exact zero-order-hold discretisation: expm of the augmented matrix
-        [[A, B], [0, 0]]·ts. The delays τ_C and τ are NOT included (as in 003);
-        the model is in absolute variables up to a constant term (003's k_const).
+        [[A, B], [0, 0]]·ts. The delays τ_C and τ are NOT included (as in [Michalski2021]);
+        the model is in absolute variables up to a constant term ([Michalski2021]'s k_const).
         """
         if not (math.isfinite(ts) and ts > 0.0):
             raise ValueError(f'ts: {ts!r} must be a finite number of seconds > 0')
@@ -412,7 +412,7 @@ class MixingTank:
     def _rhs(self, V: float, T: float, total: float, heat: float
              ) -> tuple[float, float, float]:
         """(dV/dt, dT/dt, spill rate) with the inflow ``total`` [cm³/s] and heat flow ``heat``
-        (:class:`_Inflow`): 003 §1, with the level pinned at the brim h_max while the net
+        (:class:`_Inflow`): [Michalski2021] §1, with the level pinned at the brim h_max while the net
         inflow is positive (the excess spills)."""
         # _outflow(V); ``0.0 if V < 0.0 else V`` is max(V, 0.0) without the call
         dV = total - self._alpha * sqrt(sqrt((0.0 if V < 0.0 else V) / self._c))

@@ -1,6 +1,6 @@
-"""Common machinery of the SISO dead-time plants (IPDT 000 eq. 1, FOPDT 001 eq. 6.14).
+"""Common machinery of the SISO dead-time plants (IPDT [Viteckova] eq. 1, FOPDT [DeadTimeNotes] eq. 6.14).
 
-Structure (000 Fig. 1): the load disturbance ``v`` enters at the plant input,
+Structure ([Viteckova] Fig. 1): the load disturbance ``v`` enters at the plant input,
 ``y = y0 + G(s)·(u + v)`` with ``G(s) = G0(s)·e^(−L·s)``. The sum ``w = u + v``
 is held constant over each step (ZOH), delayed exactly by a ``DelayLine``, and
 the delay-free part ``G0`` is advanced in closed form over every constant piece
@@ -35,7 +35,7 @@ unstable plant driven for long stays finite (its output saturates there)."""
 
 def dead_time_param(default: float) -> Any:
     """``dead_time``: the transport delay L [s] of the SISO plants."""
-    return param(default, 'transport delay L (To in 000); changes live, history is kept up to '
+    return param(default, 'transport delay L (To in [Viteckova]); changes live, history is kept up to '
                  'max_dead_time', unit='s', min=0.0, max=MAX_DEAD_TIME_LIMIT)
 
 
@@ -185,7 +185,7 @@ class DeadTimePlant:
         u_vec = as_floats('u', u, 1)
         d_vec = as_floats('d', d, 1, allow_empty=True)
         dt_ns = self._dt.ns(dt)
-        w = u_vec[0] + (d_vec[0] if d_vec else 0.0)   # 000 Fig. 1: G·(u + v)
+        w = u_vec[0] + (d_vec[0] if d_vec else 0.0)   # [Viteckova] Fig. 1: G·(u + v)
         if not -INPUT_LIMIT <= w <= INPUT_LIMIT:       # finite inputs keep finite states
             w = min(max(w, -INPUT_LIMIT), INPUT_LIMIT)
             self._clipped_inputs += 1

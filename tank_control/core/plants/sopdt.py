@@ -1,14 +1,14 @@
-"""SOPDT plant: second order plus dead time (004 eq. 3.5.8, 004 eq. 3.6.1 with n = 2).
+"""SOPDT plant: second order plus dead time ([Precup2013] eq. 3.5.8, [Precup2013] eq. 3.6.1 with n = 2).
 
-Two forms of the same model ``y = y0 + G(s)·(u + v)`` (load ``v`` at the input, 000 Fig. 1):
+Two forms of the same model ``y = y0 + G(s)·(u + v)`` (load ``v`` at the input, [Viteckova] Fig. 1):
 
 * ``time_constants``: ``G(s) = K/((T1·s + 1)(T2·s + 1)) · e^(−L·s)``, ``T1, T2 ≥ 0``
   (overdamped, critically damped for ``T1 = T2``; a zero time constant drops that lag);
 * ``damping``: ``G(s) = K/(T²·s² + 2ζ·T·s + 1) · e^(−L·s)``, ``0 ≤ ζ ≤ 1``, ``T = 1/ω_n``
-  (underdamped, critically damped at ζ = 1; 004 eq. 3.5.1 writes it with ``ω_n``).
+  (underdamped, critically damped at ζ = 1; [Precup2013] eq. 3.5.1 writes it with ``ω_n``).
 
-Defaults: 002's plant ``2/((s + 1)(0.5·s + 1))`` (K = 2, T1 = 1 s, T2 = 0.5 s, no delay;
-reconstructed in SPEC-supplement §3).
+Defaults: [Ikonen]'s plant ``2/((s + 1)(0.5·s + 1))`` (K = 2, T1 = 1 s, T2 = 0.5 s, no delay;
+reconstructed in [Checks] §5).
 State: the delay-free output ``x`` and its rate ``ẋ`` [output units, per s], so a live
 change of any parameter (the form too) keeps the output and its slope continuous.
 Exact discretisation: over a piece of constant delayed input ``w`` lasting ``τ`` seconds,
@@ -43,7 +43,7 @@ Transition = tuple[float, float, float, float]
 
 @dataclass(frozen=True)
 class SopdtConfig:
-    """Parameters of ``Sopdt`` (defaults: 002's plant 2/((s + 1)(0.5·s + 1)), L = 0).
+    """Parameters of ``Sopdt`` (defaults: [Ikonen]'s plant 2/((s + 1)(0.5·s + 1)), L = 0).
 
     ``form`` selects which parameters are in force: ``time_constant_1``,
     ``time_constant_2`` (form ``time_constants``) or ``time_constant``, ``damping``
@@ -51,7 +51,7 @@ class SopdtConfig:
     """
 
     gain: float = param(2.0, 'static gain K', unit='output units/input unit', min=-_BIG,
-                        max=_BIG, source='004 eq. 3.5.8')
+                        max=_BIG, source='[Precup2013] eq. 3.5.8')
     form: str = param('time_constants', 'denominator of G: time_constants = '
                       '(T1·s + 1)(T2·s + 1), damping = T²·s² + 2ζ·T·s + 1', choices=FORMS)
     time_constant_1: float = param(1.0, 'time constant T1 (form time_constants; 0 = no lag)',
@@ -60,10 +60,10 @@ class SopdtConfig:
                                    unit='s', min=0.0, max=_BIG)
     time_constant: float = param(1.0, 'time constant T = 1/ω_n (form damping; 0 = pure gain '
                                  'with delay)', unit='s', min=0.0, max=_BIG,
-                                 source='004 eq. 3.5.1')
+                                 source='[Precup2013] eq. 3.5.1')
     damping: float = param(0.5, 'damping ratio ζ (form damping; 0 = undamped, 1 = critical; '
                            'above 1 use form time_constants)', unit='-', min=0.0, max=1.0,
-                           source='004 eq. 3.5.1')
+                           source='[Precup2013] eq. 3.5.1')
     dead_time: float = dead_time_param(0.0)
     output_offset: float = output_offset_param()
     max_dead_time: float = max_dead_time_param()
@@ -125,7 +125,7 @@ def advance(config: SopdtConfig, x: State, w: float, tau: float) -> State:
 
 class Sopdt(DeadTimePlant):
     """``K/((T1·s + 1)(T2·s + 1))·e^(−L·s)`` or ``K/(T²·s² + 2ζ·T·s + 1)·e^(−L·s)`` with
-    input load disturbance (004 eq. 3.5.8, 000 Fig. 1); channels ``y``/``u``/``v``."""
+    input load disturbance ([Precup2013] eq. 3.5.8, [Viteckova] Fig. 1); channels ``y``/``u``/``v``."""
 
     def __init__(self, config: SopdtConfig | None = None) -> None:
         super().__init__(config if config is not None else SopdtConfig())

@@ -1,9 +1,9 @@
-"""Transfer-function plant with dead time, ``G(s) = B(s)/A(s) · e^(−L·s)`` (SPEC-supplement §3).
+"""Transfer-function plant with dead time, ``G(s) = B(s)/A(s) · e^(−L·s)`` ([Checks] §5).
 
 ``num`` and ``den`` are the coefficients of ``B`` and ``A`` in descending powers of ``s``;
 ``G`` must be strictly proper (degree of ``B`` below that of ``A``). Load ``v`` at the input,
-``y = y0 + G(s)·(u + v)`` (000 Fig. 1), as the other SISO plants. Unstable and integrating
-denominators are allowed: 002's process ``4/((s + 1)(s + 2))`` is ``num [4]``,
+``y = y0 + G(s)·(u + v)`` ([Viteckova] Fig. 1), as the other SISO plants. Unstable and integrating
+denominators are allowed: [Ikonen]'s process ``4/((s + 1)(s + 2))`` is ``num [4]``,
 ``den [1, 3, 2]``; a first-order unstable process with dead time ``K/(T·s − 1)·e^(−L·s)`` is
 ``num [K]``, ``den [T, −1]``.
 
@@ -40,16 +40,16 @@ _KEPT = 8
 
 @dataclass(frozen=True)
 class TransferFunctionConfig:
-    """Parameters of ``TransferFunction`` (defaults: 002's process 4/((s + 1)(s + 2)), L = 0)."""
+    """Parameters of ``TransferFunction`` (defaults: [Ikonen]'s process 4/((s + 1)(s + 2)), L = 0)."""
 
     num: tuple[float, ...] = param((4.0,), 'numerator B(s): coefficients in descending powers '
                                    'of s', unit='output units/input unit', min=-_BIG, max=_BIG,
-                                   source='002, reconstructed in SPEC-supplement §3')
+                                   source='[Ikonen], reconstructed in [Checks] §5')
     den: tuple[float, ...] = param((1.0, 3.0, 2.0), 'denominator A(s): coefficients in '
                                    'descending powers of s, degree above that of num (at most '
                                    f'{MAX_ORDER}); a live change keeps its degree',
                                    min=-_BIG, max=_BIG,
-                                   source='002, reconstructed in SPEC-supplement §3')
+                                   source='[Ikonen], reconstructed in [Checks] §5')
     dead_time: float = dead_time_param(0.0)
     output_offset: float = output_offset_param()
     max_dead_time: float = max_dead_time_param()

@@ -1,11 +1,11 @@
-"""002's frequency-domain PID design (E. Ikonen, Univ. of Oulu; SPEC §3, SPEC-supplement §3).
+"""[Ikonen]'s frequency-domain PID design (E. Ikonen, Univ. of Oulu; [Checks] §2, [Checks] §5).
 
 The document designs, on its process ``G(s) = 4/((s + 1)(s + 2))``, for a steady-state error
 of at most 5 % and an overshoot of at most 5 %:
 
-* **§1.1 P** — a setpoint step leaves the error ``e = 1/(1 + kp·G(0))`` (002 §1.1), so
+* **§1.1 P** — a setpoint step leaves the error ``e = 1/(1 + kp·G(0))`` ([Ikonen] §1.1), so
   ``kp = (1/e − 1)/G(0)`` (:func:`p_gain`; 9.5 for 5 % and ``G(0) = 2``). Its loop has
-  28.1° at 5.96 rad/s (002 Fig. 2) and overshoots by more than 40 % (Fig. 1).
+  28.1° at 5.96 rad/s ([Ikonen] Fig. 2) and overshoots by more than 40 % (Fig. 1).
 * **§1.2 the overshoot target as a phase margin** — damping ``ζ ≈ PM/100`` (PM in degrees)
   and the second-order overshoot ``Mp = exp(−π·ζ/√(1 − ζ²))``: 5 % → ζ ≈ 0.6 → PM ≈ 60°
   (:func:`damping_from_phase_margin`, :func:`overshoot_from_damping`,
@@ -15,13 +15,13 @@ of at most 5 % and an overshoot of at most 5 %:
   ``ω_max = 1/(Td·√α)`` (:func:`lead_time`). Put ω_max at the P loop's crossover; the lead
   raises the gain there, so the crossover moves up; put ω_max at the mean of the previous
   ω_max and the new crossover and repeat until the phase margin reaches the target
-  (:func:`lead_iteration`; 002: 6 rad/s → 54.9° at 15.5 rad/s, then 10.8 rad/s → 70.5°).
+  (:func:`lead_iteration`; [Ikonen]: 6 rad/s → 54.9° at 15.5 rad/s, then 10.8 rad/s → 70.5°).
 * **§1.3 PI** ``kp·(1 + 1/(Ti·s))``: lower the gain until the loop has the phase margin,
   then put the integral corner a decade below the crossover, ``Ti = 10/ω_c``
-  (:func:`integral_time`; 002: kp 2, 62.9° at 2.37 rad/s, Ti = 10/2.4 = 4.2 s, 57.1°).
+  (:func:`integral_time`; [Ikonen]: kp 2, 62.9° at 2.37 rad/s, Ti = 10/2.4 = 4.2 s, 57.1°).
   :func:`design_pi` solves for the gain at which the PI loop (corner included) has exactly
-  the target; 002 picked kp = 2 by eye (the target 57.07° gives back kp 2.00, Ti 4.21 s).
-* **§1.4 series PID** = PD·PI with the mean of the two gains (:func:`design_pid`; 002:
+  the target; [Ikonen] picked kp = 2 by eye (the target 57.07° gives back kp 2.00, Ti 4.21 s).
+* **§1.4 series PID** = PD·PI with the mean of the two gains (:func:`design_pid`; [Ikonen]:
   5.75·(0.29·s + 1)/(0.029·s + 1)·(1 + 1/(4.2·s)), 75° at 7 rad/s).
 
 The design is continuous; margins, crossovers and the Nyquist stability check are the
@@ -47,14 +47,14 @@ from tank_control.core.analysis import frequency as fr
 from tank_control.core.params import ConfigError
 
 ALPHA_002 = 0.1
-"""002's lead ratio α = Tf/Td ("the derivative filter ten times faster")."""
+"""[Ikonen]'s lead ratio α = Tf/Td ("the derivative filter ten times faster")."""
 KINDS = ('p', 'pd', 'pi', 'pid')
 MAX_LEAD_STEPS = 60
 
 
 # ====================================================== phase margin, damping, overshoot
 def damping_from_phase_margin(phase_margin: float) -> float:
-    """002 §1.2 rule of thumb: damping ``ζ ≈ PM/100`` (``phase_margin`` in degrees)."""
+    """[Ikonen] §1.2 rule of thumb: damping ``ζ ≈ PM/100`` (``phase_margin`` in degrees)."""
     return phase_margin / 100.0
 
 
@@ -64,7 +64,7 @@ def phase_margin_from_damping(zeta: float) -> float:
 
 
 def overshoot_from_damping(zeta: float) -> float:
-    """002 §1.2: step overshoot ``Mp = exp(−π·ζ/√(1 − ζ²))`` of the second-order system
+    """[Ikonen] §1.2: step overshoot ``Mp = exp(−π·ζ/√(1 − ζ²))`` of the second-order system
     ``ω_n²/(s² + 2ζω_n·s + ω_n²)`` (a fraction; 0 for ``ζ ≥ 1``)."""
     if not 0.0 <= zeta:
         raise ValueError(f'zeta: {zeta!r} must be >= 0')
@@ -83,14 +83,14 @@ def damping_from_overshoot(overshoot: float) -> float:
 
 
 def phase_margin_for_overshoot(overshoot: float) -> float:
-    """002 §1.2's chain: the phase margin [deg] for the step overshoot ``overshoot`` (a
+    """[Ikonen] §1.2's chain: the phase margin [deg] for the step overshoot ``overshoot`` (a
     fraction), ``100·ζ`` with ζ from :func:`damping_from_overshoot` (5 % → 69.0°; the
     document rounds ζ to 0.6 and works with 60°, which by the same formulas is 9.5 %)."""
     return phase_margin_from_damping(damping_from_overshoot(overshoot))
 
 
 def exact_phase_margin(zeta: float) -> float:
-    """Not in 002 (a check of its rule): the exact phase margin [deg] of the loop
+    """Not in [Ikonen] (a check of its rule): the exact phase margin [deg] of the loop
     ``ω_n²/(s·(s + 2ζω_n))`` whose closed loop is the second-order system of damping ζ,
     ``atan(2ζ/√(√(1 + 4ζ⁴) − 2ζ²))`` (0.6 → 59.2°, 0.69 → 64.6°)."""
     return math.degrees(math.atan(2 * zeta / math.sqrt(math.sqrt(1 + 4 * zeta ** 4)
@@ -99,17 +99,17 @@ def exact_phase_margin(zeta: float) -> float:
 
 # ========================================================================= the pieces
 def steady_state_error(kp: float, static_gain: float) -> float:
-    """002 §1.1: the error left by a setpoint step under P control, ``1/(1 + kp·G(0))`` (a
+    """[Ikonen] §1.1: the error left by a setpoint step under P control, ``1/(1 + kp·G(0))`` (a
     fraction of the step; 0 for an integrating process, ``static_gain`` inf)."""
     return 0.0 if math.isinf(static_gain) else 1.0 / (1.0 + kp * static_gain)
 
 
 def p_gain(static_gain: float, error: float) -> float:
-    """002 §1.1: the P gain that leaves the steady-state error ``error`` (a fraction),
+    """[Ikonen] §1.1: the P gain that leaves the steady-state error ``error`` (a fraction),
     ``kp = (1/e − 1)/G(0)`` (9.5 for 5 % and G(0) = 2). An integrating process
     (``static_gain`` inf) has no such gain: ``ConfigError``."""
     if math.isinf(static_gain):
-        raise ConfigError('tuning.kind: the gain comes from the steady-state error (002 §1.1), '
+        raise ConfigError('tuning.kind: the gain comes from the steady-state error ([Ikonen] §1.1), '
                           'and an integrating process (tuning.model ipdt) has none at any '
                           'gain; allowed pi')
     if not 0.0 < error < 1.0:
@@ -121,14 +121,14 @@ def p_gain(static_gain: float, error: float) -> float:
 
 
 def lead_max_phase(alpha: float) -> float:
-    """002 §1.2: the largest phase lead [deg] of ``(Td·s + 1)/(α·Td·s + 1)``,
+    """[Ikonen] §1.2: the largest phase lead [deg] of ``(Td·s + 1)/(α·Td·s + 1)``,
     ``asin((1 − α)/(1 + α))`` (54.9° for α = 0.1)."""
     return math.degrees(math.asin((1.0 - alpha) / (1.0 + alpha)))
 
 
 def lead_time(w_max: float, alpha: float) -> float:
-    """002 §1.2: the lead time ``Td = 1/(ω_max·√α)`` [s] that puts the largest phase lead at
-    ``w_max`` [rad/s] (002: 1/(6·√0.1) = 0.53 s, 1/(10.8·√0.1) = 0.29 s)."""
+    """[Ikonen] §1.2: the lead time ``Td = 1/(ω_max·√α)`` [s] that puts the largest phase lead at
+    ``w_max`` [rad/s] ([Ikonen]: 1/(6·√0.1) = 0.53 s, 1/(10.8·√0.1) = 0.29 s)."""
     return 1.0 / (w_max * math.sqrt(alpha))
 
 
@@ -138,14 +138,14 @@ def lead_w_max(td: float, alpha: float) -> float:
 
 
 def integral_time(wc: float, ratio: float = 10.0) -> float:
-    """002 §1.3: the integral corner ``1/Ti`` a decade (``ratio``) below the crossover ``wc``
-    [rad/s]: ``Ti = ratio/wc`` [s] (002: 10/2.4 = 4.2 s)."""
+    """[Ikonen] §1.3: the integral corner ``1/Ti`` a decade (``ratio``) below the crossover ``wc``
+    [rad/s]: ``Ti = ratio/wc`` [s] ([Ikonen]: 10/2.4 = 4.2 s)."""
     return ratio / wc
 
 
 def controller_response(kp: float, td: float = 0.0, alpha: float = ALPHA_002,
                         ti: float = math.inf) -> fr.FrequencyResponse:
-    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` (002 §1.4; ``td = 0``: no
+    """``C(s) = kp·(td·s + 1)/(alpha·td·s + 1)·(1 + 1/(ti·s))`` ([Ikonen] §1.4; ``td = 0``: no
     lead, ``ti = inf``: no integral action)."""
     num, den = np.array([float(kp)]), np.array([1.0])
     if td > 0.0:
@@ -160,7 +160,7 @@ def process_response(process: Any) -> fr.FrequencyResponse:
     (:meth:`ProcessModel.response`)."""
     g = process if isinstance(process, fr.FrequencyResponse) else process.response()
     if g.discrete:
-        raise ValueError('process: 002 designs on the continuous process; give its continuous '
+        raise ValueError('process: [Ikonen] designs on the continuous process; give its continuous '
                          'response (sample_time 0)')
     return g
 
@@ -191,7 +191,7 @@ def loop_stable(process: Any, kp: float, td: float = 0.0, alpha: float = ALPHA_0
 # ============================================================================ designs
 @dataclass(frozen=True)
 class LeadStep:
-    """One step of 002's lead iteration: ``w_max`` [rad/s], ``td`` [s] and the resulting
+    """One step of [Ikonen]'s lead iteration: ``w_max`` [rad/s], ``td`` [s] and the resulting
     loop's ``phase_margin`` [deg] at its crossover ``wc`` [rad/s]."""
 
     w_max: float
@@ -232,7 +232,7 @@ def _margin(m: fr.Margins) -> tuple[float, float]:
 
 def design_p(process: Any, error: float = 0.05, alpha: float = ALPHA_002,
              check: bool = True) -> Design:
-    """002 §1.1: the gain for the steady-state error ``error`` (:func:`p_gain`) and its
+    """[Ikonen] §1.1: the gain for the steady-state error ``error`` (:func:`p_gain`) and its
     loop's margin (``check``: refused if that loop is unstable)."""
     kp = p_gain(static_gain(process), error)
     pm, wc = _margin(loop_margins(process, kp))
@@ -245,7 +245,7 @@ def design_p(process: Any, error: float = 0.05, alpha: float = ALPHA_002,
 def lead_iteration(process: Any, kp: float, phase_margin: float = 60.0,
                    alpha: float = ALPHA_002, w_max: float | None = None,
                    max_steps: int = MAX_LEAD_STEPS) -> tuple[LeadStep, ...]:
-    """002 §1.2: ``ω_max`` first at ``w_max`` (default: the crossover of the P loop ``kp``),
+    """[Ikonen] §1.2: ``ω_max`` first at ``w_max`` (default: the crossover of the P loop ``kp``),
     then at the mean of the previous ω_max and the new crossover, until the loop with the
     gain ``kp`` has ``phase_margin`` [deg] and is stable, or ω_max stops moving, or
     ``max_steps``. Returns every step; the last one met the target if its margin is at
@@ -268,7 +268,7 @@ def lead_iteration(process: Any, kp: float, phase_margin: float = 60.0,
 
 def design_pd(process: Any, error: float = 0.05, phase_margin: float = 60.0,
               alpha: float = ALPHA_002) -> Design:
-    """002 §1.1–1.2: the P gain for ``error``, then the lead iteration
+    """[Ikonen] §1.1–1.2: the P gain for ``error``, then the lead iteration
     (:func:`lead_iteration`) to ``phase_margin`` [deg]; no lead if the P loop already has
     it. ``ConfigError`` if the lead cannot reach it."""
     p = design_p(process, error, alpha, check=False)
@@ -289,9 +289,9 @@ def design_pd(process: Any, error: float = 0.05, phase_margin: float = 60.0,
 
 
 def design_pi(process: Any, phase_margin: float = 60.0, ratio: float = 10.0) -> Design:
-    """002 §1.3: the P gain that puts the P loop's crossover ``w_p`` where, with the integral
+    """[Ikonen] §1.3: the P gain that puts the P loop's crossover ``w_p`` where, with the integral
     corner ``1/Ti = w_p/ratio`` (:func:`integral_time`), the PI loop has ``phase_margin``
-    [deg] (002 lowered the gain by eye to kp 2 and got 57.1°)."""
+    [deg] ([Ikonen] lowered the gain by eye to kp 2 and got 57.1°)."""
     g = process_response(process)
     corners = [c for c in g.corners if c > 0.0 and math.isfinite(c)] or [1.0]
 
@@ -311,7 +311,7 @@ def design_pi(process: Any, phase_margin: float = 60.0, ratio: float = 10.0) -> 
         if high > max(corners) * 1e6:
             raise ConfigError(f'tuning.model: the process without dead time keeps the PI '
                               f'loop above {phase_margin:g} deg phase margin at every gain, '
-                              'so 002 fixes no gain; give tuning.dead_time or use tuning.model '
+                              'so [Ikonen] fixes no gain; give tuning.dead_time or use tuning.model '
                               'sopdt')
     w_p = brentq(margin_at, high / 10.0, high, xtol=1e-14, rtol=1e-12)
     kp, ti = 1.0 / float(abs(g(w_p))), integral_time(w_p, ratio)
@@ -324,8 +324,8 @@ def design_pi(process: Any, phase_margin: float = 60.0, ratio: float = 10.0) -> 
 
 def design_pid(process: Any, error: float = 0.05, phase_margin: float = 60.0,
                ratio: float = 10.0, alpha: float = ALPHA_002) -> Design:
-    """002 §1.4: series PID = PD·PI (:func:`design_pd`, :func:`design_pi`), the gain the
-    mean of the two designed gains (002: (9.5 + 2)/2 = 5.75)."""
+    """[Ikonen] §1.4: series PID = PD·PI (:func:`design_pd`, :func:`design_pi`), the gain the
+    mean of the two designed gains ([Ikonen]: (9.5 + 2)/2 = 5.75)."""
     pd = design_pd(process, error, phase_margin, alpha)
     pi = design_pi(process, phase_margin, ratio)
     kp = 0.5 * (pd.kp + pi.kp)
@@ -339,7 +339,7 @@ def design_pid(process: Any, error: float = 0.05, phase_margin: float = 60.0,
 
 def design(process: Any, kind: str, error: float = 0.05, phase_margin: float = 60.0,
            ratio: float = 10.0, alpha: float = ALPHA_002) -> Design:
-    """002's design of ``kind`` (p, pd, pi, pid) for the continuous ``process`` with the
+    """[Ikonen]'s design of ``kind`` (p, pd, pi, pid) for the continuous ``process`` with the
     steady-state error ``error`` (p, pd, pid), the target ``phase_margin`` [deg], the
     integral corner ``ratio`` times below the crossover and the lead ratio ``alpha``.
 
@@ -355,7 +355,7 @@ def design(process: Any, kind: str, error: float = 0.05, phase_margin: float = 6
         return design_pi(process, phase_margin, ratio)
     if kind == 'pid':
         return design_pid(process, error, phase_margin, ratio, alpha)
-    raise ConfigError(f'tuning.kind: {kind!r} is not designed by 002; allowed '
+    raise ConfigError(f'tuning.kind: {kind!r} is not designed by [Ikonen]; allowed '
                       + ', '.join(KINDS))
 
 
@@ -363,7 +363,7 @@ def design(process: Any, kind: str, error: float = 0.05, phase_margin: float = 6
 def report(process: Any, error: float = 0.05, phase_margin: float = 60.0, ratio: float = 10.0,
            alpha: float = ALPHA_002) -> str:
     """The design steps and the four designs for ``process``, in lines (units in the text);
-    ``python -m tank_control.core.tuning.design_002`` prints it for 002's process."""
+    ``python -m tank_control.core.tuning.design_002`` prints it for [Ikonen]'s process."""
     lines = [f'targets: steady-state error {error:g}, phase margin {phase_margin:g} deg '
              f'(damping {damping_from_phase_margin(phase_margin):.2f}, overshoot '
              f'{100 * overshoot_from_damping(damping_from_phase_margin(phase_margin)):.2f} %); '
@@ -386,8 +386,8 @@ def report(process: Any, error: float = 0.05, phase_margin: float = 60.0, ratio:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m tank_control.core.tuning.design_002 [--num ...] [--den ...] ...``: 002's
-    design for a transfer function (default 002's process 4/((s + 1)(s + 2)))."""
+    """``python -m tank_control.core.tuning.design_002 [--num ...] [--den ...] ...``: [Ikonen]'s
+    design for a transfer function (default [Ikonen]'s process 4/((s + 1)(s + 2)))."""
     import argparse
     parser = argparse.ArgumentParser(prog='python -m tank_control.core.tuning.design_002',
                                      description=__doc__.splitlines()[0])

@@ -2,7 +2,7 @@
 
 Pure functions on recorded samples ``t`` [s], ``u`` (plant input, zero-order hold) and ``y``
 (plant output), as deviations from the operating point; plant gain assumed positive. Sources:
-001 §1.3 (eqs. 6.16–6.22), 004 §3.2–3.3 and §3.6 (eqs. 3.2.1, 3.3.1–3.3.21, 3.6.1–3.6.2).
+[DeadTimeNotes] §1.3 (eqs. 6.16–6.22), [Precup2013] §3.2–3.3 and §3.6 (eqs. 3.2.1, 3.3.1–3.3.21, 3.6.1–3.6.2).
 Estimates: describing function ``ku = 4·d/(π·a)``; first harmonic ``G(jωc) = Y1/U1``, corrected
 to the −180° point along a local model through ``G(jωc)`` and ``G(j3ωc)``
 (:func:`anchored_ultimate_point`). Method: docs/tuning.md; accuracy: bench/RESULTS.md.
@@ -21,7 +21,8 @@ from tank_control.core.scipy_lazy import brentq, least_squares, lfilter, minimiz
 
 @dataclass(frozen=True)
 class FopdtModel:
-    """``G(s) = gain/(time_constant·s + 1)^order · e^(−dead_time·s)`` (004 eq. 3.6.1; 001 eq. 6.14).
+    """``G(s) = gain/(time_constant·s + 1)^order · e^(−dead_time·s)`` ([Precup2013] eq. 3.6.1;
+    [DeadTimeNotes] eq. 6.14).
 
     ``gain`` in output units per input unit, times in seconds, ``order`` 1 or 2.
     """
@@ -53,7 +54,7 @@ class FopdtModel:
         return brentq(phase_gap, 0.0, hi, xtol=1e-14, rtol=1e-13)
 
     def ultimate_point(self) -> tuple[float, float]:
-        """Exact ``(ku, tu)``: solve ``ω·L + n·arctan(ω·T) = π``, ``ku = 1/|G(jωu)|`` (SPEC §1.2)."""
+        """Exact ``(ku, tu)``: solve ``ω·L + n·arctan(ω·T) = π``, ``ku = 1/|G(jωu)|`` ([Checks] §1)."""
         if self.dead_time <= 0.0 and self.order == 1:
             raise ValueError('dead_time: a first-order plant without dead time has no ultimate point')
         wu = self.lag_frequency(math.pi)
@@ -66,7 +67,7 @@ class FopdtModel:
 
 @dataclass(frozen=True)
 class IpdtModel:
-    """``G(s) = gain/s · e^(−dead_time·s)`` (000 eq. 1; ``gain`` = k1 [output units per input unit per s])."""
+    """``G(s) = gain/s · e^(−dead_time·s)`` ([Viteckova] eq. 1; ``gain`` = k1 [output units per input unit per s])."""
 
     gain: float
     dead_time: float
@@ -77,7 +78,7 @@ class IpdtModel:
         return self.gain / s * np.exp(-self.dead_time * s)
 
     def ultimate_point(self) -> tuple[float, float]:
-        """Exact ``ku = π/(2·k1·To)``, ``tu = 4·To`` (SPEC §1.2)."""
+        """Exact ``ku = π/(2·k1·To)``, ``tu = 4·To`` ([Checks] §1)."""
         if self.dead_time <= 0.0:
             raise ValueError('dead_time: an integrator without dead time has no ultimate point')
         return math.pi / (2.0 * self.gain * self.dead_time), 4.0 * self.dead_time
@@ -90,7 +91,7 @@ Model = FopdtModel | IpdtModel
 
 
 def fopdt_from_ultimate(ku: float, tu: float, gain: float, order: int = 1) -> FopdtModel:
-    """FOPDT (order 1) or SOPDT (order 2) through the ultimate point and a known static gain (004 eq. 3.6.2).
+    """FOPDT (order 1) or SOPDT (order 2) through the ultimate point and a known static gain ([Precup2013] eq. 3.6.2).
 
     ``T = (1/ωu)·√((kP·ku)^(2/n) − 1)``, ``L = (π − n·arctan(ωu·T))/ωu`` with ``ωu = 2π/tu``.
     """
@@ -99,7 +100,7 @@ def fopdt_from_ultimate(ku: float, tu: float, gain: float, order: int = 1) -> Fo
     if not (ku > 0 and tu > 0 and gain > 0):
         raise ValueError('ku, tu, gain: must be positive')
     if gain * ku <= 1.0:
-        raise ValueError(f'gain: kP·ku = {gain * ku:g} must exceed 1 for 004 eq. 3.6.2')
+        raise ValueError(f'gain: kP·ku = {gain * ku:g} must exceed 1 for [Precup2013] eq. 3.6.2')
     wu = 2.0 * math.pi / tu
     tc = math.sqrt((gain * ku) ** (2.0 / order) - 1.0) / wu
     dead = (math.pi - order * math.atan(wu * tc)) / wu
@@ -107,7 +108,7 @@ def fopdt_from_ultimate(ku: float, tu: float, gain: float, order: int = 1) -> Fo
 
 
 def ipdt_from_ultimate(ku: float, tu: float) -> IpdtModel:
-    """IPDT through the ultimate point, exact for IPDT: ``To = tu/4``, ``k1 = π/(2·ku·To)`` (SPEC §1.2)."""
+    """IPDT through the ultimate point, exact for IPDT: ``To = tu/4``, ``k1 = π/(2·ku·To)`` ([Checks] §1)."""
     if not (ku > 0 and tu > 0):
         raise ValueError('ku, tu: must be positive')
     dead = tu / 4.0
@@ -142,7 +143,7 @@ def switching_indices(u: np.ndarray, u0: float) -> tuple[np.ndarray, np.ndarray]
 
 @dataclass(frozen=True)
 class RelayCycle:
-    """One period between two switches in the same direction (004 Fig. 3.4).
+    """One period between two switches in the same direction ([Precup2013] Fig. 3.4).
 
     ``start``/``end`` are sample indices; ``period``, ``high_time`` (Tu1, u above u0) and
     ``low_time`` (Tu2) in seconds; ``y_max``/``y_min`` extremes of ``y`` within the cycle;
@@ -193,7 +194,7 @@ def stationary_cycles(cycles: Sequence[RelayCycle], count: int, tolerance: float
 
     Stationary: every period within ``tolerance·mean + period_slack`` [s] of the mean
     period (``period_slack`` absorbs the ±1-sample quantisation of a sampled relay) and
-    every first-harmonic amplitude within ``tolerance`` (relative) of their mean (004 §3.3:
+    every first-harmonic amplitude within ``tolerance`` (relative) of their mean ([Precup2013] §3.3:
     at least four stationary periods).
     """
     if count < 1 or len(cycles) < count:
@@ -225,7 +226,8 @@ def _fourier_zoh(t: np.ndarray, x: np.ndarray, omega: float) -> complex:
 
 def harmonic_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end: int,
                       periods: int, harmonics: Sequence[int] = (1, 3)) -> tuple[float, dict[int, complex]]:
-    """Plant frequency response at the odd harmonics of a stationary relay oscillation (004 eqs. 3.3.19–3.3.21).
+    """Plant frequency response at the odd harmonics of a stationary relay oscillation
+    ([Precup2013] eqs. 3.3.19–3.3.21).
 
     ``start``/``end`` are sample indices spanning exactly ``periods`` whole periods. Returns
     ``(ωc, {k: G(j·k·ωc)})`` with ``ωc = 2π·periods/(t[end] − t[start])`` [rad/s] and
@@ -249,7 +251,7 @@ def harmonic_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, e
 
 def static_gain(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end: int,
                 u0: float, y0: float) -> float | None:
-    """Static gain from a biased relay, ``kP = ∫(y − y0) dt / ∫(u − u0) dt`` over whole periods (004 3.3.13).
+    """Static gain from a biased relay, ``kP = ∫(y − y0) dt / ∫(u − u0) dt`` over whole periods ([Precup2013] 3.3.13).
 
     ``None`` when the relay is (nearly) symmetric, i.e. ``|∫(u − u0)|`` is below 2 % of
     ``∫|u − u0|`` and the ratio would be noise.
@@ -267,7 +269,7 @@ def fit_first_order_delay(omega: float, g1: complex, g3: complex | None = None,
                           gain: float | None = None, kind: str = 'auto') -> Model:
     """``k·e^(−L·s)/(s + α)`` through the measured point ``g1 = G(jω)`` (FOPDT if α > 0, IPDT if α = 0).
 
-    The pole: from a known static gain ``kP = k/α`` (004 eq. 3.6.2, n = 1:
+    The pole: from a known static gain ``kP = k/α`` ([Precup2013] eq. 3.6.2, n = 1:
     ``α = ω·|g1|/√(kP² − |g1|²)``), otherwise from the magnitude ratio at ω and 3ω:
     ``α² = ω²·(9|g3|² − |g1|²)/(|g1|² − |g3|²)`` (α = 0 when that is ≤ 0, i.e. integrating).
     Then ``k = |g1|·√(ω² + α²)`` and ``L = (−arg g1 − arctan(ω/α))/ω`` (arg in (−2π, 0]).
@@ -371,7 +373,7 @@ def fit_time_domain(t: np.ndarray, u: np.ndarray, y: np.ndarray, start: int, end
 
 
 def ku_describing_function(relay_amplitude: float, amplitude: float, hysteresis: float = 0.0) -> float:
-    """Ultimate gain by the describing function, ``ku = 4·d/(π·a)`` (001 eq. 6.22, 004 eq. 3.2.1).
+    """Ultimate gain by the describing function, ``ku = 4·d/(π·a)`` ([DeadTimeNotes] eq. 6.22, [Precup2013] eq. 3.2.1).
 
     With hysteresis ε the relay's describing function is
     ``N(a) = 4d/(πa)·(√(1 − (ε/a)²) − j·ε/a)``; ``−1/N`` is then not on the negative real
@@ -385,12 +387,12 @@ def ku_describing_function(relay_amplitude: float, amplitude: float, hysteresis:
     return 4.0 * relay_amplitude / (math.pi * math.sqrt(amplitude ** 2 - hysteresis ** 2))
 
 
-# ---------------------------------------------------- 004 §3.3 B, biased relay
+# ---------------------------------------------------- [Precup2013] §3.3 B, biased relay
 
 
 @dataclass(frozen=True)
 class RelayLimitCycle:
-    """Exact limit cycle of FOPDT under a biased relay with hysteresis (004 eq. 3.3.12).
+    """Exact limit cycle of FOPDT under a biased relay with hysteresis ([Precup2013] eq. 3.3.12).
 
     Relay output ``u0 + (μ + μ0)`` while the error exceeds ``+ε``, ``u0 − (μ − μ0)`` below ``−ε``.
     ``a_up``/``a_down``: output excursions above/below ``y0``; ``t_high`` (Tu1) / ``t_low`` (Tu2).
@@ -403,7 +405,7 @@ class RelayLimitCycle:
 
 
 def fopdt_relay_limit_cycle(model: FopdtModel, mu: float, mu0: float, hysteresis: float) -> RelayLimitCycle:
-    """004 eq. 3.3.12 (derived: ``y`` moves exponentially towards ``kP·u`` for ``L`` after each switch)."""
+    """[Precup2013] eq. 3.3.12 (derived: ``y`` moves exponentially towards ``kP·u`` for ``L`` after each switch)."""
     kp, tc, tau, eps = model.gain, model.time_constant, model.dead_time / model.time_constant, hysteresis
     e = math.exp(-tau)
     a_up = (mu + mu0) * kp * (1 - e) + eps * e
@@ -415,27 +417,27 @@ def fopdt_relay_limit_cycle(model: FopdtModel, mu: float, mu0: float, hysteresis
 
 def fopdt_from_biased_relay(mu: float, mu0: float, hysteresis: float, a_up: float,
                             t_high: float, gain: float) -> FopdtModel:
-    """FOPDT from a biased hysteresis relay (004 eqs. 3.3.14–3.3.17) given kP (3.3.13 or known).
+    """FOPDT from a biased hysteresis relay ([Precup2013] eqs. 3.3.14–3.3.17) given kP (3.3.13 or known).
 
     Normalised dead time ``τ = L/T = ln(((μ+μ0)·kP − ε)/((μ+μ0)·kP − A_u))`` (3.3.15),
     ``T = Tu1 / ln((2μ·kP·e^τ − (μ−μ0)·kP + ε)/((μ+μ0)·kP − ε))`` (3.3.17), ``L = τ·T`` (3.3.16).
     """
     hi = (mu + mu0) * gain
     if not (hi > a_up > hysteresis):
-        raise ValueError('a_up: must lie between the hysteresis and (μ+μ0)·kP for 004 eq. 3.3.15')
+        raise ValueError('a_up: must lie between the hysteresis and (μ+μ0)·kP for [Precup2013] eq. 3.3.15')
     tau = math.log((hi - hysteresis) / (hi - a_up))
     tc = t_high / math.log((2 * mu * gain * math.exp(tau) - (mu - mu0) * gain + hysteresis) / (hi - hysteresis))
     return FopdtModel(gain=gain, time_constant=tc, dead_time=tau * tc)
 
 
-# -------------------------------------- 004 §3.3 A, frequency points from the transient
+# -------------------------------------- [Precup2013] §3.3 A, frequency points from the transient
 
 
 def transient_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: float,
                        omegas: Sequence[float], alpha: float, horizon: float,
                        smoothing: float = 0.0, integrating: bool = False) -> np.ndarray:
     """``G(jω)`` at ``omegas`` [rad/s] from one record of a test that starts at rest (``u0``,
-    ``y0``), e.g. a relay test from its first switch to its stationary cycles (004 eqs.
+    ``y0``), e.g. a relay test from its first switch to its stationary cycles ([Precup2013] eqs.
     3.3.1–3.3.10, Wang 1997).
 
     Both deviations are weighted by ``e^(−α·t)`` (3.3.1–3.3.2, ``alpha`` [1/s]) so that they
@@ -491,20 +493,20 @@ def transient_response(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y
     return g / hold
 
 
-# ------------------------------------------------- 001 §1.2.1, open-loop step test
+# ------------------------------------------------- [DeadTimeNotes] §1.2.1, open-loop step test
 
 STEP_METHODS = ('tangent', 'two_point')
 
 
 def fopdt_from_step(t: np.ndarray, y: np.ndarray, y0: float, step: float,
                     method: str = 'tangent') -> FopdtModel:
-    """FOPDT ``K·e^(−τ·s)/(T·s + 1)`` from an open-loop step response (001 eq. 6.14).
+    """FOPDT ``K·e^(−τ·s)/(T·s + 1)`` from an open-loop step response ([DeadTimeNotes] eq. 6.14).
 
     ``t`` [s] from the step (``t[0]`` = 0, uniform samples), ``y`` the response, ``y0`` the
     output at rest before the step, ``step`` the input change Δu. K = (final − y0)/Δu with the
     final value the mean of the last 10 % of the record. ``method``:
 
-    * ``tangent`` (001 eq. 6.15, Fig. 1.6): the tangent of steepest slope (slopes by least squares
+    * ``tangent`` ([DeadTimeNotes] eq. 6.15, Fig. 1.6): the tangent of steepest slope (slopes by least squares
       over a sliding window of 1 % of the record, at least 5 samples, against noise) meets the
       initial level at τ; its slope is K/T, so T = K/slope and a = slope·τ (per unit step);
     * ``two_point``: the times at 28.3 % and 63.2 % of the final change give
@@ -538,7 +540,7 @@ def fopdt_from_step(t: np.ndarray, y: np.ndarray, y0: float, step: float,
     k = int(np.argmax(slopes))
     slope = float(slopes[k])
     if not slope > 0.0:
-        raise ValueError('step record: no rising part for the tangent (001 eq. 6.15)')
+        raise ValueError('step record: no rising part for the tangent ([DeadTimeNotes] eq. 6.15)')
     centre = k + 0.5 * (m - 1)
     t_c = float(t[0] + centre * dt)
     z_c = float(np.mean(z[k:k + m]))
@@ -560,12 +562,12 @@ def step_identification(model: FopdtModel, step: float, method: str
         model_method=f'step_{method}', static_gain=model.gain)
 
 
-# ----------------------------------------------- 004 §3.5.2, SOPDT from two points
+# ----------------------------------------------- [Precup2013] §3.5.2, SOPDT from two points
 
 
 @dataclass(frozen=True)
 class SopdtModel:
-    """``G(s) = e^(−Tm·s)/(a·s² + b·s + c)`` (004 eq. 3.5.8): static gain 1/c, ``dead_time``
+    """``G(s) = e^(−Tm·s)/(a·s² + b·s + c)`` ([Precup2013] eq. 3.5.8): static gain 1/c, ``dead_time``
     Tm [s], ``a`` [s²], ``b`` [s], ``c`` [-] per output unit/input unit. ``time_constant`` ≥
     ``time_constant2`` are the lags of ``a·s² + b·s + c = c·(T1·s + 1)(T2·s + 1)`` when its poles
     are real (NaN when they are complex: ``damping`` < 1)."""
@@ -614,8 +616,8 @@ class SopdtModel:
 
 def sopdt_from_two_points(omega_1: float, g_1: complex, omega_2: float, g_2: complex
                           ) -> SopdtModel:
-    """The SOPDT of 004 eq. 3.5.8 through two measured points ``G(jω1) = g_1``,
-    ``G(jω2) = g_2`` (004 §3.5.2, Wang 1999), frequencies in rad/s.
+    """The SOPDT of [Precup2013] eq. 3.5.8 through two measured points ``G(jω1) = g_1``,
+    ``G(jω2) = g_2`` ([Precup2013] §3.5.2, Wang 1999), frequencies in rad/s.
 
     With ``Z_i = e^(−jω_i·Tm)/G(jω_i) = c − a·ω_i² + j·b·ω_i``, Tm is the smallest positive root
     of ``Im Z_1/ω_1 = Im Z_2/ω_2`` and then ``b = Im Z_i/ω_i``,
@@ -656,7 +658,7 @@ def sopdt_from_two_points(omega_1: float, g_1: complex, omega_2: float, g_2: com
         scale = abs(z(w1, g_1, tm).imag / w1)
         if not abs(gap(tm)) <= 0.02 * scale:
             raise ValueError('sopdt_from_two_points: no dead time fits both points '
-                             '(004 eq. 3.5.10)')
+                             '([Precup2013] eq. 3.5.10)')
     z1, z2 = z(w1, g_1, tm), z(w2, g_2, tm)
     b = 0.5 * (z1.imag / w1 + z2.imag / w2)
     a = (z1.real - z2.real) / (w2 * w2 - w1 * w1)
@@ -665,7 +667,7 @@ def sopdt_from_two_points(omega_1: float, g_1: complex, omega_2: float, g_2: com
         a = 0.0              # a first-order process measured with a little error
     if not (a >= 0.0 and b > 0.0 and c > 0.0):
         raise ValueError(f'sopdt_from_two_points: a = {a:.4g}, b = {b:.4g}, c = {c:.4g} are not '
-                         'those of a stable second-order lag (004 eq. 3.5.8)')
+                         'those of a stable second-order lag ([Precup2013] eq. 3.5.8)')
     return SopdtModel(a=a, b=b, c=c, dead_time=tm)
 
 
@@ -696,7 +698,7 @@ class LocalModel:
 
 
 def fit_local_model(omega: float, g1: complex, g3: complex) -> LocalModel | None:
-    """``k·e^(−L·s)/(s + α)^n`` (n real) through both measured points ``G(jω)``, ``G(j3ω)`` (004 eq. 3.3.19).
+    """``k·e^(−L·s)/(s + α)^n`` (n real) through both measured points ``G(jω)``, ``G(j3ω)`` ([Precup2013] eq. 3.3.19).
 
     Four real equations, four unknowns. With ``x = α/ω`` and ``R = |g1|/|g3|``:
     ``n = 2·ln R / ln((9 + x²)/(1 + x²))`` (magnitudes) and
@@ -791,10 +793,10 @@ class RelayIdentification:
     ``omega`` = ωc [rad/s], ``g1``/``g3`` = ``G(jωc)``, ``G(j3ωc)``; ``amplitude``: mean
     half peak-to-peak of ``y``; ``relay_amplitude``: half the span of ``u``; ``model``:
     the FOPDT/IPDT for model-based tuning, by ``model_method``: ``'eq_3_3_15'`` (a biased
-    relay with a static gain: 004 eqs. 3.3.14–3.3.17 from the asymmetric limit cycle),
-    ``'eq_3_6_2'`` (a static gain is known: 004 eq. 3.6.2 through ``ku``, ``tu``) or
+    relay with a static gain: [Precup2013] eqs. 3.3.14–3.3.17 from the asymmetric limit cycle),
+    ``'eq_3_6_2'`` (a static gain is known: [Precup2013] eq. 3.6.2 through ``ku``, ``tu``) or
     ``'time_domain'`` (:func:`fit_time_domain`); ``model_harmonic``: from ``g1``, ``g3``/kP
-    only (its start); ``static_gain``: kP supplied or from 004 eq. 3.3.13 (biased relay), else
+    only (its start); ``static_gain``: kP supplied or from [Precup2013] eq. 3.3.13 (biased relay), else
     ``None``; ``relay_bias``: μ0, the mean of the two relay outputs minus ``u0`` (0 for a
     symmetric relay); ``point_2``: a second measured point ``(ω, G(jω))`` — the relay with an
     integrator's or the additional relay's 0.5·ωc (set by the auto-tuner).
@@ -835,18 +837,18 @@ def identify_relay(t: np.ndarray, u: np.ndarray, y: np.ndarray, u0: float, y0: f
                    hysteresis: float = 0.0, cycles: Sequence[RelayCycle] | None = None,
                    gain: float | None = None, kind: str = 'auto',
                    refine: bool = True) -> RelayIdentification:
-    """Ultimate point and model from a relay record (001 §1.3; 004 §3.2–3.3, 3.6).
+    """Ultimate point and model from a relay record ([DeadTimeNotes] §1.3; [Precup2013] §3.2–3.3, 3.6).
 
     Steps: ``G(jωc)``, ``G(j3ωc)`` by Fourier over the cycles; FOPDT/IPDT through them
     (:func:`fit_first_order_delay`), refined on the samples (:func:`fit_time_domain`);
     ``ku``, ``tu`` by :func:`anchored_ultimate_point` along :func:`fit_local_model`
     (or the refined model when the local one has no solution); with a static gain the
-    reported FOPDT is 004 eq. 3.6.2 through ``ku``, ``tu``.
+    reported FOPDT is [Precup2013] eq. 3.6.2 through ``ku``, ``tu``.
 
     ``t, u, y``: the record from the relay start (loop at rest at ``u0``, ``y0``),
     uniformly sampled. ``cycles``: the stationary cycles to use (consecutive, from
     :func:`relay_cycles`); default: all complete cycles after the first one. ``gain``:
-    known static gain kP (else 004 eq. 3.3.13 if the relay is biased). ``kind``:
+    known static gain kP (else [Precup2013] eq. 3.3.13 if the relay is biased). ``kind``:
     'auto', 'fopdt' or 'ipdt'. ``refine``: run the time-domain fit.
     Raises ``ValueError`` with a reason when the record cannot be analysed.
     """

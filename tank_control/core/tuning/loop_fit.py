@@ -1,6 +1,6 @@
-"""PID by fitting a desired closed loop in the frequency domain (004 §3.5.1, Wang 1997/2002).
+"""PID by fitting a desired closed loop in the frequency domain ([Precup2013] §3.5.1, Wang 1997/2002).
 
-The desired closed loop is second order with the process dead time Tm (004 eq. 3.5.1)::
+The desired closed loop is second order with the process dead time Tm ([Precup2013] eq. 3.5.1)::
 
     H_wd(s) = ωn²·e^(−Tm·s)/(s² + 2ζ·ωn·s + ωn²),   H_0d = H_wd/(1 − H_wd)   (eq. 3.5.4)
 
@@ -10,7 +10,7 @@ points ωi up to just above the phase crossover of H_0d, split into real and ima
 The fit is accepted when ``max_i |H_R·H_P − H_0d|/|H_0d| ≤ ε`` (eq. 3.5.7; the document's
 normalisation is lost, relative error is ours). The document's starting values ζ = 0.707,
 ωn·Tm = 2 give 4.3 % overshoot, 60.3° phase margin and gain margin 2.26 on the target
-(SPEC-supplement §2.10). Frequencies in rad/s, times in s.
+([Precup2013] §3.5.1). Frequencies in rad/s, times in s.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ Response = Callable[[np.ndarray], np.ndarray]
 
 
 def desired_open_loop(zeta: float, wn: float, dead_time: float) -> Response:
-    """``H_0d(jω)`` of 004 eq. 3.5.4 for the target of eq. 3.5.1."""
+    """``H_0d(jω)`` of [Precup2013] eq. 3.5.4 for the target of eq. 3.5.1."""
     def h0d(w: np.ndarray) -> np.ndarray:
         s = 1j * np.asarray(w, float)
         hwd = wn * wn * np.exp(-dead_time * s) / (s * s + 2.0 * zeta * wn * s + wn * wn)
@@ -59,7 +59,7 @@ class LoopFit:
 
 def fit_pid(omegas: np.ndarray, process: np.ndarray, target: np.ndarray,
             kind: str = 'pid') -> LoopFit:
-    """Least-squares PI/PID of 004 eq. 3.5.5 through measured or modelled ``process`` =
+    """Least-squares PI/PID of [Precup2013] eq. 3.5.5 through measured or modelled ``process`` =
     ``H_P(jωi)`` and ``target`` = ``H_0d(jωi)``; raises ``ValueError`` when the solution has
     no positive gain or integral time."""
     w = np.asarray(omegas, float)
@@ -72,7 +72,7 @@ def fit_pid(omegas: np.ndarray, process: np.ndarray, target: np.ndarray,
     kd = float(x[2]) if kind == 'pid' else 0.0
     if not (kp > 0.0 and ki > 0.0):
         raise ValueError(f'loop_fit: the fit gives kp {kp:.4g}, kp/Ti {ki:.4g}; no PI/PID with '
-                         'positive gains realises the target (004 eq. 3.5.5)')
+                         'positive gains realises the target ([Precup2013] eq. 3.5.5)')
     td = max(kd, 0.0) / kp
     hr = kp * (1.0 + 1.0 / (kp / ki * 1j * w) + td * 1j * w)
     error = float(np.max(np.abs(hr * hp - h0) / np.abs(h0)))
@@ -85,9 +85,9 @@ def design(process: Response, dead_time: float, kind: str = 'pid', zeta: float =
     [s]: ωn = ``wn_tm``/Tm, ``points`` frequencies geometrically from ωp/20 to 1.2·ωp (ωp the
     phase crossover of H_0d; the document asks for the last one above it), accepted when the
     misfit is at most ``tolerance`` (else ``ValueError``: relax the target or use a
-    higher-order controller, as 004 says)."""
+    higher-order controller, as [Precup2013] says)."""
     if not dead_time > 0.0:
-        raise ValueError('loop_fit: the target needs the process dead time Tm > 0 (004 eq. 3.5.1)')
+        raise ValueError('loop_fit: the target needs the process dead time Tm > 0 ([Precup2013] eq. 3.5.1)')
     if not (0.0 < zeta and wn_tm > 0.0 and points >= 2):
         raise ValueError('loop_fit: zeta and wn_tm must be > 0, points >= 2')
     wn = wn_tm / dead_time
@@ -97,6 +97,6 @@ def design(process: Response, dead_time: float, kind: str = 'pid', zeta: float =
     fit = fit_pid(w, process(w), h0d(w), kind)
     if fit.error > tolerance:
         raise ValueError(f'loop_fit: the {kind} misses the target by {100 * fit.error:.0f} % '
-                         f'(004 eq. 3.5.7 allows {100 * tolerance:.0f} %); relax zeta/wn_tm or '
+                         f'([Precup2013] eq. 3.5.7 allows {100 * tolerance:.0f} %); relax zeta/wn_tm or '
                          'use another controller')
     return fit

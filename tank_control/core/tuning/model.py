@@ -1,8 +1,8 @@
 """Process models for tuning and loop analysis: FOPDT, IPDT and SOPDT with exact dead time.
 
-* ``fopdt``: ``K/(T·s + 1)·e^(−L·s)`` (001 eq. 6.14, 004 eq. 3.3.11);
-* ``ipdt``: ``k1/s·e^(−L·s)`` (000 eq. 1; ``gain`` = k1 per second);
-* ``sopdt``: ``K/((T1·s + 1)(T2·s + 1))·e^(−L·s)`` (004 eq. 3.5.8 with real poles; T2 ≤ T1).
+* ``fopdt``: ``K/(T·s + 1)·e^(−L·s)`` ([DeadTimeNotes] eq. 6.14, [Precup2013] eq. 3.3.11);
+* ``ipdt``: ``k1/s·e^(−L·s)`` ([Viteckova] eq. 1; ``gain`` = k1 per second);
+* ``sopdt``: ``K/((T1·s + 1)(T2·s + 1))·e^(−L·s)`` ([Precup2013] eq. 3.5.8 with real poles; T2 ≤ T1).
 
 Gains in output units per input unit (IPDT: per second), times in s, frequencies in rad/s.
 :meth:`ProcessModel.response` gives the continuous response or, with a sample time, the exact
@@ -125,7 +125,7 @@ class ProcessModel:
 
     def phase(self, w: float) -> float:
         """Continuous phase of ``G(jω)`` [rad] from its ω → 0+ limit (0, or −π/2 for IPDT),
-        the exact dead time's −ω·L included (001 eq. 6.4)."""
+        the exact dead time's −ω·L included ([DeadTimeNotes] eq. 6.4)."""
         p = -math.pi / 2 if self.kind == 'ipdt' else 0.0
         return p - sum(math.atan(w * lag) for lag in self.lags) - w * self.dead_time
 
@@ -146,14 +146,14 @@ class ProcessModel:
 
     @property
     def normalised_dead_time(self) -> float:
-        """``τ = L/(L + T)`` (004 eq. 3.4.6) with T = :attr:`lag`; 0 for IPDT's limit T → ∞."""
+        """``τ = L/(L + T)`` ([Precup2013] eq. 3.4.6) with T = :attr:`lag`; 0 for IPDT's limit T → ∞."""
         lag = self.lag
         if math.isinf(lag):
             return 0.0
         return self.dead_time / (self.dead_time + lag)
 
     def ultimate_point(self) -> fr.UltimatePoint:
-        """``(ku, tu, wu)`` of the continuous model (SPEC §1.2)."""
+        """``(ku, tu, wu)`` of the continuous model ([Checks] §1)."""
         return fr.ultimate_point(self.response())
 
     def describe(self) -> str:

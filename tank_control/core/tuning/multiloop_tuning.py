@@ -1,16 +1,16 @@
-"""Multivariable PI tuning of a 2×2 process (004 §3.7, eqs. 3.7.1–3.7.10; SPEC-supplement §2.15).
+"""Multivariable PI tuning of a 2×2 process ([Precup2013] §3.7, eqs. 3.7.1–3.7.10; [Precup2013] §3.7).
 
 * :func:`equivalent_processes`: the equivalent SISO processes of a decentralised loop pair, each
-  seen with the other loop closed (004 eqs. 3.7.4, 3.7.5).
+  seen with the other loop closed ([Precup2013] eqs. 3.7.4, 3.7.5).
 * :func:`place_point`: a PI/PID that moves the process point ``r_a·e^{j(−π+φ_a)}`` to the loop
-  point ``r_b·e^{j(−π+φ_b)}`` (004 eqs. 3.7.6–3.7.7, the Åström–Hägglund relations);
+  point ``r_b·e^{j(−π+φ_b)}`` ([Precup2013] eqs. 3.7.6–3.7.7, the Åström–Hägglund relations);
   :func:`zn_point` is the loop point of Ziegler–Nichols' PI (0.45·Ku, Ti = Tu/1.2) and
-  :func:`multiloop_design` iterates the placement over both loops on a model (004 §3.7.1).
+  :func:`multiloop_design` iterates the placement over both loops on a model ([Precup2013] §3.7.1).
 * :func:`mimo_pi_least_squares`: the m×m PI matrices that fit ``H_P·H_R = H_w·(I − H_w)⁻¹`` on a
-  set of frequencies (004 eqs. 3.7.8–3.7.10), fully or in the two-loop structure
+  set of frequencies ([Precup2013] eqs. 3.7.8–3.7.10), fully or in the two-loop structure
   ``H_R = D·diag(kp_i + ki_i/s)`` with a fixed decoupler ``D``.
 * :func:`tank_frequency_response`: ``H_P(jω)`` of the mixing tank linearised at its operating
-  point with its delays (003 eqs. 4–6), outputs ``[h, T_out]`` [cm, °C], inputs
+  point with its delays ([Michalski2021] eqs. 4–6), outputs ``[h, T_out]`` [cm, °C], inputs
   ``[F_H, F_Cin]`` [cm³/s]; :func:`decoupler_response` the two-loop PI's decoupler.
 
 Frequencies in rad/s, times in s; controllers in the parallel form ``kp + ki/s (+ kd·s)`` acting
@@ -49,10 +49,10 @@ class PiGains:
         return self.kp / self.ki if self.ki != 0.0 else math.inf
 
 
-# ---------------------------------------------------------------- 004 eqs. 3.7.4–3.7.5
+# ---------------------------------------------------------------- [Precup2013] eqs. 3.7.4–3.7.5
 def equivalent_processes(h: np.ndarray, c1: complex, c2: complex) -> tuple[complex, complex]:
     """``(H_P1, H_P2)`` at one frequency: loop 1's process ``u1 → y1`` with loop 2 closed by
-    ``c2 = H_R2(jω)`` (004 eq. 3.7.4) and loop 2's ``u2 → y2`` with loop 1 closed by
+    ``c2 = H_R2(jω)`` ([Precup2013] eq. 3.7.4) and loop 2's ``u2 → y2`` with loop 1 closed by
     ``c1 = H_R1(jω)`` (eq. 3.7.5, the output corrected from y1 to y2). ``c = 0`` is an open
     loop: then the equivalent process is the diagonal element."""
     h11, h12, h21, h22 = complex(h[0, 0]), complex(h[0, 1]), complex(h[1, 0]), complex(h[1, 1])
@@ -61,7 +61,7 @@ def equivalent_processes(h: np.ndarray, c1: complex, c2: complex) -> tuple[compl
     return hp1, hp2
 
 
-# ---------------------------------------------------------------- 004 eqs. 3.7.6–3.7.7
+# ---------------------------------------------------------------- [Precup2013] eqs. 3.7.6–3.7.7
 def place_point(r_a: float, phi_a: float, r_b: float, phi_b: float, omega: float,
                 ti_td_ratio: float | None = None) -> PiGains:
     """The PI (or PID) that maps the process point ``H_P(jω) = r_a·e^{j(−π+φ_a)}`` (eq. 3.7.6)
@@ -145,7 +145,7 @@ class MultiloopDesign:
 
 def multiloop_design(process: Response, r_b: float, phi_b: float, omega_lo: float,
                      omega_hi: float, placements: int = 3) -> MultiloopDesign:
-    """004 §3.7.1 on a model: loop 1 is placed on its open-loop process (loop 2 open), loop 2
+    """[Precup2013] §3.7.1 on a model: loop 1 is placed on its open-loop process (loop 2 open), loop 2
     on its equivalent process with loop 1 closed (eq. 3.7.5), then loop 1 again with loop 2
     closed (eq. 3.7.4), alternating, ``placements`` placements in all (3: the sequence of the
     sequential relay test); each at the ultimate point of the
@@ -175,10 +175,10 @@ def multiloop_design(process: Response, r_b: float, phi_b: float, omega_lo: floa
     return MultiloopDesign((c[0], c[1]), (omega[0], omega[1]), (ku[0], ku[1]), len(order))
 
 
-# ---------------------------------------------------------------- 004 eqs. 3.7.8–3.7.10
+# ---------------------------------------------------------------- [Precup2013] eqs. 3.7.8–3.7.10
 def target_loop(omega: float, omega0: Sequence[float], xi: Sequence[float],
                 dead_time: Sequence[float]) -> np.ndarray:
-    """``H_w·(I − H_w)⁻¹`` at ω (004 eqs. 3.7.9, 3.7.10): the open loop whose closed loop is
+    """``H_w·(I − H_w)⁻¹`` at ω ([Precup2013] eqs. 3.7.9, 3.7.10): the open loop whose closed loop is
     the decoupled ``diag(ω0²·e^{−s·Tm}/(s² + 2ξ·ω0·s + ω0²))``."""
     s = 1j * omega
     hw = np.array([w0 ** 2 * cmath.exp(-s * tm) / (s * s + 2.0 * z * w0 * s + w0 ** 2)
@@ -205,7 +205,7 @@ def mimo_pi_least_squares(process: Response, omegas: Sequence[float], omega0: Se
                           xi: Sequence[float], dead_time: Sequence[float],
                           derivative: bool = False, decoupler: Response | None = None,
                           weights: Sequence[float] | None = None) -> LeastSquaresPi:
-    """Least-squares solution of 004 eq. 3.7.10, ``H_P(jω)·[I, I/(jω), jω·I]·[kp; ki; kd] =
+    """Least-squares solution of [Precup2013] eq. 3.7.10, ``H_P(jω)·[I, I/(jω), jω·I]·[kp; ki; kd] =
     L_w(jω)``, stacked over ``omegas`` (real and imaginary parts, each frequency's equations
     scaled by ``weights`` (default 1/(1 + ‖L_w‖), so that the integrator-dominated low
     frequencies do not swamp the rest).
@@ -263,14 +263,14 @@ def mimo_pi_least_squares(process: Response, omegas: Sequence[float], omega0: Se
 def tank_frequency_response(cfg: Any, omega: float) -> np.ndarray:
     """``H_P(jω)`` of the mixing tank linearised at the operating point of ``cfg`` (a
     ``MixingTankConfig``/``LinearTankConfig``: ``C, alpha, F_*, T_*, h_op, T_op, tau_cold,
-    tau_out``), with its delays: ``[h, T_out] ← [F_H, F_Cin]``, h = V/(2·C·h_op) (003 eqs. 4–6;
+    tau_out``), with its delays: ``[h, T_out] ← [F_H, F_Cin]``, h = V/(2·C·h_op) ([Michalski2021] eqs. 4–6;
     ``analysis.two_loop.LinearisedTank``). Units: cm and °C per cm³/s."""
     from tank_control.core.analysis.two_loop import LinearisedTank
     return LinearisedTank.from_config(cfg).at(np.array([1j * omega]))[0]
 
 
 def d21_filter_response(omega: float, sample_time: float) -> complex:
-    """The dynamic decoupler D21 of 003 eq. 2 at ``z = e^{jω·Ts}``."""
+    """The dynamic decoupler D21 of [Michalski2021] eq. 2 at ``z = e^{jω·Ts}``."""
     z = cmath.exp(1j * omega * sample_time)
     return (D21_NUM[0] * z + D21_NUM[1]) / (D21_DEN[0] * z + D21_DEN[1])
 
@@ -279,7 +279,7 @@ def decoupler_response(decoupling: str, d12: float, d21: float, sample_time: flo
                        omega: float) -> np.ndarray:
     """``D(jω)`` of the two-loop PI (``F_H = v_h + D12·v_T``, ``F_Cin = D21·v_h + v_T``):
     the identity for decoupling ``none``, the static ``[[1, d12], [d21, 1]]``, or D21 the
-    filter of 003 eq. 2 (``dynamic``)."""
+    filter of [Michalski2021] eq. 2 (``dynamic``)."""
     if decoupling == 'none':
         return np.eye(2, dtype=complex)
     g21 = d21_filter_response(omega, sample_time) if decoupling == 'dynamic' else d21

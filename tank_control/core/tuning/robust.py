@@ -1,10 +1,10 @@
-"""Ms-constrained PI/PID design: the kappa-tau idea (004 §3.4.2) done by optimisation.
+"""Ms-constrained PI/PID design: the kappa-tau idea ([Precup2013] §3.4.2) done by optimisation.
 
 Kappa-tau (Åström & Hägglund, *PID Controllers: Theory, Design and Tuning*, 2nd ed., 1995;
-004 eq. 3.4.7) fitted tables to the settings that maximise the integral gain ``ki = kp/ti``
+[Precup2013] eq. 3.4.7) fitted tables to the settings that maximise the integral gain ``ki = kp/ti``
 — the load-disturbance criterion: a unit load step at the plant input gives
-``∫e dt = 1/ki`` (000 eq. 10) — subject to a bound on the sensitivity peak
-``Ms = max|1/(1 + C·G)|``. 004's copy lost the tables; here the optimisation itself is
+``∫e dt = 1/ki`` ([Viteckova] eq. 10) — subject to a bound on the sensitivity peak
+``Ms = max|1/(1 + C·G)|``. [Precup2013]'s copy lost the tables; here the optimisation itself is
 solved on the given model (Åström, Panagopoulos & Hägglund, "Design of PI controllers based
 on non-convex optimization", Automatica 34(5), 1998: for a fixed kp every frequency excludes
 an interval of ki, so the largest admissible ki follows from a quadratic per frequency).
@@ -12,7 +12,7 @@ an interval of ki, so the largest admissible ki follows from a quadratic per fre
 * PI: maximise ki subject to ``Ms ≤ ms`` (and ``Mt = max|T| ≤ mt`` when given).
 * PID: the same with the derivative gain bounded, ``kd ≤ kp²/(4·ki)`` (``td ≤ ti/4``: the
   PID's zeros stay real; Garpinger & Hägglund's constant Ti/Td-ratio constraint), searched
-  over td; the derivative filter ``Tf = td/n`` (000 eq. 13–14) is part of the design.
+  over td; the derivative filter ``Tf = td/n`` ([Viteckova] eq. 13–14) is part of the design.
 * With ``sample_time`` the loop is the implemented discrete one — the exact ZOH model of the
   plant (fractional dead time included) and the transfer function of ``Pid2Dof`` (forward
   Euler integral, backward-difference filtered derivative) — so the realised Ms of the

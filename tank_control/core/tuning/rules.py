@@ -1,6 +1,7 @@
-"""PID tuning rules behind one entry point, ``tune(rule, kind, **process)`` (000, 001, 004).
+"""PID tuning rules behind one entry point, ``tune(rule, kind, **process)`` ([Viteckova],
+[DeadTimeNotes], [Precup2013]).
 
-Every rule returns ``{kp, ti, td, b, c}`` in the form of the 2-DOF PID of 000 eq. 19 (``kp`` in
+Every rule returns ``{kp, ti, td, b, c}`` in the form of the 2-DOF PID of [Viteckova] eq. 19 (``kp`` in
 output units per measured unit, ``ti``/``td`` in s, ``b``/``c`` dimensionless; ``None`` where
 the rule gives no value), as a :class:`TuneResult` that also carries the rule's source, the
 process model it was designed on and the predicted margins on it. Process arguments: ``gain``
@@ -55,11 +56,11 @@ def _need(process: Mapping[str, float], rule: str, *names: str) -> list[float]:
     return values
 
 
-# ---------------------------------------------------------------- IPDT (000)
+# ---------------------------------------------------------------- IPDT ([Viteckova])
 def mdp(kind: str, process: Mapping[str, float]) -> Gains:
-    """Multiple dominant pole for k1/s·e^(−To·s) (000 eqs. 25–28, 32, 34).
+    """Multiple dominant pole for k1/s·e^(−To·s) ([Viteckova] eqs. 25–28, 32, 34).
 
-    Exact closed forms (PID kp = 0.78362/(k1·To), td = 0.26289·To); 000's Table 1 used the
+    Exact closed forms (PID kp = 0.78362/(k1·To), td = 0.26289·To); [Viteckova]'s Table 1 used the
     rounded 0.784 and 0.263, hence its kp = 3.14 and td = 1.32 for the exact 3.134 and 1.314.
     """
     k1, to = _need(process, 'mdp', 'gain', 'dead_time')
@@ -74,9 +75,9 @@ def mdp(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def experimental(kind: str, process: Mapping[str, float]) -> Gains:
-    """Experimental 2-DOF settings for IPDT (000 eqs. 35–36).
+    """Experimental 2-DOF settings for IPDT ([Viteckova] eqs. 35–36).
 
-    The PI follows eq. 36, kp = 0.6/(k1·To) (2.4 for 000's example); Table 1 prints 2.5.
+    The PI follows eq. 36, kp = 0.6/(k1·To) (2.4 for [Viteckova]'s example); Table 1 prints 2.5.
     """
     k1, to = _need(process, 'experimental', 'gain', 'dead_time')
     if kind == 'pid':
@@ -86,11 +87,11 @@ def experimental(kind: str, process: Mapping[str, float]) -> Gains:
     raise _bad_kind('experimental', kind, ('pi', 'pid'))
 
 
-# --------------------------------------------------- ultimate point (001, 004)
+# --------------------------------------------------- ultimate point ([DeadTimeNotes], [Precup2013])
 # kind → (kp/ku, ti/tu, td/tu)
 _ZN = {'p': (0.5, None, None), 'pi': (0.45, 1.0 / 1.2, None), 'pid': (0.6, 0.5, 0.125)}    # 1942
-_ZN_001 = {'p': (0.45, None, None), 'pi': (0.45, 0.85, None), 'pid': (0.6, 0.5, 0.12)}   # 001 Table 6.2
-_ZN_004 = {'p': (0.5, None, None), 'pi': (0.45, 0.8, None)}                              # 004 Table 3.1
+_ZN_001 = {'p': (0.45, None, None), 'pi': (0.45, 0.85, None), 'pid': (0.6, 0.5, 0.12)}   # [DeadTimeNotes] Table 6.2
+_ZN_004 = {'p': (0.5, None, None), 'pi': (0.45, 0.8, None)}                              # [Precup2013] Table 3.1
 _ZN_004_PID = {'zn_004_q0': (0.75, 0.6, 0.1), 'zn_004_q1': (0.6, 0.5, 0.12)}
 
 
@@ -104,25 +105,25 @@ def _ultimate(rule: str, table: Mapping[str, tuple], kind: str, process: Mapping
 
 def zn(kind: str, process: Mapping[str, float]) -> Gains:
     """Classical Ziegler–Nichols ultimate-point rule (Ziegler & Nichols, Trans. ASME 64,
-    1942; SPEC-supplement §1.9): P kp = 0.5·Ku; PI 0.45·Ku, ti = Tu/1.2; PID 0.6·Ku,
+    1942; [ZieglerNichols1942]): P kp = 0.5·Ku; PI 0.45·Ku, ti = Tu/1.2; PID 0.6·Ku,
     ti = Tu/2, td = Tu/8."""
     return _ultimate('zn', _ZN, kind, process)
 
 
 def zn_001(kind: str, process: Mapping[str, float]) -> Gains:
-    """Ziegler–Nichols ultimate-point table, 001 Table 6.2."""
+    """Ziegler–Nichols ultimate-point table, [DeadTimeNotes] Table 6.2."""
     return _ultimate('zn_001', _ZN_001, kind, process)
 
 
 def zn_004_q0(kind: str, process: Mapping[str, float]) -> Gains:
-    """Ziegler–Nichols, 004 Table 3.1 (PID column q = 0)."""
+    """Ziegler–Nichols, [Precup2013] Table 3.1 (PID column q = 0)."""
     return _ultimate('zn_004_q0', {**_ZN_004, 'pid': _ZN_004_PID['zn_004_q0']}, kind, process)
 
 
 def zn_004_q1(kind: str, process: Mapping[str, float]) -> Gains:
-    """Ziegler–Nichols as printed in 004 Table 3.1, PID column q = 1 (td = 0.12·Tu as in
-    001 Table 6.2; not the classical Tu/8 of :func:`zn`). The table values are used as
-    printed: the PID form 3.2.2 is garbled in our copy of 004."""
+    """Ziegler–Nichols as printed in [Precup2013] Table 3.1, PID column q = 1 (td = 0.12·Tu as in
+    [DeadTimeNotes] Table 6.2; not the classical Tu/8 of :func:`zn`). The table values are used as
+    printed: the PID form 3.2.2 is garbled in our copy of [Precup2013]."""
     return _ultimate('zn_004_q1', {**_ZN_004, 'pid': _ZN_004_PID['zn_004_q1']}, kind, process)
 
 
@@ -136,7 +137,7 @@ def _fopdt_only(process: Mapping[str, Any], rule: str) -> None:
 
 
 def oppelt(kind: str, process: Mapping[str, float]) -> Gains:
-    """Oppelt, 001 Table 6.1, with a = K·L/T from the tangent construction (eq. 6.15)."""
+    """Oppelt, [DeadTimeNotes] Table 6.1, with a = K·L/T from the tangent construction (eq. 6.15)."""
     if kind not in ('p', 'pi', 'pid'):
         raise _bad_kind('oppelt', kind, ('p', 'pi', 'pid'))
     _fopdt_only(process, 'oppelt')
@@ -150,9 +151,9 @@ def oppelt(kind: str, process: Mapping[str, float]) -> Gains:
 
 
 def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
-    """Classical Cohen–Coon for K/(T·s+1)·e^(−L·s) (004 eqs. 3.4.12–3.4.15).
+    """Classical Cohen–Coon for K/(T·s+1)·e^(−L·s) ([Precup2013] eqs. 3.4.12–3.4.15).
 
-    004 restates the formulas in Åström–Hägglund's normalised form with τ = L/(L+T); they
+    [Precup2013] restates the formulas in Åström–Hägglund's normalised form with τ = L/(L+T); they
     agree to the printed digits except the PI gain, printed 0.9·(1 + 0.92·τ/(1−τ)), where the
     classical formula 0.9 + L/(12T) = 0.9·(1 + 0.093·τ/(1−τ)) is used.
     """
@@ -174,7 +175,7 @@ def cohen_coon(kind: str, process: Mapping[str, float]) -> Gains:
 
 # ------------------------------------------------------------- Smith primary
 def smith_pi(kind: str, process: Mapping[str, float]) -> Gains:
-    """PI primary for a Smith predictor on K/(T·s+1)^n (004 eqs. 3.6.7, 3.6.9).
+    """PI primary for a Smith predictor on K/(T·s+1)^n ([Precup2013] eqs. 3.6.7, 3.6.9).
 
     n = 1: kp = T/(K·te), ti = T (te = desired closed-loop time constant, recommended
     (0.2…1)·T); n = 2: kp = 1/(4·xi²·K), ti = T (xi recommended in [0.5, 1]).
@@ -240,7 +241,7 @@ def _in_kinds(rule: str, kind: str, allowed: tuple[str, ...]) -> None:
 
 
 def ms(kind: str, process: Mapping[str, Any]) -> Gains:
-    """Largest integral gain subject to Ms ≤ ``ms`` (004 §3.4.2, eq. 3.4.7; see
+    """Largest integral gain subject to Ms ≤ ``ms`` ([Precup2013] §3.4.2, eq. 3.4.7; see
     ``core/tuning/robust.py``)."""
     _in_kinds('ms', kind, ('pi', 'pid'))
     model = _model(process, 'ms')
@@ -341,19 +342,19 @@ def _margin_spec(process: Mapping[str, Any]) -> tuple[float, float]:
 
 
 def ho(kind: str, process: Mapping[str, Any]) -> Gains:
-    """PI from gain and phase margins (Ho, Hang & Cao 1995; 004 eqs. 3.4.16–3.4.18)."""
+    """PI from gain and phase margins (Ho, Hang & Cao 1995; [Precup2013] eqs. 3.4.16–3.4.18)."""
     _in_kinds('ho', kind, ('pi',))
     model = _half_rule(_model(process, 'ho'))
     ar, phi = _margin_spec(process)
     dead = model.dead_time
     if dead <= 0:
-        raise ValueError('tune: ho needs dead_time > 0 (004 eq. 3.4.18 divides by it)')
+        raise ValueError('tune: ho needs dead_time > 0 ([Precup2013] eq. 3.4.18 divides by it)')
     wp = (ar * phi + 0.5 * math.pi * ar * (ar - 1.0)) / ((ar * ar - 1.0) * dead)   # 3.4.18
     inv_t = 0.0 if model.kind == 'ipdt' else 1.0 / model.time_constant
     denom = 2.0 * wp - 4.0 * wp * wp * dead / math.pi + inv_t                        # 3.4.17
     if denom <= 1e-9 * wp:
         raise ValueError(f'tune: gain_margin {ar:g} and phase_margin {math.degrees(phi):g} deg '
-                         'are incompatible on this process (004 eq. 3.4.17 gives no finite '
+                         'are incompatible on this process ([Precup2013] eq. 3.4.17 gives no finite '
                          'ti > 0)')
     if model.kind == 'ipdt':
         kp = wp / (ar * model.gain)             # limit T → ∞ of ω_P·T/(A_r·K), K = k1·T
@@ -363,9 +364,9 @@ def ho(kind: str, process: Mapping[str, Any]) -> Gains:
 
 
 def tan(kind: str, process: Mapping[str, Any]) -> Gains:
-    """Two-point PI of Tan, Lee & Wang (004 eqs. 3.4.19, 3.4.22; see module doc)."""
+    """Two-point PI of Tan, Lee & Wang ([Precup2013] eqs. 3.4.19, 3.4.22; see module doc)."""
     if kind == 'pid':
-        raise ValueError("tune: kind 'pid' is not available for rule 'tan': 004 eqs. "
+        raise ValueError("tune: kind 'pid' is not available for rule 'tan': [Precup2013] eqs. "
                          '3.4.20-3.4.21 are garbled in our copy; allowed pi')
     _in_kinds('tan', kind, ('pi',))
     model = _model(process, 'tan')
@@ -393,7 +394,7 @@ def tan(kind: str, process: Mapping[str, Any]) -> Gains:
 def wang(kind: str, process: Mapping[str, Any]) -> Gains:
     """PI/PID fitted to the desired closed loop ωn²·e^(−L·s)/(s² + 2ξωn·s + ωn²) with
     ωn·L = 2 and ξ = ``xi`` (default 0.707) by least squares over the model's frequency
-    response (004 eqs. 3.5.1–3.5.7; ``core/tuning/loop_fit.py``)."""
+    response ([Precup2013] eqs. 3.5.1–3.5.7; ``core/tuning/loop_fit.py``)."""
     _in_kinds('wang', kind, ('pi', 'pid'))
     from tank_control.core.tuning.loop_fit import design
     model = _model(process, 'wang')
@@ -413,23 +414,23 @@ RULES: dict[str, Callable[[str, Mapping[str, float]], Gains]] = {
 }
 
 SOURCES: dict[str, str] = {
-    'mdp': '000 eqs. 25-28, 32, 34 (multiple dominant pole, IPDT)',
-    'experimental': '000 eqs. 35-36 (experimental 2-DOF settings, IPDT)',
+    'mdp': '[Viteckova] eqs. 25-28, 32, 34 (multiple dominant pole, IPDT)',
+    'experimental': '[Viteckova] eqs. 35-36 (experimental 2-DOF settings, IPDT)',
     'zn': 'Ziegler & Nichols 1942, ultimate point',
-    'zn_001': '001 Table 6.2 (Ziegler-Nichols ultimate point)',
-    'zn_004_q0': '004 Table 3.1, q = 0',
-    'zn_004_q1': '004 Table 3.1, q = 1',
-    'oppelt': '001 Table 6.1 (Oppelt, step response)',
-    'cohen_coon': 'Cohen & Coon 1953; 004 eqs. 3.4.12-3.4.15',
-    'smith_pi': '004 eqs. 3.6.7, 3.6.9 (Smith predictor primary)',
-    'ms': 'largest integral gain with Ms bounded: the kappa-tau idea of 004 §3.4.2 '
+    'zn_001': '[DeadTimeNotes] Table 6.2 (Ziegler-Nichols ultimate point)',
+    'zn_004_q0': '[Precup2013] Table 3.1, q = 0',
+    'zn_004_q1': '[Precup2013] Table 3.1, q = 1',
+    'oppelt': '[DeadTimeNotes] Table 6.1 (Oppelt, step response)',
+    'cohen_coon': 'Cohen & Coon 1953; [Precup2013] eqs. 3.4.12-3.4.15',
+    'smith_pi': '[Precup2013] eqs. 3.6.7, 3.6.9 (Smith predictor primary)',
+    'ms': 'largest integral gain with Ms bounded: the kappa-tau idea of [Precup2013] §3.4.2 '
           '(Åström & Hägglund 1995) by optimisation',
     'amigo': 'AMIGO, Åström & Hägglund 2004 (J. Process Control 14)',
     'simc': 'SIMC, Skogestad 2003 (J. Process Control 13)',
     'lambda': 'lambda/IMC PI (Rivera, Morari & Skogestad 1986; Chien & Fruehauf 1990)',
-    'ho': 'gain and phase margin PI, Ho, Hang & Cao 1995 (004 eqs. 3.4.16-3.4.18)',
-    'tan': 'two-point PI, Tan, Lee & Wang 1996 (004 eqs. 3.4.19, 3.4.22)',
-    'wang': 'PI/PID fitted to a desired closed loop, Wang 1997 (004 eqs. 3.5.1-3.5.7)',
+    'ho': 'gain and phase margin PI, Ho, Hang & Cao 1995 ([Precup2013] eqs. 3.4.16-3.4.18)',
+    'tan': 'two-point PI, Tan, Lee & Wang 1996 ([Precup2013] eqs. 3.4.19, 3.4.22)',
+    'wang': 'PI/PID fitted to a desired closed loop, Wang 1997 ([Precup2013] eqs. 3.5.1-3.5.7)',
 }
 MODEL_RULES = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan', 'wang')
 """Rules designed on a process model (FOPDT, IPDT, SOPDT)."""

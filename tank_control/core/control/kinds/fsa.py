@@ -1,5 +1,5 @@
 """Controller kind ``fsa``: finite spectrum assignment with integral action for a stable or
-unstable first-order plant with dead time (004 §3.6.2, eqs. 3.6.10–3.6.15)."""
+unstable first-order plant with dead time ([Precup2013] §3.6.2, eqs. 3.6.10–3.6.15)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -79,7 +79,7 @@ KIND = ControllerKind(
     name='fsa',
     description='finite spectrum assignment (predictor state feedback with integral action) '
                 'for K/(T s +- 1) e^(-L s), poles of p(s) = s^2 + 2 xi w0 s + w0^2 '
-                '(004 §3.6.2)',
+                '([Precup2013] §3.6.2)',
     config=FsaConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start()),
     build=build, update=update, reason=reason,

@@ -66,7 +66,7 @@ class Tuning:
     kind: str = param('pid', 'controller type the rule designs', name='tuning.kind',
                       choices=('p', 'pi', 'pd', 'pid'))
     setpoint_weights: bool = param(True, 'true: b and c come from the rule as well; false: b, c '
-                                   'are set by hand (e.g. 000 Figs. 4-5: MDP gains, b = c = 0)',
+                                   'are set by hand (e.g. [Viteckova] Figs. 4-5: MDP gains, b = c = 0)',
                                    name='tuning.setpoint_weights')
     gain: float = param(0.0, 'process gain K or k1 (0 = not given)',
                         unit='y units per u unit, per s for IPDT', min=0.0, max=BIG,
@@ -82,10 +82,10 @@ class Tuning:
     te: float = param(0.0, 'smith_pi n = 1: desired closed-loop time constant Te, (0.2...1)*T '
                       '(0 = not given)', unit='s', min=0.0, max=BIG, tiny=TIME_TINY,
                       name='tuning.te',
-                      source='004 eq. 3.6.7')
+                      source='[Precup2013] eq. 3.6.7')
     xi: float = param(0.0, 'smith_pi n = 2: damping xi in [0.5, 1]; rule wang: damping of the '
                       'desired closed loop (0 = not given; wang: 0.707)', unit='-',
-                      min=0.0, max=1.0, name='tuning.xi', source='004 eq. 3.6.9')
+                      min=0.0, max=1.0, name='tuning.xi', source='[Precup2013] eq. 3.6.9')
     order: int = param(1, 'smith_pi model order n (1 or 2)', min=1, max=2, name='tuning.order')
     model: str = param('auto', 'process model: fopdt K/(T*s+1)*e^(-L*s), ipdt k1/s*e^(-L*s), '
                        'sopdt K/((T*s+1)(T2*s+1))*e^(-L*s); auto = sopdt with '
@@ -97,7 +97,7 @@ class Tuning:
                                   name='tuning.time_constant2')
     ms_target: float = param(1.4, 'rule ms: the sensitivity peak Ms the design may reach',
                              unit='-', min=1.05, max=5.0, name='tuning.ms_target',
-                             source='004 eq. 3.4.7')
+                             source='[Precup2013] eq. 3.4.7')
     mt_max: float = param(0.0, 'rule ms: bound on the complementary sensitivity peak Mt '
                           '(0 = none)', unit='-', min=0.0, max=5.0, name='tuning.mt_max')
     tau_c: float = param(0.0, 'rules simc, lambda: desired closed-loop time constant (0 = the '
@@ -105,9 +105,9 @@ class Tuning:
                          tiny=TIME_TINY, name='tuning.tau_c')
     gain_margin: float = param(0.0, 'rules ho, tan: gain margin A_r (0 = 3)', unit='-',
                                min=0.0, max=100.0, name='tuning.gain_margin',
-                               source='004 eqs. 3.4.17, 3.4.22')
+                               source='[Precup2013] eqs. 3.4.17, 3.4.22')
     phase_margin: float = param(0.0, 'rule ho: phase margin (0 = 60)', unit='deg', min=0.0,
-                                max=89.0, name='tuning.phase_margin', source='004 eq. 3.4.18')
+                                max=89.0, name='tuning.phase_margin', source='[Precup2013] eq. 3.4.18')
 
     def process_model(self) -> ProcessModel | None:
         """The model these parameters describe (gain and dead time given, and the time

@@ -1,4 +1,4 @@
-"""The robustness guard of the PID-based kinds (SPEC §3): ``robustness.ms_max`` refuses a change
+"""The robustness guard of the PID-based kinds ([Checks] §2): ``robustness.ms_max`` refuses a change
 whose loop on the process model would be unstable or exceed Ms, and :class:`LoopWatch` reports
 the running loop's ``robustness.*`` and ``sampling.warning`` values. Re-exported by
 :mod:`~tank_control.core.control.kinds.base`."""
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Robustness:
-    """The guard on the running loop's robustness (SPEC §3)."""
+    """The guard on the running loop's robustness ([Checks] §2)."""
 
     ms_max: float = param(0.0, 'refuse a gain change (or a tuned design) that would make the '
                           'sensitivity peak Ms of the implemented loop on the process model '
@@ -67,9 +67,9 @@ class RobustnessResults:
 
 @dataclass(frozen=True)
 class SamplingResults:
-    """001's sampling-time advice on the process model (``core/tuning/sampling.py``)."""
+    """[DeadTimeNotes]'s sampling-time advice on the process model (``core/tuning/sampling.py``)."""
 
-    warning: str = param('', "non-empty when sample_time is above 001's advice for the process "
+    warning: str = param('', "non-empty when sample_time is above [DeadTimeNotes]'s advice for the process "
                          'model of the analysis (T ≈ 0.3·L, Oppelt; T ≈ (0.1…0.3)·Tu, '
                          'Ziegler–Nichols)', name='sampling.warning', read_only=True)
 
@@ -122,7 +122,7 @@ class LoopWatch:
         return robustness_values(self.report(config), self.ms_max)
 
     def sampling(self, sample_time: float) -> dict[str, Any]:
-        """``sampling.warning``: 001's advice for ``sample_time`` [s] on the model (kept until
+        """``sampling.warning``: [DeadTimeNotes]'s advice for ``sample_time`` [s] on the model (kept until
         the model or the sample time changes)."""
         key = (self.model, sample_time)
         if key != self._sampling_key:

@@ -1,5 +1,5 @@
 """Controller kind ``lead_lag``: the lead-lag compensator K·(Td·s + 1)/(α·Td·s + 1)·(1 + 1/(Ti·s))
-with 002's frequency-domain design (``tuning.rule: frequency_002``) from a process model, and
+with [Ikonen]'s frequency-domain design (``tuning.rule: frequency_002``) from a process model, and
 the robustness of the running loop on that model (``robustness.*``, the ``ms_max`` guard)."""
 from __future__ import annotations
 
@@ -88,7 +88,7 @@ def linear(settings: Settings) -> LinearController:
 
 
 def derive(values: base.Values) -> dict[str, float]:
-    """``lead_lag.kp``, ``lead_lag.td``, ``lead_lag.ti`` from 002's design (002 §1.1–1.4) of
+    """``lead_lag.kp``, ``lead_lag.td``, ``lead_lag.ti`` from [Ikonen]'s design ([Ikonen] §1.1–1.4) of
     ``tuning.kind`` on ``tuning.model`` with ``lead_lag.alpha``; none without a rule."""
     if values['tuning.rule'] == 'none':
         return {}
@@ -99,7 +99,7 @@ def derive(values: base.Values) -> dict[str, float]:
 KIND = ControllerKind(
     name='lead_lag',
     description='lead-lag compensator K (Td s+1)/(alpha Td s+1) (1 + 1/(Ti s)) with limits, '
-                "anti-windup and 002's frequency-domain design (002 §1)",
+                "anti-windup and [Ikonen]'s frequency-domain design ([Ikonen] §1)",
     config=LeadLagConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS),

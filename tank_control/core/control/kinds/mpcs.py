@@ -1,4 +1,4 @@
-"""Controller kind ``mpcs``: offset-free MPCS of the mixing tank, analytic or QP (003 §4, §6).
+"""Controller kind ``mpcs``: offset-free MPCS of the mixing tank, analytic or QP ([Michalski2021] §4, §6).
 Live changes go through :meth:`Mpcs.configure` (bumpless; ``sample_time`` is read-only)."""
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def input_limits(settings: Settings) -> dict[str, tuple[float, float]]:
 
 KIND = ControllerKind(
     name='mpcs',
-    description='offset-free MPCS for the mixing tank, analytic or QP (003 §4, §6)',
+    description='offset-free MPCS for the mixing tank, analytic or QP ([Michalski2021] §4, §6)',
     config=MpcsConfig,
     groups=(base.channels(Mpcs.output_names, Mpcs.input_names),
             base.warm_start((MpcsConfig().op_F_H, MpcsConfig().op_F_Cin))),

@@ -1,4 +1,4 @@
-"""Controller kind ``pid``: the SISO 2-DOF PID of 000 eq. 19 with limits, anti-windup, tuning,
+"""Controller kind ``pid``: the SISO 2-DOF PID of [Viteckova] eq. 19 with limits, anti-windup, tuning,
 and the robustness of the running loop on the ``tuning.*`` model (``robustness.*``,
 ``sampling.warning``)."""
 from __future__ import annotations
@@ -40,7 +40,7 @@ def linear(settings: Settings) -> LinearController:
 
 
 def results(controller: PidController) -> dict[str, Any]:
-    """``robustness.*`` of the running loop and 001's sampling advice on the model."""
+    """``robustness.*`` of the running loop and [DeadTimeNotes]'s sampling advice on the model."""
     watch = base.attached(controller).loop_watch
     config = controller.pid.config
     return {**watch.values(config), **watch.sampling(config.sample_time)}
@@ -48,7 +48,7 @@ def results(controller: PidController) -> dict[str, Any]:
 
 KIND = ControllerKind(
     name='pid',
-    description='SISO 2-DOF PID (000 eq. 19) with filter, limits, anti-windup, tuning rules',
+    description='SISO 2-DOF PID ([Viteckova] eq. 19) with filter, limits, anti-windup, tuning rules',
     config=PidConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             base.TUNING, base.ROBUSTNESS, base.ROBUSTNESS_RESULTS, base.SAMPLING_RESULTS),

@@ -1,4 +1,4 @@
-"""Controller kind ``relay_autotune``: a PID with a relay auto-tuning test (001 §1.3, 004
+"""Controller kind ``relay_autotune``: a PID with a relay auto-tuning test ([DeadTimeNotes] §1.3, [Precup2013]
 §3.2–3.3) and the design, preview, apply, verify and revert of its gains. Commands
 ``~/start_autotune``, ``~/abort_autotune``, ``~/apply_autotune``, ``~/revert_gains``; the
 results are written back to the read-only ``autotune.*`` parameters, the gains and the
@@ -152,7 +152,7 @@ def reason(settings: Settings) -> str | None:
 
 
 def results(tuner: RelayAutotuner) -> dict[str, Any]:
-    """The tuner's results, ``robustness.*`` of the running loop and 001's sampling advice on
+    """The tuner's results, ``robustness.*`` of the running loop and [DeadTimeNotes]'s sampling advice on
     the identified model."""
     watch = base.attached(tuner).loop_watch
     watch.model = tuner.model
@@ -168,7 +168,7 @@ def linear(settings: Settings) -> LinearController:
 
 KIND = ControllerKind(
     name='relay_autotune',
-    description='PID with relay auto-tuning (001 §1.3, 004 §3.2–3.3)',
+    description='PID with relay auto-tuning ([DeadTimeNotes] §1.3, [Precup2013] §3.2–3.3)',
     config=PidConfig,
     groups=(base.channels(('y',), ('u',)), base.MODE, base.fail_safe(), base.warm_start(),
             base.group('autotune', AutotuneConfig), base.group('command', AutotuneCommand),

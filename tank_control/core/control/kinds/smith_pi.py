@@ -1,5 +1,5 @@
-"""Controller kind ``smith_pi``: Smith predictor with a PI primary (004 §3.6.1), its auto-tuning
-chain (004 §3.6: relay → ZN PI → kP from a setpoint change → eq. 3.6.2 → eq. 3.6.7/3.6.9;
+"""Controller kind ``smith_pi``: Smith predictor with a PI primary ([Precup2013] §3.6.1), its auto-tuning
+chain ([Precup2013] §3.6: relay → ZN PI → kP from a setpoint change → eq. 3.6.2 → eq. 3.6.7/3.6.9;
 ``autotune.*``, ``~/start_autotune``, ``~/abort_autotune``) and the robustness of the running
 loop on its internal model (``robustness.*``, the ``ms_max`` guard)."""
 from __future__ import annotations
@@ -31,7 +31,7 @@ AUTOTUNE = tuple('autotune.' + name for name in (
     'relay_amplitude', 'hysteresis', 'noise_band', 'bias_correction', 'asymmetry_tol',
     'min_cycles', 'stationarity_tol', 'timeout', 'settle_time', 'settle_band', 'settle_timeout',
     'max_amplitude', 'method', 'start_time'))
-"""The relay test's settings the chain uses (its rule is 004 Table 3.1's ZN PI)."""
+"""The relay test's settings the chain uses (its rule is [Precup2013] Table 3.1's ZN PI)."""
 RESULTS = tuple('autotune.' + name for name in (
     'state', 'reason', 'state_time', 'cycles', 'ku', 'tu', 'ku_df', 'tu_df', 'model_kind',
     'model_method', 'model_gain', 'model_time_constant', 'model_dead_time',
@@ -90,7 +90,7 @@ def linear(settings: Settings) -> LinearController:
 
 
 def derive(values: base.Values) -> dict[str, float]:
-    """kp, ti of the PI primary from tuning.rule smith_pi on the internal model (004 eqs.
+    """kp, ti of the PI primary from tuning.rule smith_pi on the internal model ([Precup2013] eqs.
     3.6.7 with tuning.te, 3.6.9 with tuning.xi)."""
     if values['tuning.rule'] != 'smith_pi':
         return {}
@@ -107,12 +107,12 @@ def reason(settings: Settings) -> str | None:
                 'smith_pi')
     model = settings.config
     if rule == 'smith_pi' and order == 1 and model.model != 'fopdt':
-        return (f'tuning.order: 1 designs for K/(T s+1) (004 eq. 3.6.7), but the internal model '
+        return (f'tuning.order: 1 designs for K/(T s+1) ([Precup2013] eq. 3.6.7), but the internal model '
                 f'smith.model is {model.model!r}; allowed 2 with sopdt (T2 = T), or smith.model '
                 'fopdt')
     if rule == 'smith_pi' and order == 2 and (model.model != 'sopdt'
                                               or model.time_constant2 != model.time_constant):
-        return (f'tuning.order: 2 designs for K/(T s+1)^2 (004 eq. 3.6.9), but the internal model '
+        return (f'tuning.order: 2 designs for K/(T s+1)^2 ([Precup2013] eq. 3.6.9), but the internal model '
                 f'is smith.model {model.model!r} with smith.time_constant {model.time_constant:g} '
                 f's, smith.time_constant2 {model.time_constant2:g} s; allowed sopdt with '
                 'smith.time_constant2 = smith.time_constant, or tuning.order 1')
@@ -195,7 +195,7 @@ def results(controller: SmithAutotuner) -> dict[str, Any]:
 
 KIND = ControllerKind(
     name='smith_pi',
-    description='Smith predictor with a PI primary (004 §3.6.1)',
+    description='Smith predictor with a PI primary ([Precup2013] §3.6.1)',
     config=SmithModel,
     groups=(base.group('primary', PidConfig, only=PRIMARY), base.channels(('y',), ('u',)),
             base.MODE, base.fail_safe(), base.warm_start(),

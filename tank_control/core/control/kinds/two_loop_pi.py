@@ -1,6 +1,6 @@
 """Controller kind ``two_loop_pi``: the two-loop PI of the mixing tank, with or without
-decoupling (003 §2–3), optional gain scheduling (``two_loop.schedule.*``) and measured-disturbance
-feedforward (``two_loop.feedforward``), and its multivariable auto-tuning (004 §3.7,
+decoupling ([Michalski2021] §2–3), optional gain scheduling (``two_loop.schedule.*``) and measured-disturbance
+feedforward (``two_loop.feedforward``), and its multivariable auto-tuning ([Precup2013] §3.7,
 ``autotune.mode``: core/control/mimo_autotune.py; commands ``~/start_autotune``,
 ``~/abort_autotune``, ``~/apply_autotune``, ``~/revert_gains``). Changes rebuild it,
 re-initialised from the last (y, u) (bumpless: the integrals absorb a change of the gains or of
@@ -23,7 +23,7 @@ from tank_control.core.control.scheduling import GainSchedule, Scheduler
 from tank_control.core.plants.mixing_tank import OPERATING_POINT
 
 FLOWS = (OPERATING_POINT.F_H, OPERATING_POINT.F_C)
-"""[F_H, F_Cin] [cm³/s] holding the tank at 003's operating point: the warm start and the
+"""[F_H, F_Cin] [cm³/s] holding the tank at [Michalski2021]'s operating point: the warm start and the
 default fail-safe output."""
 
 
@@ -97,7 +97,7 @@ def reason(settings: Settings) -> str | None:
 
 KIND = ControllerKind(
     name='two_loop_pi',
-    description='two-loop PI for the mixing tank with optional decoupling (003 §2-3)',
+    description='two-loop PI for the mixing tank with optional decoupling ([Michalski2021] §2-3)',
     config=TwoLoopPiConfig,
     groups=(base.channels(('h', 'T_out'), ('F_H', 'F_Cin')), base.fail_safe(FLOWS),
             base.warm_start(FLOWS), base.group('schedule', GainSchedule),

@@ -1,4 +1,4 @@
-"""Plant kind ``fopdt``: first order plus dead time K/(T·s + 1)·e^(−L·s) (001 eq. 6.14)."""
+"""Plant kind ``fopdt``: first order plus dead time K/(T·s + 1)·e^(−L·s) ([DeadTimeNotes] eq. 6.14)."""
 from __future__ import annotations
 
 from typing import Any
@@ -17,5 +17,5 @@ def linear(config: FopdtConfig) -> Any:
     return ProcessModel('fopdt', gain, float(config.dead_time), float(config.time_constant))
 
 
-KIND = PlantKind('fopdt', 'first order plus dead time K/(T·s + 1)·e^(−L·s) (001 eq. 6.14)',
+KIND = PlantKind('fopdt', 'first order plus dead time K/(T·s + 1)·e^(−L·s) ([DeadTimeNotes] eq. 6.14)',
                  FopdtConfig, Fopdt, linear=linear)

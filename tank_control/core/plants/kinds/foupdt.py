@@ -1,4 +1,4 @@
-"""Plant kind ``foupdt``: first-order unstable plus dead time K/(T·s − 1)·e^(−L·s) (004 §3.6.2)."""
+"""Plant kind ``foupdt``: first-order unstable plus dead time K/(T·s − 1)·e^(−L·s) ([Precup2013] §3.6.2)."""
 from __future__ import annotations
 
 from typing import Any
@@ -18,4 +18,4 @@ def linear(config: FoupdtConfig) -> Any:
 
 
 KIND = PlantKind('foupdt', 'first-order unstable plus dead time K/(T·s − 1)·e^(−L·s) '
-                 '(004 §3.6.2)', FoupdtConfig, Foupdt, linear=linear)
+                 '([Precup2013] §3.6.2)', FoupdtConfig, Foupdt, linear=linear)

@@ -1,4 +1,4 @@
-"""Plant kind ``ipdt``: integrator plus dead time k1/s·e^(−To·s) (000 eq. 1)."""
+"""Plant kind ``ipdt``: integrator plus dead time k1/s·e^(−To·s) ([Viteckova] eq. 1)."""
 from __future__ import annotations
 
 from typing import Any
@@ -14,5 +14,5 @@ def linear(config: IpdtConfig) -> Any:
     return ProcessModel('ipdt', gain, float(config.dead_time)) if gain > 0.0 else None
 
 
-KIND = PlantKind('ipdt', 'integrator plus dead time k1/s·e^(−To·s) (000 eq. 1)', IpdtConfig, Ipdt,
+KIND = PlantKind('ipdt', 'integrator plus dead time k1/s·e^(−To·s) ([Viteckova] eq. 1)', IpdtConfig, Ipdt,
                  linear=linear)

@@ -1,5 +1,5 @@
 """Plant kind ``sopdt``: second order plus dead time K/((T1·s + 1)(T2·s + 1))·e^(−L·s) or
-K/(T²·s² + 2ζ·T·s + 1)·e^(−L·s) (004 eq. 3.5.8)."""
+K/(T²·s² + 2ζ·T·s + 1)·e^(−L·s) ([Precup2013] eq. 3.5.8)."""
 from __future__ import annotations
 
 from typing import Any
@@ -37,5 +37,5 @@ def linear(config: SopdtConfig) -> Any:
 
 
 KIND = PlantKind('sopdt', 'second order plus dead time K/((T1·s + 1)(T2·s + 1))·e^(−L·s) or '
-                 'K/(T²·s² + 2ζ·T·s + 1)·e^(−L·s) (004 eq. 3.5.8)', SopdtConfig, Sopdt,
+                 'K/(T²·s² + 2ζ·T·s + 1)·e^(−L·s) ([Precup2013] eq. 3.5.8)', SopdtConfig, Sopdt,
                  linear=linear)

@@ -1,5 +1,5 @@
 """Plant kind ``transfer_function``: B(s)/A(s)·e^(−L·s), strictly proper, any stable or
-unstable denominator (SPEC-supplement §3: 002's process 4/((s + 1)(s + 2)))."""
+unstable denominator ([Checks] §5: [Ikonen]'s process 4/((s + 1)(s + 2)))."""
 from __future__ import annotations
 
 from tank_control.core.analysis.linear import RationalModel
