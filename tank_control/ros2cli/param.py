@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from tank_control.core import params_file, ros_yaml
-from tank_control.core.params import ConfigError
+from tank_control.core.params import ConfigError, nearest
 from tank_control.nodes.services import RESEND_AFTER, answers
 from tank_control.ros2cli.common import (
-    CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
+    CliError, add_daemon_argument, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
     client_node, is_hidden, settle_graph, spin_until, wait_for_node)
 
 if TYPE_CHECKING:
@@ -50,6 +50,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                    help='consider hidden nodes as well')
     add_timeout_argument(p)
     add_spin_time_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=list_verb)
 
     p = verbs.add_parser('get', help='Get parameter', description='Get parameter')
@@ -57,6 +58,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('parameter_name', metavar='NAME', help='name of the parameter')
     p.add_argument('--hide-type', action='store_true', help='print only the value')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=get_verb)
 
     p = verbs.add_parser('set', help='Set parameter', description=(
@@ -66,6 +68,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('parameter_name', metavar='NAME', help='name of the parameter')
     p.add_argument('value', metavar='VALUE', help='value of the parameter (YAML)')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=set_verb)
 
     p = verbs.add_parser('describe', help='Show descriptive information about declared parameters',
@@ -73,6 +76,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('node_name', metavar='NODE', help='name of the node')
     p.add_argument('parameter_names', metavar='NAME', nargs='+', help='names of the parameters')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=describe_verb)
 
     p = verbs.add_parser('dump', help='Show all of the parameters of a node in a YAML file format',
@@ -80,6 +84,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                                      '(accepted by `ros2 param load` and --params-file)')
     p.add_argument('node_name', metavar='NODE', help='name of the node')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=dump_verb)
 
     p = verbs.add_parser('load', help='Load parameter file for a node',
@@ -260,8 +265,11 @@ def get_verb(args: argparse.Namespace) -> int:
     with client_node() as node:
         target = _connect(node, args.node_name, args.timeout)
         [value] = _get_values(node, target, [args.parameter_name], args.timeout)
-    if value is None or value.type == 0:
-        raise CliError(f"Parameter not set: '{args.parameter_name}' on {target}")
+        if value is None or value.type == 0:
+            names = _list_names(node, target, args.timeout)
+            guess = None if args.parameter_name in names else nearest(args.parameter_name, names)
+            hint = f'; did you mean {guess}?' if guess else ''
+            raise CliError(f"Parameter not set: '{args.parameter_name}' on {target}{hint}")
     text = _format_value(value)
     print(text if args.hide_type else f'{_GET_LABELS[value.type]} {text}')
     return 0
