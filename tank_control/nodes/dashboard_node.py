@@ -75,6 +75,8 @@ NS_PER_S = 1_000_000_000
 #: (characters; a longer one, from any publisher on the domain, is ignored and counted).
 MAX_AUDIT = 200
 MAX_AUDIT_CHARS = 1 << 20
+#: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
+FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
 #: Period of the look at the access counters (a change is published on /diagnostics) [s].
 ACCESS_PERIOD = 1.0
 
@@ -153,6 +155,7 @@ class DashboardNode(Node):
         self._lock = threading.Lock()            # the views, the limits and the origin
         self._views: dict[str, _NodeView] = {}
         self._limits: dict[str, list[Any]] = {}
+        self._units: dict[str, str] = {}          # channel -> unit, of the shown plant's kind
         self._origin_ns = 0
         self._requests: queue.SimpleQueue[tuple[dict[str, Any], Reply]] = queue.SimpleQueue()
         self._calls: list[_Call] = []
@@ -243,7 +246,7 @@ class DashboardNode(Node):
         """The graph as the page starts from (called by the web thread)."""
         with self._lock:
             return {'nodes': {name: view.as_json() for name, view in self._views.items()},
-                    'limits': dict(self._limits), 'origin': self._origin_ns / NS_PER_S,
+                    'limits': dict(self._limits), 'units': dict(self._units), 'origin': self._origin_ns / NS_PER_S,
                     'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest,
                     'missed': dict(self.missed), 'marks': list(self.marks),
                     'audit': list(self.audit)}
@@ -439,6 +442,7 @@ class DashboardNode(Node):
                         view.params = params
                         view.loaded, view.loading = True, False
                     self._update_limits(view)
+                    self._update_units(view)
                     self._update_robustness()
                     self._send_node(view)
 
@@ -566,11 +570,30 @@ class DashboardNode(Node):
                 views = [v for v in self._views.values() if v.name.rsplit('/', 1)[-1] == prefix]
                 info = {'level': int.from_bytes(status.level, 'little')
                         if isinstance(status.level, bytes) else int(status.level),
-                        'message': status.message}
+                        'message': status.message,
+                        'fields': {kv.key: kv.value[:200] for kv in status.values[:200]
+                                   if kv.key in FACEPLATE_FIELDS}}
                 for view in views:
                     view.diagnostics = info
             for view in views:
                 self.server.broadcast({'type': 'diagnostics', 'node': view.name, **info})
+
+    def _update_units(self, view: _NodeView) -> None:
+        """The channels' units of a plant node (its kind's ``units``), for the page."""
+        from tank_control.core.plants.kinds import registry
+        with self._lock:
+            entry = view.params.get('plant')
+        if entry is None:
+            return
+        try:
+            units = dict(registry.get_kind(str(entry['value'])).units)
+        except (ValueError, KeyError, TypeError):
+            return
+        with self._lock:
+            if units == self._units:
+                return
+            self._units = units
+        self.server.broadcast({'type': 'units', 'units': units})
 
     def _update_limits(self, view: _NodeView) -> None:
         """Input limits {channel: [min, max]} of a controller node, through its kind."""

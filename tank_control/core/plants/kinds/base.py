@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from tank_control.core.interfaces import Plant
@@ -17,7 +17,8 @@ class PlantKind:
     ``build`` makes the model from a configuration. Live changes go through the model's
     ``configure(**changes)``. ``tick_reason(config, sample_time)``: relations between the
     model and plant_node's tick ``sample_time`` [s] (a one-line reason or None), e.g. the work
-    one tick may cost.
+    one tick may cost. ``units``: engineering unit per channel name (shown by the dashboard;
+    a channel without one is in the model's own units).
     """
 
     name: str
@@ -25,6 +26,7 @@ class PlantKind:
     config: type
     build: Callable[[Any], Plant]
     tick_reason: Callable[[Any, float], str | None] | None = None
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The model's parameters."""
