@@ -150,6 +150,9 @@ def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIE
     if DAEMON is not None:
         start = min(start, DAEMON.started)
         if whole_graph:
+            # a participant that missed the daemon's first announcements answers the next,
+            # within Fast DDS's 3 s period: a young daemon's graph may lack it
+            spin_time = max(spin_time, empty_wait)
             state['changed'] = DAEMON.graph_changed()
 
     def settled() -> bool:

@@ -58,7 +58,7 @@ MAX_REQUEST = 64 * 1024     # [bytes] longest request line
 MAX_ARGS = 64               # most arguments of a forwarded command
 READ_TIMEOUT = 5.0          # [s] to receive a whole request once connected
 MAX_CLIENTS = 16            # requests served at once; more get "busy"
-START_WAIT = 10.0           # [s] for a daemon started on demand to listen
+START_WAIT = 20.0           # [s] for a daemon started on demand to listen
 
 
 # ------------------------------------------------------------------------------- addresses
@@ -373,6 +373,8 @@ class Daemon:
             os.chmod(self.path, 0o600)
             server.listen(MAX_CLIENTS)
             server.settimeout(0.1)
+            with self._lock:
+                self.last_request = time.monotonic()     # idle from now on, not from start-up
             while not self._stop.is_set():
                 self.graph_changed()
                 with self._lock:

@@ -14,10 +14,6 @@ import re
 import sys
 from typing import TYPE_CHECKING, Any
 
-import yaml
-
-from tank_control.core import params_file, ros_yaml
-from tank_control.core.params import ConfigError, nearest
 from tank_control.nodes.services import RESEND_AFTER, answers
 from tank_control.ros2cli.common import (
     CliError, add_daemon_argument, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
@@ -171,7 +167,10 @@ def value_from_python(value: Any, declared_type: int, raw: str | None = None) ->
     """
     from rcl_interfaces.msg import ParameterType as T
     from rcl_interfaces.msg import ParameterValue
+    import yaml
     from rclpy.parameter import Parameter, get_parameter_value
+
+    from tank_control.core import ros_yaml
     if raw is not None:
         msg = get_parameter_value(raw)
         try:
@@ -266,6 +265,7 @@ def get_verb(args: argparse.Namespace) -> int:
         target = _connect(node, args.node_name, args.timeout)
         [value] = _get_values(node, target, [args.parameter_name], args.timeout)
         if value is None or value.type == 0:
+            from tank_control.core.params import nearest
             names = _list_names(node, target, args.timeout)
             guess = None if args.parameter_name in names else nearest(args.parameter_name, names)
             hint = f'; did you mean {guess}?' if guess else ''
@@ -334,6 +334,7 @@ def dump_verb(args: argparse.Namespace) -> int:
         values = _get_values(node, target, names, args.timeout) if names else []
     flat = {n: _python(v) for n, v in sorted(zip(names, values), key=lambda item: item[0])
             if v is not None and v.type != 0}
+    from tank_control.core import params_file
     sys.stdout.write(params_file.dumps({target: flat}))   # the dialect the loader reads
     return 0
 
@@ -341,6 +342,8 @@ def dump_verb(args: argparse.Namespace) -> int:
 def parameters_from_file(path: str, target: str, use_wildcard: bool = True) -> dict[str, Any]:
     """Flat name → value for ``target`` from a parameter file (wildcards first, then exact),
     read by the package's one parameter-file reader."""
+    from tank_control.core import params_file
+    from tank_control.core.params import ConfigError
     try:
         sections = params_file.read(path)
     except ConfigError as exc:
