@@ -8,7 +8,7 @@ and is stopped at the end. The first call with the daemon starts it and is not c
 waits for a complete graph, 3.5 s); the others answer from its graph. Without the daemon
 (``--no-daemon``) each call joins the graph and discovers it.
 
-    .venv/bin/python bench/bench_ros2cli.py [--calls 20]
+    .venv/bin/python bench/bench_ros2cli.py [--calls 20] [--daemon-only]
 """
 from __future__ import annotations
 
@@ -54,6 +54,8 @@ def main() -> int:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--calls', type=int, default=20, help='calls per command (default 20)')
+    parser.add_argument('--daemon-only', action='store_true',
+                        help='time only the calls through the daemon')
     args = parser.parse_args()
     domain, lock = domains.claim()
     run_dir = tempfile.mkdtemp(prefix='ros2d-')
@@ -77,10 +79,10 @@ def main() -> int:
               f'each [s]; the first call (starting the daemon): {first:.2f} s')
         print(f'{"command":46s} {"daemon p50":>10s} {"p95":>6s} {"direct p50":>11s} {"p95":>6s}')
         for command in COMMANDS:
-            rows = []
-            for extra in ([], ['--no-daemon']):
+            rows = [(math.nan, math.nan)] * 2
+            for i, extra in enumerate(([], ['--no-daemon'])[:1 if args.daemon_only else 2]):
                 times = [timed(ros2 + list(command) + extra, env)[0] for _ in range(args.calls)]
-                rows.append((statistics.median(times), p95(times)))
+                rows[i] = (statistics.median(times), p95(times))
             (dm, dp), (nm, np_) = rows
             print(f'{"ros2 " + " ".join(command):46s} {dm:10.2f} {dp:6.2f} {nm:11.2f} {np_:6.2f}')
     finally:

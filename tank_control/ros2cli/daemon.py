@@ -64,10 +64,15 @@ START_WAIT = 20.0           # [s] for a daemon started on demand to listen
 # ------------------------------------------------------------------------------- addresses
 
 def daemon_key(env: Mapping[str, str]) -> str:
-    """8 hex digits naming the discovery settings (and this checkout's code)."""
+    """8 hex digits naming the discovery settings, the network namespace (a unix socket is
+    reachable from every one) and this checkout's code."""
     import tank_control
     text = '\n'.join(f'{k}={env.get(k, "")}' for k in DISCOVERY_ENV)
     text += '\n' + os.path.dirname(os.path.abspath(tank_control.__file__))
+    try:
+        text += '\n' + os.readlink('/proc/self/ns/net')
+    except OSError:
+        pass
     return hashlib.sha256(text.encode()).hexdigest()[:8]
 
 

@@ -220,8 +220,9 @@
     $('#no-data')?.remove();
     const order = ['y-', 'u-', 'd'];
     const rank = (k) => order.findIndex((p) => k.startsWith(p));
+    const after = (a, b) => a.toLowerCase() > b.toLowerCase();     // h before T_out
     const later = Object.keys(state.charts).filter((k) => rank(k) > rank(id) ||
-      (rank(k) === rank(id) && k > id)).sort((a, b) => rank(a) - rank(b) || (a < b ? -1 : 1));
+      (rank(k) === rank(id) && after(k, id))).sort((a, b) => rank(a) - rank(b) || (after(a, b) ? 1 : -1));
     const before = later.length ? state.charts[later[0]].el : null;
     $('#trends').insertBefore(box, before);
     chart = state.charts[id] = {el: box, body, plot: null, title, channel, heading, sources: [],
