@@ -169,3 +169,42 @@ class RobustnessWorker:
             message = {'type': 'robustness', **result}
             self.latest = message
             self._publish(message)
+
+
+#: Most points of a predicted step response sent to the page.
+STEP_POINTS = 300
+
+
+def tuning_preview(plant_values: Mapping[str, Any] | None,
+                   controller_values: Mapping[str, Any] | None,
+                   changes: Mapping[str, Any]) -> dict[str, Any]:
+    """The tuning view's prediction for the controller's values with ``changes`` (e.g. a
+    tuning rule and its setting), before anything is applied: the gains the controller would
+    derive, the margins of :func:`loop_analysis` (the robustness panel's and ``tank-control
+    analyze``'s numbers for those gains) and the predicted unit setpoint and load steps on
+    the plant's model (``analysis.robustness.predict``: no output limits, from rest)."""
+    from tank_control.core.analysis.robustness import predict
+
+    if controller_values is None:
+        return _unavailable('no controller node (yet): its parameters are needed')
+    candidate = {**controller_values, **changes}
+    analysis = loop_analysis(plant_values, candidate)
+    if not analysis['available']:
+        return {'available': False, 'reason': analysis['reason']}
+    out: dict[str, Any] = {'available': True, 'reason': '', 'gains': analysis['pid'],
+                           'label': analysis['cases'][0]['label'],
+                           'margins': analysis['cases'][0]['margins']}
+    try:
+        config = controller_setup(candidate, given=()).settings.config
+        found = loop_cases({'plant': dict(plant_values or {})}, candidate)
+        if found and isinstance(config, PidConfig):
+            prediction = predict(found[0].model, config)
+            every = max(1, len(prediction.t) // STEP_POINTS)
+            out.update(t=jsonable(prediction.t[::every]),
+                       setpoint=jsonable(prediction.setpoint[::every]),
+                       load=jsonable(prediction.load[::every]),
+                       overshoot=jsonable(prediction.overshoot),
+                       settling_time=jsonable(prediction.settling_time))
+    except (ConfigError, ValueError, ZeroDivisionError) as exc:
+        out['step_reason'] = f'no step prediction: {exc}'
+    return out

@@ -39,7 +39,7 @@ from tank_control.core.params import specs_of
 from tank_control.core.stamps import FutureStamps
 from tank_control.dashboard.access import Access, derive_read_only, origins_reason, start_token
 from tank_control.dashboard.config import DashboardConfig
-from tank_control.dashboard.robustness import RobustnessWorker
+from tank_control.dashboard.robustness import RobustnessWorker, tuning_preview
 from tank_control.dashboard.server import DashboardServer, Reply
 from tank_control.dashboard.store import SampleStore
 from tank_control.dashboard.values import jsonable, parse_text
@@ -75,6 +75,8 @@ NS_PER_S = 1_000_000_000
 #: (characters; a longer one, from any publisher on the domain, is ignored and counted).
 MAX_AUDIT = 200
 MAX_AUDIT_CHARS = 1 << 20
+#: Most parameters one tuning-view preview may change.
+MAX_PREVIEW_CHANGES = 8
 #: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
 FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
 #: Period of the look at the access counters (a change is published on /diagnostics) [s].
@@ -159,6 +161,7 @@ class DashboardNode(Node):
         self._origin_ns = 0
         self._requests: queue.SimpleQueue[tuple[dict[str, Any], Reply]] = queue.SimpleQueue()
         self._calls: list[_Call] = []
+        self._preview_busy = threading.Lock()     # a tuning-view preview is being computed
         self.received = {topic: 0 for topic in SIGNAL_TOPICS}
         self.ignored = 0
         self.store = SampleStore(int(values['buffer_messages']))
@@ -301,6 +304,8 @@ class DashboardNode(Node):
                       message.get('id'), reply, str(message.get('peer', '?')))
         elif kind == 'command':
             self._command(view, node, str(message['command']), message.get('id'), reply)
+        elif kind == 'preview':
+            self._preview(view, node, message['changes'], message.get('id'), reply)
         else:
             raise ValueError(f'unknown request type {kind!r}')
 
@@ -617,10 +622,8 @@ class DashboardNode(Node):
             self._limits = table
         self.server.broadcast({'type': 'limits', 'limits': table})
 
-    def _update_robustness(self) -> None:
-        """Bode, Nyquist and margins of the loop of the shown plant and controller nodes
-        (the nodes with a ``plant`` / ``controller`` kind parameter), recomputed in the
-        worker's thread when their values changed (``dashboard/robustness.py``)."""
+    def _loop_values(self) -> dict[str, dict[str, Any]]:
+        """Parameter values of the shown plant and controller nodes (role -> values)."""
         found: dict[str, dict[str, Any]] = {}
         with self._lock:
             for view in self._views.values():
@@ -631,6 +634,53 @@ class DashboardNode(Node):
                         found[role] = {k: _from_json(e['value']) for k, e in view.params.items()
                                        if not is_ros_own(k)}
                         break
+        return found
+
+    def _preview(self, view: _NodeView | None, node: str, changes: Any, request_id: Any,
+                 reply: Reply) -> None:
+        """The tuning view's prediction for ``changes`` ({name: text}) of a controller, computed
+        in a thread of its own (``robustness.tuning_preview``); nothing is set."""
+        def answer(result: dict[str, Any]) -> None:
+            reply({'type': 'preview_result', 'id': request_id, 'node': node, **result})
+        if view is None or not isinstance(changes, dict) or len(changes) > MAX_PREVIEW_CHANGES:
+            answer({'available': False, 'reason': f'{node}: not a controller shown here, or '
+                    f'not {{name: text}} of at most {MAX_PREVIEW_CHANGES} changes'})
+            return
+        values: dict[str, Any] = {}
+        for name, text in changes.items():
+            entry = view.params.get(str(name))
+            if entry is None:
+                answer({'available': False, 'reason': f'{node}: no parameter {name}'})
+                return
+            try:
+                values[str(name)] = parse_text(str(text), int(entry['type']))
+            except ValueError as exc:
+                answer({'available': False, 'reason': f'{name}: {exc}'})
+                return
+        found = self._loop_values()
+        controller = found.get('controller') if found.get('controller', {}).get(
+            'controller') == _from_json(view.params.get('controller', {}).get('value')) else None
+
+        if not self._preview_busy.acquire(blocking=False):     # one at a time (CPU)
+            answer({'available': False, 'reason': 'busy: another preview is being computed; '
+                    'try again'})
+            return
+
+        def work() -> None:
+            try:
+                result = tuning_preview(found.get('plant'), controller, values)
+            except Exception as exc:     # noqa: BLE001 - the page gets the reason
+                result = {'available': False, 'reason': f'no prediction: {exc}'}
+            finally:
+                self._preview_busy.release()
+            answer(result)
+        threading.Thread(target=work, name='dashboard-preview', daemon=True).start()
+
+    def _update_robustness(self) -> None:
+        """Bode, Nyquist and margins of the loop of the shown plant and controller nodes
+        (the nodes with a ``plant`` / ``controller`` kind parameter), recomputed in the
+        worker's thread when their values changed (``dashboard/robustness.py``)."""
+        found = self._loop_values()
         self.robustness.submit(found.get('plant'), found.get('controller'))
         ts = (found.get('plant') or {}).get('sample_time')
         if isinstance(ts, (int, float)) and ts > 0:

@@ -201,3 +201,66 @@ def test_a_mode_change_is_confirmed_and_undone_and_a_refusal_restores_the_field(
                .get_attribute('value') == str(running))
     assert controller_param(probe, 'kp') == running
     laptop.save_screenshot(str(tmp_path / 'faceplate-refused.png'))
+
+
+def analyze_row(capsys, *sets: str) -> dict[str, str]:
+    """The plant row of `tank-control analyze config/ipdt_pid.yaml --set ...` by column."""
+    from tank_control.harness import cli
+    argv = ['analyze', str(CONFIG / 'ipdt_pid.yaml')]
+    for item in sets:
+        argv += ['--set', item]
+    capsys.readouterr()
+    assert cli.main(argv) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith('|')]
+    header = [c.strip() for c in lines[0].strip('|').split('|')]
+    plant = next(line for line in lines if line.startswith('| plant'))
+    return dict(zip(header, (c.strip() for c in plant.strip('|').split('|'))))
+
+
+def agrees(shown: float, printed: str) -> bool:
+    """``shown`` rounds to ``printed`` (analyze's digits)."""
+    digits = len(printed.split('.')[1]) if '.' in printed else 0
+    return abs(shown - float(printed)) <= 0.5 * 10 ** -digits + 1e-12
+
+
+def test_the_tuning_view_predicts_analyzes_margins_then_applies_and_reverts(
+        procs, ros_env, node_cmd, tmp_path, laptop, probe, capsys):
+    laptop.get(start_loop(procs, ros_env, node_cmd, tmp_path, 'ipdt_pid.yaml'))
+    wait = waiter(laptop)
+    view = '[data-testid="tuning-/controller"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'{view} summary'))
+    laptop.find_element(By.CSS_SELECTOR, f'{view} summary').click()
+    knob = laptop.find_element(By.CSS_SELECTOR, f'{view} select[data-tv="knob"]')
+    assert knob.get_attribute('value') == 'tuning.ms_target'
+    value = laptop.find_element(By.CSS_SELECTOR, f'{view} input[data-tv="value"]')
+    value.click()
+    value.send_keys(Keys.CONTROL, 'a')
+    value.send_keys('1.6')
+    rule = laptop.find_element(By.CSS_SELECTOR, f'{view} select[data-tv="rule"]')
+    laptop.execute_script('arguments[0].value = "ms";'
+                          'arguments[0].dispatchEvent(new Event("change"));', rule)
+    result = 'return (window.tankDashboard.tuning["/controller"] || {}).result || {}'
+    wait.until(lambda d: d.execute_script(result).get('available') is True)
+    shown = laptop.execute_script(result)
+    # nothing applied yet: the controller still runs its file's rule and gains
+    assert controller_param(probe, 'tuning.rule') == 'mdp'
+    row = analyze_row(capsys, 'controller.tuning.rule=ms', 'controller.tuning.ms_target=1.6')
+    margins = shown['margins']
+    for key, column in (('gain_margin', 'GM'), ('phase_margin', 'PM [deg]'), ('ms', 'Ms'),
+                        ('mt', 'Mt'), ('delay_margin', 'delay margin [s]')):
+        assert agrees(margins[key], row[column]), (key, margins[key], row[column])
+    assert len(shown['t']) > 10 and shown['overshoot'] >= 0
+    laptop.save_screenshot(str(tmp_path / 'faceplate-tuning.png'))
+
+    # Apply: one confirmation for both changes; the controller derives the previewed gains
+    laptop.find_element(By.CSS_SELECTOR, f'{view} button[data-tv="apply"]').click()
+    wait.until(lambda d: d.find_element(By.ID, 'confirm').is_displayed())
+    assert laptop.find_element(By.ID, 'confirm-text').text == \
+        '/controller: tuning.ms_target 1.4 → 1.6, tuning.rule mdp → ms'
+    laptop.find_element(By.ID, 'confirm-apply').click()
+    assert probe.wait_for(lambda: controller_param(probe, 'tuning.rule') == 'ms', WAIT)
+    assert controller_param(probe, 'kp') == pytest.approx(shown['gains']['kp'], rel=1e-9)
+    # Revert: the rule and its setting from before, and with them the gains
+    laptop.find_element(By.CSS_SELECTOR, f'{view} button[data-tv="revert"]').click()
+    assert probe.wait_for(lambda: controller_param(probe, 'tuning.rule') == 'mdp', WAIT)
+    assert controller_param(probe, 'tuning.ms_target') == 1.4

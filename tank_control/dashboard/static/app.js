@@ -107,6 +107,7 @@
       case 'units': state.units = msg.units || {}; refreshUnits(); break;
       case 'set_result': onSetResult(msg); break;
       case 'command_result': onCommandResult(msg); break;
+      case 'preview_result': onPreviewResult(msg); break;
       case 'audit': onAudit(msg.record); break;
       default: break;
     }
@@ -692,6 +693,7 @@
       }
     }
     box.append(tuner);
+    if (p['tuning.rule']) box.append(tuningView(view));
     if (old) old.replaceWith(box);
     else $('#faceplates').append(box);
     updateFaceplate(view, box);
@@ -796,6 +798,158 @@
     target.setAttribute('data-level', String(level));
   }
 
+  // ---------------------------------------------------------------- tuning view
+  // A rule and one of its settings (a slider), the predicted gains, margins and steps
+  // (dashboard_node: robustness.tuning_preview) before anything is set; Apply sends them
+  // (after a confirmation), Revert sets back the values from before the last Apply.
+  state.tuning = {};       // node -> {open, rule, knob, value, result, before}
+
+  function tuningOf(node) {
+    if (!state.tuning[node]) state.tuning[node] = {open: false};
+    return state.tuning[node];
+  }
+
+  function knobsOf(p) {
+    return Object.keys(p).filter((n) => n.startsWith('tuning.') && p[n].type === 3 &&
+                                 !p[n].read_only).sort();
+  }
+
+  function tuningView(view) {
+    const p = view.params;
+    const tv = tuningOf(view.name);
+    if (tv.rule === undefined) tv.rule = String(p['tuning.rule'].value);
+    const knobs = knobsOf(p);
+    if (!knobs.includes(tv.knob)) tv.knob = knobs.includes('tuning.ms_target') ? 'tuning.ms_target' : knobs[0];
+    if (tv.value === undefined && tv.knob) tv.value = num(p[tv.knob].value);
+    const box = el('details', {class: 'tuning-view', 'data-testid': `tuning-${view.name}`});
+    box.open = tv.open;
+    box.addEventListener('toggle', () => { tv.open = box.open; });
+    box.append(el('summary', {}, 'Tuning view: predict before applying'));
+    const rule = el('select', {'data-tv': 'rule'});
+    for (const c of choicesOf(p['tuning.rule']) || []) rule.append(el('option', {value: c}, c));
+    rule.value = tv.rule;
+    const knob = el('select', {'data-tv': 'knob'});
+    for (const k of knobs) knob.append(el('option', {value: k}, k.slice('tuning.'.length)));
+    if (tv.knob) knob.value = tv.knob;
+    const value = el('input', {type: 'text', 'data-tv': 'value', value: fmt(tv.value ?? 0)});
+    const slider = el('input', {type: 'range', min: 0, max: 100, step: 1, 'data-tv': 'slider'});
+    const centre = num(p[tv.knob]?.value);
+    // the slider: a factor 1/4 … 4 of the running value on a log scale (linear ±10 around 0)
+    const toValue = (pos) => (centre > 0 ? centre * Math.pow(4, (pos - 50) / 50) : (pos - 50) / 5);
+    const toPos = (v) => (centre > 0 && v > 0 ? 50 + 50 * Math.log(v / centre) / Math.log(4) : v * 5 + 50);
+    slider.value = String(Math.round(toPos(tv.value ?? centre)));
+    const preview = el('button', {type: 'button', 'data-tv': 'preview'}, 'Preview');
+    const apply = el('button', {type: 'button', 'data-tv': 'apply', disabled: state.readOnly}, 'Apply');
+    const revert = el('button', {type: 'button', 'data-tv': 'revert', disabled: state.readOnly || !tv.before},
+                      'Revert');
+    const result = el('div', {class: 'tv-result', 'data-tv': 'result'});
+    const ask = () => {
+      tv.rule = rule.value; tv.knob = knob.value; tv.value = parseFloat(value.value);
+      tv.result = {pending: true};
+      showPreview(view, result);
+      const changes = {'tuning.rule': tv.rule};
+      if (tv.knob && finite(tv.value)) changes[tv.knob] = String(tv.value);
+      send({type: 'preview', node: view.name, changes, id: state.nextId++});
+    };
+    rule.addEventListener('change', ask);
+    knob.addEventListener('change', () => { tv.knob = knob.value; tv.value = num(p[tv.knob].value); renderFaceplate(view); });
+    slider.addEventListener('input', () => { value.value = fmt(toValue(Number(slider.value))); });
+    slider.addEventListener('change', ask);
+    value.addEventListener('change', ask);
+    preview.addEventListener('click', ask);
+    apply.addEventListener('click', () => applyTuning(view));
+    revert.addEventListener('click', () => revertTuning(view));
+    box.append(el('div', {class: 'tv-controls'}, 'rule ', rule, ' setting ', knob, ' ', slider, value),
+               el('div', {class: 'tv-controls'}, preview, apply, revert), result);
+    showPreview(view, result);
+    return box;
+  }
+
+  function showPreview(view, target) {
+    const r = tuningOf(view.name).result;
+    if (!r) { target.replaceChildren(el('span', {class: 'hint'}, 'choose a rule and move the slider')); return; }
+    if (r.pending) { target.replaceChildren(el('span', {class: 'hint'}, 'computing…')); return; }
+    if (!r.available) { target.replaceChildren(el('span', {class: 'reason'}, r.reason)); return; }
+    const g = r.gains; const m = r.margins;
+    const line = (label, items) => el('div', {}, el('b', {}, label + ' '),
+      ...items.map(([k, v, testid]) => el('span', {class: 'tv-num', 'data-testid': testid}, `${k} ${v}  `)));
+    const parts = [
+      line('gains', [['kp', fmt(g.kp), 'kp'], ['ti', fmt(g.ti), 'ti'], ['td', fmt(g.td), 'td'],
+                     ['b', fmt(g.b), 'b'], ['c', fmt(g.c), 'c']]),
+      line('margins', [['GM', fmt(m.gain_margin), 'gm'], ['PM', `${fmt(m.phase_margin)}°`, 'pm'],
+                       ['Ms', fmt(m.ms), 'ms'], ['Mt', fmt(m.mt), 'mt'],
+                       ['delay margin', `${fmt(m.delay_margin)} s`, 'dm']]),
+    ];
+    if (r.t) {
+      parts.push(line('setpoint step', [['overshoot', `${fmt(r.overshoot)} %`, 'overshoot'],
+                                        ['settling', `${fmt(r.settling_time)} s`, 'settling']]));
+      const canvas = el('canvas', {width: 420, height: 110, class: 'tv-step'});
+      parts.push(canvas);
+      drawSteps(canvas, r);
+    } else if (r.step_reason) parts.push(el('div', {class: 'hint'}, r.step_reason));
+    target.replaceChildren(...parts);
+  }
+
+  // Unit setpoint step (blue) and unit load step (orange) of the prediction.
+  function drawSteps(canvas, r) {
+    const ctx = canvas.getContext('2d');
+    const w = canvas.width; const h = canvas.height;
+    const t1 = r.t[r.t.length - 1] || 1;
+    const all = [...r.setpoint, ...r.load, 0, 1].map(num).filter(finite);
+    const lo = Math.min(...all); const hi = Math.max(...all);
+    const x = (t) => 4 + (w - 8) * t / t1;
+    const y = (v) => h - 12 - (h - 20) * (v - lo) / ((hi - lo) || 1);
+    ctx.clearRect(0, 0, w, h);
+    ctx.strokeStyle = '#bbb'; ctx.setLineDash([3, 3]);
+    for (const v of [0, 1]) { ctx.beginPath(); ctx.moveTo(x(0), y(v)); ctx.lineTo(x(t1), y(v)); ctx.stroke(); }
+    ctx.setLineDash([]);
+    for (const [series, color] of [[r.setpoint, '#1f77b4'], [r.load, '#ff7f0e']]) {
+      ctx.strokeStyle = color; ctx.beginPath();
+      series.forEach((v, i) => { const f = i ? 'lineTo' : 'moveTo'; ctx[f](x(r.t[i]), y(num(v))); });
+      ctx.stroke();
+    }
+    ctx.fillStyle = '#555'; ctx.font = '10px sans-serif';
+    ctx.fillText(`0 … ${fmt(t1)} s: setpoint step (blue), load step (orange)`, 6, h - 1);
+  }
+
+  function onPreviewResult(msg) {
+    const view = state.nodes[msg.node];
+    if (!view) return;
+    tuningOf(msg.node).result = msg;
+    const target = document.querySelector(`#${faceplateId(msg.node)} [data-tv=result]`);
+    if (target) showPreview(view, target);
+  }
+
+  // The changes of the tuning view that differ from the running values: the setting first, so
+  // the rule (which derives the gains) comes last.
+  function tuningChanges(view) {
+    const tv = tuningOf(view.name);
+    const p = view.params;
+    const out = [];
+    if (tv.knob && finite(tv.value) && num(p[tv.knob].value) !== tv.value) out.push([tv.knob, String(tv.value)]);
+    if (String(p['tuning.rule'].value) !== tv.rule) out.push(['tuning.rule', tv.rule]);
+    return out;
+  }
+
+  function applyTuning(view) {
+    const changes = tuningChanges(view);
+    if (!changes.length) return;
+    const p = view.params;
+    const text = changes.map(([n, v]) => `${n} ${formatValue(p[n].value)} → ${v}`).join(', ');
+    confirming = {node: view.name, multi: changes, old: changes.map(([n]) => [n, formatValue(p[n].value)])};
+    $('#confirm-text').textContent = `${view.name}: ${text}`;
+    $('#confirm').hidden = false;
+    $('#confirm-apply').focus();
+  }
+
+  function revertTuning(view) {
+    const tv = tuningOf(view.name);
+    if (!tv.before) return;
+    for (const [n, v] of tv.before.slice().reverse()) submit(view.name, n, v, null);
+    tv.before = null;
+    renderFaceplate(view);
+  }
+
   // ---------------------------------------------------------------- writes, confirm, undo
   const pending = {};      // request id -> {text, undo: {old} | null}
   let confirming = null;   // {node, name, text, old}
@@ -817,6 +971,14 @@
     confirming = null;
     $('#confirm').hidden = true;
     if (!c) return;
+    if (c.multi) {                           // the tuning view's Apply
+      if (!apply) return;
+      for (const [n, v] of c.multi) submit(c.node, n, v, null);
+      tuningOf(c.node).before = c.old;
+      const view = state.nodes[c.node];
+      if (view) renderFaceplate(view);
+      return;
+    }
     if (apply) submit(c.node, c.name, c.text, {old: c.old});
     else showValue(c.node, c.name);          // cancelled: the field shows the running value
   }
