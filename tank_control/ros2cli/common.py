@@ -16,7 +16,10 @@ if TYPE_CHECKING:  # rclpy is imported lazily: `ros2 run` and `--help` do not ne
     from rclpy.node import Node
 
 DEFAULT_TIMEOUT = 5.0      # [s] waiting for a node, topic or service to be discovered
-SPIN_TIME = 1.0            # [s] minimal discovery time for whole-graph listings
+SPIN_TIME = 3.5            # [s] minimal discovery time for whole-graph listings: a
+                           #     participant that missed our first announcements is found
+                           #     at its next one, within Fast DDS's 3 s period (the daemon
+                           #     counts it from its own start, so it costs its first call)
 QUIET_TIME = 0.5           # [s] the graph counts as discovered after this long without change
 EMPTY_WAIT = 3.5           # [s] discovery time granted while no other node is known: a
                            #     participant that missed our first announcements announces
