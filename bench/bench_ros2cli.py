@@ -1,6 +1,7 @@
 """Wall time of `ros2` commands on a running graph, with and without the ros2 daemon:
 p50 and p95 (nearest rank) of ``--calls`` calls of each, each in a fresh process as a user
-typing it would see it.
+typing it would see it, and the median CPU time (user + system) of the command's process: on a
+busy host the wall time mostly waits for a core, the CPU time does not.
 
 The graph: plant, controller and reference of config/ipdt_pid.yaml at real time, in a domain
 claimed for the run (``harness.domains.claim``); the daemon gets a socket directory of its own
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import resource
 import signal
 import statistics
 import subprocess
@@ -35,10 +37,16 @@ COMMANDS = [
 NODES = ('plant_node', 'controller_node', 'reference_node')
 
 
+CPU: list[float] = []     # CPU seconds (user + system) of each timed command's process
+
+
 def timed(argv: list[str], env: dict[str, str]) -> tuple[float, str]:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     result = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=120)
     elapsed = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    CPU.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
     if result.returncode != 0:
         raise SystemExit(f'{" ".join(argv)} failed: {result.stderr.strip()}')
     return elapsed, result.stdout
@@ -77,14 +85,17 @@ def main() -> int:
         first, _ = timed(ros2 + ['node', 'list'], env)          # starts the daemon
         print(f'domain {domain}; load average {os.getloadavg()[0]:.1f}; {args.calls} calls '
               f'each [s]; the first call (starting the daemon): {first:.2f} s')
-        print(f'{"command":46s} {"daemon p50":>10s} {"p95":>6s} {"direct p50":>11s} {"p95":>6s}')
+        print(f'{"command":46s} {"daemon p50":>10s} {"p95":>6s} {"cpu p50":>8s} '
+              f'{"direct p50":>11s} {"p95":>6s} {"cpu p50":>8s}')
         for command in COMMANDS:
-            rows = [(math.nan, math.nan)] * 2
+            rows = [(math.nan, math.nan, math.nan)] * 2
             for i, extra in enumerate(([], ['--no-daemon'])[:1 if args.daemon_only else 2]):
+                CPU.clear()
                 times = [timed(ros2 + list(command) + extra, env)[0] for _ in range(args.calls)]
-                rows[i] = (statistics.median(times), p95(times))
-            (dm, dp), (nm, np_) = rows
-            print(f'{"ros2 " + " ".join(command):46s} {dm:10.2f} {dp:6.2f} {nm:11.2f} {np_:6.2f}')
+                rows[i] = (statistics.median(times), p95(times), statistics.median(CPU))
+            (dm, dp, dc), (nm, np_, nc) = rows
+            print(f'{"ros2 " + " ".join(command):46s} {dm:10.2f} {dp:6.2f} {dc:8.2f} '
+                  f'{nm:11.2f} {np_:6.2f} {nc:8.2f}')
     finally:
         daemon.stop(daemon.socket_path(env))
         for node in nodes:

@@ -186,7 +186,7 @@ def start(env: Mapping[str, str] | None = None, idle_timeout: float | None = Non
     log = path.with_suffix('.log')
     with open(log, 'ab') as err:
         os.chmod(log, 0o600)
-        subprocess.Popen(
+        process = subprocess.Popen(
             [sys.executable, '-m', 'tank_control.ros2cli.daemon', str(path),
              '--idle-timeout', repr(idle_timeout)],
             env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
@@ -196,7 +196,9 @@ def start(env: Mapping[str, str] | None = None, idle_timeout: float | None = Non
         status = _ping(path)
         if status is not None:
             return status
-        time.sleep(0.05)
+        if process.poll() not in (None, 0):
+            return None        # it failed (its log says why); exit 0: another one is starting
+        time.sleep(0.05)       # polling the socket: the daemon has no other way to say "ready"
     return None
 
 
