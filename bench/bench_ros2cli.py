@@ -97,7 +97,7 @@ def main() -> int:
             print(f'{"ros2 " + " ".join(command):46s} {dm:10.2f} {dp:6.2f} {dc:8.2f} '
                   f'{nm:11.2f} {np_:6.2f} {nc:8.2f}')
     finally:
-        daemon.stop(daemon.socket_path(env))
+        daemon.stop_domain(str(domain), env)
         for node in nodes:
             os.killpg(node.pid, signal.SIGINT)
         for node in nodes:
