@@ -250,7 +250,9 @@ class ParameterBinding:
         for param in parameters:
             spec = self._specs.get(param.name)
             if spec is None and self._strict and not self._node.has_parameter(param.name):
-                raise UnknownParameter(unknown_reason(param.name, self._specs))
+                reason = unknown_reason(param.name, self._specs)
+                self._note_rejection(reason)          # counted and logged like any refusal
+                raise UnknownParameter(reason)
             if spec is None or param.type_ == Parameter.Type.NOT_SET:
                 out.append(param)
                 continue

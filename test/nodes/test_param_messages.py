@@ -67,9 +67,10 @@ def test_the_reason_reaches_a_set_parameters_service_client(bound, probe):
 
 
 def test_a_name_differing_in_case_gets_the_declared_spelling(bound):
-    node, _ = bound
+    node, binding = bound
     with pytest.raises(UnknownParameter, match=r'^Kp: unknown parameter; did you mean kp\?$'):
         node.set_parameters([Parameter('Kp', value=1.0)])
+    assert binding.rejected == 1                      # counted as a refusal
     assert nearest('KP', ['kp', 'ki', 'kd']) == 'kp'
     assert unknown_reason('TI', [f'name{i}' for i in range(120)] + ['ti']) == \
         'TI: unknown parameter; did you mean ti?'
