@@ -242,8 +242,22 @@ def _alive(pid: int) -> bool:
 
 
 def stop_domain(domain: str, env: Mapping[str, str] | None = None) -> int:
-    """Stop every daemon of ``domain`` (test sessions end with this); how many were."""
-    return sum(stop(path) for path in sockets_of_domain(domain, env))
+    """Stop every daemon of ``domain`` (test sessions end with this); how many were. The
+    socket of a daemon that was killed (nobody listens on it) is removed."""
+    stopped = 0
+    for path in sockets_of_domain(domain, env):
+        if stop(path):
+            stopped += 1
+            continue
+        try:
+            sock = _connect(path, 1.0)
+        except CliError:
+            continue              # not ours to remove
+        if sock is None:
+            path.unlink(missing_ok=True)
+        else:
+            sock.close()
+    return stopped
 
 
 def wanted(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> bool:
