@@ -110,6 +110,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     'ros2 service call': ('ros2 service call /controller/start_autotune std_srvs/srv/Trigger',
                           'ros2 service call /controller/abort_autotune std_srvs/srv/Trigger'),
     'ros2 service type': ('ros2 service type /controller/start_autotune',),
+    'ros2 daemon': ('ros2 daemon status', 'ros2 daemon stop'),
+    'ros2 daemon start': ('ros2 daemon start', 'ros2 daemon start --idle-timeout 600'),
+    'ros2 daemon stop': ('ros2 daemon stop',),
+    'ros2 daemon status': ('ros2 daemon status',),
 }
 
 

@@ -38,6 +38,9 @@ _DOMAIN_LOCK: object = None   # held for the session's lifetime
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
 os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
+# a ros2 daemon started by a test's `ros2` command ends with the session (ros2_daemons), or
+# after this many idle seconds should the session be killed
+os.environ['TANK_CONTROL_ROS2_DAEMON_IDLE'] = '300'
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -76,6 +79,17 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         keep = [i for i in items if i.get_closest_marker('ros') is None]
         config.hook.pytest_deselected(items=[i for i in items if i not in keep])
         items[:] = keep
+
+
+@pytest.fixture(scope='session', autouse=True)
+def ros2_daemons() -> Iterator[None]:
+    """Stops the ros2 daemons (``ros2cli/daemon``) of this session's domain at its end:
+    a `ros2` command run by a test starts one on demand."""
+    yield
+    domain = os.environ.get('ROS_DOMAIN_ID', '')
+    if domain and domain != NO_GRAPH_DOMAIN:
+        from tank_control.ros2cli import daemon
+        daemon.stop_domain(domain)
 
 
 @pytest.fixture(scope='session')

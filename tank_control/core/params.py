@@ -135,8 +135,13 @@ def coerce(spec: ParamSpec, value: Any) -> Any:
 
 
 def nearest(name: str, known: Iterable[str]) -> str | None:
-    """The known name closest to a misspelt ``name`` (None if nothing is close)."""
-    matches = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    """The known name closest to a misspelt ``name`` (None if nothing is close); a name
+    differing only in case (``Kp``) gets its known spelling (``kp``)."""
+    known = list(known)
+    same = [k for k in known if k.lower() == name.lower()]
+    if len(same) == 1:
+        return same[0]
+    matches = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
     return matches[0] if matches else None
 
 

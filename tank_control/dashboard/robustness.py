@@ -21,8 +21,10 @@ import numpy as np
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.analysis.linear import frequency_scale
 from tank_control.core.analysis.loops import LoopCase, describe_loop
+from tank_control.core.control.pid import PidConfig
 from tank_control.core.params import ConfigError
-from tank_control.core.scenario import plant_setup
+from tank_control.core.scenario import controller_setup, plant_setup
+from tank_control.core.tuning.model import ProcessModel
 from tank_control.dashboard.values import jsonable
 
 #: Points of the Bode and Nyquist curves sent to the page.
@@ -134,3 +136,51 @@ class RobustnessWorker:
             message = {'type': 'robustness', **result}
             self.latest = message
             self._publish(message)
+
+
+#: Most points of a predicted step response sent to the page.
+STEP_POINTS = 300
+
+
+def tuning_preview(plant_values: Mapping[str, Any] | None,
+                   controller_values: Mapping[str, Any] | None,
+                   changes: Mapping[str, Any]) -> dict[str, Any]:
+    """The tuning view's prediction for the controller's values with ``changes`` (e.g. a
+    tuning rule and its setting), before anything is applied: the gains the controller would
+    derive, the margins of :func:`loop_analysis` (the robustness panel's and ``tank-control
+    analyze``'s numbers for those gains) and the predicted unit setpoint and load steps on
+    the plant's model (``analysis.robustness.predict``: no output limits, from rest)."""
+    from tank_control.core.analysis.robustness import predict
+
+    if controller_values is None:
+        return _unavailable('no controller node (yet): its parameters are needed')
+    candidate = {**controller_values, **changes}
+    analysis = loop_analysis(plant_values, candidate)
+    if not analysis['available']:
+        return {'available': False, 'reason': analysis['reason']}
+    try:
+        config = controller_setup(candidate, given=()).settings.config
+    except (ConfigError, ValueError) as exc:
+        return {'available': False, 'reason': str(exc)}
+    gains = {name: jsonable(float(getattr(config, name))) for name in
+             ('kp', 'ti', 'td', 'n', 'b', 'c', 'sample_time') if hasattr(config, name)}
+    out: dict[str, Any] = {'available': True, 'reason': '', 'gains': gains,
+                           'label': analysis['cases'][0]['label'],
+                           'margins': analysis['cases'][0]['margins']}
+    try:
+        found, _ = describe_loop(plant_values, candidate)
+        model = found[0].model if found else None
+        if isinstance(model, ProcessModel) and isinstance(config, PidConfig):
+            prediction = predict(model, config)
+            every = max(1, len(prediction.t) // STEP_POINTS)
+            out.update(t=jsonable(prediction.t[::every]),
+                       setpoint=jsonable(prediction.setpoint[::every]),
+                       load=jsonable(prediction.load[::every]),
+                       overshoot=jsonable(prediction.overshoot),
+                       settling_time=jsonable(prediction.settling_time))
+        else:
+            out['step_reason'] = ('no step prediction: it is simulated for a PID on a '
+                                  'process model (ipdt, fopdt, sopdt)')
+    except (ConfigError, ValueError, ZeroDivisionError) as exc:
+        out['step_reason'] = f'no step prediction: {exc}'
+    return out

@@ -39,7 +39,7 @@ from tank_control.core.params import specs_of
 from tank_control.core.stamps import FutureStamps
 from tank_control.dashboard.access import Access, derive_read_only, origins_reason, start_token
 from tank_control.dashboard.config import DashboardConfig
-from tank_control.dashboard.robustness import RobustnessWorker
+from tank_control.dashboard.robustness import RobustnessWorker, tuning_preview
 from tank_control.dashboard.server import DashboardServer, Reply
 from tank_control.dashboard.store import SampleStore
 from tank_control.dashboard.values import jsonable, parse_text
@@ -75,6 +75,10 @@ NS_PER_S = 1_000_000_000
 #: (characters; a longer one, from any publisher on the domain, is ignored and counted).
 MAX_AUDIT = 200
 MAX_AUDIT_CHARS = 1 << 20
+#: Most parameters one tuning-view preview may change.
+MAX_PREVIEW_CHANGES = 8
+#: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
+FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
 #: Period of the look at the access counters (a change is published on /diagnostics) [s].
 ACCESS_PERIOD = 1.0
 
@@ -153,9 +157,11 @@ class DashboardNode(Node):
         self._lock = threading.Lock()            # the views, the limits and the origin
         self._views: dict[str, _NodeView] = {}
         self._limits: dict[str, list[Any]] = {}
+        self._units: dict[str, str] = {}          # channel -> unit, of the shown plant's kind
         self._origin_ns = 0
         self._requests: queue.SimpleQueue[tuple[dict[str, Any], Reply]] = queue.SimpleQueue()
         self._calls: list[_Call] = []
+        self._preview_busy = threading.Lock()     # a tuning-view preview is being computed
         self.received = {topic: 0 for topic in SIGNAL_TOPICS}
         self.ignored = 0
         self.store = SampleStore(int(values['buffer_messages']))
@@ -243,7 +249,7 @@ class DashboardNode(Node):
         """The graph as the page starts from (called by the web thread)."""
         with self._lock:
             return {'nodes': {name: view.as_json() for name, view in self._views.items()},
-                    'limits': dict(self._limits), 'origin': self._origin_ns / NS_PER_S,
+                    'limits': dict(self._limits), 'units': dict(self._units), 'origin': self._origin_ns / NS_PER_S,
                     'topics': list(SIGNAL_TOPICS), 'robustness': self.robustness.latest,
                     'missed': dict(self.missed), 'marks': list(self.marks),
                     'audit': list(self.audit)}
@@ -298,6 +304,8 @@ class DashboardNode(Node):
                       message.get('id'), reply, str(message.get('peer', '?')))
         elif kind == 'command':
             self._command(view, node, str(message['command']), message.get('id'), reply)
+        elif kind == 'preview':
+            self._preview(view, node, message['changes'], message.get('id'), reply)
         else:
             raise ValueError(f'unknown request type {kind!r}')
 
@@ -439,6 +447,7 @@ class DashboardNode(Node):
                         view.params = params
                         view.loaded, view.loading = True, False
                     self._update_limits(view)
+                    self._update_units(view)
                     self._update_robustness()
                     self._send_node(view)
 
@@ -566,11 +575,30 @@ class DashboardNode(Node):
                 views = [v for v in self._views.values() if v.name.rsplit('/', 1)[-1] == prefix]
                 info = {'level': int.from_bytes(status.level, 'little')
                         if isinstance(status.level, bytes) else int(status.level),
-                        'message': status.message}
+                        'message': status.message,
+                        'fields': {kv.key: kv.value[:200] for kv in status.values[:200]
+                                   if kv.key in FACEPLATE_FIELDS}}
                 for view in views:
                     view.diagnostics = info
             for view in views:
                 self.server.broadcast({'type': 'diagnostics', 'node': view.name, **info})
+
+    def _update_units(self, view: _NodeView) -> None:
+        """The channels' units of a plant node (its kind's ``units``), for the page."""
+        from tank_control.core.plants.kinds import registry
+        with self._lock:
+            entry = view.params.get('plant')
+        if entry is None:
+            return
+        try:
+            units = dict(registry.get_kind(str(entry['value'])).units)
+        except (ValueError, KeyError, TypeError):
+            return
+        with self._lock:
+            if units == self._units:
+                return
+            self._units = units
+        self.server.broadcast({'type': 'units', 'units': units})
 
     def _update_limits(self, view: _NodeView) -> None:
         """Input limits {channel: [min, max]} of a controller node, through its kind."""
@@ -594,10 +622,8 @@ class DashboardNode(Node):
             self._limits = table
         self.server.broadcast({'type': 'limits', 'limits': table})
 
-    def _update_robustness(self) -> None:
-        """Bode, Nyquist and margins of the loop of the shown plant and controller nodes
-        (the nodes with a ``plant`` / ``controller`` kind parameter), recomputed in the
-        worker's thread when their values changed (``dashboard/robustness.py``)."""
+    def _loop_values(self) -> dict[str, dict[str, Any]]:
+        """Parameter values of the shown plant and controller nodes (role -> values)."""
         found: dict[str, dict[str, Any]] = {}
         with self._lock:
             for view in self._views.values():
@@ -608,6 +634,53 @@ class DashboardNode(Node):
                         found[role] = {k: _from_json(e['value']) for k, e in view.params.items()
                                        if not is_ros_own(k)}
                         break
+        return found
+
+    def _preview(self, view: _NodeView | None, node: str, changes: Any, request_id: Any,
+                 reply: Reply) -> None:
+        """The tuning view's prediction for ``changes`` ({name: text}) of a controller, computed
+        in a thread of its own (``robustness.tuning_preview``); nothing is set."""
+        def answer(result: dict[str, Any]) -> None:
+            reply({'type': 'preview_result', 'id': request_id, 'node': node, **result})
+        if view is None or not isinstance(changes, dict) or len(changes) > MAX_PREVIEW_CHANGES:
+            answer({'available': False, 'reason': f'{node}: not a controller shown here, or '
+                    f'not {{name: text}} of at most {MAX_PREVIEW_CHANGES} changes'})
+            return
+        values: dict[str, Any] = {}
+        for name, text in changes.items():
+            entry = view.params.get(str(name))
+            if entry is None:
+                answer({'available': False, 'reason': f'{node}: no parameter {name}'})
+                return
+            try:
+                values[str(name)] = parse_text(str(text), int(entry['type']))
+            except ValueError as exc:
+                answer({'available': False, 'reason': f'{name}: {exc}'})
+                return
+        found = self._loop_values()
+        controller = found.get('controller') if found.get('controller', {}).get(
+            'controller') == _from_json(view.params.get('controller', {}).get('value')) else None
+
+        if not self._preview_busy.acquire(blocking=False):     # one at a time (CPU)
+            answer({'available': False, 'reason': 'busy: another preview is being computed; '
+                    'try again'})
+            return
+
+        def work() -> None:
+            try:
+                result = tuning_preview(found.get('plant'), controller, values)
+            except Exception as exc:     # noqa: BLE001 - the page gets the reason
+                result = {'available': False, 'reason': f'no prediction: {exc}'}
+            finally:
+                self._preview_busy.release()
+            answer(result)
+        threading.Thread(target=work, name='dashboard-preview', daemon=True).start()
+
+    def _update_robustness(self) -> None:
+        """Bode, Nyquist and margins of the loop of the shown plant and controller nodes
+        (the nodes with a ``plant`` / ``controller`` kind parameter), recomputed in the
+        worker's thread when their values changed (``dashboard/robustness.py``)."""
+        found = self._loop_values()
         self.robustness.submit(found.get('plant'), found.get('controller'))
         ts = (found.get('plant') or {}).get('sample_time')
         if isinstance(ts, (int, float)) and ts > 0:

@@ -94,6 +94,15 @@ class ParameterError(ValueError):
     """A start-up parameter value (params file or default) that the specs reject."""
 
 
+class UnknownParameter(ParameterNotDeclaredException):
+    """A change of a name the node does not declare; the text is the reason with the nearest
+    declared name (``'Kp: unknown parameter; did you mean kp?'``). rclpy's parameter services
+    answer a ``ParameterNotDeclaredException`` with its text."""
+
+    def __init__(self, reason: str) -> None:
+        Exception.__init__(self, reason)
+
+
 def ros_type(spec: ParamSpec) -> Parameter.Type:
     """The ROS parameter type of a spec: the type of its default.
 
@@ -142,8 +151,12 @@ class ParameterBinding:
     :meth:`take_pending`. Validation sits in the on-set callback because a pre-set
     callback can only rewrite the list (an emptied list fails with a generic
     message); both run before anything is stored, so a rejected request changes
-    nothing. Range and read-only violations are refused by rclpy from the
-    descriptor before the on-set callback (counted here too).
+    nothing. rclpy checks the descriptor's range before any on-set callback, with its
+    own wording; so a value the spec refuses is replaced by the pre-set callback with an
+    unset value (which passes rclpy's check) and refused by the on-set callback with the
+    spec's reason: one wording on every path. Read-only violations are refused by rclpy
+    (counted here too). A name the node does not declare is refused in the pre-set
+    callback with the nearest declared name (:class:`UnknownParameter`).
 
     Typing: Jazzy's rclpy does not coerce — a ``double`` parameter rejects an
     integer ("Wrong parameter type"), from a params file and from ``ros2 param set``
@@ -170,6 +183,7 @@ class ParameterBinding:
         self._writing = False        # inside write(): the node's own values, not a user's
         self._source = ''            # write()'s source while it runs
         self._derived: dict[str, str] = {}   # name -> source, of the request being set
+        self._refused: dict[str, str] = {}   # name -> reason, of the request being set
         self.audited = 0
         self._declare()
         self._audit_pub = node.create_publisher(String, AUDIT_TOPIC, AUDIT_QOS)
@@ -230,15 +244,28 @@ class ParameterBinding:
     # ------------------------------------------------------------ callbacks
     def _pre_set(self, parameters: list[Parameter]) -> list[Parameter]:
         self._derived = {}
+        self._refused = {}
         out: list[Parameter] = []
         changes: dict[str, Any] = {}
         for param in parameters:
             spec = self._specs.get(param.name)
+            if spec is None and self._strict and not self._node.has_parameter(param.name):
+                reason = unknown_reason(param.name, self._specs)
+                self._note_rejection(reason)          # counted and logged like any refusal
+                raise UnknownParameter(reason)
             if spec is None or param.type_ == Parameter.Type.NOT_SET:
                 out.append(param)
                 continue
             value = coerce(spec, param.value)
-            self._count_descriptor_rejection(spec, value)
+            self._count_descriptor_rejection(spec)
+            reason = spec.check(value)
+            if reason:
+                # refused with the spec's reason by the on-set check: rclpy's range check
+                # (from the descriptor, before any on-set callback) must not see the value
+                # and answer with its own wording ("Parameter kp out of range Min: ...")
+                self._refused[param.name] = reason
+                out.append(Parameter(param.name))
+                continue
             try:
                 param = Parameter(param.name, value=value)
             except (TypeError, ValueError):
@@ -259,16 +286,13 @@ class ParameterBinding:
                         self._derived[name] = cause
         return out
 
-    def _count_descriptor_rejection(self, spec: ParamSpec, value: Any) -> None:
+    def _count_descriptor_rejection(self, spec: ParamSpec) -> None:
         """Count (and log) a change rclpy's descriptor check will refuse before our
-        on-set check runs (read-only, outside the range); rclpy returns the reason."""
+        on-set check runs (read-only); rclpy returns the reason."""
         if self._writing:
             return               # write() unlocks read-only results for the node itself
         if spec.read_only:
             self._note_rejection(f'{spec.name}: read-only (set at start-up only)')
-        elif isinstance(value, (int, float)) and not isinstance(value, bool) \
-                and type(value) is type(spec.default) and spec.check(value):
-            self._note_rejection(spec.check(value))
 
     def _note_rejection(self, reason: str) -> None:
         self.rejected += 1
@@ -276,6 +300,7 @@ class ParameterBinding:
         self._node.get_logger().warning(f'parameter change rejected: {reason}')
 
     def _on_set(self, parameters: list[Parameter]) -> SetParametersResult:
+        refused, self._refused = self._refused, {}
         changes: dict[str, Any] = {}
         for param in parameters:
             spec = self._specs.get(param.name)
@@ -286,6 +311,8 @@ class ParameterBinding:
             # rclpy retypes a dynamically typed descriptor to the incoming value's
             # type before this check; keep it at the spec's type (only that is accepted).
             self._node.describe_parameter(param.name).type = ros_type(spec).value
+            if param.name in refused:
+                return self._reject(refused[param.name])
             value = None if param.type_ == Parameter.Type.NOT_SET else coerce(spec, param.value)
             reason = (f'{param.name}: cannot be unset; allowed {spec.allowed()}' if value is None
                       else spec.check(value))

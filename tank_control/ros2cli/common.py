@@ -16,12 +16,19 @@ if TYPE_CHECKING:  # rclpy is imported lazily: `ros2 run` and `--help` do not ne
     from rclpy.node import Node
 
 DEFAULT_TIMEOUT = 5.0      # [s] waiting for a node, topic or service to be discovered
-SPIN_TIME = 1.0            # [s] minimal discovery time for whole-graph listings
+SPIN_TIME = 3.5            # [s] minimal discovery time for whole-graph listings: a
+                           #     participant that missed our first announcements is found
+                           #     at its next one, within Fast DDS's 3 s period (the daemon
+                           #     counts it from its own start, so it costs its first call)
 QUIET_TIME = 0.5           # [s] the graph counts as discovered after this long without change
 EMPTY_WAIT = 3.5           # [s] discovery time granted while no other node is known: a
                            #     participant that missed our first announcements announces
                            #     itself again within Fast DDS's 3 s period
 SETTLE_LIMIT = 6.0         # [s] longest discovery wait of a listing
+
+#: Inside the ros2 daemon (``ros2cli/daemon.Daemon``, set by it): commands get a node of its
+#: long-lived participant, and a listing counts the discovery time from the daemon's start.
+DAEMON: Any = None
 
 
 class CliError(Exception):
@@ -44,12 +51,28 @@ def add_spin_time_argument(parser: argparse.ArgumentParser) -> None:
                              f'(default {SPIN_TIME:g})')
 
 
+def add_daemon_argument(parser: argparse.ArgumentParser) -> None:
+    """``--no-daemon``: discover the graph in this process instead of asking the daemon."""
+    parser.add_argument('--no-daemon', action='store_true',
+                        help='do not use (or start) the ros2 daemon; discover the graph here')
+    parser.set_defaults(daemon_verb=True)
+
+
 @contextmanager
 def client_node() -> Iterator['Node']:
     """rclpy (default context, with its SIGINT/SIGTERM handlers) and a hidden node
-    ``_ros2cli_<pid>`` for one command."""
+    ``_ros2cli_<pid>`` for one command; in the daemon, a node of its running participant."""
     import rclpy
 
+    if DAEMON is not None:
+        node = rclpy.create_node(
+            DAEMON.node_name(), context=DAEMON.context, use_global_arguments=False,
+            enable_rosout=False, start_parameter_services=False)
+        try:
+            yield node
+        finally:
+            node.destroy_node()
+        return
     rclpy.init(args=[])
     node = None
     try:
@@ -102,10 +125,13 @@ def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | Non
 
 
 def graph_snapshot(node: 'Node') -> tuple:
-    """Everything the listings show, to detect when discovery has settled."""
+    """Everything the listings show, to detect when discovery has settled (hidden names
+    left out: command-line nodes come and go, each with its own services)."""
     return (tuple(sorted(n for n in node.get_fully_qualified_node_names() if not is_hidden(n))),
-            tuple(sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types())),
-            tuple(sorted((n, tuple(t)) for n, t in node.get_service_names_and_types())))
+            tuple(sorted((n, tuple(t)) for n, t in node.get_topic_names_and_types()
+                         if not is_hidden(n))),
+            tuple(sorted((n, tuple(t)) for n, t in node.get_service_names_and_types()
+                         if not is_hidden(n))))
 
 
 def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIET_TIME,
@@ -116,11 +142,21 @@ def settle_graph(node: 'Node', spin_time: float = SPIN_TIME, quiet: float = QUIE
     ``snapshot_of`` is what must stop changing (default: the whole graph). Discovery
     of a new participant can take more than a second on a loaded machine, so while
     no other node is known the wait goes on up to ``empty_wait`` s. Stops at
-    ``limit`` s in a graph that keeps changing.
+    ``limit`` s in a graph that keeps changing. In the daemon, discovery has run since
+    the daemon started and the graph's last change is the daemon's: a graph that was
+    complete is answered at once.
     """
+    whole_graph = snapshot_of is None
     snapshot_of = snapshot_of or (lambda: graph_snapshot(node))
     start = time.monotonic()
     state: dict[str, Any] = {'snapshot': snapshot_of(), 'changed': start}
+    if DAEMON is not None:
+        start = min(start, DAEMON.started)
+        if whole_graph:
+            # a participant that missed the daemon's first announcements answers the next,
+            # within Fast DDS's 3 s period: a young daemon's graph may lack it
+            spin_time = max(spin_time, empty_wait)
+            state['changed'] = DAEMON.graph_changed()
 
     def settled() -> bool:
         now = time.monotonic()

@@ -14,10 +14,11 @@ import sys
 from collections.abc import Sequence
 
 from tank_control import cli_examples
-from tank_control.ros2cli import node, param, run, service, topic
-from tank_control.ros2cli.common import CliError, Interrupted
+from tank_control.ros2cli import daemon, node, param, run, service, topic
+from tank_control.ros2cli import common
+from tank_control.ros2cli.common import DEFAULT_TIMEOUT, CliError, Interrupted
 
-_COMMANDS = (run, param, topic, node, service)
+_COMMANDS = (run, param, topic, node, service, daemon)
 
 
 def real_ros2cli_available() -> bool:
@@ -38,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='ros2', formatter_class=argparse.RawDescriptionHelpFormatter,
         description='ros2 is an extensible command-line tool for ROS 2 '
-                    '(tank_control edition: run, param, topic, node, service).')
+                    '(tank_control edition: run, param, topic, node, service, daemon).')
     commands = parser.add_subparsers(
         title='Commands', dest='command',
         metavar='Call `ros2 <command> -h` for more detailed usage.')
@@ -56,7 +57,21 @@ def run_cli(argv: Sequence[str] | None = None) -> int:
         # `ros2 run PKG EXE ...`: everything after EXE belongs to the executable.
         return _guarded(lambda: run.main_from_argv(argv[1:]))
     args = parser.parse_args(argv)
+    if daemon.wanted(args) and common.DAEMON is None:
+        try:
+            forwarded = daemon.forward(argv, _answer_wait(args), read_only=args.verb != 'set')
+        except CliError as exc:
+            print(str(exc), file=sys.stderr)
+            return 1
+        if forwarded is not None:
+            return forwarded
     return _guarded(lambda: args.func(args))
+
+
+def _answer_wait(args: argparse.Namespace) -> float:
+    """Longest wait [s] for the daemon's answer: the verb's own waits (a set asks the
+    node three times), with margin for a loaded machine."""
+    return 4 * float(getattr(args, 'timeout', DEFAULT_TIMEOUT)) + 30.0
 
 
 def _guarded(call) -> int:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 from tank_control.ros2cli.common import (
-    CliError, absolute_name, add_spin_time_argument, add_timeout_argument, client_node,
+    CliError, add_daemon_argument, absolute_name, add_spin_time_argument, add_timeout_argument, client_node,
     is_hidden, settle_graph, split_node_name, wait_for_node)
 
 
@@ -20,6 +20,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('-c', '--count-nodes', action='store_true',
                    help='only display the number of nodes discovered')
     add_spin_time_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=list_verb)
 
     p = verbs.add_parser('info', help='Output information about a node',
@@ -28,6 +29,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('--include-hidden', action='store_true', help='display hidden topics, '
                    'services, and actions as well')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=info_verb)
 
 

@@ -14,13 +14,9 @@ import re
 import sys
 from typing import TYPE_CHECKING, Any
 
-import yaml
-
-from tank_control.core import params_file, ros_yaml
-from tank_control.core.params import ConfigError
 from tank_control.nodes.services import RESEND_AFTER, answers
 from tank_control.ros2cli.common import (
-    CliError, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
+    CliError, add_daemon_argument, absolute_name, add_spin_time_argument, add_timeout_argument, call_service,
     client_node, is_hidden, settle_graph, spin_until, wait_for_node)
 
 if TYPE_CHECKING:
@@ -50,6 +46,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                    help='consider hidden nodes as well')
     add_timeout_argument(p)
     add_spin_time_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=list_verb)
 
     p = verbs.add_parser('get', help='Get parameter', description='Get parameter')
@@ -57,6 +54,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('parameter_name', metavar='NAME', help='name of the parameter')
     p.add_argument('--hide-type', action='store_true', help='print only the value')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=get_verb)
 
     p = verbs.add_parser('set', help='Set parameter', description=(
@@ -66,6 +64,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('parameter_name', metavar='NAME', help='name of the parameter')
     p.add_argument('value', metavar='VALUE', help='value of the parameter (YAML)')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=set_verb)
 
     p = verbs.add_parser('describe', help='Show descriptive information about declared parameters',
@@ -73,6 +72,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('node_name', metavar='NODE', help='name of the node')
     p.add_argument('parameter_names', metavar='NAME', nargs='+', help='names of the parameters')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=describe_verb)
 
     p = verbs.add_parser('dump', help='Show all of the parameters of a node in a YAML file format',
@@ -80,6 +80,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                                      '(accepted by `ros2 param load` and --params-file)')
     p.add_argument('node_name', metavar='NODE', help='name of the node')
     add_timeout_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=dump_verb)
 
     p = verbs.add_parser('load', help='Load parameter file for a node',
@@ -166,7 +167,10 @@ def value_from_python(value: Any, declared_type: int, raw: str | None = None) ->
     """
     from rcl_interfaces.msg import ParameterType as T
     from rcl_interfaces.msg import ParameterValue
+    import yaml
     from rclpy.parameter import Parameter, get_parameter_value
+
+    from tank_control.core import ros_yaml
     if raw is not None:
         msg = get_parameter_value(raw)
         try:
@@ -260,8 +264,12 @@ def get_verb(args: argparse.Namespace) -> int:
     with client_node() as node:
         target = _connect(node, args.node_name, args.timeout)
         [value] = _get_values(node, target, [args.parameter_name], args.timeout)
-    if value is None or value.type == 0:
-        raise CliError(f"Parameter not set: '{args.parameter_name}' on {target}")
+        if value is None or value.type == 0:
+            from tank_control.core.params import nearest
+            names = _list_names(node, target, args.timeout)
+            guess = None if args.parameter_name in names else nearest(args.parameter_name, names)
+            hint = f'; did you mean {guess}?' if guess else ''
+            raise CliError(f"Parameter not set: '{args.parameter_name}' on {target}{hint}")
     text = _format_value(value)
     print(text if args.hide_type else f'{_GET_LABELS[value.type]} {text}')
     return 0
@@ -326,6 +334,7 @@ def dump_verb(args: argparse.Namespace) -> int:
         values = _get_values(node, target, names, args.timeout) if names else []
     flat = {n: _python(v) for n, v in sorted(zip(names, values), key=lambda item: item[0])
             if v is not None and v.type != 0}
+    from tank_control.core import params_file
     sys.stdout.write(params_file.dumps({target: flat}))   # the dialect the loader reads
     return 0
 
@@ -333,6 +342,8 @@ def dump_verb(args: argparse.Namespace) -> int:
 def parameters_from_file(path: str, target: str, use_wildcard: bool = True) -> dict[str, Any]:
     """Flat name → value for ``target`` from a parameter file (wildcards first, then exact),
     read by the package's one parameter-file reader."""
+    from tank_control.core import params_file
+    from tank_control.core.params import ConfigError
     try:
         sections = params_file.read(path)
     except ConfigError as exc:

@@ -20,9 +20,11 @@ import shlex
 import sys
 import sysconfig
 from collections.abc import Sequence
-from importlib import metadata
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
+
+if TYPE_CHECKING:
+    from importlib import metadata
 
 from tank_control import cli_examples
 from tank_control.ros2cli.common import CliError
@@ -111,7 +113,8 @@ def executables_in_prefix(prefix: Path, package: str, executable: str) -> list[P
     return found
 
 
-def _distribution(package: str) -> metadata.Distribution | None:
+def _distribution(package: str) -> 'metadata.Distribution | None':
+    from importlib import metadata
     for name in (package, package.replace('_', '-'), package.replace('-', '_')):
         try:
             return metadata.distribution(name)

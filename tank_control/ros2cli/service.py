@@ -6,7 +6,7 @@ import math
 import time
 
 from tank_control.ros2cli.common import (
-    CliError, absolute_name, add_spin_time_argument, call_service, client_node, is_hidden,
+    CliError, add_daemon_argument, absolute_name, add_spin_time_argument, call_service, client_node, is_hidden,
     settle_graph, spin_until)
 from tank_control.ros2cli.messages import from_yaml, resolve_type
 
@@ -28,6 +28,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('--include-hidden-services', action='store_true',
                    help='consider hidden services as well')
     add_spin_time_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=list_verb)
 
     p = verbs.add_parser('call', help='Call a service', description='Call a service')

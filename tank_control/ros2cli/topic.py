@@ -15,7 +15,7 @@ from collections import deque
 from typing import TYPE_CHECKING, Any
 
 from tank_control.ros2cli.common import (
-    CliError, absolute_name, add_spin_time_argument, client_node, is_hidden, settle_graph,
+    CliError, add_daemon_argument, absolute_name, add_spin_time_argument, client_node, is_hidden, settle_graph,
     spin_until)
 from tank_control.ros2cli.messages import from_yaml, resolve_type, to_python, to_yaml
 
@@ -40,6 +40,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('--include-hidden-topics', action='store_true',
                    help='consider hidden topics as well')
     add_spin_time_argument(p)
+    add_daemon_argument(p)
     p.set_defaults(func=list_verb)
 
     p = verbs.add_parser('echo', help='Output messages from a topic',

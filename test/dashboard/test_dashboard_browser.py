@@ -76,10 +76,14 @@ def reason_text(driver, name, node='/controller'):
 
 
 def type_into(driver, name, text):
+    """Type into a controller's parameter and apply it in the confirmation the page asks
+    (a write that changes a controller)."""
     box = param_input(driver, name)
     box.click()
     box.send_keys(Keys.CONTROL, 'a')
     box.send_keys(text, Keys.ENTER)
+    WebDriverWait(driver, WAIT).until(lambda d: d.find_element(By.ID, 'confirm').is_displayed())
+    driver.find_element(By.ID, 'confirm-apply').click()
 
 
 def set_window(driver, seconds):

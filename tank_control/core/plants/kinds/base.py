@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from tank_control.core.analysis.linear import LinearModel
@@ -20,7 +20,9 @@ class PlantKind:
     model and plant_node's tick ``sample_time`` [s] (a one-line reason or None), e.g. the work
     one tick may cost. ``linear(config)``: the model's linear description for the loop
     analysis (a :class:`~tank_control.core.analysis.linear.LinearModel`, gain magnitude; None
-    when these settings have none); ``linear=None``: the kind has none.
+    when these settings have none); ``linear=None``: the kind has none. ``units``: engineering
+    unit per channel name (shown by the dashboard; a channel without one is in the model's own
+    units).
     """
 
     name: str
@@ -29,6 +31,7 @@ class PlantKind:
     build: Callable[[Any], Plant]
     tick_reason: Callable[[Any, float], str | None] | None = None
     linear: Callable[[Any], LinearModel | None] | None = None
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The model's parameters."""
