@@ -100,6 +100,8 @@ def test_every_controller_parameter_value_is_refused_or_runs(case):
 @example(('plant', 'ipdt_pid.yaml', 'file', {'real_time_factor': 1e-300}))
 @example(('plant', 'foupdt', 'file', {'time_constant': 1e-06}))   # found by the long run
 @example(('plant', 'tank_two_loop.yaml', 'live', {'integration_step': 1e-06}))   # and this
+@example(('plant', 'transfer_function', 'file',        # a denormal leading coefficient
+          {'sample_time': 0.001, 'den': [2.225073858507203e-309, 0.0]}))
 @given(_case('plant'))
 def test_every_plant_parameter_value_is_refused_or_runs(case):
     _check('plant', case)

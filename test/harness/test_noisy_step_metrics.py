@@ -8,6 +8,9 @@ setpoint) is run in-process noise-free and with white measurement noise of σ = 
 - the overshoot is within 1 + 2·n percentage points of the noise-free one, n the noise σ in %
   of the step (1.4, 3 and 11 points). Not compared for the relay auto-tuners: the noise
   changes the controller they tune, so their noise-free run is another loop.
+The estimate σ̂ of the noise is within 15 % of σ, except in a scenario with a disturbance
+schedule (e.g. the monitoring cases' random load every 5 s), whose output moves by itself
+between samples: σ̂ then also holds that motion (it widens the bands, as it should).
 """
 from __future__ import annotations
 
@@ -40,13 +43,14 @@ def _siso_scenarios() -> list[str]:
 SCENARIOS = _siso_scenarios()
 
 
-def _run(path: str, overrides: list[str]) -> tuple[dict, bool]:
+def _run(path: str, overrides: list[str]) -> tuple[dict, bool, bool]:
     scenario = load_scenario(path, overrides)
     trace, _ = runner.simulate(scenario)
     outputs = metrics_mod.trace_metrics(trace)['outputs']
     assert len(outputs) == 1, f'{path}: {len(outputs)} outputs under a setpoint'
     adaptive = any(k.startswith('autotune.') for k in scenario.params('controller'))
-    return next(iter(outputs.values())), adaptive
+    disturbed = bool(scenario.params('reference').get('disturbance.channels'))
+    return next(iter(outputs.values())), adaptive, disturbed
 
 
 def test_the_shipped_siso_scenarios_are_found():
@@ -56,14 +60,15 @@ def test_the_shipped_siso_scenarios_are_found():
 
 @pytest.mark.parametrize('path', SCENARIOS)
 def test_noisy_step_metrics_agree_with_noise_free(path):
-    clean, adaptive = _run(path, ['plant.noise_std=[0.0]'])
+    clean, adaptive, disturbed = _run(path, ['plant.noise_std=[0.0]'])
     assert clean['steps'], f'{path}: no setpoint step'
     size = min(abs(s['r_to'] - s['r_from']) for s in clean['steps'])
     estimates = []
     for frac in NOISE:
         tol = 1.0 + 2.0 * 100.0 * frac
         for seed in SEEDS:
-            noisy, _ = _run(path, [f'plant.noise_std=[{frac * size!r}]', f'plant.seed={seed}'])
+            noisy, _, _ = _run(path, [f'plant.noise_std=[{frac * size!r}]',
+                                      f'plant.seed={seed}'])
             where = f'{path}, noise {100 * frac:g} % of the step, seed {seed}'
             assert len(noisy['steps']) == len(clean['steps']), where
             for k, (a, b) in enumerate(zip(clean['steps'], noisy['steps'])):
@@ -79,4 +84,7 @@ def test_noisy_step_metrics_agree_with_noise_free(path):
                          f'{a["overshoot_pct"]:.2f} % noise-free (tolerance {tol:g} points)')
             estimates.append((noisy.get('noise_std'), frac * size, where))
     for estimate, sigma, where in estimates:       # the σ̂ the metrics allowed for
-        assert estimate == pytest.approx(sigma, rel=0.15), where
+        if disturbed:
+            assert estimate >= 0.85 * sigma, where     # the noise at least, plus the load's motion
+        else:
+            assert estimate == pytest.approx(sigma, rel=0.15), where

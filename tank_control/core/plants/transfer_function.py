@@ -64,6 +64,11 @@ class TransferFunctionConfig:
         if len(num) >= len(den):
             return (f'num: degree {max(len(num) - 1, 0)} must be below the degree '
                     f'{len(den) - 1} of den (a strictly proper B(s)/A(s))')
+        lead = den[0]
+        if any(not abs(c / lead) <= _BIG ** 2 for c in (*den[1:], *num)):
+            return (f'den: the leading coefficient {lead:g} is too small for the others (num, '
+                    f'den divided by it exceed {_BIG ** 2:g}); allowed: ratios to the leading '
+                    'coefficient within that')
         return dead_time_reason(self)
 
 
