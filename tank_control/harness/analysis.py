@@ -52,8 +52,9 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     four |S|, |T|, |PS|, |CS| — one colour per case, exact delay, up to the Nyquist frequency."""
     from tank_control.harness.plotting import plt, save_figure   # the Agg backend
     path = Path(path)
-    fig, axes = plt.subplots(2, 2, figsize=(12, 9))
-    (ax_mag, ax_nyq), (ax_ph, ax_g4) = axes
+    fig, axes = plt.subplots(2, 3, figsize=(17, 9))
+    (ax_mag, ax_nyq, ax_step), (ax_ph, ax_g4, ax_free) = axes
+    ax_free.axis('off')
     for i, case in enumerate(cases):
         color = f'C{i}'
         h = case.controller.sample_time
@@ -83,6 +84,9 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
         theta = np.linspace(0, 2 * math.pi, 200)
         ax_nyq.plot(-1 + np.cos(theta) / rep.ms, np.sin(theta) / rep.ms, '--', color=color,
                     lw=0.8)
+        if rep.stable:
+            t_step, y_step = predicted_step(case)
+            ax_step.plot(t_step, y_step, color=color, label=case.label)
         g4 = fr.gang_of_four(ctrl, plant, w)
         for name, style in (('S', '-'), ('T', '--'), ('PS', '-.'), ('CS', ':')):
             ax_g4.loglog(w, np.abs(g4[name]), style, color=color,
@@ -103,27 +107,173 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_nyq.set_xlabel('Re L')
     ax_nyq.set_ylabel('Im L')
     ax_nyq.legend(fontsize='small')
+    ax_step.axhline(1.0, color='k', lw=0.6)
+    ax_step.set_title('predicted setpoint step y/r (linear, stable loops)')
+    ax_step.set_xlabel('t [s]')
+    ax_step.set_ylabel('y for a unit step of r')
     ax_g4.set_title('gang of four ([Ikonen])')
     ax_g4.set_xlabel('ω [rad/s]')
     ax_g4.legend(fontsize='small')
-    for ax in axes.flat:
+    for ax in (ax_mag, ax_nyq, ax_step, ax_ph, ax_g4):
         ax.grid(True, alpha=0.3, which='both')
     return save_figure(fig, path, title, dpi=90)
 
 
-def analyze(path: str | Path, overrides: tuple[str, ...] = ()) -> str:
-    """The robustness table of a scenario file's controller on its plant model (and on the
-    controller's own models), without running it; a line saying why when there is no SISO
-    loop with linear descriptions to analyse."""
+def predicted_step(case: LoopCase, samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(t [s], y)``: the closed loop's response to a unit setpoint step at the controller's
+    samples, ``Y/R = G·C_r/(1 + G·C)`` of the implemented discrete loop (exact delay), from its
+    values on the unit circle by an inverse FFT (for a stable loop; the record is long enough
+    for the response to settle: 40/crossover + 4 dead times, at least 512 samples)."""
+    h = case.controller.sample_time
+    rep = case.report()
+    if samples is None:
+        span = 40.0 / rep.wc if math.isfinite(rep.wc) and rep.wc > 0 else 1000.0 * h
+        samples = int(min(2 ** 16, max(512, (span + 4.0 * case.model.dead_time) / h)))
+    n = 2 * (samples // 2)
+    theta = 2.0 * math.pi * np.arange(1, n // 2 + 1) / n
+    w = np.minimum(theta / h, math.pi / h * (1 - 1e-12))
+    plant = case.model.response(h)(w)
+    fb = case.controller.feedback(w)
+    sp = fb if case.controller.setpoint is None else case.controller.setpoint(w)
+    half = plant * sp / (1.0 + plant * fb)
+    w0 = theta[0] * 1e-3 / h                 # the static value, from just above ω = 0
+    g0, c0 = case.model.response(h)(w0), case.controller.feedback(w0)
+    s0 = c0 if case.controller.setpoint is None else case.controller.setpoint(w0)
+    static = complex(g0 * s0 / (1.0 + g0 * c0)).real
+    spectrum = np.concatenate([[static], half[:-1], [half[-1].real], np.conj(half[-2::-1])])
+    impulse = np.fft.ifft(spectrum).real[:n]
+    return np.arange(n) * h, np.cumsum(impulse)
+
+
+def _report_dict(case: LoopCase) -> dict[str, object]:
+    r = case.report()
+    return {'model': case.label, 'output': case.output, 'input': case.input,
+            'controller': case.controller.describe, 'sample_time': case.controller.sample_time,
+            'stable': bool(r.stable), 'gain_margin': r.gain_margin,
+            'phase_margin': r.phase_margin, 'ms': r.ms, 'mt': r.mt,
+            'delay_margin': r.delay_margin, 'crossover': r.wc, 'phase_crossover': r.w180}
+
+
+def _two_loop(sections: dict) -> tuple[object, str] | None:
+    """The two-loop PI on the linearised mixing tank ([Precup2013] eq. 3.7.4, continuous, the
+    document's analysis): ``(TwoLoopAnalysis, label)``, or None for another loop."""
     from tank_control.core import scenario as core_scenario
+    from tank_control.core.analysis.two_loop import LinearisedTank, TwoLoopAnalysis
+    from tank_control.core.control.multiloop import TwoLoopPiConfig
+    controller = core_scenario.controller_setup(
+        core_scenario.node_values(sections, 'controller'), given=())
+    config = controller.settings.config
+    if not isinstance(config, TwoLoopPiConfig):
+        return None
+    plant = core_scenario.plant_setup(core_scenario.node_values(sections, 'plant'))
+    model = plant.model
+    if not hasattr(model, 'h_op'):
+        return None
+    tank = LinearisedTank.from_config(model)
+    return TwoLoopAnalysis(tank, config), (
+        f'two-loop PI (decoupling {config.decoupling}) on the mixing tank linearised at '
+        f'h {model.h_op:g} cm; continuous, exact delays')
+
+
+def _two_loop_table(analysis: object, label: str) -> tuple[str, list[dict[str, object]]]:
+    """Each loop's margins with the other loop open and closed ([Precup2013] eq. 3.7.4)."""
+    from tank_control.core.analysis.two_loop import LOOPS
+    rows, out = [], []
+    for i, name in enumerate(LOOPS):
+        for closed in (False, True):
+            m = analysis.margins(i, other_closed=closed)        # type: ignore[attr-defined]
+            loop = analysis.loop(i, other_closed=closed)        # type: ignore[attr-defined]
+            stable = fr.closed_loop_stable(loop)
+            other = f'{LOOPS[1 - i]} {"closed" if closed else "open"}'
+            out.append({'loop': name, 'other_loop': other, 'stable': bool(stable),
+                        'gain_margin': m.gain_margin, 'phase_margin': m.phase_margin,
+                        'ms': m.ms, 'mt': m.mt, 'delay_margin': m.delay_margin,
+                        'crossover': m.wc, 'phase_crossover': m.w180})
+            rows.append(f'| {name} | {other} | {"yes" if stable else "NO"} | '
+                        f'{_num(m.gain_margin)} | {_num(m.phase_margin, ".1f")} | {_num(m.ms)} | '
+                        f'{_num(m.mt)} | {_num(m.delay_margin)} | {_num(m.wc)} |')
+    head = (f'{label}\n\n| loop | other loop | stable | GM | PM [deg] | Ms | Mt | '
+            'delay margin [s] | crossover [rad/s] |\n|---|---|---|---|---|---|---|---|---|\n')
+    return head + '\n'.join(rows) + '\n', out
+
+
+def _why_not(sections: dict, scenario_path: object) -> str:
+    from tank_control.core import scenario as core_scenario
+    try:
+        _, reason = describe_loop(core_scenario.node_values(sections, 'plant'),
+                                  core_scenario.node_values(sections, 'controller'))
+    except (ValueError, ArithmeticError) as exc:
+        reason = str(exc)
+    return f'{scenario_path}: no loop to analyse: {reason}\n'
+
+
+def analyze(path: str | Path, overrides: tuple[str, ...] = (), plot: str | Path | None = None,
+            as_json: bool = False) -> str:
+    """The robustness table of a scenario file's controller on its plant model (and on the
+    controller's own models), without running it: SISO loops of any kinds that describe
+    themselves, and the mixing tank's two-loop PI per loop with the other loop open and closed.
+    ``plot``: also draw :func:`plot_analysis` (SISO) there; ``as_json``: the numbers as strict
+    JSON (an infinite margin, e.g. a phase that never reaches −180°, and an undefined one are
+    null).
+    A line saying why when there is nothing to analyse (e.g. MPCS)."""
+    import json
+
+    from tank_control.harness.runner import jsonable    # strict JSON: inf and NaN as null
     from tank_control.harness.scenario_file import load_scenario
     scenario = load_scenario(path, overrides)
     cases = loop_cases(scenario.sections)
-    if not cases:
-        try:
-            _, reason = describe_loop(core_scenario.node_values(scenario.sections, 'plant'),
-                                      core_scenario.node_values(scenario.sections, 'controller'))
-        except (ValueError, ArithmeticError) as exc:
-            reason = str(exc)
-        return f'{scenario.path}: no SISO loop to analyse: {reason}\n'
-    return robustness_table(cases)
+    if cases:
+        if plot is not None:
+            plot_analysis(cases, plot, title=f'{Path(str(scenario.path)).name}: loop analysis')
+        if as_json:
+            return json.dumps(jsonable({'scenario': str(scenario.path),
+                                        'loops': [_report_dict(c) for c in cases]}),
+                              indent=2, allow_nan=False) + '\n'
+        return robustness_table(cases)
+    two = _two_loop(scenario.sections)
+    if two is not None:
+        analysis, label = two
+        table, rows = _two_loop_table(analysis, label)
+        if plot is not None:
+            plot_two_loop(analysis, plot, title=f'{Path(str(scenario.path)).name}: two loops')
+        if as_json:
+            return json.dumps(jsonable({'scenario': str(scenario.path), 'two_loop': label,
+                                        'loops': rows}), indent=2, allow_nan=False) + '\n'
+        return table
+    reason = _why_not(scenario.sections, scenario.path)
+    if as_json:
+        return json.dumps({'scenario': str(scenario.path), 'loops': [],
+                           'reason': reason.strip()}, indent=2) + '\n'
+    return reason
+
+
+def plot_two_loop(analysis: object, path: str | Path, title: str = '') -> Path:
+    """Bode and Nyquist of each loop of the two-loop PI with the other loop closed."""
+    from tank_control.core.analysis.two_loop import LOOPS
+    from tank_control.harness.plotting import plt, save_figure
+    fig, (ax_mag, ax_nyq) = plt.subplots(1, 2, figsize=(12, 5))
+    for i, name in enumerate(LOOPS):
+        loop = analysis.loop(i, other_closed=True)            # type: ignore[attr-defined]
+        m = fr.margins(loop)
+        w = fr.default_grid(loop)
+        values = loop(w)
+        ax_mag.loglog(w, np.abs(values), color=f'C{i}', label=f'{name} (other closed)')
+        if math.isfinite(m.wc):
+            ax_mag.axvline(m.wc, color=f'C{i}', ls=':', lw=0.8)
+        ax_nyq.plot(values.real, values.imag, color=f'C{i}', label=f'{name}: Ms {m.ms:.2f}, '
+                    f'PM {m.phase_margin:.1f}°, GM {m.gain_margin:.2f}')
+        theta = np.linspace(0, 2 * math.pi, 200)
+        ax_nyq.plot(-1 + np.cos(theta) / m.ms, np.sin(theta) / m.ms, '--', color=f'C{i}', lw=0.8)
+    ax_mag.axhline(1.0, color='k', lw=0.6)
+    ax_mag.set_xlabel('ω [rad/s]')
+    ax_mag.set_ylabel('|L_i(jω)|')
+    ax_mag.legend(fontsize='small')
+    ax_nyq.plot([-1], [0], 'k+', ms=10)
+    ax_nyq.set_xlim(-3, 1.5)
+    ax_nyq.set_ylim(-2.5, 2.0)
+    ax_nyq.set_aspect('equal')
+    ax_nyq.set_title('Nyquist with the Ms circles ([Precup2013] eq. 3.7.4)')
+    ax_nyq.legend(fontsize='small')
+    for ax in (ax_mag, ax_nyq):
+        ax.grid(True, alpha=0.3, which='both')
+    return save_figure(fig, Path(path), title, dpi=90)

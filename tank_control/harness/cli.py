@@ -95,6 +95,10 @@ def _parser() -> argparse.ArgumentParser:
     analyze.add_argument('scenario', type=Path)
     analyze.add_argument('--set', dest='overrides', action='append', default=[],
                          metavar='NODE.PARAM=VALUE', help='override a parameter (typed as YAML)')
+    analyze.add_argument('--plot', type=Path, metavar='OUT.png',
+                         help='also draw Bode (margins marked), Nyquist (Ms circle) and the '
+                              'gang of four (SISO) or each loop with the other closed (two-loop)')
+    analyze.add_argument('--json', action='store_true', help='print the numbers as JSON')
     assess = sub.add_parser('assess', help='control performance of one loop recorded in a CSV '
                             '(Harris index, oscillation, stiction, saturation; a verdict and a '
                             'plot: docs/monitoring.md)')
@@ -342,7 +346,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _sweep(args)
         if args.command == 'analyze':
             from tank_control.harness.analysis import analyze
-            print(analyze(args.scenario, tuple(args.overrides)), end='')
+            print(analyze(args.scenario, tuple(args.overrides), plot=args.plot,
+                          as_json=args.json), end='')
             return 0
         from tank_control.harness.compare import write_comparison
         results, used = [], set()

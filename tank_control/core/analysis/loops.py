@@ -43,8 +43,9 @@ def describe_loop(plant_values: Mapping[str, Any] | None,
     kind, settings = setup.kind, setup.settings
     controller = kind.linear(settings) if kind.linear is not None else None
     if controller is None:
-        return [], (f'controller {kind.name}: the kind gives no linear description '
-                    '(ControllerKind.linear; docs/extending.md)')
+        return [], (f'controller {kind.name}: ' + (kind.no_linear or (
+            'the kind gives no linear description (ControllerKind.linear; '
+            'docs/extending.md)')))
     if not settings.has('channels') or (len(settings.channels.output_names),
                                         len(settings.channels.input_names)) != (1, 1):
         return [], f'controller {kind.name}: not a SISO loop'

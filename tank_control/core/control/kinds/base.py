@@ -118,6 +118,9 @@ class ControllerKind:
     disturbances: tuple[str, ...] = ()
     summary: Callable[[Values], str] | None = None
     linear: Callable[[Settings], LinearController | None] | None = None
+    no_linear: str = ''
+    """Why a kind without ``linear`` has none (``tank-control analyze`` and the dashboard say
+    it)."""
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The kind's parameters: its configuration's, then each group's."""

@@ -33,6 +33,9 @@ KIND = ControllerKind(
     name='mpcs',
     description='offset-free MPCS for the mixing tank, analytic or QP ([Michalski2021] §4, §6)',
     config=MpcsConfig,
+    no_linear=('no loop margins: a receding-horizon law whose limits and rate limits make it '
+               'nonlinear; unconstrained it is a 2×2 state feedback with an observer, not two '
+               'SISO loops, and its margins are not computed (docs/mpcs.md)'),
     groups=(base.channels(Mpcs.output_names, Mpcs.input_names),
             base.warm_start((MpcsConfig().op_F_H, MpcsConfig().op_F_Cin))),
     build=build, update=update,
