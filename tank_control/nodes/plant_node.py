@@ -192,10 +192,10 @@ class PlantNode(Node):
         """The whole candidate set as at start-up (node relations, the model's configuration
         and its relations such as dead_time <= max_dead_time) and noise_std: 1 value or one
         per output."""
-        if (values['clock_mode'] == 'wall' and values['lockstep.paused']
-                and getattr(self, '_protocol', None) is not None and self._protocol.announced):
-            return ('lockstep.paused: true refused, a running wall clock cannot be paused '
-                    '(only held before its time origin is announced); allowed false')
+        protocol = getattr(self, '_protocol', None)        # None at start-up
+        refused = protocol.pause_refused(bool(values['lockstep.paused'])) if protocol else None
+        if refused:
+            return refused
         try:
             setup = plant_setup(values, getattr(self, '_controller_values', None))
             if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next

@@ -203,6 +203,9 @@ def test_wall_holds_a_disturbance_sent_ahead_until_its_step():
     plant = make(WallPlant, host)
     plant.start()
     assert plant.announced and host.origins == [plant.stamp_offset_ns]
+    # a running wall clock cannot be paused (only held before its origin is announced)
+    assert 'wall clock' in plant.pause_refused(True) and plant.pause_refused(False) is None
+    assert make(SimPlant, Host(), real_time_factor=1.0).pause_refused(True) is None
     origin = plant.stamp_offset_ns
     plant.tick_msgs = (b'', None)                # tick 0 published
     plant.input('disturbance', origin + 2 * TS_NS, ('v',), {'v': 1.0}, ('v',))

@@ -227,6 +227,10 @@ class PlantClock:
     def set_paused(self, paused: bool, was_paused: bool, unpaused: bool) -> None:
         """``lockstep.paused`` changed (``unpaused``: set to false in this request)."""
 
+    def pause_refused(self, paused: bool) -> str | None:
+        """Why ``lockstep.paused: paused`` is refused now (None: accepted)."""
+        return None
+
     # ----------------------------------------------------------- diagnostics
     def pace_report(self) -> str:
         """'' while simulated time keeps its pace, else how far behind it is (measured over
@@ -591,6 +595,12 @@ class WallPlant(_Timed):
     def start(self) -> None:
         if not self.host.paused:
             self.start_clock()            # the time origin: tick 0 ORIGIN_NOTICE_S from now
+
+    def pause_refused(self, paused: bool) -> str | None:
+        if paused and self.announced:
+            return ('lockstep.paused: true refused, a running wall clock cannot be paused '
+                    '(only held before its time origin is announced); allowed false')
+        return None
 
     def now_ns(self) -> int | None:
         """The time on its own grid (origin + steady time since tick 0), None before the
