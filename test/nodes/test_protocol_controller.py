@@ -218,3 +218,56 @@ def test_wall_timer_samples_on_its_timer_and_passes_stale():
     for _ in range(3):
         clock.timer()
     assert host.samples[-1][3]                                  # 3 timer calls without one
+
+
+class P2(Host):
+    """u = 2·(r − y) (a P-only PID with kp 2 after a warm start at y = r)."""
+
+    def sample(self, t_ns, y, r, d, stale, takeover=None):
+        super().sample(t_ns, y, r, d, stale, takeover)
+        self.last_output = np.array([2.0 * (r['y'] - y['y'])])
+        return self.last_output
+
+
+def test_wall_measurement_trigger_answers_each_measurement_with_its_stamp():
+    """trigger: measurement: each measurement that reaches a new instant of the controller's
+    grid (origin + j·sample_time) is answered at once, stamped with the measurement's stamp and
+    computed from it; one of the same instant, a duplicate or an older one is not. A plant
+    ticking twice per controller sample; a setpoint published ahead waits for its instant."""
+    host = P2()
+    tick = 100_000_000
+    clock = make(WallArrivalClock, host, ts_ns=2 * tick)
+    origin = 1_700_000_000_000_000_000
+    host.now = origin + 60 * tick
+    assert clock.trigger == 'measurement'
+    clock.origin(origin)
+    clock.setpoint(origin, {'y': 1.0})
+    out = clock.measurement(origin, {'y': 1.0})
+    clock.setpoint(origin + 6 * tick, {'y': 2.0})              # ahead of its instant
+    for k, y in ((1, 0.0), (2, 0.5), (5, 0.25), (5, 0.0), (4, 0.0), (6, 0.75)):
+        out += clock.measurement(origin + k * tick, {'y': y})
+    assert [t - origin for t, _ in out] == [0, 2 * tick, 5 * tick, 6 * tick]
+    assert [u[0] for _, u in out] == [0.0, 1.0, 1.5, 2.5]
+    assert not any(s[3] for s in host.samples)                  # none stale
+
+
+def test_wall_outputs_never_go_back_when_a_restarted_plant_s_grid_lags():
+    """A new plant session (a new time origin) whose first ticks are stamped before the
+    controller's last output: those ticks are not sampled; the outputs' stamps only increase."""
+    host = P2()
+    ts = 100_000_000
+    clock = make(WallArrivalClock, host, ts_ns=ts)
+    old = 1_700_000_000_000_000_000
+    clock.origin(old)
+    clock.setpoint(old, {'y': 1.0})
+    out = clock.measurement(old, {'y': 0.5})
+    last = old + 100 * ts
+    host.now = last
+    out += clock.measurement(last, {'y': 0.5})
+    new = last - 5 * ts - ts // 2          # the new session's tick 0, before that output
+    clock.origin(new)
+    for k in (1, 5):                       # before the last output: not samples
+        assert clock.measurement(new + k * ts, {'y': 0.25}) == []
+    out += clock.measurement(new + 6 * ts, {'y': 0.75})   # after it
+    stamps_ = [t for t, _ in out]
+    assert all(b > a for a, b in zip(stamps_, stamps_[1:])) and stamps_[-2:] == [last, new + 6 * ts]
