@@ -135,13 +135,11 @@ class ControllerNode(ControllerParams):
         self.create_subscription(JointState, TOPIC_MEASUREMENT, self._on_measurement, SIGNAL_QOS,
                                  event_callbacks=quiet_subscription_events(), raw=True)
         # the reference's signals: their matched writers are reported (_matched)
-        self._reference_subs = [self.create_subscription(
-            JointState, TOPIC_SETPOINT, self._on_setpoint, SIGNAL_QOS,
-            event_callbacks=quiet_subscription_events(), raw=True)]
-        if self._disturbances:
-            self._reference_subs.append(self.create_subscription(
-                JointState, TOPIC_DISTURBANCE, self._on_disturbance, SIGNAL_QOS,
-                event_callbacks=quiet_subscription_events(), raw=True))
+        self._reference_subs = [
+            self.create_subscription(JointState, topic,
+                                     lambda m, t=topic: self._on_reference(t, m), SIGNAL_QOS,
+                                     event_callbacks=quiet_subscription_events(), raw=True)
+            for topic in (TOPIC_SETPOINT, TOPIC_DISTURBANCE)[:2 if self._disturbances else 1]]
         self._state_pub = None
         if self._kind.state is not None:
             self._state_pub = self.create_publisher(
@@ -180,19 +178,15 @@ class ControllerNode(ControllerParams):
         mine = {name: values[name] for name in self._outputs if name in values}
         self._emit(self._protocol.measurement(t_ns, mine))
 
-    def _on_setpoint(self, msg: bytes) -> None:
-        parsed = self._parse(TOPIC_SETPOINT, msg)
+    def _on_reference(self, topic: str, msg: bytes) -> None:
+        """A setpoint or measured disturbance message (CDR bytes of a JointState)."""
+        parsed = self._parse(topic, msg)
         if parsed is None:
             return
-        self._count_channels(TOPIC_SETPOINT, parsed[1], self._outputs)
-        self._emit(self._protocol.setpoint(parsed[0], parsed[1]))
-
-    def _on_disturbance(self, msg: bytes) -> None:
-        parsed = self._parse(TOPIC_DISTURBANCE, msg)
-        if parsed is None:
-            return
-        self._count_channels(TOPIC_DISTURBANCE, parsed[1], self._disturbances)
-        self._emit(self._protocol.disturbance(parsed[0], parsed[1]))
+        setpoint = topic == TOPIC_SETPOINT
+        self._count_channels(topic, parsed[1], self._outputs if setpoint else self._disturbances)
+        take = self._protocol.setpoint if setpoint else self._protocol.disturbance
+        self._emit(take(parsed[0], parsed[1]))
 
     def _on_applied(self, msg: bytes) -> None:
         """The plant's latched applied manipulated values (an empty message: none yet), kept per

@@ -3,6 +3,7 @@ for each /clock tick or wall instant. The DDS tests (test_reference_node.py) kee
 mode end to end."""
 from __future__ import annotations
 
+from support.held import REFERENCE
 from tank_control.core.scenario import reference_setup
 from tank_control.nodes.cdr import signal_from_cdr
 from tank_control.nodes.clock import Held
@@ -10,14 +11,6 @@ from tank_control.nodes.protocol.reference import (LockstepReference, SimReferen
                                                    WallReference, reference_clock)
 
 T = 100_000_000          # the plant's tick [ns]
-REFERENCE = {
-    'setpoint.channels': ['y'],
-    'setpoint.y.times': [0.0, 0.3], 'setpoint.y.values': [1.0, 2.0],
-    'setpoint.y.min': 0.0, 'setpoint.y.max': 10.0,
-    'disturbance.channels': ['v'],
-    'disturbance.v.times': [0.0, 0.5], 'disturbance.v.values': [0.0, -0.5],
-    'disturbance.v.ramp_rate': 1.0,
-}
 
 
 class Host:

@@ -12,20 +12,11 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 
+from support.held import REFERENCE
 from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, clock_msg, from_joint_state,
                                          ns_to_stamp)
 
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-
-REFERENCE = {
-    'setpoint.channels': ['y'],
-    'setpoint.y.times': [0.0, 0.3], 'setpoint.y.values': [1.0, 2.0],
-    'setpoint.y.min': 0.0, 'setpoint.y.max': 10.0,
-    'disturbance.channels': ['v'],
-    'disturbance.v.times': [0.0, 0.5], 'disturbance.v.values': [0.0, -0.5],
-    'disturbance.v.ramp_rate': 1.0,
-}
-
 
 def params_file(tmp_path, **extra):
     path = tmp_path / 'reference.yaml'
