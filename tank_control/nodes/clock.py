@@ -13,15 +13,19 @@ from __future__ import annotations
 import heapq
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from rclpy.clock import Clock, ClockType
+if TYPE_CHECKING:
+    from rclpy.clock import Clock
 
 CLOCK_MODES = ('wall', 'sim', 'lockstep')
 
 
 def steady_clock() -> Clock:
     """A monotonic wall clock for timers that must ignore ``use_sim_time``
-    (pacing, re-sending, diagnostics)."""
+    (pacing, re-sending, diagnostics). rclpy is imported here only: the rest of this module
+    and the protocols (nodes/protocol/) are importable without it."""
+    from rclpy.clock import Clock, ClockType
     return Clock(clock_type=ClockType.STEADY_TIME)
 
 

@@ -3,7 +3,8 @@
 Publishes ``setpoint`` and ``disturbance`` (``sensor_msgs/JointState`` by channel name): in
 ``wall`` mode every ``sample_time`` of plant time from the plant's ``time_origin`` on, in ``sim``
 one idempotent answer per ``/clock`` tick, in ``lockstep`` the schedules ``lockstep.lookahead``
-ticks ahead under zero-order hold (a message per change, ``_HeldStream``). The channel
+ticks ahead under zero-order hold (a message per change, ``protocol.reference.HeldStream``;
+the clock protocol is ``nodes/protocol/reference.py``, picked once). The channel
 parameters always equal the schedules it runs: a change (an override ``value``, new limits) is
 written back to ``times``/``values``, and several parameters set in one call (``ros2 param
 load``) are one atomic change. Parameter layout, runtime overrides and timing: docs/nodes.md
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import sys
-from collections.abc import Callable
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -23,7 +23,7 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from tank_control.core.interfaces import seconds, to_ns
+from tank_control.core.interfaces import to_ns
 from tank_control.core.node_specs import ReferenceNode as ReferenceNodeConfig
 from tank_control.core.params import ConfigError, specs_of
 from tank_control.core.reference import (FIELDS, Reference, channel_lists, channel_specs,
@@ -35,8 +35,9 @@ from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, REFERENCE_QOS, T
                                          TOPIC_TIME_ORIGIN,
                                          quiet_publisher_events, quiet_subscription_events,
                                          stamp_to_ns)
-from tank_control.nodes.cdr import JointStateCdr, cdr_stamp_ns
+from tank_control.nodes.cdr import cdr_stamp_ns
 from tank_control.nodes.params import GroupedParameterService, ParameterBinding, ParameterError
+from tank_control.nodes.protocol.reference import reference_clock
 from tank_control.nodes.runtime import main as run_node_main
 
 
@@ -46,48 +47,6 @@ def _channel_values(node: Node) -> dict[str, Any]:
     return {name: (list(p.value) if not isinstance(p.value, (str, bytes))
                    and hasattr(p.value, '__len__') else p.value)
             for name, p in overrides.items() if name.split('.')[0] in ('setpoint', 'disturbance')}
-
-
-class _HeldStream:
-    """lockstep: one topic's messages under zero-order hold (``lockstep.lookahead``): a message
-    per change of its values, and one at the horizon whenever the consumers would otherwise
-    not know the next tick (``nodes/clock.Held`` is the consumers' side)."""
-
-    def __init__(self, publisher: Any) -> None:
-        self.pub = publisher
-        self.last: tuple | None = None      # (names, values) of the latest message
-        self.sent: list[tuple[int, bytes]] = []   # from the one in force at the tick on
-
-    def offer(self, stamp_ns: int, names: tuple[str, ...], values: tuple[float, ...],
-              encoder: Callable[[tuple[str, ...]], JointStateCdr]) -> None:
-        """The values at ``stamp_ns``: published when they differ from the last message's."""
-        if (names, values) != self.last:
-            self._send(stamp_ns, names, values, encoder(names))
-
-    def hold(self, stamp_ns: int, need_ns: int,
-             encoder: Callable[[tuple[str, ...]], JointStateCdr]) -> None:
-        """Publish the values held at ``stamp_ns`` if no message is stamped at or after
-        ``need_ns`` (the next tick the consumers must know)."""
-        if self.last is not None and self.sent[-1][0] < need_ns:
-            self._send(stamp_ns, *self.last, encoder(self.last[0]))
-
-    def _send(self, stamp_ns: int, names: tuple[str, ...], values: tuple[float, ...],
-              encoder: JointStateCdr) -> None:
-        msg = encoder.encode_ns(stamp_ns, values)
-        self.last = (names, values)
-        self.sent.append((stamp_ns, msg))
-        self.pub.publish(msg)
-
-    def prune(self, t_ns: int) -> None:
-        """Keep the message in force at ``t_ns`` and the later ones (what a re-send sends)."""
-        keep = 0
-        while keep + 1 < len(self.sent) and self.sent[keep + 1][0] <= t_ns:
-            keep += 1
-        del self.sent[:keep]
-
-    def resend(self) -> None:
-        for _, msg in self.sent:
-            self.pub.publish(msg)
 
 
 class ReferenceNode(Node):
@@ -102,51 +61,40 @@ class ReferenceNode(Node):
         except ConfigError as exc:
             raise ParameterError(str(exc)) from None
         self.reference: Reference = reference
-        self._last_t = 0.0                 # the latest instant published (lockstep: evaluated) [s]
         self.params = ParameterBinding(self, specs_of(ReferenceNodeConfig) + channel_specs(reference),
                                        cross_check=self._cross_check, derive=self._derive)
-        self.setpoint_pub = self.create_publisher(JointState, TOPIC_SETPOINT, REFERENCE_QOS,
-                                                  event_callbacks=quiet_publisher_events())
-        self.disturbance_pub = self.create_publisher(JointState, TOPIC_DISTURBANCE, REFERENCE_QOS,
-                                                     event_callbacks=quiet_publisher_events())
-        # answers as pre-encoded CDR (nodes/cdr.py), by channel names
-        self._answered: dict[int, tuple[bytes, bytes]] = {}
-        self._encoders: dict[tuple[str, ...], JointStateCdr] = {}
-        self._last_clock: int | None = None
-        # Zero-order hold only in an explicit lockstep: in sim the others use the latest
-        # message, which must be the current tick's (use_sim_time alone does not tell sim
-        # from lockstep).
-        self._held = self.params.values['clock_mode'] == 'lockstep'
-        self._lookahead = int(self.params.values['lockstep.lookahead'])
-        self._streams = self._held_streams()
-        self._period_ns: int | None = None  # lockstep: the plant's tick, from two /clock ticks
-        self._horizon_ns = -1               # lockstep: the latest instant evaluated [ns]
-        self.use_sim_time = (bool(self.get_parameter('use_sim_time').value)
-                             or self.params.values['clock_mode'] != 'wall')
-        if self.use_sim_time:
+        self._pubs = {topic: self.create_publisher(JointState, topic, REFERENCE_QOS,
+                                                   event_callbacks=quiet_publisher_events())
+                      for topic in (TOPIC_SETPOINT, TOPIC_DISTURBANCE)}
+        self.setpoint_pub, self.disturbance_pub = self._pubs.values()
+        # the clock protocol (nodes/protocol/reference.py), picked once
+        self.use_sim_time = bool(self.get_parameter('use_sim_time').value)
+        mode = str(self.params.values['clock_mode'])
+        self._protocol = reference_clock(mode, self.use_sim_time)(
+            self, int(self.params.values['lockstep.lookahead']))
+        if self._protocol.follows_clock:
             # taken as CDR bytes: only the stamp is read (nodes/cdr.py)
-            self.create_subscription(Clock, TOPIC_CLOCK,
-                                     self._on_clock_held if self._held else self._on_clock,
-                                     CLOCK_QOS, event_callbacks=quiet_subscription_events(),
-                                     raw=True)
+            self.create_subscription(
+                Clock, TOPIC_CLOCK, lambda m: self._emit(self._protocol.clock(cdr_stamp_ns(m))),
+                CLOCK_QOS, event_callbacks=quiet_subscription_events(), raw=True)
             # a plant on the wall clock latches a non-zero origin and sends no /clock
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._check_origin, ORIGIN_QOS)
             self._diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
             self._conflict = ''
         else:
             period = float(self.params.values['sample_time'])
-            self._origin_ns: int | None = None
-            self._last_t_ns = -1
             self._timer = self.create_timer(period, self._on_timer, clock=steady_clock(),
                                             autostart=False)
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
             self.add_post_set_parameters_callback(self._after_set)
         sp, dist = channel_lists(self.params.values)
         self.get_logger().info(
-            f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, '
-            + (f'lockstep, publishing {self._lookahead} ticks ahead, one message per change'
-               if self._held else 'answering /clock ticks' if self.use_sim_time else
-               f'every {period:g} s of plant time (waiting for the plant\'s {TOPIC_TIME_ORIGIN})'))
+            f'reference: setpoints {sp or "none"}, disturbances {dist or "none"}, ' + {
+                'lockstep': f'lockstep, publishing {self.params.values["lockstep.lookahead"]} '
+                            'ticks ahead, one message per change',
+                'sim': 'answering /clock ticks',
+                'wall': f'every {self.params.values["sample_time"]:g} s of plant time (waiting '
+                        f"for the plant's {TOPIC_TIME_ORIGIN})"}[self._protocol.mode])
 
     # ------------------------------------------------------------- parameters
     def _trial(self, values: dict[str, Any], names: frozenset[str]) -> tuple[Reference, str | None]:
@@ -166,7 +114,7 @@ class ReferenceNode(Node):
                 by_channel.setdefault(parts[:2], {})[parts[2]] = values[name]
         for (kind, ch), changes in by_channel.items():
             value = changes.pop('value', None)
-            reason = trial.update(kind, ch, changes, self._last_t) if changes else None
+            reason = trial.update(kind, ch, changes, self._protocol.last_t) if changes else None
             if reason:
                 return trial, reason
             if value is None:
@@ -175,7 +123,7 @@ class ReferenceNode(Node):
             if {'times', 'values'} & set(changes) and value in (schedule.at(0.0),
                                                                  schedule.values[-1]):
                 continue
-            reason = trial.update(kind, ch, {'value': value}, self._last_t)
+            reason = trial.update(kind, ch, {'value': value}, self._protocol.last_t)
             if reason:
                 return trial, reason
         return trial, None
@@ -205,7 +153,7 @@ class ReferenceNode(Node):
                 extra[prefix + 'value'] = schedule.at(0.0)
         return {k: v for k, v in extra.items() if k not in changed}
 
-    def _apply_pending(self, t: float) -> None:
+    def apply_pending(self, t: float) -> None:
         """Accepted parameter changes act from instant ``t`` [s] on: each channel touched runs
         exactly the schedule its parameters now hold."""
         pending = self.params.take_pending()   # (wall: a new sample_time acts at re-arming)
@@ -220,93 +168,13 @@ class ReferenceNode(Node):
                 self.get_logger().info(f'{kind}.{ch}: times {fields["times"]}, values '
                                        f'{fields["values"]} from t = {t:g} s')
 
+    def info(self, text: str) -> None:
+        self.get_logger().info(text)
+
     # ---------------------------------------------------------------- publish
-    def _publish(self, stamp_ns: int, t: float) -> None:
-        self._last_t = max(self._last_t, t)
-        self._apply_pending(t)
-        ref = self.reference
-        sp = self._encoder(ref.setpoint_names).encode_ns(stamp_ns, ref.setpoints(t))
-        dist = self._encoder(ref.disturbance_names).encode_ns(stamp_ns, ref.disturbances(t))
-        self._answered[stamp_ns] = (sp, dist)
-        self.setpoint_pub.publish(sp)
-        self.disturbance_pub.publish(dist)
-
-    def _encoder(self, names: tuple[str, ...]) -> JointStateCdr:
-        encoder = self._encoders.get(names)
-        if encoder is None:
-            encoder = self._encoders[names] = JointStateCdr(names)
-        return encoder
-
-    def _held_streams(self) -> tuple[_HeldStream, _HeldStream]:
-        return _HeldStream(self.setpoint_pub), _HeldStream(self.disturbance_pub)
-
-    def _on_clock_held(self, msg: bytes) -> None:
-        """lockstep: on /clock t_k make the schedules known through t_k + ``lookahead`` ticks
-        (zero-order hold: a message per change, ``_HeldStream``), so that the controller and
-        the plant of the next ticks wait for nobody but each other; a re-sent /clock t_k gets
-        again every message from the one in force at t_k on. ``msg``: the CDR bytes of a
-        ``rosgraph_msgs/Clock``."""
-        t_ns = cdr_stamp_ns(msg)
-        if self._last_clock is not None and t_ns < self._last_clock:
-            # /clock went back: the plant (re)started, a new run
-            self.get_logger().info('/clock restarted: answering a new run')
-            self._last_clock, self._period_ns, self._horizon_ns = None, None, -1
-            self._last_t = 0.0
-            self._streams = self._held_streams()
-        if t_ns == self._last_clock:             # the plant re-sent tick k
-            for stream in self._streams:
-                stream.resend()
-            return
-        if self._last_clock is not None:     # the plant's ticks are evenly spaced
-            step = t_ns - self._last_clock
-            self._period_ns = step if self._period_ns is None else min(self._period_ns, step)
-        self._last_clock = t_ns
-        period = self._period_ns
-        ahead = self._lookahead if period else 0
-        target = t_ns + ahead * (period or 0)
-        j = t_ns if self._horizon_ns < t_ns or not period else self._horizon_ns + period
-        ref = self.reference
-        setpoints, disturbances = self._streams
-        while j <= target:
-            t = seconds(j)
-            self._last_t = max(self._last_t, t)
-            self._apply_pending(t)
-            setpoints.offer(j, ref.setpoint_names, tuple(ref.setpoints(t).tolist()),
-                            self._encoder)
-            disturbances.offer(j, ref.disturbance_names, tuple(ref.disturbances(t).tolist()),
-                               self._encoder)
-            if not period:
-                break                            # tick 0: the tick period is not known yet
-            j += period
-        self._horizon_ns = max(self._horizon_ns, target)
-        need = t_ns + period if ahead else t_ns  # the consumers' next tick (this one: without)
-        for stream in self._streams:
-            stream.hold(self._horizon_ns, need, self._encoder)
-            stream.prune(t_ns)
-
-    def _on_clock(self, msg: bytes) -> None:
-        """sim: answer tick t_k once (idempotent: a re-sent /clock gets the same messages).
-        ``msg``: the CDR bytes of a ``rosgraph_msgs/Clock``."""
-        t_ns = cdr_stamp_ns(msg)
-        if self._last_clock is not None and t_ns < self._last_clock:
-            # /clock went back: the plant (re)started, a new run (the plant re-sends only its
-            # current tick, so an earlier one is no duplicate; its tick 0 may have been missed)
-            self.get_logger().info('/clock restarted: answering a new run')
-            self._answered.clear()
-            self._last_clock = None
-            self._last_t = 0.0
-        if self._last_clock is not None and t_ns < self._last_clock:
-            return                        # a stale duplicate of an earlier tick
-        cached = self._answered.get(t_ns)
-        if t_ns == self._last_clock and cached is not None:   # the plant re-sent tick k
-            for pub, answer in zip((self.setpoint_pub, self.disturbance_pub), cached):
-                pub.publish(answer)
-            return
-        self._last_clock = t_ns
-        for stamp in [s for s in self._answered if s < t_ns]:
-            del self._answered[stamp]
-        if cached is None:
-            self._publish(t_ns, seconds(t_ns))
+    def _emit(self, messages: list[tuple[str, bytes]]) -> None:
+        for topic, msg in messages:
+            self._pubs[topic].publish(msg)
 
     def _check_origin(self, msg: Time) -> None:
         """/clock mode: a non-zero time origin is a wall-clock plant, whose ticks this node
@@ -334,14 +202,8 @@ class ReferenceNode(Node):
 
     def _on_origin(self, msg: Time) -> None:
         """wall: the plant's time origin; (re)start the grid of instants from it."""
-        origin = stamp_to_ns(msg)
-        if origin == self._origin_ns:
-            return
-        if self._origin_ns is not None:
-            self.get_logger().info('new plant time origin (the plant restarted): schedule '
-                                   'restarts at 0')
-        self._origin_ns, self._last_t_ns, self._last_t = origin, -1, 0.0
-        self._on_timer()
+        if self._protocol.origin(stamp_to_ns(msg)):
+            self._on_timer()
 
     def _after_set(self, parameters: list[Parameter]) -> None:
         """wall: a new ``sample_time`` re-arms the timer on the new grid at once (otherwise
@@ -349,7 +211,7 @@ class ReferenceNode(Node):
         first). rclpy calls post-set callbacks last-added first, so this runs before
         ParameterBinding stores the value: the period is taken from the request."""
         for param in parameters:
-            if param.name == 'sample_time' and self._origin_ns is not None:
+            if param.name == 'sample_time' and self._protocol.origin_ns is not None:
                 self._on_timer(to_ns(float(param.value)))
 
     def _on_timer(self, period_ns: int | None = None) -> None:
@@ -359,20 +221,12 @@ class ReferenceNode(Node):
         self._timer.cancel()
         if period_ns is None:
             period_ns = to_ns(float(self.params.values['sample_time']))
-        # ``wall.lead``: instant j is published at t_j - lead (stamped t_j), half a period at most
-        lead_ns = min(to_ns(float(self.params.values['wall.lead'])), period_ns // 2)
-        elapsed = self.get_clock().now().nanoseconds - self._origin_ns + lead_ns
-        if elapsed < 0:                  # before the plant's tick 0: wait for instant 0
-            self._timer.timer_period_ns = -elapsed
-            self._timer.reset()
-            return
-        t_ns = elapsed // period_ns * period_ns      # the latest instant reached
-        if t_ns > self._last_t_ns:
-            self._last_t_ns = t_ns
-            self._publish(self._origin_ns + t_ns, seconds(t_ns))
-        self._timer.timer_period_ns = t_ns + period_ns - elapsed
+        messages, wait_ns = self._protocol.timer(
+            self.get_clock().now().nanoseconds, period_ns,
+            to_ns(float(self.params.values['wall.lead'])))
+        self._emit(messages)
+        self._timer.timer_period_ns = wait_ns
         self._timer.reset()
-
 
 def main(args: list[str] | None = None) -> int:
     """Console entry point reference_node; exit 2 with a one-line reason on bad parameters."""

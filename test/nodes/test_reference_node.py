@@ -12,20 +12,11 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 
+from support.held import REFERENCE
 from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, clock_msg, from_joint_state,
                                          ns_to_stamp)
 
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-
-REFERENCE = {
-    'setpoint.channels': ['y'],
-    'setpoint.y.times': [0.0, 0.3], 'setpoint.y.values': [1.0, 2.0],
-    'setpoint.y.min': 0.0, 'setpoint.y.max': 10.0,
-    'disturbance.channels': ['v'],
-    'disturbance.v.times': [0.0, 0.5], 'disturbance.v.values': [0.0, -0.5],
-    'disturbance.v.ramp_rate': 1.0,
-}
-
 
 def params_file(tmp_path, **extra):
     path = tmp_path / 'reference.yaml'
@@ -184,48 +175,3 @@ def test_lockstep_publishes_the_schedules_ahead_once_per_change_and_again_on_res
     clock.publish(clock_msg(20 * T))
     assert probe.wait_for(lambda: len(setpoints) >= len(before) + 2, 20)
     assert setpoints[len(before):] == [m for m in before if m[0] >= 15 * T]
-
-
-def test_lockstep_lookahead_0_answers_every_tick_when_it_comes(procs, ros_env, node_cmd, probe,
-                                                               tmp_path):
-    """``lockstep.lookahead: 0``: each tick answered on its own /clock, stamped with it.
-    Tick 0 is sent again until its first answer arrives (the endpoints match meanwhile, and an
-    answer published before the probe's reader matched is lost); the reference answers each
-    /clock it takes, a re-sent tick too (as a plant's re-send), so tick 0 may be answered up
-    to as often as it was sent, and every later tick exactly once."""
-    procs.start('reference', node_cmd('reference_node', '--params-file',
-                                      params_file(tmp_path, clock_mode='lockstep'),
-                                      '-p', 'lockstep.lookahead:=0'), env=ros_env)
-    setpoints = collect(probe, 'setpoint')
-    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
-    sent0 = []
-
-    def send0() -> bool:
-        if setpoints:
-            return True
-        clock.publish(clock_msg(0))
-        sent0.append(0)
-        return False
-    assert probe.wait_for(send0, 20)
-    for k in range(1, 6):
-        clock.publish(clock_msg(k * T))
-        assert probe.wait_for(lambda: setpoints[-1][0] == k * T, 20)
-    probe.wait_for(lambda: False, 0.3)             # nothing ahead arrives
-    answers = [(s // T, v[0]) for s, _, v in setpoints]
-    zeros = answers.count((0, 1.0))
-    assert 1 <= zeros <= len(sent0), (answers, len(sent0))
-    assert answers == [(0, 1.0)] * zeros + [(1, 1.0), (2, 1.0), (3, 2.0), (4, 2.0), (5, 2.0)]
-
-
-def test_sim_mode_answers_only_the_current_tick(procs, ros_env, node_cmd, probe, tmp_path):
-    """In sim the plant and controller use the latest message: it must be tick k's."""
-    procs.start('reference', node_cmd('reference_node', '--params-file',
-                                      params_file(tmp_path, clock_mode='sim')), env=ros_env)
-    setpoints = collect(probe, 'setpoint')
-    clock = probe.node.create_publisher(Clock, '/clock', CLOCK_QOS)
-    assert probe.wait_for(lambda: setpoints or clock.publish(clock_msg(0)), 20)
-    for k in range(1, 5):
-        clock.publish(clock_msg(k * 100_000_000))
-        assert probe.wait_for(lambda: setpoints[-1][0] == k * 100_000_000, 20)
-    probe.wait_for(lambda: False, 0.3)             # nothing ahead arrives
-    assert max(s for s, _, _ in setpoints) == 400_000_000

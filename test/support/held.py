@@ -22,3 +22,15 @@ def per_tick(by_stamp: Mapping[int, T], ticks: Iterable[int]) -> dict[int, T]:
         if i and stamps[-1] >= tick:
             out[tick] = by_stamp[stamps[i - 1]]
     return out
+
+
+#: The reference schedules of the reference tests (flat parameters, as in a params file): a
+#: setpoint step 1 → 2 at 0.3 s within [0, 10], a disturbance ramp 0 → −0.5 from 0.5 s at 1 /s.
+REFERENCE = {
+    'setpoint.channels': ['y'],
+    'setpoint.y.times': [0.0, 0.3], 'setpoint.y.values': [1.0, 2.0],
+    'setpoint.y.min': 0.0, 'setpoint.y.max': 10.0,
+    'disturbance.channels': ['v'],
+    'disturbance.v.times': [0.0, 0.5], 'disturbance.v.values': [0.0, -0.5],
+    'disturbance.v.ramp_rate': 1.0,
+}

@@ -1,0 +1,105 @@
+"""The controller node's parameters: the kind from the overrides, the cross-check of a change
+(the candidate controller tried from the last sample), derived values, and a change taking
+effect at a step, bumplessly (docs/nodes.md, "controller_node")."""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from tank_control.core import node_specs, ranges
+from tank_control.core.control.kinds import registry
+from tank_control.core.params import ConfigError
+from tank_control.core.scenario import controller_setup
+from tank_control.nodes.controller_reports import ControllerReports
+from tank_control.nodes.params import ParameterError
+
+
+class ControllerParams(ControllerReports):
+    """Parameter handling of ``controller_node`` (a base class of ``ControllerNode``)."""
+
+    _kind_names: frozenset[str]
+    _prepared: tuple[registry.PreparedChange, int] | None
+    _last_sample_io: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None
+
+    def _kind_from_overrides(self) -> str:
+        override = getattr(self, '_parameter_overrides', {}).get('controller')
+        try:
+            return node_specs.kind_of('controller', {} if override is None
+                                      else {'controller': override.value})
+        except ConfigError as exc:
+            raise ParameterError(str(exc)) from None
+
+    def _override_values(self) -> dict[str, Any]:
+        return {name: p.value for name, p in getattr(self, '_parameter_overrides', {}).items()}
+
+    def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
+        # the node's own results (tuned gains, an identified model) are not a user's change:
+        # they are checked as values, not against a guard on changes (robustness.ms_max)
+        writing = getattr(self, '_params', None) is not None and self._params.writing
+        given = frozenset() if writing else changed
+        try:
+            setup = controller_setup(values, given=given)
+        except ConfigError as exc:
+            return str(exc)
+        mine = changed & self._kind_names
+        if writing or not mine or getattr(self, '_controller', None) is None:
+            return None
+        # a user's change of the controller: build the candidate now and try it from the last
+        # sample (the derived quantities must give finite outputs); it takes effect next sample
+        if self._prepared is not None and self._prepared[1] == self._gen:
+            mine |= self._prepared[0].changed          # accepted earlier, not applied yet
+        try:
+            prepared = registry.prepare_change(
+                self._kind, self._controller, setup.settings, frozenset(mine),
+                trial=self._last_sample_io, u_last=self._u)
+        except ValueError as exc:
+            return str(exc)
+        self._prepared = (prepared, self._gen)
+        return None
+
+    def _on_params_set(self, parameters: list) -> None:
+        """Accepted ``range.*`` changes act at once (on the next message)."""
+        given = {p.name: p.value for p in parameters if p.name.startswith(ranges.PREFIX)}
+        if given:
+            values = {**self._params.values, **given}
+            self._ranges = ranges.ranges_from(values, tuple(self._ranges.bounds))
+
+    def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
+        extra = {}
+        if self._kind.derive is not None:
+            kind_values = {k: v for k, v in values.items() if k in self._kind_names}
+            extra = {k: v for k, v in self._kind.derive(kind_values).items() if k not in changed}
+        # auto → manual without a manual_output: keep the current output (bumpless)
+        if ('mode' in changed and values.get('mode') == 'manual' and 'manual_output' not in changed
+                and isinstance(values.get('manual_output'), float) and self._u is not None
+                and self._u.size == 1):
+            lo, hi = values.get('u_min', -math.inf), values.get('u_max', math.inf)
+            extra['manual_output'] = float(min(max(self._u[0], lo), hi))
+        return extra
+
+    def _step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """One controller step; accepted parameter changes take effect at it, bumplessly."""
+        changed = [name for name in self._params.take_pending() if name in self._kind_names]
+        prepared, self._prepared = self._prepared, None
+        gen, self._gen = self._gen, self._gen + 1
+        if changed:
+            try:
+                # the candidate checked on acceptance, unless it is a copy of a running
+                # controller that has stepped or reset since (then it is made anew)
+                if prepared is None or (prepared[0].in_place and prepared[1] != gen):
+                    settings = controller_setup(self._params.values, given=()).settings
+                    prepared = (registry.prepare_change(self._kind, self._controller, settings,
+                                                        frozenset(changed)), gen)
+                self._controller, u = prepared[0].take_effect(self._controller, t, y, r, d)
+                self._update_error = ''
+                return u
+            except ValueError as exc:    # checked before acceptance; never expected
+                self.counters['update_errors'] += 1
+                self._update_error = f'parameter change could not be applied: {exc}'
+                self.get_logger().error(self._update_error)
+                self._publish_diagnostics()
+        return np.asarray(self._controller.step(t, y, r, d), dtype=float)
+
