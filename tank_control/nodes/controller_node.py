@@ -37,6 +37,7 @@ from tank_control.core.stamps import FutureStamps, future_tolerance_ns
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.controller_params import ControllerParams
 from tank_control.nodes.controller_reports import SATURATION_WARN_SAMPLES  # noqa: F401 (API)
+from tank_control.nodes.loop_performance import LoopPerformance
 from tank_control.nodes.messages import (APPLIED_QOS, LATE_QOS, ORIGIN_QOS, SIGNAL_QOS,
                                          TOPIC_APPLIED_INPUT, TOPIC_DIAGNOSTICS,
                                          TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
@@ -96,9 +97,16 @@ class ControllerNode(ControllerParams):
             values['max_future_stamp'], self._controller.sample_time, protocol.ticks))
         self._protocol = protocol(self, to_ns(self._controller.sample_time), self._outputs,
                                self._disturbances, self._future)
-        #: called after each sample with (plant time [ns], y, r, d, u) — a hook for features
-        #: (loop monitoring): a list of callables, none by default
+        #: called after each sample with (plant time [ns], y, r, d, u, fault) — fault '' for a
+        #: good sample, else why the output was held — a hook for features: loop monitoring
+        #: (nodes/loop_performance.py) is one
         self.sample_observers: list[Any] = []
+        self._performance = LoopPerformance(self, values, self._kind,
+                                            self._controller.sample_time, self._outputs,
+                                            self._inputs)
+        self.sample_observers.append(
+            lambda t_ns, y, r, d, u, fault: self._performance.sample(
+                t_ns, y, r, u, self._controller.status.get('mode') == 'manual', fault))
 
         self._fault = ''         # '' | 'stale' | 'non-finite' | 'out-of-range' | 'controller'
         self._fault_reason = ''
@@ -322,7 +330,7 @@ class ControllerNode(ControllerParams):
         self.counters['samples'] += 1
         fault = 'stale' if stale else self._measurement_fault(y_vec)
         if fault:
-            return self._hold(fault)
+            return self._observed(t_ns, y_vec, r_vec, d_vec, self._hold(fault), fault)
         recovered = ''
         if self._fault and self._u is not None:
             self._gen += 1
@@ -351,7 +359,8 @@ class ControllerNode(ControllerParams):
         if not np.all(np.isfinite(u)):
             # a controller that cannot compute: the fail-safe path, said loudly
             self._fault_reason = self._fault_reason or f'non-finite output {u.tolist()}'
-            return self._hold('controller')
+            return self._observed(t_ns, y_vec, r_vec, d_vec, self._hold('controller'),
+                                  'controller')
         if recovered:
             what = 'controller' if recovered == 'controller' else 'measurement'
             self.get_logger().info(f'{what} recovered after {recovered} episode; '
@@ -364,8 +373,13 @@ class ControllerNode(ControllerParams):
         self._check_saturation()
         self._check_warning()
         self._write_results()
+        return self._observed(t_ns, y_vec, r_vec, d_vec, u, '')
+
+    def _observed(self, t_ns: int, y: np.ndarray, r: np.ndarray, d: np.ndarray, u: np.ndarray,
+                  fault: str) -> np.ndarray:
+        """``u`` after the sample observers have seen the sample."""
         for observe in self.sample_observers:
-            observe(t_ns, y_vec, r_vec, d_vec, u)
+            observe(t_ns, y, r, d, u, fault)
         return u
 
 

@@ -11,6 +11,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from tank_control.core.control.kinds.base import ControllerKind
+from tank_control.nodes.loop_performance import LoopPerformance
 from tank_control.nodes.controller_inputs import ControllerInputs
 from tank_control.nodes.params import ParameterBinding
 from tank_control.nodes.runtime import duplicate_name_problem
@@ -43,6 +44,7 @@ class ControllerReports(ControllerInputs):
     _fault_reason: str
     _update_error: str
     _clock_conflict: str
+    _performance: LoopPerformance
     _compute_s: float
 
     def _check_saturation(self) -> None:
@@ -224,6 +226,11 @@ class ControllerReports(ControllerInputs):
             level = max(level, DiagnosticStatus.WARN)
             message += (f"; {self.counters['rejected_future']} inputs stamped in the future "
                         'refused')
+        attention, performance = self._performance.diagnostics()
+        if performance:
+            message += f'; {performance}'
+            if attention:
+                level = max(level, DiagnosticStatus.WARN)
         if self._fault == 'controller' or self._update_error:
             level = DiagnosticStatus.ERROR
         if self._clock_conflict:

@@ -100,10 +100,11 @@ def test_commands_are_services_and_results_become_parameters(probe, node):
     assert probe.wait_for(future.done, 10.0)
     assert future.result().success and future.result().message == 'started'
     seen = []
-    node.sample_observers.append(lambda t_ns, y, r, d, u: seen.append((t_ns, u.tolist())))
+    node.sample_observers.append(lambda t_ns, y, r, d, u, fault: seen.append(
+        (t_ns, u.tolist(), fault)))
     assert [tick(k) for k in (1, 2, 3)] == [1.0, 2.0, 3.0]
-    # a feature hook: each sample's (plant time, y, r, d, u) is handed to the observers
-    assert seen == [(k * 1_000_000_000, [float(k)]) for k in (1, 2, 3)]
+    # a feature hook: each sample's (plant time, y, r, d, u, fault) is handed to the observers
+    assert seen == [(k * 1_000_000_000, [float(k)], '') for k in (1, 2, 3)]
     assert node.get_parameter('counting.count').value == 3
     assert node.get_parameter('counting.state').value == 'running'
     # results stay read-only for users

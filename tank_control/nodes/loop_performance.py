@@ -1,0 +1,67 @@
+"""controller_node's loop monitoring (docs/monitoring.md): one core ``LoopMonitor`` per loop
+(``core/monitoring``), fed at every sample — good or held on a fault — with the plant time [s],
+y, r and the output u; each recomputed summary is published as JSON (``std_msgs/String``) on
+``~/loop_performance``, and the verdicts join the node's /diagnostics (WARN when a loop needs
+attention). Settings ``monitor.*``, declared with the controller's parameters; a change of them
+takes effect at the node's next start."""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from std_msgs.msg import String
+
+from tank_control.core.interfaces import seconds
+from tank_control.core.monitoring import diagnostics_line, loop_monitors
+from tank_control.core.scenario import controller_setup
+
+TOPIC = '~/loop_performance'
+
+
+def _strict(value: Any) -> Any:
+    """JSON without NaN/inf (as null), numpy numbers as Python numbers."""
+    if isinstance(value, Mapping):
+        return {str(k): _strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_strict(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+class LoopPerformance:
+    """The monitors of a controller's loops (output ``outputs[i]`` with input ``inputs[i]``)
+    and their publisher; none for a controller whose counts of outputs and inputs differ."""
+
+    def __init__(self, node: Any, values: Mapping[str, Any], kind: Any, sample_time: float,
+                 outputs: Sequence[str], inputs: Sequence[str]) -> None:
+        setup = controller_setup(values, given=())
+        limits = kind.input_limits(setup.settings) if kind.input_limits is not None else {}
+        self.monitors = loop_monitors(setup.monitor, sample_time, outputs, inputs, limits)
+        self._outputs, self._inputs = tuple(outputs), tuple(inputs)
+        self._pub = node.create_publisher(String, TOPIC, 10) if self.monitors else None
+
+    def sample(self, t_ns: int, y: np.ndarray, r: np.ndarray, u: np.ndarray | None,
+               manual: bool, fault: str) -> None:
+        """One sample of every loop (``fault`` non-empty: the output was held or fail-safe)."""
+        for name, (u_name, monitor) in self.monitors.items():
+            i, j = self._outputs.index(name), self._inputs.index(u_name)
+            u_j = float(u[j]) if u is not None and len(u) > j else math.nan
+            summary = monitor.update(seconds(t_ns), float(y[i]), float(r[i]), u_j,
+                                     manual=manual, fail_safe=bool(fault))
+            if summary is not None and self._pub is not None:
+                self._pub.publish(String(data=json.dumps(
+                    _strict({'output': name, 'input': u_name, **summary}), allow_nan=False)))
+
+    def diagnostics(self) -> tuple[bool, str]:
+        """(a loop needs attention, one line of every loop's verdict); (False, '') without
+        monitors."""
+        if not self.monitors:
+            return False, ''
+        level, text = diagnostics_line(self.monitors)
+        return level > 0, text
