@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from tank_control.opcua.plant_params import endpoint_param, mode_reason   # no asyncua
 from tank_control.core import ranges
 from tank_control.core.control.kinds import registry as controllers
 from tank_control.core.monitoring.assess import MonitorConfig
@@ -84,8 +85,12 @@ class PlantNode:
                                min=0, max=8, name='lockstep.record_window', read_only=True)
     max_future_stamp: float | None = max_future_stamp_param()
     diagnostics_period: float = diagnostics_period_param()
+    opcua_endpoint: str = endpoint_param()
 
     def reason(self) -> str | None:
+        reason = mode_reason(self.clock_mode, self.opcua_endpoint)    # lockstep refused
+        if reason:
+            return reason
         if self.clock_mode == 'sim' and self.real_time_factor <= 0:
             return (f'real_time_factor: {self.real_time_factor:g} with clock_mode sim; allowed '
                     f'[{RTF_TINY:g}, 1e6] (0 = as fast as possible exists in lockstep only)')

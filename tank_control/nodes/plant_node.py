@@ -3,10 +3,10 @@
 Publishes ``measurement`` (outputs plus seeded noise), ``/clock`` (sim, lockstep),
 ``time_origin``, ``applied_input`` (latched: what a restarted controller takes over from),
 ``~/late_inputs``, ``/diagnostics`` (WARN on a stalled loop, naming what it waits for);
-subscribes ``manipulated`` and ``disturbance`` by channel name. Clock modes ``wall``/``sim``/``lockstep``, the lockstep
-protocol and ``lockstep.paused``: docs/nodes.md; the protocol itself is
-``nodes/protocol/plant.py``, picked once from ``clock_mode``: this module wires publishers,
-subscriptions, timers and parameters to it. Units: those of the plant kind; times in s.
+subscribes ``manipulated`` and ``disturbance`` by channel name; serves OPC UA with
+``opcua.endpoint`` (``nodes/plant_opcua.py``). Clock modes, the lockstep protocol and
+``lockstep.paused``: docs/nodes.md; the protocol is ``nodes/protocol/plant.py``, picked once
+from ``clock_mode``. Units: those of the plant kind; times in s.
 """
 from __future__ import annotations
 
@@ -29,16 +29,14 @@ from tank_control.core.plants.noise import NoiseConfig
 from tank_control.core.scenario import plant_setup
 from tank_control.core.stamps import FutureStamps, future_tolerance_ns
 from tank_control.nodes.clock import steady_clock
-from tank_control.nodes.messages import (APPLIED_QOS, CLOCK_QOS, LATE_QOS, ORIGIN_QOS,
-                                         RECORDED_QOS, SIGNAL_QOS, TOPIC_APPLIED_INPUT,
-                                         TOPIC_CLOCK, TOPIC_RECORDED,
-                                         TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
-                                         TOPIC_LATE_INPUTS, TOPIC_MANIPULATED, TOPIC_MEASUREMENT,
-                                         TOPIC_TIME_ORIGIN, ChannelFilter, ns_to_stamp,
-                                         stamp_to_ns,
-                                         quiet_publisher_events, quiet_subscription_events,
-                                         to_joint_state, unmatched, MATCH_WAIT_S)
+from tank_control.nodes.messages import (
+    APPLIED_QOS, CLOCK_QOS, LATE_QOS, MATCH_WAIT_S, ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS,
+    TOPIC_APPLIED_INPUT, TOPIC_CLOCK, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE, TOPIC_LATE_INPUTS,
+    TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_RECORDED, TOPIC_TIME_ORIGIN, ChannelFilter,
+    ns_to_stamp, quiet_publisher_events, quiet_subscription_events, stamp_to_ns, to_joint_state,
+    unmatched)
 from tank_control.nodes.params import ParameterBinding, ParameterError
+from tank_control.nodes.plant_opcua import PlantOpcua
 from tank_control.nodes.protocol.plant import (ORIGIN_NOTICE_S, STALL_RESENDS,  # noqa: F401
                                                Timer, plant_clock)
 from tank_control.nodes.runtime import main as run_node_main
@@ -144,6 +142,12 @@ class PlantNode(Node):
         self._prestart_timer = (self.create_timer(0.02, self._on_prestart, clock=steady_clock())
                                 if self._protocol.prestart_reports else None)
         self.add_post_set_parameters_callback(self._on_params_set)
+        try:            # opcua.endpoint: the plant served over OPC UA too (docs/opcua.md)
+            self.opcua = PlantOpcua(str(values['opcua.endpoint']), self.plant.output_names,
+                                    self.plant.input_names, setup.ranges, self._protocol.u,
+                                    self._protocol.mode == 'wall')
+        except ConfigError as exc:
+            raise ParameterError(str(exc)) from None
         self._protocol.start()
         self.get_logger().info(
             f'plant {kind} ({setup.kind.description}): outputs {list(self.plant.output_names)}, inputs '
@@ -181,6 +185,14 @@ class PlantNode(Node):
     def publish_late(self, t_ns: int, names: list[str], values: list[float]) -> None:
         self.late_pub.publish(to_joint_state(t_ns, names, values))
 
+    def measured(self, stamp_ns: int, y: Any) -> None:
+        self.opcua.measured(stamp_ns, y)
+
+    def destroy_node(self) -> None:
+        if getattr(self, 'opcua', None) is not None:
+            self.opcua.stop()
+        super().destroy_node()
+
     def ros_now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
@@ -205,7 +217,9 @@ class PlantNode(Node):
         return None
 
     def apply_pending(self) -> None:
-        """Accepted parameter changes act from this step on."""
+        """Accepted parameter changes act from this step on; so do the inputs an OPC UA
+        client wrote."""
+        self.opcua.take_into(self._protocol)
         pending = self.params.take_pending()
         if not pending:
             return
@@ -330,10 +344,9 @@ class PlantNode(Node):
 
     def _publish_diagnostics(self) -> None:
         # the filters count per message; the totals are taken here, off the hot path
-        self.counters['ignored_inputs'] = sum(f.ignored for f in self.filters.values())
-        self.counters['out_of_range_inputs'] = sum(f.out_of_range for f in self.filters.values())
-        self.counters['unknown_channels'] = sum(f.unknown for f in self.filters.values())
-        self.counters['oversized_inputs'] = sum(f.oversized for f in self.filters.values())
+        for key, attr in (('ignored_inputs', 'ignored'), ('out_of_range_inputs', 'out_of_range'),
+                          ('unknown_channels', 'unknown'), ('oversized_inputs', 'oversized')):
+            self.counters[key] = sum(getattr(f, attr) for f in self.filters.values())
         self.counters['rejected_future'] = self._future.refused
         for flt in self.filters.values():
             flt.rearm()                 # each kind of reason logged again at most once a period
@@ -361,10 +374,9 @@ class PlantNode(Node):
         status.message = ', '.join(problems) or 'ok'
         items = {'clock_mode': self._protocol.mode, 'sim_time': f'{self._protocol.t():.9g}',
                  'time_origin_ns': self._protocol.stamp_offset_ns, **self.counters}
-        items['paused'] = self._is_paused
         self._matched_sent = self._matched()
-        items.update(self._matched_sent)
-        items['step_time_ms'] = f'{self._protocol.step_ms:.4g}'
+        items.update(paused=self._is_paused, **self.opcua.counters(), **self._matched_sent,
+                     step_time_ms=f'{self._protocol.step_ms:.4g}')
         waiting = self._protocol.waiting_for()
         if waiting is not None:
             items['waiting_for'] = waiting
@@ -376,7 +388,6 @@ class PlantNode(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
-
 
 
 def main(args: list[str] | None = None) -> int:

@@ -57,6 +57,7 @@ class Host:
         self.clock: list[bytes] = []
         self.applied: list[bytes] = []
         self.origins: list[int] = []
+        self.values: list[tuple[int, list]] = []       # each tick's measured values (OPC UA)
         self.late: list[tuple[int, list, list]] = []
         self.warnings: list[str] = []
 
@@ -78,6 +79,9 @@ class Host:
 
     def publish_origin(self, origin_ns):
         self.origins.append(origin_ns)
+
+    def measured(self, stamp_ns, y):
+        self.values.append((stamp_ns, list(y)))
 
     def publish_late(self, t_ns, names, values):
         self.late.append((t_ns, names, values))
@@ -125,6 +129,8 @@ def test_unanswered_lockstep_tick_is_resent_unchanged_with_the_same_noise():
         plant.on_resend()
     assert len(set(host.measurements)) == 1 and len(host.measurements) == 4
     assert signal_from_cdr(host.measurements[0])[3] != (0.0,)        # noise drawn
+    # the tick's values as numbers, once (what an OPC UA server serves), equal to the message
+    assert [(0, list(signal_from_cdr(host.measurements[0])[3]))] == host.values
     assert plant.counters['resent_ticks'] == 3
     assert plant.waiting_for() == 'manipulated, disturbance'
     plant.on_resend()                            # not due yet: nothing

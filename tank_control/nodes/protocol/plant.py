@@ -75,6 +75,8 @@ class PlantHost(Protocol):
 
     def publish_origin(self, origin_ns: int) -> None: ...
 
+    def measured(self, stamp_ns: int, y: np.ndarray) -> None: ...   # the tick's values
+
     def publish_late(self, t_ns: int, names: list[str], values: list[float]) -> None: ...
 
     def ros_now_ns(self) -> int: ...
@@ -145,6 +147,7 @@ class PlantClock:
         clock = clock_cdr_ns(t_ns) if self.publishes_clock else None
         self.tick_msgs = (msg, clock)
         self.send()
+        self.host.measured(stamp, y)
         self.tick_published_at = self.sent_at
         if self.first_tick_at is None:
             self.first_tick_at = self.sent_at
