@@ -45,6 +45,7 @@ class ControllerReports(ControllerInputs):
     _update_error: str
     _clock_conflict: str
     _performance: LoopPerformance
+    _waiting_logged: str = ''         # the 'waiting for ...' last said on the console
     _compute_s: float
 
     def _check_saturation(self) -> None:
@@ -199,6 +200,16 @@ class ControllerReports(ControllerInputs):
         if self._matched() != self._matched_sent or self._prestart_calls % 5 == 0:
             self._publish_diagnostics()
 
+    def _say_what_it_waits_for(self, message: str) -> None:
+        """On the console too: once when the controller starts waiting (no plant yet), once
+        when it stops."""
+        waiting = message if message.startswith('waiting for') else ''
+        if waiting and waiting != self._waiting_logged:
+            self.get_logger().info(f'{waiting} (from plant_node): nothing to control yet')
+        elif not waiting and self._waiting_logged:
+            self.get_logger().info('measurements arrive: the loop runs')
+        self._waiting_logged = waiting
+
     def _publish_diagnostics(self) -> None:
         self._limited.clear()                 # input reasons are logged again (rate limit)
         self._future.rearm_reports()
@@ -211,6 +222,7 @@ class ControllerReports(ControllerInputs):
                    else 'waiting for measurement' if waiting
                    else "waiting for the plant's time_origin" if self._protocol.origin_ns is None
                    else 'running')
+        self._say_what_it_waits_for(message)
         if self._kind.state is not None:
             message += f'; {self._state_text()}'
         results = dict(self._kind.results(self._controller)) if self._kind.results else {}

@@ -59,9 +59,11 @@ class LoopPerformance:
                     _strict({'output': name, 'input': u_name, **summary}), allow_nan=False)))
 
     def diagnostics(self) -> tuple[bool, str]:
-        """(a loop needs attention, one line of every loop's verdict); (False, '') without
-        monitors."""
-        if not self.monitors:
+        """(a loop needs attention, one line of each assessed loop's verdict); (False, '')
+        before the first assessment, or without monitors."""
+        assessed = {y: pair for y, pair in self.monitors.items()
+                    if pair[1].summary().get('verdict') != 'no data'}
+        if not assessed:                 # nothing to say before the first assessment
             return False, ''
-        level, text = diagnostics_line(self.monitors)
+        level, text = diagnostics_line(assessed)
         return level > 0, text

@@ -237,3 +237,13 @@ def test_hagglund_load_disturbances_of_a_sine_against_the_half_wave_iae() -> Non
     assert ix.load_disturbances(noise, ts, amplitude=0.1, ti=ti)['count'] == 0
     assert ix.load_disturbances(e, ts, amplitude=0.0, ti=ti) == {
         'count': None, 'rate': None, 'detected': False}
+
+
+def test_saturation_counts_the_samples_at_a_real_limit_only():
+    """A limit of 1e12 is the parameters' "none": it neither counts nor widens the tolerance
+    (a tolerance relative to a 1e12 span once called every sample within 1e6 "saturated")."""
+    from tank_control.core.monitoring.indices import saturation_pct
+    u = np.array([1.0, -0.4, 0.5, 1.0 - 1e-7])
+    assert saturation_pct(u, -1e12, 1.0) == 50.0              # 1.0 and 1.0 − 1e-7
+    assert saturation_pct(u, -0.4, 1e12) == 25.0
+    assert saturation_pct(u, -1e12, 1e12) is None

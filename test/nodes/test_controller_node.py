@@ -356,8 +356,10 @@ def test_an_input_held_at_its_limit_is_reported(procs, node_cmd, ros_env, probe)
     """A setpoint the input cannot reach: after SATURATION_WARN_SAMPLES samples at the limit
     /diagnostics is WARN naming the input; it clears when the input leaves the limit."""
     from tank_control.nodes.controller_node import SATURATION_WARN_SAMPLES
+    # the loop monitor (its own verdict on the last monitor.window) assesses only the last
+    # 2 s here, so that its "saturated" verdict ends with the saturation too
     _start(procs, node_cmd, ros_env, 'clock_mode:=lockstep', 'kp:=1.0', 'ti:=1000.0',
-           'u_max:=1.0')
+           'u_max:=1.0', 'monitor.window:=2.0', 'monitor.period:=1.0')
     loop = Loop(probe)
     tick = to_ns(1.0)                                  # the default sample_time
     assert loop.tick(0, 0.0, 0.0) == 0.0               # the take-over at initial_output
@@ -368,11 +370,14 @@ def test_an_input_held_at_its_limit_is_reported(procs, node_cmd, ros_env, probe)
     assert 'input(s) u at their limits' in loop.diag_message
     assert int(loop.diag['saturated_samples']) >= SATURATION_WARN_SAMPLES
     assert loop.diag['saturated'] == 'True'
+    assert 'loop y: saturated' in loop.diag_message      # the monitor's verdict too
     k = SATURATION_WARN_SAMPLES + 2
     assert loop.tick(k * tick, 10.0, 10.0) < 1.0       # error gone: off the limit
+    for j in range(k + 1, k + 4):                      # and well inside it (|u| < 0.9)
+        assert -0.9 < loop.tick(j * tick, 10.5, 10.0) < 0.9
     assert probe.wait_for(lambda: loop.diag.get('saturated_samples') == '0', 20.0), loop.diag
-    assert 'at their limits' not in loop.diag_message
-    assert loop.diag_level == DiagnosticStatus.OK
+    assert probe.wait_for(lambda: loop.diag_level == DiagnosticStatus.OK, 20.0), loop.diag_message
+    assert 'at their limits' not in loop.diag_message and 'saturated' not in loop.diag_message
 
 
 def test_use_sim_time_beside_a_wall_clock_plant_is_reported(procs, node_cmd, ros_env, probe):

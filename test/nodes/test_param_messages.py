@@ -88,3 +88,17 @@ def test_ros2_param_set_prints_the_controllers_reason(procs, ros_env, node_cmd):
     assert typo.stderr.strip() == 'Set parameter failed: Kp: unknown parameter; did you mean kp?'
     got = ros2(ros_env, 'param', 'get', '/controller', 'Kp', '--timeout', '60')
     assert got.returncode == 1 and 'did you mean kp?' in got.stderr
+
+
+def test_a_controller_without_a_plant_says_on_its_console_what_it_waits_for(procs, probe,
+                                                                           ros_env):
+    """The controller started alone logs (once) what it waits for, as the plant does."""
+    import sys
+    proc = procs.start('controller', [sys.executable, '-m', 'tank_control.nodes.controller_node',
+                                      '--ros-args', '--params-file',
+                                      str(CONFIG / 'ipdt_pid.yaml')], env=ros_env)
+    assert probe.wait_for(lambda: 'nothing to control yet' in proc.tail(50), 60.0), proc.tail()
+    line = next(t for t in proc.tail(50).splitlines() if 'nothing to control yet' in t)
+    assert 'waiting for' in line and 'plant_node' in line
+    assert probe.wait_for(lambda: False, 1.0) is False       # a diagnostics period later ...
+    assert proc.tail(200).count('nothing to control yet') == 1   # ... said once, not repeated

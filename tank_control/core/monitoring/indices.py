@@ -220,14 +220,23 @@ def stiction(u: np.ndarray, y: np.ndarray, period_samples: float) -> float | Non
 
 
 def saturation_pct(u: np.ndarray, u_min: float, u_max: float) -> float | None:
-    """Percentage of samples at (within 1e-6 of the range) or beyond a limit; None without a
-    finite limit."""
-    if not (math.isfinite(u_min) or math.isfinite(u_max)) or u.size == 0:
+    """Percentage of samples at or beyond a limit (within 1e-6 of its magnitude, at least
+    1e-6); a limit of magnitude 1e11 or more (the parameters' "no limit", 1e12) counts as none;
+    None without a limit."""
+    lows = [lim for lim in (u_min,) if math.isfinite(lim) and abs(lim) < NO_LIMIT]
+    highs = [lim for lim in (u_max,) if math.isfinite(lim) and abs(lim) < NO_LIMIT]
+    if not (lows or highs) or u.size == 0:
         return None
-    span = u_max - u_min if math.isfinite(u_max - u_min) else max(abs(u_min), abs(u_max), 1.0)
-    tol = 1e-6 * max(span, 1e-12)
-    at = (u <= u_min + tol) | (u >= u_max - tol)
+    at = np.zeros(u.shape, dtype=bool)
+    for lim in lows:
+        at |= u <= lim + 1e-6 * max(abs(lim), 1.0)
+    for lim in highs:
+        at |= u >= lim - 1e-6 * max(abs(lim), 1.0)
     return 100.0 * float(np.mean(at))
+
+
+NO_LIMIT = 1e11
+"""[input units] a limit this large or larger is the parameters' way of saying "none"."""
 
 
 def setpoint_iae(t: np.ndarray, r: np.ndarray, y: np.ndarray, tol: float = 1e-9

@@ -140,7 +140,7 @@ class LockstepClock(ControllerClock):
         return self.ts_ns
 
     def waiting_for_measurement(self) -> bool:
-        return False
+        return self.measured_ns is None          # no plant tick yet
 
     def measurement(self, t_ns: int, values: dict[str, float]) -> Outputs:
         self._check_new_session(t_ns)
