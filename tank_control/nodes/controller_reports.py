@@ -269,6 +269,7 @@ class ControllerReports(ControllerInputs):
                if isinstance(v, (bool, int, float, str))},
             **{k: v for k, v in results.items()
                if k.startswith(('robustness.', 'autotune.')) and k != 'autotune.start'},
+            **self._performance.fields(),
         }
         self._matched_sent = self._matched()
         fields.update(self._matched_sent)

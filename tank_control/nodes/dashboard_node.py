@@ -79,6 +79,8 @@ MAX_AUDIT_CHARS = 1 << 20
 MAX_PREVIEW_CHANGES = 8
 #: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
 FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
+#: /diagnostics values shown by their prefix: each loop's verdict (docs/monitoring.md).
+FACEPLATE_PREFIXES = ('loop_performance.',)
 #: Period of the look at the access counters (a change is published on /diagnostics) [s].
 ACCESS_PERIOD = 1.0
 
@@ -577,7 +579,8 @@ class DashboardNode(Node):
                         if isinstance(status.level, bytes) else int(status.level),
                         'message': status.message,
                         'fields': {kv.key: kv.value[:200] for kv in status.values[:200]
-                                   if kv.key in FACEPLATE_FIELDS}}
+                                   if kv.key in FACEPLATE_FIELDS
+                                   or kv.key.startswith(FACEPLATE_PREFIXES)}}
                 for view in views:
                     view.diagnostics = info
             for view in views:

@@ -67,3 +67,10 @@ class LoopPerformance:
             return False, ''
         level, text = diagnostics_line(assessed)
         return level > 0, text
+
+    def fields(self) -> dict[str, str]:
+        """``loop_performance.<output>``: each assessed loop's verdict, for /diagnostics'
+        values (the dashboard's faceplate shows them)."""
+        return {f'loop_performance.{y}': str(monitor.summary().get('verdict'))
+                for y, (_, monitor) in self.monitors.items()
+                if monitor.summary().get('verdict') != 'no data'}

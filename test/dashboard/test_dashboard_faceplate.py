@@ -125,6 +125,11 @@ def test_ipdt_pid_faceplate_trend_and_tuning_fit_a_laptop_screen(procs, ros_env,
     # the OP bar is drawn against the controller's limits, written readably
     op_limits = laptop.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="op"] .bar-limits')
     assert op_limits.text == '-100 … 100'
+    # the loop monitor's verdict (controller_node's /diagnostics) as a badge of the faceplate
+    def status() -> str:
+        return laptop.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="status"]').text
+    waiter(laptop).until(lambda d: 'loop y: ' in status())
+    assert status().split('loop y: ', 1)[1].strip(), status()
 
 
 def test_tank_two_loop_faceplate_shows_both_loops_with_units(procs, ros_env, node_cmd, tmp_path,

@@ -27,13 +27,14 @@ def test_an_oscillating_loop_is_reported_live_with_its_verdict(probe):
         Parameter('monitor.period', value=50.0), Parameter('monitor.settle_time', value=0.0)])
     probe.executor.add_node(node)
     try:
-        reports, diagnostics, answers = [], [], {}
+        reports, diagnostics, answers, fields = [], [], {}, {}
         probe.node.create_subscription(String, '/controller/loop_performance',
                                        lambda m: reports.append(json.loads(m.data)), 10)
         probe.node.create_subscription(
             DiagnosticArray, '/diagnostics',
-            lambda m: diagnostics.extend(s.message for s in m.status
-                                         if s.name.startswith('controller')), 10)
+            lambda m: [(diagnostics.append(s.message),
+                        fields.update({kv.key: kv.value for kv in s.values}))
+                       for s in m.status if s.name.startswith('controller')], 10)
         probe.node.create_subscription(
             JointState, 'manipulated',
             lambda m: answers.__setitem__(stamp_to_ns(m.header.stamp), m.position[0]),
@@ -58,6 +59,8 @@ def test_an_oscillating_loop_is_reported_live_with_its_verdict(probe):
         assert 'oscillat' in last['verdict']
         assert probe.wait_for(lambda: any('loop y: ' in m and 'oscillat' in m
                                           for m in diagnostics), 20.0), diagnostics[-3:]
+        # the verdict as a value too (the dashboard's faceplate shows it as a badge)
+        assert 'oscillat' in fields.get('loop_performance.y', ''), fields
         # a non-finite measurement: the output is held, and that time counts as fail-safe
         tick(450, math.nan)
         for k in range(451, 500):

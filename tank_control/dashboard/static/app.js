@@ -789,6 +789,12 @@
                  level === 1 ? 'warn' : level >= 2 ? 'alarm' : '']);
     if (f.fault && f.fault !== 'none') badges.push([`fault: ${f.fault} → fail-safe (${view.params.fail_safe?.value ?? 'hold'})`, 'alarm']);
     if (f.saturated === 'True' || f.saturated === 'true') badges.push(['saturated', 'warn']);
+    // the loop monitor's verdict per loop (docs/monitoring.md): loop_performance.<output>
+    for (const [key, verdict] of Object.entries(f)) {
+      if (key.startsWith('loop_performance.')) {
+        badges.push([`loop ${key.slice(17)}: ${verdict}`, verdict === 'good' ? '' : 'warn']);
+      }
+    }
     if (view.params.fail_safe) badges.push([`fail-safe: ${view.params.fail_safe.value}`, '']);
     const text = `${badges.map((b) => b[0]).join(' · ')}${d.message ? ' — ' + d.message : ''}`;
     if (target.dataset.text === text) return;
