@@ -547,19 +547,23 @@ class DashboardNode(Node):
         self.server.broadcast({'type': 'audit', 'record': record})
 
     def _publish_access(self) -> None:
-        """The refused requests (dashboard/access.py) on /diagnostics every period once
-        there is one (as diagnostic_updater does, for a monitor that starts later): WARN, the
-        counts by kind and the last reason."""
+        """What it refused on /diagnostics every period once there is something (as
+        diagnostic_updater does, for a monitor that starts later): WARN, the requests refused
+        (dashboard/access.py) by kind with the last reason, and the signal samples stamped in
+        the future that are not shown (``rejected_future``)."""
         counts = self.access.counts()
-        if not counts:
+        future = self.future.refused
+        if not counts and not future:
             return
         total = sum(counts.values())
+        parts = ([f'refused {total} requests ({self.access.last_reason})'] if counts else []) + (
+            [f'{future} signal samples stamped in the future not shown'] if future else [])
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN, name=f'{self.get_name()}: access',
-            message=f'refused {total} requests ({self.access.last_reason})',
-            hardware_id=self.url,
+            message='; '.join(parts), hardware_id=self.url,
             values=[KeyValue(key=f'refused_{kind}', value=str(n))
-                    for kind, n in sorted(counts.items())])
+                    for kind, n in sorted(counts.items())]
+            + [KeyValue(key='rejected_future', value=str(future))])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diag_pub.publish(msg)

@@ -259,3 +259,36 @@ def test_read_only_follows_the_host_and_origins_are_checked():
     assert derive_read_only({'host': '0.0.0.0'}, frozenset({'read_only'})) == {}
     assert origins_reason(['self', 'http://a.b:1', 'https://[::1]']) is None
     assert origins_reason(['self', '*']).startswith("allowed_origins: '*' is not an origin")
+
+
+def test_a_sample_stamped_in_the_future_is_not_shown_and_is_reported(procs, ros_env, node_cmd,
+                                                                     probe):
+    """issue 30 §1 for the dashboard (wall): a measurement stamped an hour ahead of its clock is
+    not drawn (it would stretch every trend's time axis), and /diagnostics says so (WARN,
+    ``rejected_future``), as the plant and controller do."""
+    from builtin_interfaces.msg import Time
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+
+    from tank_control.nodes.messages import ORIGIN_QOS, SIGNAL_QOS, ns_to_stamp, to_joint_state
+    dashboard_url(procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'),
+                              env=ros_env))
+    reports = []
+    probe.node.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda m: reports.extend({kv.key: kv.value for kv in s.values} | {'_message': s.message,
+                                                                          '_level': s.level}
+                                 for s in m.status if s.name.startswith('dashboard')), 10)
+    origin = probe.node.create_publisher(Time, 'time_origin', ORIGIN_QOS)
+    meas = probe.node.create_publisher(JointState, 'measurement', SIGNAL_QOS)
+    now = time.time_ns()
+    origin.publish(ns_to_stamp(now))
+    ahead = now + 3600 * 1_000_000_000
+
+    def refused() -> bool:
+        meas.publish(to_joint_state(ahead, ['y'], [1.0]))       # until the dashboard has it
+        return any(int(r.get('rejected_future', 0)) >= 1 for r in reports)
+    assert probe.wait_for(refused, 30.0), reports[-3:]
+    report = next(r for r in reports if int(r.get('rejected_future', 0)) >= 1)
+    assert 'stamped in the future not shown' in report['_message']
+    assert report['_level'] in (b'\x01', 1)
