@@ -77,8 +77,9 @@ def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
         t, yy, rr, uu = trace.t, trace[f'y.{y}'], trace[f'r.{y}'], trace[f'u.{u}']
         # the controller samples every controller sample time: assess at its instants
         step = max(int(round(sample_time / _plant_ts(trace, plant, sample_time))), 1)
+        # a run starts its loop: the first monitor.settle_time is a start-up response
         out[y] = assess(t[::step], yy[::step], rr[::step], uu[::step], sample_time, cfg,
-                        u_limits=(lo, hi), ms=ms)
+                        u_limits=(lo, hi), ms=ms, start_is_change=True)
     return out
 
 

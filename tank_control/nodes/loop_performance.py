@@ -17,6 +17,7 @@ from std_msgs.msg import String
 from tank_control.core.interfaces import seconds
 from tank_control.core.monitoring import diagnostics_line, loop_monitors
 from tank_control.core.scenario import controller_setup
+from tank_control.nodes.messages import reliable_qos
 
 TOPIC = '~/loop_performance'
 
@@ -44,7 +45,10 @@ class LoopPerformance:
         limits = kind.input_limits(setup.settings) if kind.input_limits is not None else {}
         self.monitors = loop_monitors(setup.monitor, sample_time, outputs, inputs, limits)
         self._outputs, self._inputs = tuple(outputs), tuple(inputs)
-        self._pub = node.create_publisher(String, TOPIC, 10) if self.monitors else None
+        # reliable, transient local (as the kinds' state topics): a page or echo that starts
+        # later gets the last summary, and the dashboard's String readers match it
+        self._pub = (node.create_publisher(String, TOPIC, reliable_qos(10, latched=True))
+                     if self.monitors else None)
 
     def sample(self, t_ns: int, y: np.ndarray, r: np.ndarray, u: np.ndarray | None,
                manual: bool, fault: str) -> None:

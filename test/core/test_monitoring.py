@@ -247,3 +247,24 @@ def test_saturation_counts_the_samples_at_a_real_limit_only():
     assert saturation_pct(u, -1e12, 1.0) == 50.0              # 1.0 and 1.0 − 1e-7
     assert saturation_pct(u, -0.4, 1e12) == 25.0
     assert saturation_pct(u, -1e12, 1e12) is None
+
+
+def test_a_live_loop_s_start_up_response_is_not_judged_as_regulation():
+    """A loop that starts at y = 0 with its setpoint at 100 rises smoothly (a first-order
+    response, 30-s time constant): until ``monitor.settle_time`` has passed since the start the
+    live verdict is "no data", not "retune (sluggish …)" (the walk-through saw Harris 0.00 at
+    t = 22 s); offline data (a running loop's) keeps its start."""
+    from tank_control.core.monitoring.assess import LoopMonitor, MonitorConfig, assess
+    config = MonitorConfig(window=600.0, period=10.0, settle_time=60.0)
+    monitor = LoopMonitor(0.1, config)
+    verdicts = []
+    for k in range(500):                       # 50 s
+        t = 0.1 * k
+        s = monitor.update(t, 100.0 * (1.0 - math.exp(-t / 30.0)), 100.0, 1.0)
+        if s is not None:
+            verdicts.append(s['verdict'])
+    assert verdicts and set(verdicts) == {'no data'}, verdicts
+    t = np.arange(500) * 0.1
+    offline = assess(t, 100.0 * (1.0 - np.exp(-t / 30.0)), np.full(500, 100.0), np.ones(500),
+                     0.1, config)
+    assert offline['regulation_samples'] == 500               # the record's start is kept

@@ -85,17 +85,21 @@ def _pct(flags: np.ndarray | None) -> float | None:
 def assess(t: np.ndarray, y: np.ndarray, r: np.ndarray, u: np.ndarray, sample_time: float,
            config: MonitorConfig = DEFAULT, *, u_limits: tuple[float, float] = (
                -math.inf, math.inf), manual: np.ndarray | None = None,
-           fail_safe: np.ndarray | None = None, ms: float | None = None) -> dict[str, Any]:
+           fail_safe: np.ndarray | None = None, ms: float | None = None,
+           start_is_change: bool = False) -> dict[str, Any]:
     """The indices and verdict of one loop: process output ``y``, setpoint ``r``, controller
     output ``u`` at times ``t`` [s] sampled every ``sample_time`` [s]; ``u_limits`` the
     controller's output limits, ``manual``/``fail_safe`` per-sample flags if known, ``ms`` the
     loop's maximum sensitivity if known (named in a "retune" verdict). Rows with a non-finite
-    value are dropped. JSON-ready (None where an index cannot be computed)."""
+    value are dropped; ``start_is_change``: the record starts with the loop (its first
+    ``monitor.settle_time`` is a start-up response, not regulation). JSON-ready (None where an
+    index cannot be computed)."""
     manual_pct, fail_safe_pct = _pct(manual), _pct(fail_safe)
     t, y, r, u = ix.finite_rows(t, y, r, u)
     e = r - y
     b = ix.dead_time_samples(config.dead_time, sample_time)
-    segments = ix.regulatory_segments(t, r, config.settle_time)
+    segments = ix.regulatory_segments(t, r, config.settle_time,
+                                      start_is_change=start_is_change)
     # regulation: the stretches of constant setpoint joined, each about its own mean
     e_reg = [e[s] for s in segments]
 
@@ -155,7 +159,8 @@ def verdict(body: dict[str, Any], config: MonitorConfig = DEFAULT) -> str:
         return f'retune (oscillating, {what}, {ms}{stiction})'
     harris = body.get('harris_index')
     if harris is None:
-        return 'no data' if body.get('samples', 0) < 50 else 'good'
+        return ('no data' if body.get('samples', 0) < 50 or not body.get('regulation_samples')
+                else 'good')
     if harris < config.harris_limit:
         return f'retune (sluggish: Harris index {harris:.2f}, no oscillation)'
     return 'good'
@@ -214,7 +219,8 @@ class LoopMonitor:
         data, flags = self._data[order], self._flags[order]
         body = assess(data[:, 0], data[:, 1], data[:, 2], data[:, 3], self.sample_time,
                       self.config, u_limits=self.u_limits, manual=flags[:, 0],
-                      fail_safe=flags[:, 1], ms=self.ms)
+                      fail_safe=flags[:, 1], ms=self.ms,
+                      start_is_change=self._count <= size)   # the window holds the start
         times = data[:, 0][np.isfinite(data[:, 0])]
         body['time'] = float(times[-1]) if times.size else None
         body['nonfinite_samples'] = self.nonfinite_samples

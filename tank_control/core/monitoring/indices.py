@@ -37,10 +37,11 @@ def finite_rows(*columns: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 def regulatory_segments(t: np.ndarray, r: np.ndarray, settle: float, min_length: int = 20,
-                        tol: float = 1e-9) -> list[slice]:
+                        tol: float = 1e-9, start_is_change: bool = False) -> list[slice]:
     """The stretches of constant setpoint, each without its first ``settle`` [s] after a change
     (the setpoint response is not regulation); stretches shorter than ``min_length`` samples are
-    dropped. The start of the record is not a change."""
+    dropped. The start of the record is not a change (data taken from a running loop), unless
+    ``start_is_change`` (the loop's own start: its first response is not regulation either)."""
     if t.size == 0:
         return []
     scale = max(float(np.max(np.abs(r))), 1.0)
@@ -48,7 +49,8 @@ def regulatory_segments(t: np.ndarray, r: np.ndarray, settle: float, min_length:
     bounds = [0, *changes.tolist(), t.size]
     out = []
     for n, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
-        start = a if n == 0 else int(np.searchsorted(t, t[a] + settle - 1e-9))
+        start = (a if n == 0 and not start_is_change
+                 else int(np.searchsorted(t, t[a] + settle - 1e-9)))
         if b - start >= min_length:
             out.append(slice(start, b))
     return out
