@@ -44,6 +44,7 @@ from tank_control.dashboard.server import DashboardServer, Reply
 from tank_control.dashboard.store import SampleStore
 from tank_control.dashboard.values import jsonable, parse_text
 from tank_control.nodes.clock import steady_clock
+from tank_control.nodes.loop_performance import TOPIC as LOOP_PERFORMANCE_TOPIC
 from tank_control.nodes.messages import (ORIGIN_QOS, TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_SETPOINT,
                                          TOPIC_TIME_ORIGIN, from_joint_state,
@@ -408,8 +409,11 @@ class DashboardNode(Node):
         prefix = view.name + '/'
         commands = tuple(sorted(s[len(prefix):] for s, types in services
                                 if s.startswith(prefix) and 'std_srvs/srv/Trigger' in types))
+        # a kind's state topic (e.g. autotune_state); the loop monitor's summaries are JSON,
+        # shown through /diagnostics (loop_performance.<output>), not a state
         states = sorted(t for t, types in topics
-                        if t.startswith(prefix) and 'std_msgs/msg/String' in types)
+                        if t.startswith(prefix) and 'std_msgs/msg/String' in types
+                        and t != prefix + LOOP_PERFORMANCE_TOPIC.removeprefix('~/'))
         changed = commands != view.commands
         view.commands = commands
         for topic in states:

@@ -116,15 +116,18 @@ def test_ipdt_pid_faceplate_trend_and_tuning_fit_a_laptop_screen(procs, ros_env,
                                                                   tmp_path, laptop):
     laptop.get(start_loop(procs, ros_env, node_cmd, tmp_path, 'ipdt_pid.yaml'))
     check_layout(laptop, 1, tmp_path, 'ipdt')
-    mode = laptop.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="mode"]')
-    assert mode.get_attribute('data-mode') == 'auto'
+    # (the faceplate is drawn anew when the node's values change: each element is looked up
+    # again until it shows the value)
+    def shows(selector: str, read, expected) -> bool:
+        return waiter(laptop).until(
+            lambda d: read(d.find_element(By.CSS_SELECTOR, selector)) == expected)
+    assert shows(f'{FACEPLATE} [data-testid="mode"]', lambda e: e.get_attribute('data-mode'),
+                 'auto')
     # the tuning rule is a select of the rule names, not a text box
-    rule = laptop.find_element(By.CSS_SELECTOR,
-                               '[data-testid="autotune-/controller"] select[data-param="tuning.rule"]')
-    assert rule.get_attribute('value') == 'mdp'
+    assert shows('[data-testid="autotune-/controller"] select[data-param="tuning.rule"]',
+                 lambda e: e.get_attribute('value'), 'mdp')
     # the OP bar is drawn against the controller's limits, written readably
-    op_limits = laptop.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="op"] .bar-limits')
-    assert op_limits.text == '-100 … 100'
+    assert shows(f'{FACEPLATE} [data-testid="op"] .bar-limits', lambda e: e.text, '-100 … 100')
     # the loop monitor's verdict (controller_node's /diagnostics) as a badge of the faceplate
     def status() -> str:
         return laptop.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="status"]').text

@@ -120,7 +120,10 @@ def _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, reco
     assert probe.wait_for(lambda: last('manipulated') == (k_change - 1) * TS_NS, 10), logs()
     # the file's horizons (the defaults) give no warning
     assert probe.wait_for(lambda: ctrl_diag, 10), logs()
-    assert ctrl_diag[-1][2]['status.warning'] == '' and ctrl_diag[-1][0] == 0
+    # (a WARN of the loop monitor's own verdict, docs/monitoring.md, is not the MPCS's)
+    level, message, fields = ctrl_diag[-1]
+    assert fields['status.warning'] == '' and 'warning' not in message, message
+    assert level == 0 or any(k.startswith('loop_performance.') for k in fields), message
     result = set_params(controller, **{'mpcs.horizon': 300}).results[0]
     assert result.successful, result.reason
     assert set_params(plant, **{'lockstep.paused': False}).results[0].successful
