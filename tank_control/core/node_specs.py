@@ -165,12 +165,11 @@ def controller_channels(kind: str, values: Mapping[str, Any] | None = None) -> t
     return (*outputs, *controller_kind.disturbances)
 
 
-def actuator_defaults(controller_values: Mapping[str, Any] | None
-                      ) -> dict[str, tuple[float, float]]:
-    """Default ``range.*`` of the plant inputs a controller with parameter values
-    ``controller_values`` drives (``ranges.actuator_ranges`` of its kind's ``input_limits``);
-    {} without values, or for values that do not make a controller (the controller refuses
-    them itself)."""
+def controller_input_limits(controller_values: Mapping[str, Any] | None
+                            ) -> dict[str, tuple[float, float]]:
+    """The output limits ``{input channel: (lo, hi)}`` of the controller with parameter values
+    ``controller_values`` (its kind's ``input_limits``); {} without values, without limits, or
+    for values that do not make a controller (the controller refuses them itself)."""
     if not controller_values:
         return {}
     # scenario imports this module
@@ -182,7 +181,15 @@ def actuator_defaults(controller_values: Mapping[str, Any] | None
     kind = setup.kind
     if kind.input_limits is None:
         return {}
-    return ranges.actuator_ranges(kind.input_limits(setup.settings))
+    return dict(kind.input_limits(setup.settings))
+
+
+def actuator_defaults(controller_values: Mapping[str, Any] | None
+                      ) -> dict[str, tuple[float, float]]:
+    """Default ``range.*`` of the plant inputs a controller with parameter values
+    ``controller_values`` drives (``ranges.actuator_ranges`` of its output limits)."""
+    limits = controller_input_limits(controller_values)
+    return ranges.actuator_ranges(limits) if limits else {}
 
 
 def plant_specs(kind: str, controller_values: Mapping[str, Any] | None = None

@@ -191,3 +191,22 @@ def ros_params_files(argv: Sequence[str]) -> list[str]:
         elif in_ros_args and arg == '--params-file' and i + 1 < len(argv):
             files.append(argv[i + 1])
     return files
+
+
+def node_values_on_command_line(name: str, argv: Sequence[str]) -> dict[str, Any] | None:
+    """The parameter values node ``name`` (e.g. ``/controller``) gets from the ``--params-file``
+    files in ``argv`` (another node's command line: the plant and the OPC UA bridge read their
+    controller's limits this way); None if no file has a section of its own for it, or one
+    cannot be read (rcl reports an unreadable file itself)."""
+    values: dict[str, Any] = {}
+    found = False
+    for path in ros_params_files(argv):
+        try:
+            sections = read(path)
+        except ConfigError:
+            return None
+        own = values_for(sections, name)
+        if own is not None and values_for(sections, name, use_wildcards=False):
+            found = True
+        values.update(own or {})
+    return values if found else None

@@ -54,19 +54,8 @@ def _start_values(node: Node) -> dict[str, Any]:
 
 
 def _controller_values(name: str, argv: list[str] | None = None) -> dict[str, Any] | None:
-    """The controller ``name``'s own section of the ``--params-file`` files on the command line
-    (None if none has one)."""
-    values: dict[str, Any] = {}
-    found = False
-    for path in params_file.ros_params_files(sys.argv if argv is None else argv):
-        try:
-            sections = params_file.read(path)
-        except ConfigError:
-            return None
-        if params_file.values_for(sections, name, use_wildcards=False):
-            found = True
-            values.update(params_file.values_for(sections, name) or {})
-    return values if found else None
+    """The controller ``name``'s values from this node's ``--params-file`` files."""
+    return params_file.node_values_on_command_line(name, sys.argv if argv is None else argv)
 
 
 class OpcUaBridgeNode(Node):

@@ -46,20 +46,8 @@ _NODE_ONLY_PREFIX = ranges.PREFIX      # range.*: the filters', not the model's
 
 
 def _controller_values(name: str, argv: list[str] | None = None) -> dict[str, Any] | None:
-    """The parameter values the controller ``name`` gets from the ``--params-file`` files on
-    this node's command line (None if none has a section for it, or one cannot be read)."""
-    values: dict[str, Any] = {}
-    found = False
-    for path in params_file.ros_params_files(sys.argv if argv is None else argv):
-        try:
-            sections = params_file.read(path)
-        except ConfigError:
-            return None               # rcl reports an unreadable file itself
-        own = params_file.values_for(sections, name)
-        if own is not None and params_file.values_for(sections, name, use_wildcards=False):
-            found = True
-        values.update(own or {})
-    return values if found else None
+    """The controller ``name``'s values from this node's ``--params-file`` files."""
+    return params_file.node_values_on_command_line(name, sys.argv if argv is None else argv)
 
 
 class PlantNode(Node):

@@ -165,17 +165,9 @@ def controller_limits(controller_values: Mapping[str, Any] | None
                       ) -> dict[str, tuple[float, float]]:
     """The controller's output limits ``{channel: (u_min, u_max)}`` (exact, no margin) from its
     parameter values; {} without values or limits."""
-    if not controller_values:
-        return {}
-    from tank_control.core.scenario import controller_setup
-    try:
-        setup = controller_setup(controller_values)
-    except (ConfigError, ValueError, ArithmeticError):
-        return {}
-    if setup.kind.input_limits is None:
-        return {}
+    from tank_control.core.node_specs import controller_input_limits
     out = {}
-    for ch, (lo, hi) in setup.kind.input_limits(setup.settings).items():
+    for ch, (lo, hi) in controller_input_limits(controller_values).items():
         if lo < hi and abs(lo) < float('inf') and abs(hi) < float('inf'):
             out[ch] = (float(lo), float(hi))
     return out
