@@ -8,7 +8,7 @@ import time
 import pytest
 from asyncua import ua
 
-from support.opcua_servers import LagServer, free_port
+from support.opcua_servers import wait, LagServer, free_port
 from tank_control.core.params import ConfigError
 from tank_control.core.ranges import Ranges
 from tank_control.opcua import config
@@ -17,15 +17,6 @@ from tank_control.opcua.plant_server import PlantServer
 
 TS = 0.1
 
-
-def wait(condition, timeout: float = 30.0) -> bool:
-    """``condition()`` within ``timeout`` s (polled; the bridge runs in its own thread)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 class Run:

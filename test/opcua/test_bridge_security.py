@@ -10,7 +10,7 @@ from asyncua import ua
 from asyncua.crypto.permission_rules import User, UserRole
 
 from support.opcua_certs import self_signed
-from support.opcua_servers import LagServer
+from support.opcua_servers import wait, LagServer
 from tank_control.opcua import config
 from tank_control.opcua.bridge import Bridge
 
@@ -33,14 +33,6 @@ class Users:
             return User(role=UserRole.User, name=username)
         return None
 
-
-def wait(condition, timeout: float = 30.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 def secure_server(tmp_path):

@@ -193,3 +193,13 @@ class LagServer:
                           SourceTimestamp=when if self.source_stamps else None,
                           ServerTimestamp=when)
         await self._server.write_attribute_value(self._level.nodeid, dv)
+
+
+def wait(condition, timeout: float = 30.0) -> bool:
+    """``condition()`` within ``timeout`` s (polled; the bridge runs in its own thread)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
