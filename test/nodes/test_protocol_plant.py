@@ -158,6 +158,27 @@ def test_lockstep_a_tick_is_integrated_with_its_answers_once_all_came():
     assert measured(host) == [0, TS_NS, 2 * TS_NS, 3 * TS_NS]
 
 
+def test_a_lockstep_stall_names_a_silent_reference_though_the_controller_is_missing():
+    """The reference was killed after its last disturbance reached the plant but before its
+    setpoint reached the controller: the tick lacks only manipulated, yet the stall names the
+    reference too, which has not answered a re-sent /clock; a live one, re-sending, is not."""
+    for alive in (False, True):
+        host = Host()
+        plant = make(LockstepPlant, host)
+        plant.start()
+        plant.input('disturbance', 6 * TS_NS, ('v',), {'v': 0.0}, ('v',))   # held ahead
+        # a second passes unanswered (every instant the plant noted moves 1 s back)
+        plant.tick_published_at -= 1.0
+        plant.sent_at -= 1.0
+        plant.arrivals = {k: (at - 1.0, gap) for k, (at, gap) in plant.arrivals.items()}
+        plant.on_resend()
+        if alive:                                # the reference answers the re-sent /clock
+            plant.input('disturbance', 6 * TS_NS, ('v',), {'v': 0.0}, ('v',))
+        report = plant.stall_report()
+        assert 'waiting for manipulated (controller)' in report
+        assert ('disturbance (reference)' in report) == (not alive), report
+
+
 def test_lockstep_record_window_holds_a_tick_until_the_recorder_acknowledges():
     host = Host()
     plant = make(LockstepPlant, host, **{'lockstep.record_window': 2,

@@ -439,7 +439,14 @@ class LockstepPlant(PlantClock):
         # streams reach t_k+1. One that has not is behind, and the controller may wait
         # for its setpoint though the plant holds the disturbance of this tick.
         behind = self.inbox.held[DISTURBANCE].through < current + (self.ts_ns if self.k else 0)
-        if DISTURBANCE in self.inbox.required and behind and DISTURBANCE not in missing:
+        # A live reference answers every re-sent /clock with its messages in force again;
+        # one silent since the first re-send is down, though the controller may be what
+        # the tick waits for (it lacks the setpoint the dead reference's last message,
+        # delivered to the plant, never brought it).
+        heard = self.arrivals.get(DISTURBANCE, (-math.inf, 0.0))[0]
+        silent = heard < self.tick_published_at + self.resend_period
+        if (DISTURBANCE in self.inbox.required and (behind or silent)
+                and DISTURBANCE not in missing):
             missing.append(DISTURBANCE)
         named = ', '.join(f'{m} ({_ANSWERED_BY.get(m.split(".")[0], "?")})' for m in missing)
         return f'stalled {waited:.3g} s at t = {self.t():g} s: waiting for {named}'
