@@ -62,6 +62,15 @@ class Plant(Protocol):
 
 
 @runtime_checkable
+class Configurable(Protocol):
+    """A plant with live changes (optional, docs/extending.md)."""
+
+    def configure(self, **changes: Any) -> None:
+        """Change parameters (all or nothing) from the next ``step``; ``ValueError`` names a
+        refused one (e.g. a read-only parameter)."""
+
+
+@runtime_checkable
 class Controller(Protocol):
     """A discrete-time controller sampled every ``sample_time`` seconds.
 

@@ -357,7 +357,7 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
     u_arr = np.array(u_plant, dtype=float)
     d_arr = np.array(d_plant, dtype=float)
     d_ctrl = np.array([d_plant[j] for j in d_ctrl_pos], dtype=float)
-    r_row: list[float] | None = None
+    r_row: list[float] = []
     r_all = np.empty(0)
     d_ref: list[float] = []
     r_until = d_until = -math.inf      # the schedules hold their values before these instants
@@ -374,7 +374,7 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
         if t >= r_until:
             r_now = values('setpoint', t)        # the values of reference.setpoints(t)
             r_until = held_until('setpoint', t)
-            if r_now != r_row:
+            if k == 0 or r_now != r_row:
                 r_row = r_now
                 r_all = np.array(r_row if guard is None else guard.setpoints(r_row), dtype=float)
         if d_ref_pos and t >= d_until:

@@ -149,7 +149,7 @@ class ReferenceNode:
 
 def plant_channels(kind: str) -> tuple[str, ...]:
     """The channels a plant_node simulating ``kind`` receives: its inputs and disturbances."""
-    model = plants.get_kind(kind).build
+    model = plants.get_kind(kind).make({})      # build may be a factory, not the class
     return (*model.input_names, *model.disturbance_names)
 
 
@@ -158,7 +158,7 @@ def controller_channels(kind: str, values: Mapping[str, Any] | None = None) -> t
     setpoints' channels, as ``output_names`` of ``values`` or the kind's default) and measured
     disturbances."""
     controller_kind = controllers.get_kind(kind)
-    defaults = {s.name: s.default for s in controller_kind.specs()}
+    defaults: dict[str, Any] = {s.name: s.default for s in controller_kind.specs()}
     outputs = (values or {}).get('output_names', defaults.get('output_names', []))
     if not isinstance(outputs, (list, tuple)) or not all(isinstance(n, str) for n in outputs):
         outputs = defaults.get('output_names', [])     # a bad value is refused by its spec

@@ -16,7 +16,7 @@ import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from functools import cache
-from typing import Any
+from typing import Any, TypeGuard
 
 ParamValue = bool | int | float | str | list[float] | list[str] | list[int] | list[bool]
 
@@ -113,7 +113,7 @@ def _scalar_ok(default: Any, value: Any) -> bool:
     return type(value) is type(default)
 
 
-def _is_int(value: Any) -> bool:
+def _is_int(value: object) -> TypeGuard[int]:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
@@ -320,4 +320,6 @@ def relations_reason(config: Any) -> str | None:
 
 def values_of(config: Any) -> dict[str, ParamValue]:
     """Parameter name → ROS value of every parameter field of ``config``."""
-    return {name: _encode(p, getattr(config, p.field)) for name, p in _params(type(config)).items()}
+    cls: type = type(config)
+    fields = _params(cls)
+    return {name: _encode(p, getattr(config, p.field)) for name, p in fields.items()}

@@ -136,7 +136,7 @@ def check_value(where: str, value: Any) -> Any:
                  for item in value]
         kinds = {type(item) for item in items}
         if kinds <= {int, float} and float in kinds:
-            return [float(item) for item in items]   # ROS 2 lists are homogeneous
+            return [float(item) for item in items if item is not None]   # homogeneous (none is None)
         if len(kinds) != 1 or None in items:
             raise ConfigError(f'{where}: list mixes types; ROS 2 lists hold one type')
         return items
@@ -151,14 +151,15 @@ def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
     tree: dict[str, Any] = {}
     for name, value in flat.items():
         parts = name.split('.')
-        branch: dict[str, Any] | None = tree
+        branch: dict[str, Any] = tree
+        clash = False                  # a prefix of the name is a value
         for part in parts[:-1]:
             child = branch.setdefault(part, {})
             if not isinstance(child, dict):
-                branch = None
+                clash = True
                 break
             branch = child
-        if branch is None or isinstance(branch.get(parts[-1]), dict):
+        if clash or isinstance(branch.get(parts[-1]), dict):
             tree[name] = value
         else:
             branch[parts[-1]] = value

@@ -221,7 +221,7 @@ def schedule_from_fields(name: str, fields: Mapping[str, Any]) -> ChannelSchedul
         fields['times'], fields['values'] = [0.0], [value]
         value = None
     try:
-        kw = {k: (tuple(float(v) for v in val) if k in ('times', 'values') else float(val))
+        kw: dict[str, Any] = {k: (tuple(float(v) for v in val) if k in ('times', 'values') else float(val))
               for k, val in fields.items()}
     except (TypeError, ValueError) as exc:
         raise ValueError(f'{name}: {exc}') from None

@@ -14,7 +14,7 @@ the harness, so everything here follows rcl's parser:
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import yaml
@@ -59,7 +59,7 @@ class RosYamlDumper(yaml.SafeDumper):
 def _c_number(text: str) -> bool:
     """True if rcl's ``strtol(text, 0)``/``strtod`` could read ``text`` as a number
     (checked generously: ``inf``, ``nan``, hex floats, octal, ...)."""
-    parsers = [lambda s: int(s, 0), float]
+    parsers: list[Callable[[str], object]] = [lambda s: int(s, 0), float]
     if '0x' in text.lower():                    # strtod reads hex floats (with the prefix only)
         parsers.append(float.fromhex)
     for parse in parsers:

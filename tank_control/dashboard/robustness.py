@@ -127,7 +127,9 @@ class RobustnessWorker:
                     self._cond.wait()
                 if self._stopped:
                     return
-                plant_values, controller_values = self._pending
+                pending = self._pending
+                assert pending is not None       # the wait ends on a request or a stop
+                plant_values, controller_values = pending
                 self._pending = None
             try:
                 result = loop_analysis(plant_values, controller_values)

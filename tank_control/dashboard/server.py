@@ -161,7 +161,8 @@ class DashboardServer:
         try:
             site = web.TCPSite(runner, self._host, self._port)
             await site.start()
-            sockets = site._server.sockets if site._server is not None else ()  # noqa: SLF001
+            server = site._server                                  # noqa: SLF001
+            sockets = server.sockets if isinstance(server, asyncio.Server) else ()
             port = sockets[0].getsockname()[1] if sockets else self._port
             host = f'[{self._host}]' if ':' in self._host else self._host
             self.url = f'http://{host}:{port}/'
@@ -255,6 +256,7 @@ class DashboardServer:
 
     def _reply_to(self, client: _Client) -> Reply:
         loop = self._loop
+        assert loop is not None, 'a client is served only while the server runs'
 
         def reply(event: dict[str, Any]) -> None:
             text = json.dumps(event, allow_nan=False)

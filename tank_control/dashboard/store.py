@@ -46,9 +46,10 @@ class Batch:
             n = len(entry['t'])
             entry['t'].append(row.t)
             for name, value in zip(row.names, row.values):
-                column = entry['ch'].get(name)
+                column: list[float | None] | None = entry['ch'].get(name)
                 if column is None:
-                    column = entry['ch'][name] = [None] * n
+                    column = [None] * n
+                    entry['ch'][name] = column
                 column.append(value if math.isfinite(value) else None)
             for column in entry['ch'].values():
                 if len(column) == n:

@@ -265,7 +265,7 @@ class SamplingStats:
 
     def add(self, stamp_ns: int) -> None:
         self.count += 1
-        if self.first is None:
+        if self.last is None:
             self.first = stamp_ns
         elif self.ts_ns:
             gap = stamp_ns - self.last
@@ -277,6 +277,6 @@ class SamplingStats:
         if self.count < 2 or not self.ts_ns:
             return {'missed_samples': 0, 'max_jitter': 0.0}
         missed = self.missed
-        if self.start_ns is not None:
+        if self.start_ns is not None and self.first is not None:
             missed += int(round((self.first - self.start_ns) / self.ts_ns))
         return {'missed_samples': int(missed), 'max_jitter': self.jitter_ns / 1e9}

@@ -156,9 +156,9 @@ def run_plot(label: str, trace: Trace, metrics: Mapping[str, Any]) -> RunPlot:
     (``run.controller_states``: recorded by in-process runs, and from the recorded
     ``/parameter_events`` by ROS runs)."""
     controller = metrics.get('controller') or {}
-    limits = {name: tuple(-math.inf if v is None and i == 0 else math.inf if v is None else float(v)
-                          for i, v in enumerate(pair))
-              for name, pair in (controller.get('input_limits') or {}).items()}
+    limits = {str(name): (-math.inf if low is None else float(low),
+                          math.inf if high is None else float(high))
+              for name, (low, high) in (controller.get('input_limits') or {}).items()}
     states = (metrics.get('run') or {}).get('controller_states') or ()
     return RunPlot(label, trace, limits=limits, gains=controller.get('final_gains') or {},
                    overrides=tuple(metrics.get('overrides') or ()), table=side_table(metrics),
@@ -179,7 +179,7 @@ def figure_runs(runs: Sequence[RunPlot | tuple[str, Trace]], title: str = ''):
     gs = fig.add_gridspec(len(panels), 1, left=0.06, right=AXES_RIGHT, top=0.88, bottom=0.08,
                           hspace=0.25)
     off_scale: list[str] = []
-    axes = []
+    axes: list[Any] = []
     for i in range(len(panels)):
         axes.append(fig.add_subplot(gs[i, 0], sharex=axes[0] if axes else None))
     for ax, (kind, panel_unit, names) in zip(axes, panels):

@@ -109,6 +109,7 @@ class RecordingStream:
     def _on_row(self, names: Sequence[str], values: Sequence[float]) -> None:
         self.outputs.trace.add(names, values)
         stamp = self.joiner.last_row_ns
+        assert stamp is not None                  # set before a row reaches the sink
         self.stamps.add(stamp)
         arrival = self.arrival_of.pop(stamp, None)
         if arrival is not None:

@@ -151,8 +151,9 @@ class GridAxis:
         where = f'--grid {self.target.label}={self.spec}'
         relative = _RELATIVE.match(self.spec)
         ranged = _RANGE.match(self.spec)
-        if relative or ranged:
-            n = int((relative or ranged)['n'])
+        match = relative or ranged
+        if match is not None:
+            n = int(match['n'])
             if n < 1:
                 raise SweepError(f'{where}: at least 1 point')
             if relative:
@@ -163,7 +164,7 @@ class GridAxis:
                     raise SweepError(f'{where}: ±% needs a number; the scenario has {nominal!r}')
                 factors = np.linspace(-p, p, n) if n > 1 else np.zeros(1)
                 return [_tidy(float(nominal) * (1.0 + float(f))) for f in factors]
-            a, b = _number(ranged['a'], where), _number(ranged['b'], where)
+            a, b = _number(match['a'], where), _number(match['b'], where)   # ranged
             return [_tidy(float(v)) for v in (np.linspace(a, b, n) if n > 1 else [a])]
         return [parse_value(part) for part in self.spec.split(',')]
 
@@ -225,7 +226,7 @@ class SweepSpec:
             return '--random needs --samples N (N >= 1)'
         if self.samples and not self.random:
             return '--samples needs at least one --random parameter'
-        labels = [a.target.label for a in (*self.grid, *self.random)]
+        labels = [a.target.label for a in self.grid] + [a.target.label for a in self.random]
         twice = sorted({x for x in labels if labels.count(x) > 1})
         if twice:
             return f'{twice[0]} is swept twice'

@@ -107,7 +107,7 @@ class _Due:
             self.late += (not answered) or reported
 
 
-def _pop_before(heap: list[int], start: int, end: int) -> bool:
+def _pop_before(heap: list[int], start: int, end: float) -> bool:
     """Drop stamps before ``start`` (windows already counted); is one in ``[start, end)``?"""
     while heap and heap[0] < start:
         heapq.heappop(heap)

@@ -17,6 +17,10 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 NS_PER_S = 1_000_000_000
 #: encapsulation header: plain CDR, little endian
@@ -64,7 +68,7 @@ class JointStateCdr:
     def encode(self, sec: int, nanosec: int, positions: Sequence[float]) -> bytes:
         return self._struct.pack(CDR_LE, sec, nanosec, self._middle, *positions, self._tail)
 
-    def encode_ns(self, t_ns: int, positions: Sequence[float]) -> bytes:
+    def encode_ns(self, t_ns: int, positions: Sequence[float] | np.ndarray) -> bytes:
         """The message stamped ``t_ns`` [ns] (exact)."""
         sec, nanosec = divmod(int(t_ns), NS_PER_S)
         return self._struct.pack(CDR_LE, sec, nanosec, self._middle, *positions, self._tail)

@@ -15,6 +15,7 @@ Units: those of the channels; times in s.
 """
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -145,7 +146,7 @@ class ControllerNode(ControllerParams):
         # the reference's signals: their matched writers are reported (_matched)
         self._reference_subs = [
             self.create_subscription(JointState, topic,
-                                     lambda m, t=topic: self._on_reference(t, m), SIGNAL_QOS,
+                                     functools.partial(self._on_reference, topic), SIGNAL_QOS,
                                      event_callbacks=quiet_subscription_events(), raw=True)
             for topic in (TOPIC_SETPOINT, TOPIC_DISTURBANCE)[:2 if self._disturbances else 1]]
         self._state_pub = None
@@ -155,7 +156,7 @@ class ControllerNode(ControllerParams):
             self._state_pub.publish(String(data=str(self._params.values[self._kind.state])))
         for command in self._kind.commands:
             self.create_service(Trigger, f'~/{command}',
-                                lambda request, response, c=command: self._on_command(c, response))
+                                functools.partial(self._on_command, command))
         if self._protocol.sample_timer:
             self._timer = self.create_timer(self._controller.sample_time,
                                             lambda: self._emit(self._protocol.timer()))

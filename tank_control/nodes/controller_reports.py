@@ -124,7 +124,8 @@ class ControllerReports(ControllerInputs):
         reason = values.get(state.rsplit('.', 1)[0] + '.reason', '') if '.' in state else ''
         return f'{state} {values[state]}' + (f': {reason}' if reason else '')
 
-    def _on_command(self, command: str, response: Trigger.Response) -> Trigger.Response:
+    def _on_command(self, command: str, request: Trigger.Request,
+                    response: Trigger.Response) -> Trigger.Response:
         """An operator command (std_srvs/Trigger ``~/<command>``) for the running controller."""
         self._gen += 1               # the command may change the running controller
         try:

@@ -10,6 +10,7 @@ s of plant time (stamp − the plant's ``time_origin``).
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -175,11 +176,10 @@ class DashboardNode(Node):
         self.future = FutureStamps(int(FUTURE_MIN_S * 1e9))   # tolerance: _update_robustness
         for topic in SIGNAL_TOPICS:
             self.create_subscription(JointState, topic,
-                                     lambda msg, t=topic: self._on_signal(t, msg),
+                                     functools.partial(self._on_signal, topic),
                                      DASHBOARD_SIGNAL_QOS,
                                      event_callbacks=SubscriptionEventCallbacks(
-                                         message_lost=lambda info, t=topic: self._on_lost(
-                                             t, info.total_count_change),
+                                         message_lost=functools.partial(self._on_lost, topic),
                                          use_default_callbacks=False))
         self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._on_origin, ORIGIN_QOS)
         self.create_subscription(ParameterEvent, '/parameter_events', self._on_parameter_event,
@@ -230,10 +230,12 @@ class DashboardNode(Node):
         self._latest_t = max(self._latest_t, t)
         self.store.add(topic, t, names, values)
 
-    def _on_lost(self, topic: str, count: int) -> None:
-        """The middleware's message-lost event: ``count`` messages of ``topic`` were published
-        but never reached this node (the publishers keep the last 10 for a reader that lags:
-        a starved dashboard process). Counted and shown on the page as "missed", never silent."""
+    def _on_lost(self, topic: str, info: Any) -> None:
+        """The middleware's message-lost event (``info``: QoSMessageLostInfo): messages of
+        ``topic`` were published but never reached this node (the publishers keep the last 10
+        for a reader that lags: a starved dashboard process). Counted and shown on the page as
+        "missed", never silent."""
+        count = int(info.total_count_change)
         with self._lock:
             self.missed[topic] += count
             missed = dict(self.missed)
@@ -419,7 +421,7 @@ class DashboardNode(Node):
         for topic in states:
             if topic not in view.state_subs:
                 view.state_subs[topic] = self.create_subscription(
-                    String, topic, lambda msg, v=view, t=topic: self._on_state(v, t, msg),
+                    String, topic, functools.partial(self._on_state, view, topic),
                     STATE_QOS)
                 changed = True
         if changed and view.loaded:

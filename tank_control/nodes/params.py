@@ -395,11 +395,12 @@ class ParameterBinding:
         return self._writing
 
     @property
-    def values(self) -> dict[str, ParamValue]:
-        """Current accepted values (a copy), name → value with the spec's type."""
+    def values(self) -> dict[str, Any]:
+        """Current accepted values (a copy), name → value with the spec's type (``Any``: the
+        type is the spec's, known at run time)."""
         return dict(self._values)
 
-    def take_pending(self) -> dict[str, ParamValue]:
+    def take_pending(self) -> dict[str, Any]:
         """Changes accepted since the last call (applied by the node at its next sample)."""
         pending, self._pending = self._pending, {}
         return pending

@@ -10,10 +10,11 @@ from ``clock_mode``. Units: those of the plant kind; times in s.
 """
 from __future__ import annotations
 
+import functools
 import sys
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -23,6 +24,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from tank_control.core import node_specs, params_file, ranges
+from tank_control.core.interfaces import Configurable
 from tank_control.core.node_specs import PlantNode as PlantNodeConfig
 from tank_control.core.params import ConfigError, names_of
 from tank_control.core.plants.noise import NoiseConfig
@@ -112,12 +114,12 @@ class PlantNode(Node):
                                                          ranges=setup.ranges)}
         # taken as CDR bytes and decoded directly (nodes/cdr.py)
         self._input_subs = [
-            self.create_subscription(JointState, topic, lambda m, t=topic: self._on_input(t, m),
+            self.create_subscription(JointState, topic, functools.partial(self._on_input, topic),
                                      SIGNAL_QOS, event_callbacks=quiet_subscription_events(),
                                      raw=True)
             for topic in (TOPIC_MANIPULATED, TOPIC_DISTURBANCE)]
         self._match_since: float | None = None     # sim/wall: the wait before tick 0 (match_wait)
-        self._match_timer = None
+        self._match_timer: Timer | None = None
         # lockstep flow control with the harness's recorder (``lockstep.record_window``)
         if self._protocol.window:
             self.create_subscription(
@@ -162,6 +164,7 @@ class PlantNode(Node):
         self.measurement_pub.publish(msg)
 
     def publish_clock(self, msg: bytes) -> None:
+        assert self.clock_pub is not None          # called only where publishes_clock
         self.clock_pub.publish(msg)
 
     def publish_applied(self, msg: bytes) -> None:
@@ -188,7 +191,7 @@ class PlantNode(Node):
         self.get_logger().warning(text)
 
     # ------------------------------------------------------------- parameters
-    def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
+    def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
         """The whole candidate set as at start-up (node relations, the model's configuration
         and its relations such as dead_time <= max_dead_time) and noise_std: 1 value or one
         per output."""
@@ -196,6 +199,11 @@ class PlantNode(Node):
         refused = protocol.pause_refused(bool(values['lockstep.paused'])) if protocol else None
         if refused:
             return refused
+        model = sorted(n for n in changed if n not in _NODE_ONLY
+                       and not n.startswith(_NODE_ONLY_PREFIX))
+        if protocol and model and not isinstance(self.plant, Configurable):
+            return (f'{", ".join(model)}: plant kind {values["plant"]!r} has no live changes '
+                    '(its model has no configure()); restart plant_node with the new value')
         try:
             setup = plant_setup(values, getattr(self, '_controller_values', None))
             if hasattr(self, 'plant'):   # at start-up the constructor builds the noise next
@@ -214,8 +222,10 @@ class PlantNode(Node):
         model = {k: v for k, v in pending.items()
                  if k not in _NODE_ONLY and not k.startswith(_NODE_ONLY_PREFIX)}
         if model:
+            plant = self.plant
+            assert isinstance(plant, Configurable)     # else refused (_cross_check)
             try:
-                self.plant.configure(**model)
+                plant.configure(**model)
                 self.get_logger().info(f'model change applied at t = {self._protocol.t():g} s: '
                                        f'{model}')
             except ValueError as exc:   # a relation the model checks (e.g. dead_time <= max)
@@ -291,7 +301,8 @@ class PlantNode(Node):
         else every 0.1 s (a reader that joined after the change need not wait for the
         ``diagnostics_period``)."""
         if self._protocol.tick_msgs is not None or self._protocol.announced:
-            self._prestart_timer.cancel()      # (cancelled, not destroyed, in its own callback)
+            if self._prestart_timer is not None:   # (it calls this: never None here)
+                self._prestart_timer.cancel()  # (cancelled, not destroyed, in its own callback)
             return
         self._prestart_calls += 1
         if self._matched() != self._matched_sent or self._prestart_calls % 5 == 0:

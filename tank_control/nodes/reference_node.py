@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import sys
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from builtin_interfaces.msg import Time
@@ -49,6 +50,11 @@ def _channel_values(node: Node) -> dict[str, Any]:
             for name, p in overrides.items() if name.split('.')[0] in ('setpoint', 'disturbance')}
 
 
+def _channels(names: Iterable[str]) -> set[tuple[str, str]]:
+    """(kind, channel) of the channel fields among ``names`` (``setpoint.y.times`` →
+    ``('setpoint', 'y')``)."""
+    return {(split[0], split[1]) for split in map(split_param_name, names) if split}
+
 class ReferenceNode(Node):
     """Setpoint/disturbance publisher around a core ``Reference``."""
 
@@ -75,7 +81,7 @@ class ReferenceNode(Node):
         if self._protocol.follows_clock:
             # taken as CDR bytes: only the stamp is read (nodes/cdr.py)
             self.create_subscription(
-                Clock, TOPIC_CLOCK, lambda m: self._emit(self._protocol.clock(cdr_stamp_ns(m))),
+                Clock, TOPIC_CLOCK, self._on_clock,
                 CLOCK_QOS, event_callbacks=quiet_subscription_events(), raw=True)
             # a plant on the wall clock latches a non-zero origin and sends no /clock
             self.create_subscription(Time, TOPIC_TIME_ORIGIN, self._check_origin, ORIGIN_QOS)
@@ -97,7 +103,7 @@ class ReferenceNode(Node):
                         f"for the plant's {TOPIC_TIME_ORIGIN})"}[self._protocol.mode])
 
     # ------------------------------------------------------------- parameters
-    def _trial(self, values: dict[str, Any], names: frozenset[str]) -> tuple[Reference, str | None]:
+    def _trial(self, values: Mapping[str, Any], names: frozenset[str]) -> tuple[Reference, str | None]:
         """The running reference with the channel fields ``names`` set to ``values``, as from
         the latest published instant on: ``(reference, None)`` or ``(_, reason)``.
 
@@ -128,14 +134,14 @@ class ReferenceNode(Node):
                 return trial, reason
         return trial, None
 
-    def _cross_check(self, values: dict[str, Any], changed: frozenset[str]) -> str | None:
+    def _cross_check(self, values: Mapping[str, Any], changed: frozenset[str]) -> str | None:
         """The change must leave every schedule valid: it is tried on a copy of the
         running reference, so nothing accepted here can be refused when it is applied."""
         if getattr(self, 'params', None) is None:
             return None          # start-up: reference_from_params has checked the file
         return self._trial(values, changed)[1]
 
-    def _derive(self, values: dict[str, Any], changed: frozenset[str]) -> dict[str, Any]:
+    def _derive(self, values: Mapping[str, Any], changed: frozenset[str]) -> dict[str, Any]:
         """The schedule a change makes, as parameters set with it: ``times``/``values`` (and
         ``value``, the schedule's value at 0, unless the change is an override) of each channel
         it touches, so the parameters always equal what runs."""
@@ -145,7 +151,7 @@ class ReferenceNode(Node):
         if reason:
             return {}            # refused by the cross-check, with this reason
         extra: dict[str, Any] = {}
-        for kind, ch in {split_param_name(n)[:2] for n in changed if split_param_name(n)}:
+        for kind, ch in _channels(changed):
             schedule, prefix = trial.schedule(kind, ch), f'{kind}.{ch}.'
             extra[prefix + 'times'] = list(schedule.times)
             extra[prefix + 'values'] = list(schedule.values)
@@ -158,7 +164,7 @@ class ReferenceNode(Node):
         exactly the schedule its parameters now hold."""
         pending = self.params.take_pending()   # (wall: a new sample_time acts at re-arming)
         values = self.params.values
-        for kind, ch in sorted({split_param_name(n)[:2] for n in pending if split_param_name(n)}):
+        for kind, ch in sorted(_channels(pending)):
             prefix = f'{kind}.{ch}.'
             fields = {f: values[prefix + f] for f in FIELDS if f != 'value'}
             reason = self.reference.update(kind, ch, fields, t)
@@ -172,6 +178,9 @@ class ReferenceNode(Node):
         self.get_logger().info(text)
 
     # ---------------------------------------------------------------- publish
+    def _on_clock(self, data: bytes) -> None:
+        self._emit(self._protocol.clock(cdr_stamp_ns(data)))
+
     def _emit(self, messages: list[tuple[str, bytes]]) -> None:
         for topic, msg in messages:
             self._pubs[topic].publish(msg)

@@ -15,7 +15,7 @@ from typing import Any
 import rclpy
 import yaml
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -179,9 +179,10 @@ def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None) -> 
     # stack to the log (stderr) — also while the main thread is blocked in C++.
     faulthandler.enable()
     stop = _StopFlag()
-    executor: EventsExecutor | None = None
+    executor: Executor | None = None
     with stop:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(args=None if args is None else list(args),
+                   signal_handler_options=SignalHandlerOptions.NO)
         node: Node | None = None
         try:
             if not stop.requested:

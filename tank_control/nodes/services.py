@@ -42,6 +42,8 @@ def answers(calls: Mapping[Hashable, tuple[Any, Any]], spin: Spin, timeout: floa
             break
         if time.monotonic() >= deadline:
             break
+        if wait is None:
+            continue                    # no re-sends: spin on to the deadline
         for key, (client, request) in calls.items():
             if done(key) is None:
                 sent[key].append(client.call_async(request))

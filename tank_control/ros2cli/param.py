@@ -221,9 +221,12 @@ def _list_all(node: 'Node', targets: list[str], timeout: float) -> dict[str, lis
         spin_until(node, lambda: all(c.service_is_ready() for c in clients.values()), timeout)
         found = answers({t: (c, request) for t, c in clients.items() if c.service_is_ready()},
                         lambda done, wait: spin_until(node, done, wait), timeout, RESEND_AFTER)
-        return {t: sorted(found[t].result().result.names)
-                if found.get(t) is not None and found[t].result() is not None
-                else None for t in targets}
+
+        def names(target: str) -> list[str] | None:
+            future = found.get(target)
+            answer = future.result() if future is not None else None
+            return sorted(answer.result.names) if answer is not None else None
+        return {t: names(t) for t in targets}
     finally:
         for client in clients.values():
             node.destroy_client(client)

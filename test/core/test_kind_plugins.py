@@ -117,3 +117,15 @@ def test_the_registries_use_the_installed_entry_points_in_every_process(tmp_path
     assert "entry point 'broken' = 'fake_kinds_missing:KIND'" in done.stdout    # left out:
     errors = [ln for ln in done.stderr.splitlines() if 'fake_kinds_missing' in ln]
     assert len(errors) == 1 and 'distribution fake-kinds' in errors[0]
+
+
+def test_a_plant_kind_built_by_a_factory_function_gets_its_channels(monkeypatch):
+    """``build`` may be any callable returning a Plant (docs/extending.md), not only its class:
+    plant_node's channels and the input ranges come from a model the kind builds."""
+    from tank_control.core import node_specs
+    ipdt = plants.BUILT_IN['ipdt']
+    kind = replace(ipdt, name='factory_ipdt', build=lambda config: ipdt.build(config))
+    monkeypatch.setitem(plants.KINDS, 'factory_ipdt', kind)
+    assert node_specs.plant_channels('factory_ipdt') == ('u', 'v')
+    names = {s.name for s in node_specs.plant_specs('factory_ipdt')}
+    assert {'range.u', 'range.v', 'gain'} <= names

@@ -171,7 +171,7 @@ def model_design(cfg: TwoLoopPiConfig, mimo: MimoAutotuneConfig
         d = mlt.multiloop_design(process, r_b, phi_b, 1e-5, math.pi / cfg.sample_time)
         return d.loops, {'ku_h': d.ku[0], 'tu_h': 2 * math.pi / d.omega[0],
                          'ku_T': d.ku[1], 'tu_T': 2 * math.pi / d.omega[1]}
-    omegas = np.geomspace(mimo.ls_omega_max / 1000.0, mimo.ls_omega_max, 40)
+    omegas = np.geomspace(mimo.ls_omega_max / 1000.0, mimo.ls_omega_max, 40).tolist()
     fit = mlt.mimo_pi_least_squares(
         lambda w: process(w) @ np.linalg.inv(decoupler(w)), omegas,
         (mimo.ls_omega0_h, mimo.ls_omega0_T), (mimo.ls_xi, mimo.ls_xi),
@@ -527,7 +527,9 @@ class MimoAutotuner(AutotuneMachine):
             self._begin_stage(self._stage + 1, yv)
             return self._relay_step(t, yv, rv)
         try:
-            loops = (self._loops[0], self._loops[1])
+            first, second = self._loops
+            assert first is not None and second is not None   # both stages identified
+            loops = (first, second)
             self._relay = None
             self._propose(loops)
         except ValueError as exc:

@@ -13,7 +13,7 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -485,7 +485,7 @@ class Mpcs:
             return d.copy()
         return np.where(np.isfinite(d), d, self._d)
 
-    def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> bool:
+    def _valid_d(self, d: np.ndarray | None, m: DelayedModel) -> TypeGuard[np.ndarray]:
         return (self._design.cfg.feedforward and d is not None and len(d) == m.n_d
                 and _finite(d))
 

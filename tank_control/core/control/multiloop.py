@@ -401,7 +401,8 @@ class TwoLoopPi:
         u = self._pending.tolist() if self._pending is not None else self._u
         gains = self.scheduler.gains(self.scheduler.variable(y, u))
         if gains is not None:
-            self.set_gains(*gains, e)
+            kp_h, ki_h, kp_t, ki_t = gains       # the table's four columns
+            self.set_gains(kp_h, ki_h, kp_t, ki_t, e)
 
     def _held(self) -> np.ndarray:
         if all(map(math.isfinite, self._u)):

@@ -11,11 +11,37 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import fields, replace
-from typing import Any, Generic, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
-ConfigT = TypeVar('ConfigT')
+
+
+class LawConfig(Protocol):
+    """What the shared part reads of a law's configuration (a frozen dataclass)."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+    @property
+    def ti(self) -> float: ...                       # integral time [s]; inf: none
+
+    @property
+    def tracking_time(self) -> float | None: ...     # anti-windup Tt [s]; None: the law's
+
+    @property
+    def sample_time(self) -> float: ...              # [s]
+
+    @property
+    def u_min(self) -> float: ...
+
+    @property
+    def u_max(self) -> float: ...
+
+    @property
+    def anti_windup(self) -> str: ...                # core/control/pid.ANTI_WINDUP_CHOICES
+
+
+ConfigT = TypeVar('ConfigT', bound=LawConfig)
 _FLOAT64 = np.dtype(np.float64)
 LawT = TypeVar('LawT', bound='SisoLaw[Any]')
 
@@ -36,7 +62,7 @@ class SisoLaw(Generic[ConfigT]):
 
     def __init__(self, config: ConfigT) -> None:
         self._check(config)
-        self._set_config(replace(config))  # type: ignore[type-var]
+        self._set_config(replace(config))
         self._mode = 'auto'
         self._manual_u: float | None = None
         self._x = 0.0            # low-pass state of the law [units of its error]
@@ -83,7 +109,7 @@ class SisoLaw(Generic[ConfigT]):
     def _set_config(self, cfg: ConfigT) -> None:
         """Take ``cfg`` (validated) into use with the constants every sample needs: the signed
         gain, whether there is integral action and the anti-windup tracking time Tt [s]."""
-        self._cfg: Any = cfg
+        self._cfg: ConfigT = cfg
         self._k = self._gain()
         self._has_integral = math.isfinite(self._cfg.ti)
         self._tt = (self._cfg.tracking_time or self._default_tracking_time()

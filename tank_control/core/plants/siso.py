@@ -131,6 +131,7 @@ class DeadTimePlant:
     output_names: tuple[str, ...] = ('y',)
     input_names: tuple[str, ...] = ('u',)
     disturbance_names: tuple[str, ...] = ('v',)
+    _x: Any       # the delay-free state: a float (IPDT, FOPDT), a tuple or an array (its kind's)
 
     def __init__(self, config: Any) -> None:
         self._config = check_config(config)
@@ -203,7 +204,8 @@ class DeadTimePlant:
         self._t_ns = t_ns + dt_ns
         self._steps += 1
 
-    def _advance(self, x: float, w: float, duration: float) -> float:
+    def _advance(self, x: Any, w: float, duration: float) -> Any:
+        """The state (the type ``_x`` has) after ``duration`` [s] of input ``w``."""
         raise NotImplementedError
 
     def _bounded(self, x: Any) -> Any:

@@ -133,7 +133,7 @@ class Sopdt(DeadTimePlant):
     def reset(self) -> None:
         """Back to rest at t = 0: input history 0, y = output_offset, ẏ = 0."""
         super().reset()
-        self._x: State = (0.0, 0.0)
+        self._x = (0.0, 0.0)
 
     def outputs(self) -> np.ndarray:
         """``[y]`` at the current instant (noise-free)."""

@@ -243,6 +243,14 @@ def outputs_within_limits(settings: Settings, limits: list[tuple[float, float]])
     return None
 
 
+def forwarded_commands(names: Iterable[str]
+                       ) -> dict[str, Callable[[Any], tuple[bool, str]]]:
+    """``commands`` of a kind whose controller runs them itself: ``controller.command(name)``."""
+    def forward(name: str) -> Callable[[Any], tuple[bool, str]]:
+        return lambda controller: controller.command(name)
+    return {name: forward(name) for name in names}
+
+
 def scalar_limits(settings: Settings) -> dict[str, tuple[float, float]]:
     """``input_limits`` of a SISO kind: its config's ``u_min``, ``u_max``."""
     return {settings.channels.input_names[0]: (settings.config.u_min, settings.config.u_max)}

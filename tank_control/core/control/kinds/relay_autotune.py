@@ -175,7 +175,7 @@ KIND = ControllerKind(
             base.group('results', AutotuneResults), base.ROBUSTNESS, base.ROBUSTNESS_RESULTS,
             base.SAMPLING_RESULTS),
     build=build, update=update, reason=reason, results=results, state='autotune.state',
-    commands={name: (lambda tuner, name=name: tuner.command(name)) for name in COMMANDS},
+    commands=base.forwarded_commands(COMMANDS),
     gains=('kp', 'ti', 'td', 'b', 'c', 'n'), input_limits=base.scalar_limits, summary=summary,
     linear=linear,
 )

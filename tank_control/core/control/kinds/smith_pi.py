@@ -97,6 +97,7 @@ def derive(values: base.Values) -> dict[str, float]:
     tuning = Tuning(rule='smith_pi', kind='pi', te=values['tuning.te'], xi=values['tuning.xi'],
                     order=values['tuning.order'])
     gains = tuning.gains(gain=values['smith.gain'], time_constant=values['smith.time_constant'])
+    assert gains is not None                      # None only for rule 'none'
     return {'kp': gains['kp'], 'ti': gains['ti']}
 
 
@@ -210,7 +211,7 @@ KIND = ControllerKind(
             base.group('results', AutotuneResults, only=RESULTS)),
     build=build, update=update, derive=derive, reason=reason, results=results,
     state='autotune.state',
-    commands={name: (lambda c, name=name: c.command(name)) for name in COMMANDS},
+    commands=base.forwarded_commands(COMMANDS),
     gains=('kp', 'ti', 'b'),
     input_limits=lambda s: {s.channels.input_names[0]: (s.primary.u_min, s.primary.u_max)},
     linear=linear,
