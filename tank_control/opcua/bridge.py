@@ -526,10 +526,9 @@ class Bridge:
             for ch in names:
                 variant = self._variant(ch, values[ch])
                 dvs.append(ua.DataValue(Value=variant))
-            try:
-                results = await asyncio.wait_for(client.uaclient.write_attributes(
-                    [nodes[ch].nodeid for ch in names], dvs, ua.AttributeIds.Value),
-                    self.cfg.request_timeout)
+            try:   # no answer within request_timeout: asyncua raises TimeoutError (the client's)
+                results = await client.uaclient.write_attributes(
+                    [nodes[ch].nodeid for ch in names], dvs, ua.AttributeIds.Value)
             except ua.UaStatusCodeError as exc:   # the whole request refused (a ServiceFault)
                 results = [ua.StatusCode(exc.code)] * len(names)
             for ch, result in zip(names, results):
