@@ -24,7 +24,9 @@ Reported per phase, p50/p99 [ms]: ``round trip`` — server receipt of the echoe
 its SourceTimestamp (value change → measurement → write, everything); for the bridge also
 ``to ROS`` — the echo node's receipt − SourceTimestamp (value change → ``measurement``
 delivered) and ``from ROS`` — server receipt − the echo's publish time (``manipulated`` → server
-write). The figure: bridge round trip / bare round trip (goal <= 1.5 x).
+write). The figure: bridge round trip / bare round trip (goal <= 1.5 x). Also the CPU time of
+the client's process (bare client; opcua_bridge_node, without the echo) per period [ms]: what
+the client costs per value, which a busy machine inflates much less than the latencies.
 
     .venv/bin/python bench/bench_opcua.py [--runs 3] [--duration 15] [--period 0.01]
 """
@@ -121,11 +123,18 @@ class EchoServer:
                          if v in self.sent and self.sent[v] >= since_ns])
 
 
-def bare_phase(server: EchoServer, duration: float) -> int:
+def cpu_s(pid: int) -> float:
+    """CPU time [s] (user + system) process ``pid`` has used so far."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def bare_phase(server: EchoServer, duration: float) -> tuple[int, float]:
     """The bare client (:func:`bare_client`) in its own process, as the bridge is in its own
     (neither shares this process's interpreter lock with the server); returns the time [ns]
-    from which it is measured: ``WARM_UP_S`` after it has subscribed. It echoes for
-    ``WARM_UP_S + duration`` s from then."""
+    from which it is measured: ``WARM_UP_S`` after it has subscribed (it echoes for
+    ``WARM_UP_S + duration`` s from then), and its CPU time per period [ms] over 90 % of
+    ``duration``."""
     child = subprocess.Popen([sys.executable, __file__, '--bare-client', server.endpoint,
                               server.node_id('Meas'), server.node_id('EchoBare'),
                               str(server.period), str(duration + WARM_UP_S)],
@@ -134,8 +143,12 @@ def bare_phase(server: EchoServer, duration: float) -> int:
     assert child.stdout is not None
     assert child.stdout.readline().strip() == 'ready'
     since = time.time_ns() + int(WARM_UP_S * 1e9)
+    time.sleep(WARM_UP_S)
+    cpu = cpu_s(child.pid)
+    time.sleep(0.9 * duration)
+    cpu = (cpu_s(child.pid) - cpu) / (0.9 * duration / server.period) * 1e3
     child.wait()
-    return since
+    return since, cpu
 
 
 def bare_client(endpoint: str, meas: str, echo_id: str, period: float, duration: float) -> None:
@@ -206,10 +219,11 @@ def echo_node() -> None:
     rclpy.try_shutdown()
 
 
-def bridge_phase(server: EchoServer, duration: float, params: Path) -> tuple[int, list]:
+def bridge_phase(server: EchoServer, duration: float, params: Path
+                 ) -> tuple[int, list, float]:
     """opcua_bridge_node and the echo node (:func:`echo_node`), each in its own process, for
     ``WARM_UP_S + duration`` s once the echo has its first measurement; returns the time [ns]
-    from which it is measured and the echo's records."""
+    from which it is measured, the echo's records and the bridge's CPU time per period [ms]."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     echo = subprocess.Popen([sys.executable, __file__, '--echo'], env=env, text=True,
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE)
@@ -222,7 +236,10 @@ def bridge_phase(server: EchoServer, duration: float, params: Path) -> tuple[int
         assert ready and echo.stdout.readline().strip() == 'ready', \
             f'the echo node got no measurement within 60 s (bridge exit status {bridge.poll()})'
         since = time.time_ns() + int(WARM_UP_S * 1e9)
-        time.sleep(WARM_UP_S + duration)
+        time.sleep(WARM_UP_S)
+        cpu = cpu_s(bridge.pid)
+        time.sleep(duration)
+        cpu = (cpu_s(bridge.pid) - cpu) / (duration / server.period) * 1e3
         echo.stdin.write('stop\n')
         echo.stdin.flush()
         records = json.loads(echo.stdout.readline())
@@ -234,7 +251,7 @@ def bridge_phase(server: EchoServer, duration: float, params: Path) -> tuple[int
             except subprocess.TimeoutExpired:
                 child.kill()
                 child.wait()
-    return since, records
+    return since, records, cpu
 
 
 def percentiles(values) -> str:
@@ -274,15 +291,18 @@ def main(argv: list[str] | None = None) -> int:
     path = Path(tempfile.mkdtemp()) / 'bridge.yaml'
     path.write_text(json.dumps(params))
     rows: dict[str, list[tuple[float, float]]] = {'bare': [], 'bridge': [], 'to ROS': [],
-                                                  'from ROS': []}
+                                                  'from ROS': [], 'bare CPU': [],
+                                                  'bridge CPU': []}
     try:
         for run in range(args.runs):
-            since = bare_phase(server, args.duration)
+            since, cpu = bare_phase(server, args.duration)
+            rows['bare CPU'].append((cpu, cpu))
             rt = server.round_trips('EchoBare', since)
             rows['bare'].append((np.percentile(rt, 50), np.percentile(rt, 99)))
-            print(f'run {run}: bare round trip p50/p99 {percentiles(rt)} ms ({rt.size}); '
-                  f'load {os.getloadavg()[0]:.1f}', flush=True)
-            since, records = bridge_phase(server, args.duration, path)
+            print(f'run {run}: bare round trip p50/p99 {percentiles(rt)} ms ({rt.size}), '
+                  f'CPU {cpu:.2f} ms per period; load {os.getloadavg()[0]:.1f}', flush=True)
+            since, records, cpu = bridge_phase(server, args.duration, path)
+            rows['bridge CPU'].append((cpu, cpu))
             rt = server.round_trips('EchoBridge', since)
             echoed = dict(server.echoed['EchoBridge'])
             to_ros = np.array([(received - stamp) / 1e6 for stamp, _, received, _ in records
@@ -294,13 +314,15 @@ def main(argv: list[str] | None = None) -> int:
             rows['to ROS'].append((np.percentile(to_ros, 50), np.percentile(to_ros, 99)))
             rows['from ROS'].append((np.percentile(from_ros, 50), np.percentile(from_ros, 99)))
             print(f'run {run}: bridge round trip p50/p99 {percentiles(rt)} ms ({rt.size}), '
-                  f'to ROS {percentiles(to_ros)}, from ROS {percentiles(from_ros)}; '
-                  f'load {os.getloadavg()[0]:.1f}', flush=True)
+                  f'to ROS {percentiles(to_ros)}, from ROS {percentiles(from_ros)}, '
+                  f'CPU {cpu:.2f} ms per period; load {os.getloadavg()[0]:.1f}', flush=True)
     finally:
         lock.close()
     print(f'\nload average after {os.getloadavg()[0]:.1f}')
     print('| path | p50 [ms] | p99 [ms] |\n|---|---|---|')
     for name, values in rows.items():
+        if name.endswith('CPU'):
+            continue
         p50 = [v[0] for v in values]
         p99 = [v[1] for v in values]
         print(f'| {name} | {np.median(p50):.2f} ({min(p50):.2f}–{max(p50):.2f}) | '
@@ -309,6 +331,10 @@ def main(argv: list[str] | None = None) -> int:
     bridged = np.median([v[0] for v in rows['bridge']])
     bare99 = np.median([v[1] for v in rows['bare']])
     bridged99 = np.median([v[1] for v in rows['bridge']])
+    for name in ('bare', 'bridge'):
+        cpu = [v[0] for v in rows[name + ' CPU']]
+        print(f'{name} client process CPU per period: {np.median(cpu):.2f} ms '
+              f'({min(cpu):.2f}–{max(cpu):.2f})')
     print(f'\nratio bridge / bare round trip: p50 {bridged / bare:.2f}x, '
           f'p99 {bridged99 / bare99:.2f}x')
     return 0
