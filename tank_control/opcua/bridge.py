@@ -566,7 +566,7 @@ class _Subscription(Subscription):
 
     def __init__(self, bridge: Bridge, session: Any, params: ua.CreateSubscriptionParameters
                  ) -> None:
-        super().__init__(session, params, handler=self)
+        super().__init__(session, params)    # no handler: publish_callback hands them on
         self._bridge = bridge
 
     async def publish_callback(self, publish_result: ua.PublishResult) -> None:
