@@ -29,11 +29,12 @@ from sensor_msgs.msg import JointState
 from tank_control.core import params_file, ranges
 from tank_control.core.interfaces import to_ns
 from tank_control.core.params import ConfigError
+from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (MATCH_WAIT_S, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_TIME_ORIGIN,
                                          ns_to_stamp, parse_signal, quiet_publisher_events,
-                                         quiet_subscription_events, to_joint_state, unmatched)
+                                         quiet_subscription_events, unmatched)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 from tank_control.opcua import config as opcua_config
@@ -99,10 +100,12 @@ class OpcUaBridgeNode(Node):
         self._logged: set[str] = set()
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
                                                      event_callbacks=quiet_publisher_events())
+        # the hot path as CDR bytes, encoded and decoded directly (nodes/cdr.py)
+        self._measurement_cdr = JointStateCdr(self.names)
         self.origin_pub = self.create_publisher(Time, TOPIC_TIME_ORIGIN, ORIGIN_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self._u_sub = self.create_subscription(JointState, TOPIC_MANIPULATED, self._on_manipulated,
-                                               SIGNAL_QOS,
+                                               SIGNAL_QOS, raw=True,
                                                event_callbacks=quiet_subscription_events())
         # asyncua logs every lost connection with a traceback: the bridge reports them itself
         logging.getLogger('asyncua').setLevel(logging.CRITICAL)
@@ -171,8 +174,8 @@ class OpcUaBridgeNode(Node):
             if sample.stamp_ns < self._origin_ns:
                 self.counters['before_origin'] += 1
                 return
-        self.measurement_pub.publish(to_joint_state(
-            sample.stamp_ns, self.names, [sample.values[n] for n in self.names]))
+        self.measurement_pub.publish(self._measurement_cdr.encode_ns(
+            sample.stamp_ns, [sample.values[n] for n in self.names]))
 
     def _announce(self, stamp_ns: int) -> bool:
         """The time origin, once the readers the graph shows are matched (at most
@@ -193,7 +196,7 @@ class OpcUaBridgeNode(Node):
         return True
 
     # ------------------------------------------------------------ manipulated
-    def _on_manipulated(self, msg: JointState) -> None:
+    def _on_manipulated(self, msg: bytes) -> None:
         try:
             stamp, _, names, values = parse_signal(msg)
         except ValueError as exc:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from asyncua import Client, ua
+from asyncua.common.subscription import Subscription
 from asyncua.crypto import security_policies
 
 from tank_control.opcua.config import BridgeSettings
@@ -148,7 +149,6 @@ class Bridge:
         self._first = threading.Event()    # the first connection attempt has ended
         self._thread: threading.Thread | None = None
         self._batch: list[tuple[str, Any]] = []
-        self._flush_armed = False
         self._handles: dict[int, str] = {}     # client handle -> measurement channel
         self._latest: dict[str, float] = {}
         self._vtypes: dict[str, ua.VariantType] = {}
@@ -330,8 +330,7 @@ class Bridge:
         nodes = await self._check_nodes(client)
         sub = None
         if self.settings.measurement:
-            sub = await client.create_subscription(self.cfg.publishing_s() * 1000.0,
-                                                   _Handler(self))
+            sub = await self._subscribe(client)
             requests = []
             self._handles = {}
             for i, ch in enumerate(self.settings.measurement):
@@ -369,6 +368,24 @@ class Bridge:
             raise writer.exception()      # type: ignore[misc]
         if not self._stop.is_set():
             raise ConnectionError('connection lost')
+
+    async def _subscribe(self, client: Client) -> Subscription:
+        """The subscription (:class:`_Subscription`), created as ``client.create_subscription``
+        does."""
+        interval = self.cfg.publishing_s() * 1000.0
+        params = ua.CreateSubscriptionParameters()
+        params.RequestedPublishingInterval = interval
+        params.RequestedLifetimeCount = 10000
+        params.RequestedMaxKeepAliveCount = client.get_keepalive_count(interval)
+        params.MaxNotificationsPerPublish = 10000
+        params.PublishingEnabled = True
+        params.Priority = 0
+        sub = _Subscription(self, client.uaclient.session, params)
+        results = await sub.init()
+        revised = client.get_subscription_revised_params(params, results)
+        if revised:
+            await sub.update(revised)
+        return sub
 
     def _monitor_request(self, node_id: ua.NodeId, handle: int) -> ua.MonitoredItemCreateRequest:
         params = ua.MonitoringParameters()
@@ -427,16 +444,9 @@ class Bridge:
         return nodes
 
     # ---------------------------------------------------------- measurements
-    def _notified(self, kind: str, item: Any) -> None:
-        """A data change or status change of the subscription (bridge thread); handled once
-        the whole publish response is in (:meth:`_flush`)."""
-        self._batch.append((kind, item))
-        if not self._flush_armed:
-            self._flush_armed = True
-            asyncio.get_running_loop().call_soon(self._flush)
-
     def _flush(self) -> None:
-        self._flush_armed = False
+        """The data and status changes of one publish response (:class:`_Subscription`, the
+        bridge's thread): one sample per distinct SourceTimestamp, in order."""
         batch, self._batch = self._batch, []
         received = self._now_ns()
         changes: list[tuple[int, str, float | None, Any]] = []   # (stamp, channel, value, code)
@@ -526,10 +536,9 @@ class Bridge:
             for ch in names:
                 variant = self._variant(ch, values[ch])
                 dvs.append(ua.DataValue(Value=variant))
-            try:
-                results = await asyncio.wait_for(client.uaclient.write_attributes(
-                    [nodes[ch].nodeid for ch in names], dvs, ua.AttributeIds.Value),
-                    self.cfg.request_timeout)
+            try:   # no answer within request_timeout: asyncua raises TimeoutError (the client's)
+                results = await client.uaclient.write_attributes(
+                    [nodes[ch].nodeid for ch in names], dvs, ua.AttributeIds.Value)
             except ua.UaStatusCodeError as exc:   # the whole request refused (a ServiceFault)
                 results = [ua.StatusCode(exc.code)] * len(names)
             for ch, result in zip(names, results):
@@ -549,15 +558,29 @@ class Bridge:
         return ua.Variant(int(min(max(round(value), bounds[0]), bounds[1])), vtype)
 
 
-class _Handler:
-    """asyncua subscription handler: hands each notification to the bridge (its thread)."""
+class _Subscription(Subscription):
+    """asyncua's subscription, each publish response handed to the bridge in the publish
+    callback itself (:meth:`Bridge._flush`): asyncua's handler path calls a handler from a task
+    per notification, after the client has encoded and sent its next PublishRequest (about
+    0.2 ms later on a loaded machine; bench/RESULTS.md "OPC UA bridge (issue 35 §4)")."""
 
-    def __init__(self, bridge: Bridge) -> None:
-        self.bridge = bridge
+    def __init__(self, bridge: Bridge, session: Any, params: ua.CreateSubscriptionParameters
+                 ) -> None:
+        super().__init__(session, params)    # no handler: publish_callback hands them on
+        self._bridge = bridge
 
-    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-        item = data.monitored_item
-        self.bridge._notified('data', (item.ClientHandle, item.Value))
-
-    def status_change_notification(self, status: Any) -> None:
-        self.bridge._notified('status', status)
+    async def publish_callback(self, publish_result: ua.PublishResult) -> None:
+        # the bookkeeping of Subscription.publish_callback (asyncua's watchdog, republish)
+        self.last_publish_at = time.monotonic()
+        message = publish_result.NotificationMessage
+        if message.NotificationData is None:
+            return
+        self.last_sequence_number = int(message.SequenceNumber)
+        batch = self._bridge._batch
+        for notification in message.NotificationData:
+            if isinstance(notification, ua.DataChangeNotification):
+                for item in notification.MonitoredItems or ():
+                    batch.append(('data', (item.ClientHandle, item.Value)))
+            elif isinstance(notification, ua.StatusChangeNotification):
+                batch.append(('status', notification))
+        self._bridge._flush()

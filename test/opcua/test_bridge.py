@@ -99,6 +99,27 @@ def test_bad_status_values_are_never_published_and_are_counted():
 
 
 @pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
+def test_a_bad_subscription_status_from_the_server_makes_the_bridge_subscribe_anew():
+    server = LagServer(ts=TS).start()
+    try:
+        with Run(values_for(server.endpoint, server.level_nodeid)) as run:
+            assert wait(lambda: len(run.samples) > 3)
+
+            async def bad_status() -> None:   # what a server says of a subscription it drops
+                service = server._server.iserver.subscription_service
+                for sub in list(service.subscriptions.values()):
+                    await sub.monitored_item_srv.trigger_statuschange(
+                        ua.StatusCode(ua.StatusCodes.BadTimeout))
+            server._loop.call(bad_status())
+            assert wait(lambda: run.bridge.counters['connections'] >= 2)
+            assert [t for _, t in run.logs if 'subscription status BadTimeout' in t]
+            count = len(run.samples)
+            assert wait(lambda: len(run.samples) > count + 3)
+    finally:
+        server.close()
+
+
+@pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
 def test_a_value_without_source_timestamp_is_stamped_on_receipt_and_counted():
     server = LagServer(ts=TS, u0=1.0)      # y changes every tick: a notification each
     server.source_stamps = False
