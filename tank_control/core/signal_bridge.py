@@ -268,6 +268,12 @@ class SignalMapping:
         self.counters['published'] += 1
         return stamp_ns, {channel: float(value)}
 
+    def held_before_origin(self) -> None:
+        """A driver value not published because the node holds the time origin back (its
+        readers not yet matched, as plant_node waits before tick 0): counted."""
+        self.counters['received'] += 1
+        self.counters['before_origin'] += 1
+
     def manipulated(self, stamp_ns: int, names: Sequence[str], values: Sequence[float]
                     ) -> list[tuple[str, float, int]]:
         """A ``manipulated`` message (already parsed): each bridged channel's value to write,

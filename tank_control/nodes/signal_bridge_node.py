@@ -25,9 +25,10 @@ from tank_control.core import params_file, ranges
 from tank_control.core import signal_bridge as core_bridge
 from tank_control.core.params import ConfigError
 from tank_control.nodes.clock import steady_clock
-from tank_control.nodes.messages import (ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
+from tank_control.nodes.messages import (MATCH_WAIT_S, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
                                          TOPIC_MANIPULATED, TOPIC_MEASUREMENT, TOPIC_TIME_ORIGIN,
-                                         ns_to_stamp, parse_signal, stamp_to_ns, to_joint_state)
+                                         ns_to_stamp, parse_signal, stamp_to_ns, to_joint_state,
+                                         unmatched)
 from tank_control.nodes.params import ParameterBinding, ParameterError
 from tank_control.nodes.runtime import main as run_node_main
 
@@ -86,6 +87,7 @@ class SignalBridgeNode(Node):
         self.origin_pub = (self.create_publisher(Time, TOPIC_TIME_ORIGIN, ORIGIN_QOS)
                            if settings.node.announce_origin and settings.measurement else None)
         self.diag_pub = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self._first_value_at: float | None = None
         self._drivers: dict[str, tuple[core_bridge.Channel, Any]] = {}
         for ch in settings.measurement:
             self.create_subscription(message_class(ch.type), ch.topic, self._driver_callback(ch),
@@ -127,6 +129,9 @@ class SignalBridgeNode(Node):
 
     def _on_driver(self, channel: core_bridge.Channel, msg: Any) -> None:
         """A driver's value: to ``measurement``, stamped with its stamp or the wall clock."""
+        if self._origin_held():
+            self.mapping.held_before_origin()
+            return
         stamp = stamp_to_ns(msg.header.stamp) if channel.scalar.stamped else None
         try:
             value = float(getattr(msg, channel.scalar.field))
@@ -143,6 +148,20 @@ class SignalBridgeNode(Node):
             self.measurement_pub.publish(to_joint_state(out[0], list(out[1]),
                                                         list(out[1].values())))
         self._log_reasons()
+
+    def _origin_held(self) -> bool:
+        """Before the time origin is announced: True while a reader of ``measurement`` or
+        ``time_origin`` that the graph shows is not matched yet, at most ``MATCH_WAIT_S`` from
+        the first driver value (a latched origin published in between reached a reference that
+        had started first only seconds later, or in 1 of 6 test runs never: it then never
+        published a setpoint)."""
+        if self.origin_pub is None or self.mapping.origin_ns is not None:
+            return False
+        now = time.monotonic()
+        if self._first_value_at is None:
+            self._first_value_at = now
+        return (bool(unmatched(self, [self.measurement_pub, self.origin_pub], []))
+                and now - self._first_value_at < MATCH_WAIT_S)
 
     def _on_manipulated(self, msg: JointState) -> None:
         try:
