@@ -153,7 +153,7 @@ class SignalBridgeNode(Node):
         """Before the time origin is announced: True while a reader of ``measurement`` or
         ``time_origin`` that the graph shows is not matched yet, at most ``MATCH_WAIT_S`` from
         the first driver value (a latched origin published in between reached a reference that
-        had started first only seconds later, or in 1 of 6 test runs never: it then never
+        had started first only seconds later, or in 2 of 13 test runs never: it then never
         published a setpoint)."""
         if self.origin_pub is None or self.mapping.origin_ns is not None:
             return False

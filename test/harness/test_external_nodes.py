@@ -236,8 +236,12 @@ def test_external_nodes_are_checked_before_anything_starts(scenario_path, tmp_pa
 
 
 def test_an_external_controller_is_accepted_but_any_other_foreign_publisher_is_refused(
-        scenario_path, tmp_path, procs, ros_env, probe):
+        scenario_path, tmp_path, procs, shared_ros_env, probe):
+    """Somebody else is on the domain (the external controller, a stranger): the harness looks
+    for another graph before it starts a node (docs/harness.md, step 2), takes the external
+    controller for the run's and refuses the stranger's publisher."""
     from sensor_msgs.msg import JointState
+    ros_env = shared_ros_env
     start_external(procs, tmp_path, ros_env)
     probe.node.create_publisher(JointState, 'setpoint', 10)       # a stranger in the loop
     assert probe.wait_for(lambda: 'controller' in probe.node.get_node_names(), 60.0)
