@@ -31,6 +31,8 @@ from tank_control.core.params import ConfigError, ParamSpec, config_from, param,
 from tank_control.core.stamps import FutureStamps, future_tolerance_ns
 
 DIRECTIONS = ('measurement', 'manipulated')
+#: ``measurement.publish``: a message per driver value, or one per instant with every channel
+PUBLISH = ('each', 'sample')
 
 
 @dataclass(frozen=True)
@@ -69,8 +71,21 @@ class BridgeNode:
                                   'first measurement\'s grid shifted by half a sample time) as '
                                   'plant_node does in wall mode; false when another node is the '
                                   'clock master of the loop', read_only=True)
+    publish: str = param('each', 'each: one measurement message per driver value, holding its '
+                         'channel, with the value\'s stamp; sample: at each instant origin + '
+                         'j x sample_time of the wall clock one message holding every measurement '
+                         'channel, each its latest value stamped at or before the instant, stamped '
+                         'with the instant (controller_node samples a message that holds all its '
+                         'outputs: a controller of several outputs needs sample)',
+                         choices=PUBLISH, name='measurement.publish', read_only=True)
     max_future_stamp: float | None = max_future_stamp_param()
     diagnostics_period: float = diagnostics_period_param()
+
+    def reason(self) -> str | None:
+        if self.publish == 'sample' and not self.announce_origin:
+            return ('measurement.publish: sample needs announce_origin true (the instants are '
+                    'on the time origin the bridge announces)')
+        return None
 
 
 @dataclass(frozen=True)
@@ -190,8 +205,10 @@ def settings_from(values: Mapping[str, Any],
 #: (as plant_node in wall mode: the reference's instant 0 comes first) [s]
 ORIGIN_NOTICE_NS = 200_000_000
 COUNTERS = ('received', 'published', 'receive_stamps', 'nonfinite', 'rejected_future',
-            'out_of_order', 'before_origin', 'written', 'malformed', 'unknown_channels',
-            'out_of_range')
+            'out_of_order', 'before_origin', 'incomplete_samples', 'written', 'malformed',
+            'unknown_channels', 'out_of_range')
+#: ``measurement.publish: sample``: values held per channel (a driver faster than the loop)
+MAX_HELD = 64
 #: the counters that are refusals (a WARN on /diagnostics while any is non-zero)
 REFUSALS = {'nonfinite': 'non-finite values refused',
             'rejected_future': 'values stamped in the future refused',
@@ -221,6 +238,8 @@ class SignalMapping:
         self.origin_ns: int | None = None if node.announce_origin else 0
         self.new_origin: int | None = None       # an origin to announce (the node clears it)
         self._last: dict[str, int] = {}          # channel → stamp of its last value taken
+        self._held: dict[str, list[tuple[int, float]]] = {}   # publish sample: values taken
+        self._sampled: int | None = None         # publish sample: the last instant published
         self._last_u: int | None = None
         self._reasons: list[str] = []
         self._reported: set[str] = set()
@@ -265,8 +284,41 @@ class SignalMapping:
             self.counters['before_origin'] += 1
             return None
         self._last[channel] = stamp_ns
+        if self.settings.node.publish == 'sample':
+            held = self._held.setdefault(channel, [])
+            held.append((stamp_ns, float(value)))
+            del held[:-MAX_HELD]                   # bounded: the latest values only
+            return None
         self.counters['published'] += 1
         return stamp_ns, {channel: float(value)}
+
+    def sample(self, now_ns: int) -> tuple[int, dict[str, float]] | None:
+        """``measurement.publish: sample``: the message of the latest instant ``origin +
+        j·sample_time`` at or before ``now_ns`` not yet published, holding each channel's latest
+        value stamped at or before it; None before the origin, when that instant was published,
+        or while a channel has no such value (counted as ``incomplete_samples``)."""
+        origin = self.origin_ns
+        if origin is None or now_ns < origin:
+            return None
+        instant = origin + (now_ns - origin) // self.ts_ns * self.ts_ns
+        if self._sampled is not None and instant <= self._sampled:
+            return None
+        values = {}
+        for channel in self.settings.measurement:
+            held = [(s, v) for s, v in self._held.get(channel.name, []) if s <= instant]
+            if not held:
+                self.counters['incomplete_samples'] += 1
+                self._sampled = instant
+                self._note('incomplete', f'measurement: no value of {channel.name} stamped at or '
+                           f'before the instant {instant} ns; the instant is not published')
+                return None
+            values[channel.name] = held[-1][1]
+            # what is older than the value used is never used again
+            self._held[channel.name] = [(s, v) for s, v in self._held[channel.name]
+                                        if s >= held[-1][0]]
+        self._sampled = instant
+        self.counters['published'] += 1
+        return instant, values
 
     def held_before_origin(self) -> None:
         """A driver value not published because the node holds the time origin back (its

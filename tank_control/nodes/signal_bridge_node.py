@@ -100,6 +100,9 @@ class SignalBridgeNode(Node):
                                      SIGNAL_QOS)
         self.create_timer(settings.node.diagnostics_period, self._publish_diagnostics,
                           clock=steady_clock())
+        if settings.node.publish == 'sample' and settings.measurement:
+            # checks a quarter period: each instant is published once, at most ts/4 after it
+            self.create_timer(settings.node.sample_time / 4, self._sample)
         self.get_logger().info(
             'signal bridge: measurement '
             + (', '.join(f'{c.name} <- {c.topic} ({c.type})' for c in settings.measurement)
@@ -144,6 +147,14 @@ class SignalBridgeNode(Node):
             self.get_logger().info(f'time origin {self.mapping.new_origin} ns (the first '
                                    'measurement\'s grid shifted by half a sample time)')
             self.mapping.new_origin = None
+        if out is not None:
+            self.measurement_pub.publish(to_joint_state(out[0], list(out[1]),
+                                                        list(out[1].values())))
+        self._log_reasons()
+
+    def _sample(self) -> None:
+        """``measurement.publish: sample``: the message of the instant reached, if any."""
+        out = self.mapping.sample(self.get_clock().now().nanoseconds)
         if out is not None:
             self.measurement_pub.publish(to_joint_state(out[0], list(out[1]),
                                                         list(out[1].values())))

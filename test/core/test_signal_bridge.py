@@ -109,3 +109,30 @@ def test_parameters_are_declared_with_types_choices_and_ranges():
     assert specs['range.u'].default == [0.0, 10.0]
     assert (specs['sample_time'].min, specs['sample_time'].max) == (0.001, 3600.0)
     assert {'max_future_stamp', 'diagnostics_period', 'announce_origin'} <= set(specs)
+
+
+def test_publish_sample_sends_every_channel_at_each_instant_with_its_latest_value_before_it():
+    """A controller of several outputs samples on a message holding all of them
+    (controller_node, docs/nodes.md): ``measurement.publish: sample`` resamples the drivers on
+    the loop's grid, never putting a value under an instant before its own stamp."""
+    m = mapping(**{'measurement.publish': 'sample'})
+    now = 50 * S
+    assert m.measurement('y', 1.0, None, now, 0) is None          # announces the origin
+    origin = m.new_origin
+    ts = 100_000_000
+    assert m.sample(origin - 1) is None                            # before the origin
+    assert m.measurement('y', 2.0, None, origin + 10, 0) is None   # held, not published alone
+    assert m.measurement('T', 20.0, origin + 20, origin + 20, 0) is None
+    assert m.sample(origin + ts - 1) is None       # instant 0: no value stamped at or before it
+    assert m.counters['incomplete_samples'] == 1
+    assert m.sample(origin + ts - 1) is None and m.counters['incomplete_samples'] == 1   # once
+    assert m.measurement('T', 21.0, origin + ts + 5, origin + ts + 5, 0) is None   # after inst 1
+    assert m.sample(origin + ts) == (origin + ts, {'y': 2.0, 'T': 20.0})
+    assert m.sample(origin + ts + 50) is None                      # each instant once
+    assert m.sample(origin + 3 * ts + 1) == (origin + 3 * ts, {'y': 2.0, 'T': 21.0})
+    assert m.counters['published'] == 2
+
+
+def test_publish_sample_needs_the_bridge_s_own_origin():
+    with pytest.raises(ConfigError, match='measurement.publish: sample needs announce_origin'):
+        sb.settings_from({**BASE, 'measurement.publish': 'sample', 'announce_origin': False})

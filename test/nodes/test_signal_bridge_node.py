@@ -9,6 +9,8 @@ import json
 import math
 import time
 
+import pytest
+
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -24,12 +26,13 @@ KP = 2.0          # P control: closed loop of time constant 1 / (KP GAIN) = 0.5 
 U_MAX = 5.0
 
 
-def params(tmp_path) -> str:
+def params(tmp_path, publish: str = 'each') -> str:
     values = {
         'signal_bridge': {'ros__parameters': {
             'sample_time': TS, 'measurement.channels': ['y'], 'measurement.y.topic': '/dev/level',
             'measurement.y.type': 'Float64', 'manipulated.channels': ['u'],
-            'manipulated.u.topic': '/dev/valve', 'diagnostics_period': 0.2}},
+            'manipulated.u.topic': '/dev/valve', 'diagnostics_period': 0.2,
+            'measurement.publish': publish}},
         'controller': {'ros__parameters': {
             'controller': 'pid', 'clock_mode': 'wall', 'sample_time': TS, 'output_names': ['y'],
             'input_names': ['u'], 'kp': KP, 'ti': 0.0, 'u_min': -U_MAX, 'u_max': U_MAX,
@@ -66,9 +69,10 @@ class Device:
         self.pub.publish(Float64(data=self.level))
 
 
+@pytest.mark.parametrize('publish', ['each', 'sample'])
 def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_are_refused(
-        procs, node_cmd, ros_env, probe, tmp_path):
-    file = params(tmp_path)
+        publish, procs, node_cmd, ros_env, probe, tmp_path):
+    file = params(tmp_path, publish)
     device = Device(probe)
     node = probe.node
     y, u, origins, diags = [], [], [], []
@@ -92,6 +96,8 @@ def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_a
     assert all(stamp >= origin for stamp, _, _ in y)      # nothing before the origin
     # the measurements are the device's values, stamped on arrival (wall clock, ns)
     assert abs(y[-1][0] / 1e9 - time.time()) < 5.0 and y[-1][1] == ('y',)
+    if publish == 'sample':                # on the loop's grid
+        assert all((stamp - origin) % 100_000_000 == 0 for stamp, _, _ in y)
     # the valve got the controller's outputs, within its limits
     assert {v for _, _, (v,) in u[-5:]} & set(device.commands[-10:])
     assert all(-U_MAX <= c <= U_MAX for c in device.commands)
