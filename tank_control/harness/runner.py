@@ -799,7 +799,8 @@ class _RosRun:
                                                '-p', f'port:={self.dashboard}'], env=self.env)
             _warm_up()                             # while the nodes start (once)
             self._look_while_starting()
-            if self.record_window:
+            # an external plant_node started with lockstep.record_window waits for these too
+            if self.record_window or (self.mode == 'lockstep' and 'plant' in self.external):
                 signals = [t for node in self.config.nodes for t in PUBLISHES[node]
                            if not t.startswith('/')]
                 recorder.acknowledge(signals, ACK_EVERY * (self.tick_ns or 0))
@@ -809,8 +810,10 @@ class _RosRun:
             quiet_collector()      # the recorder's arrival times: no long collection in the run
             cpu_start = self._cpu_seconds()
             run_start = time.monotonic()
-            if 'plant' in nodes:      # an external plant runs its own clock
+            if 'plant' in nodes:
                 self._unpause()
+            elif 'plant' in self.external:    # runs its own clock; released if held
+                self._unpause_external()
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
@@ -858,6 +861,14 @@ class _RosRun:
                                               self.config.startup_timeout, self._check_alive)
         if reason:
             raise RunFailed(f'could not start the plant\'s clock: {reason}')
+
+    def _unpause_external(self) -> None:
+        """An external plant that holds its clock (plant_node started with ``-p
+        lockstep.paused:=true``, so that the recorder sees tick 0) is released like the
+        harness's own; one without that parameter (or not paused) runs its own clock."""
+        held = self.recorder.node_parameters('plant', 5.0, self._check_alive)
+        if held.get('lockstep.paused') is True:
+            self._unpause()
 
     def _await_graph(self, nodes: Sequence[str]) -> None:
         """Every node in the graph and every publisher the recorder needs matched

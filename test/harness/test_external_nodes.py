@@ -250,3 +250,45 @@ def test_an_external_controller_is_accepted_but_any_other_foreign_publisher_is_r
     reason = str(failed.value)
     assert f'publisher of /setpoint ({probe.node.get_name()})' in reason
     assert 'controller' not in reason
+
+
+PLANT_SCENARIO = """
+plant:
+  ros__parameters: {plant: ipdt, sample_time: 0.1, gain: 0.05, dead_time: 2.0,
+                    noise_std: [0.01], seed: 7, clock_mode: lockstep, real_time_factor: 0.0}
+controller:
+  ros__parameters: {controller: pid, sample_time: 0.1, kp: 3.14, ti: 18.66,
+                    output_names: ['y'], input_names: ['u']}
+reference:
+  ros__parameters:
+    setpoint.channels: ['y']
+    setpoint.y.times: [0.0, 2.0]
+    setpoint.y.values: [0.0, 1.0]
+    disturbance.channels: ['v']
+    disturbance.v.times: [0.0, 15.0]
+    disturbance.v.values: [0.0, -0.1]
+harness:
+  ros__parameters: {duration: 30.0, external_nodes: ['plant'], external_wait: 120.0}
+"""
+
+
+def test_an_external_plant_node_started_paused_is_released_and_recorded_from_tick_0(
+        tmp_path, procs, node_cmd, ros_env):
+    """The user runs the plant (here plant_node, started paused with the recording window, as
+    docs/harness.md says): the harness starts controller and reference, releases the plant's
+    clock once the graph is up, and the trace equals the in-process run row for row."""
+    path = tmp_path / 'external_plant.yaml'
+    path.write_text(PLANT_SCENARIO)
+    procs.start('my_plant', node_cmd('plant_node', '--params-file', str(path), '-p',
+                                     'lockstep.paused:=true', '-p',
+                                     'lockstep.record_window:=8'), env=ros_env)
+    scenario = load_scenario(path)
+    result = run_scenario(scenario, tmp_path / 'out', env=ros_env)
+    trace = Trace.read_csv(result.files['trace'])
+    built = core_scenario.build(node_parameters(scenario))
+    expected = core_scenario.run(built, scenario.harness.duration)
+    assert len(trace) == len(expected) == 301
+    for name in expected.columns:
+        np.testing.assert_allclose(trace[name], expected[name], rtol=0, atol=1e-9, err_msg=name)
+    assert 'plant' not in result.metrics['run']['exit_codes']
+    assert result.metrics['controller']['final_gains']['kp'] == 3.14   # its own controller
