@@ -75,7 +75,9 @@ def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_a
     file = params(tmp_path, publish)
     device = Device(probe)
     node = probe.node
-    y, u, origins, diags = [], [], [], []
+    y, u, r, origins, diags = [], [], [], [], []
+    node.create_subscription(JointState, 'setpoint',
+                             lambda m: r.append(from_joint_state(m)), RECORD_QOS)
     node.create_subscription(JointState, 'measurement',
                              lambda m: y.append(from_joint_state(m)), RECORD_QOS)
     node.create_subscription(JointState, 'manipulated',
@@ -85,12 +87,17 @@ def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_a
     node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diags.extend(
         {'level': s.level, 'message': s.message, **{kv.key: kv.value for kv in s.values}}
         for s in m.status if s.name == 'signal_bridge'), 50)
+    controller_diags = []        # for the failure message
+    node.create_subscription(DiagnosticArray, '/diagnostics', lambda m: controller_diags.extend(
+        (s.message, {kv.key: kv.value for kv in s.values})
+        for s in m.status if s.name.startswith('controller')), 50)
     for name in ('signal_bridge', 'controller', 'reference'):
         procs.start(name, node_cmd(f'{name}_node', '--params-file', file), env=ros_env)
 
     # y follows the setpoint step 0 -> 1 at t = 2 s (P control of an integrator: no offset)
     assert probe.wait_for(lambda: abs(device.level - 1.0) < 0.02 and len(device.commands) > 30,
                           120), (device.level, device.commands[-3:], u[-3:], y[-3:], diags[-1:],
+                                 len(r), r[:2], r[-2:], origins, controller_diags[-1:],
                                  [procs.processes[n].tail(10) for n in procs.processes])
     origin = origins[-1]
     assert all(stamp >= origin for stamp, _, _ in y)      # nothing before the origin
