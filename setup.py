@@ -34,6 +34,7 @@ setup(
             'reference_node = tank_control.nodes.reference_node:main',
             'dashboard_node = tank_control.nodes.dashboard_node:main',
             'opcua_bridge_node = tank_control.nodes.opcua_bridge_node:main',
+            'signal_bridge_node = tank_control.nodes.signal_bridge_node:main',
             'ros2 = tank_control.ros2cli.main:main',
             'tank-control = tank_control.harness.cli:main',
         ],

@@ -72,6 +72,19 @@ GRAPH_TOPICS = ('measurement', 'setpoint', 'manipulated', 'disturbance', '/clock
                 GATED_DISTURBANCE)
 
 
+#: What an external node (``harness.external_nodes``) must read for the harness to take it as
+#: up (besides its publishers, ``PUBLISHES``): the signal it answers.
+EXTERNAL_READS = {'plant': ('manipulated',), 'controller': ('measurement',),
+                  'reference': ('/clock',)}
+#: Wall seconds between two lines saying what the harness waits for from an external node.
+EXTERNAL_NOTICE_EVERY = 5.0
+
+
+def _notice(line: str) -> None:
+    """One line for the user while a run starts (stderr)."""
+    print(f'tank-control: {line}', file=sys.stderr, flush=True)
+
+
 #: Wall seconds a node killed hard may stay in the graph after its restart (its DDS
 #: participant's lease; measured: docs/harness.md "Restarts") without counting as a second
 #: node of its name.
@@ -155,6 +168,11 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
     reason = size_reason(scenario, in_process)
     if reason:
         raise ScenarioError(f'{scenario.path}: {reason}')
+    if in_process and scenario.harness.external_nodes:
+        raise ScenarioError(f'{scenario.path}: harness.external_nodes: '
+                            f'{", ".join(scenario.harness.external_nodes)} run as programs of '
+                            'their own, which an --in-process run cannot include; allowed [] '
+                            'with --in-process')
     out = Path(out_dir)
     with StopSignals() as stop:
         if in_process:
@@ -209,7 +227,7 @@ def controller_report(scenario: Scenario, controller_params: Mapping[str, Any]
     """Input limits ``{channel: (min, max)}`` and final gains of the controller that ran, from
     its parameter values (read from the node, or from the in-process controller) through its
     kind."""
-    if 'controller' not in scenario.harness.nodes:
+    if 'controller' not in scenario.harness.started:    # none, or the user's own program
         return {}, {}
     setup = core_scenario.controller_setup(controller_params, given=())
     kind, settings = setup.kind, setup.settings
@@ -252,7 +270,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
     from tank_control.core.analysis.loops import loop_cases
     cases, analysis_note = [], ''
-    if 'controller' in scenario.harness.nodes and controller_params:
+    if 'controller' in scenario.harness.started and controller_params:
         try:
             cases = loop_cases(scenario.sections, controller_params)
             if plant_only:
@@ -494,8 +512,10 @@ def due_periods(scenario: Scenario, mode: str, tick_ns: int | None) -> dict[str,
             return tick_ns
         ns = int(round(value * NS)) if isinstance(value, (int, float)) and value > 0 else None
         return ns if ns and tick_ns and ns % tick_ns == 0 else tick_ns
-    reference = period('reference') if mode == 'wall' else tick_ns
-    due = {'u': period('controller'), 'r': reference, 'd': reference}
+    external = scenario.harness.external_nodes      # the user's programs: due every tick
+    reference = period('reference') if mode == 'wall' and 'reference' not in external else tick_ns
+    due = {'u': period('controller') if 'controller' not in external else tick_ns,
+           'r': reference, 'd': reference}
     return {k: v for k, v in due.items() if v}
 
 
@@ -519,12 +539,14 @@ class _RosRun:
         self.nobody_before = False                 # no participant on the domain at the start
         self.duration_ns = int(round(self.config.duration * NS))
         self.mode = self.config.clock_mode
+        self.started = self.config.started            # the nodes it starts
+        self.external = self.config.external_nodes    # the nodes the user runs
         self.t0_ns: int | None = 0 if self.mode != 'wall' else None
         self.phase = 'while starting'
         self.cpu: dict[str, float] = {}            # CPU seconds during the run, by process
         plant = scenario.params('plant')
         self.record_window = (RECORD_WINDOW if self.mode == 'lockstep'
-                              and 'plant' in self.config.nodes else 0)
+                              and 'plant' in self.started else 0)
         sample_time = plant.get('sample_time')
         self.sample_time = (float(sample_time) if isinstance(sample_time, (int, float))
                             and not isinstance(sample_time, bool) and sample_time > 0 else None)
@@ -693,7 +715,8 @@ class _RosRun:
         from tank_control.harness.recorder import RECORDER_NAME
         rec = self.recorder
         found = foreign_graph(rec.node, rec.spin_once, GRAPH_TOPICS, self.config.discovery_time,
-                              (RECORDER_NAME,), self.stop.check, since=joined)
+                              (RECORDER_NAME,), self.stop.check, since=joined,
+                              started=self.external)     # the user's nodes: accepted once
         if found:
             self._refuse(found)
 
@@ -707,7 +730,7 @@ class _RosRun:
         or ``_look_before_starting`` found nobody."""
         from tank_control.harness.recorder import RECORDER_NAME
         rec = self.recorder
-        nodes = list(self.config.nodes)
+        nodes = list(self.started)
         timeout = time.monotonic() + self.config.startup_timeout
 
         def check() -> None:
@@ -718,8 +741,9 @@ class _RosRun:
                                 'node logs:\n' + '\n'.join(
                                     f'--- {name} ---\n{proc.tail(8)}'
                                     for name, proc in self.group.processes.items()))
+        # an external node (harness.external_nodes) is accepted once, as a node it started
         found = foreign_graph(rec.node, rec.spin_once, GRAPH_TOPICS, 0.0, (RECORDER_NAME,),
-                              check, started=nodes,
+                              check, started=[*nodes, *self.external],
                               ready=lambda: set(nodes) <= rec.node_names())
         if found:
             self._refuse(found)
@@ -767,7 +791,7 @@ class _RosRun:
                 _warm_up()                         # while DDS discovers the domain
                 self._look_before_starting(joined)
             # The graph is looked at while the nodes come up, too (step 2).
-            nodes = self.config.nodes
+            nodes = self.started
             for node in nodes:
                 self.group.start(node, self._argv(node), env=self.env)
             if self.dashboard is not None:       # watches only; stopped with the nodes
@@ -775,16 +799,21 @@ class _RosRun:
                                                '-p', f'port:={self.dashboard}'], env=self.env)
             _warm_up()                             # while the nodes start (once)
             self._look_while_starting()
-            if self.record_window:
+            # an external plant_node started with lockstep.record_window waits for these too
+            if self.record_window or (self.mode == 'lockstep' and 'plant' in self.external):
                 signals = [t for node in self.config.nodes for t in PUBLISHES[node]
                            if not t.startswith('/')]
                 recorder.acknowledge(signals, ACK_EVERY * (self.tick_ns or 0))
+            if self.external:
+                self._await_external()
             self._await_graph(nodes)
             quiet_collector()      # the recorder's arrival times: no long collection in the run
             cpu_start = self._cpu_seconds()
             run_start = time.monotonic()
             if 'plant' in nodes:
                 self._unpause()
+            elif 'plant' in self.external:    # runs its own clock; released if held
+                self._unpause_external()
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
@@ -792,9 +821,9 @@ class _RosRun:
                         if end is not None and cpu_start.get(name) is not None}
             self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
-                                 if 'controller' in self.config.nodes else {})
+                                 if 'controller' in nodes else {})
             reference_params = (recorder.node_parameters('reference', 5.0, self._check_alive)
-                                if 'reference' in self.config.nodes else {})
+                                if 'reference' in nodes else {})
         except BaseException as exc:               # noqa: B902 - results so far, then re-raised
             failure = exc
             if run_start is not None:
@@ -833,6 +862,14 @@ class _RosRun:
         if reason:
             raise RunFailed(f'could not start the plant\'s clock: {reason}')
 
+    def _unpause_external(self) -> None:
+        """An external plant that holds its clock (plant_node started with ``-p
+        lockstep.paused:=true``, so that the recorder sees tick 0) is released like the
+        harness's own; one without that parameter (or not paused) runs its own clock."""
+        held = self.recorder.node_parameters('plant', 5.0, self._check_alive)
+        if held.get('lockstep.paused') is True:
+            self._unpause()
+
     def _await_graph(self, nodes: Sequence[str]) -> None:
         """Every node in the graph and every publisher the recorder needs matched
         (in lockstep the plant holds tick 0 until it is un-paused); fail if the names are
@@ -857,6 +894,64 @@ class _RosRun:
         if self.mode != 'lockstep' and 'plant' in nodes:
             self._await_matched([node for node in ('plant', 'controller') if node in nodes])
         self._check_no_other_graph()
+
+    def _external_missing(self, node: str) -> str | None:
+        """What of external node ``node`` the harness still waits for (None: it is there):
+        the node in the graph, its publishers (``PUBLISHES``; the plant's ``/clock`` not in
+        wall) from that node and matched by the recorder's readers, its subscription to the
+        signal it answers (``EXTERNAL_READS``)."""
+        rec = self.recorder
+        if node not in rec.node_names():
+            return f'no node named {node} in the graph yet'
+        for topic in PUBLISHES[node]:
+            if topic == '/clock' and self.mode == 'wall':
+                continue
+            full = topic if topic.startswith('/') else '/' + topic
+            writers = [info.node_name for info in rec.node.get_publishers_info_by_topic(full)]
+            if node not in writers:
+                return f'no publisher on {topic} yet'
+            if rec.matched_publishers(topic) < len(writers):
+                return f'its publisher on {topic} not yet matched by the recorder'
+        for topic in EXTERNAL_READS[node]:
+            if topic == '/clock' and self.mode == 'wall':
+                continue
+            if node not in rec.subscriber_nodes(topic):
+                return f'no subscription to {topic} yet'
+        return None
+
+    def _await_external(self) -> None:
+        """Wait (at most ``harness.external_wait`` wall seconds) until every node of
+        ``harness.external_nodes`` is in the graph with its endpoints matched, saying what it
+        waits for on stderr (once at first, then every ``EXTERNAL_NOTICE_EVERY`` s and when it
+        changes); ``RunFailed`` naming what is missing when the time is up."""
+        wait = self.config.external_wait
+        start = time.monotonic()
+        said: tuple[str, float] | None = None
+
+        def missing() -> tuple[str, str] | None:
+            for node in self.external:
+                what = self._external_missing(node)
+                if what is not None:
+                    return node, what
+            return None
+
+        def check() -> None:
+            nonlocal said
+            self._check_alive()
+            gap = missing()
+            if gap is None:
+                return
+            now = time.monotonic()
+            line = f'waiting for the external {gap[0]}: {gap[1]}'
+            if said is None or said[0] != line or now - said[1] >= EXTERNAL_NOTICE_EVERY:
+                _notice(f'{line} ({now - start:.0f} s of {wait:g} s, harness.external_wait)')
+                said = (line, now)
+
+        if not self.recorder.spin_until(lambda: missing() is None, wait, check):
+            node, what = missing() or ('node', 'it')
+            raise RunFailed(f'the external {node} did not come within {wait:g} s '
+                            f'(harness.external_wait): {what}; start it (named {node}, '
+                            f'on ROS_DOMAIN_ID {self.domain}) or raise harness.external_wait')
 
     def _await_matched(self, nodes: Sequence[str]) -> None:
         """sim/wall, where nobody waits for a tick: the plant's writers (measurement, time
@@ -903,7 +998,8 @@ class _RosRun:
         for name, until in self._ghosts.items():       # restarted: the dead one's lease
             until[:] = [t for t in until if t > now]
         taken = [name for name in self.config.nodes if counts.get(name, 0) > (
-            1 + len(self._ghosts.get(name, ())) if name in self.group.processes else 0)]
+            1 + len(self._ghosts.get(name, ())) if name in self.group.processes
+            else 1 if name in self.external else 0)]
         if self.phase == 'during the run':
             self._note_foreign(counts)
         if taken:
@@ -915,7 +1011,7 @@ class _RosRun:
         """Remember every node on the domain that the harness did not start (reported at the
         end: ``run.foreign_nodes``): when first and last seen [s of plant time]."""
         from tank_control.harness.recorder import RECORDER_NAME
-        ours = {*(self.group.processes if self.group else ()), RECORDER_NAME}
+        ours = {*(self.group.processes if self.group else ()), *self.external, RECORDER_NAME}
         sim_ns = self._sim_ns()
         sim = sim_ns / NS if sim_ns is not None else 0.0
         for name in counts:
@@ -985,8 +1081,10 @@ class _RosRun:
         latest = ', '.join(f'{t} {s / NS:g} s' for t, s in sorted(rec.latest.items())) or 'nothing'
         tails = '\n'.join(f'--- {name} ---\n{proc.tail(8)}'
                           for name, proc in self.group.processes.items())
+        external = (f'; the external node(s) {", ".join(self.external)} (run by you, not by the '
+                    'harness) may have stopped answering' if self.external else '')
         return (f'simulated time stopped moving for {self.config.stall_timeout:g} s '
-                f'(harness.stall_timeout); latest stamps: {latest}; node logs:\n{tails}')
+                f'(harness.stall_timeout){external}; latest stamps: {latest}; node logs:\n{tails}')
 
     def _report(self, sim_ns: int, wall: float) -> None:
         sim = sim_ns / NS

@@ -45,6 +45,15 @@ class HarnessConfig:
                                     f'non-zero factor is at least {RTF_TINY:g})', min=0.0,
                                     max=1e6, tiny=RTF_TINY)
     nodes: tuple[str, ...] = param(NODES, 'node processes to start', choices=NODES)
+    external_nodes: tuple[str, ...] = param((), 'nodes of the loop that the user runs (any '
+                                            'program, named as its role, answering the lockstep '
+                                            'protocol of docs/nodes.md): the harness does not '
+                                            'start them, waits for their endpoints and records '
+                                            'them (docs/harness.md, "External nodes")',
+                                            choices=NODES)
+    external_wait: float = param(30.0, 'wall seconds the harness waits for the external nodes\' '
+                                 'endpoints to match before it gives up', unit='s', min=1.0,
+                                 max=3600.0)
     startup_timeout: float = param(60.0, 'wall seconds allowed for the graph to come up',
                                    unit='s', min=1.0, max=3600.0)
     stall_timeout: float = param(30.0, 'wall seconds without simulated-time progress before the '
@@ -68,10 +77,22 @@ class HarnessConfig:
     def reason(self) -> str | None:
         if not self.nodes:
             return 'nodes: empty; allowed a list of ' + ', '.join(NODES)
+        stray = [n for n in self.external_nodes if n not in self.nodes]
+        if stray:
+            return (f'external_nodes: {stray[0]!r} is not one of nodes ({", ".join(self.nodes)})'
+                    '; allowed nodes of the loop')
+        if len(set(self.external_nodes)) == len(self.nodes):
+            return ('external_nodes: every node of the loop is external; allowed at most '
+                    f'{len(self.nodes) - 1} of nodes ({", ".join(self.nodes)})')
         if self.clock_mode == 'sim' and self.real_time_factor <= 0:
             return (f'real_time_factor: {self.real_time_factor:g} with clock_mode sim; allowed '
                     '(0, 1e6] (sim paces the clock on wall time)')
         return None
+
+    @property
+    def started(self) -> tuple[str, ...]:
+        """The nodes the harness starts: ``nodes`` without ``external_nodes``."""
+        return tuple(n for n in self.nodes if n not in self.external_nodes)
 
 
 @dataclass
@@ -158,16 +179,20 @@ def validate(scenario: Scenario, check_nodes: bool = True) -> Scenario:
             config = scenario.harness
         except ConfigError as exc:
             raise ConfigError(f'harness.{exc}') from None
+        # an external node's section (if any) is its own program's: not checked, passed on
+        ours = {name: values for name, values in scenario.sections.items()
+                if name not in config.external_nodes}
         if check_nodes:
-            core_scenario.validate(scenario.sections, config.nodes)
-        for node in config.nodes:
+            core_scenario.validate(ours, config.started)
+        for node in config.started:
             if node in ('plant', 'controller') and node not in scenario.sections:
                 raise ConfigError(f'harness.nodes: {node!r} has no section in the file')
         if not check_nodes:
             return scenario
-        if {'plant', 'controller', 'reference'} <= set(config.nodes):
+        if {'plant', 'controller', 'reference'} <= set(config.started):
             check_wiring(scenario.sections)
-        return Scenario(scenario.path, core_scenario.typed(scenario.sections), scenario.overrides)
+        typed = {**scenario.sections, **core_scenario.typed(ours)}
+        return Scenario(scenario.path, typed, scenario.overrides)
     except ConfigError as exc:
         raise ScenarioError(where + str(exc)) from None
 
@@ -221,7 +246,8 @@ def node_parameters(scenario: Scenario) -> dict[str, dict[str, Any]]:
     config = scenario.harness
     out = {name: dict(values) for name, values in scenario.sections.items() if name != HARNESS}
     for node in config.nodes:                     # every node samples in the same clock mode
-        out.setdefault(node, {})['clock_mode'] = config.clock_mode
+        if node in config.started or node in out:  # an external node: only if it has a section
+            out.setdefault(node, {})['clock_mode'] = config.clock_mode
     plant = out.setdefault('plant', {})
     plant['clock_mode'] = config.clock_mode
     plant['real_time_factor'] = float(config.real_time_factor)

@@ -59,10 +59,15 @@ NODE_HELP = {
                        'with the graph\'s trends, parameters and margins.'),
     'opcua_bridge_node': ('opcua_bridge', 'An OPC UA server\'s variables as the loop\'s plant: '
                           'measurement from, manipulated to the server (docs/opcua.md).'),
+    'signal_bridge_node': ('signal_bridge', 'Real sensors and actuators as the loop\'s plant: '
+                           'std_msgs/Float64 and sensor_msgs scalar topics to and from the '
+                           'measurement and manipulated channels (docs/signal_bridge.md).'),
 }
 
 #: a node documented elsewhere than docs/nodes.md: (its page, its example file)
-NODE_DOCS = {'opcua_bridge_node': ('docs/opcua.md', 'docs/opcua/bridge.yaml')}
+NODE_DOCS = {'opcua_bridge_node': ('docs/opcua.md', 'docs/opcua/bridge.yaml'),
+             'signal_bridge_node': ('docs/signal_bridge.md',
+                                    'docs/signal_bridge/example.yaml')}
 
 
 def _kind_names(node: str) -> str:
