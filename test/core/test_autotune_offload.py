@@ -114,10 +114,13 @@ def test_design_time_is_checked(bad):
 def test_on_the_wall_clock_no_sample_waits_for_the_design_and_the_switch_is_bumpless(
         monkeypatch):
     """controller_node in wall mode (``wall_clock``), ``design_time`` 0 (the default): the
-    identification runs in the worker thread; held there, the relay keeps sampling (no sample
-    waits); the first sample after it is done switches to the PID from u0, with the gains of
-    the inline design."""
+    identification runs off the sampling path (here in the worker thread, where the test can
+    hold it; the node's is a process: the next test); held there, the relay keeps sampling
+    (no sample waits); the first sample after it is done switches to the PID from u0, with the
+    gains of the inline design."""
+    from tank_control.core.control import relay_autotune
     inline = run(0.0)
+    monkeypatch.setattr(relay_autotune, '_wall_pool', relay_autotune._worker)
     gate = threading.Event()
     real = ident.identify_relay
 
@@ -152,3 +155,25 @@ def test_on_the_wall_clock_no_sample_waits_for_the_design_and_the_switch_is_bump
     # the PID takes over from the bias u0: no jump beyond the relay's own step
     u0 = controller.status['u0']
     assert abs(u_out[k_tuned] - u0) <= abs(inline['u'][k_inline] - inline['status']['u0']) + 1.0
+
+
+def test_on_the_wall_clock_the_design_runs_in_another_process_with_the_same_result():
+    """wall mode's worker is a process (no GIL shared with the sampling thread): the relay
+    runs on until its result is there, which equals the inline design's."""
+    inline = run(0.0)
+    controller = make_controller('relay_autotune', {**SETTINGS, 'autotune.design_time': 0.0})
+    controller.wall_clock = True
+    plant = ProcessModel('fopdt', 0.05, 3.0, 10.0).plant()
+    r = np.array([100.0])
+    controller.start()
+    states, waited = [], None
+    for k in range(2500):
+        u = controller.step(k * H, plant.outputs(), r, np.array([]))
+        states.append(controller.state)
+        plant.step(u, np.array([0.0]), H)
+        if controller._job is not None and waited is None:    # noqa: SLF001 - the pending job
+            assert controller._job.wait(120.0)                 # noqa: SLF001
+            waited = k
+    assert first(states, 'tuned') == waited + 1               # the first sample after it
+    assert controller.status['ku'] == inline['status']['ku']
+    assert controller.status['gains'] == inline['status']['gains']

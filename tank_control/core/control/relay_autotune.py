@@ -15,10 +15,12 @@ the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.
 """
 from __future__ import annotations
 
+import copy
 import math
+import multiprocessing
 import threading
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures import wait as futures_wait
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -579,6 +581,8 @@ class RelayAutotuner(AutotuneMachine):
     # operator requests: AutotuneMachine; its hooks
     def _begin(self) -> tuple[bool, str]:
         """A test from idle, running, tuned, failed or aborted: settle first."""
+        if self.wall_clock:
+            _wall_pool().submit(_warm)            # the process starts while the test runs
         self._saved_gains = _gain_fields(self.pid.config)
         self._clear_test()
         self._cancel_check()
@@ -977,8 +981,11 @@ class RelayAutotuner(AutotuneMachine):
         if tail is None:
             return False
         offload = cfg.design_time > 0.0 or self.wall_clock
-        job = _Job(self._identify, t + cfg.design_time,
-                   (tt, uu, yy, self._u0_start, r, self._eps, tail, cfg), background=offload)
+        # to a process: a copy (pickled in the pool's feeder thread while this one samples on)
+        work = copy.deepcopy(self)._identify if self.wall_clock else self._identify
+        job = _Job(work, t + cfg.design_time,
+                   (tt, uu, yy, self._u0_start, r, self._eps, tail, cfg), background=offload,
+                   pool=_wall_pool() if self.wall_clock else None)
         if offload:
             self._job = job                       # the relay runs on until it is due
             return False
@@ -1480,15 +1487,37 @@ def _worker() -> ThreadPoolExecutor:
         return _WORKER
 
 
+_PROCESS: ProcessPoolExecutor | None = None
+
+
+def _wall_pool() -> Executor:
+    """Wall mode: one spawned process (started with the first test). The fit and the Ms search
+    are Python loops as much as numpy: in a thread they hold the GIL for most of a second, and
+    the sampling thread, waking for its instant, waits for it — on a loaded machine long enough
+    to come late (bench/bench_live_rebuild.py); a process shares no GIL."""
+    global _PROCESS
+    with _WORKER_LOCK:
+        if _PROCESS is None:
+            _PROCESS = ProcessPoolExecutor(max_workers=1,
+                                           mp_context=multiprocessing.get_context('spawn'))
+        return _PROCESS
+
+
+def _warm() -> None:
+    """Imports the identification in the wall-mode process before a test needs it."""
+
+
 class _Job:
     """``work(*args)`` computed in the worker thread (``background``) or when first asked for;
     its outcome is taken at the first sample at or after ``due`` [s]. A copy of a tuner (a
     live change's trial) shares the job: its outcome does not depend on who asks."""
 
-    def __init__(self, work: Any, due: float, args: tuple[Any, ...], background: bool) -> None:
+    def __init__(self, work: Any, due: float, args: tuple[Any, ...], background: bool,
+                 pool: Executor | None = None) -> None:
         self.due = due
         self._work, self._args = work, args
-        self._future: Future[Any] | None = _worker().submit(work, *args) if background else None
+        self._future: Future[Any] | None = (
+            (pool or _worker()).submit(work, *args) if background else None)
 
     def done(self) -> bool:
         """The outcome is there (taking it does not wait)."""
