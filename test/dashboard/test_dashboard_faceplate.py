@@ -268,6 +268,15 @@ def test_the_tuning_view_predicts_analyzes_margins_then_applies_and_reverts(
     laptop.find_element(By.ID, 'confirm-apply').click()
     assert probe.wait_for(lambda: controller_param(probe, 'tuning.rule') == 'ms', WAIT)
     assert controller_param(probe, 'kp') == pytest.approx(shown['gains']['kp'], rel=1e-9)
+    # the page has every applied value (each one re-draws the faceplate: a click during those
+    # re-draws may land beside the button, as the layout shifts)
+    page_values = ('const p = window.tankDashboard.nodes["/controller"].params;'
+                   'return ["tuning.rule", "kp", "ti", "td", "b", "c"].map((n) => p[n].value);')
+    wait.until(lambda d: d.execute_script(page_values)[0] == 'ms' and all(
+        v == pytest.approx(shown['gains'][k], rel=1e-9) for k, v in
+        zip(('kp', 'ti', 'td', 'b', 'c'), d.execute_script(page_values)[1:])))
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR,
+                                        f'{view} button[data-tv="revert"]').is_enabled())
     # Revert: the rule and its setting from before, and with them the gains
     laptop.find_element(By.CSS_SELECTOR, f'{view} button[data-tv="revert"]').click()
     assert probe.wait_for(lambda: controller_param(probe, 'tuning.rule') == 'mdp', WAIT)
