@@ -68,7 +68,8 @@ def loop_analysis(plant_values: Mapping[str, Any] | None,
     kinds that describe themselves (``core/analysis/loops.describe_loop``) is analysed."""
     if controller_values is None or plant_values is None:
         missing = 'controller' if controller_values is None else 'plant'
-        return _unavailable(f'no {missing} node (yet): its parameters are needed')
+        return {**_unavailable(f'no {missing} node (yet): its parameters are needed'),
+                'waiting': True}
     try:
         plant_setup(plant_values)                  # a bad value: ConfigError with its reason
         found, reason = describe_loop(plant_values, controller_values)
@@ -155,11 +156,15 @@ def tuning_preview(plant_values: Mapping[str, Any] | None,
     from tank_control.core.analysis.robustness import predict
 
     if controller_values is None:
-        return _unavailable('no controller node (yet): its parameters are needed')
+        return {'available': False, 'waiting': True,
+                'reason': 'no controller node (yet): its parameters are needed'}
     candidate = {**controller_values, **changes}
     analysis = loop_analysis(plant_values, candidate)
     if not analysis['available']:
-        return {'available': False, 'reason': analysis['reason']}
+        # ``waiting``: a node's parameters are not known yet; the page asks again once the
+        # robustness panel's analysis is available
+        return {'available': False, 'reason': analysis['reason'],
+                'waiting': bool(analysis.get('waiting'))}
     try:
         config = controller_setup(candidate, given=()).settings.config
     except (ConfigError, ValueError) as exc:

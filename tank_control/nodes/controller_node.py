@@ -92,6 +92,9 @@ class ControllerNode(ControllerParams):
         mode = resolved_mode(str(values['clock_mode']),
                              bool(self.get_parameter('use_sim_time').value))
         protocol = controller_clock(mode, str(values['trigger']))
+        # wall: costly work runs off the sampling path (nodes/live_rebuild.py, relay designs)
+        self._wall = mode == 'wall'
+        self._mark_clock(self._controller)
         # inputs stamped more than max_future_stamp ahead of this node's now are refused
         # (core/stamps.py): one would hold every later input as "older" (docs/nodes.md)
         self._future = FutureStamps(future_tolerance_ns(

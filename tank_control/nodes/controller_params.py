@@ -3,6 +3,7 @@
 effect at a step, bumplessly (docs/nodes.md, "controller_node")."""
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -14,6 +15,7 @@ from tank_control.core.control.kinds import registry
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup
 from tank_control.nodes.controller_reports import ControllerReports
+from tank_control.nodes.live_rebuild import LiveRebuild
 from tank_control.nodes.params import ParameterError
 
 
@@ -23,6 +25,9 @@ class ControllerParams(ControllerReports):
     _kind_names: frozenset[str]
     _prepared: tuple[registry.PreparedChange, int] | None
     _last_sample_io: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None
+    #: wall mode: a change of the kind's ``slow`` parameters is built off the sampling path
+    _wall = False
+    _rebuild: LiveRebuild | None = None     # such a change being built (nodes/live_rebuild.py)
 
     def _kind_from_overrides(self) -> str:
         override = getattr(self, '_parameter_overrides', {}).get('controller')
@@ -51,6 +56,9 @@ class ControllerParams(ControllerReports):
         # sample (the derived quantities must give finite outputs); it takes effect next sample
         if self._prepared is not None and self._prepared[1] == self._gen:
             mine |= self._prepared[0].changed          # accepted earlier, not applied yet
+        if self._wall and (self._rebuild is not None or mine & set(self._kind.slow)):
+            self._offload(setup.settings, frozenset(mine))
+            return None
         try:
             prepared = registry.prepare_change(
                 self._kind, self._controller, setup.settings, frozenset(mine),
@@ -59,6 +67,49 @@ class ControllerParams(ControllerReports):
             return str(exc)
         self._prepared = (prepared, self._gen)
         return None
+
+    def _mark_clock(self, controller: Any) -> Any:
+        """A controller with heavy work of its own (the relay auto-tuner's design) does it
+        off the sampling path in wall mode (its ``wall_clock``)."""
+        if hasattr(controller, 'wall_clock'):
+            controller.wall_clock = self._wall
+        return controller
+
+    def _offload(self, settings: Any, mine: frozenset[str]) -> None:
+        """Build the accepted change in the worker thread from a copy of the running
+        controller (with a change still being built: both together, from the running one)."""
+        old = {n: v for n, v in self._params.values.items() if n in mine}
+        if self._rebuild is not None:
+            old.update(self._rebuild.old)              # the running law's, not the pending's
+            mine |= self._rebuild.changed
+        self._rebuild = LiveRebuild(self._kind, copy.deepcopy(self._controller),
+                                    settings, mine, old, self._gen, self._last_sample_io,
+                                    None if self._u is None else self._u.copy())
+        self._prepared = None
+
+    def _switch(self, gen: int, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray
+                ) -> np.ndarray | None:
+        """wall: the first sample after a change built off the sampling path is ready takes
+        it (its output), or keeps the running law when it was refused; None: nothing ready."""
+        rebuild = self._rebuild
+        if rebuild is None or not rebuild.done():
+            return None
+        self._rebuild = None
+        try:
+            rebuild.prepared()
+        except ValueError as exc:
+            self.counters['update_errors'] += 1
+            back = ', '.join(f'{n} set back to {v!r}' for n, v in sorted(rebuild.old.items()))
+            self._update_error = (f'parameter change refused when built ({exc}); the running '
+                                  f'law is kept and {back}')
+            self.get_logger().error(self._update_error)
+            self._params.write(rebuild.old, source='the change could not be built')
+            self._publish_diagnostics()
+            return None
+        self._controller, u = rebuild.switch(self._controller, gen, t, y, r, d)
+        self._mark_clock(self._controller)
+        self._update_error = ''
+        return u
 
     def _on_params_set(self, parameters: list) -> None:
         """Accepted ``range.*`` changes act at once (on the next message)."""
@@ -82,9 +133,13 @@ class ControllerParams(ControllerReports):
 
     def _step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One controller step; accepted parameter changes take effect at it, bumplessly."""
-        changed = [name for name in self._params.take_pending() if name in self._kind_names]
+        changed = [name for name in self._params.take_pending() if name in self._kind_names
+                   and (self._rebuild is None or name not in self._rebuild.changed)]
         prepared, self._prepared = self._prepared, None
         gen, self._gen = self._gen, self._gen + 1
+        switched = self._switch(gen, t, y, r, d)
+        if switched is not None:
+            return switched
         if changed:
             try:
                 # the candidate checked on acceptance, unless it is a copy of a running
@@ -94,6 +149,7 @@ class ControllerParams(ControllerReports):
                     prepared = (registry.prepare_change(self._kind, self._controller, settings,
                                                         frozenset(changed)), gen)
                 self._controller, u = prepared[0].take_effect(self._controller, t, y, r, d)
+                self._mark_clock(self._controller)
                 self._update_error = ''
                 return u
             except ValueError as exc:    # checked before acceptance; never expected

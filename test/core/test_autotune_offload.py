@@ -109,3 +109,71 @@ def test_design_time_is_checked(bad):
     from tank_control.core.params import ConfigError
     with pytest.raises(ConfigError, match='autotune.design_time'):
         make_controller('relay_autotune', {**SETTINGS, 'autotune.design_time': bad})
+
+
+def test_on_the_wall_clock_no_sample_waits_for_the_design_and_the_switch_is_bumpless(
+        monkeypatch):
+    """controller_node in wall mode (``wall_clock``), ``design_time`` 0 (the default): the
+    identification runs off the sampling path (here in the worker thread, where the test can
+    hold it; the node's is a process: the next test); held there, the relay keeps sampling
+    (no sample waits); the first sample after it is done switches to the PID from u0, with the
+    gains of the inline design."""
+    from tank_control.core.control import relay_autotune
+    inline = run(0.0)
+    monkeypatch.setattr(relay_autotune, '_wall_pool', relay_autotune._worker)
+    gate = threading.Event()
+    real = ident.identify_relay
+
+    def held(*args, **kwargs):
+        assert gate.wait(60.0)              # released by the sampling loop below
+        return real(*args, **kwargs)
+    monkeypatch.setattr(ident, 'identify_relay', held)
+    controller = make_controller('relay_autotune', {**SETTINGS, 'autotune.design_time': 0.0})
+    controller.wall_clock = True
+    plant = ProcessModel('fopdt', 0.05, 3.0, 10.0).plant()
+    r = np.array([100.0])
+    controller.start()
+    u_out, states = [], []
+    k_done = None
+    for k in range(2500):
+        u = controller.step(k * H, plant.outputs(), r, np.array([]))
+        u_out.append(float(u[0]))
+        states.append(controller.state)
+        plant.step(u, np.array([0.0]), H)
+        if controller._job is not None and k_done is None:   # noqa: SLF001 - the pending job
+            k_done = k + 30                 # 3 s of samples with the design held
+        if k_done is not None and k == k_done:
+            gate.set()
+            assert controller._job.wait(60.0)                  # noqa: SLF001
+    k_inline = first(inline['states'], 'tuned')
+    k_tuned = first(states, 'tuned')
+    # the relay ran on (its two levels) while the design was held: no sample waited for it
+    assert k_tuned == k_done + 1
+    assert {round(v, 6) for v in u_out[k_inline:k_tuned]} <= \
+        {round(v, 6) for v in inline['u'][k_inline - 300:k_inline]}
+    assert controller.status['gains'] == inline['status']['gains']
+    # the PID takes over from the bias u0: no jump beyond the relay's own step
+    u0 = controller.status['u0']
+    assert abs(u_out[k_tuned] - u0) <= abs(inline['u'][k_inline] - inline['status']['u0']) + 1.0
+
+
+def test_on_the_wall_clock_the_design_runs_in_another_process_with_the_same_result():
+    """wall mode's worker is a process (no GIL shared with the sampling thread): the relay
+    runs on until its result is there, which equals the inline design's."""
+    inline = run(0.0)
+    controller = make_controller('relay_autotune', {**SETTINGS, 'autotune.design_time': 0.0})
+    controller.wall_clock = True
+    plant = ProcessModel('fopdt', 0.05, 3.0, 10.0).plant()
+    r = np.array([100.0])
+    controller.start()
+    states, waited = [], None
+    for k in range(2500):
+        u = controller.step(k * H, plant.outputs(), r, np.array([]))
+        states.append(controller.state)
+        plant.step(u, np.array([0.0]), H)
+        if controller._job is not None and waited is None:    # noqa: SLF001 - the pending job
+            assert controller._job.wait(120.0)                 # noqa: SLF001
+            waited = k
+    assert first(states, 'tuned') == waited + 1               # the first sample after it
+    assert controller.status['ku'] == inline['status']['ku']
+    assert controller.status['gains'] == inline['status']['gains']

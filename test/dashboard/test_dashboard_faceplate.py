@@ -268,7 +268,43 @@ def test_the_tuning_view_predicts_analyzes_margins_then_applies_and_reverts(
     laptop.find_element(By.ID, 'confirm-apply').click()
     assert probe.wait_for(lambda: controller_param(probe, 'tuning.rule') == 'ms', WAIT)
     assert controller_param(probe, 'kp') == pytest.approx(shown['gains']['kp'], rel=1e-9)
+    # the page has every applied value (each one re-draws the faceplate: a click during those
+    # re-draws may land beside the button, as the layout shifts)
+    page_values = ('const p = window.tankDashboard.nodes["/controller"].params;'
+                   'return ["tuning.rule", "kp", "ti", "td", "b", "c"].map((n) => p[n].value);')
+    wait.until(lambda d: d.execute_script(page_values)[0] == 'ms' and all(
+        v == pytest.approx(shown['gains'][k], rel=1e-9) for k, v in
+        zip(('kp', 'ti', 'td', 'b', 'c'), d.execute_script(page_values)[1:])))
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR,
+                                        f'{view} button[data-tv="revert"]').is_enabled())
     # Revert: the rule and its setting from before, and with them the gains
     laptop.find_element(By.CSS_SELECTOR, f'{view} button[data-tv="revert"]').click()
     assert probe.wait_for(lambda: controller_param(probe, 'tuning.rule') == 'mdp', WAIT)
     assert controller_param(probe, 'tuning.ms_target') == 1.4
+
+
+def test_a_preview_asked_before_the_plant_is_known_is_computed_when_it_appears(
+        procs, ros_env, node_cmd, tmp_path, laptop):
+    # the dashboard and the controller first: the tuning view is asked before any plant node
+    text = (CONFIG / 'ipdt_pid.yaml').read_text().replace('real_time_factor: 1.0 ',
+                                                           'real_time_factor: 10.0 ')
+    params = tmp_path / 'ipdt_pid.yaml'
+    params.write_text(text)
+    procs.start('controller_node', node_cmd('controller_node', '--params-file', str(params)),
+                env=ros_env)
+    laptop.get(dashboard_url(procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'),
+                                         env=ros_env)))
+    wait = waiter(laptop)
+    view = '[data-testid="tuning-/controller"]'
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, f'{view} summary'))
+    laptop.find_element(By.CSS_SELECTOR, f'{view} summary').click()
+    laptop.find_element(By.CSS_SELECTOR, f'{view} button[data-tv="preview"]').click()
+    shown = f'{view} [data-tv="result"]'
+    wait.until(lambda d: d.find_element(By.CSS_SELECTOR, shown).text ==
+               'no plant node (yet): its parameters are needed (asked again when it is there)')
+    # the plant comes: the page asks again by itself and shows the prediction
+    procs.start('plant_node', node_cmd('plant_node', '--params-file', str(params)), env=ros_env)
+    result = 'return (window.tankDashboard.tuning["/controller"] || {}).result || {}'
+    wait.until(lambda d: d.execute_script(result).get('available') is True)
+    assert laptop.execute_script(result)['gains']['kp'] > 0
+    wait.until(lambda d: 'margins' in d.find_element(By.CSS_SELECTOR, shown).text)

@@ -13,7 +13,8 @@ fast as possible), controller (MPCS, QP) and reference in three processes.
   operating point (33 °C), the plant its nominal T_D (33 °C) — the same values in-process.
 * Invalid changes (``mpcs.horizon 0``, ``mpcs.solver foo``, ``mpcs.control_horizon`` above the
   horizon) are refused with the reason while the loop keeps running.
-* In wall mode a horizon change (rebuilt inside the timer callback) misses no sample.
+* In wall mode a horizon change (built in a worker thread, nodes/live_rebuild.py, and switched
+  at the first sample after it is ready) misses no sample.
 """
 from __future__ import annotations
 
@@ -196,9 +197,9 @@ def _run_with_horizon_change(procs, ros_env, node_cmd, probe, path, params, reco
 @pytest.mark.parametrize('trigger', ['measurement', 'timer'])
 def test_wall_mode_horizon_change_rebuilds_without_missing_a_sample(procs, ros_env, node_cmd,
                                                                     probe, trigger):
-    """wall clock, Ts = 1 s: ``mpcs.horizon`` 600 → 300 is rebuilt inside one sample's callback
-    (the measurement's or the timer's; docs/mpcs.md: tens of ms); the samples around it stay
-    1 s apart and finite."""
+    """wall clock, Ts = 1 s: ``mpcs.horizon`` 600 → 300 is built in the worker thread and
+    switched at a sample (the measurement's or the timer's; docs/mpcs.md); the samples around
+    it stay 1 s apart and finite."""
     argv = node_cmd('controller_node', *[x for p in (
         'controller:=mpcs', 'clock_mode:=wall', 'mpcs.solver:=qp', 'diagnostics_period:=0.2',
         f'trigger:={trigger}') for x in ('-p', p)])

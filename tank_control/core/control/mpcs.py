@@ -9,6 +9,7 @@ defaults align T_out's horizon and weight the steady state: docs/mpcs.md ("The a
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Mapping
@@ -450,6 +451,24 @@ class Mpcs:
         self._counters['rebuilds'] += 1
         self._counters['warnings'] += int(bool(self._design.warning))
         return cfg
+
+    def adopt(self, other: Mpcs) -> bool:
+        """Take the design of ``other`` — a copy of this controller reconfigured elsewhere
+        (a live change built off the sampling path) — as :meth:`configure` would at this
+        sample: the new matrices, this controller's estimate and inputs. Only when the two
+        share the model and estimator settings (horizons, weights, limits, solver changed):
+        else False and nothing changes."""
+        new, old = other._design, self._design
+        if any(getattr(new.cfg, f) != getattr(old.cfg, f) for f in _ESTIMATOR_FIELDS):
+            return False
+        if new.cfg == old.cfg:
+            return True
+        design = copy.copy(new)
+        design.model, design.estimator = old.model, old.estimator
+        self._design = design
+        self._counters['rebuilds'] += 1
+        self._counters['warnings'] += int(bool(design.warning))
+        return True
 
     # --- internals -----------------------------------------------------------------
     def _relinearize(self, r: np.ndarray, d: np.ndarray | None) -> None:

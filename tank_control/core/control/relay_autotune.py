@@ -15,10 +15,13 @@ the loop's units. States, faults, preview/apply/revert/verify: docs/controllers.
 """
 from __future__ import annotations
 
+import copy
 import math
+import multiprocessing
 import threading
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import wait as futures_wait
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -180,9 +183,11 @@ class AutotuneConfig:
     design_time: float = _at(0.0, 'time the identification and design of a relay test may take '
                              'off the sampling path: the relay keeps running meanwhile and the '
                              'result takes effect at the first sample this long after the '
-                             "test's data were complete (the same sample in every clock mode; "
-                             'a sample waits only if the work is not done by then); 0 = at once, '
-                             'on the sampling path', 'design_time', unit='s', min=0.0, max=3600.0)
+                             "test's data were complete (the same sample in lockstep, sim and "
+                             'in-process runs: a sample waits only if the work is not done by '
+                             'then); 0 = at once, on the sampling path. clock_mode wall: always '
+                             'in the worker, taken at the first sample at least this long after '
+                             'at which it is ready (no sample waits)', 'design_time', unit='s', min=0.0, max=3600.0)
     apply: str = _at('auto', 'auto: the tuned gains take over at the end of the test; preview: '
                      'they are proposed (autotune.proposed_*, predicted margins and response) and '
                      'applied by the ~/apply_autotune service or autotune.apply_time', 'apply',
@@ -510,6 +515,12 @@ class RelayAutotuner(AutotuneMachine):
         self._check = _Check()
         self.ms_max = 0.0
         """Bound on Ms of an applied design (``robustness.ms_max``; 0 = none)."""
+        self.wall_clock = False
+        """Samples paced by the wall clock (controller_node in ``wall`` mode): the
+        identification and design always run in the worker thread and their result is taken
+        at the first sample at least ``autotune.design_time`` after the data were complete at
+        which it is ready; a sample never waits for it. False (in-process, lockstep, sim): at
+        that sample exactly (waiting if need be), or inline with ``design_time`` 0."""
         self._clear_test()
 
     # ------------------------------------------------------------------ API
@@ -570,6 +581,8 @@ class RelayAutotuner(AutotuneMachine):
     # operator requests: AutotuneMachine; its hooks
     def _begin(self) -> tuple[bool, str]:
         """A test from idle, running, tuned, failed or aborted: settle first."""
+        if self.wall_clock:
+            _wall_pool().submit(_warm)            # the process starts while the test runs
         self._saved_gains = _gain_fields(self.pid.config)
         self._clear_test()
         self._cancel_check()
@@ -922,7 +935,7 @@ class RelayAutotuner(AutotuneMachine):
                 if self._state not in TESTING:
                     return None
         elif self._job is not None:
-            if t >= self._job.due - 1e-9:
+            if t >= self._job.due - 1e-9 and (not self.wall_clock or self._job.done()):
                 self._conclude(self._job.outcome())
                 if self._state not in TESTING:
                     return None   # tuned (PID takes over from u0) or failed
@@ -967,10 +980,13 @@ class RelayAutotuner(AutotuneMachine):
                 else ident.stationary_cycles(cycles, cfg.min_cycles, cfg.stationarity_tol, slack))
         if tail is None:
             return False
-        job = _Job(self._identify, t + cfg.design_time,
-                   (tt, uu, yy, self._u0_start, r, self._eps, tail, cfg),
-                   background=cfg.design_time > 0.0)
-        if cfg.design_time > 0.0:
+        offload = cfg.design_time > 0.0 or self.wall_clock
+        # to a process: a copy (pickled in the pool's feeder thread while this one samples on)
+        work = copy.deepcopy(self)._identify if self.wall_clock else self._identify
+        job = _Job(work, t + cfg.design_time,
+                   (tt, uu, yy, self._u0_start, r, self._eps, tail, cfg), background=offload,
+                   pool=_wall_pool() if self.wall_clock else None)
+        if offload:
             self._job = job                       # the relay runs on until it is due
             return False
         self._conclude(job.outcome())
@@ -1471,15 +1487,47 @@ def _worker() -> ThreadPoolExecutor:
         return _WORKER
 
 
+_PROCESS: ProcessPoolExecutor | None = None
+
+
+def _wall_pool() -> Executor:
+    """Wall mode: one spawned process (started with the first test). The fit and the Ms search
+    are Python loops as much as numpy: in a thread they hold the GIL for most of a second, and
+    the sampling thread, waking for its instant, waits for it — on a loaded machine long enough
+    to come late (bench/bench_live_rebuild.py); a process shares no GIL."""
+    global _PROCESS
+    with _WORKER_LOCK:
+        if _PROCESS is None:
+            _PROCESS = ProcessPoolExecutor(max_workers=1,
+                                           mp_context=multiprocessing.get_context('spawn'))
+        return _PROCESS
+
+
+def _warm() -> None:
+    """Imports the identification in the wall-mode process before a test needs it."""
+
+
 class _Job:
     """``work(*args)`` computed in the worker thread (``background``) or when first asked for;
     its outcome is taken at the first sample at or after ``due`` [s]. A copy of a tuner (a
     live change's trial) shares the job: its outcome does not depend on who asks."""
 
-    def __init__(self, work: Any, due: float, args: tuple[Any, ...], background: bool) -> None:
+    def __init__(self, work: Any, due: float, args: tuple[Any, ...], background: bool,
+                 pool: Executor | None = None) -> None:
         self.due = due
         self._work, self._args = work, args
-        self._future: Future[Any] | None = _worker().submit(work, *args) if background else None
+        self._future: Future[Any] | None = (
+            (pool or _worker()).submit(work, *args) if background else None)
+
+    def done(self) -> bool:
+        """The outcome is there (taking it does not wait)."""
+        return self._future is None or self._future.done()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until the outcome is there (at most ``timeout`` s); ``done()``."""
+        if self._future is not None:
+            futures_wait([self._future], timeout)
+        return self.done()
 
     def outcome(self) -> Any:
         if self._future is None:

@@ -85,7 +85,7 @@
         for (const name of Object.keys(state.nodes)) removeNode(name);
         for (const view of Object.values(msg.nodes)) setNode(view);
         refreshLimits();
-        if (msg.robustness) window.tankRobustness.update(msg.robustness);
+        if (msg.robustness) { window.tankRobustness.update(msg.robustness); previewAgain(msg.robustness); }
         if (msg.missed) onMissed(msg.missed);
         state.marks = (msg.marks || []).slice();
         state.audit = [];
@@ -94,7 +94,7 @@
         state.serverReadOnly = !!msg.read_only;
         showAccess(state.serverReadOnly);
         break;
-      case 'robustness': window.tankRobustness.update(msg); break;
+      case 'robustness': window.tankRobustness.update(msg); previewAgain(msg); break;
       case 'missed': onMissed(msg.missed); break;
       case 'mark': onMark(msg); break;
       case 'samples': onSamples(msg); break;
@@ -853,9 +853,7 @@
       tv.rule = rule.value; tv.knob = knob.value; tv.value = parseFloat(value.value);
       tv.result = {pending: true};
       showPreview(view, result);
-      const changes = {'tuning.rule': tv.rule};
-      if (tv.knob && finite(tv.value)) changes[tv.knob] = String(tv.value);
-      send({type: 'preview', node: view.name, changes, id: state.nextId++});
+      askPreview(view.name);
     };
     rule.addEventListener('change', ask);
     knob.addEventListener('change', () => { tv.knob = knob.value; tv.value = num(p[tv.knob].value); renderFaceplate(view); });
@@ -871,11 +869,39 @@
     return box;
   }
 
+  // The preview of the view's rule and setting, asked of dashboard_node.
+  function askPreview(node) {
+    const tv = tuningOf(node);
+    const changes = {'tuning.rule': tv.rule};
+    if (tv.knob && finite(tv.value)) changes[tv.knob] = String(tv.value);
+    send({type: 'preview', node, changes, id: state.nextId++});
+  }
+
+  // A preview asked before dashboard_node knew the plant's (or the controller's) parameters
+  // (``waiting``) is asked again once the robustness panel's analysis is available: the
+  // loop's nodes are known now.
+  function previewAgain(robustness) {
+    state.loopKnown = Boolean(robustness && robustness.available);
+    if (!state.loopKnown) return;
+    for (const [node, tv] of Object.entries(state.tuning)) {
+      if (tv.result && tv.result.waiting && state.nodes[node]) {
+        tv.result = {pending: true};
+        const target = document.querySelector(`#${faceplateId(node)} [data-tv=result]`);
+        if (target) showPreview(state.nodes[node], target);
+        askPreview(node);
+      }
+    }
+  }
+
   function showPreview(view, target) {
     const r = tuningOf(view.name).result;
     if (!r) { target.replaceChildren(el('span', {class: 'hint'}, 'choose a rule and move the slider')); return; }
     if (r.pending) { target.replaceChildren(el('span', {class: 'hint'}, 'computing…')); return; }
-    if (!r.available) { target.replaceChildren(el('span', {class: 'reason'}, r.reason)); return; }
+    if (!r.available) {
+      target.replaceChildren(el('span', {class: 'reason'},
+                                r.waiting ? `${r.reason} (asked again when it is there)` : r.reason));
+      return;
+    }
     const g = r.gains; const m = r.margins;
     const line = (label, items) => el('div', {}, el('b', {}, label + ' '),
       ...items.map(([k, v, testid]) => el('span', {class: 'tv-num', 'data-testid': testid}, `${k} ${v}  `)));
@@ -921,7 +947,15 @@
   function onPreviewResult(msg) {
     const view = state.nodes[msg.node];
     if (!view) return;
-    tuningOf(msg.node).result = msg;
+    const tv = tuningOf(msg.node);
+    if (msg.waiting && state.loopKnown && !tv.askedAgain) {
+      // answered "waiting" though the panel's analysis arrived first: ask once more
+      tv.askedAgain = true;
+      askPreview(msg.node);
+      return;
+    }
+    tv.askedAgain = false;
+    tv.result = msg;
     const target = document.querySelector(`#${faceplateId(msg.node)} [data-tv=result]`);
     if (target) showPreview(view, target);
   }

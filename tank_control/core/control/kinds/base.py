@@ -118,6 +118,15 @@ class ControllerKind:
     disturbances: tuple[str, ...] = ()
     summary: Callable[[Values], str] | None = None
     linear: Callable[[Settings], LinearController | None] | None = None
+    slow: tuple[str, ...] = ()
+    """Parameters whose live change is costly to build (design matrices, a search): in wall
+    mode controller_node builds the changed controller in a worker thread, the running one
+    keeps sampling, and it switches at the first sample after the result is ready
+    (``nodes/live_rebuild.py``)."""
+    adopt: Callable[[Any, Any, frozenset[str]], bool] | None = None
+    """``adopt(running, candidate, changed)``: take such a candidate (a copy of the running
+    controller as it was, changed) into the running controller, as its ``update`` would at
+    this sample; False when it cannot (the candidate then takes over by ``reset(y, u)``)."""
     no_linear: str = ''
     """Why a kind without ``linear`` has none (``tank-control analyze`` and the dashboard say
     it)."""

@@ -22,6 +22,10 @@ def update(controller: Mpcs, settings: Settings, changed: frozenset[str]) -> boo
     return True
 
 
+def adopt(controller: Mpcs, candidate: Mpcs, changed: frozenset[str]) -> bool:
+    return controller.adopt(candidate)
+
+
 def input_limits(settings: Settings) -> dict[str, tuple[float, float]]:
     cfg, names = settings.config, settings.channels.input_names
     lo = list(cfg.u_min) * (2 if len(cfg.u_min) == 1 else 1)
@@ -38,7 +42,10 @@ KIND = ControllerKind(
                'SISO loops, and its margins are not computed (docs/mpcs.md)'),
     groups=(base.channels(Mpcs.output_names, Mpcs.input_names),
             base.warm_start((MpcsConfig().op_F_H, MpcsConfig().op_F_Cin))),
-    build=build, update=update,
+    build=build, update=update, adopt=adopt,
+    # every change rebuilds the prediction, QP and (model/estimator changes) Kalman matrices:
+    # tens of ms at the default horizons, seconds at the largest
+    slow=tuple(n for n in names_of(MpcsConfig) if n != 'sample_time'),
     gains=('mpcs.horizon', 'mpcs.control_horizon', 'mpcs.lambda', 'mpcs.output_weights',
            'mpcs.terminal_weight'),
     input_limits=input_limits, disturbances=Mpcs.disturbance_names,
