@@ -229,6 +229,12 @@ class Bridge:
             pass
         return refused
 
+    def forget_instants(self) -> None:
+        """The instants of the values written are forgotten (the writer's clock went back:
+        its next instant is taken, not dropped as one written already)."""
+        with self._lock:
+            self._written_instant = self._pending_instant = None
+
     # ------------------------------------------------------------ the thread
     def _run(self) -> None:
         try:
