@@ -253,7 +253,8 @@ class OpcUaBridgeNode(Node):
         if counters['receive_stamps']:
             problems.append(f"{counters['receive_stamps']} values without SourceTimestamp "
                             'stamped with the receive time')
-        for key, text in (('bad_status', 'samples with a Bad/Uncertain status not published'),
+        for key, text in (('bad_status', 'samples with a Bad/Uncertain status or no finite '
+                                         'value not published'),
                           ('refused_writes', 'writes refused by the server'),
                           ('refused_limits', 'manipulated values outside range.* not written'),
                           ('ignored_inputs', 'malformed manipulated messages'),

@@ -486,8 +486,10 @@ class Bridge:
             if bad:
                 self.counters['bad_status'] += 1
                 for ch, code in bad:
-                    self._log_once(f'bad:{ch}:{status_name(code)}', 'warning',
-                                   f'measurement.{ch}: status {status_name(code)} from '
+                    what = (f'status {status_name(code)}' if not code.is_good()
+                            else 'a value that is no finite number')   # NaN, inf, text, bool
+                    self._log_once(f'bad:{ch}:{what}', 'warning',
+                                   f'measurement.{ch}: {what} from '
                                    f'{self.settings.measurement[ch]}: not published (a missing '
                                    'sample)')
                 continue
