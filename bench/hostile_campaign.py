@@ -112,7 +112,7 @@ class Graph:
         log = open(self.tmp / f'{name}.log', 'w')   # noqa: SIM115 (the process keeps it)
         self.procs[name] = subprocess.Popen(
             [sys.executable, '-m', f'tank_control.nodes.{module}', '--ros-args', *args],
-            stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=str(REPO))
+            stdout=log, stderr=subprocess.STDOUT, env=self.env, cwd=str(self.tmp))  # PYTHONPATH
 
     def dead(self) -> list[str]:
         return [f'{n} (rc {p.returncode})' for n, p in self.procs.items() if p.poll() is not None]
@@ -341,28 +341,37 @@ async def _ws_attacks(graph: Graph, probe_params: dict[str, dict[str, Any]]) -> 
             answers = {}
             pending = {}
             task = asyncio.ensure_future(reader())
-            for full, params in probe_params.items():
-                for name, pv in params.items():
-                    if name == 'use_sim_time':
-                        continue
-                    for text in TEXTS_BY_TYPE.get(pv.type, ['x']):
-                        counts['sets'] += 1
-                        answer = await send({'type': 'set', 'node': full, 'name': name,
-                                             'text': text, 'token': TOKEN})
-                        if answer is None:
-                            counts['no answer'] += 1
-                            print(f'  WS {full} {name} = {text[:30]!r}: no answer', flush=True)
-                            if ws.closed:
-                                break
-                        elif answer['successful']:
-                            counts['accepted'] += 1
-                            await send({'type': 'set', 'node': full, 'name': name,
-                                        'text': _text_of(pv), 'token': TOKEN})
-                        else:
-                            counts['refused'] += 1
+            try:
+                await _hostile_sets(probe_params, send, ws, counts)
+            except Exception as exc:             # noqa: BLE001 - the server went away
+                counts['stopped'] = f'{type(exc).__name__}: {exc}'
             task.cancel()
         out['hostile sets'] = counts
     return out
+
+
+async def _hostile_sets(probe_params: dict[str, dict[str, Any]], send: Any, ws: Any,
+                        counts: dict[str, Any]) -> None:
+    """A set of every parameter of every node with the hostile texts of its type."""
+    for full, params in probe_params.items():
+        for name, pv in params.items():
+            if name == 'use_sim_time':
+                continue
+            for text in TEXTS_BY_TYPE.get(pv.type, ['x']):
+                counts['sets'] += 1
+                answer = await send({'type': 'set', 'node': full, 'name': name,
+                                     'text': text, 'token': TOKEN})
+                if answer is None:
+                    counts['no answer'] += 1
+                    print(f'  WS {full} {name} = {text[:30]!r}: no answer', flush=True)
+                    if ws.closed:
+                        break
+                elif answer['successful']:
+                    counts['accepted'] += 1
+                    await send({'type': 'set', 'node': full, 'name': name,
+                                'text': _text_of(pv), 'token': TOKEN})
+                else:
+                    counts['refused'] += 1
 
 
 def _text_of(pv: Any) -> str:
