@@ -610,6 +610,87 @@ def phase_server(graph: Graph, probe: Probe, figures: dict[str, Any]) -> None:
     print(f"server: {figures['hostile OPC UA server']}", flush=True)
 
 
+def lockstep_run(duration: float = 40.0, only: list[str] | None = None,
+                 cases: list[int] | None = None) -> dict[str, Any]:
+    """``tank-control run config/ipdt_pid.yaml`` in lockstep (real time) while the attacker
+    publishes the hostile messages of ``phase_topics`` and also on ``applied_input``,
+    ``recorded`` and a non-zero ``time_origin``: the run must end complete, every tick kept."""
+    import rclpy
+    from builtin_interfaces.msg import Time
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    from tank_control.harness import domains
+    out = Path(tempfile.mkdtemp(prefix='hostile_lockstep_')) / 'run'
+    with domains.claimed() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain)
+        node = rclpy.create_node('hostile_lockstep', context=context)
+        executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        ticks = [-1]
+        node.create_subscription(JointState, 'measurement', lambda m: ticks.__setitem__(
+            0, max(ticks[0], m.header.stamp.sec * 10 + m.header.stamp.nanosec // 10 ** 8)), 10)
+        harness = subprocess.Popen(
+            [sys.executable, '-m', 'tank_control.harness.cli', 'run',
+             str(REPO / 'config/ipdt_pid.yaml'), '--out', str(out), '--duration', str(duration),
+             '--rtf', '1', '--quiet'], env=env, cwd=out.parent, stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)   # --quiet: little output
+        sent = 0
+        try:
+            end = time.monotonic() + 180
+            while ticks[0] < 50 and time.monotonic() < end and harness.poll() is None:
+                executor.spin_once(timeout_sec=0.05)
+            latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            pubs = {t: node.create_publisher(JointState, t, 10) for t in (
+                'measurement', 'setpoint', 'manipulated', 'disturbance', 'applied_input',
+                'recorded')}
+            origin = node.create_publisher(Time, 'time_origin', latched)
+            t_end = time.monotonic() + 2
+            while time.monotonic() < t_end:
+                executor.spin_once(timeout_sec=0.05)
+            base_ns = (ticks[0] // 10) * 10 ** 9
+            for topic, pub in pubs.items():
+                if only and topic not in only:
+                    continue
+                ch = {'measurement': 'y', 'setpoint': 'y', 'disturbance': 'v'}.get(topic, 'u')
+                for i, (names, values, ahead) in enumerate((([ch], [1.0], 10 ** 10), ([ch], [1.0], 10 ** 15),
+                                             ([ch], [math.nan], 0), ([ch], [1e308], 0),
+                                             ([f'n{i}' for i in range(100_000)],
+                                              [1.0] * 100_000, 0), ([ch, 'x'], [1.0], 0),
+                                             ([ch], [1.0], -base_ns))):
+                    if cases and i not in cases:
+                        continue
+                    msg = JointState(name=names, position=values)
+                    t = max(0, base_ns + ahead)
+                    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 10 ** 9)
+                    pub.publish(msg)
+                    sent += 1
+                    executor.spin_once(timeout_sec=0.05)
+            if not only or 'time_origin' in only:
+                origin.publish(Time(sec=int(time.time()) + 3600))
+                sent += 1
+            try:
+                harness.wait(duration * 2 + 60)
+            except subprocess.TimeoutExpired:
+                pass                         # a stalled run: killed below, reported
+        finally:
+            if harness.poll() is None:
+                harness.kill()
+                harness.wait()
+            node.destroy_node()
+            rclpy.shutdown(context=context)
+    metrics = json.loads((out / 'metrics.json').read_text()) if (out / 'metrics.json').exists() \
+        else {}
+    rows = (out / 'trace.csv').read_text().count('\n') - 1 if (out / 'trace.csv').exists() else 0
+    return {'messages': sent, 'rc': harness.returncode, 'complete': metrics.get('complete', False),
+            'trace rows': rows, 'expected ticks': int(duration * 10) + 1,
+            'out': str(out), 'tail': (harness.stdout.read() if harness.stdout else '')[-600:]}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--phases', nargs='+',
@@ -617,7 +698,16 @@ def main() -> int:
     ap.add_argument('--domain', type=int, default=random.randint(120, 200))
     ap.add_argument('--json', help='write the figures here')
     ap.add_argument('--keep', action='store_true', help='keep the nodes\' logs (printed path)')
+    ap.add_argument('--lockstep', action='store_true', help='only the lockstep harness run')
+    ap.add_argument('--only', nargs='+', help='lockstep: only these topics')
+    ap.add_argument('--cases', nargs='+', type=int, help='lockstep: only these message cases '
+                    '(0 +10 s, 1 +1e6 s, 2 NaN, 3 1e308, 4 100 000 names, 5 names != positions, '
+                    '6 stamped 0)')
     args = ap.parse_args()
+    if args.lockstep:
+        result = lockstep_run(only=args.only, cases=args.cases)
+        print(json.dumps(result, indent=1))
+        return 0 if result['complete'] and result['rc'] == 0 else 1
     os.environ['ROS_DOMAIN_ID'] = str(args.domain)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     tmp = Path(tempfile.mkdtemp(prefix='hostile_'))
