@@ -32,6 +32,28 @@ RECOVER_MESSAGES = 3
 MAX_NAMES = 256
 
 _NS_PER_S = 1_000_000_000
+#: wall: a plant (plant_node, opcua_bridge_node) announces its time origin this long ahead of
+#: its clock, rounded up to whole periods [s]
+ORIGIN_NOTICE_S = 0.2
+
+
+def origin_refusal(origin_ns: int, held_ns: int | None, now_ns: int, tolerance_ns: int,
+                   ts_ns: int) -> str | None:
+    """Why a wall-mode consumer holding the time origin ``held_ns`` refuses a new
+    ``time_origin`` ``origin_ns`` (None: take it): one further ahead of its clock ``now_ns``
+    than a plant announces it (``ORIGIN_NOTICE_S`` + a period ``ts_ns``), its stamp tolerance
+    and a second — it would stop the loop until real time reaches it. The first origin is
+    always taken (nothing to go on with); a genuine one of a plant on a host whose clock is
+    further ahead is taken by restarting the consumer."""
+    if held_ns is None or origin_ns == held_ns:
+        return None
+    limit = round(ORIGIN_NOTICE_S * _NS_PER_S) + ts_ns + tolerance_ns + _NS_PER_S
+    lead = origin_ns - now_ns
+    if lead <= limit:
+        return None
+    return (f'time_origin {lead / _NS_PER_S:.6g} s ahead of this node\'s clock refused (a plant '
+            f'announces it at most {limit / _NS_PER_S:g} s ahead): the loop goes on with the '
+            'origin held')
 
 
 def future_tolerance_ns(max_future_stamp: float | None, sample_time: float,

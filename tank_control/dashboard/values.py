@@ -64,9 +64,22 @@ def _scalar(text: str, kind: int) -> Any:
     return text
 
 
+def _fits(value: Any) -> bool:
+    """``value`` can travel in a ROS parameter message (integers are 64-bit, lists flat)."""
+    if isinstance(value, list):
+        return all(isinstance(v, (bool, int, float, str)) and _fits(v) for v in value)
+    return isinstance(value, bool) or not isinstance(value, int) or -2 ** 63 <= value < 2 ** 63
+
+
 def parse_text(text: str, kind: int) -> Any:
     """The value that ``text`` (as typed in the page) means for a parameter of type ``kind``;
-    text that does not read as that type is returned as the string itself."""
+    text that does not read as that type (also an integer beyond 64 bits, a list item of
+    another type) is returned as the string itself."""
+    value = _parse(text, kind)
+    return value if _fits(value) else text
+
+
+def _parse(text: str, kind: int) -> Any:
     if kind in _SCALAR_OF:
         stripped = text.strip()
         if stripped.startswith('['):
@@ -85,7 +98,7 @@ def parse_text(text: str, kind: int) -> Any:
                     (float(item) if kind == DOUBLE_ARRAY and not isinstance(item, bool)
                      else item)
                     for item in items]
-        except ValueError:
+        except (ValueError, TypeError, OverflowError):
             return text
     if kind in (BOOL, INTEGER, DOUBLE):
         try:

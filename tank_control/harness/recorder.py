@@ -18,12 +18,12 @@ from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
-from tank_control.core.stamps import FutureStamps
+from tank_control.core.stamps import MAX_NAMES, FutureStamps
 from tank_control.harness.recording import RawMessage
 from tank_control.nodes.clock import steady_clock
 from tank_control.harness.trace import GATED_DISTURBANCE, TOPIC_PREFIX, SignalMessage
 from tank_control.nodes.cdr import (JointStateCdr, cdr_stamp_ns,  # noqa: F401 (re-exported)
-                                    joint_state_from_cdr, time_cdr_ns)
+                                    joint_state_from_cdr, signal_from_cdr, time_cdr_ns)
 from tank_control.nodes.clock import Held
 from tank_control.nodes.messages import (ORIGIN_QOS, RECORDED_QOS, SIGNAL_QOS, TOPIC_RECORDED,
                                          quiet_publisher_events, quiet_subscription_events)
@@ -78,8 +78,10 @@ def _message_class(type_name: str) -> type:
 
 
 def signal_message(raw: RawMessage) -> SignalMessage:
-    """A recorded JointState message as the trace join reads it."""
-    stamp, names, values = joint_state_from_cdr(raw.data)
+    """A recorded JointState message as the trace join reads it; ``ValueError`` for one with
+    more than ``MAX_NAMES`` names (refused before they are decoded: one message of 100 000
+    names would be 100 000 trace columns) or malformed."""
+    stamp, _, names, values = signal_from_cdr(raw.data, MAX_NAMES)
     return SignalMessage(raw.topic.lstrip('/'), stamp, names, values)
 
 
@@ -317,7 +319,14 @@ class Recorder:
     def signal_messages(self, topics: Iterable[str] = TOPIC_PREFIX) -> list[SignalMessage]:
         """The kept messages (no sink) of JointState ``topics`` (default: the signals)."""
         wanted = set(topics)
-        return [signal_message(raw) for raw in self.messages if raw.topic.lstrip('/') in wanted]
+        out = []
+        for raw in self.messages:
+            if raw.topic.lstrip('/') in wanted:
+                try:
+                    out.append(signal_message(raw))
+                except ValueError:
+                    pass                 # too many names or malformed: in run.mcap only
+        return out
 
     def node_parameters(self, node: str, timeout: float = 5.0,
                         check: Callable[[], None] = lambda: None) -> dict[str, Any]:

@@ -97,7 +97,7 @@ class RecordingStream:
             return
         try:
             msg = _signal_message(raw)
-        except (struct_error, UnicodeDecodeError, IndexError):
+        except (struct_error, UnicodeDecodeError, IndexError, ValueError):
             self.unreadable += 1                   # in run.mcap as received; not in the trace
             return
         self.joiner.add(msg)

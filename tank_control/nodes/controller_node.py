@@ -224,6 +224,7 @@ class ControllerNode(ControllerParams):
                     f'{self.get_parameter("use_sim_time").value}): it will never sample; start '
                     'it with clock_mode wall and use_sim_time false'
                     ) if self._protocol.origin(origin) else ''
+        self.counters['rejected_future'] = self._future.refused    # an origin far ahead too
         if conflict != self._clock_conflict:
             self._clock_conflict = conflict
             if conflict:

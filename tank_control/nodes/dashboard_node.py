@@ -272,7 +272,7 @@ class DashboardNode(Node):
                 break
             try:
                 self._handle(message, reply)
-            except (KeyError, TypeError, ValueError) as exc:
+            except Exception as exc:     # noqa: BLE001 - no page's request may stop the node
                 reply({'type': 'error', 'id': message.get('id'),
                        'reason': f'request not understood: {exc}'})
         now = time.monotonic()

@@ -29,6 +29,7 @@ from sensor_msgs.msg import JointState
 from tank_control.core import params_file, ranges
 from tank_control.core.interfaces import to_ns
 from tank_control.core.params import ConfigError
+from tank_control.core.stamps import FutureStamps, future_tolerance_ns
 from tank_control.nodes.cdr import JointStateCdr
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (MATCH_WAIT_S, ORIGIN_QOS, SIGNAL_QOS, TOPIC_DIAGNOSTICS,
@@ -95,7 +96,11 @@ class OpcUaBridgeNode(Node):
         self._lock = threading.Lock()
         self._origin_ns: int | None = None
         self._first_sample_at: float | None = None
-        self.counters = {'before_origin': 0, 'ignored_inputs': 0, 'out_of_order_inputs': 0}
+        self.counters = {'before_origin': 0, 'ignored_inputs': 0, 'out_of_order_inputs': 0,
+                         'rejected_future': 0}
+        # stamps more than 5 sample times ahead of this host's clock are refused (both ways):
+        # one stray stamp would otherwise set the time origin or the order of writes
+        self._future = FutureStamps(future_tolerance_ns(None, settings.node.sample_time))
         self._last_u_stamp: int | None = None
         self._logged: set[str] = set()
         self.measurement_pub = self.create_publisher(JointState, TOPIC_MEASUREMENT, SIGNAL_QOS,
@@ -167,6 +172,8 @@ class OpcUaBridgeNode(Node):
     def _on_sample(self, sample: Sample) -> None:
         """A server sample (the bridge's thread): the time origin first, then published."""
         with self._lock:
+            if not self._admit(TOPIC_MEASUREMENT, sample.stamp_ns):
+                return
             if self._origin_ns is None and not self._announce(sample.stamp_ns):
                 self.counters['before_origin'] += 1
                 return
@@ -203,21 +210,40 @@ class OpcUaBridgeNode(Node):
             self.counters['ignored_inputs'] += 1
             self._log_once('malformed', f'{TOPIC_MANIPULATED}: malformed message ignored ({exc})')
             return
-        if self._last_u_stamp is not None and stamp < self._last_u_stamp:
-            self.counters['out_of_order_inputs'] += 1
-            self._log_once('order', f'{TOPIC_MANIPULATED}: a message older than the last one '
-                           'ignored')
+        if not self._admit(TOPIC_MANIPULATED, stamp):
             return
+        if self._last_u_stamp is not None and stamp < self._last_u_stamp:
+            if not self._future.back_on_clock(TOPIC_MANIPULATED, self._last_u_stamp, stamp,
+                                              time.time_ns()):
+                self.counters['out_of_order_inputs'] += 1
+                self._log_once('order', f'{TOPIC_MANIPULATED}: a message older than the last '
+                               'one ignored')
+                return
+            self.bridge.forget_instants()        # the stream's clock went back (a restart)
         self._last_u_stamp = stamp
         origin = self._origin_ns or 0
         for reason in self.bridge.write(dict(zip(names, values)),
                                         (stamp - origin) // self.ts_ns):
-            self._log_once(reason.split(':')[0], f'{TOPIC_MANIPULATED}: {reason}')
+            # one key for every unknown name: a flood of names is one line per period
+            key = 'unknown' if reason.startswith('unknown') else reason.split(':')[0]
+            self._log_once(key, f'{TOPIC_MANIPULATED}: {reason}')
+
+    def _admit(self, topic: str, stamp_ns: int) -> bool:
+        """False (counted, reported once per diagnostics period) for a stamp further ahead of
+        this host's clock than the tolerance (core/stamps.FutureStamps, with its clock-step
+        recovery)."""
+        if self._future.admit(topic, stamp_ns, time.time_ns(), time.monotonic_ns()):
+            return True
+        self.counters['rejected_future'] += 1
+        for line in self._future.take_report():
+            self.get_logger().warning(line)
+        return False
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
         bridge = self.bridge
         self._logged.clear()
+        self._future.rearm_reports()
         bridge.rearm()
         counters = {**bridge.counters, **self.counters}
         problems = []
@@ -230,10 +256,13 @@ class OpcUaBridgeNode(Node):
         if counters['receive_stamps']:
             problems.append(f"{counters['receive_stamps']} values without SourceTimestamp "
                             'stamped with the receive time')
-        for key, text in (('bad_status', 'samples with a Bad/Uncertain status not published'),
+        for key, text in (('bad_status', 'samples with a Bad/Uncertain status or no finite '
+                                         'value not published'),
                           ('refused_writes', 'writes refused by the server'),
                           ('refused_limits', 'manipulated values outside range.* not written'),
-                          ('ignored_inputs', 'malformed manipulated messages')):
+                          ('ignored_inputs', 'malformed manipulated messages'),
+                          ('rejected_future', 'messages stamped ahead of this host\'s clock '
+                           'refused')):
             if counters[key]:
                 problems.append(f'{counters[key]} {text}')
         if problems and level == DiagnosticStatus.OK:

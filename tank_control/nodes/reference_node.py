@@ -30,6 +30,7 @@ from tank_control.core.params import ConfigError, specs_of
 from tank_control.core.reference import (FIELDS, Reference, channel_lists, channel_specs,
                                          split_param_name)
 from tank_control.core.scenario import reference_setup
+from tank_control.core.stamps import future_tolerance_ns, origin_refusal
 from tank_control.nodes.clock import steady_clock
 from tank_control.nodes.messages import (CLOCK_QOS, ORIGIN_QOS, REFERENCE_QOS, TOPIC_CLOCK,
                                          TOPIC_DIAGNOSTICS, TOPIC_DISTURBANCE, TOPIC_SETPOINT,
@@ -210,7 +211,17 @@ class ReferenceNode(Node):
         self._diag_pub.publish(array)
 
     def _on_origin(self, msg: Time) -> None:
-        """wall: the plant's time origin; (re)start the grid of instants from it."""
+        """wall: the plant's time origin; (re)start the grid of instants from it (one far ahead
+        of this node's clock is refused: ``core/stamps.origin_refusal``)."""
+        ts_ns = to_ns(float(self.params.values['sample_time']))
+        reason = origin_refusal(stamp_to_ns(msg), self._protocol.origin_ns,
+                                self.get_clock().now().nanoseconds,
+                                future_tolerance_ns(None, ts_ns / 1e9), ts_ns)
+        if reason:
+            self._refused_origins = getattr(self, '_refused_origins', 0) + 1
+            if self._refused_origins in (1, 10, 100) or self._refused_origins % 1000 == 0:
+                self.get_logger().warning(f'{reason} ({self._refused_origins} so far)')
+            return
         if self._protocol.origin(stamp_to_ns(msg)):
             self._on_timer()
 

@@ -229,6 +229,12 @@ class Bridge:
             pass
         return refused
 
+    def forget_instants(self) -> None:
+        """The instants of the values written are forgotten (the writer's clock went back:
+        its next instant is taken, not dropped as one written already)."""
+        with self._lock:
+            self._written_instant = self._pending_instant = None
+
     # ------------------------------------------------------------ the thread
     def _run(self) -> None:
         try:
@@ -490,8 +496,10 @@ class Bridge:
             if bad:
                 self.counters['bad_status'] += 1
                 for ch, code in bad:
-                    self._log_once(f'bad:{ch}:{status_name(code)}', 'warning',
-                                   f'measurement.{ch}: status {status_name(code)} from '
+                    what = (f'status {status_name(code)}' if not code.is_good()
+                            else 'a value that is no finite number')   # NaN, inf, text, bool
+                    self._log_once(f'bad:{ch}:{what}', 'warning',
+                                   f'measurement.{ch}: {what} from '
                                    f'{self.settings.measurement[ch]}: not published (a missing '
                                    'sample)')
                 continue

@@ -159,7 +159,8 @@ def test_a_set_needs_the_token_of_the_logged_url(procs, ros_env, node_cmd, probe
     assert token, 'the logged URL carries the token'
     before = controller_u_max(probe)
     refused = page_sets(url, [{'name': 'u_max', 'text': '0.5'},
-                              {'name': 'u_max', 'text': '0.5', 'token': 'x' + token[1:]},
+                              {'name': 'u_max', 'text': '0.5',     # another first character
+                               'token': ('y' if token[0] == 'x' else 'x') + token[1:]},
                               {'name': 'u_max', 'text': '0.5', 'token': token[:-1]}])
     assert [a['successful'] for a in refused] == [False] * 3
     assert refused[0]['reason'].startswith('refused: no token')
@@ -292,3 +293,22 @@ def test_a_sample_stamped_in_the_future_is_not_shown_and_is_reported(procs, ros_
     report = next(r for r in reports if int(r.get('rejected_future', 0)) >= 1)
     assert 'stamped in the future not shown' in report['_message']
     assert report['_level'] in (b'\x01', 1)
+
+
+def test_a_set_of_a_value_no_parameter_message_carries_is_refused_and_the_node_lives(
+        procs, ros_env, node_cmd, probe):
+    """Hostile texts from a page holding the token (an integer beyond 64 bits, a number too
+    large for a double in a list): each refused with the controller's reason, the dashboard
+    keeps serving (before: it died at the first, OverflowError in its executor)."""
+    procs.start('controller', node_cmd('controller_node', '--params-file', PARAMS),
+                env=ros_env)
+    dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
+    url, token = split(dashboard_url(dash))
+    answers = page_sets(url, [
+        {'name': 'stale_samples', 'text': '-9223372036854775809', 'token': token},
+        {'name': 'range.y', 'text': '[1' + '0' * 400 + ', 2]', 'token': token},
+        {'name': 'u_max', 'text': '0.5', 'token': token}])
+    assert [a['successful'] for a in answers] == [False, False, True], answers
+    assert all(a['reason'] for a in answers[:2])
+    assert dash.popen.poll() is None
+    assert controller_u_max(probe) == 0.5

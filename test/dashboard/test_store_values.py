@@ -59,3 +59,18 @@ def test_typed_text_is_read_by_the_parameter_type_and_left_as_text_otherwise():
     assert V.parse_text('y, z', V.STRING_ARRAY) == ['y', 'z']
     assert V.parse_text('manual', V.STRING) == 'manual'
     assert V.jsonable([math.inf, -math.inf, 1.5, (2, 3)]) == ['inf', '-inf', 1.5, [2, 3]]
+
+
+def test_text_a_parameter_message_cannot_carry_is_sent_as_text():
+    """An integer beyond 64 bits, a number too large for a double, nested or null items: the
+    text itself (the node refuses it with its reason); before, an integer beyond 64 bits made
+    the service request fail inside the dashboard's executor and the node died."""
+    from tank_control.nodes.dashboard_node import parameter_msg
+    for text, kind in (('-9223372036854775809', V.INTEGER), ('1' + '0' * 30, V.INTEGER),
+                       ('[1' + '0' * 400 + ']', V.DOUBLE_ARRAY),
+                       ('[1' + '0' * 30 + ']', V.INTEGER_ARRAY), ('[[1]]', V.INTEGER_ARRAY),
+                       ('[{"a": 1}]', V.DOUBLE_ARRAY), ('[null]', V.DOUBLE_ARRAY)):
+        assert V.parse_text(text, kind) == text
+        assert parameter_msg('p', text, kind).value.string_value == text
+    assert V.parse_text('9223372036854775807', V.INTEGER) == 2 ** 63 - 1
+    assert V.parse_text('[1, 2]', V.INTEGER_ARRAY) == [1, 2]

@@ -214,3 +214,19 @@ def test_the_opcua_package_never_imports_rclpy():
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True)
     assert not [m for m in json.loads(out.stdout) if m == 'rclpy' or m.startswith('rclpy.')]
+
+
+@pytest.mark.slow     # an asyncua server (4-6 s of start-up on a busy machine)
+def test_a_good_value_that_is_no_finite_number_is_never_published_and_says_so():
+    """A server serving NaN with status Good: counted as bad_status, not published, the log
+    names the reason (before: "status Good ... not published", which explains nothing)."""
+    import math
+    server = LagServer(ts=TS, u0=math.nan).start()       # y is NaN from the first step on
+    try:
+        with Run(values_for(server.endpoint, server.level_nodeid)) as run:
+            assert wait(lambda: run.bridge.counters['bad_status'] >= 3)
+            assert all(math.isfinite(v) for s in run.samples for v in s.values.values())
+            reasons = [t for _, t in run.logs if 'not published' in t]
+            assert reasons and all('no finite number' in t for t in reasons), reasons
+    finally:
+        server.close()

@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from tank_control.core.stamps import FutureStamps
+from tank_control.core.stamps import FutureStamps, origin_refusal
 from tank_control.nodes.clock import (Answers, Scheduled, StampedInbox, is_sample_instant,
                                       sim_sample_instant)
 
@@ -354,6 +354,7 @@ class WallTimerClock(_Latest):
                  disturbances: tuple[str, ...], future: FutureStamps) -> None:
         super().__init__(host, ts_ns, outputs, disturbances, future)
         self.origin_ns = None
+        self.refused_origins = 0                 # time_origin messages far ahead (origin())
         self.r_ahead, self.d_ahead = Scheduled(), Scheduled()
         self.r_valid: dict[str, float] = {}      # their last valid values
         self.d_valid: dict[str, float] = {}
@@ -363,7 +364,16 @@ class WallTimerClock(_Latest):
         self.last_out_ns = None
 
     def origin(self, origin_ns: int) -> bool:
-        """The loop's time base (a new one when the plant restarted)."""
+        """The loop's time base (a new one when the plant restarted); one far ahead of this
+        node's clock is refused and counted (``core/stamps.origin_refusal``)."""
+        reason = origin_refusal(origin_ns, self.origin_ns, self.host.clock_ns(),
+                                self.future.tolerance_ns, self.ts_ns)
+        if reason:
+            self.future.refused += 1
+            self.refused_origins += 1
+            if self.refused_origins in (1, 10, 100) or self.refused_origins % 1000 == 0:
+                self.host.warning(f'{reason} ({self.refused_origins} so far)')
+            return False
         if origin_ns != self.origin_ns:
             self.host.info(f'plant time origin {origin_ns} ns: loop time = stamp - origin')
             self.origin_ns = origin_ns
