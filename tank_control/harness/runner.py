@@ -110,6 +110,8 @@ class RunFailed(RuntimeError):
     """The run could not complete; the message says why (a node's last log lines). Whatever
     was recorded is in the output directory, marked ``"complete": false``."""
 
+    partial_results: Path | None = None     # that directory, once written
+
 
 @dataclass(frozen=True)
 class Progress:
@@ -557,6 +559,18 @@ class _RosRun:
         self._ghosts: dict[str, list[float]] = {}  # name → until when a dead one may be listed
         self.foreign: dict[str, dict[str, Any]] = {}   # nodes on the domain it did not start
 
+    @property
+    def _procs(self) -> ProcessGroup:
+        """The run's node processes (from the start of the nodes to their stop)."""
+        assert self.group is not None, 'no nodes started'
+        return self.group
+
+    @property
+    def _recording(self) -> RecordingStream:
+        """The run's recording (from the recorder's start to the results)."""
+        assert self.stream is not None, 'no recording'
+        return self.stream
+
     # -- processes --------------------------------------------------------------------------
     def _argv(self, node: str) -> list[str]:
         argv = [*self.node_command(node), '--ros-args', '--params-file', str(self.params_file)]
@@ -740,7 +754,7 @@ class _RosRun:
                                 f'{self.config.startup_timeout:g} s (harness.startup_timeout); '
                                 'node logs:\n' + '\n'.join(
                                     f'--- {name} ---\n{proc.tail(8)}'
-                                    for name, proc in self.group.processes.items()))
+                                    for name, proc in self._procs.processes.items()))
         # an external node (harness.external_nodes) is accepted once, as a node it started
         found = foreign_graph(rec.node, rec.spin_once, GRAPH_TOPICS, 0.0, (RECORDER_NAME,),
                               check, started=[*nodes, *self.external],
@@ -786,16 +800,16 @@ class _RosRun:
             joined = time.monotonic()              # its participant is on the domain
             self.recorder = recorder
             self._prepare()
-            recorder.subscribe(self.stream.on_message)   # what the nodes say from their start
+            recorder.subscribe(self._recording.on_message)   # what the nodes say from their start
             if not self.nobody_before:             # somebody may be there: look first (step 2)
                 _warm_up()                         # while DDS discovers the domain
                 self._look_before_starting(joined)
             # The graph is looked at while the nodes come up, too (step 2).
             nodes = self.started
             for node in nodes:
-                self.group.start(node, self._argv(node), env=self.env)
+                self._procs.start(node, self._argv(node), env=self.env)
             if self.dashboard is not None:       # watches only; stopped with the nodes
-                self.group.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
+                self._procs.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
                                                '-p', f'port:={self.dashboard}'], env=self.env)
             _warm_up()                             # while the nodes start (once)
             self._look_while_starting()
@@ -817,8 +831,8 @@ class _RosRun:
             self.phase = 'during the run'
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
-            self.cpu = {name: end - cpu_start[name] for name, end in self._cpu_seconds().items()
-                        if end is not None and cpu_start.get(name) is not None}
+            self.cpu = {name: end - start for name, end in self._cpu_seconds().items()
+                        if end is not None and (start := cpu_start.get(name)) is not None}
             self.phase = 'at the end of the run'
             controller_params = (recorder.node_parameters('controller', 5.0, self._check_alive)
                                  if 'controller' in nodes else {})
@@ -844,14 +858,14 @@ class _RosRun:
 
     def _cpu_seconds(self) -> dict[str, float | None]:
         """CPU time used so far by each node process and by this (harness) process [s]."""
-        out = {name: proc.cpu_seconds() for name, proc in self.group.processes.items()}
+        out = {name: proc.cpu_seconds() for name, proc in self._procs.processes.items()}
         out['harness'] = time.process_time()
         return out
 
     def _await(self, condition: Callable[[], bool], what: str) -> None:
         if not self.recorder.spin_until(condition, self.config.startup_timeout, self._check_alive):
             details = '\n'.join(f'--- {name} ---\n{proc.tail(8)}'
-                                for name, proc in self.group.processes.items())
+                                for name, proc in self._procs.processes.items())
             raise RunFailed(f'{what} within {self.config.startup_timeout:g} s '
                             f'(harness.startup_timeout); node logs:\n{details}')
 
@@ -998,7 +1012,7 @@ class _RosRun:
         for name, until in self._ghosts.items():       # restarted: the dead one's lease
             until[:] = [t for t in until if t > now]
         taken = [name for name in self.config.nodes if counts.get(name, 0) > (
-            1 + len(self._ghosts.get(name, ())) if name in self.group.processes
+            1 + len(self._ghosts.get(name, ())) if name in self._procs.processes
             else 1 if name in self.external else 0)]
         if self.phase == 'during the run':
             self._note_foreign(counts)
@@ -1037,7 +1051,7 @@ class _RosRun:
             # a lockstep tick); the liveness check (a waitid per node), the trace's row writing
             # and the checks below run once per CHECK_PERIOD, not per message.
             self._check_alive()
-            self.stream.advance()
+            self._recording.advance()
             rec.spin_for(CHECK_PERIOD)
             now = time.monotonic()
             if now - last_graph_check >= 0.5:      # a graph that joins later mixes in too
@@ -1080,13 +1094,15 @@ class _RosRun:
         rec = self.recorder
         latest = ', '.join(f'{t} {s / NS:g} s' for t, s in sorted(rec.latest.items())) or 'nothing'
         tails = '\n'.join(f'--- {name} ---\n{proc.tail(8)}'
-                          for name, proc in self.group.processes.items())
+                          for name, proc in self._procs.processes.items())
         external = (f'; the external node(s) {", ".join(self.external)} (run by you, not by the '
                     'harness) may have stopped answering' if self.external else '')
         return (f'simulated time stopped moving for {self.config.stall_timeout:g} s '
                 f'(harness.stall_timeout){external}; latest stamps: {latest}; node logs:\n{tails}')
 
     def _report(self, sim_ns: int, wall: float) -> None:
+        if self.progress is None:
+            return
         sim = sim_ns / NS
         rate = sim / wall if wall > 0 else 0.0
         ts = self.scenario.params('plant').get('sample_time')
@@ -1100,7 +1116,7 @@ class _RosRun:
                  total_wall: float) -> RunResult:
         """Finish trace.csv and run.mcap with everything received, write metrics.json and
         plot.png; raise the failure (or ``RunFailed`` for a run that recorded nothing) after."""
-        stream = self.stream
+        stream = self._recording
         trace = stream.close(complete=failure is None)
         ticks = len(trace)
         if failure is None and ticks == 0:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -14,6 +15,8 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 class RunInterrupted(BaseException):
     """The run was stopped by a signal (a ``BaseException`` like ``KeyboardInterrupt``)."""
+
+    partial_results: Path | None = None     # the run's directory, once written
 
     def __init__(self, signum: int) -> None:
         self.signum = signum

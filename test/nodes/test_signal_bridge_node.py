@@ -137,7 +137,9 @@ def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_a
     # and the loop goes on
     n = len(device.commands)
     assert probe.wait_for(lambda: len(device.commands) > n + 10, 30)
-    assert abs(device.level - 1.0) < 0.05
+    # still at the setpoint: a busy machine delays the loop's hops (the device integrates on
+    # wall time), so a P loop may ring a little before it settles again
+    assert probe.wait_for(lambda: abs(device.level - 1.0) < 0.02, 60), device.level
 
 
 def test_a_bad_parameter_stops_the_node_at_start_with_one_line_naming_it(procs, node_cmd,

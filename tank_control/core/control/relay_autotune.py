@@ -439,7 +439,7 @@ def transient_plan(model: ident.Model | ident.SopdtModel, tu: float,
     weighted record has decayed to e^(−4) past the cut); the lag window ``Tu/20``.
     ``transient_horizon``/``transient_alpha`` > 0 replace the cut/α."""
     smoothing = tu / 20.0
-    if model.kind == 'ipdt':
+    if isinstance(model, ident.IpdtModel):
         auto = model.dead_time + 5.0 * smoothing
     elif isinstance(model, ident.SopdtModel):     # T1 + T2, or 1/(ζ·ωn) when underdamped
         auto = model.dead_time + 7.0 * max(model.b / model.c, 2.0 * model.a / model.b)
@@ -555,9 +555,10 @@ class RelayAutotuner(AutotuneMachine):
         if self._state in TESTING:
             raise ValueError('autotune: settings cannot change while a test is running; abort it first')
         self._check_config(autotune)
-        redesign = self._result is not None and any(
-            getattr(autotune, name) != getattr(self._cfg, name) for name in DESIGN_FIELDS)
-        proposal = self._design(self._result, autotune) if redesign else None
+        result = self._result
+        redesign = any(getattr(autotune, name) != getattr(self._cfg, name)
+                       for name in DESIGN_FIELDS)
+        proposal = self._design(result, autotune) if result is not None and redesign else None
         if autotune.start_time != self._cfg.start_time:
             self._scheduled_done = False          # a new scheduled start is armed
         if autotune.apply_time != self._cfg.apply_time:
@@ -817,9 +818,22 @@ class RelayAutotuner(AutotuneMachine):
         u_min, u_max = self.pid.limits
         return min(max(u, u_min), u_max)
 
+    @property
+    def _bias(self) -> float:
+        """u0, the relay's or the step's bias [u units]: known once the settling window ended
+        (every phase that reads it comes after)."""
+        assert self._u0 is not None, 'no bias before the settling window'
+        return self._u0
+
+    @property
+    def _bias_start(self) -> float:
+        """u0 when the test left rest (the frame of the identification) [u units]."""
+        assert self._u0_start is not None, 'no bias before the settling window'
+        return self._u0_start
+
     def _centre(self) -> float:
         """The relay's centre u0 + μ0 (``autotune.relay_bias``, signed as the loop acts)."""
-        return self._u0 + self._direction() * self._cfg.relay_bias
+        return self._bias + self._direction() * self._cfg.relay_bias
 
     def _amplitude(self) -> float:
         """``autotune.relay_amplitude``, reduced so that ``u0 + μ0 ± d`` stays within the output
@@ -984,7 +998,7 @@ class RelayAutotuner(AutotuneMachine):
         # to a process: a copy (pickled in the pool's feeder thread while this one samples on)
         work = copy.deepcopy(self)._identify if self.wall_clock else self._identify
         job = _Job(work, t + cfg.design_time,
-                   (tt, uu, yy, self._u0_start, r, self._eps, tail, cfg), background=offload,
+                   (tt, uu, yy, self._bias_start, r, self._eps, tail, cfg), background=offload,
                    pool=_wall_pool() if self.wall_clock else None)
         if offload:
             self._job = job                       # the relay runs on until it is due
@@ -992,7 +1006,7 @@ class RelayAutotuner(AutotuneMachine):
         self._conclude(job.outcome())
         return True
 
-    def _identify(self, tt: np.ndarray, uu: np.ndarray, yy: np.ndarray, u0_start: float | None,
+    def _identify(self, tt: np.ndarray, uu: np.ndarray, yy: np.ndarray, u0_start: float,
                   r: float, eps: float, tail: list[ident.RelayCycle], cfg: AutotuneConfig
                   ) -> _Outcome:
         """The identification from the relay record and the design from it: the heavy work,
@@ -1086,8 +1100,9 @@ class RelayAutotuner(AutotuneMachine):
         uu, _ = self._identification_input()
         omega = (2.0 * math.pi / res.tu) * np.array(self._cfg.transient_points)
         try:
-            g = ident.transient_response(tt, uu, yy, self._u0_start, self._y_rest,
-                                         np.append(omega, res.omega), plan.alpha, plan.horizon,
+            g = ident.transient_response(tt, uu, yy, self._bias_start, self._y_rest,
+                                         np.append(omega, res.omega).tolist(), plan.alpha,
+                                         plan.horizon,
                                          plan.smoothing, integrating=res.model.kind == 'ipdt')
             proposal = self._design(res, self._cfg)
         except (ValueError, ArithmeticError) as exc:
@@ -1118,7 +1133,7 @@ class RelayAutotuner(AutotuneMachine):
             self._end('failed', f'output deviation |y − r| = {abs(y - r):g} above '
                                 f'autotune.max_amplitude = {cfg.max_amplitude:g}')
             return None
-        u = self._limit(self._u0 + self._direction() * cfg.step_size)
+        u = self._limit(self._bias + self._direction() * cfg.step_size)
         self._rec_t.append(t)
         self._rec_u.append(u)
         self._rec_y.append(y)
@@ -1140,7 +1155,7 @@ class RelayAutotuner(AutotuneMachine):
     def _identify_step(self) -> None:
         cfg = self._cfg
         tt = np.array(self._rec_t) - self._rec_t[0]
-        step = float(self._rec_u[0] - self._u0)            # as applied (limits included)
+        step = float(self._rec_u[0] - self._bias)          # as applied (limits included)
         sign = self._direction()        # the step in the frame of a positive-gain plant
         try:
             model = ident.fopdt_from_step(tt, np.array(self._rec_y), self._y_rest, sign * step,
@@ -1171,13 +1186,13 @@ class RelayAutotuner(AutotuneMachine):
         input a triangle of about ±d at the −90° frequency of the first phase's FOPDT (an IPDT
         has none: then at the period 3·Tu); it starts at the far side of the relay's direction,
         so the triangle is centred on u0."""
-        w90 = (first.model.lag_frequency(0.5 * math.pi) if first.model.kind == 'fopdt'
-               else 2.0 * math.pi / (3.0 * first.tu))
+        w90 = (first.model.lag_frequency(0.5 * math.pi)
+               if isinstance(first.model, ident.FopdtModel) else 2.0 * math.pi / (3.0 * first.tu))
         amp = self._amplitude()
         self._rate = 2.0 * amp * w90 / math.pi          # 4·d/P90 with P90 = 2π/ω90
         self._first, self._integrating = first, True
         sign = 1.0 if self._relay_high else -1.0
-        self._u_int = self._u0 - self._direction() * sign * amp
+        self._u_int = self._bias - self._direction() * sign * amp
         for record in (self._rec_t, self._rec_u, self._rec_y, self._rec_s):
             record.clear()
         self._cycles = 0
@@ -1249,12 +1264,14 @@ class RelayAutotuner(AutotuneMachine):
         the identified model, for the running PID's sample time, filter and limits."""
         gains = self._tune(res, cfg)
         sign = -1.0 if (self._saved_gains or _gain_fields(self.pid.config))['kp'] < 0 else 1.0
-        new = {'kp': sign * abs(gains['kp']),
-               'ti': gains['ti'] if gains.get('ti') else math.inf,
-               'td': gains['td'] if gains.get('td') else 0.0,
-               'b': gains['b'] if gains.get('b') is not None else 1.0,
-               'c': gains['c'] if gains.get('c') is not None else 1.0}
-        config = replace(self.pid.config, **new)
+        kp, ti, td, b, c = (gains.get(name) for name in ('kp', 'ti', 'td', 'b', 'c'))
+        if kp is None:
+            raise ValueError(f'autotune: the rule {cfg.rule} gave no kp')
+        new: dict[str, float] = {'kp': sign * abs(kp), 'ti': ti if ti else math.inf,
+                                 'td': td if td else 0.0, 'b': b if b is not None else 1.0,
+                                 'c': c if c is not None else 1.0}
+        config = replace(self.pid.config, kp=new['kp'], ti=new['ti'], td=new['td'], b=new['b'],
+                         c=new['c'])
         if config.reason():
             raise ValueError(config.reason())
         model = from_identified(res.model)
@@ -1336,6 +1353,7 @@ class RelayAutotuner(AutotuneMachine):
         lo, hi = sorted((sign * (cfg.u_min - u_op), sign * (cfg.u_max - u_op)))
         sim = Pid2Dof(replace(cfg, kp=abs(cfg.kp), direct_action=False, u_min=lo, u_max=hi))
         sim.reset(0.0, 0.0, 0.0)
+        assert self._model is not None             # a design follows an identification
         plant = DiscretePlant(self._model, self.sample_time)
         steps = int(round(c.window / self.sample_time)) + 1
         yp = np.empty(steps)
@@ -1369,8 +1387,8 @@ class RelayAutotuner(AutotuneMachine):
         """
         uu = np.array(self._rec_u)
         if self._direction() < 0:
-            return 2.0 * self._u0_start - uu, 2.0 * self._u0_start - self._u0
-        return uu, self._u0
+            return 2.0 * self._bias_start - uu, 2.0 * self._bias_start - self._bias
+        return uu, self._bias
 
     def _tune(self, res: ident.RelayIdentification, cfg: AutotuneConfig
               ) -> dict[str, float | None]:

@@ -818,7 +818,7 @@ class RelayIdentification:
     relay_amplitude: float
     hysteresis: float
     cycles: int
-    model: Model
+    model: Model | SopdtModel        # the relay tuner's two-point SOPDT replaces the FOPDT
     model_harmonic: Model
     model_method: str
     static_gain: float | None
