@@ -12,12 +12,16 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.analysis.linear import frequency_scale
 from tank_control.core.analysis.loops import LoopCase, describe_loop, loop_cases
+
+if TYPE_CHECKING:
+    from tank_control.core.analysis.two_loop import TwoLoopAnalysis
 
 
 def _num(value: float, fmt: str = '.3g') -> str:
@@ -154,7 +158,7 @@ def _report_dict(case: LoopCase) -> dict[str, object]:
             'delay_margin': r.delay_margin, 'crossover': r.wc, 'phase_crossover': r.w180}
 
 
-def _two_loop(sections: dict) -> tuple[object, str] | None:
+def _two_loop(sections: dict) -> tuple[TwoLoopAnalysis, str] | None:
     """The two-loop PI on the linearised mixing tank ([Precup2013] eq. 3.7.4, continuous, the
     document's analysis): ``(TwoLoopAnalysis, label)``, or None for another loop."""
     from tank_control.core import scenario as core_scenario
@@ -175,14 +179,14 @@ def _two_loop(sections: dict) -> tuple[object, str] | None:
         f'h {model.h_op:g} cm; continuous, exact delays')
 
 
-def _two_loop_table(analysis: object, label: str) -> tuple[str, list[dict[str, object]]]:
+def _two_loop_table(analysis: TwoLoopAnalysis, label: str) -> tuple[str, list[dict[str, object]]]:
     """Each loop's margins with the other loop open and closed ([Precup2013] eq. 3.7.4)."""
     from tank_control.core.analysis.two_loop import LOOPS
     rows, out = [], []
     for i, name in enumerate(LOOPS):
         for closed in (False, True):
-            m = analysis.margins(i, other_closed=closed)        # type: ignore[attr-defined]
-            loop = analysis.loop(i, other_closed=closed)        # type: ignore[attr-defined]
+            m = analysis.margins(i, other_closed=closed)
+            loop = analysis.loop(i, other_closed=closed)
             stable = fr.closed_loop_stable(loop)
             other = f'{LOOPS[1 - i]} {"closed" if closed else "open"}'
             out.append({'loop': name, 'other_loop': other, 'stable': bool(stable),
@@ -247,13 +251,13 @@ def analyze(path: str | Path, overrides: tuple[str, ...] = (), plot: str | Path 
     return reason
 
 
-def plot_two_loop(analysis: object, path: str | Path, title: str = '') -> Path:
+def plot_two_loop(analysis: TwoLoopAnalysis, path: str | Path, title: str = '') -> Path:
     """Bode and Nyquist of each loop of the two-loop PI with the other loop closed."""
     from tank_control.core.analysis.two_loop import LOOPS
     from tank_control.harness.plotting import plt, save_figure
     fig, (ax_mag, ax_nyq) = plt.subplots(1, 2, figsize=(12, 5))
     for i, name in enumerate(LOOPS):
-        loop = analysis.loop(i, other_closed=True)            # type: ignore[attr-defined]
+        loop = analysis.loop(i, other_closed=True)
         m = fr.margins(loop)
         w = fr.default_grid(loop)
         values = loop(w)

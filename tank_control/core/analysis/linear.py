@@ -106,29 +106,52 @@ class LinearController:
         plant = model.response(self.sample_time)
         characteristic = (None if self.characteristic is None
                           else self.characteristic(plant))
-        return response_report(model, self.feedback, self.setpoint,   # type: ignore[arg-type]
-                               characteristic)
+        return response_report(model, self.feedback, self.setpoint, characteristic)
 
 
-def pid_description(config: object) -> str:
+class PidGains(Protocol):
+    """What the PID's description reads of a ``PidConfig`` (times in s)."""
+
+    @property
+    def kp(self) -> float: ...
+
+    @property
+    def ti(self) -> float: ...
+
+    @property
+    def td(self) -> float: ...
+
+    @property
+    def n(self) -> float: ...
+
+    @property
+    def b(self) -> float: ...
+
+    @property
+    def c(self) -> float: ...
+
+    @property
+    def sample_time(self) -> float: ...
+
+
+def pid_description(config: PidGains) -> str:
     """``PID kp …, ti … s, td … s, n …, b …, c …`` of a ``PidConfig``."""
     c = config
-    ti = 'inf' if not math.isfinite(c.ti) else f'{c.ti:.4g}'    # type: ignore[attr-defined]
-    return (f'PID kp {abs(c.kp):.4g}, ti {ti} s, td {c.td:.4g} s, '  # type: ignore[attr-defined]
-            f'n {c.n:g}, b {c.b:g}, c {c.c:g}')                  # type: ignore[attr-defined]
+    ti = 'inf' if not math.isfinite(c.ti) else f'{c.ti:.4g}'
+    return (f'PID kp {abs(c.kp):.4g}, ti {ti} s, td {c.td:.4g} s, '
+            f'n {c.n:g}, b {c.b:g}, c {c.c:g}')
 
 
-def pid_controller(config: object, models: tuple[tuple[str, LinearModel | None], ...] = ()
+def pid_controller(config: PidGains, models: tuple[tuple[str, LinearModel | None], ...] = ()
                    ) -> LinearController:
     """The description of ``Pid2Dof(config)`` (a ``PidConfig``; gain magnitude): feedback
     ``frequency.pid_feedback_discrete``, setpoint ``pid_setpoint_discrete``."""
     c = config
-    h, kp = c.sample_time, abs(c.kp)                         # type: ignore[attr-defined]
+    h, kp = c.sample_time, abs(c.kp)
     return LinearController(
-        fr.pid_feedback_discrete(kp, c.ti, c.td, c.n, sample_time=h),  # type: ignore[attr-defined]
+        fr.pid_feedback_discrete(kp, c.ti, c.td, c.n, sample_time=h),
         pid_description(c),
-        fr.pid_setpoint_discrete(kp, c.ti, c.td, c.n, c.b, c.c,          # type: ignore[attr-defined]
-                                 sample_time=h),
+        fr.pid_setpoint_discrete(kp, c.ti, c.td, c.n, c.b, c.c, sample_time=h),
         models=tuple((source, m) for source, m in models if m is not None))
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,6 +25,9 @@ from tank_control.core.analysis import frequency as fr
 from tank_control.core.analysis.step_metrics import iae, step_metrics
 from tank_control.core.control.pid import Pid2Dof, PidConfig
 from tank_control.core.tuning.model import DiscretePlant, ProcessModel
+
+if TYPE_CHECKING:
+    from tank_control.core.analysis.linear import LinearModel
 
 
 @dataclass(frozen=True)
@@ -46,7 +49,7 @@ class LoopReport:
     model: str
 
 
-def response_report(model: ProcessModel, controller: fr.FrequencyResponse,
+def response_report(model: LinearModel, controller: fr.FrequencyResponse,
                     setpoint: fr.FrequencyResponse | None = None,
                     characteristic: fr.FrequencyResponse | None = None) -> LoopReport:
     """:class:`LoopReport` of any implemented controller on ``model``: ``controller`` is its
