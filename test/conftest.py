@@ -14,9 +14,6 @@
   ``pytest.mark.ros``; the others run with DDS switched off (an out-of-range
   ``ROS_DOMAIN_ID`` for child processes, ``rclpy.init`` failing in this one), so an
   unmarked test that does need the graph fails with a message saying to mark it.
-* The test files run longest first (``order_long_files_first``): under pytest-xdist
-  (``make test``: two workers, a file to one worker) a long file left to the end holds one
-  worker while the other is idle.
 """
 from __future__ import annotations
 
@@ -74,11 +71,6 @@ def pytest_configure(config: pytest.Config) -> None:
         domain_id, _DOMAIN_LOCK = domains.claim()
         os.environ['ROS_DOMAIN_ID'] = str(domain_id)
         os.environ[domains.EXCLUSIVE_ENV] = str(domain_id)   # held: no discovery wait in runs
-    if hasattr(config.option, 'loadscopereorder'):
-        # xdist's --dist loadfile would queue the files with the most tests first (many
-        # short core tests), the few long graph tests last; keep order_long_files_first's
-        config.option.loadscopereorder = False
-    config.pluginmanager.register(LongFilesFirst(), 'long_files_first')
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -89,35 +81,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         keep = [i for i in items if i.get_closest_marker('ros') is None]
         config.hook.pytest_deselected(items=[i for i in items if i not in keep])
         items[:] = keep
-
-
-#: Markers of a test that takes seconds (a graph, a network namespace, marked slow) rather than
-#: milliseconds; a file's count of them estimates its duration.
-LONG_MARKERS = ('ros', 'slow', 'netns')
-
-
-class LongFilesFirst:
-    """A plugin whose hook runs after every other's (the markers are set, ``-m`` applied)."""
-
-    @pytest.hookimpl(trylast=True)
-    def pytest_collection_modifyitems(self, items: list[pytest.Item]) -> None:
-        order_long_files_first(items)
-
-
-def order_long_files_first(items: list[pytest.Item]) -> None:
-    """Files ordered by their number of long tests (``LONG_MARKERS``), most first, then the
-    other files with test/core's last (core is pure numpy: milliseconds a test); the tests of
-    a file stay together in their order, files of equal rank in collection order. The short
-    tests at the end fill both workers until the end instead of a long one holding one."""
-    def file(item: pytest.Item) -> str:
-        return item.nodeid.split('::')[0]
-
-    def long(item: pytest.Item) -> bool:
-        return any(item.get_closest_marker(m) is not None for m in LONG_MARKERS)
-    count: dict[str, int] = {}
-    for item in items:
-        count[file(item)] = count.get(file(item), 0) + long(item)
-    items.sort(key=lambda item: (-count[file(item)], file(item).startswith('test/core/')))
 
 
 @pytest.fixture(scope='session', autouse=True)
