@@ -17,6 +17,7 @@
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -30,7 +31,8 @@ from tank_control.harness.processes import ProcessGroup
 
 REPO = Path(__file__).resolve().parents[1]
 #: Fixtures that put a test on the ROS graph (it is then marked ``ros``).
-GRAPH_FIXTURES = frozenset({'procs', 'probe', 'rclpy_session', 'ros_env', 'node_cmd'})
+GRAPH_FIXTURES = frozenset({'procs', 'probe', 'module_probe', 'rclpy_session', 'ros_env',
+                            'node_cmd'})
 #: A domain id no participant can use (Fast DDS refuses ids above 232).
 NO_GRAPH_DOMAIN = '250'
 _DOMAIN_LOCK: object = None   # held for the session's lifetime
@@ -138,18 +140,34 @@ def rclpy_session() -> Iterator[None]:
     rclpy.try_shutdown()
 
 
-@pytest.fixture
-def probe(rclpy_session: None) -> Iterator['Probe']:
-    """A node inside the test process, with an event-driven wait."""
+@contextlib.contextmanager
+def probe_node() -> Iterator['Probe']:
+    """A node inside the test process, with an event-driven wait (rclpy initialised)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     node = rclpy.create_node(f'test_probe_{os.getpid()}_{time.monotonic_ns()}')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    yield Probe(node, executor)
-    executor.remove_node(node)
-    node.destroy_node()
-    executor.shutdown()
+    try:
+        yield Probe(node, executor)
+    finally:
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+
+
+@pytest.fixture
+def probe(rclpy_session: None) -> Iterator['Probe']:
+    """A node inside the test process, with an event-driven wait."""
+    with probe_node() as node:
+        yield node
+
+
+@pytest.fixture(scope='module')
+def module_probe(rclpy_session: None) -> Iterator['Probe']:
+    """``probe`` shared by the tests of a module (with a module-scoped graph they share)."""
+    with probe_node() as node:
+        yield node
 
 
 class Probe:

@@ -2,7 +2,7 @@
 
 Pure (no rclpy): from the plant node's and the controller node's parameter values to one
 JSON-safe message. The loop is the implemented one, as ``tank-control analyze`` and
-``analysis.png`` describe it (``core/analysis/loops.py``): the controller kind's discrete
+``analysis.png`` describe it (``core/scenario_loops.py``): the controller kind's discrete
 transfer function on the exact ZOH model of the plant kind's linear description at the
 controller's sample time, exact dead time (SPEC §3; [Ikonen]). Any kinds that describe themselves
 (``ControllerKind.linear``, ``PlantKind.linear``; docs/extending.md). Frequencies in rad/s,
@@ -20,7 +20,7 @@ import numpy as np
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.analysis.linear import frequency_scale
-from tank_control.core.analysis.loops import LoopCase, describe_loop
+from tank_control.core.scenario_loops import LoopCase, describe_loop
 from tank_control.core.control.pid import PidConfig
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup, plant_setup
@@ -65,7 +65,7 @@ def loop_analysis(plant_values: Mapping[str, Any] | None,
     ``controller`` (one line of its settings) and per case (the plant's model, the models the
     controller carries) ``label``, ``margins`` and the curves ``mag``, ``phase`` (Bode of
     L = C·G) and ``re``, ``im`` (Nyquist of L) on the common grid ``w`` [rad/s]. Any pair of
-    kinds that describe themselves (``core/analysis/loops.describe_loop``) is analysed."""
+    kinds that describe themselves (``core/scenario_loops.describe_loop``) is analysed."""
     if controller_values is None or plant_values is None:
         missing = 'controller' if controller_values is None else 'plant'
         return {**_unavailable(f'no {missing} node (yet): its parameters are needed'),

@@ -2,7 +2,7 @@
 
 A SISO loop is analysed when its controller kind and its plant kind describe themselves
 (``ControllerKind.linear``, ``PlantKind.linear``: ``core/analysis/linear.py``,
-``core/analysis/loops.py``). The loop analysed is the implemented one: the exact ZOH model at
+``core/scenario_loops.py``). The loop analysed is the implemented one: the exact ZOH model at
 the controller's sample time and the controller's discrete transfer function (exact dead time,
 SPEC §3, [Ikonen]'s gang of four). The plant section gives the true model; the models the
 controller carries (``tuning.*``, the auto-tuner's identified one, a predictor's internal
@@ -18,7 +18,7 @@ import numpy as np
 
 from tank_control.core.analysis import frequency as fr
 from tank_control.core.analysis.linear import frequency_scale
-from tank_control.core.analysis.loops import LoopCase, describe_loop, loop_cases
+from tank_control.core.scenario_loops import LoopCase, describe_loop, loop_cases
 
 if TYPE_CHECKING:
     from tank_control.core.analysis.two_loop import TwoLoopAnalysis

@@ -270,7 +270,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     autotune = {k: v for k, v in controller_params.items() if k.startswith('autotune.')}
     summary = controller_summary(controller_params)
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
-    from tank_control.core.analysis.loops import loop_cases
+    from tank_control.core.scenario_loops import loop_cases
     cases, analysis_note = [], ''
     if 'controller' in scenario.harness.started and controller_params:
         try:

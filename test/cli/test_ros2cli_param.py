@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import yaml
+from support.node_host import host_argv
 from support.param_node import SPECS
 from support.ros2cli import fixture_argv, ros2, ros2_parallel
 
@@ -128,13 +129,15 @@ TRICKY_CHANNELS = {'setpoint.channels': ['y', 'on'], 'disturbance.channels': ['n
                    'setpoint.on.times': [0.0, 2.0], 'setpoint.on.values': [0.0, 1.0]}
 
 
-def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env, node_cmd,
+def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env,
                                                            tmp_path):
     """dump → --params-file of a fresh node (rcl's parser) and `ros2 param load` (ours) →
     dump again: the same text, for the plant of every kind, the controller of every kind
     and the reference (with channel names such as y, on, n, inf). The fresh nodes run in a
     namespace of their own (the file's node key renamed to it), so a stopped node's graph
-    entry, which can outlive its process by a DDS lease, is never mistaken for a fresh one."""
+    entry, which can outlive its process by a DDS lease, is never mistaken for a fresh one.
+    The nodes of a phase share one process (support/node_host.py: each node built with its
+    own ROS arguments, its --params-file parsed by rcl): 2 processes instead of one a node."""
     nodes = _round_trip_nodes()
     tricky = tmp_path / 'tricky.yaml'
     tricky.write_text(json.dumps({'/**': {'ros__parameters': TRICKY_CHANNELS}}))  # JSON: quoted
@@ -142,14 +145,18 @@ def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env
     def namespace(label: str, phase: str) -> str:
         return label if phase == 'first' else f'{label}_again'
 
-    def start(phase: str, params_file: Path | None = None, label: str = '') -> None:
-        module, extra = nodes[label]
-        if params_file is None and module == 'reference_node':
-            params_file = tricky
-        args = ['-r', f'__ns:=/{namespace(label, phase)}', *extra]
-        if params_file is not None:
-            args += ['--params-file', str(params_file)]
-        procs.start(f'{phase}_{label}', node_cmd(module, *args), env=ros_env)
+    def start(phase: str, params_files: dict[str, Path] | None = None) -> None:
+        """All nodes of ``phase`` in one process (``params_files`` by label, if given)."""
+        hosted = []
+        for label, (module, extra) in nodes.items():
+            params_file = (params_files or {}).get(label)
+            if params_file is None and module == 'reference_node':
+                params_file = tricky
+            args = ['-r', f'__ns:=/{namespace(label, phase)}', *extra]
+            if params_file is not None:
+                args += ['--params-file', str(params_file)]
+            hosted.append([module, *args])
+        procs.start(phase, host_argv(tmp_path / f'{phase}.json', hosted), env=ros_env)
 
     def running() -> set[str]:
         return {f'{ns.strip("/")}' for _, ns in probe.node.get_node_names_and_namespaces()}
@@ -157,8 +164,7 @@ def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env
     def full_name(label: str, phase: str = 'first') -> str:
         return f'/{namespace(label, phase)}/{nodes[label][0].removesuffix("_node")}'
 
-    for label in nodes:                                  # all at once: start-ups overlap
-        start('first', label=label)
+    start('first')
     assert probe.wait_for(lambda: set(nodes) <= running(), 90), \
         {n: p.tail() for n, p in procs.processes.items()}
     first = dict(zip(nodes, ros2_parallel(
@@ -181,12 +187,10 @@ def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env
         assert dumped.stdout.startswith(key), (label, dumped.stdout[:80])
         files[label] = tmp_path / f'{label}.yaml'     # the dump, for the fresh node's name
         files[label].write_text(full_name(label, 'second') + dumped.stdout[len(key) - 2:])
-        procs.stop(f'first_{label}')
-    for label in nodes:
-        start('second', files[label], label=label)
+    procs.stop('first')
+    start('second', files)
     fresh = {namespace(label, 'second') for label in nodes}
-    assert probe.wait_for(lambda: fresh <= running(), 90), \
-        {n: p.tail() for n, p in procs.processes.items() if n.startswith('second')}
+    assert probe.wait_for(lambda: fresh <= running(), 90), procs.processes['second'].tail()
     loaded = dict(zip(nodes, ros2_parallel(
         ros_env, *[('param', 'load', full_name(label, 'second'), str(files[label]),
                     '--timeout', '30') for label in nodes], timeout=120)))
@@ -198,7 +202,7 @@ def test_dump_loads_back_unchanged_for_every_node_and_kind(procs, probe, ros_env
     for label in nodes:
         # on failure: is the node still running, and what did it log (CI once: "Node not
         # found" for a node whose `param load` had just succeeded; not reproduced alone)
-        proc = procs.processes[f'second_{label}']
+        proc = procs.processes['second']
         assert second[label].returncode == 0, (label, second[label].stderr, proc.returncode,
                                                proc.tail(), sorted(running()))
         assert second[label].stdout == files[label].read_text(), label

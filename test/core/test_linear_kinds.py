@@ -17,7 +17,7 @@ import pytest
 
 from tank_control.core import scenario as core_scenario
 from tank_control.core.analysis.linear import pid_controller
-from tank_control.core.analysis.loops import describe_loop, loop_cases
+from tank_control.core.scenario_loops import describe_loop, loop_cases
 from tank_control.core.analysis.robustness import loop_report, smith_report
 from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds.base import ControllerKind, channels
@@ -183,7 +183,7 @@ def test_the_dashboard_analyses_fsa_on_an_unstable_plant():
 
 
 def test_no_list_of_kind_names_decides_the_analysis():
-    import tank_control.core.analysis.loops as loops
+    import tank_control.core.scenario_loops as loops
     import tank_control.core.tuning.model as model
     import tank_control.dashboard.robustness as panel
     assert not hasattr(loops, 'PID_KINDS') and not hasattr(model, 'from_plant')

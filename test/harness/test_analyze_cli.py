@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tank_control.core import params_file, scenario
-from tank_control.core.analysis.loops import loop_cases
+from tank_control.core.scenario_loops import loop_cases
 from tank_control.core.analysis.robustness import predict
 from tank_control.core.analysis.two_loop import LinearisedTank, TwoLoopAnalysis
 from tank_control.harness import cli

@@ -9,6 +9,11 @@ equals it); a restarted reference answers the plant's current tick, not t = 0; w
 is down the plant reports the stall (WARN naming what it waits for). A message is told to be
 the new process's by its source timestamp (after the start of the new process; the old one
 was killed before), not by when it reached the test.
+
+One loop per clock mode serves the three tests (``restarts``, module scope): in file order the
+controller, then the reference, then the plant is killed and started again on the loop the
+earlier tests left running (so the plant's new session is answered by restarted nodes too); a
+test run alone starts its loop the same way.
 """
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ import json
 import os
 import re
 import signal
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -29,6 +35,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import JointState
 
 from tank_control.core.reference import ChannelSchedule
+from tank_control.harness.processes import ProcessGroup
 from tank_control.nodes.messages import ORIGIN_QOS, from_joint_state, stamp_to_ns
 
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -72,20 +79,26 @@ class Watch:
     origins: list[int] = field(default_factory=list)
     session: str = ''             # header.frame_id of the latest measurement: the plant's session
     matched: dict[str, int] = field(default_factory=dict)   # publishers ever matched, per topic
+    subscriptions: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         node = self.probe.node
         for topic in ('measurement', 'manipulated', 'setpoint', 'applied_input'):
             self.signals[topic] = []
             self.matched[topic] = 0
-            node.create_subscription(
+            self.subscriptions.append(node.create_subscription(
                 JointState, topic, lambda m, i, t=topic: self._record(t, m, i),
                 LATCHED_QOS if topic == 'applied_input' else RECORD_QOS,
                 event_callbacks=SubscriptionEventCallbacks(
-                    matched=lambda info, t=topic: self.matched.__setitem__(t, info.total_count)))
-        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100)
-        node.create_subscription(Time, 'time_origin',
-                                 lambda m: self.origins.append(stamp_to_ns(m)), ORIGIN_QOS)
+                    matched=lambda info, t=topic: self.matched.__setitem__(t, info.total_count))))
+        self.subscriptions.append(
+            node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 100))
+        self.subscriptions.append(node.create_subscription(
+            Time, 'time_origin', lambda m: self.origins.append(stamp_to_ns(m)), ORIGIN_QOS))
+
+    def close(self) -> None:
+        for sub in self.subscriptions:
+            self.probe.node.destroy_subscription(sub)
 
     def _record(self, topic: str, msg: JointState, info: dict) -> None:
         self.seq += 1
@@ -131,19 +144,22 @@ class Watch:
 
 
 class Loop:
-    def __init__(self, procs, ros_env, node_cmd, tmp_path, mode: str) -> None:
-        self.procs, self.env, self.node_cmd, self.mode = procs, ros_env, node_cmd, mode
+    def __init__(self, procs: ProcessGroup, ros_env, tmp_path, mode: str) -> None:
+        self.procs, self.env, self.mode = procs, ros_env, mode
         self.path = tmp_path / 'loop.json'
         self.path.write_text(json.dumps(params(mode)))
         self.names: dict[str, str] = {}
+        self.starts: dict[str, int] = {}
 
     def start(self, node: str, *ros_args: str) -> int:
         """Start ``node`` (again); returns the system time just before [ns]."""
-        name = node if node not in self.names else f'{node}_2'
+        self.starts[node] = self.starts.get(node, 0) + 1
+        name = node if self.starts[node] == 1 else f'{node}_{self.starts[node]}'
         self.names[node] = name
         before = time.time_ns()
-        self.procs.start(name, self.node_cmd(f'{node}_node', '--params-file', str(self.path),
-                                             *ros_args), env=self.env)
+        self.procs.start(name, [sys.executable, '-m', f'tank_control.nodes.{node}_node',
+                                '--ros-args', '--params-file', str(self.path), *ros_args],
+                         env=self.env)
         return before
 
     def kill(self, node: str) -> int:
@@ -172,57 +188,30 @@ def set_parameter(watch: Watch, client: AsyncParameterClient, name: str, value, 
 
 
 def running(loop: Loop, watch: Watch, seconds: float) -> None:
-    """Start the three nodes and wait until the loop has run ``seconds`` of plant time."""
-    for node in ('plant', 'reference', 'controller'):
-        loop.start(node)
+    """Wait until the loop has run ``seconds`` of plant time (since its latest time origin)."""
     watch.wait(lambda: watch.origins and watch.signals['measurement'] and watch.signals['setpoint']
                and any(plant_time(watch, m[1]) >= seconds * S
                        for m in watch.signals['manipulated'][-1:]),
         90, f'the loop did not reach {seconds} s', loop.logs)
 
 
-@pytest.mark.parametrize('mode', ['lockstep', 'wall', 'sim'])
-def test_a_restarted_plant_starts_a_new_session_the_loop_answers(procs, ros_env, node_cmd,
-                                                                   probe, tmp_path, mode):
-    loop, watch = Loop(procs, ros_env, node_cmd, tmp_path, mode), Watch(probe)
-    running(loop, watch, 3.0)
-    loop.kill('plant')
-    # real time: the test sees the new session's first ticks although it may match late
-    started = loop.start('plant', '-p', 'real_time_factor:=1.0')
-    # A new session: the new plant's clock from 0 again (a new time origin in wall) ...
-    watch.wait(lambda: watch.sent_after('measurement', started), 60, 'no new plant', loop.logs)
-    first = watch.sent_after('measurement', started)[0][1]
-    last_old = max(m[1] for m in watch.sent_before('measurement', started))
-    assert first < last_old if mode != 'wall' else first > last_old
-    # ... whose ticks the controller answers: outputs stamped on the new plant's time over
-    # 2 s (20 ticks; in lockstep its clock advances only then) from its first answer — not from
-    # the first tick the test saw: in sim and wall the new plant does not wait for discovery,
-    # and the controller may match it more than a second after the test did (measured: up to
-    # 1.6 s at real_time_factor 1; it misses those ticks, its output held meanwhile)
-    t0 = plant_time(watch, first)
-
-    def outputs():
-        return [m for m in watch.sent_after('manipulated', started)
-                if plant_time(watch, m[1]) >= t0]
-    watch.wait(outputs, 60, 'the controller does not answer the restarted plant', loop.logs)
-    t1 = plant_time(watch, outputs()[0][1])
-
-    def answered():
-        return {t for t in (plant_time(watch, m[1]) for m in outputs()) if t1 <= t <= t1 + 2 * S}
-    watch.wait(lambda: len(answered()) >= 15, 60,
-               'the controller does not answer the restarted plant', loop.logs)
-    # one output per instant: a stamp repeats only as the same message (a lockstep re-send)
-    sent = [(m[1], m[2]) for m in outputs()]
-    assert all(a[0] < b[0] or a == b for a, b in zip(sent, sent[1:])), sent
-    watch.wait(lambda: any(m[1] >= first + 2 * S
-                           for m in watch.sent_after('measurement', started)), 60,
-               'the new plant did not advance', loop.logs)
+@pytest.fixture(scope='module', params=['lockstep', 'wall', 'sim'])
+def restarts(request, module_probe, ros_env, tmp_path_factory):
+    """The three nodes running in the clock mode of the parameter, and what the probe saw."""
+    tmp_path = tmp_path_factory.mktemp(f'restarts_{request.param}')
+    with ProcessGroup(tmp_path / 'logs') as procs:
+        loop, watch = Loop(procs, ros_env, tmp_path, request.param), Watch(module_probe)
+        try:
+            for node in ('plant', 'reference', 'controller'):
+                loop.start(node)
+            yield loop, watch
+        finally:
+            watch.close()
 
 
-@pytest.mark.parametrize('mode', ['lockstep', 'wall', 'sim'])
-def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env, node_cmd,
-                                                                   probe, tmp_path, mode):
-    loop, watch = Loop(procs, ros_env, node_cmd, tmp_path, mode), Watch(probe)
+def test_a_restarted_controller_takes_over_from_the_applied_input(restarts):
+    loop, watch = restarts
+    mode = loop.mode
     running(loop, watch, 4.0)
     killed = loop.kill('controller')
     # The plant says what it waits for (lockstep: the tick's manipulated; wall/sim: inputs held)
@@ -257,7 +246,7 @@ def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env
                'no output after the restart', loop.logs)
     # the controller took over from exactly the latched applied input, at its first sample
     line = r"took over from the plant's applied input \{'u': (\S+)\} at plant time (\d+) ns"
-    log = loop.procs.processes['controller_2'].log_path
+    log = loop.procs.processes[loop.names['controller']].log_path
 
     def logged():
         return re.search(line, log.read_text(errors='replace'))
@@ -280,11 +269,9 @@ def test_a_restarted_controller_takes_over_from_the_applied_input(procs, ros_env
                60, 'the loop did not resume', loop.logs)
 
 
-@pytest.mark.parametrize('mode', ['lockstep', 'wall', 'sim'])
-def test_a_restarted_reference_continues_its_schedule_at_the_plant_time(procs, ros_env,
-                                                                         node_cmd, probe,
-                                                                         tmp_path, mode):
-    loop, watch = Loop(procs, ros_env, node_cmd, tmp_path, mode), Watch(probe)
+def test_a_restarted_reference_continues_its_schedule_at_the_plant_time(restarts):
+    loop, watch = restarts
+    mode = loop.mode
     running(loop, watch, 2.0)
     killed = loop.kill('reference')
     if mode == 'lockstep':
@@ -302,3 +289,40 @@ def test_a_restarted_reference_continues_its_schedule_at_the_plant_time(procs, r
     watch.wait(lambda: any(plant_time(watch, m[1]) >= t + 2 * S
                            for m in watch.sent_after('manipulated', started)),
                60, 'the loop did not resume', loop.logs)
+
+
+def test_a_restarted_plant_starts_a_new_session_the_loop_answers(restarts):
+    loop, watch = restarts
+    mode = loop.mode
+    running(loop, watch, 3.0)
+    loop.kill('plant')
+    # real time: the test sees the new session's first ticks although it may match late
+    started = loop.start('plant', '-p', 'real_time_factor:=1.0')
+    # A new session: the new plant's clock from 0 again (a new time origin in wall) ...
+    watch.wait(lambda: watch.sent_after('measurement', started), 60, 'no new plant', loop.logs)
+    first = watch.sent_after('measurement', started)[0][1]
+    last_old = max(m[1] for m in watch.sent_before('measurement', started))
+    assert first < last_old if mode != 'wall' else first > last_old
+    # ... whose ticks the controller answers: outputs stamped on the new plant's time over
+    # 2 s (20 ticks; in lockstep its clock advances only then) from its first answer — not from
+    # the first tick the test saw: in sim and wall the new plant does not wait for discovery,
+    # and the controller may match it more than a second after the test did (measured: up to
+    # 1.6 s at real_time_factor 1; it misses those ticks, its output held meanwhile)
+    t0 = plant_time(watch, first)
+
+    def outputs():
+        return [m for m in watch.sent_after('manipulated', started)
+                if plant_time(watch, m[1]) >= t0]
+    watch.wait(outputs, 60, 'the controller does not answer the restarted plant', loop.logs)
+    t1 = plant_time(watch, outputs()[0][1])
+
+    def answered():
+        return {t for t in (plant_time(watch, m[1]) for m in outputs()) if t1 <= t <= t1 + 2 * S}
+    watch.wait(lambda: len(answered()) >= 15, 60,
+               'the controller does not answer the restarted plant', loop.logs)
+    # one output per instant: a stamp repeats only as the same message (a lockstep re-send)
+    sent = [(m[1], m[2]) for m in outputs()]
+    assert all(a[0] < b[0] or a == b for a, b in zip(sent, sent[1:])), sent
+    watch.wait(lambda: any(m[1] >= first + 2 * S
+                           for m in watch.sent_after('measurement', started)), 60,
+               'the new plant did not advance', loop.logs)

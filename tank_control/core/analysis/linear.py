@@ -6,7 +6,7 @@ A plant kind with a linear description sets ``PlantKind.linear(config)`` → a
 ``ControllerKind.linear(settings)`` → a :class:`LinearController` (or None). Every SISO loop
 whose two kinds answer is analysed the same way — ``tank-control analyze``, ``analysis.png``,
 the metrics' ``loop_analysis`` and the dashboard's robustness panel
-(``core/analysis/loops.py``) — with no list of kind names anywhere.
+(``core/scenario_loops.py``) — with no list of kind names anywhere.
 
 Sign convention: the analysis closes ``L = C·G`` with negative feedback. A plant kind gives
 its model with the magnitude of its gain (a reverse-acting process runs with

@@ -1,11 +1,14 @@
 """The SISO loop of a scenario on its linear models (the plant's, the controller's own).
 
-A loop is analysed when both kinds describe themselves (``core/analysis/linear.py``): the
-controller kind's ``linear(settings)`` gives its discrete transfer function, the plant kind's
-``linear(config)`` its model; no kind is named here. Its robustness is
-:meth:`LinearController.report` (exact dead time, the implemented discrete loop). Used by the
-harness's analysis (``harness/analysis.py``, ``tank-control analyze``, ``analysis.png``,
-``loop_analysis`` of metrics.json) and the dashboard's robustness panel.
+Scenario glue beside ``core/scenario.py``: it reads a scenario's sections and the controller's
+parameters and asks the kinds for their linear descriptions; the analysis itself is
+``core/analysis/`` (``linear.py``: what a kind says; ``robustness.py``: the margins). A loop
+is analysed when both kinds describe themselves: the controller kind's ``linear(settings)``
+gives its discrete transfer function, the plant kind's ``linear(config)`` its model; no kind is
+named here. Its robustness is :meth:`LinearController.report` (exact dead time, the
+implemented discrete loop). Used by the harness's analysis (``harness/analysis.py``,
+``tank-control analyze``, ``analysis.png``, ``loop_analysis`` of metrics.json) and the
+dashboard's robustness panel.
 """
 from __future__ import annotations
 
