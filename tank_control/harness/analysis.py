@@ -50,6 +50,11 @@ def robustness_table(cases: list[LoopCase]) -> str:
     return head + '\n'.join(lines) + '\n'
 
 
+#: analysis.png's layout (2 × 3 panels at 17 × 9 in): the labels fit, no tight_layout pass
+ANALYSIS_MARGINS = {'left': 0.05, 'right': 0.985, 'top': 0.92, 'bottom': 0.07, 'wspace': 0.22,
+                    'hspace': 0.28}
+
+
 def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> Path:
     """``analysis.png``: Bode of the loop gain L with the margins marked, Nyquist of L with
     the Ms circle (centre −1, radius 1/Ms) and the unit circle's −1 point, and the gang of
@@ -120,7 +125,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_g4.legend(fontsize='small')
     for ax in (ax_mag, ax_nyq, ax_step, ax_ph, ax_g4):
         ax.grid(True, alpha=0.3, which='both')
-    return save_figure(fig, path, title, dpi=90)
+    return save_figure(fig, path, title, dpi=90, margins=ANALYSIS_MARGINS)
 
 
 def predicted_step(case: LoopCase, samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:

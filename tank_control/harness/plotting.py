@@ -337,11 +337,18 @@ def plot_runs(runs: Sequence[RunPlot | tuple[str, Trace]], path: str | Path,
     return path
 
 
-def save_figure(fig, path: Path, title: str = '', dpi: int = 100) -> Path:
-    """Give ``fig`` its title, lay it out, write it to ``path`` and close it."""
+def save_figure(fig, path: Path, title: str = '', dpi: int = 100,
+                margins: Mapping[str, float] | None = None) -> Path:
+    """Give ``fig`` its title, lay it out, write it to ``path`` and close it. ``margins``
+    (``subplots_adjust``'s, fractions of the figure) fix the layout of a figure whose
+    labels are known to fit; else ``tight_layout``, which renders the figure once more to
+    measure them (half the time of analysis.png)."""
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    if margins is not None:
+        fig.subplots_adjust(**margins)
+    else:
+        fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
