@@ -194,8 +194,8 @@ class ControllerParams(ControllerReports):
 
     def _step(self, t: float, y: np.ndarray, r: np.ndarray, d: np.ndarray) -> np.ndarray:
         """One controller step; accepted parameter changes take effect at it, bumplessly."""
-        derived = self._take_derivation() if self._derivation is not None else []
         held = self._derivation.changed if self._derivation is not None else frozenset()
+        derived = self._take_derivation() if self._derivation is not None else []
         changed = [name for name in self._params.take_pending() if name in self._kind_names
                    and (self._rebuild is None or name not in self._rebuild.changed)
                    and name not in held and name not in derived] + derived

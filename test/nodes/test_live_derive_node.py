@@ -124,3 +124,6 @@ def test_an_ms_design_runs_while_sampling_goes_on_and_a_refused_one_is_set_back(
     assert node._controller.pid.config.kp == pytest.approx(new['kp'])
     assert node.counters['update_errors'] == 1
     assert [u for _, u in next_samples(3)] == pytest.approx([u0] * 3)
+    seen = len(diag)                  # /diagnostics goes on naming it at the later samples
+    assert probe.wait_for(lambda: len(diag) > seen, WAIT)
+    assert 'tuning.ms_target set back to 1.5' in diag[-1], diag[-1]
