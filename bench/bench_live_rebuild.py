@@ -13,6 +13,12 @@ path (the synchronous baseline) against off it (controller_node in wall mode).
   in the sampling thread (the node's parameter callback on its single-threaded executor, as
   before); wall: built in the worker (``nodes/live_rebuild.LiveRebuild``), the running MPCS
   samples on, the first sample after it is ready switches.
+* tuning.ms_target: a PID with ``tuning.rule`` ms on a FOPDT (K 1.3·(1 + i/100) in run i: no
+  cached design, T 2 s, L 0.6 s), h = 0.1 s, ``tuning.ms_target`` 1.4 -> 1.6 accepted after
+  sample 20. Baseline: the design in the parameter callback (derive and check, then the change
+  prepared), between two samples in the sampling thread; wall: checked without the design, the
+  design in the worker thread (``nodes/live_derive.LiveDerive``), the first sample after it is
+  ready takes the derived gains.
 
 A sample is late when it ends after the next sample instant. Baseline and wall runs
 alternate; medians of ``--runs`` each.
@@ -31,6 +37,8 @@ import numpy as np
 from tank_control.core.control.kinds import registry
 from tank_control.core.control.kinds.base import resolve
 from tank_control.core.tuning.model import ProcessModel
+from tank_control.core.scenario import controller_setup
+from tank_control.nodes import live_derive
 from tank_control.nodes.live_rebuild import LiveRebuild
 
 H = 0.1          # s of wall time per sample
@@ -114,12 +122,58 @@ def mpcs_run(wall: bool, samples: int) -> tuple[int, float, str]:
     return pacer.late, pacer.longest, state
 
 
+def pid_run(wall: bool, samples: int, variant: int) -> tuple[int, float, str]:
+    values = {'controller': 'pid', 'sample_time': H, 'tuning.rule': 'ms',
+              'tuning.gain': 1.3 * (1 + variant / 100), 'tuning.dead_time': 0.6,
+              'tuning.time_constant': 2.0}
+    kind = registry.get_kind('pid')
+    values = {**controller_setup(values).settings.values, 'controller': 'pid'}
+    controller = registry.build(kind, controller_setup(values).settings)
+    names = frozenset(n for n in values if n != 'controller')
+    changed = frozenset({'tuning.ms_target'})
+    new = {**values, 'tuning.ms_target': 1.6}
+    y, r, d = np.array([1.0]), np.array([1.0]), np.array([])
+    controller.reset(y, np.array([2.0]))
+    pacer = Pacer()
+    job, prepared, switched = None, None, -1
+    for k in range(samples):
+        instant = pacer.wait(k)
+        began = time.monotonic()
+        t = k * H
+        if job is not None and job.done():
+            gains = job.gains()        # the node writes them, then takes them at this sample
+            settings = controller_setup({**new, **gains}, given=()).settings
+            prepared = registry.prepare_change(kind, controller, settings,
+                                               changed | frozenset(gains))
+            job = None
+        if prepared is not None:
+            controller, u = prepared.take_effect(controller, t, y, r, d)
+            prepared, switched = None, k
+        else:
+            controller.step(t, y, r, d)
+        pacer.done(instant, began)
+        if k == 20:            # the change accepted between samples 20 and 21
+            accepting = time.monotonic()
+            if wall:
+                controller_setup(live_derive.without_design(new), given=changed)
+                job = live_derive.LiveDerive(kind, names, new, changed,
+                                             {'tuning.ms_target': 1.4})
+            else:
+                settings = controller_setup(new, given=changed).settings
+                prepared = registry.prepare_change(kind, controller, settings, changed,
+                                                   trial=(t, y, r, d), u_last=np.array([2.0]))
+            blocked = time.monotonic() - accepting
+    state = (f'kp {controller.pid.config.kp:.3g} from sample {switched}, the sampling thread '
+             f'busy {blocked * 1e3:.0f} ms accepting')
+    return pacer.late, pacer.longest, state
+
+
 def report(what: str, results: list[tuple[int, float, str]]) -> None:
     lates = [r[0] for r in results]
     longest = [r[1] for r in results]
     print(f'{what}: late samples median {statistics.median(lates):g} {lates}, longest step '
           f'median {statistics.median(longest) * 1e3:.1f} ms '
-          f'{[round(x * 1e3, 1) for x in longest]}, end {sorted({r[2] for r in results})}',
+          f'{[round(x * 1e3, 1) for x in longest]}, end {[r[2] for r in results]}',
           flush=True)
 
 
@@ -128,16 +182,24 @@ def main() -> None:
     parser.add_argument('--runs', type=int, default=3)
     parser.add_argument('--seconds', type=float, default=40.0, help='wall time of a relay run')
     parser.add_argument('--mpcs-samples', type=int, default=200)
-    parser.add_argument('--only', choices=('relay', 'mpcs'))
+    parser.add_argument('--pid-samples', type=int, default=100)
+    parser.add_argument('--only', choices=('relay', 'mpcs', 'pid'))
     args = parser.parse_args()
-    if args.only != 'mpcs':
+    if args.only in (None, 'relay'):
         runs = {False: [], True: []}
         for i in range(args.runs):
             for wall in (False, True):
                 runs[wall].append(relay_run(wall, args.seconds, 2 * i + wall))
         report('relay completion, on the sampling path', runs[False])
         report('relay completion, wall mode (worker process)', runs[True])
-    if args.only != 'relay':
+    if args.only in (None, 'pid'):
+        runs = {False: [], True: []}
+        for i in range(args.runs):
+            for wall in (False, True):
+                runs[wall].append(pid_run(wall, args.pid_samples, 2 * i + wall))
+        report('tuning.ms_target 1.4 -> 1.6 (rule ms), on the sampling path', runs[False])
+        report('tuning.ms_target 1.4 -> 1.6 (rule ms), wall mode (worker thread)', runs[True])
+    if args.only in (None, 'mpcs'):
         runs = {False: [], True: []}
         for _ in range(args.runs):
             for wall in (False, True):

@@ -434,6 +434,9 @@ SOURCES: dict[str, str] = {
 }
 MODEL_RULES = ('ms', 'amigo', 'simc', 'lambda', 'ho', 'tan', 'wang')
 """Rules designed on a process model (FOPDT, IPDT, SOPDT)."""
+COSTLY_RULES = ('ms',)
+"""Rules whose design is a numerical search (tenths of a second to seconds): a live node in wall
+mode runs it off the sampling path (nodes/live_derive.py)."""
 
 
 def _bad_kind(rule: str, kind: str, allowed: tuple[str, ...]) -> ValueError:
