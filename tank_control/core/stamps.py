@@ -44,7 +44,8 @@ def origin_refusal(origin_ns: int, held_ns: int | None, now_ns: int, tolerance_n
     than a plant announces it (``ORIGIN_NOTICE_S`` + a period ``ts_ns``), its stamp tolerance
     and a second — it would stop the loop until real time reaches it. The first origin is
     always taken (nothing to go on with); a genuine one of a plant on a host whose clock is
-    further ahead is taken by restarting the consumer."""
+    further ahead is taken by the controller once its measurements come on that time base
+    (nodes/protocol/controller.WallTimerClock), by the reference when it is restarted."""
     if held_ns is None or origin_ns == held_ns:
         return None
     limit = round(ORIGIN_NOTICE_S * _NS_PER_S) + ts_ns + tolerance_ns + _NS_PER_S

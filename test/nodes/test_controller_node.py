@@ -495,16 +495,18 @@ def test_wall_mode_a_message_stamped_in_the_future_does_not_freeze_the_loop(
 def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
         procs, node_cmd, ros_env, probe):
     """The plant restarts on a host whose clock is an hour ahead (a new time origin, every
-    measurement an hour ahead of this controller's clock): refused at first, then taken as a
-    clock step — within ``RECOVER_S`` plus a period (``core/stamps.py``; a generous margin
-    here for a loaded machine) — and the loop runs on."""
+    measurement an hour ahead of this controller's clock): both refused at first (an origin
+    that far ahead is held back: a stray one would stop the loop, test_hostile_origin.py),
+    then the measurements are taken as a clock step — within ``RECOVER_S`` plus a period
+    (``core/stamps.py``; a generous margin here for a loaded machine) — and with them the
+    origin they are on; the loop runs on."""
     from tank_control.core.stamps import RECOVER_S
     proc, loop, base, origins, _, measure_until = _wall_loop(procs, node_cmd, ros_env,
                                                              probe, ts=0.05)
     base['skew'] = to_ns(3600.0)              # the new session's grid, an hour ahead
     base['origin'] += base['skew']
     origins.publish(ns_to_stamp(base['origin']))
-    assert probe.wait_for(lambda: str(base['origin']) in proc.tail(), 20), proc.tail()
+    assert probe.wait_for(lambda: 'time_origin 3600 s ahead' in proc.tail(), 20), proc.tail()
     start = time.monotonic()
     assert measure_until(lambda: loop.answers[-1][0] >= base['origin'], 0.5, 30.0), proc.tail()
     took = time.monotonic() - start
@@ -513,6 +515,7 @@ def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
     assert measure_until(lambda: len(loop.answers) >= n + 5, 0.5, 30.0)   # and runs on
     assert int(loop.diag.get('rejected_future', 0)) >= 3
     assert 'clock step' in proc.tail(50)
+    assert f'time_origin {base["origin"]} ns taken' in proc.tail(50)
     # The plant restarts again, now on this host's clock (a new origin, an hour back): the
     # controller answers its measurements at once — not when real time reaches its last
     # output, stamped an hour ahead (before: silent for as long as the step was).

@@ -271,3 +271,25 @@ def test_wall_outputs_never_go_back_when_a_restarted_plant_s_grid_lags():
     out += clock.measurement(new + 6 * ts, {'y': 0.75})   # after it
     stamps_ = [t for t, _ in out]
     assert all(b > a for a, b in zip(stamps_, stamps_[1:])) and stamps_[-2:] == [last, new + 6 * ts]
+
+
+def test_wall_an_origin_far_ahead_is_held_until_measurements_come_on_its_time_base():
+    """An origin an hour ahead of the controller's clock is refused (a stray one would stop
+    the loop); the plant's measurements on the held origin go on being answered. Once a
+    measurement stamped on or after the refused origin is admitted (the plant restarted on a
+    host whose clock is ahead: FutureStamps took its clock step), that origin is the loop's."""
+    host = Host()
+    clock = make(WallArrivalClock, host, ts_ns=100_000_000)
+    origin, hour = 10_000_000_000, 3600 * 1_000_000_000
+    host.now = origin
+    clock.origin(origin)
+    clock.setpoint(origin, {'y': 3.0})
+    clock.origin(origin + hour)                                  # refused, held back
+    assert clock.origin_ns == origin and host.warnings
+    host.now = origin + 100_000_000
+    assert stamps(clock.measurement(origin + 100_000_000, {'y': 1.0})) == [origin + 100_000_000]
+    assert clock.origin_ns == origin                             # its own plant's: kept
+    step = origin + hour + 200_000_000                           # admitted by the clock step
+    clock.setpoint(step, {'y': 3.0})
+    assert stamps(clock.measurement(step, {'y': 1.0})) == [step]
+    assert clock.origin_ns == origin + hour and host.samples[-1][0] == 200_000_000

@@ -355,6 +355,7 @@ class WallTimerClock(_Latest):
         super().__init__(host, ts_ns, outputs, disturbances, future)
         self.origin_ns = None
         self.refused_origins = 0                 # time_origin messages far ahead (origin())
+        self.pending_origin: int | None = None   # the latest refused one (measurement())
         self.r_ahead, self.d_ahead = Scheduled(), Scheduled()
         self.r_valid: dict[str, float] = {}      # their last valid values
         self.d_valid: dict[str, float] = {}
@@ -371,16 +372,39 @@ class WallTimerClock(_Latest):
         if reason:
             self.future.refused += 1
             self.refused_origins += 1
+            self.pending_origin = origin_ns
             if self.refused_origins in (1, 10, 100) or self.refused_origins % 1000 == 0:
-                self.host.warning(f'{reason} ({self.refused_origins} so far)')
+                self.host.warning(f'{reason} ({self.refused_origins} so far); taken once a '
+                                  'measurement on its time base is (a plant on a host whose '
+                                  'clock is ahead: after the clock step)')
             return False
+        self.pending_origin = None
+        self._take_origin(origin_ns)
+        return False
+
+    def measurement(self, t_ns: int, values: dict[str, float]) -> Outputs:
+        """A refused time origin is the loop's once a measurement stamped on or after it has
+        been admitted (``FutureStamps`` took the measurements' clock step): a plant that
+        restarted on a host whose clock is ahead. One a stray message announced never is:
+        the plant's measurements stay on the held origin's time base."""
+        pending = self.pending_origin
+        if pending is not None and t_ns >= pending:
+            self.pending_origin = None
+            self.host.info(f'time_origin {pending} ns taken: the measurements came on its time '
+                           'base (a clock step)')
+            self._take_origin(pending, stepped=True)
+        return super().measurement(t_ns, values)
+
+    def _take_origin(self, origin_ns: int, stepped: bool = False) -> None:
+        """A new time base; ``stepped``: the measurements' clock step that brought it is
+        kept (else no clock offset is carried over)."""
         if origin_ns != self.origin_ns:
             self.host.info(f'plant time origin {origin_ns} ns: loop time = stamp - origin')
             self.origin_ns = origin_ns
-            self.future.reset()            # a new time base: no clock offset carried over
+            if not stepped:
+                self.future.reset()
             self.last_sample = None
             self.last_instant = None
-        return False
 
     def _take(self, topic: str, t_ns: int, values: Mapping[str, float]) -> None:
         if topic == SETPOINT:
