@@ -39,10 +39,11 @@ demo: $(STAMP)
 	@$(COMPILE)
 	$(BIN)/python -m tank_control.demo
 
-# Two workers (pytest-xdist), a test file to one worker: the DDS tests spend much of their time
-# waiting on the graph, so two at a time halve the wall time on the 2-core CI machine (every
-# session, so every worker, claims a ROS_DOMAIN_ID of its own). TEST_WORKERS=0 runs in one process.
-TEST_WORKERS ?= 2
+# One worker more than cores (pytest-xdist), a test file to one worker: the DDS tests spend much
+# of their time waiting on the graph and the wall clock (3 workers on the 2-core CI machine:
+# 10 min 40 s against 12 min with 2, bench/RESULTS.md "Test suite"; every session, so every
+# worker, claims a ROS_DOMAIN_ID of its own). TEST_WORKERS=0 runs in one process.
+TEST_WORKERS ?= $(shell echo $$(( $$(nproc 2>/dev/null || echo 1) + 1 )))
 
 test: $(STAMP) browser
 	@$(COMPILE)

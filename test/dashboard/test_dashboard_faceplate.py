@@ -139,14 +139,23 @@ def test_tank_two_loop_faceplate_shows_both_loops_with_units(procs, ros_env, nod
                                                             laptop):
     laptop.get(start_loop(procs, ros_env, node_cmd, tmp_path, 'tank_two_loop.yaml'))
     check_layout(laptop, 2, tmp_path, 'tank')
-    units = laptop.execute_script(
-        'return [...document.querySelectorAll(arguments[0] + " .fp-unit")]'
-        '.map((e) => e.textContent);', FACEPLATE)
-    assert units == ['cm', 'cm', 'cm³/s', '°C', '°C', 'cm³/s']
-    heading = laptop.find_element(By.CSS_SELECTOR, '.chart[data-chart="y-h"] h3').text
-    assert heading == 'output h [cm]'
-    gains = laptop.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="gains"]').text
-    assert all(g in gains for g in ('two_loop.kp_h', 'two_loop.ki_T'))
+    # the units come with the plant's parameters, which may reach the dashboard after the
+    # faceplate was first drawn (a loaded machine): wait until they are shown
+    expected = ['cm', 'cm', 'cm³/s', '°C', '°C', 'cm³/s']
+
+    def units(d) -> list[str]:
+        return d.execute_script(
+            'return [...document.querySelectorAll(arguments[0] + " .fp-unit")]'
+            '.map((e) => e.textContent);', FACEPLATE)
+    waiter(laptop).until(lambda d: units(d) == expected, f'faceplate units, expected {expected}')
+
+    def heading(d) -> str:
+        return d.find_element(By.CSS_SELECTOR, '.chart[data-chart="y-h"] h3').text
+    waiter(laptop).until(lambda d: heading(d) == 'output h [cm]', 'trend heading with its unit')
+    def gains(d) -> str:
+        return d.find_element(By.CSS_SELECTOR, f'{FACEPLATE} [data-testid="gains"]').text
+    waiter(laptop).until(lambda d: all(g in gains(d) for g in ('two_loop.kp_h', 'two_loop.ki_T')),
+                         'both loops\' gains on the faceplate')
 
 
 def test_a_mode_change_is_confirmed_and_undone_and_a_refusal_restores_the_field(

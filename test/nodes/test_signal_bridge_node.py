@@ -22,7 +22,11 @@ from tank_control.nodes.messages import ORIGIN_QOS, from_joint_state, stamp_to_n
 RECORD_QOS = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
 TS = 0.1          # the loop's sample time [s]
 GAIN = 1.0        # the device: y' = GAIN u
-KP = 2.0          # P control: closed loop of time constant 1 / (KP GAIN) = 0.5 s
+KP = 2.0          # PI control of the integrator: crossover ≈ KP·GAIN = 2 rad/s
+TI = 2.0          # [s] the PI's zero at 0.5 rad/s. Not P alone: a measurement gap on a busy
+                  # machine holds the output (fail_safe hold), and the return re-initialises
+                  # the law bumplessly — without integral action that bias stays, an offset
+                  # (docs/controllers.md); the integral removes it.
 U_MAX = 5.0
 
 
@@ -35,7 +39,7 @@ def params(tmp_path, publish: str = 'each') -> str:
             'measurement.publish': publish}},
         'controller': {'ros__parameters': {
             'controller': 'pid', 'clock_mode': 'wall', 'sample_time': TS, 'output_names': ['y'],
-            'input_names': ['u'], 'kp': KP, 'ti': 0.0, 'u_min': -U_MAX, 'u_max': U_MAX,
+            'input_names': ['u'], 'kp': KP, 'ti': TI, 'u_min': -U_MAX, 'u_max': U_MAX,
             'fail_safe': 'hold'}},
         'reference': {'ros__parameters': {
             'clock_mode': 'wall', 'sample_time': TS, 'setpoint.channels': ['y'],
@@ -94,7 +98,7 @@ def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_a
     for name in ('signal_bridge', 'controller', 'reference'):
         procs.start(name, node_cmd(f'{name}_node', '--params-file', file), env=ros_env)
 
-    # y follows the setpoint step 0 -> 1 at t = 2 s (P control of an integrator: no offset)
+    # y follows the setpoint step 0 -> 1 at t = 2 s (PI control: no offset)
     assert probe.wait_for(lambda: abs(device.level - 1.0) < 0.02 and len(device.commands) > 30,
                           120), (device.level, device.commands[-3:], u[-3:], y[-3:], diags[-1:],
                                  len(r), r[:2], r[-2:], origins, controller_diags[-1:],
@@ -138,7 +142,7 @@ def test_controller_node_closes_the_loop_through_the_bridge_and_hostile_values_a
     n = len(device.commands)
     assert probe.wait_for(lambda: len(device.commands) > n + 10, 30)
     # still at the setpoint: a busy machine delays the loop's hops (the device integrates on
-    # wall time), so a P loop may ring a little before it settles again
+    # wall time), so the loop may ring a little before it settles again
     assert probe.wait_for(lambda: abs(device.level - 1.0) < 0.02, 60), device.level
 
 
