@@ -25,6 +25,7 @@ Units: those of each channel (docs/nodes.md, "Plausible ranges").
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -53,6 +54,25 @@ DEFAULTS: Mapping[str, tuple[float, float]] = MappingProxyType({
     'F_H': _F, 'F_Cin': _F, 'F_D': _F,
     'y': (-SISO_OUTPUT, SISO_OUTPUT), 'u': (-SISO_INPUT, SISO_INPUT),
     'v': (-SISO_INPUT, SISO_INPUT)})
+
+
+_CHANNEL = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
+
+
+def channel_names(values: Mapping[str, Any], direction: str) -> list[str]:
+    """``<direction>.channels`` of ``values`` ([''] = none), checked: a bridge node's
+    measurement and manipulated channels (opcua_bridge_node, signal_bridge_node)."""
+    names = values.get(f'{direction}.channels', [''])
+    if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
+        raise ConfigError(f'{direction}.channels: {names!r} is not a list of channel names')
+    names = [n for n in names if n != '']
+    for name in names:
+        if not _CHANNEL.match(name):
+            raise ConfigError(f'{direction}.channels: {name!r} is not a channel name; allowed '
+                              'letters, digits and _ (quote names such as y, n in YAML)')
+    if len(set(names)) != len(names):
+        raise ConfigError(f'{direction}.channels: repeated name in {names}')
+    return names
 
 
 def default_range(channel: str) -> tuple[float, float]:

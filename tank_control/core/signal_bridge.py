@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from tank_control.core import ranges
+from tank_control.core.ranges import channel_names
 from tank_control.core.node_specs import diagnostics_period_param, max_future_stamp_param
 from tank_control.core.params import ConfigError, ParamSpec, config_from, param, specs_of
 from tank_control.core.stamps import FutureStamps, future_tolerance_ns
@@ -54,7 +55,6 @@ TYPES = {
     'Illuminance': ScalarType('sensor_msgs/msg/Illuminance', 'illuminance', True),
     'Range': ScalarType('sensor_msgs/msg/Range', 'range', True),
 }
-_CHANNEL = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 _TOPIC = re.compile(r'^(~/|/)?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$')
 #: the loop's own topics, which a driver topic must not be (the bridge would feed itself)
 LOOP_TOPICS = ('measurement', 'manipulated', 'setpoint', 'disturbance', 'time_origin')
@@ -109,21 +109,6 @@ class BridgeSettings:
     measurement: tuple[Channel, ...]
     manipulated: tuple[Channel, ...]
     limits: ranges.Ranges = field(default_factory=ranges.Ranges)
-
-
-def channel_names(values: Mapping[str, Any], direction: str) -> list[str]:
-    """``<direction>.channels`` of ``values`` ([''] = none), checked."""
-    names = values.get(f'{direction}.channels', [''])
-    if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
-        raise ConfigError(f'{direction}.channels: {names!r} is not a list of channel names')
-    names = [n for n in names if n != '']
-    for name in names:
-        if not _CHANNEL.match(name):
-            raise ConfigError(f'{direction}.channels: {name!r} is not a channel name; allowed '
-                              'letters, digits and _ (quote names such as y, n in YAML)')
-    if len(set(names)) != len(names):
-        raise ConfigError(f'{direction}.channels: repeated name in {names}')
-    return names
 
 
 def channel_specs(values: Mapping[str, Any],

@@ -21,7 +21,7 @@ from tank_control.core.control.kinds.base import ControllerKind
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup
 from tank_control.core.tuning.rules import COSTLY_RULES
-from tank_control.nodes.live_rebuild import _worker
+from tank_control.nodes.live_rebuild import WorkerJob, _worker
 
 LOOP = ('sample_time', 'n')
 """the loop parameters a model-based rule designs the implemented loop with"""
@@ -55,7 +55,7 @@ def _design(kind: ControllerKind, kind_names: frozenset[str], values: dict[str, 
     return {k: v for k, v in derived.items() if k not in given}
 
 
-class LiveDerive:
+class LiveDerive(WorkerJob):
     """One accepted change of the design's inputs being designed in the worker.
 
     ``changed``: the design inputs changed since the running law was made (held back from the
@@ -67,17 +67,6 @@ class LiveDerive:
         self.changed, self.old = changed, dict(old)
         self._future: Future[dict[str, Any]] = _worker().submit(
             _design, kind, kind_names, dict(values), changed)
-
-    def done(self) -> bool:
-        return self._future.done()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """True once the result is there (tests)."""
-        try:
-            self._future.exception(timeout)
-        except TimeoutError:
-            return False
-        return True
 
     def gains(self) -> dict[str, Any]:
         """The derived values; ``ValueError`` with the reason the design failed."""

@@ -39,7 +39,24 @@ def _worker() -> ThreadPoolExecutor:
         return _WORKER
 
 
-class LiveRebuild:
+class WorkerJob:
+    """A job on this process's worker (``_future``): whether its result is there."""
+
+    _future: Future[Any]
+
+    def done(self) -> bool:
+        return self._future.done()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """True once the result is there (tests)."""
+        try:
+            self._future.exception(timeout)
+        except TimeoutError:
+            return False
+        return True
+
+
+class LiveRebuild(WorkerJob):
     """One accepted change being built in the worker thread.
 
     ``snapshot``: a copy of the running controller taken on acceptance (the worker changes
@@ -54,17 +71,6 @@ class LiveRebuild:
         self._future: Future[registry.PreparedChange] = _worker().submit(
             registry.prepare_change, kind, snapshot, settings, changed, trial=trial,
             u_last=u_last, copy_running=False)
-
-    def done(self) -> bool:
-        return self._future.done()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """True once the result is there (tests)."""
-        try:
-            self._future.exception(timeout)
-        except TimeoutError:
-            return False
-        return True
 
     def prepared(self) -> registry.PreparedChange:
         """The built change; ``ValueError`` with the reason it was refused."""

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from tank_control.core import ranges
+from tank_control.core.ranges import channel_names
 from tank_control.core.node_specs import diagnostics_period_param
 from tank_control.core.params import ConfigError, ParamSpec, config_from, param, specs_of
 
@@ -23,7 +24,6 @@ DIRECTIONS = ('measurement', 'manipulated')
 POLICIES = ('None', 'Basic256Sha256')
 MODES = ('Sign', 'SignAndEncrypt')
 _ENDPOINT = re.compile(r'^opc\.tcp://[^/\s:]+(:\d{1,5})?(/\S*)?$')
-_CHANNEL = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
 
 
 @dataclass(frozen=True)
@@ -117,21 +117,6 @@ class BridgeSettings:
 
     def node_id_param(self, direction: str, channel: str) -> str:
         return f'{direction}.{channel}.node_id'
-
-
-def channel_names(values: Mapping[str, Any], direction: str) -> list[str]:
-    """``<direction>.channels`` of ``values`` ([''] = none), checked."""
-    names = values.get(f'{direction}.channels', [''])
-    if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
-        raise ConfigError(f'{direction}.channels: {names!r} is not a list of channel names')
-    names = [n for n in names if n != '']
-    for name in names:
-        if not _CHANNEL.match(name):
-            raise ConfigError(f'{direction}.channels: {name!r} is not a channel name; allowed '
-                              'letters, digits and _ (quote names such as y, n in YAML)')
-    if len(set(names)) != len(names):
-        raise ConfigError(f'{direction}.channels: repeated name in {names}')
-    return names
 
 
 def channel_specs(values: Mapping[str, Any],
