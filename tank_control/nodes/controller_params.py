@@ -116,15 +116,20 @@ class ControllerParams(ControllerReports):
             if result is not None and not result.successful:
                 raise ValueError(result.reason)
         except ValueError as exc:
-            self.counters['update_errors'] += 1
-            back = ', '.join(f'{n} set back to {v!r}' for n, v in sorted(derivation.old.items()))
-            self._update_error = (f'tuning design failed ({exc}); the running gains are kept '
-                                  f'and {back}')
-            self.get_logger().error(self._update_error)
-            self._params.write(derivation.old, source='the tuning design failed')
-            self._publish_diagnostics()
+            self._set_back(derivation.old, f'tuning design failed ({exc}); the running gains '
+                           'are kept', 'the tuning design failed')
             return []
         return sorted(set(gains) | derivation.changed)
+
+    def _set_back(self, old: Mapping[str, Any], what: str, source: str) -> None:
+        """A change made off the sampling path failed: count it, say ``what`` happened and
+        which values were set back (log, /diagnostics), and write ``old`` back."""
+        self.counters['update_errors'] += 1
+        back = ', '.join(f'{n} set back to {v!r}' for n, v in sorted(old.items()))
+        self._update_error = f'{what} and {back}'
+        self.get_logger().error(self._update_error)
+        self._params.write(old, source=source)
+        self._publish_diagnostics()
 
     def _mark_clock(self, controller: Any) -> Any:
         """A controller with heavy work of its own (the relay auto-tuner's design) does it
@@ -156,13 +161,8 @@ class ControllerParams(ControllerReports):
         try:
             rebuild.prepared()
         except ValueError as exc:
-            self.counters['update_errors'] += 1
-            back = ', '.join(f'{n} set back to {v!r}' for n, v in sorted(rebuild.old.items()))
-            self._update_error = (f'parameter change refused when built ({exc}); the running '
-                                  f'law is kept and {back}')
-            self.get_logger().error(self._update_error)
-            self._params.write(rebuild.old, source='the change could not be built')
-            self._publish_diagnostics()
+            self._set_back(rebuild.old, f'parameter change refused when built ({exc}); the '
+                           'running law is kept', 'the change could not be built')
             return None
         self._controller, u = rebuild.switch(self._controller, gen, t, y, r, d)
         self._mark_clock(self._controller)

@@ -570,7 +570,7 @@ class _Subscription(Subscription):
     """asyncua's subscription, each publish response handed to the bridge in the publish
     callback itself (:meth:`Bridge._flush`): asyncua's handler path calls a handler from a task
     per notification, after the client has encoded and sent its next PublishRequest (about
-    0.2 ms later on a loaded machine; bench/RESULTS.md "OPC UA bridge (issue 35 §4)")."""
+    0.2 ms later on a loaded machine; bench/RESULTS.md "OPC UA bridge")."""
 
     def __init__(self, bridge: Bridge, session: Any, params: ua.CreateSubscriptionParameters
                  ) -> None:
