@@ -182,7 +182,9 @@ def test_the_plant_refuses_an_implausible_input_and_keeps_its_state_finite(
     assert probe.wait_for(lambda: rec.diagnostics
                           and int(rec.diagnostics[-1].get('out_of_range_inputs', 0)) >= 2, 20)
     assert rec.diagnostics[-1]['level'] == DiagnosticStatus.WARN
-    assert proc.tail(50).count("outside range.u") == 1     # logged once
+    # logged at most once per diagnostics period (0.1 s): the two refusals (ticks 1 and 2) in
+    # one period give one line, a busy machine may put them in two
+    assert 1 <= proc.tail(50).count("outside range.u") <= 2
 
 
 def test_the_plant_refuses_an_input_far_outside_its_controllers_limits(
