@@ -6,7 +6,9 @@
   session says it holds the domain (``domains.EXCLUSIVE_ENV``): a harness run in it does not
   wait ``harness.discovery_time`` for a graph that was there before; a test that puts a
   foreign graph on the domain takes the environment ``shared_ros_env`` instead.
-* Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+* Discovery stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), with the
+  harness's announcement profile (``domains.start_profile_env``) for this process and the
+  nodes its tests start.
 * Processes started through the ``procs`` fixture run in their own process
   groups and are stopped (SIGINT → SIGTERM → SIGKILL) at the end of the test.
 * ``--no-graph`` (``make test-fast``) runs only the tests that need no ROS graph: a test
@@ -43,6 +45,12 @@ os.environ.setdefault('RCUTILS_LOGGING_BUFFERED_STREAM', '0')
 # a ros2 daemon started by a test's `ros2` command ends with the session (ros2_daemons), or
 # after this many idle seconds should the session be killed
 os.environ['TANK_CONTROL_ROS2_DAEMON_IDLE'] = '300'
+# This process's participant lives as long as the session and the nodes its tests start come
+# and go: all announce themselves as a run's processes do (domains.start_profile_env: often at
+# first, then every 0.5 s instead of 3), so a node started by a test is found at once, not at
+# the session participant's next announcement. Set before anything creates a participant
+# (Fast DDS reads the variable once); a test that names a profile of its own keeps it.
+os.environ.update(domains.start_profile_env(os.environ))
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -102,7 +102,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
                          label=f'|{name}|' if i == 0 else None)
     ax_mag.axhline(1.0, color='k', lw=0.6)
     ax_mag.set_ylabel('|L(jω)|')
-    ax_mag.set_title('loop gain L = C·G (exact delay, ZOH)')
+    ax_mag.set_title('loop gain L = C·G (exact delay, ZOH)', y=1.0)
     ax_mag.legend(fontsize='small')
     ax_ph.axhline(-180.0, color='k', lw=0.6)
     ax_ph.set_ylim(-540.0, 0.0)                       # the dead time's phase falls without end
@@ -112,19 +112,19 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_nyq.set_xlim(-3, 1.5)
     ax_nyq.set_ylim(-2.5, 2.0)
     ax_nyq.set_aspect('equal')
-    ax_nyq.set_title('Nyquist of L with the Ms circle')
+    ax_nyq.set_title('Nyquist of L with the Ms circle', y=1.0)
     ax_nyq.set_xlabel('Re L')
     ax_nyq.set_ylabel('Im L')
     ax_nyq.legend(fontsize='small')
     ax_step.axhline(1.0, color='k', lw=0.6)
-    ax_step.set_title('predicted setpoint step y/r (linear, stable loops)')
+    ax_step.set_title('predicted setpoint step y/r (linear, stable loops)', y=1.0)
     ax_step.set_xlabel('t [s]')
     ax_step.set_ylabel('y for a unit step of r')
-    ax_g4.set_title('gang of four ([Ikonen])')
+    ax_g4.set_title('gang of four ([Ikonen])', y=1.0)
     ax_g4.set_xlabel('ω [rad/s]')
     ax_g4.legend(fontsize='small')
     for ax in (ax_mag, ax_nyq, ax_step, ax_ph, ax_g4):
-        ax.grid(True, alpha=0.3, which='both')
+        ax.grid(True, alpha=0.3, which='major')
     return save_figure(fig, path, title, dpi=90, margins=ANALYSIS_MARGINS)
 
 

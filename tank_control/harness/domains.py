@@ -58,12 +58,16 @@ def participants_on(domain_id: int) -> list[int]:
 
 
 #: Fast DDS (2.x) participants that the harness starts (its recorder, the nodes) announce
-#: themselves every 0.1 s for their first 4 s (``initialAnnouncements``; then every 3 s, the
-#: default), so that the run's processes, which join within a second or two of each other, find
-#: each other at once: a participant already on the domain answers a newcomer only at its next
-#: announcement, and the nodes took 2.5 s longer to show in the recorder's graph
-#: (bench/RESULTS.md, "A ROS run starts at once").
+#: themselves every 0.1 s for their first 4 s (``initialAnnouncements``), then every
+#: :data:`ANNOUNCEMENT_PERIOD` s (Fast DDS's default: 3 s), so that the run's processes, which
+#: join within a second or two of each other, find each other at once, and a node the harness
+#: restarts is found within that period: a participant already on the domain answers a
+#: newcomer only at its next announcement, and the nodes took 2.5 s longer to show in the
+#: recorder's graph (bench/RESULTS.md, "A ROS run starts at once"). The lease (20 s) is
+#: Fast DDS's default.
 START_ANNOUNCEMENTS = (40, 0.1)
+#: Seconds between a participant's announcements after its first 4 s (see above).
+ANNOUNCEMENT_PERIOD = 0.5
 PROFILES_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 _OWN_PROFILES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 
@@ -83,8 +87,10 @@ def start_profile_env(env: Mapping[str, str]) -> dict[str, str]:
             '  <participant profile_name="tank_control_start" is_default_profile="true">\n'
             '    <rtps><builtin><discovery_config><initialAnnouncements>\n'
             f'      <count>{count}</count>\n'
-            f'      <period><sec>0</sec><nanosec>{int(period * 1e9)}</nanosec></period>\n'
-            '    </initialAnnouncements></discovery_config></builtin></rtps>\n'
+            f'      <period>{_duration(period)}</period>\n'
+            '    </initialAnnouncements>\n'
+            f'    <leaseAnnouncement>{_duration(ANNOUNCEMENT_PERIOD)}</leaseAnnouncement>\n'
+            '    </discovery_config></builtin></rtps>\n'
             '  </participant>\n</profiles>\n')
     path = Path(tempfile.gettempdir()) / f'tank_control_fastdds_start_{os.getuid()}.xml'
     try:
@@ -96,6 +102,12 @@ def start_profile_env(env: Mapping[str, str]) -> dict[str, str]:
         return out                              # no profile: discovery as by default
     out[PROFILES_ENV] = str(path)
     return out
+
+
+def _duration(seconds: float) -> str:
+    """A Fast DDS XML duration of ``seconds`` [s]."""
+    whole = int(seconds)
+    return f'<sec>{whole}</sec><nanosec>{int(round((seconds - whole) * 1e9))}</nanosec>'
 
 
 def local_only(env: Mapping[str, str]) -> bool:

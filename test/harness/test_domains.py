@@ -75,6 +75,8 @@ def test_the_start_profile_is_named_unless_the_caller_has_one():
     text = open(env[domains.PROFILES_ENV]).read()
     count, period = domains.START_ANNOUNCEMENTS
     assert f'<count>{count}</count>' in text and f'<nanosec>{int(period * 1e9)}</nanosec>' in text
+    assert ('<leaseAnnouncement><sec>0</sec><nanosec>500000000</nanosec></leaseAnnouncement>'
+            in text and domains.ANNOUNCEMENT_PERIOD == 0.5)
     own = {'FASTRTPS_DEFAULT_PROFILES_FILE': '/etc/mine.xml'}
     assert domains.start_profile_env(own) == own
     assert domains.start_profile_env({'FASTDDS_DEFAULT_PROFILES_FILE': 'x.xml'}).get(
