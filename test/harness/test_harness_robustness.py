@@ -356,8 +356,9 @@ def _stream(out: Path, ticks: int, clock: list[float]) -> tuple[Any, list]:
 def test_the_recording_streams_with_bounded_memory(tmp_path):
     """Messages go to run.mcap and rows to trace.csv as they come: what stays in memory is the
     table (8 bytes per value: 5 columns here) and a couple of seconds of messages."""
+    _stream(tmp_path / 'warm-up', 300, [0.0])[0].close()   # imports and caches: not growth
     peaks = {}
-    for ticks in (2_000, 10_000):
+    for ticks in (1_000, 4_000):
         clock = [0.0]
         tracemalloc.start()
         stream, _ = _stream(tmp_path / str(ticks), ticks, clock)
@@ -365,7 +366,7 @@ def test_the_recording_streams_with_bounded_memory(tmp_path):
         peaks[ticks] = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         assert len(trace) == ticks
-    growth = (peaks[10_000] - peaks[2_000]) / 8_000
+    growth = (peaks[4_000] - peaks[1_000]) / 3_000
     assert growth < 200, f'{growth:.0f} bytes per tick'       # ≥ 1.6 kB per tick when kept
 
 
@@ -418,7 +419,7 @@ def test_an_incomplete_run_leaves_out_the_row_whose_answers_never_came(tmp_path)
 RECOVER = [sys.executable, '-m', 'tank_control.harness.cli', 'recover']
 
 
-@pytest.mark.parametrize('kill_at', [5.0, 25.0])
+@pytest.mark.parametrize('kill_at', [5.0, 12.0])
 def test_a_hard_kill_loses_at_most_the_last_second_and_recover_makes_it_readable(
         kill_at, tmp_path, procs, ros_env, probe):
     """SIGKILL of the harness ``kill_at`` seconds into a real-time lockstep run (simulated time

@@ -85,22 +85,23 @@ def test_lockstep_beside_busy_loops_records_every_tick_equal_to_in_process(tmp_p
                                                                           procs):
     """The recorder is off the tick's serial path (the plant runs up to 8 ticks ahead of its
     acknowledgments): with two busy loops competing for the 2 cores, as fast as possible,
-    every tick of every signal is in run.mcap and trace.csv, equal to the in-process loop."""
+    every tick of every signal is in run.mcap and trace.csv, equal to the in-process loop (60 s:
+    the setpoint step at 10 s and 600 ticks of the busy machine)."""
     for i in range(2):
         procs.start(f'busy{i}', [sys.executable, '-c', 'while 1: pass'])
     scenario = str(CONFIG / 'ipdt_pid.yaml')
-    ros = cli('run', scenario, '--out', str(tmp_path / 'ros'), '--duration', '150', '--rtf', '0',
+    ros = cli('run', scenario, '--out', str(tmp_path / 'ros'), '--duration', '60', '--rtf', '0',
               env=ros_env)
     assert ros.returncode == 0, ros.stderr[-3000:]
-    ref = cli('run', scenario, '--out', str(tmp_path / 'ref'), '--duration', '150',
+    ref = cli('run', scenario, '--out', str(tmp_path / 'ref'), '--duration', '60',
               '--in-process', env=ros_env)
     assert ref.returncode == 0, ref.stderr[-3000:]
     assert_equal_traces(tmp_path / 'ros' / 'trace.csv', tmp_path / 'ref' / 'trace.csv')
     run_info = json.loads((tmp_path / 'ros' / 'metrics.json').read_text())['run']
-    assert run_info['ticks'] == 1501 and run_info['missed_samples'] == 0
+    assert run_info['ticks'] == 601 and run_info['missed_samples'] == 0
     assert run_info['record_window'] == 8
     topics = read_mcap(tmp_path / 'ros' / 'run.mcap')
-    ticks = {k * 100_000_000 for k in range(1501)}
+    ticks = {k * 100_000_000 for k in range(601)}
     for topic in ('/measurement', '/manipulated', '/clock'):
         stamps = {stamp_ns(m) for m in topics[topic]}
         assert ticks <= stamps, (topic, sorted(ticks - stamps)[:10])

@@ -20,7 +20,7 @@ EXP_PI = CONFIG / 'scenarios' / 'ipdt_exp_pi.yaml'
 
 
 def small_spec(**kw) -> sweep.SweepSpec:
-    """Four grid points x two random samples on two scenarios, 120 s each (32 runs)."""
+    """Four grid points x two random samples on two scenarios, 120 s each (16 runs)."""
     base = dict(scenarios=(MDP_PID, EXP_PI),
                 grid=(sweep.GridAxis.parse('plant.dead_time=±20%:2'),
                       sweep.GridAxis.parse('plant.gain=0.045,0.055')),
@@ -147,7 +147,7 @@ def test_failures_are_rows_with_their_reason_and_never_stop_the_sweep(tmp_path):
 @pytest.mark.slow
 def test_results_do_not_depend_on_the_executor_or_the_number_of_workers(tmp_path):
     from distributed import LocalCluster
-    spec = small_spec()
+    spec = small_spec(samples=1, duration=60.0)      # 8 runs over 2 workers
     inline = sweep.run_sweep(spec, tmp_path / 'inline', sweep.InlineExecutor())
     with sweep.local_executor(2) as pool:
         local = sweep.run_sweep(spec, tmp_path / 'local', pool)
