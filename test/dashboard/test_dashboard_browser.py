@@ -16,8 +16,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
-from support.browser import dashboard_url, headless_chromium
-from support.procfs import group_members
+from support.browser import chromium_page, dashboard_url
 from support.ros2cli import ros2
 
 SCENARIO = CONFIG / 'fopdt_autotune.yaml'
@@ -42,10 +41,9 @@ def live_loop(procs, ros_env, node_cmd, tmp_path):
 
 @pytest.fixture
 def page(live_loop):
-    with headless_chromium() as driver:
+    with chromium_page() as driver:
         driver.get(live_loop)
         yield driver
-    assert not group_members(driver.service.process.pid)
 
 
 def call(probe, srv, name, request):
@@ -274,7 +272,7 @@ def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env
     for module in ('plant_node', 'controller_node'):
         procs.start(module, node_cmd(module, '--params-file', params), env=ros_env)
     dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
-    with headless_chromium() as driver:
+    with chromium_page() as driver:
         driver.get(dashboard_url(dash))
         wait = WebDriverWait(driver, WAIT)
         line = 'controller two_loop_pi: the kind gives no linear description'
@@ -283,7 +281,6 @@ def test_a_loop_the_analysis_cannot_describe_is_named_in_one_line(procs, ros_env
         assert panel.get_attribute('data-available') == 'false'
         assert not driver.find_element(By.ID, 'robustness-body').is_displayed()
         assert '\n' not in driver.find_element(By.ID, 'robustness-reason').text
-    assert not group_members(driver.service.process.pid)
 
 
 def test_the_page_writes_only_from_the_logged_url(procs, ros_env, node_cmd, probe):
@@ -297,7 +294,7 @@ def test_the_page_writes_only_from_the_logged_url(procs, ros_env, node_cmd, prob
     base, _, query = logged.partition('?')
     assert query.startswith('token=')
     before = controller_param(probe, 'u_max')
-    with headless_chromium() as driver:
+    with chromium_page() as driver:
         wait = WebDriverWait(driver, WAIT, ignored_exceptions=(StaleElementReferenceException,))
         driver.get(base)
         wait.until(lambda d: d.find_elements(By.CSS_SELECTOR,
@@ -322,4 +319,3 @@ def test_the_page_writes_only_from_the_logged_url(procs, ros_env, node_cmd, prob
         wait.until(lambda d: 'pending' not in param_input(d, 'u_max').get_attribute('class'))
         assert reason_text(driver, 'u_max') == ''
         assert controller_param(probe, 'u_max') == 0.5
-    assert not group_members(driver.service.process.pid)

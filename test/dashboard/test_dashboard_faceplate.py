@@ -19,8 +19,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
-from support.browser import dashboard_url, headless_chromium
-from support.procfs import group_members
+from support.browser import chromium_page, dashboard_url
 
 WAIT = 60.0                  # s: a loaded 2-core machine; every wait ends at its event
 LAPTOP = (1366, 768)
@@ -43,9 +42,8 @@ def start_loop(procs, ros_env, node_cmd, tmp_path: Path, scenario: str) -> str:
 
 @pytest.fixture
 def laptop():
-    with headless_chromium(*LAPTOP) as driver:
+    with chromium_page(*LAPTOP) as driver:
         yield driver
-    assert not group_members(driver.service.process.pid)
 
 
 def waiter(driver) -> WebDriverWait:

@@ -16,7 +16,7 @@ import numpy as np
 from selenium.common.exceptions import TimeoutException
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
-from support.browser import dashboard_url, headless_chromium
+from support.browser import chromium_page, dashboard_url
 from support.procfs import processes_with
 
 from tank_control.core.trace import Trace
@@ -41,7 +41,7 @@ def test_lockstep_with_the_dashboard_attached_equals_in_process(tmp_path, procs,
                                                                 node_cmd):
     import time
     dash = procs.start('dashboard', node_cmd('dashboard_node', '-p', 'port:=0'), env=ros_env)
-    with headless_chromium() as page:
+    with chromium_page() as page:
         page.get(dashboard_url(dash))
         WebDriverWait(page, 60).until(lambda d: d.execute_script(
             'return document.getElementById("connection").textContent') == 'live')
@@ -123,7 +123,7 @@ def test_tank_control_run_dashboard_serves_the_run_and_stops_with_it(tmp_path, p
     while not (log.exists() and 'dashboard at' in log.read_text(errors='replace')):
         assert harness.returncode is None and time.monotonic() < deadline, harness.tail()
         time.sleep(0.1)            # polling a log file: no event to wait on
-    with headless_chromium() as page:
+    with chromium_page() as page:
         page.get(f'http://127.0.0.1:{port}/')
         script = ('const m = window.tankDashboard && window.tankDashboard.topics.measurement;'
                   'return m ? m.t.length : 0;')
