@@ -34,7 +34,12 @@ class LoopCase:
     input: str
 
     def report(self) -> LoopReport:
-        return self.controller.report(self.model)
+        """The loop's :class:`LoopReport`, computed once (the case is immutable)."""
+        cached = self.__dict__.get('_report')
+        if cached is None:
+            cached = self.controller.report(self.model)
+            object.__setattr__(self, '_report', cached)
+        return cached
 
 
 def describe_loop(plant_values: Mapping[str, Any] | None,

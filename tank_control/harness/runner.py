@@ -34,6 +34,7 @@ from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
+from tank_control.harness.analysis_ahead import AnalysisAhead
 from tank_control.harness.domains import (domain_of, exclusive_domain, local_only, lock_run,
                                           participants_on, start_profile_env)
 from tank_control.harness.graph_check import foreign_graph
@@ -247,14 +248,15 @@ def _planned_report(scenario: Scenario) -> tuple[dict[str, tuple[float, float]],
 
 
 def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any],
-                complete: bool = True, plant_only: bool = False
-                ) -> tuple[dict[str, Any], list[Any]]:
+                complete: bool = True, plant_only: bool = False,
+                cases_ahead: list[Any] | None = None) -> tuple[dict[str, Any], list[Any]]:
     """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
     analysis) and the loop cases it was analysed on; also what a sweep records per run
     (``plant_only``: the loop analysed on the plant's model only, not also on the
     controller's own model, which a sweep does not report). ``complete=False`` (a failed or
     stopped run): what can be known, the controller's limits and gains from the file when the
-    node could not be asked, no error from the report."""
+    node could not be asked, no error from the report. ``cases_ahead``: the loop cases
+    already built for these parameters (``analysis_ahead``)."""
     if complete:
         limits, gains = controller_report(scenario, controller_params)
         warnings = controller_warnings(controller_params)
@@ -271,10 +273,12 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
     summary = controller_summary(controller_params)
     robustness = {k: v for k, v in controller_params.items() if k.startswith('robustness.')}
     from tank_control.core.scenario_loops import loop_cases
-    cases, analysis_note = [], ''
+    cases: list[Any] = []
+    analysis_note = ''
     if 'controller' in scenario.harness.started and controller_params:
         try:
-            cases = loop_cases(scenario.sections, controller_params)
+            cases = (cases_ahead if cases_ahead is not None
+                     else loop_cases(scenario.sections, controller_params))
             if plant_only:
                 cases = [case for case in cases if case.label.startswith('plant')]
         except (ConfigError, ValueError) as exc:
@@ -301,10 +305,13 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
 
 def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
            controller_params: Mapping[str, Any], files: Mapping[str, Path],
-           reason: str | None = None) -> RunResult:
+           reason: str | None = None, ahead: AnalysisAhead | None = None) -> RunResult:
     """Write metrics.json, plot.png and analysis.png next to the trace and recording already
-    written; ``reason``: why the run is not complete (None: it is)."""
-    measured, cases = run_metrics(scenario, trace, controller_params, complete=reason is None)
+    written; ``reason``: why the run is not complete (None: it is); ``ahead``: the loop
+    analysis computed during the run, used if it was for ``controller_params``."""
+    cases_ahead = ahead.take(controller_params) if ahead is not None else None
+    measured, cases = run_metrics(scenario, trace, controller_params, complete=reason is None,
+                                  cases_ahead=cases_ahead)
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
@@ -323,14 +330,18 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     from tank_control.harness.plotting import plot_runs, run_plot
     files = {**files, 'metrics': out / 'metrics.json'}
     if cases:
-        files['analysis'] = plot_analysis(cases, out / 'analysis.png',
-                                          title=f'{scenario.harness.title or scenario.name}: '
-                                                'final gains')
+        placed = ahead.place(out / 'analysis.png') if ahead and cases_ahead is not None else None
+        files['analysis'] = placed or plot_analysis(cases, out / 'analysis.png',
+                                                    title=analysis_title(scenario))
     files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
     if len(trace):
         files['plot'] = plot_runs([run_plot(scenario.name, trace, metrics)], out / 'plot.png',
                                   title=scenario.harness.title or scenario.name)
     return RunResult(scenario.name, out, trace, metrics, files)
+
+
+def analysis_title(scenario: Scenario) -> str:
+    return f'{scenario.harness.title or scenario.name}: final gains'
 
 
 def run_metadata(scenario: Scenario, mode: str) -> dict[str, str]:
@@ -538,6 +549,7 @@ class _RosRun:
         self.stop = stop
         self.group: ProcessGroup | None = None
         self.created_out = False
+        self.ahead: AnalysisAhead | None = None    # the loop analysis, computed during the run
         self.nobody_before = False                 # no participant on the domain at the start
         self.duration_ns = int(round(self.config.duration * NS))
         self.mode = self.config.clock_mode
@@ -811,7 +823,8 @@ class _RosRun:
             if self.dashboard is not None:       # watches only; stopped with the nodes
                 self._procs.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
                                                '-p', f'port:={self.dashboard}'], env=self.env)
-            _warm_up()                             # while the nodes start (once)
+            # the results' imports, then the loop analysis, in a thread while the run goes on
+            self.ahead = AnalysisAhead(self.scenario, self.out, analysis_title(self.scenario))
             self._look_while_starting()
             # an external plant_node started with lockstep.record_window waits for these too
             if self.record_window or (self.mode == 'lockstep' and 'plant' in self.external):
@@ -829,6 +842,8 @@ class _RosRun:
             elif 'plant' in self.external:    # runs its own clock; released if held
                 self._unpause_external()
             self.phase = 'during the run'
+            self.ahead.start(recorder.node_parameters('controller', 5.0, self._check_alive)
+                             if 'controller' in nodes else {})
             self._run_loop(run_start)
             run_wall = time.monotonic() - run_start
             self.cpu = {name: end - start for name, end in self._cpu_seconds().items()
@@ -1162,7 +1177,8 @@ class _RosRun:
             run_info['controller_states'] = states
         files = stream.files
         if failure is None:
-            return finish(self.scenario, self.out, trace, run_info, controller_params, files)
+            return finish(self.scenario, self.out, trace, run_info, controller_params, files,
+                          ahead=self.ahead)
         finish(self.scenario, self.out, trace, run_info, controller_params, files,
-               _first_line(failure))
+               _first_line(failure), ahead=self.ahead)
         raise _as_failure(failure, self.out)

@@ -17,6 +17,7 @@ from support import CONFIG
 from support.mcap import read_mcap, stamps_and_arrivals
 
 from tank_control.core.trace import Trace
+from tank_control.harness.analysis_ahead import PART
 from tank_control.harness.runner import run
 
 SIGNAL_TOPICS = {'/measurement', '/setpoint', '/manipulated', '/disturbance', '/clock'}
@@ -67,6 +68,12 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
     assert metrics['outputs']['y']['steps'][0]['overshoot_pct'] <= 3.0       # [Checks] §3
     gains = metrics['controller']['final_gains']                              # from the node
     assert round(gains['kp'], 2) == 3.13 and round(gains['b'], 2) == 0.42
+    # the loop analysis, computed while the run went on (harness/analysis_ahead.py) for the
+    # parameters the controller started and ended with, is the in-process run's
+    in_process = json.loads((tmp_path / 'ref' / 'metrics.json').read_text())
+    assert metrics['loop_analysis'] and metrics['loop_analysis'] == in_process['loop_analysis']
+    assert (tmp_path / 'ros' / 'analysis.png').stat().st_size > 0
+    assert not (tmp_path / 'ros' / PART).exists()
 
     topics = read_mcap(tmp_path / 'ros' / 'run.mcap')
     assert SIGNAL_TOPICS <= set(topics)
@@ -166,6 +173,10 @@ def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, r
         assert a['final_gains'][key] == pytest.approx(b['final_gains'][key], rel=1e-9), key
     for key in ('autotune.ku', 'autotune.tu', 'autotune.model_gain', 'autotune.cycles'):
         assert a['autotune'][key] == pytest.approx(b['autotune'][key], rel=1e-9), key
+    # the tuner changed the gains: the analysis made during the run is dropped, the final
+    # gains' is the in-process run's
+    assert ros.metrics['loop_analysis'] == ref.metrics['loop_analysis'] != {}
+    assert ros.files['analysis'].exists() and not (tmp_path / 'ros' / PART).exists()
     states = ros.metrics['run']['controller_states']
     assert [s for _, s in states] == ['settling', 'relay', 'measuring', 'tuned', 'running']
     assert [list(s) for s in states] == [list(s) for s in ref.metrics['run']['controller_states']]
