@@ -65,7 +65,7 @@ def test_text_a_parameter_message_cannot_carry_is_sent_as_text():
     """An integer beyond 64 bits, a number too large for a double, nested or null items: the
     text itself (the node refuses it with its reason); before, an integer beyond 64 bits made
     the service request fail inside the dashboard's executor and the node died."""
-    from tank_control.nodes.dashboard_node import parameter_msg
+    from tank_control.nodes.dashboard_requests import parameter_msg
     for text, kind in (('-9223372036854775809', V.INTEGER), ('1' + '0' * 30, V.INTEGER),
                        ('[1' + '0' * 400 + ']', V.DOUBLE_ARRAY),
                        ('[1' + '0' * 30 + ']', V.INTEGER_ARRAY), ('[[1]]', V.INTEGER_ARRAY),
