@@ -93,7 +93,7 @@ class ControllerNode(ControllerParams):
                              bool(self.get_parameter('use_sim_time').value))
         protocol = controller_clock(mode, str(values['trigger']))
         # wall: costly work runs off the sampling path (nodes/live_rebuild.py, relay designs)
-        self._wall = mode == 'wall'
+        self._wall = protocol.real_time
         self._mark_clock(self._controller)
         # inputs stamped more than max_future_stamp ahead of this node's now are refused
         # (core/stamps.py): one would hold every later input as "older" (docs/nodes.md)

@@ -135,7 +135,7 @@ class PlantNode(Node):
         try:            # opcua.endpoint: the plant served over OPC UA too (docs/opcua.md)
             self.opcua = PlantOpcua(str(values['opcua.endpoint']), self.plant.output_names,
                                     self.plant.input_names, setup.ranges, self._protocol.u,
-                                    self._protocol.mode == 'wall')
+                                    self._protocol.real_time)
         except ConfigError as exc:
             raise ParameterError(str(exc)) from None
         self._protocol.start()

@@ -63,6 +63,7 @@ class ControllerClock:
     trigger = 'timer'
     ticks = False            # stamps are plant ticks (lockstep): core/stamps tolerance
     sample_timer = True      # the node runs a timer of the sample time calling ``timer``
+    real_time = False        # samples on the wall clock: costly work runs off the sampling path
 
     def __init__(self, host: ControllerHost, ts_ns: int, outputs: tuple[str, ...],
                  disturbances: tuple[str, ...], future: FutureStamps) -> None:
@@ -349,6 +350,7 @@ class WallTimerClock(_Latest):
     stamped ahead (the reference's ``wall.lead``) wait for their instant (``Scheduled``)."""
 
     mode = 'wall'
+    real_time = True
 
     def __init__(self, host: ControllerHost, ts_ns: int, outputs: tuple[str, ...],
                  disturbances: tuple[str, ...], future: FutureStamps) -> None:

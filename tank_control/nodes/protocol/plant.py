@@ -95,6 +95,7 @@ class PlantClock:
     ticks = False            # stamps are plant ticks (lockstep): core/stamps tolerance
     publishes_clock = True   # /clock
     prestart_reports = True  # /diagnostics every 20 ms before tick 0 (the harness waits)
+    real_time = False        # ticks on the wall clock: its stamps are wall-clock times
 
     def __init__(self, host: PlantHost, plant: Any, noise: Any, values: Mapping[str, Any],
                  counters: dict[str, int], future: FutureStamps, session: str) -> None:
@@ -590,6 +591,7 @@ class WallPlant(_Timed):
     values stamped ahead (the reference's ``wall.lead``) wait for their step."""
 
     mode = 'wall'
+    real_time = True
     publishes_clock = False
 
     def __init__(self, host: PlantHost, plant: Any, noise: Any, values: Mapping[str, Any],
