@@ -10,7 +10,10 @@ well-tuned, sluggish, aggressive and saturated loops, and a flow-like FOPDT (K =
 L = 0.5 s, 0.1 s) with an integral-dominant PI for the sticky valve. The input u is the valve's
 deviation from its operating point [% of travel], limits ±50. White measurement noise
 (σ = 0.05) and a random load at the plant input (piecewise constant, a new N(0, σ_v²) value
-every 5 s, drawn from ``seed``) excite every loop; a setpoint step 0 → 2 at t = 100 s.
+every 5 s, drawn from ``seed``) excite every loop; a setpoint step 0 → 2 at t = 100 s. The
+controller carries the plant's model (``tuning.gain``, ``tuning.time_constant``,
+``tuning.dead_time``; the gains are set by hand, ``tuning.rule`` none): its live loop monitor
+takes the loop's dead time from it.
 """
 from __future__ import annotations
 
@@ -65,7 +68,9 @@ def sections(name: str, seed: int = 1) -> dict[str, dict[str, Any]]:
                   'real_time_factor': 0.0, **case.get('actuator', {})},
         'controller': {'controller': 'pid', 'sample_time': ts, 'output_names': ['y'],
                        'input_names': ['u'], 'kp': kp, 'ti': ti, 'u_min': -50.0,
-                       'u_max': 50.0},
+                       'u_max': 50.0, 'tuning.gain': plant['gain'],
+                       'tuning.time_constant': plant['time_constant'],
+                       'tuning.dead_time': plant['dead_time']},
         'reference': {'setpoint.channels': ['y'], 'setpoint.y.times': [0.0, 100.0],
                       'setpoint.y.values': [0.0, 2.0], 'disturbance.channels': ['v'],
                       'disturbance.v.times': [float(t) for t in times],
