@@ -81,8 +81,8 @@ MAX_AUDIT_CHARS = 1 << 20
 MAX_PREVIEW_CHANGES = 8
 #: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
 FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
-#: /diagnostics values shown by their prefix: each loop's verdict (docs/monitoring.md).
-FACEPLATE_PREFIXES = ('loop_performance.',)
+#: /diagnostics values shown by their prefix: each loop's verdict and indices (docs/monitoring.md).
+FACEPLATE_PREFIXES = ('loop_performance.', 'loop_indices.')
 #: Period of the look at the access counters (a change is published on /diagnostics) [s].
 ACCESS_PERIOD = 1.0
 

@@ -40,6 +40,33 @@ def _strict(value: Any) -> Any:
     return value
 
 
+def _short(value: Any) -> float | None:
+    """3 significant digits (None for a missing or non-finite value)."""
+    if value is None or isinstance(value, bool):
+        return None
+    value = float(value)
+    return float(f'{value:.3g}') if math.isfinite(value) else None
+
+
+def indices_field(summary: Mapping[str, Any]) -> str:
+    """``loop_indices.<output>`` of /diagnostics: the indices of a summary as compact JSON
+    (at most about 170 characters; the dashboard's faceplate draws them)."""
+    osc, stiction = summary.get('oscillation') or {}, summary.get('stiction') or {}
+    detected = bool(osc.get('detected'))
+    return json.dumps({
+        'harris_index': _short(summary.get('harris_index')),
+        'dead_time': _short(summary.get('dead_time')),
+        'oscillation': detected,
+        'period': _short(osc.get('period')) if detected else None,
+        'amplitude': _short(osc.get('amplitude')) if detected else None,
+        'stiction': bool(stiction.get('detected')),
+        'stiction_index': _short(stiction.get('index')),
+        'saturation_pct': _short(summary.get('saturation_pct')),
+        'manual_pct': _short(summary.get('manual_pct')),
+        'fail_safe_pct': _short(summary.get('fail_safe_pct')),
+    }, separators=(',', ':'), allow_nan=False)
+
+
 class LoopPerformance:
     """The monitors of a controller's loops (output ``outputs[i]`` with input ``inputs[i]``)
     and their publisher; none for a controller whose counts of outputs and inputs differ.
@@ -101,14 +128,16 @@ class LoopPerformance:
         return level > 0, text
 
     def fields(self) -> dict[str, str]:
-        """``loop_performance.<output>``: each assessed loop's verdict, for /diagnostics'
-        values (the dashboard's faceplate shows them)."""
+        """/diagnostics values of each assessed loop: ``loop_performance.<output>`` its
+        verdict, ``loop_indices.<output>`` its indices (:func:`indices_field`; the dashboard's
+        faceplate shows both), ``monitor.dead_time_source.<output>``."""
         out = {}
         for y, (_, monitor) in self.monitors.items():
             summary = monitor.summary()
             if summary.get('verdict') == 'no data':
                 continue
             out[f'loop_performance.{y}'] = str(summary.get('verdict'))
+            out[f'loop_indices.{y}'] = indices_field(summary)
             dead_time = summary.get('dead_time')
             out[f'monitor.dead_time_source.{y}'] = (
                 f'{dead_time:g} s from {summary.get("dead_time_source")}'
