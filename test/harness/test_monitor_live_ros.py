@@ -27,6 +27,7 @@ LIVE = {
     'aggressive': 'retune (oscillating, period',
     'sticky_valve': 'valve: stiction suspected — do not retune',
     'saturated': 'saturated ',
+    'minimum_variance': 'good',
 }
 
 
