@@ -102,6 +102,9 @@ class LoopPerformance:
             except (ConfigError, ValueError, ArithmeticError) as exc:
                 known = {y: DeadTime(None, f'dead time not known ({exc})')
                          for y in self._outputs}
+            except Exception as exc:  # noqa: BLE001 - a kind's fault never stops the sampling
+                known = {y: DeadTime(None, f'dead time not known ({type(exc).__name__}: '
+                                           f'{exc})') for y in self._outputs}
             self._known = {y: given_or(self._config, d) for y, d in known.items()}
         return self._known
 
