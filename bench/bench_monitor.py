@@ -1,12 +1,15 @@
 """Cost of the live loop monitor (core/monitoring LoopMonitor): µs per update, ms per recompute
 of a 600 s window at 0.1 s (6000 samples), on white noise and on an oscillating loop (the
-cross-correlation path). Median of 5 recomputes.
+cross-correlation path). Median of 5 recomputes. And controller_node's lookup of the loop's dead
+time after a parameter change (nodes/loop_performance.py ``dead_times``; median of 50).
 
     .venv/bin/python bench/bench_monitor.py
 """
 from __future__ import annotations
 
 import time
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -33,6 +36,25 @@ def main() -> None:
             costs.append(time.perf_counter() - start)
         print(f'{name}: update {update_us:.1f} µs/sample; recompute {np.median(costs) * 1e3:.1f} ms '
               f'(median of 5); verdict {body["verdict"]}')
+    dead_time_lookup()
+
+
+def dead_time_lookup() -> None:
+    from tank_control.core import scenario
+    from tank_control.core.control.kinds import registry
+    from tank_control.nodes.loop_performance import LoopPerformance
+    path = Path(__file__).resolve().parents[1] / 'config' / 'scenarios' / 'monitor_well_tuned.yaml'
+    values = scenario.node_values(scenario.sections_of(path), 'controller')
+    node = SimpleNamespace(create_publisher=lambda *a, **k: SimpleNamespace(publish=print))
+    perf = LoopPerformance(node, lambda: values, registry.get_kind('pid'), 0.5, ['y'], ['u'])
+    costs = []
+    for i in range(50):
+        values['kp'] = 5.0 + i * 1e-3          # a change: the lookup is done anew
+        start = time.perf_counter()
+        found = perf.dead_times()['y']
+        costs.append(time.perf_counter() - start)
+    print(f'dead-time lookup after a change: {np.median(costs) * 1e3:.2f} ms (median of 50); '
+          f'{found.seconds:g} s from {found.source}')
 
 
 if __name__ == '__main__':

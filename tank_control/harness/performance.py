@@ -3,9 +3,11 @@
 Both call ``core/monitoring.assess`` (the code path controller_node's live monitor uses).
 A run's loops: each output channel the controller reads with its setpoint, paired with the
 input at the same position of the controller's ``input_names`` (a controller with as many
-inputs as outputs); its dead time from the plant's model (``dead_time`` of the SISO kinds, 0
-otherwise), its output limits from the controller's, ``ms`` from the loop analysis on the
-plant's model when there is one. docs/monitoring.md.
+inputs as outputs); its dead time ``monitor.dead_time``, or at 0 the plant kind's linear model's
+(a SISO plant), else the model the controller carries (``core/monitoring/dead_time.py``), else
+none (no Harris index, the reason in ``dead_time_source``); its output limits from the
+controller's, ``ms`` from the loop analysis on the plant's model when there is one.
+docs/monitoring.md.
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import numpy as np
 
 from tank_control.core.monitoring import MonitorConfig, assess
 from tank_control.core.monitoring.assess import DEFAULT, PREFIX
+from tank_control.core.monitoring.dead_time import DeadTime, controller_dead_times, given_or
 from tank_control.core.params import ConfigError, config_from
 from tank_control.core.trace import Trace
 
@@ -49,7 +52,7 @@ def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
                       ) -> dict[str, Any]:
     """``loop_performance``: output channel → :func:`core.monitoring.assess` body; settings
     ``config``, default the controller's ``monitor.*`` (with ``monitor.dead_time`` 0: the
-    plant's ``dead_time``)."""
+    process model's dead time, :func:`run_dead_times`)."""
     controller = dict(sections.get('controller', {}))
     controller.update(controller_params or {})
     if config is None:
@@ -66,12 +69,13 @@ def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
     if sample_time <= 0.0:
         return {}
     limits = dict(input_limits or {})
+    loops = _loops(trace, controller)
+    known = run_dead_times(sections, controller, [y for y, _ in loops])
     out = {}
-    for y, u in _loops(trace, controller):
+    for y, u in loops:
         lo, hi = limits.get(u, (_number(controller.get('u_min'), -math.inf),
                                 _number(controller.get('u_max'), math.inf)))
-        cfg = replace(config, dead_time=_number(plant.get('dead_time'), 0.0)) \
-            if config.dead_time == 0.0 else config
+        cfg = config
         if cfg.load_ti == 0.0 and _number(controller.get('ti'), 0.0) > 0.0:
             cfg = replace(cfg, load_ti=_number(controller.get('ti'), 0.0))
         t, yy, rr, uu = trace.t, trace[f'y.{y}'], trace[f'r.{y}'], trace[f'u.{u}']
@@ -79,8 +83,31 @@ def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
         step = max(int(round(sample_time / _plant_ts(trace, plant, sample_time))), 1)
         # a run starts its loop: the first monitor.settle_time is a start-up response
         out[y] = assess(t[::step], yy[::step], rr[::step], uu[::step], sample_time, cfg,
-                        u_limits=(lo, hi), ms=ms, start_is_change=True)
+                        u_limits=(lo, hi), ms=ms, start_is_change=True,
+                        dead_time=given_or(config, known[y]))
     return out
+
+
+def run_dead_times(sections: Mapping[str, Mapping[str, Any]], controller: Mapping[str, Any],
+                   outputs: Sequence[str]) -> dict[str, DeadTime]:
+    """Each loop's dead time as known of its process: the plant kind's linear model (one
+    loop), else the controller's models, else None with the reason."""
+    from tank_control.core import scenario as core_scenario
+    try:
+        setup = core_scenario.controller_setup(controller, given=())
+        known = controller_dead_times(setup.kind, setup.settings, outputs)
+    except (ConfigError, ValueError, ArithmeticError) as exc:
+        known = {y: DeadTime(None, f'dead time not known ({exc})') for y in outputs}
+    if len(outputs) == 1:
+        try:
+            plant = core_scenario.plant_setup(sections.get('plant', {}))
+            model = plant.kind.linear(plant.model) if plant.kind.linear is not None else None
+        except (ConfigError, ValueError, ArithmeticError):
+            model = None
+        if model is not None and math.isfinite(model.dead_time):
+            known[outputs[0]] = DeadTime(float(model.dead_time),
+                                         f"plant's model ({model.describe()})")
+    return known
 
 
 def _plant_ts(trace: Trace, plant: Mapping[str, Any], default: float) -> float:

@@ -105,7 +105,7 @@ class ControllerNode(ControllerParams):
         #: good sample, else why the output was held — a hook for features: loop monitoring
         #: (nodes/loop_performance.py) is one
         self.sample_observers: list[Any] = []
-        self._performance = LoopPerformance(self, values, self._kind,
+        self._performance = LoopPerformance(self, lambda: self._params.values, self._kind,
                                             self._controller.sample_time, self._outputs,
                                             self._inputs)
         self.sample_observers.append(

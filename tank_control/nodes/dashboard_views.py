@@ -39,8 +39,8 @@ FUTURE_TICKS = 64
 FUTURE_MIN_S = 1.0
 #: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
 FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
-#: /diagnostics values shown by their prefix: each loop's verdict (docs/monitoring.md).
-FACEPLATE_PREFIXES = ('loop_performance.',)
+#: /diagnostics values shown by their prefix: each loop's verdict and indices (docs/monitoring.md).
+FACEPLATE_PREFIXES = ('loop_performance.', 'loop_indices.')
 
 
 @dataclass

@@ -9,13 +9,14 @@ Settings: :class:`MonitorConfig` (parameters ``monitor.*``, declared once). Indi
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tank_control.core.monitoring import indices as ix
+from tank_control.core.monitoring.dead_time import DeadTime
 from tank_control.core.params import param
 
 
@@ -32,8 +33,9 @@ class MonitorConfig:
     period: float = param(10.0, 'live: the assessment is recomputed every period', unit='s',
                           min=1e-3, max=1e6, name='monitor.period')
     dead_time: float = param(0.0, 'the loop\'s dead time L for the Harris index (b = floor(L/Ts)'
-                             ' + 1 samples); 0 = one sample', unit='s', min=0.0, max=1e6,
-                             name='monitor.dead_time')
+                             ' + 1 samples); 0 = from the process model the controller (in a run: '
+                             'the plant) carries; none known: no Harris index', unit='s',
+                             min=0.0, max=1e6, name='monitor.dead_time')
     ar_order: int = param(20, 'order of the AR model of the control error (Harris index)',
                           min=1, max=200, name='monitor.ar_order')
     harris_limit: float = param(0.5, 'Harris index below this: "retune (sluggish …)"', min=0.0,
@@ -86,18 +88,24 @@ def assess(t: np.ndarray, y: np.ndarray, r: np.ndarray, u: np.ndarray, sample_ti
            config: MonitorConfig = DEFAULT, *, u_limits: tuple[float, float] = (
                -math.inf, math.inf), manual: np.ndarray | None = None,
            fail_safe: np.ndarray | None = None, ms: float | None = None,
-           start_is_change: bool = False) -> dict[str, Any]:
+           start_is_change: bool = False, dead_time: DeadTime | None = None
+           ) -> dict[str, Any]:
     """The indices and verdict of one loop: process output ``y``, setpoint ``r``, controller
     output ``u`` at times ``t`` [s] sampled every ``sample_time`` [s]; ``u_limits`` the
     controller's output limits, ``manual``/``fail_safe`` per-sample flags if known, ``ms`` the
     loop's maximum sensitivity if known (named in a "retune" verdict). Rows with a non-finite
     value are dropped; ``start_is_change``: the record starts with the loop (its first
     ``monitor.settle_time`` is a start-up response, not regulation). JSON-ready (None where an
-    index cannot be computed)."""
+    index cannot be computed). ``dead_time``: the loop's dead time and its source
+    (``core/monitoring/dead_time.py``; ``seconds`` None: not known, no Harris index); default
+    ``config.dead_time`` as given."""
     manual_pct, fail_safe_pct = _pct(manual), _pct(fail_safe)
+    if dead_time is None:
+        dead_time = DeadTime(config.dead_time, 'monitor.dead_time')
     t, y, r, u = ix.finite_rows(t, y, r, u)
     e = r - y
-    b = ix.dead_time_samples(config.dead_time, sample_time)
+    b = (ix.dead_time_samples(dead_time.seconds, sample_time)
+         if dead_time.seconds is not None else None)
     segments = ix.regulatory_segments(t, r, config.settle_time,
                                       start_is_change=start_is_change)
     # regulation: the stretches of constant setpoint joined, each about its own mean
@@ -122,8 +130,11 @@ def assess(t: np.ndarray, y: np.ndarray, r: np.ndarray, u: np.ndarray, sample_ti
         'duration': float(t[-1] - t[0]) if t.size else 0.0,
         'regulation_samples': int(sum(s.stop - s.start for s in segments)),
         'harris_index': (ix.harris_index(e_reg, b, config.ar_order)
-                         if e_reg and b < sum(len(x) for x in e_reg) // 4 else None),
+                         if b is not None and e_reg and b < sum(len(x) for x in e_reg) // 4
+                         else None),
         'dead_time_samples': b,
+        'dead_time': dead_time.seconds,
+        'dead_time_source': dead_time.source,
         'oscillation': osc,
         'stiction': {'detected': bool(stiction_index is not None
                                       and stiction_index > config.stiction_limit),
@@ -134,8 +145,22 @@ def assess(t: np.ndarray, y: np.ndarray, r: np.ndarray, u: np.ndarray, sample_ti
         'setpoint_changes': ix.setpoint_iae(t, r, y),
         'ms': ms if ms is not None and math.isfinite(ms) else None,
     }
+    body['harris_reason'] = (None if body['harris_index'] is not None else _no_harris(
+        dead_time, b, sum(len(x) for x in e_reg), config.ar_order))
     body['verdict'] = verdict(body, config)
     return body
+
+
+def _no_harris(dead_time: DeadTime, b: int | None, n: int, order: int) -> str:
+    """Why there is no Harris index (one line)."""
+    if b is None:
+        return dead_time.source
+    if n < max(10 * order, 50):
+        return f'{n} regulation samples; at least {max(10 * order, 50)} are needed'
+    if b >= n // 4:
+        return f'the dead time ({b} samples) is a quarter of the regulation data or more'
+    return ('the control error is constant or predictable a sample ahead (no random '
+            'disturbance in the data): no variance benchmark applies')
 
 
 def verdict(body: dict[str, Any], config: MonitorConfig = DEFAULT) -> str:
@@ -181,9 +206,11 @@ class LoopMonitor:
     out of the indices (counted in ``nonfinite_samples``); nothing raises."""
 
     def __init__(self, sample_time: float, config: MonitorConfig = DEFAULT, *,
-                 u_limits: tuple[float, float] = (-math.inf, math.inf), ms: float | None = None
-                 ) -> None:
+                 u_limits: tuple[float, float] = (-math.inf, math.inf), ms: float | None = None,
+                 dead_time: Callable[[], DeadTime] | None = None) -> None:
         self.sample_time = float(sample_time)
+        #: asked at each recompute: the loop's dead time and its source (None: ``config``'s)
+        self.dead_time = dead_time
         self.config = config
         self.u_limits = u_limits
         self.ms = ms
@@ -220,7 +247,8 @@ class LoopMonitor:
         body = assess(data[:, 0], data[:, 1], data[:, 2], data[:, 3], self.sample_time,
                       self.config, u_limits=self.u_limits, manual=flags[:, 0],
                       fail_safe=flags[:, 1], ms=self.ms,
-                      start_is_change=self._count <= size)   # the window holds the start
+                      start_is_change=self._count <= size,   # the window holds the start
+                      dead_time=self.dead_time() if self.dead_time is not None else None)
         times = data[:, 0][np.isfinite(data[:, 0])]
         body['time'] = float(times[-1]) if times.size else None
         body['nonfinite_samples'] = self.nonfinite_samples
@@ -238,17 +266,20 @@ class LoopMonitor:
 
 def loop_monitors(config: MonitorConfig, sample_time: float, outputs: Sequence[str],
                   inputs: Sequence[str],
-                  limits: Mapping[str, tuple[float, float]] | None = None
+                  limits: Mapping[str, tuple[float, float]] | None = None,
+                  dead_times: Mapping[str, Callable[[], DeadTime]] | None = None
                   ) -> dict[str, tuple[str, LoopMonitor]]:
     """A controller's loops as monitors: output channel → (its input, monitor), pairing
     ``outputs[i]`` with ``inputs[i]`` (none when the counts differ); ``limits`` the output
-    limits by input channel."""
+    limits by input channel; ``dead_times`` each loop's dead-time provider by output
+    (:class:`LoopMonitor`; none: ``config.dead_time``)."""
     if len(outputs) != len(inputs):
         return {}
     out = {}
     for y, u in zip(outputs, inputs):
         lo, hi = (limits or {}).get(u, (-math.inf, math.inf))
-        out[y] = (u, LoopMonitor(sample_time, config, u_limits=(float(lo), float(hi))))
+        out[y] = (u, LoopMonitor(sample_time, config, u_limits=(float(lo), float(hi)),
+                                 dead_time=(dead_times or {}).get(y)))
     return out
 
 

@@ -95,11 +95,17 @@ def impulse_response(a: np.ndarray, length: int) -> np.ndarray:
     return psi
 
 
+#: innovation variance / mean square of the error below which it is taken as deterministic
+DETERMINISTIC = 1e-5
+
+
 def harris_index(error: np.ndarray | list[np.ndarray], b: int, order: int = 20
                  ) -> float | None:
     """Minimum-variance variance over mean-square error, in [0, 1] ([Desborough1992]), of one
     record or several (stretches of constant setpoint: one AR model fitted to them all); None
-    with fewer than ``10·order`` samples or a constant error."""
+    with fewer than ``10·order`` samples, a constant error, or one predictable a sample ahead
+    (innovation variance below ``DETERMINISTIC`` × its mean square: no random disturbance in
+    the data, e.g. a noise-free simulation, which no benchmark of variance applies to)."""
     parts = [np.asarray(p, dtype=float) for p in
              ([error] if isinstance(error, np.ndarray) else error) if len(p) > order + 1]
     if not parts:
@@ -111,6 +117,8 @@ def harris_index(error: np.ndarray | list[np.ndarray], b: int, order: int = 20
     if mse <= 1e-300 or float(np.var(e)) <= 1e-12 * mse:
         return None
     a, sigma2 = ar_fit(parts, order)
+    if sigma2 < DETERMINISTIC * mse:
+        return None
     psi = impulse_response(a, max(b, 1))
     mv = sigma2 * float(np.sum(psi ** 2))
     return float(min(max(mv / mse, 0.0), 1.0))

@@ -769,6 +769,7 @@
       setMeter(part.querySelector('[data-testid=op]'), op, scaleOf(state.limits[loop.u] || null, ['manipulated'], loop.u));
     }
     showStatus(view, box.querySelector('[data-testid=status]'));
+    window.tankLoops.show(box, view.diagnostics?.fields);   // the loop monitor's indices (loops.js)
   }
 
   function updateFaceplates() {

@@ -130,6 +130,10 @@ class ControllerKind:
     no_linear: str = ''
     """Why a kind without ``linear`` has none (``tank-control analyze`` and the dashboard say
     it)."""
+    loop_dead_times: Callable[[Settings], Mapping[str, tuple[float, str]]] | None = None
+    """Each loop's dead time in the controller's own model: output channel → (seconds, where
+    from), for the loop monitor's Harris index (``core/monitoring/dead_time.py``); None: the
+    dead time of the model ``linear`` carries (a SISO kind)."""
 
     def specs(self) -> tuple[ParamSpec, ...]:
         """The kind's parameters: its configuration's, then each group's."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 from tank_control.core.control.kinds import base
 from tank_control.core.control.kinds.base import ControllerKind, Settings
 from tank_control.core.control.mpcs import Mpcs, MpcsConfig
+from tank_control.core.control.mpcs_model import tank_model
 from tank_control.core.params import names_of, values_of
 
 
@@ -24,6 +25,18 @@ def update(controller: Mpcs, settings: Settings, changed: frozenset[str]) -> boo
 
 def adopt(controller: Mpcs, candidate: Mpcs, changed: frozenset[str]) -> bool:
     return controller.adopt(candidate)
+
+
+def loop_dead_times(settings: Settings) -> dict[str, tuple[float, str]]:
+    """Loop ``output_names[i]``–``input_names[i]``: its input's plus its output's delay in the
+    prediction model (the tank's τ_C on F_Cin, τ on T_out)."""
+    cfg = settings.config
+    model = tank_model(cfg.operating_point(), cfg.sample_time)
+    ts, ch = cfg.sample_time, settings.channels
+    return {y: ((model.input_delays[i] + model.output_delays[i]) * ts,
+                f"controller's prediction model (delay of {u} {model.input_delays[i] * ts:g} s "
+                f'+ of {y} {model.output_delays[i] * ts:g} s)')
+            for i, (y, u) in enumerate(zip(ch.output_names, ch.input_names))}
 
 
 def input_limits(settings: Settings) -> dict[str, tuple[float, float]]:
@@ -49,4 +62,5 @@ KIND = ControllerKind(
     gains=('mpcs.horizon', 'mpcs.control_horizon', 'mpcs.lambda', 'mpcs.output_weights',
            'mpcs.terminal_weight'),
     input_limits=input_limits, disturbances=Mpcs.disturbance_names,
+    loop_dead_times=loop_dead_times,
 )
