@@ -124,7 +124,7 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
     ax_g4.set_xlabel('ω [rad/s]')
     ax_g4.legend(fontsize='small')
     for ax in (ax_mag, ax_nyq, ax_step, ax_ph, ax_g4):
-        ax.grid(True, alpha=0.3, which='major')
+        ax.grid(True, alpha=0.3, which='both')
     return save_figure(fig, path, title, dpi=90, margins=ANALYSIS_MARGINS)
 
 
