@@ -15,8 +15,7 @@ import pytest
 from selenium.common.exceptions import StaleElementReferenceException
 from selenium.webdriver.support.ui import WebDriverWait
 from std_msgs.msg import String
-from support.browser import dashboard_url, headless_chromium
-from support.procfs import group_members
+from support.browser import chromium_page, dashboard_url
 
 from tank_control.nodes.messages import reliable_qos
 
@@ -27,9 +26,8 @@ LINE = '[data-testid="faceplate-/controller"] [data-testid="indices-y"]'
 
 @pytest.fixture
 def browser():
-    with headless_chromium(1366, 768) as driver:
+    with chromium_page(1366, 768) as driver:
         yield driver
-    assert not group_members(driver.service.process.pid)
 
 
 def shown(driver) -> dict[str, str]:
@@ -50,19 +48,25 @@ def fixed(v: float, digits: int) -> str:
     return str(exact.quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP))
 
 
+def pct(v: float | None) -> str:
+    return f'{fixed(v, 0)} %' if v is not None else '–'
+
+
 def as_shown(r: dict) -> dict[str, str]:
     """A published summary as the faceplate writes it (loops.js)."""
     osc, st = r['oscillation'], r['stiction']
     return {
         'verdict': r['verdict'],
-        'harris': f'{fixed(r["harris_index"], 2)} (L {g3(r["dead_time"])} s)',
+        # an early summary (too few samples yet) has no index: the page shows a dash
+        'harris': (f'{fixed(r["harris_index"], 2)} (L {g3(r["dead_time"])} s)'
+                   if r['harris_index'] is not None else '–'),
         'oscillation': (f'{g3(osc["period"])} s, amplitude {g3(osc["amplitude"])}'
                         if osc['detected'] else 'none'),
         'stiction': (f'{"suspected" if st["detected"] else "no"} (index {fixed(st["index"], 2)})'
                      if st['index'] is not None else 'not assessed'),
-        'saturation': f'{fixed(r["saturation_pct"], 0)} %',
-        'manual': f'{fixed(r["manual_pct"], 0)} %',
-        'fail-safe': f'{fixed(r["fail_safe_pct"], 0)} %',
+        'saturation': pct(r['saturation_pct']),
+        'manual': pct(r['manual_pct']),
+        'fail-safe': pct(r['fail_safe_pct']),
     }
 
 
