@@ -30,6 +30,7 @@ import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
+from typing import Any
 
 import numpy as np
 
@@ -168,10 +169,14 @@ def run_loop(plant: Plant, controller: Controller, reference: Reference, *,
 
 def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
               sample_time: float, duration: float, noise: Noise | None = None,
-              guards: Guards | None = None) -> Iterator[list[float]]:
+              guards: Guards | None = None,
+              modes: Callable[[float, bool, bool], Any] | None = None
+              ) -> Iterator[list[float]]:
     """``run_loop`` one row at a time (a list of floats, columns ``loop_columns``), for a
     caller that writes the rows as they come instead of holding them. The wiring and sample
-    times are checked before the first row."""
+    times are checked before the first row. ``modes``: called after each controller sample
+    with (t [s], in manual mode, output held or fail-safe), as controller_node's monitor is
+    (core/monitoring/modes.py)."""
     check_wiring(plant, controller, reference)
     reason = sample_time_reason(sample_time, controller.sample_time)
     if reason:
@@ -179,7 +184,7 @@ def iter_loop(plant: Plant, controller: Controller, reference: Reference, *,
     if guards is not None and len(guards.fail_safe_output) != len(controller.input_names):
         raise ValueError(f'fail_safe_output: {list(guards.fail_safe_output)} must hold one value '
                          f'per input {list(controller.input_names)}')
-    return _rows(plant, controller, reference, sample_time, duration, noise, guards)
+    return _rows(plant, controller, reference, sample_time, duration, noise, guards, modes)
 
 
 def _bounds(ranges: Ranges, names: Sequence[str]) -> list[tuple[float, float]] | None:
@@ -331,8 +336,8 @@ class _Guard:
 
 
 def _rows(plant: Plant, controller: Controller, reference: Reference, sample_time: float,
-          duration: float, noise: Noise | None, guards: Guards | None = None
-          ) -> Iterator[list[float]]:
+          duration: float, noise: Noise | None, guards: Guards | None = None,
+          modes: Callable[[float, bool, bool], Any] | None = None) -> Iterator[list[float]]:
     ts_ns = to_ns(sample_time)
     cts_ns = to_ns(controller.sample_time)
     n_ticks = loop_ticks(sample_time, duration)
@@ -428,5 +433,8 @@ def _rows(plant: Plant, controller: Controller, reference: Reference, sample_tim
                 for i, j in enumerate(u_pos):
                     u_plant[j] = u_ctrl[i]
                 u_arr = np.array(u_plant, dtype=float)
+        if modes is not None and t_ns % cts_ns == 0:
+            modes(t, controller.status.get('mode') == 'manual',
+                  guard is not None and guard.fault)
         yield [t, *y_row, *r_row, *u_ctrl, *d_ref]
         plant_step(u_arr, d_arr, sample_time)

@@ -23,6 +23,7 @@ import numpy as np
 from tank_control.core.monitoring import MonitorConfig, assess
 from tank_control.core.monitoring.assess import DEFAULT, PREFIX
 from tank_control.core.monitoring.dead_time import DeadTime, controller_dead_times, given_or
+from tank_control.core.monitoring.modes import flags_at
 from tank_control.core.params import ConfigError, config_from
 from tank_control.core.trace import Trace
 
@@ -48,11 +49,13 @@ def _number(value: Any, default: float) -> float:
 def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
                       controller_params: Mapping[str, Any] | None = None,
                       input_limits: Mapping[str, tuple[float, float]] | None = None,
-                      ms: float | None = None, config: MonitorConfig | None = None
-                      ) -> dict[str, Any]:
+                      ms: float | None = None, config: MonitorConfig | None = None,
+                      modes: Sequence[Sequence[Any]] | None = None) -> dict[str, Any]:
     """``loop_performance``: output channel → :func:`core.monitoring.assess` body; settings
     ``config``, default the controller's ``monitor.*`` (with ``monitor.dead_time`` 0: the
-    process model's dead time, :func:`run_dead_times`)."""
+    process model's dead time, :func:`run_dead_times`); ``modes``: the controller's
+    ``[t, manual, fail_safe]`` changes (core/monitoring/modes.py; none: the manual and
+    fail-safe times are not known, null)."""
     controller = dict(sections.get('controller', {}))
     controller.update(controller_params or {})
     if config is None:
@@ -82,9 +85,12 @@ def trace_performance(trace: Trace, sections: Mapping[str, Mapping[str, Any]],
         # the controller samples every controller sample time: assess at its instants
         step = max(int(round(sample_time / _plant_ts(trace, plant, sample_time))), 1)
         # a run starts its loop: the first monitor.settle_time is a start-up response
+        flags = flags_at(modes, t[::step]) if modes else None
         out[y] = assess(t[::step], yy[::step], rr[::step], uu[::step], sample_time, cfg,
                         u_limits=(lo, hi), ms=ms, start_is_change=True,
-                        dead_time=given_or(config, known[y]))
+                        dead_time=given_or(config, known[y]),
+                        manual=flags[0] if flags else None,
+                        fail_safe=flags[1] if flags else None)
     return out
 
 

@@ -47,6 +47,7 @@ TOPICS: tuple[tuple[str, str], ...] = (
     ('controller/late_inputs', 'sensor_msgs/msg/JointState'),
     # controller_node's live loop assessments (nodes/loop_performance.py, docs/monitoring.md)
     ('controller/loop_performance', 'std_msgs/msg/String'),
+    ('controller/loop_mode', 'std_msgs/msg/String'),
 )
 
 #: Types recorded at their arrival time: no header stamp in the loop's time.

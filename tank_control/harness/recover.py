@@ -268,6 +268,8 @@ def recover(out: str | Path, force: bool = False) -> tuple[Any, PartialRecording
     states = stream.states.result()
     if states:
         run_info['controller_states'] = states
+    if stream.modes.changes:
+        run_info['controller_modes'] = stream.modes.result()
     reason = ('the harness ended without writing its results (killed or crashed); recovered '
               'from run.mcap by tank-control recover')
     files = {'trace': out / 'trace.csv', 'recording': path}

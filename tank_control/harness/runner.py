@@ -31,6 +31,7 @@ import numpy as np
 from tank_control.core import loop as core_loop
 from tank_control.core import scenario as core_scenario
 from tank_control.core.control.kinds.registry import KINDS as CONTROLLER_KINDS
+from tank_control.core.monitoring.modes import ModeLog
 from tank_control.core.params import ConfigError
 from tank_control.core.trace import Trace
 from tank_control.harness import metrics as metrics_mod
@@ -249,14 +250,16 @@ def _planned_report(scenario: Scenario) -> tuple[dict[str, tuple[float, float]],
 
 def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str, Any],
                 complete: bool = True, plant_only: bool = False,
-                cases_ahead: list[Any] | None = None) -> tuple[dict[str, Any], list[Any]]:
+                cases_ahead: list[Any] | None = None, modes: list[Any] | None = None
+                ) -> tuple[dict[str, Any], list[Any]]:
     """The measured part of ``metrics.json`` (events, outputs, inputs, controller, loop
     analysis) and the loop cases it was analysed on; also what a sweep records per run
     (``plant_only``: the loop analysed on the plant's model only, not also on the
     controller's own model, which a sweep does not report). ``complete=False`` (a failed or
     stopped run): what can be known, the controller's limits and gains from the file when the
     node could not be asked, no error from the report. ``cases_ahead``: the loop cases
-    already built for these parameters (``analysis_ahead``)."""
+    already built for these parameters (``analysis_ahead``). ``modes``: the controller's
+    manual / fail-safe changes (``run.controller_modes``)."""
     if complete:
         limits, gains = controller_report(scenario, controller_params)
         warnings = controller_warnings(controller_params)
@@ -299,7 +302,7 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
                            if c.label.startswith('plant')) if m is not None), None) \
         if isinstance(metrics['loop_analysis'], dict) else None
     metrics['loop_performance'] = trace_performance(trace, scenario.sections, controller_params,
-                                                    limits, ms=ms)
+                                                    limits, ms=ms, modes=modes)
     return metrics, cases
 
 
@@ -311,7 +314,8 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     analysis computed during the run, used if it was for ``controller_params``."""
     cases_ahead = ahead.take(controller_params) if ahead is not None else None
     measured, cases = run_metrics(scenario, trace, controller_params, complete=reason is None,
-                                  cases_ahead=cases_ahead)
+                                  cases_ahead=cases_ahead,
+                                  modes=run_info.get('controller_modes'))
     metrics = {
         'scenario': scenario.name,
         'title': scenario.harness.title,
@@ -441,10 +445,12 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
                     stop: StopSignals) -> RunResult:
     config = scenario.harness
     built = _build(scenario)
+    modes = ModeLog()           # the manual / fail-safe changes, as controller_node logs them
     try:
         rows = core_loop.iter_loop(built.plant, built.controller, built.reference,
                                    sample_time=built.sample_time, duration=config.duration,
-                                   noise=built.noise.sample_floats, guards=built.guards())
+                                   noise=built.noise.sample_floats, guards=built.guards(),
+                                   modes=modes.add)
     except (ConfigError, ValueError) as exc:    # a parameter the core objects reject: one line
         raise ScenarioError(f'{scenario.path}: {exc}') from None
     names = core_loop.loop_columns(built.plant, built.controller, built.reference)
@@ -486,6 +492,7 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
         'late_by_signal': {prefix: 0 for prefix in ('r', 'u', 'd') if trace.channels(prefix)},
         'recording': 'run.mcap written from the trace (in-process run: no ROS messages exist)',
         **({'controller_states': states} if states else {}),
+        **({'controller_modes': modes.changes} if modes.changes else {}),
     }
     files = {'trace': outputs.trace.path, 'recording': outputs.recording.path}
     if failure is not None:
@@ -1175,6 +1182,8 @@ class _RosRun:
         states = stream.states.result()
         if states:
             run_info['controller_states'] = states
+        if stream.modes.changes:           # controller_node's manual / fail-safe changes
+            run_info['controller_modes'] = stream.modes.result()
         files = stream.files
         if failure is None:
             return finish(self.scenario, self.out, trace, run_info, controller_params, files,

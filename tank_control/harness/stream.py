@@ -13,6 +13,8 @@ from struct import error as struct_error
 from tank_control.core.trace import Trace, TraceWriter
 from tank_control.harness.metrics import SamplingStats
 from tank_control.harness.recording import McapRecording, RawMessage
+from tank_control.harness.loop_modes import TOPIC as MODE_TOPIC
+from tank_control.harness.loop_modes import ModeChanges
 from tank_control.harness.states import StateChanges
 from tank_control.harness.trace import LATE_TOPICS, TOPIC_PREFIX, SignalMessage, TraceJoiner
 
@@ -81,6 +83,7 @@ class RecordingStream:
         self.last_measurement: int | None = None         # largest measurement stamp [ns]
         self.trace: Trace | None = None
         self.states = StateChanges()                     # the controller's state machine
+        self.modes = ModeChanges()                       # its manual / fail-safe changes
 
     @property
     def files(self) -> dict[str, Path]:
@@ -92,6 +95,9 @@ class RecordingStream:
         topic = raw.topic.lstrip('/')
         if topic == 'parameter_events':
             self.states.add(raw)
+            return
+        if topic == MODE_TOPIC:
+            self.modes.add(raw)
             return
         if topic not in TOPIC_PREFIX and topic not in LATE_TOPICS:
             return

@@ -20,11 +20,15 @@ from std_msgs.msg import String
 from tank_control.core.interfaces import seconds
 from tank_control.core.monitoring import diagnostics_line, loop_monitors
 from tank_control.core.monitoring.dead_time import DeadTime, controller_dead_times, given_or
+from tank_control.core.monitoring.modes import ModeLog
 from tank_control.core.params import ConfigError
 from tank_control.core.scenario import controller_setup
 from tank_control.nodes.messages import reliable_qos
 
 TOPIC = '~/loop_performance'
+#: the controller's mode changes (core/monitoring/modes.py), one JSON ``[t, manual, fail_safe]``
+#: per change: a run's manual and fail-safe times are computed from them
+MODE_TOPIC = '~/loop_mode'
 
 
 def _strict(value: Any) -> Any:
@@ -90,6 +94,10 @@ class LoopPerformance:
         # later gets the last summary, and the dashboard's String readers match it
         self._pub = (node.create_publisher(String, TOPIC, reliable_qos(10, latched=True))
                      if self.monitors else None)
+        self.modes = ModeLog()
+        self._mode_pub = (node.create_publisher(String, MODE_TOPIC,
+                                                reliable_qos(100, latched=True))
+                          if self.monitors else None)
 
     def dead_times(self) -> dict[str, DeadTime]:
         """Each loop's dead time and its source, from the current parameter values."""
@@ -111,6 +119,9 @@ class LoopPerformance:
     def sample(self, t_ns: int, y: np.ndarray, r: np.ndarray, u: np.ndarray | None,
                manual: bool, fault: str) -> None:
         """One sample of every loop (``fault`` non-empty: the output was held or fail-safe)."""
+        change = self.modes.add(seconds(t_ns), manual, bool(fault))
+        if change is not None and self._mode_pub is not None:
+            self._mode_pub.publish(String(data=json.dumps(change)))
         for name, (u_name, monitor) in self.monitors.items():
             i, j = self._outputs.index(name), self._inputs.index(u_name)
             u_j = float(u[j]) if u is not None and len(u) > j else math.nan
