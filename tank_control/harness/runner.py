@@ -1,7 +1,8 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
 ``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
-``plot.png``, ``analysis.png`` (a SISO loop that describes itself linearly, or the two-loop PI per loop: ``harness/analysis.py``)
+``plot.png``, ``analysis.png`` (a SISO loop that describes itself linearly, or the two-loop PI
+per loop: ``harness/analysis.py``)
 and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds (start
 paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
 ``trace.csv`` and ``run.mcap`` are written as the run goes (``stream.py``); a failed or
