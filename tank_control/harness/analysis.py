@@ -4,7 +4,7 @@ A SISO loop is analysed when its controller kind and its plant kind describe the
 (``ControllerKind.linear``, ``PlantKind.linear``: ``core/analysis/linear.py``,
 ``core/scenario_loops.py``). The loop analysed is the implemented one: the exact ZOH model at
 the controller's sample time and the controller's discrete transfer function (exact dead time,
-SPEC §3, [Ikonen]'s gang of four). The plant section gives the true model; the models the
+[Checks] §2, [Ikonen]'s gang of four). The plant section gives the true model; the models the
 controller carries (``tuning.*``, the auto-tuner's identified one, a predictor's internal
 model) are analysed beside it. Frequencies in rad/s, phase in degrees, delay margin in s.
 """
