@@ -131,13 +131,29 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
 def predicted_step(case: LoopCase, samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(t [s], y)``: the closed loop's response to a unit setpoint step at the controller's
     samples, ``Y/R = G·C_r/(1 + G·C)`` of the implemented discrete loop (exact delay), from its
-    values on the unit circle by an inverse FFT (for a stable loop; the record is long enough
-    for the response to settle: 40/crossover + 4 dead times, at least 512 samples)."""
+    values on the unit circle by an inverse FFT (for a stable loop). The FFT gives the response
+    of a periodic record, so the record is doubled until the first half agrees with the
+    doubled record to 1e-7 (a slow tail, e.g. an integral's, would otherwise wrap around; at
+    most 2^18 samples): 40/crossover + 4 dead times, at least 512 samples, to begin with;
+    ``samples``: exactly that many, no doubling."""
     h = case.controller.sample_time
+    if samples is not None:
+        return _step_by_fft(case, samples)
     rep = case.report()
-    if samples is None:
-        span = 40.0 / rep.wc if math.isfinite(rep.wc) and rep.wc > 0 else 1000.0 * h
-        samples = int(min(2 ** 16, max(512, (span + 4.0 * case.model.dead_time) / h)))
+    span = 40.0 / rep.wc if math.isfinite(rep.wc) and rep.wc > 0 else 1000.0 * h
+    n = int(min(2 ** 16, max(512, (span + 4.0 * case.model.dead_time) / h)))
+    t, y = _step_by_fft(case, n)
+    while 2 * n <= 2 ** 18:
+        t2, y2 = _step_by_fft(case, 2 * n)
+        if np.max(np.abs(y2[:len(y)] - y)) <= 1e-7:
+            return t, y
+        n, t, y = 2 * n, t2, y2
+    return t, y
+
+
+def _step_by_fft(case: LoopCase, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`predicted_step` on a record of ``samples`` (even) samples."""
+    h = case.controller.sample_time
     n = 2 * (samples // 2)
     theta = 2.0 * math.pi * np.arange(1, n // 2 + 1) / n
     w = np.minimum(theta / h, math.pi / h * (1 - 1e-12))
