@@ -12,6 +12,11 @@ exactly as frequency-response data. Both directions:
   frequency grid [rad/s];
 - :func:`pid_transfer_function` — the project's continuous PID feedback law
   ``kp·(1 + 1/(ti·s) + td·s/(1 + td·s/n))`` (``frequency.pid_feedback``);
+- :func:`controller_transfer_function` / :func:`controller_state_space` — a controller kind's
+  linear description (``ControllerKind.linear``: the implemented discrete law ``−U/Y``, or its
+  setpoint path ``U/R``) as a discrete ``control.TransferFunction`` / ``StateSpace`` with
+  ``dt`` = the controller's sample time, exact (from the description's own coefficients,
+  ``FrequencyResponse.coefficients``), e.g. from a scenario's controller parameters;
 - :func:`plant_settings` — a continuous SISO ``control.TransferFunction`` plus a dead time [s]
   as the parameters of ``plant: transfer_function`` (``num``, ``den``, ``dead_time``), e.g. for
   ``tank_control.core.plants.transfer_function.TransferFunctionConfig(**plant_settings(G, L))``
@@ -118,3 +123,56 @@ def plant_settings(g: Any, dead_time: float = 0.0) -> dict[str, Any]:
                          'transfer_function plant needs a strictly proper G(s)')
     return {'plant': 'transfer_function', 'num': [float(v) for v in num],
             'den': [float(v) for v in den], 'dead_time': float(dead_time)}
+
+
+def _description(source: Any) -> Any:
+    """A ``LinearController`` from itself or from a controller's parameter values (a mapping
+    with ``controller``: the kind, as in a scenario's controller section)."""
+    from tank_control.core.analysis.linear import LinearController
+    if isinstance(source, LinearController):
+        return source
+    from tank_control.core import scenario as core_scenario
+    setup = core_scenario.controller_setup(dict(source), given=())
+    kind = setup.kind
+    description = kind.linear(setup.settings) if kind.linear is not None else None
+    if description is None:
+        raise ValueError(f'controller {kind.name}: no linear description: ' + (
+            kind.no_linear or 'the kind gives none (ControllerKind.linear; docs/extending.md)'))
+    return description
+
+
+def discrete_transfer_function(response: fr.FrequencyResponse) -> Any:
+    """A discrete ``FrequencyResponse`` (``rational(z)·z^(−d)``) as ``control.TransferFunction``
+    with ``dt`` = its sample time, the delay as ``d`` poles at z = 0 (exact); ValueError with
+    the reason for a continuous one or one given by its values only."""
+    control = _control()
+    if not response.discrete:
+        raise ValueError('response: continuous; use to_transfer_function (Padé) or '
+                         'to_frequency_data (exact delay)')
+    if response.coefficients is None:
+        raise ValueError('response: given by its values only (no coefficients); convert it '
+                         'with to_frequency_data')
+    num, den = (np.asarray(p, dtype=float) for p in response.coefficients)
+    delay = int(round(response.dead_time / response.sample_time))
+    den = np.polymul(den, [1.0] + [0.0] * delay)                 # z^(−d): d poles at z = 0
+    return control.tf(num, den, response.sample_time)
+
+
+def controller_transfer_function(source: Any, path: str = 'feedback') -> Any:
+    """A controller kind's linear description as a discrete ``control.TransferFunction``
+    (``dt`` = its sample time [s]): ``source`` a ``LinearController`` or the controller's
+    parameter values (``{'controller': 'pid', 'kp': ..., ...}``); ``path`` ``feedback``
+    (``C = −U/Y``, for a plant of positive gain, as the loop analysis closes ``L = C·G``) or
+    ``setpoint`` (``U/R``). ValueError with the reason when there is none (e.g. MPCS)."""
+    if path not in ('feedback', 'setpoint'):
+        raise ValueError(f'path: {path!r}; allowed feedback, setpoint')
+    description = _description(source)
+    response = description.feedback if path == 'feedback' or description.setpoint is None \
+        else description.setpoint
+    return discrete_transfer_function(response)
+
+
+def controller_state_space(source: Any, path: str = 'feedback') -> Any:
+    """:func:`controller_transfer_function` as a ``control.StateSpace`` (same ``dt``)."""
+    control = _control()
+    return control.tf2ss(controller_transfer_function(source, path))

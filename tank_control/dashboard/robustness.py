@@ -4,7 +4,7 @@ Pure (no rclpy): from the plant node's and the controller node's parameter value
 JSON-safe message. The loop is the implemented one, as ``tank-control analyze`` and
 ``analysis.png`` describe it (``core/scenario_loops.py``): the controller kind's discrete
 transfer function on the exact ZOH model of the plant kind's linear description at the
-controller's sample time, exact dead time (SPEC §3; [Ikonen]). Any kinds that describe themselves
+controller's sample time, exact dead time ([Checks] §2; [Ikonen]). Any kinds that describe themselves
 (``ControllerKind.linear``, ``PlantKind.linear``; docs/extending.md). Frequencies in rad/s,
 phase in degrees, delay margin in s.
 """

@@ -4,7 +4,7 @@ A SISO loop is analysed when its controller kind and its plant kind describe the
 (``ControllerKind.linear``, ``PlantKind.linear``: ``core/analysis/linear.py``,
 ``core/scenario_loops.py``). The loop analysed is the implemented one: the exact ZOH model at
 the controller's sample time and the controller's discrete transfer function (exact dead time,
-SPEC §3, [Ikonen]'s gang of four). The plant section gives the true model; the models the
+[Checks] §2, [Ikonen]'s gang of four). The plant section gives the true model; the models the
 controller carries (``tuning.*``, the auto-tuner's identified one, a predictor's internal
 model) are analysed beside it. Frequencies in rad/s, phase in degrees, delay margin in s.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -131,13 +131,29 @@ def plot_analysis(cases: list[LoopCase], path: str | Path, title: str = '') -> P
 def predicted_step(case: LoopCase, samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(t [s], y)``: the closed loop's response to a unit setpoint step at the controller's
     samples, ``Y/R = G·C_r/(1 + G·C)`` of the implemented discrete loop (exact delay), from its
-    values on the unit circle by an inverse FFT (for a stable loop; the record is long enough
-    for the response to settle: 40/crossover + 4 dead times, at least 512 samples)."""
+    values on the unit circle by an inverse FFT (for a stable loop). The FFT gives the response
+    of a periodic record, so the record is doubled until the first half agrees with the
+    doubled record to 1e-7 (a slow tail, e.g. an integral's, would otherwise wrap around; at
+    most 2^18 samples): 40/crossover + 4 dead times, at least 512 samples, to begin with;
+    ``samples``: exactly that many, no doubling."""
     h = case.controller.sample_time
+    if samples is not None:
+        return _step_by_fft(case, samples)
     rep = case.report()
-    if samples is None:
-        span = 40.0 / rep.wc if math.isfinite(rep.wc) and rep.wc > 0 else 1000.0 * h
-        samples = int(min(2 ** 16, max(512, (span + 4.0 * case.model.dead_time) / h)))
+    span = 40.0 / rep.wc if math.isfinite(rep.wc) and rep.wc > 0 else 1000.0 * h
+    n = int(min(2 ** 16, max(512, (span + 4.0 * case.model.dead_time) / h)))
+    t, y = _step_by_fft(case, n)
+    while 2 * n <= 2 ** 18:
+        t2, y2 = _step_by_fft(case, 2 * n)
+        if np.max(np.abs(y2[:len(y)] - y)) <= 1e-7:
+            return t, y
+        n, t, y = 2 * n, t2, y2
+    return t, y
+
+
+def _step_by_fft(case: LoopCase, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`predicted_step` on a record of ``samples`` (even) samples."""
+    h = case.controller.sample_time
     n = 2 * (samples // 2)
     theta = 2.0 * math.pi * np.arange(1, n // 2 + 1) / n
     w = np.minimum(theta / h, math.pi / h * (1 - 1e-12))
@@ -163,14 +179,17 @@ def _report_dict(case: LoopCase) -> dict[str, object]:
             'delay_margin': r.delay_margin, 'crossover': r.wc, 'phase_crossover': r.w180}
 
 
-def _two_loop(sections: dict) -> tuple[TwoLoopAnalysis, str] | None:
+def _two_loop(sections: dict, controller_values: Mapping[str, Any] | None = None
+              ) -> tuple[TwoLoopAnalysis, str] | None:
     """The two-loop PI on the linearised mixing tank ([Precup2013] eq. 3.7.4, continuous, the
-    document's analysis): ``(TwoLoopAnalysis, label)``, or None for another loop."""
+    document's analysis): ``(TwoLoopAnalysis, label)``, or None for another loop.
+    ``controller_values``: the controller's parameters after a run, default the file's."""
     from tank_control.core import scenario as core_scenario
     from tank_control.core.analysis.two_loop import LinearisedTank, TwoLoopAnalysis
     from tank_control.core.control.multiloop import TwoLoopPiConfig
-    controller = core_scenario.controller_setup(
-        core_scenario.node_values(sections, 'controller'), given=())
+    if controller_values is None:
+        controller_values = core_scenario.node_values(sections, 'controller')
+    controller = core_scenario.controller_setup(controller_values, given=())
     config = controller.settings.config
     if not isinstance(config, TwoLoopPiConfig):
         return None
@@ -206,14 +225,49 @@ def _two_loop_table(analysis: TwoLoopAnalysis, label: str) -> tuple[str, list[di
     return head + '\n'.join(rows) + '\n', out
 
 
-def _why_not(sections: dict, scenario_path: object) -> str:
+def _no_loop_reason(sections: dict, controller_values: Mapping[str, Any] | None = None) -> str:
     from tank_control.core import scenario as core_scenario
+    if controller_values is None:
+        controller_values = core_scenario.node_values(sections, 'controller')
     try:
-        _, reason = describe_loop(core_scenario.node_values(sections, 'plant'),
-                                  core_scenario.node_values(sections, 'controller'))
+        _, reason = describe_loop(core_scenario.node_values(sections, 'plant'), controller_values)
     except (ValueError, ArithmeticError) as exc:
         reason = str(exc)
-    return f'{scenario_path}: no loop to analyse: {reason}\n'
+    return f'no loop to analyse: {reason}'
+
+
+def _why_not(sections: dict, scenario_path: object) -> str:
+    return f'{scenario_path}: {_no_loop_reason(sections)}\n'
+
+
+def two_loop_key(row: Mapping[str, Any]) -> str:
+    """A two-loop row's key in metrics.json ``loop_analysis``: the loop and the state of the
+    other one, e.g. ``h (T_out closed)``."""
+    return f'{row["loop"]} ({row["other_loop"]})'
+
+
+def run_loop_analysis(sections: dict, controller_values: Mapping[str, Any]
+                      ) -> dict[str, dict[str, object]] | str:
+    """metrics.json ``loop_analysis`` of a run that has no SISO case: the two-loop PI's rows of
+    ``tank-control analyze --json`` keyed by :func:`two_loop_key` (the same numbers, from the
+    controller's final values), or the one line saying why there is no loop to analyse
+    (MPCS)."""
+    try:
+        two = _two_loop(sections, controller_values)
+        if two is not None:
+            _, rows = _two_loop_table(*two)
+            return {two_loop_key(row): {**row, 'model': two[1]} for row in rows}
+        return _no_loop_reason(sections, controller_values)
+    except (ValueError, KeyError, TypeError, ArithmeticError) as exc:
+        return f'analysis.png not written: {exc}'
+
+
+def plot_run_two_loop(sections: dict, controller_values: Mapping[str, Any], path: str | Path,
+                      title: str = '') -> Path | None:
+    """A run's ``analysis.png`` for the two-loop PI (:func:`plot_two_loop` of the controller's
+    final values); None for another loop."""
+    two = _two_loop(sections, controller_values)
+    return plot_two_loop(two[0], path, title) if two is not None else None
 
 
 def analyze(path: str | Path, overrides: tuple[str, ...] = (), plot: str | Path | None = None,
@@ -257,31 +311,38 @@ def analyze(path: str | Path, overrides: tuple[str, ...] = (), plot: str | Path 
 
 
 def plot_two_loop(analysis: TwoLoopAnalysis, path: str | Path, title: str = '') -> Path:
-    """Bode and Nyquist of each loop of the two-loop PI with the other loop closed."""
+    """Bode magnitude and Nyquist of each loop of the two-loop PI with the other loop closed
+    (solid, with its Ms circle) and open (dashed); the legend gives each one's Ms, PM and GM."""
     from tank_control.core.analysis.two_loop import LOOPS
     from tank_control.harness.plotting import plt, save_figure
-    fig, (ax_mag, ax_nyq) = plt.subplots(1, 2, figsize=(12, 5))
+    fig, (ax_mag, ax_nyq) = plt.subplots(1, 2, figsize=(13, 5.5))
+    theta = np.linspace(0, 2 * math.pi, 200)
     for i, name in enumerate(LOOPS):
-        loop = analysis.loop(i, other_closed=True)
-        m = fr.margins(loop)
-        w = fr.default_grid(loop)
-        values = loop(w)
-        ax_mag.loglog(w, np.abs(values), color=f'C{i}', label=f'{name} (other closed)')
-        if math.isfinite(m.wc):
-            ax_mag.axvline(m.wc, color=f'C{i}', ls=':', lw=0.8)
-        ax_nyq.plot(values.real, values.imag, color=f'C{i}', label=f'{name}: Ms {m.ms:.2f}, '
-                    f'PM {m.phase_margin:.1f}°, GM {m.gain_margin:.2f}')
-        theta = np.linspace(0, 2 * math.pi, 200)
-        ax_nyq.plot(-1 + np.cos(theta) / m.ms, np.sin(theta) / m.ms, '--', color=f'C{i}', lw=0.8)
+        for closed, style in ((True, '-'), (False, '--')):
+            loop = analysis.loop(i, other_closed=closed)
+            m = analysis.margins(i, other_closed=closed)
+            w = fr.default_grid(loop)
+            values = loop(w)
+            other = f'{LOOPS[1 - i]} {"closed" if closed else "open"}'
+            ax_mag.loglog(w, np.abs(values), style, color=f'C{i}', label=f'{name} ({other})')
+            if math.isfinite(m.wc):
+                ax_mag.axvline(m.wc, color=f'C{i}', ls=':', lw=0.8)
+            ax_nyq.plot(values.real, values.imag, style, color=f'C{i}',
+                        label=f'{name} ({other}): Ms {m.ms:.2f}, PM {m.phase_margin:.1f}°, '
+                              f'GM {_num(m.gain_margin, ".2f")}')
+            if closed:
+                ax_nyq.plot(-1 + np.cos(theta) / m.ms, np.sin(theta) / m.ms, ':', color=f'C{i}',
+                            lw=0.8)
     ax_mag.axhline(1.0, color='k', lw=0.6)
     ax_mag.set_xlabel('ω [rad/s]')
     ax_mag.set_ylabel('|L_i(jω)|')
+    ax_mag.set_title('loop gains (other loop closed: solid, open: dashed)')
     ax_mag.legend(fontsize='small')
     ax_nyq.plot([-1], [0], 'k+', ms=10)
     ax_nyq.set_xlim(-3, 1.5)
     ax_nyq.set_ylim(-2.5, 2.0)
     ax_nyq.set_aspect('equal')
-    ax_nyq.set_title('Nyquist with the Ms circles ([Precup2013] eq. 3.7.4)')
+    ax_nyq.set_title('Nyquist, Ms circles of the closed cases ([Precup2013] eq. 3.7.4)')
     ax_nyq.legend(fontsize='small')
     for ax in (ax_mag, ax_nyq):
         ax.grid(True, alpha=0.3, which='both')

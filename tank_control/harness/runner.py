@@ -1,7 +1,8 @@
 """Run a scenario: node processes + recorder (ROS), or the in-process loop; write the results.
 
 ``run_scenario`` leaves ``scenario.yaml``, ``trace.csv``, ``run.mcap``, ``metrics.json``,
-``plot.png``, ``analysis.png`` (a SISO PID loop on a process model: ``harness/analysis.py``)
+``plot.png``, ``analysis.png`` (a SISO loop that describes itself linearly, or the two-loop PI
+per loop: ``harness/analysis.py``)
 and (ROS runs) ``logs/<node>.log`` in the output directory. How a ROS run proceeds (start
 paused, wait for the graph, un-pause, record, stop) and what ends it: docs/harness.md.
 ``trace.csv`` and ``run.mcap`` are written as the run goes (``stream.py``); a failed or
@@ -286,6 +287,10 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
                 cases = [case for case in cases if case.label.startswith('plant')]
         except (ConfigError, ValueError) as exc:
             analysis_note = f'analysis.png not written: {exc}'
+        if not cases and not analysis_note and not plant_only:
+            # the two-loop PI's loops, or why none (MPCS); a sweep's rows do not use them
+            from tank_control.harness.analysis import run_loop_analysis
+            analysis_note = run_loop_analysis(scenario.sections, controller_params)
     metrics = {
         **body,
         'controller': {'final_gains': gains, 'input_limits': {k: list(v) for k, v in limits.items()},
@@ -333,10 +338,16 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     from tank_control.harness.analysis import plot_analysis
     from tank_control.harness.plotting import plot_runs, run_plot
     files = {**files, 'metrics': out / 'metrics.json'}
+    title = analysis_title(scenario)
     if cases:
         placed = ahead.place(out / 'analysis.png') if ahead and cases_ahead is not None else None
-        files['analysis'] = placed or plot_analysis(cases, out / 'analysis.png',
-                                                    title=analysis_title(scenario))
+        files['analysis'] = placed or plot_analysis(cases, out / 'analysis.png', title=title)
+    elif isinstance(metrics['loop_analysis'], dict):      # the two-loop PI, per loop
+        from tank_control.harness.analysis import plot_run_two_loop
+        drawn = plot_run_two_loop(scenario.sections, controller_params, out / 'analysis.png',
+                                  title=title)
+        if drawn is not None:
+            files['analysis'] = drawn
     files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
     if len(trace):
         files['plot'] = plot_runs([run_plot(scenario.name, trace, metrics)], out / 'plot.png',

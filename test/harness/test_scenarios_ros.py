@@ -133,6 +133,10 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     assert ros.metrics['controller']['final_gains']['two_loop.ki_T'] == -0.01
+    # the same finish as in-process: each loop's margins and analysis.png
+    assert len(ros.metrics['loop_analysis']) == 4
+    assert ros.metrics['loop_analysis'] == ref.metrics['loop_analysis']
+    assert ros.files['analysis'].read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     # the harness froze its start-up objects for the run (runtime.quiet_collector) and gave
     # them back to the collector after it: a process running many runs keeps nothing
     assert gc.get_freeze_count() == 0

@@ -109,10 +109,13 @@ def test_analyze_prints_the_robustness_table_without_running():
     assert bad.returncode == 2 and 'did you mean kp' in bad.stderr
 
 
-def test_run_writes_analysis_png_for_a_siso_loop_only(tmp_path):
+def test_run_writes_analysis_png_for_a_siso_loop_and_per_loop_for_the_two_loop_pi(tmp_path):
+    """A SISO loop's cases, and the two-loop PI's loops (test/harness/
+    test_two_loop_run_analysis.py: the same numbers as ``analyze --json``; MPCS: none)."""
     pid = run(CONFIG / 'fopdt_zn.yaml', tmp_path / 'zn', in_process=True, duration=20.0)
     assert pid.files['analysis'].exists()
     metrics = json.loads(pid.files['metrics'].read_text())
     assert metrics['loop_analysis']['plant (fopdt K=0.05 T=10 s L=3 s)']['stable'] is True
     tank = run(CONFIG / 'tank_two_loop.yaml', tmp_path / 'tank', in_process=True, duration=20.0)
-    assert 'analysis' not in tank.files and not (tmp_path / 'tank' / 'analysis.png').exists()
+    assert tank.files['analysis'] == tmp_path / 'tank' / 'analysis.png'
+    assert tank.metrics['loop_analysis']['T_out (h closed)']['stable'] is True

@@ -14,7 +14,8 @@ REFERENCES = ROOT / 'docs' / 'references.md'
 CITATION = re.compile(r'(?<![\w\]\[])\[([A-Z][a-z][A-Za-z]{3,}(?:\d{4})?)\](?!\()')
 #: The labels used before docs/references.md: a document number and a place in it.
 OLD_LABEL = re.compile(r'(?<![\w.\-/\[])00[0-4](?:\'s)? (?:eqs?\.|§|Table|Figs?\.?|\(|—)')
-OUTSIDE = re.compile(r'\.\./shared|SPEC\.md|SPEC-supplement|seeds/')
+#: A path or a section of an internal document a user's clone does not have (``SPEC §3``).
+OUTSIDE = re.compile(r'\.\./shared|SPEC\.md|\bSPEC ?§|SPEC-supplement|seeds/')
 
 
 def _files() -> list[Path]:
@@ -57,3 +58,12 @@ def test_no_old_document_numbers_and_no_path_outside_the_repository():
                 outside.append(where)
     assert not old, 'document numbers instead of citation keys:\n' + '\n'.join(old[:20])
     assert not outside, 'paths outside the repository:\n' + '\n'.join(outside[:20])
+
+
+def test_an_internal_section_label_is_caught():
+    """The pattern itself: ``SPEC §3`` (a section of a document outside the repository) is
+    caught, a command line's ``NODE.PARAM=SPEC`` is not."""
+    assert OUTSIDE.search('exact dead time (SPEC §3; [Ikonen])')
+    assert OUTSIDE.search('see SPEC§2')
+    assert not OUTSIDE.search('--grid NODE.PARAM=SPEC ...')
+    assert not OUTSIDE.search('exact dead time ([Checks] §2; [Ikonen])')

@@ -80,9 +80,11 @@ class FrequencyResponse:
     ``rational`` maps complex ``s`` (or ``z`` when ``sample_time > 0``) to complex
     values, elementwise. ``integrators``: net number of poles at s = 0 (z = 1);
     ``unstable_poles``: poles in Re s > 0 (|z| > 1), for the Nyquist count;
-    ``corners``: characteristic frequencies [rad/s] that set the default grid.
-    Call it with ``w`` [rad/s] to get the complex ``G(jω)`` (``G(e^(jωTs))``).
-    Multiply responses (``C * G``) to form a loop (same ``sample_time``).
+    ``corners``: characteristic frequencies [rad/s] that set the default grid;
+    ``coefficients``: ``(num, den)`` of ``rational`` in s (or z), highest power first, when the
+    response is built from them (None: given by its values only; a product keeps them when
+    both factors have them). Call it with ``w`` [rad/s] to get the complex ``G(jω)``
+    (``G(e^(jωTs))``). Multiply responses (``C * G``) to form a loop (same ``sample_time``).
     """
 
     rational: Rational
@@ -91,6 +93,7 @@ class FrequencyResponse:
     integrators: int = 0
     unstable_poles: int = 0
     corners: tuple[float, ...] = field(default=())
+    coefficients: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     @property
     def discrete(self) -> bool:
@@ -130,15 +133,21 @@ class FrequencyResponse:
             f = self.rational
             return FrequencyResponse(lambda p: k * f(p), self.dead_time,
                                      self.sample_time, self.integrators, self.unstable_poles,
-                                     self.corners)
+                                     self.corners, None if self.coefficients is None else
+                                     (tuple(k * np.asarray(self.coefficients[0])),
+                                      self.coefficients[1]))
         if not math.isclose(self.sample_time, other.sample_time, rel_tol=1e-12, abs_tol=0.0):
             raise ValueError(f'sample_time: cannot combine responses with sample_time '
                              f'{self.sample_time} s and {other.sample_time} s')
         f, g = self.rational, other.rational
+        both = None
+        if self.coefficients is not None and other.coefficients is not None:
+            both = (tuple(np.polymul(self.coefficients[0], other.coefficients[0])),
+                    tuple(np.polymul(self.coefficients[1], other.coefficients[1])))
         return FrequencyResponse(lambda p: f(p) * g(p), self.dead_time + other.dead_time,
                                  self.sample_time, self.integrators + other.integrators,
                                  self.unstable_poles + other.unstable_poles,
-                                 self.corners + other.corners)
+                                 self.corners + other.corners, both)
 
     __rmul__ = __mul__
 
@@ -182,7 +191,8 @@ def rational(num: ArrayLike, den: ArrayLike, dead_time: float = 0.0) -> Frequenc
     unstable = int(np.sum(np.roots(den_trimmed).real > 0)) if den_trimmed.size > 1 else 0
     return FrequencyResponse(lambda s: np.polyval(num, s) / np.polyval(den, s), dead_time, 0.0,
                              _trailing_zeros(den) - _trailing_zeros(num), unstable,
-                             _root_corners(num) + _root_corners(den) + _delay_corner(dead_time))
+                             _root_corners(num) + _root_corners(den) + _delay_corner(dead_time),
+                             (tuple(num), tuple(den)))
 
 
 def ipdt(gain: float, dead_time: float) -> FrequencyResponse:
@@ -330,7 +340,8 @@ def ipdt_zoh(gain: float, dead_time: float, sample_time: float) -> FrequencyResp
     h = _sample_time(sample_time)
     d, theta = _split_delay(to, h)
     return FrequencyResponse(lambda z: k1 * ((h - theta) * z + theta) / (z * (z - 1.0)), d * h, h,
-                             1, 0, _delay_corner(to) or (abs(k1),))
+                             1, 0, _delay_corner(to) or (abs(k1),),
+                             ((k1 * (h - theta), k1 * theta), (1.0, -1.0, 0.0)))
 
 
 def fopdt_zoh(gain: float, time_constant: float, dead_time: float, sample_time: float) -> FrequencyResponse:
@@ -346,7 +357,7 @@ def fopdt_zoh(gain: float, time_constant: float, dead_time: float, sample_time: 
     e = math.exp(-(h - theta) / t)
     b1, b2 = 1.0 - e, e - a
     return FrequencyResponse(lambda z: k * (b1 * z + b2) / (z * (z - a)), d * h, h, 0, 0,
-                             (1.0 / t,) + _delay_corner(dead))
+                             (1.0 / t,) + _delay_corner(dead), ((k * b1, k * b2), (1.0, -a, 0.0)))
 
 
 @dataclass(frozen=True)
@@ -434,7 +445,8 @@ def rational_discrete(num: ArrayLike, den: ArrayLike, sample_time: float,
                     for r in np.concatenate([roots_den, roots_num])
                     if r != 0 and abs(np.log(complex(r))) > 1e-12)
     return FrequencyResponse(lambda z: np.polyval(num, z) / np.polyval(den, z), delay_samples * h, h,
-                             at_one, unstable, corners + _delay_corner(delay_samples * h))
+                             at_one, unstable, corners + _delay_corner(delay_samples * h),
+                             (tuple(num), tuple(den)))
 
 
 def _pid_law_discrete(kp: float, ti: float, td: float, n: float, b: float, c: float,
@@ -451,6 +463,23 @@ def _pid_law_discrete(kp: float, ti: float, td: float, n: float, b: float, c: fl
     return law
 
 
+def _pid_coefficients_discrete(kp: float, ti: float, td: float, n: float, b: float, c: float,
+                               h: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(num, den)`` in z of :func:`_pid_law_discrete`'s law (its terms over a common
+    denominator)."""
+    beta = td / (td + n * h)
+    num, den = np.array([b]), np.array([1.0])
+    terms = []
+    if math.isfinite(ti):
+        terms.append((np.array([h / ti]), np.array([1.0, -1.0])))
+    if td > 0:
+        terms.append((c * n * beta * np.array([1.0, -1.0]), np.array([1.0, -beta])))
+    for t_num, t_den in terms:                          # num/den + t_num/t_den
+        num, den = (np.polyadd(np.polymul(num, t_den), np.polymul(t_num, den)),
+                    np.polymul(den, t_den))
+    return tuple(kp * num), tuple(den)
+
+
 def pid_feedback_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0,
                           sample_time: float = 1.0) -> FrequencyResponse:
     """Transfer function −U/Y of the implemented ``Pid2Dof`` (core/control/pid.py):
@@ -461,7 +490,8 @@ def pid_feedback_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: f
     kp, ti, td, n = _pid_args(kp, ti, td, n)
     h = _sample_time(sample_time)
     return FrequencyResponse(_pid_law_discrete(kp, ti, td, n, 1.0, 1.0, h), 0.0, h,
-                             int(math.isfinite(ti)), 0, _pid_corners(ti, td, n))
+                             int(math.isfinite(ti)), 0, _pid_corners(ti, td, n),
+                             _pid_coefficients_discrete(kp, ti, td, n, 1.0, 1.0, h))
 
 
 def pid_setpoint_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: float = 10.0,
@@ -472,7 +502,8 @@ def pid_setpoint_discrete(kp: float, ti: float = math.inf, td: float = 0.0, n: f
     b, c = _weight('b', b), _weight('c', c)
     h = _sample_time(sample_time)
     return FrequencyResponse(_pid_law_discrete(kp, ti, td, n, b, c, h), 0.0, h,
-                             int(math.isfinite(ti)), 0, _pid_corners(ti, td, n))
+                             int(math.isfinite(ti)), 0, _pid_corners(ti, td, n),
+                             _pid_coefficients_discrete(kp, ti, td, n, b, c, h))
 
 
 # ------------------------------------------------------------------- the grid

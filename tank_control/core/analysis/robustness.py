@@ -99,10 +99,24 @@ def smith_responses(model: ProcessModel, primary: PidConfig
     # with a non-zero value at z = 1; fopdt: it vanishes at z = 1).
     integrators = c.integrators if model.kind != 'ipdt' else 0
 
+    def coefficients(law: fr.FrequencyResponse
+                     ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        """``law/(1 + C·(Gm0 − Gm))`` over one denominator, ``Gm = nm/(dm·z^d)``."""
+        if law.coefficients is None or c.coefficients is None or gm0.coefficients is None \
+                or gm.coefficients is None:
+            return None
+        (nf, df), (nc, dc) = law.coefficients, c.coefficients
+        (n0, d0), (nm, dm) = gm0.coefficients, gm.coefficients
+        zd = np.polymul(dm, [1.0] + [0.0] * int(round(gm.dead_time / h)))      # dm·z^d
+        common = np.polymul(np.polymul(dc, d0), zd)
+        den = np.polyadd(common, np.polymul(nc, np.polysub(np.polymul(n0, zd),
+                                                          np.polymul(nm, d0))))
+        return tuple(np.polymul(nf, common)), tuple(np.polymul(df, den))
+
     def equivalent(law: fr.FrequencyResponse) -> fr.FrequencyResponse:
         f, g = law.rational, c.rational
         return fr.FrequencyResponse(lambda z: f(z) / (1.0 + g(z) * delta(z)), 0.0, h,
-                                    integrators, 0, c.corners + gm.corners)
+                                    integrators, 0, c.corners + gm.corners, coefficients(law))
     return equivalent(c), equivalent(cr), c * gm0
 
 
