@@ -1,7 +1,7 @@
 """Step metrics read through measurement noise agree with the noise-free ones (issue 33 §1).
 
 Every shipped SISO scenario (config/*.yaml, config/scenarios/*.yaml with one output under a
-setpoint) is run in-process noise-free and with white measurement noise of σ = 0.2 %, 1 % and
+setpoint that steps) is run in-process noise-free and with white measurement noise of σ = 0.2 %, 1 % and
 5 % of its smallest setpoint step, two seeds each. What a user reads must not change with it:
 - the number of setpoint steps is the noise-free one (noise on y(0) is no step);
 - a settling time exists wherever the noise-free run has one;
@@ -35,9 +35,18 @@ def _siso_scenarios() -> list[str]:
             scenario = load_scenario(path)
         except Exception:          # not a scenario file (e.g. the DDS profile)
             continue
-        if 'plant' in scenario.sections and len(core_scenario.build(node_parameters(scenario)).plant.output_names) == 1:
+        if ('plant' in scenario.sections and _has_setpoint_step(scenario)
+                and len(core_scenario.build(node_parameters(scenario)).plant.output_names) == 1):
             found.append(path)
     return found
+
+
+def _has_setpoint_step(scenario) -> bool:
+    """The reference's schedule changes a setpoint (a constant setpoint, e.g. the
+    minimum-variance monitoring case's, has no step to measure)."""
+    return any(isinstance(values, list) and len(set(values)) > 1
+               for name, values in scenario.params('reference').items()
+               if name.startswith('setpoint.') and name.endswith('.values'))
 
 
 SCENARIOS = _siso_scenarios()
