@@ -24,7 +24,7 @@ from tank_control.core.stamps import FutureStamps
 from tank_control.dashboard.robustness import RobustnessWorker
 from tank_control.dashboard.server import DashboardServer
 from tank_control.dashboard.values import jsonable
-from tank_control.nodes.loop_performance import TOPIC as LOOP_PERFORMANCE_TOPIC
+from tank_control.nodes.loop_performance import MODE_TOPIC, TOPIC as LOOP_PERFORMANCE_TOPIC
 from tank_control.nodes.messages import reliable_qos
 
 #: State changes kept for pages that connect later (marks on the trends).
@@ -37,6 +37,8 @@ STATE_QOS = reliable_qos(10, latched=True)
 #: messages when it lags, so no stamp it holds is its now.)
 FUTURE_TICKS = 64
 FUTURE_MIN_S = 1.0
+#: The loop monitor's topics of a controller (JSON, not a kind's state topic).
+MONITOR_TOPICS = frozenset(t.removeprefix('~/') for t in (LOOP_PERFORMANCE_TOPIC, MODE_TOPIC))
 #: Fields of a node's /diagnostics status the page's faceplate shows (alarms, fail-safe).
 FACEPLATE_FIELDS = frozenset({'mode', 'fault', 'saturated', 'stale_inputs', 'anti_windup_active'})
 #: /diagnostics values shown by their prefix: each loop's verdict and indices (docs/monitoring.md).
@@ -163,11 +165,11 @@ class DashboardViews(Node):
         prefix = view.name + '/'
         commands = tuple(sorted(s[len(prefix):] for s, types in services
                                 if s.startswith(prefix) and 'std_srvs/srv/Trigger' in types))
-        # a kind's state topic (e.g. autotune_state); the loop monitor's summaries are JSON,
-        # shown through /diagnostics (loop_performance.<output>), not a state
+        # a kind's state topic (e.g. autotune_state); the loop monitor's summaries and mode
+        # log are JSON, shown through /diagnostics (loop_performance.<output>), not states
         states = sorted(t for t, types in topics
                         if t.startswith(prefix) and 'std_msgs/msg/String' in types
-                        and t != prefix + LOOP_PERFORMANCE_TOPIC.removeprefix('~/'))
+                        and t[len(prefix):] not in MONITOR_TOPICS)
         changed = commands != view.commands
         view.commands = commands
         for topic in states:
