@@ -209,6 +209,10 @@ def echo_verb(args: argparse.Namespace) -> int:
                     return 0
 
 
+#: most messages a counted ``topic pub`` keeps for readers that match late
+MAX_KEPT = 1000
+
+
 def pub_verb(args: argparse.Namespace) -> int:
     from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -218,10 +222,16 @@ def pub_verb(args: argparse.Namespace) -> int:
     if args.rate <= 0 or not math.isfinite(args.rate):
         raise CliError(f'--rate must be a positive number of Hz, got {args.rate:g}')
     times = 1 if args.once else args.times
+    if times < 0:
+        raise CliError(f'--times must be 0 (without end) or more, got {times}')
     wait_subs = args.wait_matching_subscriptions
     if wait_subs is None:
         wait_subs = 1 if times else 0
-    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+    # a counted publication keeps every message until each matched reader has it: a reader
+    # that matched this writer a moment after the writer matched it (discovery is not
+    # symmetric) gets all of them, not only the last of a history of one
+    qos = QoSProfile(depth=min(times, MAX_KEPT) if times else 1,
+                     reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
     with client_node() as node:
         publisher = node.create_publisher(msg_type, topic, qos)

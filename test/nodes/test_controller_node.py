@@ -45,6 +45,7 @@ class Loop:
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(node, 'controller')
         assert self.params.wait_for_services(timeout_sec=30.0), 'controller parameters not up'
+        self.primed = False
 
     def _on_u(self, msg: JointState) -> None:
         self.answers.append((stamp_to_ns(msg.header.stamp), list(msg.name), list(msg.position)))
@@ -56,16 +57,29 @@ class Loop:
                 self.diag_message = status.message
                 self.diag_level = status.level
 
-    def call(self, future, timeout: float = 10.0):
-        assert self.probe.wait_for(future.done, timeout)
-        return future.result()
+    def read(self, send, timeout: float = 30.0):
+        """The result of a request without effect, ``send()`` again every 2 s without an
+        answer: a response can be lost while discovery goes on (nodes/services.py)."""
+        futures = [send()]
+        deadline = time.monotonic() + timeout
+        while not self.probe.wait_for(lambda: any(f.done() for f in futures), 2.0):
+            assert time.monotonic() < deadline, f'no answer in {timeout:g} s'
+            futures.append(send())
+        return next(f for f in futures if f.done()).result()
 
     def set(self, name: str, value):
-        return self.call(self.params.set_parameters([Parameter(name, value=value)])).results[0]
+        """A set, sent once, after an empty set (no effect) has had its answer: the node has
+        matched this client's response reader (nodes/services.py)."""
+        if not self.primed:
+            self.read(lambda: self.params.set_parameters([]))
+            self.primed = True
+        future = self.params.set_parameters([Parameter(name, value=value)])
+        assert self.probe.wait_for(future.done, 30.0)
+        return future.result().results[0]
 
     def get(self, name: str):
         return Parameter.from_parameter_msg(
-            _named(name, self.call(self.params.get_parameters([name])).values[0])).value
+            _named(name, self.read(lambda: self.params.get_parameters([name])).values[0])).value
 
     def tick(self, t_ns: int, y, r, resend_until: float = 30.0):
         """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
@@ -126,7 +140,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     loop = Loop(probe)
 
     # declared with descriptors: range, read-only, description
-    described = loop.call(loop.params.describe_parameters(['kp', 'controller']))
+    described = loop.read(lambda: loop.params.describe_parameters(['kp', 'controller']))
     kp_desc, ctrl_desc = described.descriptors
     assert kp_desc.floating_point_range and kp_desc.floating_point_range[0].from_value == 0.0
     assert 'gain' in kp_desc.description
