@@ -27,8 +27,9 @@ class AnalysisAhead:
     """The imports of the results' writers at once, then (after :meth:`start`) the loop
     analysis of ``scenario`` for the controller's starting parameters, in a daemon thread."""
 
-    def __init__(self, scenario: Scenario, out: Path, title: str) -> None:
+    def __init__(self, scenario: Scenario, out: Path, title: str, draw: bool = True) -> None:
         self.scenario = scenario
+        self.draw = draw                   # False: the reports only, no analysis.png
         self.part = out / PART
         self.title = title
         self.params: dict[str, Any] | None = None
@@ -44,7 +45,8 @@ class AnalysisAhead:
 
     def _work(self) -> None:
         import tank_control.harness.analysis  # noqa: F401 - the imports first, whatever comes
-        import tank_control.harness.plotting  # noqa: F401
+        if self.draw:
+            import tank_control.harness.plotting  # noqa: F401
         self._go.wait()
         if not self.params:
             return
@@ -54,7 +56,7 @@ class AnalysisAhead:
             cases = loop_cases(self.scenario.sections, self.params)
             for case in cases:
                 case.report()                                   # cached on the case
-            if cases:
+            if cases and self.draw:
                 plot_analysis(cases, self.part, title=self.title)
             self.cases = cases
         except Exception:           # noqa: BLE001 - computed again at the end, which reports it

@@ -2,7 +2,7 @@
 
     tank-control list [--dir DIR]
     tank-control run SCENARIO.yaml --out DIR [--mode lockstep|sim|wall] [--rtf X]
-                     [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process]
+                     [--duration S] [--set NODE.PARAM=VALUE ...] [--in-process] [--no-plots]
     tank-control compare A.yaml B.yaml ... --out DIR [same options]
     tank-control analyze SCENARIO.yaml [--set NODE.PARAM=VALUE ...]
     tank-control assess FILE.csv --pv COL --sp COL --op COL --sample-time S [--dead-time L]
@@ -11,7 +11,7 @@
     tank-control sweep SCENARIO.yaml ... | STUDY.yaml --out DIR [--grid NODE.PARAM=SPEC ...]
                      [--random NODE.PARAM=DIST ...] [--samples N] [--seed S] [--set ...]
                      [--duration S] [--workers N | --cluster ADDRESS | --scheduler-file F]
-                     [--ros]
+                     [--ros] [--no-plots]
 
 Exit status: 0 done (a sweep: some runs succeeded), 1 the run failed (a node crashed, did not
 start or stalled: its last log lines are printed; another run or graph on the ROS_DOMAIN_ID;
@@ -75,6 +75,9 @@ def _parser() -> argparse.ArgumentParser:
         p.add_argument('--in-process', action='store_true',
                        help='run core/loop.py without ROS (same files written)')
         p.add_argument('--quiet', action='store_true', help='no progress output')
+        p.add_argument('--no-plots', dest='plots', action='store_false',
+                       help='write no plot.png and analysis.png (batch runs: the trace, '
+                            'recording and metrics are the same)')
 
     listing = sub.add_parser('list', help='the shipped scenarios and studies with their titles')
     listing.add_argument('--dir', type=Path, help='list this folder instead (recursively)')
@@ -144,6 +147,8 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument('--ros', action='store_true',
                        help='each run in lockstep over ROS 2, in a ROS_DOMAIN_ID of its own')
     sweep.add_argument('--quiet', action='store_true', help='no progress bar')
+    sweep.add_argument('--no-plots', dest='plots', action='store_false',
+                       help='write the table and summary only (no envelope or metrics plots)')
     return cli_examples.attach(parser)
 
 
@@ -191,7 +196,7 @@ def _sweep(args: argparse.Namespace) -> int:
         executor = sweep.local_executor(args.workers)
     progress = None if args.quiet else sweep.ProgressBar(sys.stderr)
     try:
-        result = sweep.run_sweep(spec, args.out, executor, progress)
+        result = sweep.run_sweep(spec, args.out, executor, progress, plots=args.plots)
     except KeyboardInterrupt:
         print(f'tank-control: sweep interrupted; finished runs are kept in {args.out}/runs.jsonl '
               '(rerun the same command to resume)', file=sys.stderr)
@@ -220,7 +225,7 @@ def _run_one(path: Path, out: Path, args: argparse.Namespace):
               file=sys.stderr)
     return runner.run(path, out, mode=args.mode, rtf=args.rtf, duration=args.duration,
                       overrides=args.overrides, in_process=args.in_process, progress=progress,
-                      dashboard=dashboard)
+                      dashboard=dashboard, plots=args.plots)
 
 
 def _print_result(result) -> None:
@@ -357,12 +362,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 name += '_'
             used.add(name)
             results.append(_run_one(path, args.out / name, args))
-        files = write_comparison(results, args.out)
+        files = write_comparison(results, args.out, plots=args.plots)
         print(files['table'].read_text(), end='')
         for result in results:
             for warning in result.metrics.get('controller', {}).get('warnings', []):
                 print(f'{result.name}: controller warning: {warning}')
-        print(f'table: {files["table"]}\nplot: {files["plot"]}')
+        print('\n'.join(f'{key}: {path}' for key, path in files.items()))
         return 0
     except ScenarioError as err:
         print(f'tank-control: {err}', file=sys.stderr)

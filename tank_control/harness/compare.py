@@ -68,14 +68,18 @@ def markdown_table(results: Sequence[RunResult]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def write_comparison(results: Sequence[RunResult], out_dir: str | Path) -> dict[str, Path]:
-    """``comparison.md`` (table, and where each run's files are) and ``overlay.png``."""
+def write_comparison(results: Sequence[RunResult], out_dir: str | Path,
+                     plots: bool = True) -> dict[str, Path]:
+    """``comparison.md`` (table, and where each run's files are) and ``overlay.png`` (not with
+    ``plots`` False)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     table = markdown_table(results)
     runs = '\n'.join(f'- `{r.name}`: {r.out_dir}' for r in results)
     md = out / 'comparison.md'
     md.write_text(f'# Comparison\n\n{table}\nRuns:\n\n{runs}\n')
+    if not plots:
+        return {'table': md}
     from tank_control.harness.plotting import plot_runs, run_plot   # matplotlib: when plotting
     plot = plot_runs([run_plot(r.name, r.trace, r.metrics) for r in results], out / 'overlay.png',
                      title='comparison: ' + ', '.join(r.name for r in results))

@@ -153,20 +153,23 @@ def node_module_command(node: str) -> list[str]:
 def run(scenario_path: str | Path, out_dir: str | Path, *, mode: str | None = None,
         rtf: float | None = None, duration: float | None = None, overrides: Sequence[str] = (),
         in_process: bool = False, env: Mapping[str, str] | None = None,
-        progress: ProgressFn | None = None, dashboard: int | None = None) -> RunResult:
+        progress: ProgressFn | None = None, dashboard: int | None = None,
+        plots: bool = True) -> RunResult:
     """Load ``scenario_path`` with ``overrides`` and the command-line settings, and run it."""
     scenario = effective_harness(load_scenario(scenario_path, overrides), mode, rtf, duration)
     return run_scenario(scenario, out_dir, in_process=in_process, env=env, progress=progress,
-                        dashboard=dashboard)
+                        dashboard=dashboard, plots=plots)
 
 
 def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = False,
                  env: Mapping[str, str] | None = None, progress: ProgressFn | None = None,
                  node_command: NodeCommand = node_module_command,
-                 dashboard: int | None = None) -> RunResult:
+                 dashboard: int | None = None, plots: bool = True) -> RunResult:
     """Run a loaded scenario into ``out_dir`` (steps of a ROS run: docs/harness.md). SIGINT,
     SIGTERM and SIGHUP stop the run cleanly while it goes (when called from the main thread).
-    ``dashboard``: also start dashboard_node on this port for the run (a ROS run only)."""
+    ``dashboard``: also start dashboard_node on this port for the run (a ROS run only).
+    ``plots``: False writes no ``plot.png`` and ``analysis.png`` (``--no-plots``: batch runs,
+    a sweep's runs); the trace, recording and metrics are the same."""
     if dashboard is not None and in_process:
         raise ScenarioError('--dashboard watches the nodes of a ROS run; an --in-process run '
                             'has none')
@@ -181,8 +184,9 @@ def run_scenario(scenario: Scenario, out_dir: str | Path, *, in_process: bool = 
     out = Path(out_dir)
     with StopSignals() as stop:
         if in_process:
-            return _run_in_process(scenario, out, progress, stop)
-        return _RosRun(scenario, out, env, progress, node_command, stop, dashboard).execute()
+            return _run_in_process(scenario, out, progress, stop, plots)
+        return _RosRun(scenario, out, env, progress, node_command, stop, dashboard,
+                       plots).execute()
 
 
 def prepare_output(scenario: Scenario, out: Path) -> Path:
@@ -313,10 +317,12 @@ def run_metrics(scenario: Scenario, trace: Trace, controller_params: Mapping[str
 
 def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any],
            controller_params: Mapping[str, Any], files: Mapping[str, Path],
-           reason: str | None = None, ahead: AnalysisAhead | None = None) -> RunResult:
+           reason: str | None = None, ahead: AnalysisAhead | None = None,
+           plots: bool = True) -> RunResult:
     """Write metrics.json, plot.png and analysis.png next to the trace and recording already
     written; ``reason``: why the run is not complete (None: it is); ``ahead``: the loop
-    analysis computed during the run, used if it was for ``controller_params``."""
+    analysis computed during the run, used if it was for ``controller_params``; ``plots``:
+    False draws neither figure."""
     cases_ahead = ahead.take(controller_params) if ahead is not None else None
     measured, cases = run_metrics(scenario, trace, controller_params, complete=reason is None,
                                   cases_ahead=cases_ahead,
@@ -335,21 +341,21 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
         'loop_analysis': measured['loop_analysis'],
         'loop_performance': measured['loop_performance'],
     }
-    from tank_control.harness.analysis import plot_analysis
-    from tank_control.harness.plotting import plot_runs, run_plot
     files = {**files, 'metrics': out / 'metrics.json'}
     title = analysis_title(scenario)
-    if cases:
+    if cases and plots:
+        from tank_control.harness.analysis import plot_analysis
         placed = ahead.place(out / 'analysis.png') if ahead and cases_ahead is not None else None
         files['analysis'] = placed or plot_analysis(cases, out / 'analysis.png', title=title)
-    elif isinstance(metrics['loop_analysis'], dict):      # the two-loop PI, per loop
+    elif isinstance(metrics['loop_analysis'], dict) and plots:   # the two-loop PI, per loop
         from tank_control.harness.analysis import plot_run_two_loop
         drawn = plot_run_two_loop(scenario.sections, controller_params, out / 'analysis.png',
                                   title=title)
         if drawn is not None:
             files['analysis'] = drawn
     files['metrics'].write_text(json.dumps(jsonable(metrics), indent=2, allow_nan=False) + '\n')
-    if len(trace):
+    if len(trace) and plots:
+        from tank_control.harness.plotting import plot_runs, run_plot
         files['plot'] = plot_runs([run_plot(scenario.name, trace, metrics)], out / 'plot.png',
                                   title=scenario.harness.title or scenario.name)
     return RunResult(scenario.name, out, trace, metrics, files)
@@ -453,7 +459,7 @@ def _state_name(controller: Any) -> str | None:
 
 
 def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
-                    stop: StopSignals) -> RunResult:
+                    stop: StopSignals, plots: bool = True) -> RunResult:
     config = scenario.harness
     built = _build(scenario)
     modes = ModeLog()           # the manual / fail-safe changes, as controller_node logs them
@@ -507,9 +513,10 @@ def _run_in_process(scenario: Scenario, out: Path, progress: ProgressFn | None,
     }
     files = {'trace': outputs.trace.path, 'recording': outputs.recording.path}
     if failure is not None:
-        finish(scenario, out, trace, run_info, {}, files, _first_line(failure))
+        finish(scenario, out, trace, run_info, {}, files, _first_line(failure), plots=plots)
         raise _as_failure(failure, out)
-    return finish(scenario, out, trace, run_info, built.controller_values(), files)
+    return finish(scenario, out, trace, run_info, built.controller_values(), files,
+                  plots=plots)
 
 
 def _report_in_process(progress: ProgressFn, sim: float, duration: float, ticks: int,
@@ -553,9 +560,10 @@ def due_periods(scenario: Scenario, mode: str, tick_ns: int | None) -> dict[str,
 class _RosRun:
     def __init__(self, scenario: Scenario, out: Path, env: Mapping[str, str] | None,
                  progress: ProgressFn | None, node_command: NodeCommand,
-                 stop: StopSignals, dashboard: int | None = None) -> None:
+                 stop: StopSignals, dashboard: int | None = None, plots: bool = True) -> None:
         self.node_command = node_command
         self.dashboard = dashboard
+        self.plots = plots
         self.scenario = scenario
         self.config = scenario.harness
         self.out = out
@@ -832,7 +840,8 @@ class _RosRun:
             self._prepare()
             recorder.subscribe(self._recording.on_message)   # what the nodes say from their start
             if not self.nobody_before:             # somebody may be there: look first (step 2)
-                _warm_up()                         # while DDS discovers the domain
+                if self.plots:
+                    _warm_up()                     # while DDS discovers the domain
                 self._look_before_starting(joined)
             # The graph is looked at while the nodes come up, too (step 2).
             nodes = self.started
@@ -842,7 +851,8 @@ class _RosRun:
                 self._procs.start('dashboard', [*self.node_command('dashboard'), '--ros-args',
                                                '-p', f'port:={self.dashboard}'], env=self.env)
             # the results' imports, then the loop analysis, in a thread while the run goes on
-            self.ahead = AnalysisAhead(self.scenario, self.out, analysis_title(self.scenario))
+            self.ahead = AnalysisAhead(self.scenario, self.out, analysis_title(self.scenario),
+                                       draw=self.plots)
             self._look_while_starting()
             # an external plant_node started with lockstep.record_window waits for these too
             if self.record_window or (self.mode == 'lockstep' and 'plant' in self.external):
@@ -1198,7 +1208,7 @@ class _RosRun:
         files = stream.files
         if failure is None:
             return finish(self.scenario, self.out, trace, run_info, controller_params, files,
-                          ahead=self.ahead)
+                          ahead=self.ahead, plots=self.plots)
         finish(self.scenario, self.out, trace, run_info, controller_params, files,
-               _first_line(failure), ahead=self.ahead)
+               _first_line(failure), ahead=self.ahead, plots=self.plots)
         raise _as_failure(failure, self.out)

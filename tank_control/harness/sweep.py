@@ -403,7 +403,7 @@ def _run_ros(scenario: Scenario) -> tuple[dict[str, Any], Any]:
                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
                domains.EXCLUSIVE_ENV: str(domain)}     # claimed empty: no discovery wait
         try:
-            result = runner.run_scenario(scenario, tmp, env=env)
+            result = runner.run_scenario(scenario, tmp, env=env, plots=False)   # thrown away
         except runner.RunInterrupted:          # a stop signal stops the sweep (its files are
             raise KeyboardInterrupt from None  # temporary), finished runs are kept
         return result.metrics, result.trace
@@ -527,9 +527,11 @@ def _read_done(path: Path) -> dict[str, dict[str, Any]]:
 
 
 def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: cf.Executor,
-              progress: Callable[[SweepProgress], None] | None = None) -> SweepResult:
+              progress: Callable[[SweepProgress], None] | None = None,
+              plots: bool = True) -> SweepResult:
     """Run every case not already in ``out_dir/runs.jsonl`` on ``executor``; write the table,
-    summary and plots. Interrupting it (KeyboardInterrupt) keeps every finished run."""
+    summary and (unless ``plots`` is False: ``--no-plots``) the plots. Interrupting it
+    (KeyboardInterrupt) keeps every finished run."""
     out = Path(out_dir)
     (out / 'traces').mkdir(parents=True, exist_ok=True)
     todo_cases = cases(spec)
@@ -602,8 +604,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: cf.Executor,
     result.files.update(write_table(rows, out))
     result.summary = summarize(rows, spec)
     result.files.update(write_summary(result.summary, out))
-    from tank_control.harness.sweep_plots import plot_sweep
-    result.files.update(plot_sweep(spec, todo_cases, rows, out))
+    if plots:
+        from tank_control.harness.sweep_plots import plot_sweep
+        result.files.update(plot_sweep(spec, todo_cases, rows, out))
     return result
 
 

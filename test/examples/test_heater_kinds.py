@@ -58,8 +58,9 @@ def test_lockstep_with_ros2_run_nodes_equals_the_in_process_loop(ros_env, tmp_pa
         started.append(node)
         return ros2_argv('run', 'tank_control', f'{node}_node')
 
-    ros = runner.run_scenario(scenario, tmp_path / 'ros', env=ros_env, node_command=ros2_run)
-    ref = runner.run_scenario(scenario, tmp_path / 'ref', in_process=True)
+    ros = runner.run_scenario(scenario, tmp_path / 'ros', env=ros_env, node_command=ros2_run,
+                              plots=False)
+    ref = runner.run_scenario(scenario, tmp_path / 'ref', in_process=True, plots=False)
     assert {'plant', 'controller', 'reference'} <= set(started)
     assert ros.metrics['complete'], ros.metrics.get('reason')
     assert ros.metrics['controller']['parameters']['controller'] == 'on_off'

@@ -55,7 +55,7 @@ def test_demo_default_runs_in_lockstep_over_ros_and_prints_table_and_paths(tmp_p
     # the ROS run is the in-process loop (core/loop.py), tick for tick
     ros = Trace.read_csv(out / 'trace.csv')
     ref = Trace.read_csv(run(demo.config_dir() / demo.DEFAULT_SCENARIO, tmp_path / 'ref',
-                       duration=DURATION, in_process=True).files['trace'])
+                       duration=DURATION, in_process=True, plots=False).files['trace'])
     assert len(ros) == len(ref) == int(DURATION) + 1
     for name in ref.columns:
         np.testing.assert_allclose(ros.columns[name], ref.columns[name], rtol=0, atol=1e-9,

@@ -167,7 +167,7 @@ def test_an_external_bare_rclpy_controller_is_run_and_recorded_as_its_in_process
         overrides.append('harness.real_time_factor=5.0')
     scenario = load_scenario(scenario_path, overrides)
     start_external(procs, tmp_path, ros_env)
-    result = run_scenario(scenario, tmp_path / 'out', env=ros_env)
+    result = run_scenario(scenario, tmp_path / 'out', env=ros_env, plots=False)
     trace = Trace.read_csv(result.files['trace'])
     expected = in_process_trace(scenario)
     assert list(trace.columns) == list(expected.columns) == ['t', 'y.y', 'r.y', 'u.u', 'd.v']
@@ -291,7 +291,7 @@ def test_an_external_plant_node_started_paused_is_released_and_recorded_from_tic
                                      'lockstep.paused:=true', '-p',
                                      'lockstep.record_window:=8'), env=ros_env)
     scenario = load_scenario(path)
-    result = run_scenario(scenario, tmp_path / 'out', env=ros_env)
+    result = run_scenario(scenario, tmp_path / 'out', env=ros_env, plots=False)
     trace = Trace.read_csv(result.files['trace'])
     built = core_scenario.build(node_parameters(scenario))
     expected = core_scenario.run(built, scenario.harness.duration)

@@ -122,7 +122,7 @@ def assert_prefix_of_in_process_run(out: Path) -> Trace:
 
 def short_run(out: Path, env) -> dict:
     """A short lockstep run of config/ipdt_pid.yaml that must complete."""
-    result = run(CONFIG / 'ipdt_pid.yaml', out, duration=3.0, env=env)
+    result = run(CONFIG / 'ipdt_pid.yaml', out, duration=3.0, env=env, plots=False)
     assert result.metrics['complete'] is True and result.metrics['reason'] is None
     trace = assert_prefix_of_in_process_run(out)
     assert len(trace) == 31 and trace.t[0] == 0.0
@@ -161,7 +161,7 @@ def test_killing_the_harness_leaves_no_node_running_and_the_next_run_works(
     sig = SIGNALS[name]
     out = tmp_path / 'a'
     harness = procs.start('harness', [*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out', str(out),
-                                      '--duration', '3000', '--quiet'], env=ros_env)
+                                      '--duration', '3000', '--quiet', '--no-plots'], env=ros_env)
     wait_for_stamp(probe, 2.0)
     wait_for_rows(out / 'trace.csv', 10)        # rows are on disk while the run goes
     nodes = processes_with(str(out / 'scenario.yaml'))
@@ -201,7 +201,8 @@ def test_a_second_run_refuses_at_once_and_leaves_the_first_untouched(tmp_path, p
                                                                      probe):
     first = tmp_path / 'first'
     harness = procs.start('harness', [*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out',
-                                      str(first), '--duration', '3000', '--quiet'], env=ros_env)
+                                      str(first), '--duration', '3000', '--quiet', '--no-plots'],
+                             env=ros_env)
     wait_for_stamp(probe, 1.0)
     second = tmp_path / 'second'
     with pytest.raises(RunFailed, match='in use by another tank-control run on this host') as info:
@@ -299,7 +300,7 @@ def test_a_run_that_records_nothing_fails(tmp_path, ros_env):
 def test_an_in_process_run_stopped_by_sigterm_keeps_its_rows(tmp_path):
     out = tmp_path / 'out'
     proc = subprocess.Popen([*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out', str(out),
-                             '--in-process', '--duration', '300000'],
+                             '--in-process', '--duration', '300000', '--no-plots'],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, env={**os.environ, 'CI': '1'})
     try:
@@ -512,7 +513,7 @@ def test_recover_refuses_what_is_not_a_killed_run(tmp_path):
     done = subprocess.run([*RECOVER, str(tmp_path)], capture_output=True, text=True, check=False, timeout=120)
     assert done.returncode == 2 and 'not the output directory of a run' in done.stderr
     out = tmp_path / 'done'
-    run(CONFIG / 'ipdt_pid.yaml', out, duration=2.0, in_process=True)
+    run(CONFIG / 'ipdt_pid.yaml', out, duration=2.0, in_process=True, plots=False)
     done = subprocess.run([*RECOVER, str(out)], capture_output=True, text=True, check=False, timeout=120)
     assert done.returncode == 2 and 'nothing to recover' in done.stderr, done.stderr
     assert json.loads((out / 'metrics.json').read_text())['complete'] is True   # untouched
@@ -526,7 +527,7 @@ def _kill_controller_mid_run(tmp_path, procs, ros_env, probe, *settings: str):
     exit code, its output and the output directory."""
     out = tmp_path / 'run'
     harness = procs.start('harness', [*HARNESS, str(CONFIG / 'ipdt_pid.yaml'), '--out', str(out),
-                                      '--duration', '60', '--rtf', '5', '--quiet',
+                                      '--duration', '60', '--rtf', '5', '--quiet', '--no-plots',
                                       *(f'--set={s}' for s in settings)], env=ros_env)
     wait_for_stamp(probe, 10.0)
     intruder = rclpy.create_node(f'intruder_{os.getpid()}')      # on the session's domain

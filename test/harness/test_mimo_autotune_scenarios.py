@@ -28,12 +28,12 @@ def assert_equal_traces(ros_csv, in_process_csv) -> None:
 @pytest.fixture(scope='module')
 def runs(tmp_path_factory):
     out = tmp_path_factory.mktemp('mimo')
-    results = {name: run(SCENARIOS / f'{name}.yaml', out / name, in_process=True)
+    results = {name: run(SCENARIOS / f'{name}.yaml', out / name, in_process=True, plots=False)
                for name in ('tank_pi_autotuned', 'tank_pi', 'tank_fill_pi_autotuned',
                             'tank_fill_pi_decoupled')}
     results['model_ls'] = run(SCENARIOS / 'tank_pi_autotuned.yaml', out / 'model_ls',
                               overrides=('controller.autotune.mode=model_ls',),
-                              in_process=True)
+                              in_process=True, plots=False)
     return results
 
 
@@ -108,9 +108,10 @@ def test_filling_with_the_tuned_gains(runs):
 ])
 def test_lockstep_over_ros_equals_in_process(tmp_path, ros_env, duration, overrides):
     scenario = SCENARIOS / 'tank_pi_autotuned.yaml'
-    ros = run(scenario, tmp_path / 'ros', duration=duration, overrides=overrides, env=ros_env)
+    ros = run(scenario, tmp_path / 'ros', duration=duration, overrides=overrides, env=ros_env,
+              plots=False)
     ref = run(scenario, tmp_path / 'ref', duration=duration, overrides=overrides,
-              in_process=True)
+              in_process=True, plots=False)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     a, b = (r.metrics['controller'] for r in (ros, ref))

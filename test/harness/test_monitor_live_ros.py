@@ -36,7 +36,7 @@ def test_live_verdict_of_each_shipped_case_over_ros(tmp_path: Path, ros_env, nam
     path = SCENARIOS / f'monitor_{name}.yaml'
     sections = scenario.sections_of(path)
     assert not any(k.startswith('monitor.') for k in sections['controller'])   # defaults
-    result = run(path, tmp_path / 'ros', env=ros_env)
+    result = run(path, tmp_path / 'ros', env=ros_env, plots=False)
     assert result.metrics['complete'], result.metrics['reason']
     recorded = read_mcap(tmp_path / 'ros' / 'run.mcap')
     reports = [json.loads(m.data) for m in recorded.get('/controller/loop_performance', [])]

@@ -82,7 +82,7 @@ def test_mode_log_keeps_changes_and_gives_flags_per_sample() -> None:
 def test_in_process_run_has_its_fail_safe_time(tmp_path: Path) -> None:
     # auto: y overshoots 2, is refused, the output goes to 0 (fail-safe), y falls back below
     # 2, control resumes: several episodes
-    result = run(_scenario(tmp_path, 'auto', 'output'), tmp_path / 'ip', in_process=True)
+    result = run(_scenario(tmp_path, 'auto', 'output'), tmp_path / 'ip', in_process=True, plots=False)
     body = result.metrics['loop_performance']['y']
     pct, refused = _expected(tmp_path / 'ip')
     assert refused >= 5 and pct < 90.0
@@ -96,8 +96,8 @@ def test_in_process_run_has_its_fail_safe_time(tmp_path: Path) -> None:
 def test_manual_and_fail_safe_times_over_ros_equal_in_process(tmp_path: Path, ros_env) -> None:
     # manual output 3: y crosses 2 at about 24 s of 60 s, then the output is held: fail-safe
     path = _scenario(tmp_path, 'manual', 'hold')
-    ros = run(path, tmp_path / 'ros')
-    ref = run(path, tmp_path / 'ref', in_process=True)
+    ros = run(path, tmp_path / 'ros', plots=False)
+    ref = run(path, tmp_path / 'ref', in_process=True, plots=False)
     assert ros.metrics['complete'], ros.metrics['reason']
     pct, refused = _expected(tmp_path / 'ref')
     assert 40.0 < pct < 80.0

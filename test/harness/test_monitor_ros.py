@@ -16,8 +16,8 @@ DURATION = 300.0     # the first limit cycles (the full case: test_monitor_scena
 
 def test_sticky_valve_over_ros_equals_in_process(tmp_path, ros_env):
     path = SCENARIOS / 'monitor_sticky_valve.yaml'
-    ros = run(path, tmp_path / 'ros', duration=DURATION)
-    run(path, tmp_path / 'ref', duration=DURATION, in_process=True)
+    ros = run(path, tmp_path / 'ros', duration=DURATION, plots=False)
+    run(path, tmp_path / 'ref', duration=DURATION, in_process=True, plots=False)
     a, b = Trace.read_csv(tmp_path / 'ros' / 'trace.csv'), Trace.read_csv(tmp_path / 'ref' / 'trace.csv')
     assert len(a) == len(b) == int(DURATION / 0.1) + 1
     for name in b.columns:

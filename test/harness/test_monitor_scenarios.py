@@ -176,7 +176,7 @@ def test_the_minimum_variance_case_reads_its_exact_index(runs) -> None:
 def test_metrics_json_holds_loop_performance(tmp_path: Path) -> None:
     """A harness run (in-process) writes loop_performance.<output> with Ms from the loop
     analysis on the plant's model in the verdict."""
-    result = runner.run(SCENARIOS / 'monitor_aggressive.yaml', tmp_path / 'run', in_process=True)
+    result = runner.run(SCENARIOS / 'monitor_aggressive.yaml', tmp_path / 'run', in_process=True, plots=False)
     metrics = json.loads((tmp_path / 'run' / 'metrics.json').read_text())
     body = metrics['loop_performance']['y']
     assert result.metrics['loop_performance']['y']['verdict'] == body['verdict']

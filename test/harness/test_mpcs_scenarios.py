@@ -170,7 +170,7 @@ def test_default_horizons_are_the_demo_files_and_the_documents_warn_in_metrics(t
     for name, warned in (('tank_mpcs_qp', False), ('tank_mpcs_qp_003', True),
                          ('tank_mpcs_analytic', True)):
         result = run(SCENARIOS / f'{name}.yaml', tmp_path / name, duration=20.0,
-                     in_process=True)
+                     in_process=True, plots=False)
         warnings = result.metrics['controller']['warnings']
         assert len(warnings) == int(warned), warnings
         if warned:

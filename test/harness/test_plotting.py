@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from support import SCENARIOS
+from support import CONFIG, SCENARIOS
 
 from tank_control.core.trace import Trace
 from tank_control.harness import cli
@@ -165,3 +165,27 @@ def test_the_metrics_table_sits_beside_the_legends_inside_the_figure():
         assert box.x0 >= max(ax.get_legend().get_window_extent(renderer).x1 for ax in fig.axes)
     finally:
         plt.close(fig)
+
+
+def test_no_plots_draws_no_figure_and_writes_the_same_metrics(tmp_path, capsys):
+    """``--no-plots`` (run and compare): neither plot.png, analysis.png nor overlay.png; the
+    trace and metrics.json (loop analysis included) equal a drawn run's."""
+    scenario = str(CONFIG / 'ipdt_pid.yaml')
+    drawn, bare = tmp_path / 'drawn', tmp_path / 'bare'
+    assert cli.main(['compare', scenario, '--out', str(drawn), '--in-process', '--quiet',
+                     '--duration', '30']) == 0
+    assert cli.main(['compare', scenario, '--out', str(bare), '--in-process', '--quiet',
+                     '--duration', '30', '--no-plots']) == 0
+    name = next(p.name for p in drawn.iterdir() if p.is_dir())
+    assert {p.name for p in (drawn / name).glob('*.png')} == {'plot.png', 'analysis.png'}
+    assert (drawn / 'overlay.png').exists()
+    assert not list(bare.rglob('*.png'))
+    assert 'overlay' not in capsys.readouterr().out.split('table:')[-1]
+
+    def metrics(root):
+        values = json.loads((root / name / 'metrics.json').read_text())
+        values['run'].pop('wall_time'), values['run'].pop('ticks_per_s')
+        return values
+    assert metrics(bare) == metrics(drawn)
+    assert metrics(bare)['loop_analysis']
+    assert (bare / name / 'trace.csv').read_text() == (drawn / name / 'trace.csv').read_text()

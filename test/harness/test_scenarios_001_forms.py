@@ -47,7 +47,8 @@ IDEAL_FORM_VARIANTS = {
 def first_steps(tmp_path: Path, overrides: tuple[str, ...]) -> tuple[dict, dict]:
     out = []
     for name in ('fopdt_zn', 'fopdt_zn_ramp'):
-        result = run(CONFIG / f'{name}.yaml', tmp_path / name, overrides=overrides, in_process=True)
+        result = run(CONFIG / f'{name}.yaml', tmp_path / name, overrides=overrides,
+                     in_process=True, plots=False)
         out.append(result.metrics['outputs']['y']['steps'][0])
     return out[0], out[1]
 

@@ -57,7 +57,7 @@ def test_ipdt_lockstep_over_ros_equals_in_process_and_keeps_the_000_claim(tmp_pa
     for key in ('plot:', 'trace:', 'recording:', 'metrics:'):
         assert key in ros.stdout
     ref = cli('run', scenario, '--out', str(tmp_path / 'ref'), '--duration', '200',
-              '--in-process', env=ros_env)
+              '--in-process', '--no-plots', env=ros_env)
     assert ref.returncode == 0, ref.stderr[-3000:]
     assert_equal_traces(tmp_path / 'ros' / 'trace.csv', tmp_path / 'ref' / 'trace.csv')
 
@@ -98,10 +98,10 @@ def test_lockstep_beside_busy_loops_records_every_tick_equal_to_in_process(tmp_p
         procs.start(f'busy{i}', [sys.executable, '-c', 'while 1: pass'])
     scenario = str(CONFIG / 'ipdt_pid.yaml')
     ros = cli('run', scenario, '--out', str(tmp_path / 'ros'), '--duration', '60', '--rtf', '0',
-              env=ros_env)
+              '--no-plots', env=ros_env)
     assert ros.returncode == 0, ros.stderr[-3000:]
     ref = cli('run', scenario, '--out', str(tmp_path / 'ref'), '--duration', '60',
-              '--in-process', env=ros_env)
+              '--in-process', '--no-plots', env=ros_env)
     assert ref.returncode == 0, ref.stderr[-3000:]
     assert_equal_traces(tmp_path / 'ros' / 'trace.csv', tmp_path / 'ref' / 'trace.csv')
     run_info = json.loads((tmp_path / 'ros' / 'metrics.json').read_text())['run']
@@ -129,7 +129,7 @@ def test_mixing_tank_lockstep_over_ros_equals_in_process(tmp_path, ros_env):
     every signal of both outputs and inputs equal to 1e-9 over 1000 ticks."""
     scenario = CONFIG / 'scenarios' / 'tank_pi_decoupled.yaml'
     ros = run(scenario, tmp_path / 'ros', duration=1000.0, env=ros_env)
-    ref = run(scenario, tmp_path / 'ref', duration=1000.0, in_process=True)
+    ref = run(scenario, tmp_path / 'ref', duration=1000.0, in_process=True, plots=False)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     assert ros.metrics['controller']['final_gains']['two_loop.ki_T'] == -0.01
@@ -151,8 +151,8 @@ def test_fsa_on_the_unstable_plant_over_ros_equals_in_process(tmp_path, ros_env)
     1/(10s − 1)·e^(−5s); the lockstep trace over the setpoint and the load step (120 s) equals
     the in-process one to 1e-9 and keeps the designed overshoot (4.60 %)."""
     scenario = CONFIG / 'scenarios' / 'foupdt_fsa.yaml'
-    ros = run(scenario, tmp_path / 'ros', duration=120.0, env=ros_env)
-    ref = run(scenario, tmp_path / 'ref', duration=120.0, in_process=True)
+    ros = run(scenario, tmp_path / 'ros', duration=120.0, env=ros_env, plots=False)
+    ref = run(scenario, tmp_path / 'ref', duration=120.0, in_process=True, plots=False)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     assert ros.metrics['outputs']['y']['steps'][0]['overshoot_pct'] == pytest.approx(4.60,
@@ -168,7 +168,7 @@ def test_in_process_and_lockstep_report_the_same_controller_that_ran(tmp_path, r
     plot.png marks."""
     scenario = CONFIG / 'scenarios' / 'fopdt_autotune_scheduled.yaml'
     ros = run(scenario, tmp_path / 'ros', rtf=0.0, env=ros_env)
-    ref = run(scenario, tmp_path / 'ref', in_process=True)
+    ref = run(scenario, tmp_path / 'ref', in_process=True, plots=False)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     a, b = (r.metrics['controller'] for r in (ros, ref))
     assert a['autotune']['autotune.state'] == b['autotune']['autotune.state'] == 'running'
@@ -191,8 +191,8 @@ def test_transient_points_over_ros_equal_the_in_process_ones(tmp_path, ros_env):
     controller_node reports the same transient points (autotune.transient_omega/gain/phase,
     read-only parameters) and summary line as the in-process loop, on an equal trace."""
     scenario = CONFIG / 'scenarios' / 'fopdt_relay_transient.yaml'
-    ros = run(scenario, tmp_path / 'ros', rtf=0.0, duration=480.0, env=ros_env)
-    ref = run(scenario, tmp_path / 'ref', duration=480.0, in_process=True)
+    ros = run(scenario, tmp_path / 'ros', rtf=0.0, duration=480.0, env=ros_env, plots=False)
+    ref = run(scenario, tmp_path / 'ref', duration=480.0, in_process=True, plots=False)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     a, b = (r.metrics['controller'] for r in (ros, ref))
     assert a['autotune']['autotune.state'] == b['autotune']['autotune.state'] == 'running'
@@ -210,7 +210,7 @@ def test_sim_mode_runs_on_the_simulated_clock(tmp_path, ros_env):
     The plant starts paused and the harness releases it once the graph is up, so the
     recording holds every tick from t = 0."""
     result = run(CONFIG / 'ipdt_pid.yaml', tmp_path / 'sim', mode='sim', rtf=5.0, duration=30.0,
-                 env=ros_env)
+                 env=ros_env, plots=False)
     trace, run_info = result.trace, result.metrics['run']
     assert run_info['mode'] == 'sim'
     assert trace.t[0] == 0.0 and trace.t[-1] == pytest.approx(30.0, abs=1e-9)
@@ -241,7 +241,7 @@ def test_wall_mode_setpoint_step_appears_at_its_time_on_the_plant_time_base(tmp_
                                           'setpoint.y.values': [0.0, 1.0]}},
         'harness': {'ros__parameters': {'duration': 3.0, 'clock_mode': 'wall',
                                         'startup_timeout': 60.0}}}))
-    result = run(scenario, tmp_path / 'out', env=ros_env)
+    result = run(scenario, tmp_path / 'out', env=ros_env, plots=False)
     trace, run_info = result.trace, result.metrics['run']
     # plant time: tick 0 (held until the graph was up) is t = 0; rows a whole number of ticks
     # apart (one, unless the plant's timer skipped a period: counted in missed_samples)
@@ -295,7 +295,7 @@ def test_a_reader_that_never_matches_delays_a_wall_start_by_a_bounded_wait(tmp_p
                                           'setpoint.y.times': [0.0], 'setpoint.y.values': [1.0]}},
         'harness': {'ros__parameters': {'duration': 1.0, 'clock_mode': 'wall',
                                         'startup_timeout': 60.0}}}))
-    result = run(scenario, tmp_path / 'out', env=ros_env)
+    result = run(scenario, tmp_path / 'out', env=ros_env, plots=False)
     assert result.trace.t[0] == 0.0 and result.trace.t[-1] >= 0.9
     log = (tmp_path / 'out' / 'logs' / 'plant.log').read_text()
     assert 'measurement not matched' in log, log
@@ -353,8 +353,8 @@ def test_scheduled_and_feedforward_tank_lockstep_over_ros_equals_in_process(tmp_
     on the level (h 81 → 40 cm from 100 s): the lockstep trace equals the in-process one to
     1e-9 over 700 ticks."""
     scenario = CONFIG / 'scenarios' / f'{name}.yaml'
-    ros = run(scenario, tmp_path / 'ros', duration=700.0, env=ros_env)
-    ref = run(scenario, tmp_path / 'ref', duration=700.0, in_process=True)
+    ros = run(scenario, tmp_path / 'ros', duration=700.0, env=ros_env, plots=False)
+    ref = run(scenario, tmp_path / 'ref', duration=700.0, in_process=True, plots=False)
     assert_equal_traces(ros.files['trace'], ref.files['trace'])
     assert ros.metrics['run']['missed_samples'] == 0
     columns = ref.trace.columns

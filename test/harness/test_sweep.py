@@ -111,7 +111,7 @@ def test_cases_cover_the_product_with_common_random_draws():
 def test_a_sweep_row_is_the_in_process_run_with_those_overrides(tmp_path):
     spec = sweep.SweepSpec(scenarios=(MDP_PID,), grid=(
         sweep.GridAxis.parse('plant.dead_time=4.0,6.5'),), duration=200.0)
-    result = sweep.run_sweep(spec, tmp_path / 'sweep', sweep.InlineExecutor())
+    result = sweep.run_sweep(spec, tmp_path / 'sweep', sweep.InlineExecutor(), plots=False)
     for row in result.rows:
         single = runner.run(MDP_PID, tmp_path / f'run{row["run"]}', duration=200.0,
                             in_process=True, overrides=[f'plant.dead_time={row["plant.dead_time"]}'])
@@ -132,7 +132,7 @@ def test_failures_are_rows_with_their_reason_and_never_stop_the_sweep(tmp_path):
     spec = sweep.SweepSpec(scenarios=(MDP_PID,), grid=(
         sweep.GridAxis.parse('plant.dead_time=-1.0,5.0'),
         sweep.GridAxis.parse('controller.sample_time=0.1,0.15')), duration=50.0)
-    result = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor())
+    result = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor(), plots=False)
     by = {(r['plant.dead_time'], r['controller.sample_time']): r for r in result.rows}
     assert by[(5.0, 0.1)]['status'] == 'ok'
     bad_dead_time = by[(-1.0, 0.1)]
@@ -148,14 +148,14 @@ def test_failures_are_rows_with_their_reason_and_never_stop_the_sweep(tmp_path):
 def test_results_do_not_depend_on_the_executor_or_the_number_of_workers(tmp_path):
     from distributed import LocalCluster
     spec = small_spec(samples=1, duration=60.0)      # 8 runs over 2 workers
-    inline = sweep.run_sweep(spec, tmp_path / 'inline', sweep.InlineExecutor())
+    inline = sweep.run_sweep(spec, tmp_path / 'inline', sweep.InlineExecutor(), plots=False)
     with sweep.local_executor(2) as pool:
-        local = sweep.run_sweep(spec, tmp_path / 'local', pool)
+        local = sweep.run_sweep(spec, tmp_path / 'local', pool, plots=False)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster:
         executor, close = sweep.dask_executor(cluster.scheduler_address)
         try:
-            dask = sweep.run_sweep(spec, tmp_path / 'dask', executor)
+            dask = sweep.run_sweep(spec, tmp_path / 'dask', executor, plots=False)
         finally:
             close()
     assert all(row['status'] == 'ok' for row in inline.rows)
@@ -191,8 +191,10 @@ def test_the_command_runs_a_study_on_a_dask_cluster(tmp_path, capsys):
         scheduler_file = tmp_path / 'scheduler.json'      # what `dask scheduler` writes
         scheduler_file.write_text(json.dumps({'address': cluster.scheduler_address}))
         again = cli.main(['sweep', str(study), '--out', str(tmp_path / 'again'), '--quiet',
-                          '--scheduler-file', str(scheduler_file)])
+                          '--scheduler-file', str(scheduler_file), '--no-plots'])
     assert again == 0
+    assert (tmp_path / 'again' / 'summary.json').exists()
+    assert not list((tmp_path / 'again').glob('*.png'))            # --no-plots
     assert '6 runs: 6 ok, 0 failed (6 ran now' in capsys.readouterr().out
     assert code == 0
     assert '6 runs: 6 ok, 0 failed' in out
@@ -227,30 +229,30 @@ def test_cli_refuses_a_bad_sweep_with_one_line(tmp_path, capsys):
 def test_a_rerun_skips_finished_runs_and_resumes_lost_ones(tmp_path):
     spec = sweep.SweepSpec(scenarios=(EXP_PI,), grid=(
         sweep.GridAxis.parse('plant.dead_time=±20%:4'),), duration=60.0)
-    first = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor())
+    first = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor(), plots=False)
     assert first.ran == 4 and first.skipped == 0
-    again = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor())
+    again = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor(), plots=False)
     assert again.ran == 0 and again.skipped == 4
     assert metric_table(again.rows) == metric_table(first.rows)
     # an interrupted sweep: the log lost its last two runs (one line torn mid-write)
     log = tmp_path / 'runs.jsonl'
     lines = log.read_text().splitlines()
     log.write_text('\n'.join(lines[:2]) + '\n' + lines[2][:25])
-    resumed = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor())
+    resumed = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor(), plots=False)
     assert resumed.ran == 2 and resumed.skipped == 2
     assert metric_table(resumed.rows) == metric_table(first.rows)
     # a wider sweep reuses what it has
     wider = sweep.SweepSpec(scenarios=(EXP_PI,), grid=(
         sweep.GridAxis.parse('plant.dead_time=±20%:4'),
         sweep.GridAxis.parse('plant.gain=0.05,0.06')), duration=60.0)
-    result = sweep.run_sweep(wider, tmp_path, sweep.InlineExecutor())
+    result = sweep.run_sweep(wider, tmp_path, sweep.InlineExecutor(), plots=False)
     assert result.ran == 4 and result.skipped == 4
 
 
 def test_a_diverging_run_is_kept_with_its_numbers(tmp_path):
     spec = sweep.SweepSpec(scenarios=(EXP_PI,), grid=(
         sweep.GridAxis.parse('plant.gain=0.05,0.5'),), duration=300.0)
-    result = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor())
+    result = sweep.run_sweep(spec, tmp_path, sweep.InlineExecutor(), plots=False)
     unstable = next(r for r in result.rows if r['plant.gain'] == 0.5)
     assert unstable['status'] == 'ok' and unstable['loop.stable'] == 0.0
     assert unstable['y.settling_time'] == math.inf
@@ -264,10 +266,10 @@ def test_a_diverging_run_is_kept_with_its_numbers(tmp_path):
 def test_lockstep_runs_in_their_own_domains_equal_the_in_process_runs(tmp_path):
     spec = sweep.SweepSpec(scenarios=(MDP_PID,), grid=(
         sweep.GridAxis.parse('plant.dead_time=4.0,6.0'),), duration=60.0)
-    in_process = sweep.run_sweep(spec, tmp_path / 'inproc', sweep.InlineExecutor())
+    in_process = sweep.run_sweep(spec, tmp_path / 'inproc', sweep.InlineExecutor(), plots=False)
     ros_spec = sweep.SweepSpec(**{**spec.__dict__, 'ros': True})
     with sweep.local_executor(2) as pool:                   # two graphs at once
-        ros = sweep.run_sweep(ros_spec, tmp_path / 'ros', pool)
+        ros = sweep.run_sweep(ros_spec, tmp_path / 'ros', pool, plots=False)
     assert [r['status'] for r in ros.rows] == ['ok', 'ok'], [r['reason'] for r in ros.rows]
     for a, b in zip(in_process.rows, ros.rows):
         for name in sweep.metric_columns(in_process.rows):
