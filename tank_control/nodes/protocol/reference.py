@@ -142,6 +142,8 @@ class LockstepReference(ReferenceClock):
             self._last_clock, self._period_ns, self._horizon_ns = None, None, -1
             self.last_t = 0.0
             self._streams = (HeldStream(SETPOINT), HeldStream(DISTURBANCE))
+        if self._last_clock is None:
+            self.host.info(f'first /clock tick {seconds(t_ns):g} s: answering the plant')
         if t_ns == self._last_clock:             # the plant re-sent tick k
             for stream in self._streams:
                 stream.resend(out)
@@ -195,6 +197,8 @@ class SimReference(ReferenceClock):
             self.last_t = 0.0
         if self._last_clock is not None and t_ns < self._last_clock:
             return []                     # a stale duplicate of an earlier tick
+        if self._last_clock is None:
+            self.host.info(f'first /clock tick {seconds(t_ns):g} s: answering the plant')
         cached = self._answered.get(t_ns)
         if t_ns == self._last_clock and cached is not None:   # the plant re-sent tick k
             return [(SETPOINT, cached[0]), (DISTURBANCE, cached[1])]
