@@ -1,6 +1,7 @@
 """Start-up and clean shutdown shared by every node's ``main()``."""
 from __future__ import annotations
 
+import atexit
 import faulthandler
 import gc
 import os
@@ -31,6 +32,10 @@ def main(name: str, factory: Callable[[], Node], args: Sequence[str] | None = No
     stderr (``<name>: <reason>``) when its parameters are refused at start-up, a
     ``--params-file`` cannot be read or is not valid YAML (file, line and column), or rcl
     refuses the command line."""
+    if args is None:
+        # the process ends with the node: nothing it made needs collecting at the
+        # interpreter's shutdown (a stop 0.05 s sooner)
+        atexit.register(gc.freeze)
     args = list(sys.argv if args is None else args)
     own = args[1:args.index('--ros-args')] if '--ros-args' in args else args[1:]
     if '-h' in own or '--help' in own:
