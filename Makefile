@@ -34,6 +34,10 @@ $(STAMP): requirements.txt requirements-colcon.txt setup.py package.xml examples
 # cached .pyc files every node process would compile ~100 modules again at start-up (0.5 s of
 # CPU each). Up-to-date files are skipped; a stale .pyc is ignored by Python (mtime check).
 COMPILE := $(BIN)/python -m compileall -q tank_control >/dev/null
+# pytest keeps the test modules it rewrote for its assertions in __pycache__ only when bytecode
+# may be written: each worker otherwise rewrites all of them at every run (about 6 s of its
+# collection's 10; bench/RESULTS.md, "Test suite").
+PYTEST_CACHE := PYTHONDONTWRITEBYTECODE=
 
 demo: $(STAMP)
 	@$(COMPILE)
@@ -47,13 +51,13 @@ TEST_WORKERS ?= $(shell echo $$(( $$(nproc 2>/dev/null || echo 1) + 1 )))
 
 test: $(STAMP) browser
 	@$(COMPILE)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=40 test
+	$(PYTEST_CACHE) $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=40 test
 
 # The edit loop: the tests that need no ROS graph (test/conftest.py, --no-graph) and are not
 # marked slow; `make test` still runs everything.
 test-fast: $(STAMP)
 	@$(COMPILE)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --no-graph -m 'not slow' --durations=10 test
+	$(PYTEST_CACHE) $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --no-graph -m 'not slow' --durations=10 test
 
 # The static checks alone, for the edit loop (make test runs them too: test/package/test_static.py).
 lint: $(STAMP)
