@@ -47,8 +47,8 @@ def test_lockstep_with_the_dashboard_attached_equals_in_process(tmp_path, procs,
             'return document.getElementById("connection").textContent') == 'live')
         run = procs.start('harness', [sys.executable, '-m', 'tank_control.harness.cli', 'run',
                                       str(SCENARIO), '--out', str(tmp_path / 'ros'),
-                                      '--duration', DURATION, '--rtf', RTF, '--quiet'],
-                          env=ros_env)
+                                      '--duration', DURATION, '--rtf', RTF, '--quiet',
+                                      '--no-plots'], env=ros_env)
         # the page shows the run, then the dashboard process is frozen for FROZEN s
         WebDriverWait(page, 120).until(lambda d: len(d.execute_script(SHOWN)[0]) >= 20)
         os.kill(dash.popen.pid, signal.SIGSTOP)

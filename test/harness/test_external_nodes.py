@@ -218,7 +218,7 @@ def test_an_external_controller_that_never_comes_ends_the_run_after_the_bounded_
         scenario_path, tmp_path, procs, ros_env):
     out = tmp_path / 'out'
     run = procs.start('harness', [sys.executable, '-m', 'tank_control.harness.cli', 'run',
-                                  str(scenario_path), '--out', str(out), '--quiet',
+                                  str(scenario_path), '--out', str(out), '--quiet', '--no-plots',
                                   '--set', 'harness.external_wait=3.0'], env=ros_env)
     assert run.popen.wait(timeout=180) == 1, run.tail(30)
     log = run.log_path.read_text()

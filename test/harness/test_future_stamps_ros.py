@@ -22,7 +22,7 @@ def test_one_message_stamped_in_the_future_on_each_signal_does_not_freeze_a_wall
     out = tmp_path / 'run'
     run = procs.start('harness', [sys.executable, '-m', 'tank_control.harness.cli', 'run',
                                   str(CONFIG / 'ipdt_pid.yaml'), '--mode', 'wall', '--duration',
-                                  '14', '--out', str(out), '--quiet'], env=ros_env)
+                                  '14', '--out', str(out), '--quiet', '--no-plots'], env=ros_env)
     node = probe.node
     latest: list[int] = []
     node.create_subscription(JointState, 'measurement',

@@ -89,7 +89,7 @@ def test_harness_prints_and_records_the_identified_model_and_gains(tmp_path, cap
     from tank_control.harness import cli
     out = tmp_path / 'run'
     assert cli.main(['run', str(SCENARIOS / 'fopdt_autotune_scheduled.yaml'), '--out', str(out),
-                     '--in-process', '--quiet']) == 0
+                     '--in-process', '--quiet', '--no-plots']) == 0
     params = json.loads((out / 'metrics.json').read_text())['controller']['parameters']
     line = [x for x in capsys.readouterr().out.splitlines() if x.startswith('controller found:')]
     assert line == [f"controller found: Ku {params['autotune.ku']:.4g}, Tu {params['autotune.tu']:.4g} s "

@@ -21,7 +21,7 @@ ROWS = ('tank_mpcs_two_loop', 'tank_mpcs_two_loop_decoupled', 'tank_mpcs_two_loo
 def test_one_schedule_every_controller(tmp_path, capsys):
     out = tmp_path / 'cmp'
     assert cli.main(['compare', *(str(SCENARIOS / f'{name}.yaml') for name in ROWS),
-                     '--out', str(out), '--in-process', '--quiet']) == 0
+                     '--out', str(out), '--in-process', '--quiet', '--no-plots']) == 0
     capsys.readouterr()
     table = (out / 'comparison.md').read_text()
     assert 'coupling peak' in next(line for line in table.splitlines() if line.startswith('|'))

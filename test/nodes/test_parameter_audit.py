@@ -71,8 +71,8 @@ def test_a_harness_run_records_the_audit_trail_in_run_mcap(tmp_path, ros_env):
     is in run.mcap with the others of the run."""
     out = tmp_path / 'run'
     run = subprocess.run([sys.executable, '-m', 'tank_control.harness.cli', 'run', PARAMS,
-                          '--out', str(out), '--duration', '1', '--quiet'], env=ros_env,
-                         capture_output=True, text=True, timeout=600, check=False)
+                          '--out', str(out), '--duration', '1', '--quiet', '--no-plots'],
+                         env=ros_env, capture_output=True, text=True, timeout=600, check=False)
     assert run.returncode == 0, run.stderr[-3000:]
     audit = [json.loads(m.data) for m in read_mcap(out / 'run.mcap')[AUDIT_TOPIC]]
     unpaused = [r for r in audit if r['node'] == '/plant' and r['name'] == 'lockstep.paused']
