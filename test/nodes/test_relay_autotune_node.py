@@ -371,7 +371,9 @@ def test_a_second_controller_joining_ends_the_test_naming_it(procs, ros_env, nod
         graph.states, graph.logs())
     procs.stop('foreign')
     assert foreign.returncode is not None
-    assert probe.wait_for(lambda: probe.node.get_node_names().count('controller') == 1, 30)
+    # its name leaves the graph at once when it stopped on SIGINT; one killed after the grace
+    # (a busy machine) stays until its participant's lease (20 s) has run out
+    assert probe.wait_for(lambda: probe.node.get_node_names().count('controller') == 1, 60)
     got = graph.get('autotune.state', 'autotune.reason', 'kp', 'ti', 'td')
     assert got['autotune.state'] in ('aborted', 'failed'), got
     assert '2 nodes named /controller on this graph' in got['autotune.reason'], got
