@@ -343,11 +343,11 @@ def finish(scenario: Scenario, out: Path, trace: Trace, run_info: dict[str, Any]
     }
     files = {**files, 'metrics': out / 'metrics.json'}
     title = analysis_title(scenario)
-    if cases and plots:
+    if plots and cases:
         from tank_control.harness.analysis import plot_analysis
         placed = ahead.place(out / 'analysis.png') if ahead and cases_ahead is not None else None
         files['analysis'] = placed or plot_analysis(cases, out / 'analysis.png', title=title)
-    elif isinstance(metrics['loop_analysis'], dict) and plots:   # the two-loop PI, per loop
+    elif plots and isinstance(metrics['loop_analysis'], dict):   # the two-loop PI, per loop
         from tank_control.harness.analysis import plot_run_two_loop
         drawn = plot_run_two_loop(scenario.sections, controller_params, out / 'analysis.png',
                                   title=title)
