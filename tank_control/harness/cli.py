@@ -120,7 +120,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='the controller output limits (saturation time)')
     assess.add_argument('--manual', help='column that is non-zero while the loop is in manual')
     assess.add_argument('--plot', type=Path, help='the plot (default: FILE.assess.png)')
-    assess.add_argument('--json', action='store_true', help='print every index as JSON')
+    assess.add_argument('--json', action='store_true',
+                        help='print every index and the plot\'s path as one JSON document '
+                             'instead of the text')
     recover = sub.add_parser('recover', help='rebuild run.mcap (indexed), trace.csv and '
                              'metrics.json of a run whose harness was killed (docs/harness.md)')
     recover.add_argument('out', type=Path, help="the run's output directory")
@@ -280,12 +282,13 @@ def _assess(args: argparse.Namespace) -> int:
         return 2
     plot = args.plot or args.csv.with_suffix('.assess.png')
     plot_assessment(columns, body, plot, title=f'{args.csv.name} {args.pv}')
-    if args.json:
-        print(json.dumps(body, indent=1))
+    if args.json:                       # the JSON alone: stdout parses as one document
+        print(json.dumps({**body, 'plot': str(plot)}, indent=1))
+        return 0
     harris = body['harris_index']
     print(f'{args.pv}: {body["verdict"]}')
-    print(f'  Harris index {harris:.2f}' if harris is not None else '  Harris index: too few data',
-          f'(dead time {body["dead_time_samples"]} samples)')
+    print(f'  Harris index {harris:.2f} (dead time {body["dead_time_samples"]} samples)'
+          if harris is not None else f'  Harris index: none ({body["harris_reason"]})')
     osc = body['oscillation']
     if osc['detected']:
         print(f'  oscillation: period {osc["period"]:.3g} s, amplitude {osc["amplitude"]:.3g}, '

@@ -17,6 +17,7 @@ from selenium.common.exceptions import TimeoutException
 from selenium.webdriver.support.ui import WebDriverWait
 from support import CONFIG
 from support.browser import chromium_page, dashboard_url
+from support.ports import free_port
 from support.procfs import processes_with
 
 from tank_control.core.trace import Trace
@@ -101,18 +102,11 @@ def test_lockstep_with_the_dashboard_attached_equals_in_process(tmp_path, procs,
                                    atol=1e-9, err_msg=name)
 
 
-def _free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
-
-
 def test_tank_control_run_dashboard_serves_the_run_and_stops_with_it(tmp_path, procs, ros_env):
     """`tank-control run ... --dashboard PORT` starts dashboard_node for the run: the page shows
     the run's measurement while it goes, and the node ends with the run."""
     import time
-    port = _free_port()
+    port = free_port()
     out = tmp_path / 'run'
     harness = procs.start('harness', [sys.executable, '-m', 'tank_control.harness.cli', 'run',
                                       str(SCENARIO), '--out', str(out), '--duration', '40',

@@ -222,10 +222,18 @@ def test_assess_a_csv_written_with_numpy(tmp_path: Path, capsys) -> None:
         '--sample-time', '0.5', '--dead-time', '2', '--time', 'time', '--json'])
     out = capsys.readouterr().out
     assert code == 0
-    assert 'FIC101.PV: retune (oscillating, period' in out and 'no stiction' in out
-    body = json.loads(out[:out.rindex('}') + 1])
+    body = json.loads(out)              # --json: stdout is one JSON document, nothing else
+    assert body['verdict'].startswith('retune (oscillating, period')
+    assert 'no stiction' in body['verdict']
     assert body['oscillation']['detected'] and not body['stiction']['detected']
+    assert body['plot'] == str(tmp_path / 'historian.assess.png')
     assert (tmp_path / 'historian.assess.png').stat().st_size > 10_000
+    code = cli.main(['assess', str(path), '--pv', 'FIC101.PV', '--sp', 'FIC101.SP', '--op',
+                     'FIC101.OP', '--sample-time', '0.5', '--dead-time', '2', '--time', 'time'])
+    out = capsys.readouterr().out
+    assert code == 0 and out.startswith(f'FIC101.PV: {body["verdict"]}\n')
+    assert (f'Harris index {body["harris_index"]:.2f} '
+            f'(dead time {body["dead_time_samples"]} samples)') in out
     # a misspelt column: one line naming it, exit 2
     code = cli.main(['assess', str(path), '--pv', 'FIC101.P', '--sp', 'FIC101.SP', '--op',
                      'FIC101.OP', '--sample-time', '0.5'])
@@ -234,6 +242,23 @@ def test_assess_a_csv_written_with_numpy(tmp_path: Path, capsys) -> None:
     code = cli.main(['assess', str(tmp_path / 'none.csv'), '--pv', 'a', '--sp', 'b', '--op',
                      'c', '--sample-time', '0.5'])
     assert code == 2 and 'none.csv' in capsys.readouterr().err
+
+
+def test_assess_says_why_there_is_no_harris_index(tmp_path: Path, capsys) -> None:
+    """A loop whose control error never varies has no minimum-variance benchmark: the text
+    gives the assessment's own reason, as --json's harris_reason does."""
+    path = tmp_path / 'flat.csv'
+    t = np.arange(600) * 0.5
+    np.savetxt(path, np.column_stack([t, np.full_like(t, 3.0), np.full_like(t, 3.0),
+                                      np.full_like(t, 40.0)]),
+               delimiter=',', header='t,PV,SP,OP', comments='')
+    argv = ['assess', str(path), '--pv', 'PV', '--sp', 'SP', '--op', 'OP', '--sample-time',
+            '0.5', '--dead-time', '2', '--time', 't']
+    assert cli.main([*argv, '--json']) == 0
+    body = json.loads(capsys.readouterr().out)
+    assert body['harris_index'] is None and body['harris_reason']
+    assert cli.main(argv) == 0
+    assert f'  Harris index: none ({body["harris_reason"]})\n' in capsys.readouterr().out
 
 
 def false_alarms(seeds: range) -> tuple[int, list[float]]:

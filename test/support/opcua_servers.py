@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import datetime
 import math
-import socket
 import threading
 import time
 from collections.abc import Callable
@@ -21,13 +20,9 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.common.callback import CallbackType
 
+from support.ports import free_port
+
 NS_URI = 'urn:tank_control:test'
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(('127.0.0.1', 0))
-        return int(s.getsockname()[1])
 
 
 class LoopThread:
