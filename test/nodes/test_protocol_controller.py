@@ -72,6 +72,10 @@ def test_the_mode_and_trigger_pick_the_protocol_once():
     assert controller_clock('wall', 'measurement') is WallArrivalClock
     assert resolved_mode('auto', True) == 'lockstep' and resolved_mode('auto', False) == 'wall'
     assert not LockstepClock.sample_timer and SimClock.sample_timer
+    # what /diagnostics reports as the trigger: in lockstep the `trigger` parameter (wall
+    # only) does not apply; the plant's tick does
+    assert (LockstepClock.trigger, SimClock.trigger, WallTimerClock.trigger,
+            WallArrivalClock.trigger) == ('tick', 'timer', 'timer', 'measurement')
 
 
 def test_lockstep_answers_a_tick_once_its_inputs_are_in_and_a_resent_one_identically():

@@ -117,6 +117,7 @@ class LockstepClock(ControllerClock):
     the same answer). The reference's topics are zero-order-hold streams (``clock.Held``)."""
 
     mode = 'lockstep'
+    trigger = 'tick'         # /diagnostics: a sample is a plant tick's inputs complete
     ticks = True
     sample_timer = False
 
