@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from tank_control.core.scipy_lazy import brentq, minimize_scalar
+from tank_control.core.scalar_search import bounded_max, bracketed_root
 
 Rational = Callable[[np.ndarray], np.ndarray]
 
@@ -599,7 +599,7 @@ def _phase_crossings(g: FrequencyResponse, w: np.ndarray, ph: np.ndarray) -> lis
         if fa == 0.0:
             out.append(float(w[i]))
         elif fa * fb < 0:
-            out.append(brentq(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13))
+            out.append(bracketed_root(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13))
     if g.discrete and w[-1] >= g.nyquist_frequency * (1 - 1e-12):
         # at π/Ts the response is real: a negative value is a crossing at the grid end
         off = (ph[-1] + math.pi) % (2 * math.pi)
@@ -623,7 +623,7 @@ class UltimatePoint:
 
 def ultimate_point(g: FrequencyResponse) -> UltimatePoint:
     """``(ku, tu, wu)`` of ``g`` under proportional control: the lowest −180° phase
-    crossing, bracketed on a refined grid then solved with brentq. [Checks] §1:
+    crossing, bracketed on a refined grid then solved (``scalar_search.bracketed_root``). [Checks] §1:
     FOPDT 0.05/(10s+1)·e^(−3s) → ku = 117.80, tu = 10.824 s; IPDT k1/s·e^(−To·s)
     → ωu = π/(2·To), ku = π/(2·k1·To), tu = 4·To. Raises ``ValueError`` when the
     phase never reaches −180° (e.g. FOPDT without dead time) or starts there
@@ -688,7 +688,7 @@ def _gain_crossovers(g: FrequencyResponse, w: np.ndarray, val: np.ndarray) -> li
         if fa == 0.0:
             out.append(float(w[i]))
         elif fa * fb < 0:
-            out.append(brentq(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13))
+            out.append(bracketed_root(f, w[i], w[i + 1], xtol=1e-14, rtol=1e-13))
     return out
 
 
@@ -699,10 +699,10 @@ def _peak(fn: Callable[[np.ndarray], np.ndarray], w: np.ndarray) -> tuple[float,
     if i in (0, w.size - 1):
         return float(mag[i]), float(w[i])
     lo, hi = math.log(w[i - 1]), math.log(w[i + 1])
-    res = minimize_scalar(lambda x: -float(abs(fn(np.asarray([math.exp(x)]))[0])),
-                          bounds=(lo, hi), method='bounded', options={'xatol': 1e-12})
-    if -res.fun > mag[i]:
-        return float(-res.fun), float(math.exp(res.x))
+    x, peak = bounded_max(lambda x: float(abs(fn(np.asarray([math.exp(x)]))[0])), lo, hi,
+                          xatol=1e-12)
+    if peak > mag[i]:
+        return peak, math.exp(x)
     return float(mag[i]), float(w[i])
 
 
