@@ -267,7 +267,7 @@ class ControllerNode(ControllerParams):
         tick answered (lockstep) is not taken: counted (``rejected_past``), logged
         rate-limited; the last valid value is kept."""
         self.counters['rejected_past'] += 1
-        what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {seconds(t_ns):.9g} s'
+        what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {seconds(t_ns):.13g} s'
         if self._protocol.mode == 'wall':
             held, fix = ('the setpoint held', "stamp it now (ros2 topic pub: '{header: auto, "
                          "...}')")
@@ -278,7 +278,7 @@ class ControllerNode(ControllerParams):
                          'change the reference (its parameters) instead: lockstep inputs come '
                          'from the reference_node')
         self._log_limited(f'{topic}/past', f'{topic}: message {what} refused, older than {held} '
-                          f'({seconds(held_ns):.9g} s): the last valid value is kept '
+                          f'({seconds(held_ns):.13g} s): the last valid value is kept '
                           f'({self.counters["rejected_past"]} so far); {fix}')
 
     def new_session(self, t_ns: int, last_ns: int) -> None:

@@ -504,11 +504,11 @@ class _Timed(PlantClock):
         count = self.counters['rejected_past'] = self.counters.get('rejected_past', 0) + 1
         if topic not in self.past_logged:
             self.past_logged.add(topic)
-            what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {t_ns / 1e9:.9g} s'
+            what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {t_ns / 1e9:.13g} s'
             fix = ("stamp it now (ros2 topic pub: '{header: auto, ...}')" if self.real_time
                    else "stamp it with the plant's /clock time")
             self.host.warning(f'{topic}: message {what} refused, older than the '
-                              f'{self.held_stamp[topic] / 1e9:.9g} s held: the values held '
+                              f'{self.held_stamp[topic] / 1e9:.13g} s held: the values held '
                               f'stay ({count} so far); {fix} (logged at most once per '
                               'diagnostics period)')
 
