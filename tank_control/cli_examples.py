@@ -97,7 +97,7 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
                         'ros2 topic echo /manipulated --field position'),
     'ros2 topic pub': (
         "ros2 topic pub --once /disturbance sensor_msgs/msg/JointState "
-        "'{name: [v], position: [-0.1]}'",),
+        "'{header: auto, name: [v], position: [-0.1]}'",),
     'ros2 topic hz': ('ros2 topic hz /measurement',),
     'ros2 topic info': ('ros2 topic info /measurement -v',),
     'ros2 topic type': ('ros2 topic type /measurement',),

@@ -121,7 +121,7 @@ class ControllerNode(ControllerParams):
                          'out_of_range_measurements': 0, 'rejected_inputs': 0,
                          'late_setpoints': 0, 'fault_episodes': 0, 'update_errors': 0,
                          'controller_faults': 0, 'rejected_future': 0, 'unknown_channels': 0,
-                         'empty_inputs': 0, 'nonfinite_values': 0}
+                         'empty_inputs': 0, 'nonfinite_values': 0, 'rejected_past': 0}
         self._limited = set()   # kinds of input reasons logged this diagnostics period
         self._compute_s = math.nan
         self._saturated_samples = 0                # consecutive samples at an input limit
@@ -261,6 +261,25 @@ class ControllerNode(ControllerParams):
         """wall/sim: a setpoint stamped at or before the latest sample came too late for it."""
         self.counters['late_setpoints'] += 1
         self._late_pub.publish(to_joint_state(t_ns, names, used))
+
+    def refused_past(self, topic: str, t_ns: int, held_ns: int) -> None:
+        """A setpoint or disturbance stamped before the setpoint held (wall/sim) or the last
+        tick answered (lockstep) is not taken: counted (``rejected_past``), logged
+        rate-limited; the last valid value is kept."""
+        self.counters['rejected_past'] += 1
+        what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {seconds(t_ns):.13g} s'
+        if self._protocol.mode == 'wall':
+            held, fix = ('the setpoint held', "stamp it now (ros2 topic pub: '{header: auto, "
+                         "...}')")
+        elif self._protocol.mode == 'sim':
+            held, fix = 'the setpoint held', 'stamp it with the loop\'s /clock time'
+        else:
+            held, fix = ('the tick already answered',
+                         'change the reference (its parameters) instead: lockstep inputs come '
+                         'from the reference_node')
+        self._log_limited(f'{topic}/past', f'{topic}: message {what} refused, older than {held} '
+                          f'({seconds(held_ns):.13g} s): the last valid value is kept '
+                          f'({self.counters["rejected_past"]} so far); {fix}')
 
     def new_session(self, t_ns: int, last_ns: int) -> None:
         """A plant that (re)started: its tick 0 after later ticks (lockstep), or a measurement

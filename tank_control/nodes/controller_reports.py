@@ -239,6 +239,10 @@ class ControllerReports(ControllerInputs):
             level = max(level, DiagnosticStatus.WARN)
             message += (f"; {self.counters['rejected_future']} inputs stamped in the future "
                         'refused')
+        if self.counters['rejected_past']:
+            level = max(level, DiagnosticStatus.WARN)
+            message += (f"; {self.counters['rejected_past']} setpoint/disturbance messages "
+                        'stamped in the past refused')
         attention, performance = self._performance.diagnostics()
         if performance:
             message += f'; {performance}'

@@ -80,7 +80,8 @@ class PlantNode(Node):
             raise ParameterError(str(exc)) from None
         self.counters = {'ticks': 0, 'missed_samples': 0, 'resent_ticks': 0, 'ignored_inputs': 0,
                          'late_inputs': 0, 'rejected_changes': 0, 'out_of_range_inputs': 0,
-                         'rejected_future': 0, 'unknown_channels': 0, 'oversized_inputs': 0}
+                         'rejected_future': 0, 'unknown_channels': 0, 'oversized_inputs': 0,
+                         'rejected_past': 0}
         # the clock protocol (nodes/protocol/plant.py)
         protocol = plant_clock(str(values['clock_mode']))
         # inputs stamped more than max_future_stamp ahead of this plant's now are refused
@@ -350,6 +351,7 @@ class PlantNode(Node):
         for flt in self.filters.values():
             flt.rearm()                 # each kind of reason logged again at most once a period
         self._future.rearm_reports()
+        self._protocol.past_logged.clear()
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
         model = dict(self.plant.status)
         problems = []
@@ -357,6 +359,9 @@ class PlantNode(Node):
             problems.append(f"{self.counters['ignored_inputs']} ignored inputs")
         if self.counters['rejected_future']:
             problems.append(f"{self.counters['rejected_future']} inputs stamped in the future "
+                            'refused')
+        if self.counters['rejected_past']:
+            problems.append(f"{self.counters['rejected_past']} inputs stamped in the past "
                             'refused')
         if model.get('clipped_flows'):
             problems.append(f"{model['clipped_flows']} clipped flows")

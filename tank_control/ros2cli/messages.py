@@ -3,11 +3,15 @@
 Types are named ``pkg/msg/Type`` (``pkg/Type`` is accepted) and ``pkg/srv/Type``.
 Conversion follows the field definitions (``SLOT_TYPES``): nested messages,
 sequences and fixed arrays of numbers, strings and messages, ``byte`` fields
-as integers, ``builtin_interfaces/Time`` as ``{sec, nanosec}``.
+as integers, ``builtin_interfaces/Time`` as ``{sec, nanosec}``. As ros2cli's (Humble on):
+a ``builtin_interfaces/msg/Time`` field given as ``now`` and a ``std_msgs/msg/Header`` field
+given as ``auto`` (its stamp; frame_id empty) hold the wall-clock time of this process, taken
+again by ``restamp`` before each message is published.
 """
 from __future__ import annotations
 
 import importlib
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -84,8 +88,9 @@ def to_yaml(msg: Any) -> str:
 
 # python → message ---------------------------------------------------------------------------
 
-def from_yaml(msg_class: type, text: str | None) -> Any:
-    """A message of ``msg_class`` with fields set from a YAML dict (empty → defaults)."""
+def from_yaml(msg_class: type, text: str | None, stamps: list[Any] | None = None) -> Any:
+    """A message of ``msg_class`` with fields set from a YAML dict (empty → defaults);
+    ``stamps`` collects the Time messages given as ``now``/``auto`` (``restamp``)."""
     values: Any = {}
     if text is not None and text.strip():
         try:
@@ -98,12 +103,27 @@ def from_yaml(msg_class: type, text: str | None) -> Any:
     if not isinstance(values, Mapping):
         raise CliError(f"The passed value needs to be a dictionary in YAML format, got '{text}'")
     msg = msg_class()
-    fill(msg, values)
+    fill(msg, values, stamps=stamps)
     return msg
 
 
-def fill(msg: Any, values: Mapping[str, Any], path: str = '') -> None:
-    """Set the fields of ``msg`` named in ``values`` (recursively); CliError names the field."""
+#: the stamp keywords of ros2cli: (package, type) of the field → the string it takes
+STAMP_KEYWORDS = {('builtin_interfaces', 'Time'): 'now', ('std_msgs', 'Header'): 'auto'}
+
+
+def restamp(stamps: list[Any], now_ns: int | None = None) -> None:
+    """Set the Time messages collected by ``from_yaml`` to ``now_ns`` (default: this
+    process's wall clock, ``time.time_ns``)."""
+    now_ns = time.time_ns() if now_ns is None else now_ns
+    for stamp in stamps:
+        stamp.sec, stamp.nanosec = divmod(now_ns, 1_000_000_000)
+
+
+def fill(msg: Any, values: Mapping[str, Any], path: str = '',
+         stamps: list[Any] | None = None) -> None:
+    """Set the fields of ``msg`` named in ``values`` (recursively); CliError names the field;
+    ``stamps`` collects the Time messages given as a stamp keyword."""
+    stamps = [] if stamps is None else stamps
     slots = dict(_fields(msg))
     for name, value in values.items():
         where = f'{path}{name}'
@@ -111,7 +131,8 @@ def fill(msg: Any, values: Mapping[str, Any], path: str = '') -> None:
             raise CliError(f"Failed to populate field '{where}': {type_name(type(msg))} "
                            f"has no field '{name}' (fields: {', '.join(slots)})")
         try:
-            setattr(msg, name, _python_to_value(getattr(msg, name), value, slots[name], where))
+            setattr(msg, name, _python_to_value(getattr(msg, name), value, slots[name], where,
+                                                stamps))
         except CliError:
             raise
         except (TypeError, ValueError, AssertionError, OverflowError) as exc:
@@ -119,21 +140,31 @@ def fill(msg: Any, values: Mapping[str, Any], path: str = '') -> None:
             raise CliError(f"Failed to populate field '{where}': {detail}") from None
 
 
-def _python_to_value(current: Any, value: Any, slot: Any, where: str) -> Any:
+def _python_to_value(current: Any, value: Any, slot: Any, where: str,
+                     stamps: list[Any]) -> Any:
     if isinstance(slot, idl.AbstractNestedType):
         if not isinstance(value, list):
             raise CliError(f"Failed to populate field '{where}': expected a list, got {value!r}")
         item_slot = slot.value_type
         if isinstance(item_slot, idl.NamespacedType):
             item_class = _class_of(item_slot)
-            return [_python_to_value(item_class(), v, item_slot, f'{where}[{i}]')
+            return [_python_to_value(item_class(), v, item_slot, f'{where}[{i}]', stamps)
                     for i, v in enumerate(value)]
         return [_scalar(v, item_slot, f'{where}[{i}]') for i, v in enumerate(value)]
     if isinstance(slot, idl.NamespacedType):
+        keyword = STAMP_KEYWORDS.get((slot.namespaces[0], slot.name))
+        if keyword is not None and value == keyword:
+            stamp = current if slot.name == 'Time' else current.stamp
+            if slot.name == 'Header':
+                current.frame_id = ''
+            restamp([stamp])
+            stamps.append(stamp)
+            return current
         if not isinstance(value, Mapping):
-            raise CliError(f"Failed to populate field '{where}': expected a dictionary, "
+            also = f" or '{keyword}' (the current time)" if keyword else ''
+            raise CliError(f"Failed to populate field '{where}': expected a dictionary{also}, "
                            f'got {value!r}')
-        fill(current, value, where + '.')
+        fill(current, value, where + '.', stamps)
         return current
     return _scalar(value, slot, where)
 

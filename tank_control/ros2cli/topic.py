@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from tank_control.ros2cli.common import (
     CliError, add_daemon_argument, absolute_name, add_spin_time_argument, client_node, is_hidden, settle_graph,
     spin_until)
-from tank_control.ros2cli.messages import from_yaml, resolve_type, to_python, to_yaml
+from tank_control.ros2cli.messages import from_yaml, resolve_type, restamp, to_python, to_yaml
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -60,7 +60,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument('topic_name', metavar='TOPIC', help="name of the topic (e.g. '/setpoint')")
     p.add_argument('message_type', metavar='TYPE', help="type (e.g. 'std_msgs/msg/Float64')")
     p.add_argument('values', metavar='VALUES', nargs='?', default='{}',
-                   help="values to fill the message with, YAML (e.g. '{data: 1.5}')")
+                   help="values to fill the message with, YAML (e.g. '{data: 1.5}'); a "
+                        "std_msgs/msg/Header field given as 'auto' or a builtin_interfaces/msg/"
+                        "Time field given as 'now' holds the current (wall-clock) time, taken "
+                        'again for each message published')
     p.add_argument('-r', '--rate', type=float, default=1.0, metavar='N',
                    help='publishing rate in Hz (default 1)')
     p.add_argument('-p', '--print', dest='print_nth', type=int, default=1, metavar='N',
@@ -218,7 +221,8 @@ def pub_verb(args: argparse.Namespace) -> int:
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     topic = absolute_name(args.topic_name)
     msg_type = resolve_type(args.message_type)
-    msg = from_yaml(msg_type, args.values)
+    stamps: list[Any] = []          # header: auto / Time: now, stamped anew for each message
+    msg = from_yaml(msg_type, args.values, stamps)
     if args.rate <= 0 or not math.isfinite(args.rate):
         raise CliError(f'--rate must be a positive number of Hz, got {args.rate:g}')
     times = 1 if args.once else args.times
@@ -244,6 +248,8 @@ def pub_verb(args: argparse.Namespace) -> int:
         next_time = time.monotonic()
         while not times or count < times:
             spin_until(node, lambda: time.monotonic() >= next_time, None)  # noqa: B023 - waited on here
+            if stamps:
+                restamp(stamps)
             publisher.publish(msg)
             count += 1
             if args.print_nth and count % args.print_nth == 0:

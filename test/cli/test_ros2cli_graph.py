@@ -130,6 +130,37 @@ def test_topic_pub(graph, ros_env):
         assert all(word in result.stderr for word in words), result.stderr
 
 
+
+def test_topic_pub_stamps_header_auto_and_time_now_anew_for_each_message(graph, ros_env):
+    """ros2cli's stamp keywords over DDS: ``header: auto`` and a Time field ``now`` carry the
+    publishing process's wall-clock time, taken again for each message of ``--times``; any
+    other string in such a field is one line on stderr, exit 1."""
+    import time
+
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    states, clocks = [], []
+    graph.node.create_subscription(JointState, '/cli_test/stamped', states.append, 10)
+    graph.node.create_subscription(Clock, '/cli_test/clock_now', clocks.append, 10)
+    before = time.time_ns()
+    stamped, clock, bad = ros2_parallel(
+        ros_env,
+        ('topic', 'pub', '-t', '3', '-r', '20', '/cli_test/stamped', 'sensor_msgs/msg/JointState',
+         '{header: auto, name: [y], position: [1.0]}', *WAIT),
+        ('topic', 'pub', '--once', '/cli_test/clock_now', 'rosgraph_msgs/msg/Clock',
+         '{clock: now}', *WAIT),
+        ('topic', 'pub', '--once', '/x', 'sensor_msgs/msg/JointState', '{header: now}'))
+    after = time.time_ns()
+    assert stamped.returncode == 0, stamped.stderr
+    assert clock.returncode == 0, clock.stderr
+    assert graph.wait_for(lambda: len(states) == 3 and clocks, 30)
+    ns = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in states]
+    assert before <= ns[0] < ns[1] < ns[2] <= after, (before, ns, after)
+    assert all(m.header.frame_id == '' and list(m.name) == ['y'] for m in states)
+    assert before <= clocks[0].clock.sec * 1_000_000_000 + clocks[0].clock.nanosec <= after
+    assert bad.returncode == 1 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+    assert "'header'" in bad.stderr and "'auto'" in bad.stderr, bad.stderr
+
 def _sections(text: str) -> dict[str, set[str]]:
     """`ros2 node info` output as {section title: its entry lines, stripped}."""
     sections = re.split(r'\n  (?=\S)', text)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import statistics
+import time
 
 import pytest
 import yaml
@@ -9,7 +10,7 @@ import yaml
 from tank_control.core.params_file import nest
 from tank_control.core.ros_yaml import flatten
 from tank_control.ros2cli.common import CliError
-from tank_control.ros2cli.messages import from_yaml, resolve_type, to_python, to_yaml
+from tank_control.ros2cli.messages import from_yaml, resolve_type, restamp, to_python, to_yaml
 from tank_control.ros2cli.param import parameters_from_file, value_from_python
 from tank_control.ros2cli.topic import hz_report
 
@@ -46,6 +47,10 @@ def test_nested_messages_arrays_and_time_round_trip():
     ('std_msgs/msg/UInt8', '{data: 300}', ["'data'", '[0, 255]']),
     ('std_msgs/msg/Int8', '{data: -129}', ["'data'", '[-128, 127]']),
     ('std_msgs/msg/Float64', '[1.0]', ['dictionary']),
+    ('sensor_msgs/msg/JointState', '{header: now}', ["'header'", "'auto'", "'now'"]),
+    ('sensor_msgs/msg/JointState', '{header: {stamp: auto}}', ["'header.stamp'", "'now'"]),
+    ('sensor_msgs/msg/JointState', '{header: {stamp: yesterday}}', ["'header.stamp'", "'now'"]),
+    ('std_msgs/msg/Float64', '{data: now}', ["'data'", 'double']),
     ('std_msgs/msg/Float64', '{data: [1', ['YAML']),
     ('std_msgs/msg/Nope', '{}', ['std_msgs/msg/Nope']),
     ('nonsense', '{}', ['nonsense']),
@@ -55,6 +60,32 @@ def test_bad_values_name_the_field(type_name, values, words):
         from_yaml(resolve_type(type_name), values)
     message = str(error.value)
     assert '\n' not in message and all(word in message for word in words), message
+
+
+def test_stamp_keywords_hold_the_wall_clock_and_are_taken_again_for_each_message():
+    """ros2cli's: a Header given as ``auto`` (stamp now, frame_id empty) and a Time given as
+    ``now``; ``restamp`` sets every one of them again (``topic pub`` before each message)."""
+    joint_state = resolve_type('sensor_msgs/msg/JointState')
+    stamps: list = []
+    before = time.time_ns()
+    msg = from_yaml(joint_state, '{header: auto, name: [y], position: [1.0]}', stamps)
+    after = time.time_ns()
+    stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    assert before <= stamp_ns <= after and msg.header.frame_id == ''
+    assert list(msg.name) == ['y'] and len(stamps) == 1
+    restamp(stamps, 7_000_000_005)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (7, 5)
+    # a Time field (here the header's own stamp, and /clock's) given as now
+    stamps = []
+    msg = from_yaml(joint_state, '{header: {stamp: now, frame_id: tank}}', stamps)
+    assert msg.header.frame_id == 'tank' and msg.header.stamp.sec >= before // 1_000_000_000
+    clock = from_yaml(resolve_type('rosgraph_msgs/msg/Clock'), '{clock: now}', stamps)
+    restamp(stamps, 3_000_000_000)
+    assert msg.header.stamp.sec == 3 and clock.clock.sec == 3 and len(stamps) == 2
+    # without a keyword nothing is restamped
+    stamps = []
+    from_yaml(joint_state, '{header: {stamp: {sec: 1}}}', stamps)
+    assert stamps == []
 
 
 def test_parameter_file_sections_and_coercion(tmp_path):

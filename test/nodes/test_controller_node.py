@@ -506,6 +506,35 @@ def test_wall_mode_a_message_stamped_in_the_future_does_not_freeze_the_loop(
     assert proc.tail(50).count('ahead of this node') <= 2 * 20   # rate-limited (0.1 s period)
 
 
+def test_wall_mode_an_unstamped_setpoint_is_refused_counted_and_logged(
+        procs, node_cmd, ros_env, probe):
+    """README's ``ros2 topic pub`` of a setpoint without a stamp (stamp 0) on a running loop is
+    not taken: counted (``rejected_past`` on /diagnostics, WARN) and logged at most once per
+    diagnostics period, saying to stamp it (``header: auto``); the setpoint held goes on. The
+    same message with ``header: auto`` is taken. (Before: dropped without a trace.)"""
+    from support.ros2cli import ros2
+    proc, loop, _, _, instant, measure_until = _wall_loop(procs, node_cmd, ros_env, probe,
+                                                          ts=0.1)
+    pub = ('topic', 'pub', '--once', '/setpoint', 'sensor_msgs/msg/JointState')
+    for _ in range(2):
+        result = ros2(ros_env, *pub, '{name: [y], position: [50.0]}', '--timeout', '30')
+        assert result.returncode == 0, result.stderr
+    assert measure_until(lambda: loop.diag.get('rejected_past') == '2', 0.5, 30.0), loop.diag
+    assert loop.diag_level == DiagnosticStatus.WARN and 'in the past' in loop.diag_message
+    n = len(loop.answers)
+    assert measure_until(lambda: len(loop.answers) >= n + 3, 0.5, 30.0)
+    # the setpoint held (1) goes on: u = 2·(1 − 0.5)
+    assert all(a[2][0] == pytest.approx(1.0, abs=1e-12) for a in loop.answers[n:])
+    log = proc.tail(100)
+    assert 1 <= log.count('setpoint: message unstamped (stamp 0) refused') <= 2, log
+    assert 'header: auto' in log
+    result = ros2(ros_env, *pub, '{header: auto, name: [y], position: [2.0]}', '--timeout', '30')
+    assert result.returncode == 0, result.stderr
+    assert measure_until(lambda: loop.answers[-1][2][0] == pytest.approx(3.0, abs=1e-12), 0.5,
+                         30.0), (loop.answers[-3:], proc.tail())
+    assert loop.diag.get('rejected_past') == '2'
+
+
 def test_wall_mode_a_clock_step_is_taken_within_the_documented_bound(
         procs, node_cmd, ros_env, probe):
     """The plant restarts on a host whose clock is an hour ahead (a new time origin, every

@@ -25,6 +25,7 @@ class Host:
         self.sessions: list[tuple[int, int]] = []
         self.late: list[tuple[int, list, list]] = []
         self.warnings: list[str] = []
+        self.past: list[tuple[str, int, int]] = []
 
     def clock_ns(self):
         return self.now
@@ -42,6 +43,9 @@ class Host:
         out = {n: values[n] for n in names if n in values}
         last.update(out)
         return out
+
+    def refused_past(self, topic, t_ns, held_ns):
+        self.past.append((topic, t_ns, held_ns))
 
     def new_session(self, t_ns, last_ns):
         self.sessions.append((t_ns, last_ns))
@@ -297,3 +301,67 @@ def test_wall_an_origin_far_ahead_is_held_until_measurements_come_on_its_time_ba
     clock.setpoint(step, {'y': 3.0})
     assert stamps(clock.measurement(step, {'y': 1.0})) == [step]
     assert clock.origin_ns == origin + hour and host.samples[-1][0] == 200_000_000
+
+
+def test_lockstep_a_setpoint_stamped_before_the_ticks_answered_is_refused_and_reported():
+    """An unstamped setpoint (``ros2 topic pub`` without ``header: auto``) on a running loop:
+    those ticks are answered; it is reported (``refused_past``: counted, logged) when the
+    loop goes on, and never acts on a later tick — the reference's values do."""
+    host = Host()
+    clock = make(LockstepClock, host, ts_ns=100_000_000)
+    clock.setpoint(0, {'y': 3.0})
+    clock.setpoint(1_000_000_000, {'y': 3.0})                    # known through 1 s
+    for k in range(3):
+        assert stamps(clock.measurement(k * 100_000_000, {'y': 0.0})) == [k * 100_000_000]
+    assert clock.setpoint(0, {'y': 1.0}) == [] and host.past == []   # decided on the next tick
+    assert stamps(clock.measurement(300_000_000, {'y': 0.0})) == [300_000_000]
+    assert host.past == [('setpoint', 0, 200_000_000)]
+    assert [s[2]['y'] for s in host.samples] == [3.0] * 4 and host.sessions == []
+    # a disturbance stamped in the past likewise
+    clock = make(LockstepClock, host, ts_ns=100_000_000, disturbances=('d',))
+    clock.setpoint(0, {'y': 3.0})
+    clock.setpoint(1_000_000_000, {'y': 3.0})
+    clock.disturbance(0, {'d': 0.5})
+    clock.disturbance(1_000_000_000, {'d': 0.5})
+    for k in range(2):
+        clock.measurement(k * 100_000_000, {'y': 0.0})
+    clock.disturbance(0, {'d': 9.0})
+    assert stamps(clock.measurement(200_000_000, {'y': 0.0})) == [200_000_000]
+    assert host.past[-1] == ('disturbance', 0, 100_000_000)
+
+
+def test_lockstep_a_restarted_plant_s_setpoint_that_came_first_is_taken_not_refused():
+    """The new session's reference message may come before the plant's tick 0: it waits for
+    it and is taken (answered from tick 0 again), never counted as refused."""
+    host = Host()
+    clock = make(LockstepClock, host, ts_ns=100_000_000)
+    clock.setpoint(0, {'y': 3.0})
+    clock.setpoint(1_000_000_000, {'y': 3.0})
+    for k in range(3):
+        clock.measurement(k * 100_000_000, {'y': 0.0})
+    clock.setpoint(0, {'y': 4.0})
+    clock.setpoint(100_000_000, {'y': 5.0})                      # both before tick 200 ms
+    assert stamps(clock.measurement(0, {'y': 0.0})) == [0]
+    assert stamps(clock.measurement(100_000_000, {'y': 0.0})) == [100_000_000]
+    assert host.past == [] and host.sessions == [(0, 200_000_000)]
+    assert [s[2]['y'] for s in host.samples[-2:]] == [4.0, 5.0]
+
+
+def test_wall_and_sim_a_setpoint_older_than_the_one_held_is_refused_and_reported():
+    """wall and sim keep the newest setpoint; an older (or unstamped) one is not taken and is
+    reported (``refused_past``), not as a late setpoint; the value held goes on."""
+    for cls in (WallTimerClock, WallArrivalClock, SimClock):
+        host = Host()
+        clock = make(cls, host, ts_ns=100_000_000)
+        clock.origin(0)
+        host.now = 1_000_000_000
+        clock.setpoint(host.now, {'y': 3.0})
+        clock.measurement(host.now, {'y': 0.0})
+        clock.timer()
+        assert clock.setpoint(0, {'y': 1.0}) == []                   # unstamped: refused
+        assert host.past == [('setpoint', 0, 1_000_000_000)], cls
+        assert host.late == []
+        host.now = 1_100_000_000
+        clock.measurement(host.now, {'y': 0.0})
+        clock.timer()
+        assert [s[2]['y'] for s in host.samples] == [3.0, 3.0], cls

@@ -241,3 +241,31 @@ def test_wall_holds_a_disturbance_sent_ahead_until_its_step():
     plant.step()
     plant.step()
     assert plant.d == {'v': 1.0} and plant.plant.y == TS   # acts from t_2 on
+
+
+def test_sim_and_wall_an_input_older_than_the_values_held_is_refused_and_counted():
+    """An unstamped (stamp 0) manipulated or disturbance on a running plant is not taken: the
+    values held stay, it is counted (``rejected_past``) and logged once per diagnostics
+    period (``past_logged``), not reported as a late answer."""
+    for cls in (SimPlant, WallPlant):
+        host = Host()
+        plant = make(cls, host, real_time_factor=1.0)
+        plant.start()
+        origin = plant.stamp_offset_ns
+        plant.tick_msgs = (b'', None)
+        for _ in range(3):
+            plant.step()
+        plant.input('manipulated', origin + 3 * TS_NS, ('u',), {'u': 2.0}, ('u',))
+        plant.input('disturbance', origin + 3 * TS_NS, ('v',), {'v': 0.5}, ('v',))
+        late = list(host.late)
+        for _ in range(2):
+            plant.input('manipulated', 0, ('u',), {'u': 9.0}, ('u',))
+            plant.input('disturbance', 0, ('v',), {'v': 9.0}, ('v',))
+        plant.step()
+        assert plant.u == {'u': 2.0} and plant.d == {'v': 0.5}, cls
+        assert plant.counters['rejected_past'] == 4 and host.late == late, cls
+        refused = [w for w in host.warnings if 'refused' in w]
+        assert len(refused) == 2 and 'unstamped' in refused[0], (cls, host.warnings)
+        plant.past_logged.clear()                  # the next diagnostics period
+        plant.input('manipulated', 0, ('u',), {'u': 9.0}, ('u',))
+        assert len([w for w in host.warnings if 'refused' in w]) == 3

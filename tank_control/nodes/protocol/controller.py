@@ -51,6 +51,8 @@ class ControllerHost(Protocol):
 
     def late_setpoint(self, t_ns: int, names: list[str], used: list[float]) -> None: ...
 
+    def refused_past(self, topic: str, t_ns: int, held_ns: int) -> None: ...
+
     def info(self, text: str) -> None: ...
 
     def warning(self, text: str) -> None: ...
@@ -132,6 +134,9 @@ class LockstepClock(ControllerClock):
         self.behind_ns: int | None = None     # a tick seen before the last answered
         self.answers = Answers()               # the last tick answered: (u,)
         self.deferred_tick: int | None = None  # waits for the plant's applied_input
+        # setpoints/disturbances stamped before the last tick answered: a restarted plant's
+        # (taken when its tick 0 comes) or stale (refused at the next measurement)
+        self.past: list[tuple[str, int, Mapping[str, float]]] = []
 
     def now_ns(self) -> int | None:
         return self.measured_ns
@@ -146,18 +151,57 @@ class LockstepClock(ControllerClock):
 
     def measurement(self, t_ns: int, values: dict[str, float]) -> Outputs:
         self._check_new_session(t_ns)
+        self._settle_past(t_ns)
         self.inbox.put(MEASUREMENT, t_ns, values)   # non-finite kept: the sample handles it
         self.measured_ns = t_ns
         return self._maybe_answer(t_ns, resent=True)
 
     def setpoint(self, t_ns: int, values: Mapping[str, float]) -> Outputs:
-        self.inbox.put(SETPOINT, t_ns, self.host.accept(SETPOINT, values, self.outputs, self.r))
-        return self._answer_measured()
+        return self._held_input(SETPOINT, t_ns, values)
 
     def disturbance(self, t_ns: int, values: Mapping[str, float]) -> Outputs:
-        self.inbox.put(DISTURBANCE, t_ns,
-                       self.host.accept(DISTURBANCE, values, self.disturbances, self.d))
+        return self._held_input(DISTURBANCE, t_ns, values)
+
+    #: the most setpoint/disturbance messages stamped in the past held until the next
+    #: measurement decides on them (a restarted reference's first look-ahead fits easily)
+    PAST_LIMIT = 64
+
+    def _held_input(self, topic: str, t_ns: int, values: Mapping[str, float]) -> Outputs:
+        """A setpoint or disturbance: one stamped before the last tick answered cannot act
+        on the running session (those ticks are answered); it waits for the next measurement
+        (``_settle_past``): a restarted plant's tick 0 takes it, else it is refused."""
+        answered = self.answers.stamp
+        if answered is not None and t_ns < answered:
+            self.past.append((topic, t_ns, dict(values)))
+            if len(self.past) > self.PAST_LIMIT:
+                old_topic, old_ns, _ = self.past.pop(0)
+                self.host.refused_past(old_topic, old_ns, answered)
+            return []
+        self._put(topic, t_ns, values)
         return self._answer_measured()
+
+    def _put(self, topic: str, t_ns: int, values: Mapping[str, float]) -> None:
+        if topic == SETPOINT:
+            self.inbox.put(SETPOINT, t_ns, self.host.accept(SETPOINT, values, self.outputs,
+                                                            self.r))
+        else:
+            self.inbox.put(DISTURBANCE, t_ns, self.host.accept(DISTURBANCE, values,
+                                                               self.disturbances, self.d))
+
+    def _settle_past(self, t_ns: int) -> None:
+        """A measurement of tick ``t_ns`` came: the inputs stamped in the past are taken
+        when the answers start again (a new plant session), refused (``refused_past``) when
+        the loop goes on at or after the last tick answered; kept while the plant re-sends a
+        tick behind it (``_maybe_answer`` may start the answers again from it)."""
+        answered = self.answers.stamp
+        if not self.past or (answered is not None and t_ns < answered):
+            return
+        past, self.past = self.past, []
+        for topic, stamp, values in past:
+            if answered is None or stamp >= answered:
+                self._put(topic, stamp, values)
+            else:
+                self.host.refused_past(topic, stamp, answered)
 
     def applied(self) -> Outputs:
         if self.deferred_tick is None:
@@ -200,6 +244,7 @@ class LockstepClock(ControllerClock):
                 'the plant waits for it; ticks answered from it again')
             self.answers = Answers()
             self.inbox.drop_from(t_ns + 1)
+            self._settle_past(t_ns)
         if not self.inbox.complete(t_ns):
             return []
         y = self.inbox.values(t_ns, MEASUREMENT)
@@ -256,13 +301,15 @@ class _Latest(ControllerClock):
         self.host.new_session(t_ns, last)
 
     def setpoint(self, t_ns: int, values: Mapping[str, float]) -> Outputs:
-        self._check_late_setpoint(t_ns, values)
         if self.r_stamp is not None and t_ns < self.r_stamp:
             if not self.future.back_on_clock(SETPOINT, self.r_stamp, t_ns, self.now_ns()):
-                return []    # older than the setpoint held (out of order): not taken
+                # older than the setpoint held (out of order, or unstamped): not taken
+                self.host.refused_past(SETPOINT, t_ns, self.r_stamp)
+                return []
             self._clear_ahead()       # the stepped values waiting for their stamps
             for text in self.future.take_report():
                 self.host.warning(text)
+        self._check_late_setpoint(t_ns, values)
         self.r_stamp = t_ns
         self._take(SETPOINT, t_ns, values)
         return []

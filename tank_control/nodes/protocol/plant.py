@@ -125,6 +125,7 @@ class PlantClock:
         self.step_s = 0.0                  # computation time of plant.step since the report
         self.steps = 0
         self._pace_mark: tuple[float, int] | None = None   # (wall s, tick) at the last report
+        self.past_logged: set[str] = set()   # sim/wall: topics refused for their stamp, logged
 
     def t(self) -> float:
         return seconds(self.k * self.ts_ns)
@@ -478,22 +479,38 @@ class _Timed(PlantClock):
     def _take(self, topic: str, t_ns: int, names: tuple[str, ...], accepted: dict[str, float],
               known: tuple[str, ...]) -> None:
         """Hold the newest values; report an answer that came after its tick was integrated
-        (``~/late_inputs``, docs/nodes.md "Late answers")."""
+        (``~/late_inputs``, docs/nodes.md "Late answers"); one older than the values held
+        (out of order, unstamped) is refused (``rejected_past``)."""
+        if t_ns < self.held_stamp.get(topic, t_ns):
+            if not self.future.back_on_clock(topic, self.held_stamp[topic], t_ns,
+                                             self.now_ns()):
+                self._refuse_past(topic, t_ns)
+                return                  # older than the values held: out of order
+            self._clear_ahead(topic)    # the stepped values waiting for their stamps
+            for text in self.future.take_report():
+                self.host.warning(text)
         if self.tick_msgs is not None and t_ns - self.stamp_offset_ns < self.k * self.ts_ns:
             self.counters['late_inputs'] += 1
             tick = (t_ns - self.stamp_offset_ns) // self.ts_ns * self.ts_ns
             used = self.integrated.get(tick, {})
             self.host.publish_late(t_ns, list(accepted),
                                    [used.get(n, math.nan) for n in accepted])
-        if t_ns < self.held_stamp.get(topic, t_ns):
-            if not self.future.back_on_clock(topic, self.held_stamp[topic], t_ns,
-                                             self.now_ns()):
-                return                  # older than the values held: out of order
-            self._clear_ahead(topic)    # the stepped values waiting for their stamps
-            for text in self.future.take_report():
-                self.host.warning(text)
         self.held_stamp[topic] = t_ns
         self._hold(topic, t_ns, accepted)
+
+    def _refuse_past(self, topic: str, t_ns: int) -> None:
+        """Count (``rejected_past``) and log, at most once per diagnostics period per topic
+        (``past_logged``), an input stamped before the values held: they stay."""
+        count = self.counters['rejected_past'] = self.counters.get('rejected_past', 0) + 1
+        if topic not in self.past_logged:
+            self.past_logged.add(topic)
+            what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {t_ns / 1e9:.13g} s'
+            fix = ("stamp it now (ros2 topic pub: '{header: auto, ...}')" if self.real_time
+                   else "stamp it with the plant's /clock time")
+            self.host.warning(f'{topic}: message {what} refused, older than the '
+                              f'{self.held_stamp[topic] / 1e9:.13g} s held: the values held '
+                              f'stay ({count} so far); {fix} (logged at most once per '
+                              'diagnostics period)')
 
     def _clear_ahead(self, topic: str) -> None:
         pass
