@@ -15,6 +15,7 @@ import numpy as np
 from rclpy.node import Node
 
 from tank_control.core import ranges
+from tank_control.core.interfaces import seconds
 from tank_control.core.stamps import FutureStamps
 from tank_control.nodes.messages import TOPIC_MEASUREMENT, parse_signal
 from tank_control.nodes.protocol.controller import ControllerClock
@@ -78,6 +79,18 @@ class ControllerInputs(Node):
             self._log_limited(f'{topic}/nonfinite', f'{topic}: non-finite value for '
                               f'{", ".join(map(repr, nonfinite))} '
                               f'({self.counters["nonfinite_values"]} so far)')
+
+    def refused_past(self, topic: str, t_ns: int, held_ns: int) -> None:
+        """A setpoint or disturbance stamped before the setpoint held (wall/sim) or the last
+        tick answered (lockstep) is not taken: counted (``rejected_past``), logged
+        rate-limited with what to do (the protocol's ``past_fix``); the last valid value is
+        kept."""
+        self.counters['rejected_past'] += 1
+        what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {seconds(t_ns):.13g} s'
+        self._log_limited(f'{topic}/past', f'{topic}: message {what} refused, older than '
+                          f'{self._protocol.past_held} ({seconds(held_ns):.13g} s): the last '
+                          f'valid value is kept ({self.counters["rejected_past"]} so far); '
+                          f'{self._protocol.past_fix}')
 
     def _log_limited(self, key: str, text: str) -> None:
         """Log ``text`` unless a reason of kind ``key`` was logged this diagnostics period."""

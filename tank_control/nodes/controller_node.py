@@ -262,25 +262,6 @@ class ControllerNode(ControllerParams):
         self.counters['late_setpoints'] += 1
         self._late_pub.publish(to_joint_state(t_ns, names, used))
 
-    def refused_past(self, topic: str, t_ns: int, held_ns: int) -> None:
-        """A setpoint or disturbance stamped before the setpoint held (wall/sim) or the last
-        tick answered (lockstep) is not taken: counted (``rejected_past``), logged
-        rate-limited; the last valid value is kept."""
-        self.counters['rejected_past'] += 1
-        what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {seconds(t_ns):.13g} s'
-        if self._protocol.mode == 'wall':
-            held, fix = ('the setpoint held', "stamp it now (ros2 topic pub: '{header: auto, "
-                         "...}')")
-        elif self._protocol.mode == 'sim':
-            held, fix = 'the setpoint held', 'stamp it with the loop\'s /clock time'
-        else:
-            held, fix = ('the tick already answered',
-                         'change the reference (its parameters) instead: lockstep inputs come '
-                         'from the reference_node')
-        self._log_limited(f'{topic}/past', f'{topic}: message {what} refused, older than {held} '
-                          f'({seconds(held_ns):.13g} s): the last valid value is kept '
-                          f'({self.counters["rejected_past"]} so far); {fix}')
-
     def new_session(self, t_ns: int, last_ns: int) -> None:
         """A plant that (re)started: its tick 0 after later ticks (lockstep), or a measurement
         stamped before the previous one (sim: /clock went back). The protocol dropped the old

@@ -354,15 +354,10 @@ class PlantNode(Node):
         self._protocol.past_logged.clear()
         status = DiagnosticStatus(name='plant', hardware_id=str(self.params.values.get('plant', '')))
         model = dict(self.plant.status)
-        problems = []
-        if self.counters['ignored_inputs']:
-            problems.append(f"{self.counters['ignored_inputs']} ignored inputs")
-        if self.counters['rejected_future']:
-            problems.append(f"{self.counters['rejected_future']} inputs stamped in the future "
-                            'refused')
-        if self.counters['rejected_past']:
-            problems.append(f"{self.counters['rejected_past']} inputs stamped in the past "
-                            'refused')
+        problems = [f'{self.counters[key]} {text}' for key, text in (
+            ('ignored_inputs', 'ignored inputs'),
+            ('rejected_future', 'inputs stamped in the future refused'),
+            ('rejected_past', 'inputs stamped in the past refused')) if self.counters[key]]
         if model.get('clipped_flows'):
             problems.append(f"{model['clipped_flows']} clipped flows")
         if model.get('overflow'):

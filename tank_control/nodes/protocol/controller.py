@@ -66,6 +66,10 @@ class ControllerClock:
     ticks = False            # stamps are plant ticks (lockstep): core/stamps tolerance
     sample_timer = True      # the node runs a timer of the sample time calling ``timer``
     real_time = False        # samples on the wall clock: costly work runs off the sampling path
+    # a setpoint/disturbance refused for its stamp (``refused_past``): older than what, and
+    # what the user does about it (the node's log line)
+    past_held = 'the setpoint held'
+    past_fix = "stamp it now (ros2 topic pub: '{header: auto, ...}')"
 
     def __init__(self, host: ControllerHost, ts_ns: int, outputs: tuple[str, ...],
                  disturbances: tuple[str, ...], future: FutureStamps) -> None:
@@ -120,6 +124,9 @@ class LockstepClock(ControllerClock):
 
     mode = 'lockstep'
     trigger = 'tick'         # /diagnostics: a sample is a plant tick's inputs complete
+    past_held = 'the tick already answered'
+    past_fix = ('change the reference (its parameters) instead: lockstep inputs come from the '
+                'reference_node')
     ticks = True
     sample_timer = False
 
@@ -368,6 +375,7 @@ class SimClock(_Latest):
     """sim: sample on a timer of the /clock time, stamped with the instant reached."""
 
     mode = 'sim'
+    past_fix = "stamp it with the loop's /clock time"
     _instant: int | None = None         # the latest timer call's instant [ns]
 
     def now_ns(self) -> int | None:
