@@ -48,3 +48,23 @@ def test_the_harness_does_not_import_the_demo() -> None:
                    for path in (ROOT / 'tank_control' / 'harness').rglob('*.py')
                    if 'tank_control.demo' in _imported_modules(path))
     assert not users, f'harness modules importing tank_control.demo: {users}'
+
+
+def test_node_classes_stay_thin_adapters() -> None:
+    """Each node file stays a thin adapter (parameters -> kind -> clock object -> publish):
+    at most 400 lines, and no branch on the clock mode — what differs between wall, sim and
+    lockstep lives in the clock protocol objects (tank_control/nodes/protocol/)."""
+    nodes = sorted((ROOT / 'tank_control' / 'nodes').glob('*_node.py'))
+    assert nodes
+    long = {p.name: n for p in nodes if (n := len(p.read_text().splitlines())) > 400}
+    assert not long, f'node files over 400 lines: {long}'
+    branches = []
+    for path in nodes:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                text = ast.unparse(node)
+                if 'mode' in ast.unparse(node.left) and any(
+                        isinstance(c, ast.Constant) and c.value in ('wall', 'sim', 'lockstep')
+                        for c in ast.walk(node)):
+                    branches.append(f'{path.name}:{node.lineno}: {text}')
+    assert not branches, 'clock-mode branches in node files:\n' + '\n'.join(branches)
