@@ -7,15 +7,20 @@ k1 = 0.05 1/s, To = 5 s, ts = 0.1 s, no noise) ``y_k+1 − y_k = k1·ts·u(t_k �
 input of each tick follows from the recorded response. For the ticks whose ``u`` answer was on
 time it must equal that answer; for the late ones (no answer recorded, or reported on
 ``/plant/late_inputs``) where ``u`` changed, the age j of the answer the plant used instead
-(j = 1: held a tick) is tallied. Ticks before the first answer are left out.
+(j = 1: held a tick) is tallied. Ticks before the first answer are left out. ``r_step_acts``
+is the number of ticks after the setpoint step (the trace's ``r`` by its stamp) at which ``u``
+first moved (0: at the step's own tick, as in lockstep); ``load`` the 1-min load average at
+the run's end.
 
 Usage: .venv/bin/python bench/sim_lateness.py [--rtf 2 5 20] [--runs 3] [--duration 60]
-       (set ROS_DOMAIN_ID to a domain nobody else uses)
+       [--keep DIR]   (set ROS_DOMAIN_ID to a domain nobody else uses; --keep: the runs'
+       directories are kept in DIR instead of a temporary directory)
 """
 from __future__ import annotations
 
 import argparse
 import collections
+import os
 import tempfile
 from pathlib import Path
 
@@ -63,7 +68,12 @@ def applied_inputs(out: Path) -> dict[str, object]:
             continue
         ages[next((j for j in range(1, 8) if k - j >= first
                    and abs(applied[k] - u[k - j]) < 1e-6), 'other')] += 1
-    return {'on_time': len(on_time), 'equal': int(equal), 'late_ages': dict(ages)}
+    r = trace.columns['r.y']
+    step = int(np.flatnonzero(np.diff(r))[0]) + 1 if np.any(np.diff(r)) else None
+    acts = (None if step is None else
+            next((k - step for k in range(step, n) if u[k] != u[k - 1]), None))
+    return {'on_time': len(on_time), 'equal': int(equal), 'late_ages': dict(ages),
+            'r_step_acts': acts}
 
 
 def one_run(out: Path, **settings: object) -> None:
@@ -72,7 +82,8 @@ def one_run(out: Path, **settings: object) -> None:
     steps = metrics['outputs']['y']['steps']
     overshoot = f"{steps[0]['overshoot_pct']:.3f}" if steps else '-'
     print(f"  overshoot {overshoot} %, IAE {metrics['outputs']['y']['iae']:.2f}, "
-          f"late {metrics['run']['late_by_signal']}, {applied_inputs(out)}", flush=True)
+          f"late {metrics['run']['late_by_signal']}, {applied_inputs(out)}, "
+          f"load {os.getloadavg()[0]:.2f}", flush=True)
 
 
 def main() -> None:
@@ -80,8 +91,11 @@ def main() -> None:
     parser.add_argument('--rtf', type=float, nargs='+', default=[2.0, 5.0, 20.0])
     parser.add_argument('--runs', type=int, default=3)
     parser.add_argument('--duration', type=float, default=60.0)
+    parser.add_argument('--keep', type=Path, default=None,
+                        help='keep the runs in this directory (default: a temporary one)')
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = scratch if args.keep is None else args.keep
         print('lockstep', flush=True)
         one_run(Path(tmp) / 'lockstep', duration=args.duration)
         for rtf in args.rtf:
