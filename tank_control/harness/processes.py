@@ -56,8 +56,9 @@ class ManagedProcess:
         return process_cpu_seconds(self.popen.pid)
 
     def tail(self, lines: int = 20) -> str:
-        """The last ``lines`` lines of the process's output."""
-        self._log.flush()
+        """The last ``lines`` lines of the process's output (also once it was stopped)."""
+        if not self._log.closed:
+            self._log.flush()
         text = self.log_path.read_text(errors='replace')
         return '\n'.join(text.splitlines()[-lines:])
 

@@ -275,6 +275,7 @@ class ControllerNode(ControllerParams):
     def on_name_conflict(self, problem: str) -> None:
         """``runtime.NameWatch``: another node of this name joined the graph."""
         self._abort_test(problem)
+        self._name_late_cause(problem)      # a test that failed just before: named as cause
 
     def _abort_test(self, cause: str) -> None:
         """A running auto-tune test ends (aborted, previous gains restored) with ``cause`` as

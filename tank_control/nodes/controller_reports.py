@@ -2,6 +2,7 @@
 its commands, the fail-safe output of a fault episode and the saturation watch (docs/nodes.md, "controller_node")."""
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -14,7 +15,11 @@ from tank_control.core.control.kinds.base import ControllerKind
 from tank_control.nodes.loop_performance import LoopPerformance
 from tank_control.nodes.controller_inputs import ControllerInputs
 from tank_control.nodes.params import ParameterBinding
-from tank_control.nodes.runtime import duplicate_name_problem
+from tank_control.nodes.runtime import NAME_CHECK_PERIOD, duplicate_name_problem
+
+#: a second controller of this name seen this long after a failed auto-tune test is named as
+#: its likely cause (its data can come before its name; the name watch looks every 2 s) [s]
+LATE_CAUSE_S = 3 * NAME_CHECK_PERIOD + 4.0
 
 #: consecutive samples with an input at its limit after which /diagnostics says WARN
 SATURATION_WARN_SAMPLES = 20
@@ -31,6 +36,7 @@ class ControllerReports(ControllerInputs):
     _gen: int
     _started: bool
     _causes: dict[str, str]
+    _failed_at: float | None = None     # time.monotonic() of the last auto-tune failure [s]
     _saturated_samples: int
     _state_pub: Any
     _diag_pub: Any
@@ -70,6 +76,20 @@ class ControllerReports(ControllerInputs):
         which = ', '.join(names) if names else ', '.join(self._inputs)
         return f'input(s) {which} at their limits for {self._saturated_samples} samples'
 
+    def _name_late_cause(self, problem: str) -> None:
+        """The name watch saw a second controller of this name only after a test had failed
+        (its messages came before its name reached this node's graph): a failure at most
+        :data:`LATE_CAUSE_S` before names it as the likely cause, as one seen in time does."""
+        state = self._kind.state
+        if (not state or '.' not in state or self._failed_at is None
+                or time.monotonic() - self._failed_at > LATE_CAUSE_S):
+            return
+        reason = self._params.values.get(state.rsplit('.', 1)[0] + '.reason')
+        if self._params.values.get(state) == 'failed' and reason and reason not in (
+                self._causes.values()):
+            self._causes = {str(reason): f'{reason} (likely cause: {problem})'}
+            self._write_results()
+
     def _write_results(self, cause: str = '') -> None:
         """Values the controller produced (kind.results) → parameters, when they changed
         (``cause``: the command that produced them, named on /parameter_audit)."""
@@ -85,6 +105,7 @@ class ControllerReports(ControllerInputs):
         if state is not None and changed.get(state) == 'failed' and changed.get(reason_key):
             # A test that failed beside a second controller of this name (another graph
             # joined before the name watch saw it): the failure names it as the likely cause.
+            self._failed_at = time.monotonic()
             problem = duplicate_name_problem(self)
             if problem:
                 reason = changed[reason_key]
