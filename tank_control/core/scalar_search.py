@@ -4,13 +4,14 @@ The frequency analysis (``core/analysis/frequency.py``: crossovers, Ms) runs in 
 controller node when it first reports its loop's margins, while the graph starts; importing
 ``scipy.optimize`` for it cost each controller process about 0.25 s of CPU (a quiet 2-core
 machine), more than the node's own imports. These two routines do that analysis's work in a
-few lines of numpy-free Python.
+few lines.
 
 * :func:`bracketed_root`: regula falsi with the Illinois modification [DowellJarratt1971]
   (the retained end's function value halved when the same end is kept twice, so both ends
   converge), with a bisection step whenever three steps did not halve the bracket: at most
   four evaluations per halving on any function, superlinear on smooth ones.
-* :func:`bounded_max`: golden-section search [Kiefer1953] on ``[lo, hi]``.
+* :func:`bounded_max`: the largest of a vectorised function's values on a grid, refined
+  around the best point until the bracket is ``xatol`` wide.
 
 Both stop on the bracket width, as ``scipy.optimize.brentq``/``minimize_scalar(method=
 'bounded')`` do on their tolerances, so a result equals scipy's to within those tolerances.
@@ -20,8 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-_INV_PHI = (math.sqrt(5.0) - 1.0) / 2.0     # 1/φ of the golden section
-
+import numpy as np
 
 def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float = 2e-12,
                    rtol: float = 8.9e-16, maxiter: int = 500) -> float:
@@ -72,22 +72,22 @@ def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float 
     return a if abs(fa) <= abs(fb) else b
 
 
-def bounded_max(f: Callable[[float], float], lo: float, hi: float, xatol: float = 1e-12
-                ) -> tuple[float, float]:
-    """``(x, f(x))`` of the largest value found on ``[lo, hi]`` by golden-section search,
-    narrowed until the bracket is at most ``xatol`` wide; for ``f`` unimodal on the interval
-    that is its maximum. [Kiefer1953]"""
+def bounded_max(f: Callable[[np.ndarray], np.ndarray], lo: float, hi: float,
+                xatol: float = 1e-12, points: int = 33) -> tuple[float, float]:
+    """``(x, f(x))`` of the largest value on ``[lo, hi]``: ``f`` (vectorised: an array of
+    abscissae in, one of values out) on ``points`` equally spaced points, then the same on
+    the two intervals beside the best one, until they are at most ``xatol`` wide (each round
+    narrows the bracket ``(points − 1)/2``-fold: about ten calls from 0.1 to 1e-12). For ``f``
+    unimodal on the interval that is its maximum; one vectorised call costs about what one
+    point does, so this needs a fifth of the time of a scalar search."""
     lo, hi = float(lo), float(hi)
-    c = hi - _INV_PHI * (hi - lo)
-    d = lo + _INV_PHI * (hi - lo)
-    fc, fd = float(f(c)), float(f(d))
-    while hi - lo > xatol:
-        if fc >= fd:                    # the maximum is in [lo, d]
-            hi, d, fd = d, c, fc
-            c = hi - _INV_PHI * (hi - lo)
-            fc = float(f(c))
-        else:                           # in [c, hi]
-            lo, c, fc = c, d, fd
-            d = lo + _INV_PHI * (hi - lo)
-            fd = float(f(d))
-    return (c, fc) if fc >= fd else (d, fd)
+    best_x, best = lo, -math.inf
+    while True:
+        x = np.linspace(lo, hi, points)
+        values = np.asarray(f(x), dtype=float)
+        i = int(np.argmax(values))
+        if values[i] > best:
+            best_x, best = float(x[i]), float(values[i])
+        if hi - lo <= xatol:
+            return best_x, best
+        lo, hi = float(x[max(i - 1, 0)]), float(x[min(i + 1, points - 1)])

@@ -9,6 +9,7 @@ import random
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from scipy.optimize import brentq, minimize_scalar
 
@@ -68,12 +69,12 @@ def test_the_maximum_equals_scipys_bounded_search():
         m, w = rng.uniform(-3.0, 3.0), rng.uniform(0.5, 3.0)
 
         def f(x, m=m, w=w):
-            return 1.0 / (1.0 + ((x - m) / w) ** 2) + 0.01 * math.sin(x)
+            return 1.0 / (1.0 + ((x - m) / w) ** 2) + 0.01 * np.sin(x)
         lo, hi = m - rng.uniform(0.1, 1.0), m + rng.uniform(0.1, 1.0)
         x, value = bounded_max(f, lo, hi, xatol=1e-12)
         theirs = minimize_scalar(lambda x: -f(x), bounds=(lo, hi), method='bounded',
                                  options={'xatol': 1e-12})
-        assert lo <= x <= hi and value == f(x)
+        assert lo <= x <= hi and value == f(np.asarray([x]))[0]
         assert value == pytest.approx(-theirs.fun, rel=1e-14)
 
 

@@ -699,8 +699,7 @@ def _peak(fn: Callable[[np.ndarray], np.ndarray], w: np.ndarray) -> tuple[float,
     if i in (0, w.size - 1):
         return float(mag[i]), float(w[i])
     lo, hi = math.log(w[i - 1]), math.log(w[i + 1])
-    x, peak = bounded_max(lambda x: float(abs(fn(np.asarray([math.exp(x)]))[0])), lo, hi,
-                          xatol=1e-12)
+    x, peak = bounded_max(lambda x: np.abs(fn(np.exp(x))), lo, hi, xatol=1e-12)
     if peak > mag[i]:
         return peak, math.exp(x)
     return float(mag[i]), float(w[i])
