@@ -23,6 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+
 def bracketed_root(f: Callable[[float], float], a: float, b: float, xtol: float = 2e-12,
                    rtol: float = 8.9e-16, maxiter: int = 500) -> float:
     """``x`` in ``[a, b]`` with ``f(x) = 0`` to within ``xtol + rtol·|x|`` (the root lies in
@@ -79,7 +80,7 @@ def bounded_max(f: Callable[[np.ndarray], np.ndarray], lo: float, hi: float,
     the two intervals beside the best one, until they are at most ``xatol`` wide (each round
     narrows the bracket ``(points − 1)/2``-fold: about ten calls from 0.1 to 1e-12). For ``f``
     unimodal on the interval that is its maximum; one vectorised call costs about what one
-    point does, so this needs a fifth of the time of a scalar search."""
+    point does, and a scalar golden-section search needs about 55 calls for the same width."""
     lo, hi = float(lo), float(hi)
     best_x, best = lo, -math.inf
     while True:
