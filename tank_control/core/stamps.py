@@ -170,3 +170,9 @@ class FutureStamps:
     def rearm_reports(self) -> None:
         """Report again (a node calls it once per diagnostics period: a rate-limited log)."""
         self._reported.clear()
+
+
+#: what a user does about an input refused as older than the one held (``rejected_past``):
+#: on the wall clock, stamp it now; on a simulated clock, with the loop's /clock time
+PAST_FIX_WALL = "stamp it now (ros2 topic pub: '{header: auto, ...}')"
+PAST_FIX_SIM = "stamp it with the loop's /clock time"

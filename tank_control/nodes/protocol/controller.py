@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from tank_control.core.stamps import FutureStamps, origin_refusal
+from tank_control.core.stamps import PAST_FIX_SIM, PAST_FIX_WALL, FutureStamps, origin_refusal
 from tank_control.nodes.clock import (Answers, Scheduled, StampedInbox, is_sample_instant,
                                       sim_sample_instant)
 
@@ -69,7 +69,7 @@ class ControllerClock:
     # a setpoint/disturbance refused for its stamp (``refused_past``): older than what, and
     # what the user does about it (the node's log line)
     past_held = 'the setpoint held'
-    past_fix = "stamp it now (ros2 topic pub: '{header: auto, ...}')"
+    past_fix = PAST_FIX_WALL
 
     def __init__(self, host: ControllerHost, ts_ns: int, outputs: tuple[str, ...],
                  disturbances: tuple[str, ...], future: FutureStamps) -> None:
@@ -375,7 +375,7 @@ class SimClock(_Latest):
     """sim: sample on a timer of the /clock time, stamped with the instant reached."""
 
     mode = 'sim'
-    past_fix = "stamp it with the loop's /clock time"
+    past_fix = PAST_FIX_SIM
     _instant: int | None = None         # the latest timer call's instant [ns]
 
     def now_ns(self) -> int | None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from tank_control.core.interfaces import seconds, to_ns
 from tank_control.core.loop import nominal_disturbances, nominal_inputs
-from tank_control.core.stamps import FutureStamps
+from tank_control.core.stamps import PAST_FIX_SIM, PAST_FIX_WALL, FutureStamps
 from tank_control.nodes.cdr import JointStateCdr, clock_cdr_ns
 from tank_control.nodes.clock import Scheduled, StampedInbox
 
@@ -505,8 +505,7 @@ class _Timed(PlantClock):
         if topic not in self.past_logged:
             self.past_logged.add(topic)
             what = 'unstamped (stamp 0)' if t_ns == 0 else f'stamped {t_ns / 1e9:.13g} s'
-            fix = ("stamp it now (ros2 topic pub: '{header: auto, ...}')" if self.real_time
-                   else "stamp it with the plant's /clock time")
+            fix = PAST_FIX_WALL if self.real_time else PAST_FIX_SIM
             self.host.warning(f'{topic}: message {what} refused, older than the '
                               f'{self.held_stamp[topic] / 1e9:.13g} s held: the values held '
                               f'stay ({count} so far); {fix} (logged at most once per '
