@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -31,12 +33,56 @@ SETTLE_LIMIT = 6.0         # [s] longest discovery wait of a listing
 DAEMON: Any = None
 
 
+#: [s] longest the end of a command's process may take once the command is done (its output
+#: written): rclpy's shutdown, the DDS participant's deletion, the interpreter's exit. Past it
+#: the process exits anyway, with the command's status and a note on stderr — a `topic echo
+#: --once` that printed its message must not hang in a middleware teardown that does not end.
+TEARDOWN_LIMIT = 10.0
+#: Set by the ``ros2`` command's entry point (``main.main``): only then does a command's end
+#: arm the guard (never in the daemon, nor in a program that calls the verbs itself).
+GUARD_TEARDOWN = False
+
 class CliError(Exception):
     """A user-facing failure: printed as one line on stderr, exit code 1."""
 
 
 class Interrupted(Exception):
     """SIGINT/SIGTERM shut rclpy down while waiting: a normal end, exit code 0."""
+
+
+def exit_status(ended: BaseException | None) -> int:
+    """The exit status of a command that returned (``ended`` None) or raised ``ended``: 0 for
+    a requested stop (Ctrl-C, SIGTERM, a reader that went away), 1 for a failure."""
+    if ended is None or isinstance(ended, (KeyboardInterrupt, Interrupted, BrokenPipeError)):
+        return 0
+    return 0 if type(ended).__name__ == 'ExternalShutdownException' else 1
+
+
+def failure_line(ended: BaseException | None) -> str | None:
+    """The one line on stderr for a command that raised ``ended`` (None: nothing to say)."""
+    if isinstance(ended, CliError):
+        return str(ended)
+    if not isinstance(ended, Exception) or not exit_status(ended):
+        return None
+    return f'{type(ended).__name__}: {ended}'.splitlines()[0]   # never a traceback
+
+
+def guard_teardown(ended: BaseException | None) -> None:
+    """From now on the process ends within :data:`TEARDOWN_LIMIT` s: should the teardown
+    still run then, a daemon thread flushes stdout, writes the command's failure line (if
+    any) and a note on stderr, and exits with the command's status."""
+    def watch() -> None:
+        time.sleep(TEARDOWN_LIMIT)
+        try:
+            sys.stdout.flush()
+        except Exception:   # noqa: BLE001 - a closed or broken stdout: nothing left to save
+            pass
+        line = failure_line(ended)
+        os.write(2, ((f'{line}\n' if line else '') + 'ros2: the middleware did not shut down '
+                     f'within {TEARDOWN_LIMIT:g} s; exiting without it\n').encode())
+        os._exit(exit_status(ended))
+
+    threading.Thread(target=watch, name='teardown-guard', daemon=True).start()
 
 
 def add_timeout_argument(parser: argparse.ArgumentParser,
@@ -73,17 +119,27 @@ def client_node() -> Iterator['Node']:
         finally:
             node.destroy_node()
         return
+    from rclpy.utilities import get_default_context
+
     rclpy.init(args=[])
     node = None
+    ended: BaseException | None = None
     try:
         node = rclpy.create_node(
             f'_ros2cli_{os.getpid()}', use_global_arguments=False, enable_rosout=False,
             start_parameter_services=False)
         yield node
+    except BaseException as exc:
+        ended = exc
+        raise
     finally:
+        if GUARD_TEARDOWN:
+            guard_teardown(ended)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        # the participant is deleted here, under the guard, not at the interpreter's exit
+        get_default_context().destroy()
 
 
 def spin_until(node: 'Node', condition: Callable[[], bool], timeout: float | None) -> bool:

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from tank_control import cli_examples
 from tank_control.ros2cli import daemon, node, param, run, service, topic
 from tank_control.ros2cli import common
-from tank_control.ros2cli.common import DEFAULT_TIMEOUT, CliError, Interrupted
+from tank_control.ros2cli.common import DEFAULT_TIMEOUT, CliError
 
 _COMMANDS = (run, param, topic, node, service, daemon)
 
@@ -77,27 +77,23 @@ def _answer_wait(args: argparse.Namespace) -> float:
 def _guarded(call) -> int:
     try:
         rc = call()
-    except CliError as exc:
-        print(str(exc), file=sys.stderr)
-        return 1
-    except (KeyboardInterrupt, Interrupted):
-        return 0
-    except BrokenPipeError:
+    except BrokenPipeError as exc:
         # the reader went away (`ros2 topic echo /measurement | head`): stop quietly, as cat
         # does; stdout goes to /dev/null so that the exit's flush raises nothing more
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
-    except Exception as exc:  # one line, never a traceback, for anything unforeseen
-        if type(exc).__name__ == 'ExternalShutdownException':
-            return 0
-        print(f'{type(exc).__name__}: {exc}'.splitlines()[0], file=sys.stderr)
-        return 1
+        return common.exit_status(exc)
+    except (Exception, KeyboardInterrupt) as exc:   # CliError, a requested stop, the unforeseen
+        line = common.failure_line(exc)
+        if line:
+            print(line, file=sys.stderr)
+        return common.exit_status(exc)
     return 0 if rc is None else rc
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     if real_ros2cli_available():
         return hand_over()
+    common.GUARD_TEARDOWN = True
     return run_cli(argv)
 
 
