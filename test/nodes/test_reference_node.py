@@ -70,11 +70,11 @@ def test_wall_mode_publishes_the_schedule_on_the_plant_time_base_and_applies_cha
     result = set_param(probe, 'setpoint.y.value', 7.5)
     assert result.successful, result.reason
     accepted_by = time.time_ns()       # the node had accepted the change before this instant
-    assert probe.wait_for(lambda: setpoints[-1][0] > accepted_by, 20)
     # The change is in force from the next published instant: every message published after
     # the acceptance carries it — each is published wall.lead (7 ms, default) before its
-    # stamp, so every one stamped more than that after the acceptance — and the value
-    # switches once, from 2.0 to 7.5.
+    # stamp, so every one stamped more than that after the acceptance (one stamped less than
+    # that after it may have gone out before it) — and the value switches once, 2.0 to 7.5.
+    assert probe.wait_for(lambda: setpoints[-1][0] - 7_000_000 > accepted_by, 20)
     assert all(v == (7.5,) for s, _, v in setpoints if s - 7_000_000 > accepted_by)
     values = [v[0] for _, _, v in setpoints]
     switch = values.index(7.5)
