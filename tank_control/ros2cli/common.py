@@ -33,14 +33,15 @@ SETTLE_LIMIT = 6.0         # [s] longest discovery wait of a listing
 DAEMON: Any = None
 
 
-#: [s] longest the end of a command's process may take once the command is done (its output
-#: written): rclpy's shutdown, the DDS participant's deletion, the interpreter's exit. Past it
-#: the process exits anyway, with the command's status and a note on stderr — a `topic echo
-#: --once` that printed its message must not hang in a middleware teardown that does not end.
+#: [s] longest the teardown of a done command (its output written) may take: rclpy's shutdown
+#: and the DDS participant's deletion, both in ``client_node``, not at the interpreter's exit.
+#: Past it the process exits anyway, with the command's status and a note on stderr — a `topic
+#: echo --once` that printed its message must not hang in a middleware teardown that does not end.
 TEARDOWN_LIMIT = 10.0
 #: Set by the ``ros2`` command's entry point (``main.main``): only then does a command's end
 #: arm the guard (never in the daemon, nor in a program that calls the verbs itself).
 GUARD_TEARDOWN = False
+
 
 class CliError(Exception):
     """A user-facing failure: printed as one line on stderr, exit code 1."""
