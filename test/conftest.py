@@ -25,6 +25,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -193,3 +194,16 @@ class Probe:
                 return False
             self.executor.spin_once(timeout_sec=min(0.1, remaining))
         return True
+
+    def read(self, send: Callable[[], Any], timeout: float = 30.0) -> Any:
+        """The result of a service request without effect (a read, an empty set, a command
+        refused without effect), ``send()`` again every 2 s without an answer: a response is
+        lost while the server has not matched the client's response reader, which happens
+        while discovery goes on (tank_control/nodes/services.py). AssertionError after
+        ``timeout`` s."""
+        futures = [send()]
+        deadline = time.monotonic() + timeout
+        while not self.wait_for(lambda: any(f.done() for f in futures), 2.0):
+            assert time.monotonic() < deadline, f'no answer in {timeout:g} s'
+            futures.append(send())
+        return next(f for f in futures if f.done()).result()

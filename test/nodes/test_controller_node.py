@@ -57,21 +57,11 @@ class Loop:
                 self.diag_message = status.message
                 self.diag_level = status.level
 
-    def read(self, send, timeout: float = 30.0):
-        """The result of a request without effect, ``send()`` again every 2 s without an
-        answer: a response can be lost while discovery goes on (nodes/services.py)."""
-        futures = [send()]
-        deadline = time.monotonic() + timeout
-        while not self.probe.wait_for(lambda: any(f.done() for f in futures), 2.0):
-            assert time.monotonic() < deadline, f'no answer in {timeout:g} s'
-            futures.append(send())
-        return next(f for f in futures if f.done()).result()
-
     def set(self, name: str, value):
         """A set, sent once, after an empty set (no effect) has had its answer: the node has
         matched this client's response reader (nodes/services.py)."""
         if not self.primed:
-            self.read(lambda: self.params.set_parameters([]))
+            self.probe.read(lambda: self.params.set_parameters([]))
             self.primed = True
         future = self.params.set_parameters([Parameter(name, value=value)])
         assert self.probe.wait_for(future.done, 30.0)
@@ -79,7 +69,7 @@ class Loop:
 
     def get(self, name: str):
         return Parameter.from_parameter_msg(
-            _named(name, self.read(lambda: self.params.get_parameters([name])).values[0])).value
+            _named(name, self.probe.read(lambda: self.params.get_parameters([name])).values[0])).value
 
     def tick(self, t_ns: int, y, r, resend_until: float = 30.0):
         """Lockstep tick: send measurement + setpoint stamped t_ns, return u stamped t_ns.
@@ -140,7 +130,7 @@ def test_lockstep_parameters_validation_bumpless_change_and_faults(procs, node_c
     loop = Loop(probe)
 
     # declared with descriptors: range, read-only, description
-    described = loop.read(lambda: loop.params.describe_parameters(['kp', 'controller']))
+    described = probe.read(lambda: loop.params.describe_parameters(['kp', 'controller']))
     kp_desc, ctrl_desc = described.descriptors
     assert kp_desc.floating_point_range and kp_desc.floating_point_range[0].from_value == 0.0
     assert 'gain' in kp_desc.description
