@@ -32,7 +32,7 @@ def test_implausible_measurements_and_setpoints_are_refused_and_counted(procs, n
            'diagnostics_period:=0.1', 'kp:=1.0', 'ti:=10.0', 'u_min:=-5.0', 'u_max:=5.0',
            'initial_output:=[-0.3]')
     loop = Loop(probe)
-    described = loop.read(lambda: loop.params.describe_parameters(['range.y'])).descriptors[0]
+    described = loop.probe.read(lambda: loop.params.describe_parameters(['range.y'])).descriptors[0]
     assert 'plausible range' in described.description
     assert list(loop.get('range.y')) == [-1e5, 1e5]
 
