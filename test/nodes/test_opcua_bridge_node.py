@@ -117,12 +117,12 @@ def response(values: list, n: int) -> list:
     return values[first:first + n]
 
 
-def within_one_sample(a: list, b: list, tol: float = 0.02) -> list[str]:
-    """Where ``a[i]`` is not within the values of ``b`` one sample before and after (± tol);
-    a sample missing on either side is not compared."""
+def within_samples(a: list, b: list, window: int = 1, tol: float = 0.02) -> list[str]:
+    """Where ``a[i]`` is not within the values of ``b`` from ``window`` samples before to
+    ``window`` after (± tol); a sample missing on either side is not compared."""
     bad = []
     for i, value in enumerate(a):
-        near = [v for v in b[max(0, i - 1):i + 2] if v is not None]
+        near = [v for v in b[max(0, i - window):i + window + 1] if v is not None]
         if value is None or not near:
             continue
         if not min(near) - tol <= value <= max(near) + tol:
@@ -130,11 +130,21 @@ def within_one_sample(a: list, b: list, tol: float = 0.02) -> list[str]:
     return bad
 
 
+def held_inputs(trace: list, n: int) -> int:
+    """Ticks of the server's step response (its first ``n`` after the level moved) that
+    integrated the same input as the tick before: the controller's new output had not come
+    through the OPC UA path within the tick (late), so the response lags one sample more."""
+    first = next(i for i, (_, _, y, _) in enumerate(trace) if abs(y) > 1e-9)
+    inputs = [u for _, _, _, u in trace[first - 1:first + n - 1]]
+    return sum(1 for u0, u1 in zip(inputs, inputs[1:]) if u1 == u0)
+
+
 def test_a_loop_closed_through_an_opc_ua_server_follows_the_same_loop_over_ros_topics(
         procs, node_cmd, ros_env, probe, tmp_path):
     """controller_node + opcua_bridge_node control a lag simulated inside an asyncua server:
     the step response equals that of the same loop with plant_node over ROS topics within one
-    sample of timing (each sample within its neighbours one sample before and after). Every
+    sample of timing (each sample within its neighbours one sample before and after), plus one
+    for each of the few samples the OPC UA path delivered late (seen under load). Every
     time SCALE times the other tests' (a sample of 0.25 s): the same discrete loop, and the
     hops of the OPC UA path (server, bridge, DDS, controller, DDS, bridge, server) stay well
     within a sample on a machine busy with two other loops (at 0.1 s they did not)."""
@@ -187,7 +197,11 @@ def test_a_loop_closed_through_an_opc_ua_server_follows_the_same_loop_over_ros_t
     opc_y = [y for _, _, y, _ in trace]
     a, b = response(opc_y, n), response(ros_y, n)
     assert len(a) == n and len(b) == n
-    assert within_one_sample(a, b) == [], (a, b)
+    # within one sample of timing, and one more for each sample the OPC UA path delivered
+    # late (a machine busy with other loops: the server integrated a held input), if few
+    late = held_inputs(trace, n)
+    assert late <= n // 10, (late, trace)
+    assert within_samples(a, b, 1 + late) == [], (late, a, b)
     assert abs(a[-1] - 1.0) < 0.05                # and it reached the setpoint
     assert sum(v is None for v in b) <= n // 5     # (the ROS loop's own missed samples)
     # the bridge stamped its measurements with the server's SourceTimestamps (OPC UA
