@@ -134,15 +134,16 @@ class RecordingStream:
         """Write the rows still held, close both files, return the table (with ``late``).
 
         A run that did not complete (``complete=False``) leaves out the row of its last
-        measurement: the answers to it may never have come (a lockstep plant publishes
-        tick k + 1 only after the answers to tick k), so only rows known whole are written.
+        measurement, and any row before it that the controller's answer did not reach: the
+        recorder may receive the plant's tick k + 1 before the controller's answer to tick k
+        (two publishers, two paths), so only rows known whole are written.
         """
         if self.trace is None:
             try:
                 if complete:
                     self.joiner.flush()
                 elif self.last_measurement is not None:
-                    self.joiner.advance(self.last_measurement)
+                    self.joiner.advance(self.last_measurement, answered=True)
             finally:
                 self.trace = self.outputs.close()
             self.trace.late = self.joiner.late

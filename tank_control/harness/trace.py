@@ -137,6 +137,7 @@ class TraceJoiner:
         self.due = {prefix: _Due(self.due_ns.get(prefix) or tick_ns or 1, prefix in held)
                     for prefix in _ANSWERS.values()}
         self.inputs: set[str] = set()              # channels of ``manipulated`` seen
+        self.latest_input: int | None = None       # the latest ``manipulated`` stamp [ns]
         self.written = 0
         self.written_until = -_NEVER               # rows end before this: every row is written
         self.after_written = 0
@@ -158,6 +159,8 @@ class TraceJoiner:
         stamp = msg.stamp_ns
         if msg.topic == 'manipulated':
             self.inputs.update(msg.names)
+            self.latest_input = max(stamp, self.latest_input if self.latest_input is not None
+                                    else stamp)
         if stamp < self.written_until:
             signal.seen = True
             if not signal.repeats(stamp, msg.names, msg.values):
@@ -186,10 +189,16 @@ class TraceJoiner:
         return t0 is None or stamp - t0 <= self.t_end_ns
 
     # -- output ------------------------------------------------------------------------------
-    def advance(self, horizon: float) -> None:
-        """Every message stamped before ``horizon`` [ns] is in: write the rows that end by then."""
+    def advance(self, horizon: float, answered: bool = False) -> None:
+        """Every message stamped before ``horizon`` [ns] is in: write the rows that end by then.
+
+        ``answered``: write only rows the controller answered (a ``manipulated`` message
+        stamped at or after the row came; one publisher's messages arrive in order) — for a
+        run that stopped before the answers to its last measurements came."""
         while self.rows:
             stamp = self.rows[0]
+            if answered and self.latest_input is not None and stamp > self.latest_input:
+                break
             after = self._next_row_after(stamp)
             end = stamp + self.tick_ns if self.tick_ns else stamp + 1
             if after is not None:

@@ -416,6 +416,19 @@ def test_an_incomplete_run_leaves_out_the_row_whose_answers_never_came(tmp_path)
     assert len(Trace.read_csv(tmp_path / 'run' / 'trace.csv')) == 10
 
 
+def test_an_incomplete_run_leaves_out_a_row_whose_answer_the_next_tick_overtook(tmp_path):
+    """The plant's tick 10 reached the recorder before the controller's answer to tick 9 (two
+    publishers, two paths), then the run stopped: row 9 is not written with tick 8's output."""
+    clock = [0.0]
+    stream, _ = _stream(tmp_path / 'run', 9, clock)
+    measurement, setpoint, _manipulated, disturbance = _lockstep_raw(9)
+    for raw in (measurement, setpoint, disturbance, _lockstep_raw(10)[0]):
+        stream.on_message(raw)
+    trace = stream.close(complete=False)
+    assert len(trace) == 9 and trace.t[-1] == pytest.approx(0.8, abs=1e-12)
+    assert list(trace.columns['u.u']) == [2.0 - k for k in range(9)]
+
+
 # ------------------------------------------------------------------- a hard kill, then recover
 RECOVER = [sys.executable, '-m', 'tank_control.harness.cli', 'recover']
 
