@@ -46,12 +46,15 @@ demo: $(STAMP)
 # One worker more than cores (pytest-xdist), a test file to one worker: the DDS tests spend much
 # of their time waiting on the graph and the wall clock (3 workers on the 2-core CI machine:
 # 10 min 40 s against 12 min with 2, bench/RESULTS.md "Test suite"; every session, so every
-# worker, claims a ROS_DOMAIN_ID of its own). TEST_WORKERS=0 runs in one process.
+# worker, claims a ROS_DOMAIN_ID of its own). TEST_WORKERS=0 runs in one process. The longest
+# files go first (test/conftest.py, test/durations.json), so that the workers finish together;
+# `make test PYTEST_ARGS=--record-durations` times them anew.
 TEST_WORKERS ?= $(shell echo $$(( $$(nproc 2>/dev/null || echo 1) + 1 )))
 
 test: $(STAMP) browser
 	@$(COMPILE)
-	$(PYTEST_CACHE) $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=40 test
+	$(PYTEST_CACHE) $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder \
+		--durations=40 $(PYTEST_ARGS) test
 
 # The edit loop: the tests that need no ROS graph (test/conftest.py, --no-graph) and are not
 # marked slow; `make test` still runs everything.

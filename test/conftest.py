@@ -16,10 +16,15 @@
   ``pytest.mark.ros``; the others run with DDS switched off (an out-of-range
   ``ROS_DOMAIN_ID`` for child processes, ``rclpy.init`` failing in this one), so an
   unmarked test that does need the graph fails with a message saying to mark it.
+* Test files run longest first (``FILE_SECONDS``, ``test/durations.json``; pytest-xdist takes
+  them in that order with ``--no-loadscope-reorder``): the last files a worker takes are short,
+  so the workers finish together. ``--record-durations`` rewrites the table from a run.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
+import json
 import os
 import sys
 import time
@@ -36,6 +41,11 @@ REPO = Path(__file__).resolve().parents[1]
 #: Fixtures that put a test on the ROS graph (it is then marked ``ros``).
 GRAPH_FIXTURES = frozenset({'procs', 'probe', 'module_probe', 'rclpy_session', 'ros_env',
                             'node_cmd'})
+#: Wall seconds each test file took in a full run (``--record-durations``), to run the long
+#: ones first; a file not in it is estimated from its tests (``ESTIMATE_S``).
+FILE_SECONDS = Path(__file__).with_name('durations.json')
+#: Estimated seconds of a test on the graph and of one without, for a file not yet timed.
+ESTIMATE_S = {'ros': 4.0, 'other': 0.2}
 #: A domain id no participant can use (Fast DDS refuses ids above 232).
 NO_GRAPH_DOMAIN = '250'
 _DOMAIN_LOCK: object = None   # held for the session's lifetime
@@ -57,6 +67,8 @@ os.environ.update(domains.start_profile_env(os.environ))
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption('--no-graph', action='store_true',
                      help='run only the tests that need no ROS graph (make test-fast)')
+    parser.addoption('--record-durations', action='store_true',
+                     help=f'write each test file\'s wall seconds to {FILE_SECONDS.name}')
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -90,6 +102,45 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         keep = [i for i in items if i.get_closest_marker('ros') is None]
         config.hook.pytest_deselected(items=[i for i in items if i not in keep])
         items[:] = keep
+    items.sort(key=_longest_first(items))        # stable: a file's tests keep their order
+
+
+def _file_of(nodeid: str) -> str:
+    return nodeid.split('::', 1)[0]
+
+
+def _longest_first(items: list[pytest.Item]) -> Callable[[pytest.Item], tuple[float, str]]:
+    """Sort key: files by their recorded seconds, longest first (then by name)."""
+    try:
+        recorded = json.loads(FILE_SECONDS.read_text())
+    except (OSError, ValueError):
+        recorded = {}
+    estimate: collections.Counter[str] = collections.Counter()
+    for item in items:
+        kind = 'ros' if item.get_closest_marker('ros') else 'other'
+        estimate[_file_of(item.nodeid)] += ESTIMATE_S[kind]
+
+    def key(item: pytest.Item) -> tuple[float, str]:
+        name = _file_of(item.nodeid)
+        seconds = recorded.get(name)
+        return (-(seconds if isinstance(seconds, (int, float)) else estimate[name]), name)
+    return key
+
+
+_FILE_TIMES: collections.Counter[str] = collections.Counter()
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """(``--record-durations``) each phase's wall seconds, by file; with pytest-xdist the
+    controller receives every worker's reports."""
+    _FILE_TIMES[_file_of(report.nodeid)] += report.duration
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if (session.config.getoption('--record-durations') and _FILE_TIMES
+            and not hasattr(session.config, 'workerinput')):
+        table = {name: round(seconds, 1) for name, seconds in sorted(_FILE_TIMES.items())}
+        FILE_SECONDS.write_text(json.dumps(table, indent=0) + '\n')
 
 
 @pytest.fixture(scope='session', autouse=True)
