@@ -51,20 +51,43 @@ def waiter(driver) -> WebDriverWait:
     return WebDriverWait(driver, WAIT, ignored_exceptions=(StaleElementReferenceException,))
 
 
-def rect(driver, element) -> dict:
+#: The parts of the page that must fit a laptop screen: (what, selector of the part within the
+#: first element of the scope, scope); every SP, PV and OP of the faceplate, one of the others.
+PARTS = (('sp', '[data-testid="sp"]', FACEPLATE), ('pv', '[data-testid="pv"]', FACEPLATE),
+         ('op', '[data-testid="op"]', FACEPLATE), ('mode', '[data-testid="mode"]', FACEPLATE),
+         ('auto-tuning controls', '[data-testid="autotune-/controller"]', 'body'),
+         ('the first trend', '#trends .chart', 'body'), ('zoom/pan controls', '#live', 'body'))
+
+
+def layout(driver) -> dict:
+    """The window, its scroll and the rectangle of each of ``PARTS``, read in one script: the
+    page draws a faceplate anew when the node's values change, so elements found by one call
+    may be gone at the next."""
     return driver.execute_script(
-        'const r = arguments[0].getBoundingClientRect();'
-        'return {left: r.left, top: r.top, right: r.right, bottom: r.bottom,'
-        ' width: innerWidth, height: innerHeight, scrollY: scrollY};', element)
+        'const box = (e) => { const r = e.getBoundingClientRect();'
+        ' return {left: r.left, top: r.top, right: r.right, bottom: r.bottom}; };'
+        'const parts = [];'
+        'for (const [what, selector, scope] of arguments[0]) {'
+        ' const within = document.querySelector(scope);'
+        ' const found = within ? [...within.querySelectorAll(selector)] : [];'
+        ' if (what === "sp" || what === "pv" || what === "op") found.forEach('
+        '   (e) => parts.push([what, box(e)]));'
+        ' else parts.push([what, found.length ? box(found[0]) : null]); }'
+        'return {width: innerWidth, height: innerHeight, scrollY: scrollY, parts: parts};',
+        [list(part) for part in PARTS])
 
 
-def assert_in_view(driver, element, what: str) -> None:
-    """``element`` lies wholly inside the window, with the page not scrolled."""
-    r = rect(driver, element)
-    assert r['scrollY'] == 0, what
-    assert r['right'] > r['left'] and r['bottom'] > r['top'], (what, r)
-    assert 0 <= r['left'] and r['right'] <= r['width'], (what, r)
-    assert 0 <= r['top'] and r['bottom'] <= r['height'], (what, r)
+def assert_in_view(driver) -> None:
+    """Every part of ``PARTS`` lies wholly inside the window, with the page not scrolled."""
+    page = layout(driver)
+    assert page['scrollY'] == 0, page
+    for part in ('sp', 'pv', 'op'):
+        assert any(what == part for what, _ in page['parts']), (part, page)
+    for what, r in page['parts']:
+        assert r is not None, (what, 'not on the page')
+        assert r['right'] > r['left'] and r['bottom'] > r['top'], (what, r)
+        assert 0 <= r['left'] and r['right'] <= page['width'], (what, r, page['width'])
+        assert 0 <= r['top'] and r['bottom'] <= page['height'], (what, r, page['height'])
 
 
 def controller_param(probe, name):
@@ -96,18 +119,7 @@ def check_layout(driver, loops: int, tmp_path: Path, name: str) -> None:
                              for v in faceplate_values(d).values()))
     wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, '.chart .u-over'))
     driver.save_screenshot(str(tmp_path / f'faceplate-{name}.png'))
-    faceplate = driver.find_element(By.CSS_SELECTOR, FACEPLATE)
-    for part in ('sp', 'pv', 'op'):
-        for element in faceplate.find_elements(By.CSS_SELECTOR, f'[data-testid="{part}"]'):
-            assert_in_view(driver, element, part)
-    assert_in_view(driver, faceplate.find_element(By.CSS_SELECTOR, '[data-testid="mode"]'),
-                   'mode')
-    assert_in_view(driver, driver.find_element(By.CSS_SELECTOR,
-                                               '[data-testid="autotune-/controller"]'),
-                   'auto-tuning controls')
-    first_trend = driver.find_element(By.CSS_SELECTOR, '#trends .chart')
-    assert_in_view(driver, first_trend, 'the first trend')
-    assert_in_view(driver, driver.find_element(By.ID, 'live'), 'zoom/pan controls')
+    assert_in_view(driver)
 
 
 def test_ipdt_pid_faceplate_trend_and_tuning_fit_a_laptop_screen(procs, ros_env, node_cmd,
