@@ -236,6 +236,7 @@ class Probe:
     def __init__(self, node, executor) -> None:
         self.node = node
         self.executor = executor
+        self._primed: list[Any] = []          # parameter clients whose empty set was answered
 
     def wait_for(self, condition: Callable[[], bool], timeout: float = 10.0) -> bool:
         deadline = time.monotonic() + timeout
@@ -258,3 +259,16 @@ class Probe:
             assert time.monotonic() < deadline, f'no answer in {timeout:g} s'
             futures.append(send())
         return next(f for f in futures if f.done()).result()
+
+    def set_once(self, client: Any, name: str, value: Any, timeout: float = 30.0) -> Any:
+        """The result of setting parameter ``name`` through ``client`` (an
+        ``AsyncParameterClient``), sent once — a set has an effect — after an empty set on the
+        same client had its answer (``read``): the node has then matched the client's response
+        reader, so the response cannot be lost (tank_control/nodes/services.py)."""
+        from rclpy.parameter import Parameter
+        if client not in self._primed:
+            self.read(lambda: client.set_parameters([]))
+            self._primed.append(client)
+        future = client.set_parameters([Parameter(name, value=value)])
+        assert self.wait_for(future.done, timeout), f'no answer to setting {name} in {timeout:g} s'
+        return future.result().results[0]

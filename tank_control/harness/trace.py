@@ -159,8 +159,8 @@ class TraceJoiner:
         stamp = msg.stamp_ns
         if msg.topic == 'manipulated':
             self.inputs.update(msg.names)
-            self.latest_input = max(stamp, self.latest_input if self.latest_input is not None
-                                    else stamp)
+            if self.latest_input is None or stamp > self.latest_input:
+                self.latest_input = stamp
         if stamp < self.written_until:
             signal.seen = True
             if not signal.repeats(stamp, msg.names, msg.values):

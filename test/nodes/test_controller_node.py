@@ -45,7 +45,6 @@ class Loop:
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, 10)
         self.params = AsyncParameterClient(node, 'controller')
         assert self.params.wait_for_services(timeout_sec=30.0), 'controller parameters not up'
-        self.primed = False
 
     def _on_u(self, msg: JointState) -> None:
         self.answers.append((stamp_to_ns(msg.header.stamp), list(msg.name), list(msg.position)))
@@ -58,14 +57,7 @@ class Loop:
                 self.diag_level = status.level
 
     def set(self, name: str, value):
-        """A set, sent once, after an empty set (no effect) has had its answer: the node has
-        matched this client's response reader (nodes/services.py)."""
-        if not self.primed:
-            self.probe.read(lambda: self.params.set_parameters([]))
-            self.primed = True
-        future = self.params.set_parameters([Parameter(name, value=value)])
-        assert self.probe.wait_for(future.done, 30.0)
-        return future.result().results[0]
+        return self.probe.set_once(self.params, name, value)
 
     def get(self, name: str):
         return Parameter.from_parameter_msg(

@@ -101,7 +101,6 @@ class Graph:
                               and all(gate.publisher_count(t) for t in self.signals.by_topic)
                               and gate.subscriber_count(GATED_DISTURBANCE), 30), self.logs()
         self.controller = AsyncParameterClient(node, 'controller')
-        self.primed: list[AsyncParameterClient] = []
         self.plant = AsyncParameterClient(node, 'plant')
         self.start = node.create_client(Trigger, '/controller/start_autotune')
         self.abort = node.create_client(Trigger, '/controller/abort_autotune')
@@ -149,12 +148,7 @@ class Graph:
         return {n: Parameter.from_parameter_msg(_msg(n, v)).value for n, v in zip(names, values)}
 
     def set_result(self, client: AsyncParameterClient, name: str, value):
-        """The result of setting ``name``, sent once after an empty set on the same client had
-        its answer (so that its response cannot be lost: nodes/services.py)."""
-        if client not in self.primed:
-            self.probe.read(lambda: client.set_parameters([]))
-            self.primed.append(client)
-        return self.result(client.set_parameters([Parameter(name, value=value)])).results[0]
+        return self.probe.set_once(client, name, value, timeout=10.0)
 
     def set(self, client: AsyncParameterClient, **values) -> None:
         for name, value in values.items():
